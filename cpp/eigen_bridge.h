@@ -1,0 +1,6 @@
+#pragma once
+#include "rust/cxx.h"
+
+namespace subdfit::eigen {
+rust::String library_version();
+}

@@ -1,0 +1,8 @@
+#[cxx::bridge(namespace = "subdfit::osd")]
+pub(crate) mod bridge {
+    unsafe extern "C++" {
+        include!("subdfit/cpp/osd_bridge.h");
+        /// Version string of the wrapped library (smoke test of the bridge).
+        fn library_version() -> Result<String>;
+    }
+}

@@ -1,0 +1,12 @@
+//! Meshes: the polygon soup a reader produces ([`PolySoup`]), its validation
+//! report ([`MeshReport`]), the triangle mesh the pipeline analyses
+//! ([`TriMesh`]) and the control mesh that owns its connectivity
+//! ([`ControlMesh`]).
+
+mod control;
+mod report;
+mod soup;
+
+pub use control::{ControlMesh, EdgeId, FaceId, HalfedgeId, VertexId, INFINITELY_SHARP};
+pub use report::{validate_soup, MeshReport, ValidatedMesh};
+pub use soup::{PolySoup, TriMesh};

@@ -1,0 +1,96 @@
+use crate::DVec3;
+
+/// Polygons exactly as a reader found them: positions and faces of any size,
+/// indices into `positions`, nothing validated yet.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PolySoup {
+    pub positions: Vec<DVec3>,
+    /// `face_offsets[f]..face_offsets[f + 1]` indexes `face_indices`; its
+    /// length is `num_faces() + 1` and it starts with 0.
+    pub face_offsets: Vec<u32>,
+    pub face_indices: Vec<u32>,
+}
+
+impl PolySoup {
+    pub fn new() -> Self {
+        PolySoup {
+            positions: Vec::new(),
+            face_offsets: vec![0],
+            face_indices: Vec::new(),
+        }
+    }
+
+    pub fn from_faces<F: AsRef<[u32]>>(positions: Vec<DVec3>, faces: &[F]) -> Self {
+        let mut s = PolySoup {
+            positions,
+            ..PolySoup::new()
+        };
+        for f in faces {
+            s.push_face(f.as_ref());
+        }
+        s
+    }
+
+    pub fn push_face(&mut self, idx: &[u32]) {
+        if self.face_offsets.is_empty() {
+            self.face_offsets.push(0);
+        }
+        self.face_indices.extend_from_slice(idx);
+        self.face_offsets.push(self.face_indices.len() as u32);
+    }
+
+    pub fn num_faces(&self) -> usize {
+        self.face_offsets.len().saturating_sub(1)
+    }
+
+    pub fn face(&self, f: usize) -> &[u32] {
+        &self.face_indices[self.face_offsets[f] as usize..self.face_offsets[f + 1] as usize]
+    }
+
+    pub fn faces(&self) -> impl Iterator<Item = &[u32]> + '_ {
+        (0..self.num_faces()).map(move |f| self.face(f))
+    }
+
+    /// Face sizes, OpenSubdiv-descriptor style.
+    pub fn face_sizes(&self) -> Vec<u32> {
+        self.face_offsets.windows(2).map(|w| w[1] - w[0]).collect()
+    }
+}
+
+/// A triangle mesh (the input M of the papers), positions in double precision.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TriMesh {
+    pub positions: Vec<DVec3>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl TriMesh {
+    pub fn bbox(&self) -> (DVec3, DVec3) {
+        bbox(&self.positions)
+    }
+
+    /// Length of the bounding-box diagonal: the unit of every relative error.
+    pub fn bbox_diagonal(&self) -> f64 {
+        let (lo, hi) = self.bbox();
+        (hi - lo).length()
+    }
+
+    pub fn triangle(&self, t: usize) -> [DVec3; 3] {
+        let [a, b, c] = self.triangles[t];
+        [
+            self.positions[a as usize],
+            self.positions[b as usize],
+            self.positions[c as usize],
+        ]
+    }
+}
+
+pub(crate) fn bbox(p: &[DVec3]) -> (DVec3, DVec3) {
+    if p.is_empty() {
+        return (DVec3::ZERO, DVec3::ZERO);
+    }
+    p.iter().fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), &q| (lo.min(q), hi.max(q)),
+    )
+}

@@ -1,0 +1,1 @@
+//! Sparse linear least squares through Eigen.
