@@ -1,9 +1,127 @@
+// Sparse linear least squares with Eigen, for the global fit (Fitmaps §3.5)
+// and the local refits of the simplification (§3.4).
 #include "subdfit/cpp/eigen_bridge.h"
+
 #include <Eigen/Core>
+#include <Eigen/OrderingMethods>
+#include <Eigen/SparseCholesky>
+#include <Eigen/SparseCore>
+#include <Eigen/SparseQR>
+
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
 #include <string>
+#include <vector>
+
 namespace subdfit::eigen {
+
 rust::String library_version() {
   return rust::String(std::to_string(EIGEN_WORLD_VERSION) + "." + std::to_string(EIGEN_MAJOR_VERSION) + "." +
                       std::to_string(EIGEN_MINOR_VERSION));
 }
+
+namespace {
+using SpMat = Eigen::SparseMatrix<double, Eigen::ColMajor, int>;
+
+SpMat from_triplets(const char* name, std::size_t rows, std::size_t cols, rust::Slice<const uint32_t> r,
+                    rust::Slice<const uint32_t> c, rust::Slice<const double> v) {
+  if (r.size() != c.size() || r.size() != v.size()) {
+    throw std::runtime_error(std::string(name) + ": triplet arrays differ in length");
+  }
+  std::vector<Eigen::Triplet<double, int>> t;
+  t.reserve(v.size());
+  for (std::size_t k = 0; k < v.size(); ++k) {
+    if (r[k] >= rows || c[k] >= cols) {
+      std::ostringstream s;
+      s << name << ": entry " << k << " at (" << r[k] << ", " << c[k] << ") outside " << rows << " x " << cols;
+      throw std::runtime_error(s.str());
+    }
+    if (!std::isfinite(v[k])) {
+      std::ostringstream s;
+      s << name << ": entry " << k << " at (" << r[k] << ", " << c[k] << ") is not finite";
+      throw std::runtime_error(s.str());
+    }
+    t.emplace_back(int(r[k]), int(c[k]), v[k]);
+  }
+  SpMat m{Eigen::Index(rows), Eigen::Index(cols)};
+  m.setFromTriplets(t.begin(), t.end());  // duplicates are summed
+  return m;
 }
+}  // namespace
+
+rust::Vec<double> sparse_least_squares(std::size_t rows_a, std::size_t cols, rust::Slice<const uint32_t> a_rows,
+                                       rust::Slice<const uint32_t> a_cols, rust::Slice<const double> a_vals,
+                                       std::size_t rows_r, rust::Slice<const uint32_t> r_rows,
+                                       rust::Slice<const uint32_t> r_cols, rust::Slice<const double> r_vals,
+                                       double lambda, rust::Slice<const double> b, std::size_t nrhs, uint32_t method,
+                                       double rank_tolerance) {
+  if (cols == 0) throw std::runtime_error("no unknowns");
+  if (b.size() != rows_a * nrhs) throw std::runtime_error("right-hand side has the wrong length");
+  SpMat A = from_triplets("A", rows_a, cols, a_rows, a_cols, a_vals);
+  SpMat R = from_triplets("R", rows_r, cols, r_rows, r_cols, r_vals);
+  Eigen::Map<const Eigen::MatrixXd> B(b.data(), Eigen::Index(rows_a), Eigen::Index(nrhs));
+  Eigen::MatrixXd X(cols, nrhs);
+
+  if (method == 0) {
+    // Normal equations: fast, and the fitting systems are well conditioned
+    // once the fairness term is in; a pivot check catches rank deficiency.
+    SpMat N = SpMat(A.transpose() * A);
+    if (lambda != 0.0 && rows_r > 0) N += lambda * SpMat(R.transpose() * R);
+    Eigen::MatrixXd rhs = A.transpose() * B;
+    Eigen::SimplicialLDLT<SpMat> ldlt;
+    ldlt.compute(N);
+    if (ldlt.info() != Eigen::Success) throw std::runtime_error("rank deficient: LDL^T factorisation failed");
+    const Eigen::VectorXd d = ldlt.vectorD();
+    const double dmax = d.cwiseAbs().maxCoeff();
+    for (Eigen::Index i = 0; i < d.size(); ++i) {
+      if (!(d[i] > rank_tolerance * dmax)) {
+        // vectorD is in the permuted order; report the original unknown.
+        const int col = ldlt.permutationPinv().indices()[i];
+        std::ostringstream s;
+        s << "rank deficient: unknown " << col << " is not determined (pivot " << d[i] << ", largest " << dmax
+          << ")";
+        throw std::runtime_error(s.str());
+      }
+    }
+    X = ldlt.solve(rhs);
+    if (ldlt.info() != Eigen::Success) throw std::runtime_error("LDL^T solve failed");
+  } else {
+    // QR of the stacked system [A; sqrt(lambda) R]: slower, but avoids
+    // squaring the condition number.
+    SpMat S(int(rows_a + (lambda != 0.0 ? rows_r : 0)), int(cols));
+    std::vector<Eigen::Triplet<double, int>> t;
+    for (int k = 0; k < A.outerSize(); ++k)
+      for (SpMat::InnerIterator it(A, k); it; ++it) t.emplace_back(int(it.row()), int(it.col()), it.value());
+    if (lambda != 0.0) {
+      const double s = std::sqrt(lambda);
+      for (int k = 0; k < R.outerSize(); ++k)
+        for (SpMat::InnerIterator it(R, k); it; ++it)
+          t.emplace_back(int(rows_a + it.row()), int(it.col()), s * it.value());
+    }
+    S.setFromTriplets(t.begin(), t.end());
+    S.makeCompressed();
+    Eigen::MatrixXd Bs = Eigen::MatrixXd::Zero(S.rows(), Eigen::Index(nrhs));
+    Bs.topRows(Eigen::Index(rows_a)) = B;
+    Eigen::SparseQR<SpMat, Eigen::COLAMDOrdering<int>> qr;
+    qr.setPivotThreshold(rank_tolerance);
+    qr.compute(S);
+    if (qr.info() != Eigen::Success) throw std::runtime_error("sparse QR factorisation failed: " + qr.lastErrorMessage());
+    if (qr.rank() < Eigen::Index(cols)) {
+      std::ostringstream s;
+      s << "rank deficient: rank " << qr.rank() << " < " << cols << " unknowns";
+      throw std::runtime_error(s.str());
+    }
+    X = qr.solve(Bs);
+    if (qr.info() != Eigen::Success) throw std::runtime_error("sparse QR solve failed");
+  }
+  rust::Vec<double> out;
+  out.reserve(X.size());
+  for (Eigen::Index j = 0; j < X.cols(); ++j)
+    for (Eigen::Index i = 0; i < X.rows(); ++i) out.push_back(X(i, j));
+  for (double x : out)
+    if (!std::isfinite(x)) throw std::runtime_error("solution is not finite (ill-conditioned system)");
+  return out;
+}
+
+}  // namespace subdfit::eigen

@@ -4,5 +4,24 @@ pub(crate) mod bridge {
         include!("subdfit/cpp/eigen_bridge.h");
         /// Version string of the wrapped library (smoke test of the bridge).
         fn library_version() -> Result<String>;
+
+        /// See `cpp/eigen_bridge.h`.
+        #[allow(clippy::too_many_arguments)]
+        fn sparse_least_squares(
+            rows_a: usize,
+            cols: usize,
+            a_rows: &[u32],
+            a_cols: &[u32],
+            a_vals: &[f64],
+            rows_r: usize,
+            r_rows: &[u32],
+            r_cols: &[u32],
+            r_vals: &[f64],
+            lambda: f64,
+            b: &[f64],
+            nrhs: usize,
+            method: u32,
+            rank_tolerance: f64,
+        ) -> Result<Vec<f64>>;
     }
 }
