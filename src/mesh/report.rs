@@ -27,3 +27,9 @@ pub fn validate_soup(_soup: PolySoup, _path: &Path) -> Result<ValidatedMesh> {
         "validate_soup: not implemented yet".into(),
     ))
 }
+
+impl std::fmt::Display for MeshReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(f, "vertices {}\nfaces {}", self.vertices, self.faces)
+    }
+}

@@ -15,6 +15,7 @@
 //!   comparable between backends); only the unit normal is.
 
 pub mod catmark;
+pub mod diff;
 pub mod osd;
 
 use serde::Serialize;

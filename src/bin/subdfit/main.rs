@@ -1,4 +1,10 @@
-//! The `subdfit` command line.
+//! The `subdfit` command line. Exit status: 0 success, 1 a check failed
+//! (e.g. `diff-limit` above tolerance), 2 an error (bad input, I/O, ...).
+
+mod limit;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -7,7 +13,10 @@ use clap::{Parser, Subcommand};
 #[command(
     name = "subdfit",
     version,
-    about = "Dense triangle mesh to adaptive Catmull-Clark subdivision surface"
+    about = "Dense triangle mesh to adaptive Catmull-Clark subdivision surface",
+    long_about = "Dense triangle mesh to adaptive Catmull-Clark subdivision surface.\n\n\
+                  Exit status: 0 on success, 1 when a check fails (diff-limit above tolerance), \
+                  2 on an error (unreadable or invalid input, I/O failure)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -16,19 +25,51 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Print the versions of the linked C++ libraries.
+    /// Read a mesh (OBJ, PLY, OFF, STL), validate it and print a report.
+    Info {
+        mesh: PathBuf,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Evaluate the Catmull-Clark limit surface of a control mesh to CSV.
+    Limit(limit::LimitArgs),
+    /// Compare the OpenSubdiv and pure-Rust limit evaluators on a control mesh.
+    DiffLimit(limit::DiffArgs),
+    /// Print the versions of subdfit and the linked C++ libraries.
     Version,
 }
 
-fn main() -> Result<()> {
-    let cli = Cli::parse();
+fn run(cli: Cli) -> Result<ExitCode> {
     match cli.command {
+        Command::Info { mesh, json } => {
+            let m = subdfit::io::read_mesh(&mesh)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&m.report)?);
+            } else {
+                print!("{}", m.report);
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Limit(a) => limit::limit(a),
+        Command::DiffLimit(a) => limit::diff_limit(a),
         Command::Version => {
             println!("subdfit {}", env!("CARGO_PKG_VERSION"));
             for (name, v) in subdfit::linked_library_versions() {
                 println!("{name} {v}");
             }
+            Ok(ExitCode::SUCCESS)
         }
     }
-    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("subdfit: error: {e:#}");
+            ExitCode::from(2)
+        }
+    }
 }

@@ -1,0 +1,229 @@
+//! `subdfit limit` and `subdfit diff-limit`: differential testing of
+//! Catmull-Clark limit evaluation as a user feature.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::{bail, Context, Result};
+use clap::{Args, ValueEnum};
+use subdfit::mesh::FaceId;
+use subdfit::subdiv::{diff, make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum BackendArg {
+    /// OpenSubdiv 3.5 (Far), feature-adaptive patches.
+    Osd,
+    /// The pure-Rust exact evaluator.
+    Rust,
+}
+
+impl From<BackendArg> for Backend {
+    fn from(b: BackendArg) -> Self {
+        match b {
+            BackendArg::Osd => Backend::Osd,
+            BackendArg::Rust => Backend::Rust,
+        }
+    }
+}
+
+#[derive(Args)]
+pub struct LimitArgs {
+    /// Control mesh (OBJ; `t crease` / `t corner` tags honoured).
+    control: PathBuf,
+    #[arg(long, value_enum, default_value_t = BackendArg::Osd)]
+    backend: BackendArg,
+    /// CSV of locations with header `face,u,v` (quad faces) or
+    /// `face,sub,u,v`; without it, one row per control vertex.
+    #[arg(long)]
+    at: Option<PathBuf>,
+    /// OpenSubdiv's adaptive isolation level (1-10).
+    #[arg(long, default_value_t = 10)]
+    isolation: u8,
+    /// Output CSV.
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+#[derive(Args)]
+pub struct DiffArgs {
+    /// Control mesh (OBJ; `t crease` / `t corner` tags honoured).
+    control: PathBuf,
+    /// Random locations compared besides the control vertices.
+    #[arg(long, default_value_t = 10_000)]
+    samples: usize,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// OpenSubdiv's adaptive isolation level (1-10).
+    #[arg(long, default_value_t = 10)]
+    isolation: u8,
+    /// Largest position deviation allowed (relative to the bounding-box
+    /// diagonal) at control vertices and at locations away from irregular
+    /// corners; control vertices are held to a tenth of it.
+    #[arg(long, default_value_t = 1e-8)]
+    tolerance: f64,
+    /// Largest normal deviation allowed away from irregular corners, radians.
+    #[arg(long, default_value_t = 1e-6)]
+    normal_tolerance: f64,
+    /// Locations closer than this (in u and v) to an irregular corner are
+    /// reported apart: OpenSubdiv's end-cap patches approximate the limit there.
+    #[arg(long, default_value_t = 0.01)]
+    margin: f64,
+    /// Position deviation allowed near irregular corners (end-cap error).
+    #[arg(long, default_value_t = 1e-4)]
+    near_tolerance: f64,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+fn read_locations(path: &Path) -> Result<Vec<SurfaceLocation>> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty());
+    let (_, header) = lines
+        .next()
+        .with_context(|| format!("{}: empty file", path.display()))?;
+    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+    let with_sub = match cols.as_slice() {
+        ["face", "u", "v"] => false,
+        ["face", "sub", "u", "v"] => true,
+        _ => bail!(
+            "{}: line 1: expected the header `face,u,v` or `face,sub,u,v`",
+            path.display()
+        ),
+    };
+    let mut out = Vec::new();
+    for (i, line) in lines {
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        let ctx = || format!("{}: line {}", path.display(), i + 1);
+        if f.len() != cols.len() {
+            bail!(
+                "{}: expected {} fields, found {}",
+                ctx(),
+                cols.len(),
+                f.len()
+            );
+        }
+        let face: u32 = f[0]
+            .parse()
+            .with_context(|| format!("{}: bad face index `{}`", ctx(), f[0]))?;
+        let sub: u16 = if with_sub {
+            f[1].parse()
+                .with_context(|| format!("{}: bad sub-face `{}`", ctx(), f[1]))?
+        } else {
+            0
+        };
+        let k = if with_sub { 2 } else { 1 };
+        let u: f64 = f[k]
+            .parse()
+            .with_context(|| format!("{}: bad u `{}`", ctx(), f[k]))?;
+        let v: f64 = f[k + 1]
+            .parse()
+            .with_context(|| format!("{}: bad v `{}`", ctx(), f[k + 1]))?;
+        out.push(SurfaceLocation {
+            face: FaceId(face),
+            sub,
+            u,
+            v,
+        });
+    }
+    Ok(out)
+}
+
+fn write_row(w: &mut dyn Write, prefix: &str, p: &LimitPoint) -> std::io::Result<()> {
+    let n = p.normal();
+    writeln!(
+        w,
+        "{prefix},{},{},{},{},{},{}",
+        p.position.x, p.position.y, p.position.z, n.x, n.y, n.z
+    )
+}
+
+pub fn limit(a: LimitArgs) -> Result<ExitCode> {
+    let mesh = subdfit::io::read_control_mesh(&a.control)?;
+    let opts = EvalOptions::default().with_isolation_level(a.isolation);
+    let eval = make_evaluator(a.backend.into(), &mesh, &opts)?;
+    let out = &a.output;
+    let io = |e: std::io::Error| subdfit::Error::Io {
+        path: out.clone(),
+        source: e,
+    };
+    match &a.at {
+        None => {
+            let pts = eval.vertex_limits(mesh.positions())?;
+            subdfit::io::write_atomically(out, |w| {
+                writeln!(w, "vertex,x,y,z,nx,ny,nz").map_err(io)?;
+                for (i, p) in pts.iter().enumerate() {
+                    write_row(w, &i.to_string(), p).map_err(io)?;
+                }
+                Ok(())
+            })?;
+        }
+        Some(at) => {
+            let locs = read_locations(at)?;
+            let pts = eval.evaluate(mesh.positions(), &locs)?;
+            subdfit::io::write_atomically(out, |w| {
+                writeln!(w, "face,u,v,x,y,z,nx,ny,nz").map_err(io)?;
+                for (l, p) in locs.iter().zip(&pts) {
+                    write_row(w, &format!("{},{},{}", l.face.0, l.u, l.v), p).map_err(io)?;
+                }
+                Ok(())
+            })?;
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
+    let mesh = subdfit::io::read_control_mesh(&a.control)?;
+    let opts = EvalOptions::default().with_isolation_level(a.isolation);
+    let osd = make_evaluator(Backend::Osd, &mesh, &opts)?;
+    let rust = make_evaluator(Backend::Rust, &mesh, &opts)?;
+    let locs = diff::random_locations(&mesh, a.samples, a.seed);
+    let report = diff::compare(&mesh, osd.as_ref(), rust.as_ref(), &locs, a.margin)?;
+    let mut failures = Vec::new();
+    let mut check = |what: &str, value: f64, tol: f64| {
+        if !(value <= tol) {
+            failures.push(format!("{what} {value:.3e} > {tol:.1e}"));
+        }
+    };
+    check(
+        "control-vertex position",
+        report.vertices.position,
+        a.tolerance / 10.0,
+    );
+    check(
+        "control-vertex normal",
+        report.vertices.normal,
+        a.normal_tolerance,
+    );
+    check("position", report.regular.position, a.tolerance);
+    check("normal", report.regular.normal, a.normal_tolerance);
+    check(
+        "position near irregular corners",
+        report.near_irregular.position,
+        a.near_tolerance,
+    );
+    if a.json {
+        let mut v = serde_json::to_value(&report)?;
+        v["failures"] = serde_json::to_value(&failures)?;
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        print!("{report}");
+        if failures.is_empty() {
+            println!("OK: within tolerance");
+        } else {
+            for f in &failures {
+                println!("FAIL: {f}");
+            }
+        }
+    }
+    Ok(if failures.is_empty() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
