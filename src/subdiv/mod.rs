@@ -20,7 +20,7 @@ pub mod osd;
 
 use serde::Serialize;
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::mesh::{ControlMesh, FaceId, VertexId};
 use crate::DVec3;
 
