@@ -147,23 +147,101 @@ pub trait LimitEvaluator: Send + Sync {
     fn stencils(&self, locations: &[SurfaceLocation]) -> Result<LimitStencils>;
 }
 
-/// Prepares the chosen evaluator for `mesh`.
+/// Prepares the chosen evaluator for `mesh`. Its inputs are checked before
+/// they reach either implementation, so both report bad positions and
+/// locations with the same message.
 pub fn make_evaluator(
     backend: Backend,
     mesh: &ControlMesh,
     options: &EvalOptions,
 ) -> Result<Box<dyn LimitEvaluator>> {
+    let face_sizes = mesh.face_sizes();
     Ok(match backend {
-        Backend::Osd => Box::new(osd::OsdEvaluator::new(mesh, options)?),
-        Backend::Rust => Box::new(catmark::RustEvaluator::new(mesh, options)?),
+        Backend::Osd => Box::new(Checked {
+            inner: osd::OsdEvaluator::new(mesh, options)?,
+            face_sizes,
+        }),
+        Backend::Rust => Box::new(Checked {
+            inner: catmark::RustEvaluator::new(mesh, options)?,
+            face_sizes,
+        }),
     })
 }
 
-/// A place where OpenSubdiv departs from the exact limit on purpose.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct KnownDifference {
-    pub vertex: u32,
-    pub reason: &'static str,
+/// Checks `locations` against a mesh with these face sizes: face in range,
+/// `sub` a corner of a non-quad face (0 on quads), `u`, `v` in `[0, 1]`.
+pub fn check_locations(face_sizes: &[u32], locations: &[SurfaceLocation]) -> Result<()> {
+    for (i, l) in locations.iter().enumerate() {
+        let bad = |msg: String| Err(Error::InvalidArgument(format!("location {i}: {msg}")));
+        let Some(&n) = face_sizes.get(l.face.idx()) else {
+            return bad(format!(
+                "face {} out of range (the mesh has {} faces)",
+                l.face.0,
+                face_sizes.len()
+            ));
+        };
+        let subs = if n == 4 { 1 } else { n };
+        if u32::from(l.sub) >= subs {
+            return bad(format!(
+                "sub-face {} out of range for face {} with {n} corners",
+                l.sub, l.face.0
+            ));
+        }
+        if !((0.0..=1.0).contains(&l.u) && (0.0..=1.0).contains(&l.v)) {
+            return bad(format!(
+                "(u, v) = ({}, {}) outside [0, 1]² on face {}",
+                l.u, l.v, l.face.0
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn check_positions(n: usize, positions: &[DVec3]) -> Result<()> {
+    if positions.len() != n {
+        return Err(Error::InvalidArgument(format!(
+            "expected {n} control positions, got {}",
+            positions.len()
+        )));
+    }
+    if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
+        return Err(Error::InvalidArgument(format!(
+            "control vertex {i}: non-finite position"
+        )));
+    }
+    Ok(())
+}
+
+/// Input checks in front of an implementation.
+struct Checked<E> {
+    inner: E,
+    face_sizes: Vec<u32>,
+}
+
+impl<E: LimitEvaluator> LimitEvaluator for Checked<E> {
+    fn name(&self) -> &'static str {
+        self.inner.name()
+    }
+    fn num_control_vertices(&self) -> usize {
+        self.inner.num_control_vertices()
+    }
+    fn vertex_limits(&self, positions: &[DVec3]) -> Result<Vec<LimitPoint>> {
+        check_positions(self.num_control_vertices(), positions)?;
+        self.inner.vertex_limits(positions)
+    }
+    fn evaluate(
+        &self,
+        positions: &[DVec3],
+        locations: &[SurfaceLocation],
+    ) -> Result<Vec<LimitPoint>> {
+        check_positions(self.num_control_vertices(), positions)?;
+        check_locations(&self.face_sizes, locations)?;
+        self.inner.evaluate(positions, locations)
+    }
+    fn stencils(&self, locations: &[SurfaceLocation]) -> Result<LimitStencils> {
+        check_locations(&self.face_sizes, locations)?;
+        self.inner.stencils(locations)
+    }
 }
 
 /// Known, deliberate differences between OpenSubdiv and the exact limit:
