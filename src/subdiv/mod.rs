@@ -244,6 +244,13 @@ impl<E: LimitEvaluator> LimitEvaluator for Checked<E> {
     }
 }
 
+/// A place where OpenSubdiv departs from the exact limit on purpose.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct KnownDifference {
+    pub vertex: u32,
+    pub reason: &'static str,
+}
+
 /// Known, deliberate differences between OpenSubdiv and the exact limit:
 /// interior valence-2 vertices get OpenSubdiv's corner limit mask
 /// (`sdc/catmarkScheme.h`, `assignSmoothLimitMask`), i.e. stay where they
