@@ -112,6 +112,18 @@ Sdc::Options sdc_options() {
 // Largest patch: Gregory basis (20 points); regular B-spline patches have 16.
 constexpr int kMaxPatchPoints = 20;
 
+// Factor that makes PatchTable::EvaluateBasis derivatives derivatives with
+// respect to the (u, v) of the ptex face. OpenSubdiv 3.5 maps (u, v) into a
+// patch with PatchParam::Normalize, which honours the "non-quad root" bit
+// (the sub-faces of an n-gon are level-1 faces, their parameter fraction is
+// 1/2^(depth-1)), but scales the derivative weights by 2^depth regardless
+// (far/patchBasis.cpp), so on the ptex sub-faces of non-quads du/dv come out
+// twice too large. Checked against finite differences in tests/osd_eval.rs.
+double derivative_correction(const Far::PatchParam& param) {
+  // = 2^(depth - nonQuadRoot) / 2^depth
+  return param.NonQuadRoot() ? 0.5 : 1.0;
+}
+
 }  // namespace
 
 std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
@@ -270,13 +282,14 @@ void OsdTopology::evaluate_patches(rust::Slice<const double> points, rust::Slice
     // scales the derivative weights accordingly, so du/dv are with respect
     // to the ptex face's own parametrisation.
     patches_->EvaluateBasis(*h, u[i], v[i], wP.data(), wDu.data(), wDv.data());
+    const double dscale = derivative_correction(patches_->GetPatchParam(*h));
     P3 p, du, dv;
     for (int k = 0; k < cvs.size(); ++k) {
       const std::size_t c = 3 * static_cast<std::size_t>(cvs[k]);
       const P3 x{points[c], points[c + 1], points[c + 2]};
       p.AddWithWeight(x, wP[k]);
-      du.AddWithWeight(x, wDu[k]);
-      dv.AddWithWeight(x, wDv[k]);
+      du.AddWithWeight(x, dscale * wDu[k]);
+      dv.AddWithWeight(x, dscale * wDv[k]);
     }
     put(out, 9 * i, p);
     put(out, 9 * i + 3, du);
@@ -416,11 +429,16 @@ StencilRows OsdTopology::limit_stencils(rust::Slice<const std::uint32_t> ptex, r
   std::uint32_t at = 0;
   for (std::size_t i = 0; i < n; ++i) {
     const std::size_t o = static_cast<std::size_t>(offsets[i]);
+    // The factory found this patch too (it drops locations it cannot place,
+    // and the count matched), with the same derivative scaling to undo.
+    const Far::PatchTable::PatchHandle* h = patch_map_->FindPatch(static_cast<int>(ptex[i]), u[i], v[i]);
+    if (!h) throw std::logic_error("no patch at a location the stencil factory placed");
+    const double dscale = derivative_correction(patches_->GetPatchParam(*h));
     for (int k = 0; k < sizes[i]; ++k) {
       rows.indices.push_back(static_cast<std::uint32_t>(idx[o + k]));
       rows.weights.push_back(w[o + k]);
-      rows.du_weights.push_back(wu[o + k]);
-      rows.dv_weights.push_back(wv[o + k]);
+      rows.du_weights.push_back(dscale * wu[o + k]);
+      rows.dv_weights.push_back(dscale * wv[o + k]);
     }
     at += static_cast<std::uint32_t>(sizes[i]);
     rows.offsets.push_back(at);
