@@ -60,7 +60,7 @@ fn pyramid() -> ControlMesh {
 
 /// An open cup: a pentagon ringed by five quads; boundary, interior
 /// valence-3 extraordinary vertices, a semi-sharp crease (sharpness 2.5,
-/// > 1 so `vertex_limits` must take the patch route there) and an
+/// above 1, so `vertex_limits` must take the patch route there) and an
 /// infinitely sharp corner.
 fn cup() -> ControlMesh {
     let mut p = Vec::new();
@@ -481,11 +481,17 @@ fn results_do_not_depend_on_thread_count() {
 }
 
 /// Gregory end caps approximate the limit near extraordinary vertices; the
-/// approximation shrinks with the isolation level. Measured on the corner
-/// regions (u, v ∈ [0, 1/4]², where the extraordinary vertices are) of the
+/// approximation shrinks with the isolation level. Measured near every
+/// corner of every ptex face (where the extraordinary vertices are) of the
 /// cube and the pyramid against level 10.
 #[test]
 fn end_cap_error_shrinks_with_isolation_level() {
+    // Parameters approaching the corner geometrically, so that the end-cap
+    // region [0, 2^-L]^2 of every level L up to 12 holds samples.
+    let near_corner: Vec<f64> = (0..=12)
+        .flat_map(|i| [0.37, 0.81].map(|t| t * 0.5f64.powi(i)))
+        .chain([0.0])
+        .collect();
     for (name, m) in [("cube", cube()), ("pyramid", pyramid())] {
         let mut locs = Vec::new();
         for f in m.faces() {
@@ -495,9 +501,8 @@ fn end_cap_error_shrinks_with_isolation_level() {
                 m.face_size(f) as u16
             };
             for sub in 0..subs {
-                for a in 0..=16 {
-                    for b in 0..=16 {
-                        let (u, v) = (a as f64 / 64.0, b as f64 / 64.0);
+                for &u in &near_corner {
+                    for &v in &near_corner {
                         locs.push(SurfaceLocation { face: f, sub, u, v });
                         if subs == 1 {
                             // the other three corners of the quad
@@ -542,9 +547,11 @@ fn end_cap_error_shrinks_with_isolation_level() {
         let (d2, d6) = (dev(2), dev(6));
         println!("{name}: max position deviation from isolation 10, relative to the bbox diagonal: level 2 {d2:.3e}, level 6 {d6:.3e}");
         assert!(
-            d2 > d6,
-            "{name}: level 2 ({d2:e}) should deviate more than level 6 ({d6:e})"
+            d2 > 10.0 * d6,
+            "{name}: level 2 ({d2:e}) should deviate much more than level 6 ({d6:e})"
         );
-        assert!(d2 > 0.0 && d6 < 1e-3, "{name}: {d2:e} {d6:e}");
+        // STACK-NOTES measured ~2e-3 at level 2 and ~2e-4 at level 6 on a
+        // sphere; these meshes are coarser, the bounds generous.
+        assert!(d2 > 1e-4 && d6 < 1e-3, "{name}: {d2:e} {d6:e}");
     }
 }
