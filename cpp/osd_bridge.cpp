@@ -1,9 +1,449 @@
 #include "subdfit/cpp/osd_bridge.h"
+
+#include <opensubdiv/far/error.h>
+#include <opensubdiv/far/patchTableFactory.h>
+#include <opensubdiv/far/primvarRefiner.h>
+#include <opensubdiv/far/ptexIndices.h>
+#include <opensubdiv/far/stencilTableFactory.h>
+#include <opensubdiv/far/topologyDescriptor.h>
 #include <opensubdiv/version.h>
+
+#include <array>
+#include <stdexcept>
 #include <string>
+
+#include "subdfit/src/ffi/osd.rs.h"
+
 namespace subdfit::osd {
+
+namespace Far = OpenSubdiv::Far;
+namespace Sdc = OpenSubdiv::Sdc;
+
 rust::String library_version() {
   return rust::String(std::to_string(OPENSUBDIV_VERSION_MAJOR) + "." + std::to_string(OPENSUBDIV_VERSION_MINOR) + "." +
                       std::to_string(OPENSUBDIV_VERSION_PATCH));
 }
+
+namespace {
+
+// ---- errors ------------------------------------------------------------------
+//
+// OpenSubdiv reports failures through one process-wide callback and returns
+// null (far/error.h). The callback appends to a buffer of the calling thread
+// (Far's factories report on the thread that runs them), so concurrent calls
+// cannot read each other's messages; construction is in addition serialised
+// by a global mutex, which keeps OpenSubdiv's default stdout printing out and
+// makes "errors seen during this factory call" well defined.
+
+thread_local std::string t_errors;
+thread_local std::string t_warnings;
+
+void append(std::string& buf, const char* msg) {
+  if (!buf.empty()) buf += "; ";
+  buf += msg ? msg : "(no message)";
+}
+void on_error(Far::ErrorType, const char* msg) { append(t_errors, msg); }
+void on_warning(const char* msg) { append(t_warnings, msg); }
+
+std::mutex g_construction_mutex;
+
+class ErrorScope {
+ public:
+  ErrorScope() {
+    static std::once_flag installed;
+    std::call_once(installed, [] {
+      Far::SetErrorCallback(on_error);
+      Far::SetWarningCallback(on_warning);
+    });
+    t_errors.clear();
+    t_warnings.clear();
+  }
+  ~ErrorScope() {
+    t_errors.clear();
+    t_warnings.clear();
+  }
+  // Throws if OpenSubdiv reported an error since the scope began.
+  void check(const char* what) const {
+    if (!t_errors.empty()) fail(what);
+  }
+  [[noreturn]] void fail(const char* what) const {
+    std::string m = what;
+    m += ": ";
+    m += t_errors.empty() ? std::string("failed without a message") : t_errors;
+    if (!t_warnings.empty()) m += " (warnings: " + t_warnings + ")";
+    throw std::runtime_error(m);
+  }
+};
+
+// ---- primvar type for Far's templates (Clear / AddWithWeight) -----------------
+
+struct P3 {
+  double x = 0, y = 0, z = 0;
+  void Clear(void* = nullptr) { x = y = z = 0; }
+  void AddWithWeight(const P3& s, double w) {
+    x += w * s.x;
+    y += w * s.y;
+    z += w * s.z;
+  }
+};
+
+std::vector<P3> to_points(rust::Slice<const double> xyz) {
+  std::vector<P3> p(xyz.size() / 3);
+  for (std::size_t i = 0; i < p.size(); ++i) p[i] = P3{xyz[3 * i], xyz[3 * i + 1], xyz[3 * i + 2]};
+  return p;
+}
+
+void put(rust::Slice<double> out, std::size_t at, const P3& p) {
+  out[at] = p.x;
+  out[at + 1] = p.y;
+  out[at + 2] = p.z;
+}
+
+// ---- topology ---------------------------------------------------------------
+
+Sdc::Options sdc_options() {
+  Sdc::Options o;
+  o.SetVtxBoundaryInterpolation(Sdc::Options::VTX_BOUNDARY_EDGE_AND_CORNER);
+  o.SetCreasingMethod(Sdc::Options::CREASE_UNIFORM);
+  o.SetTriangleSubdivision(Sdc::Options::TRI_SUB_CATMARK);
+  return o;
+}
+
+// Largest patch: Gregory basis (20 points); regular B-spline patches have 16.
+constexpr int kMaxPatchPoints = 20;
+
+// Factor that makes PatchTable::EvaluateBasis derivatives derivatives with
+// respect to the (u, v) of the ptex face. OpenSubdiv 3.5 maps (u, v) into a
+// patch with PatchParam::Normalize, which honours the "non-quad root" bit
+// (the sub-faces of an n-gon are level-1 faces, their parameter fraction is
+// 1/2^(depth-1)), but scales the derivative weights by 2^depth regardless
+// (far/patchBasis.cpp), so on the ptex sub-faces of non-quads du/dv come out
+// twice too large. Checked against finite differences in tests/osd_eval.rs.
+double derivative_correction(const Far::PatchParam& param) {
+  // = 2^(depth - nonQuadRoot) / 2^depth
+  return param.NonQuadRoot() ? 0.5 : 1.0;
+}
+
+}  // namespace
+
+std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
+                                              rust::Slice<const std::uint32_t> face_sizes,
+                                              rust::Slice<const std::uint32_t> face_indices,
+                                              rust::Slice<const std::uint32_t> crease_vertices,
+                                              rust::Slice<const double> crease_weights,
+                                              rust::Slice<const std::uint32_t> corner_vertices,
+                                              rust::Slice<const double> corner_weights,
+                                              std::uint32_t isolation_level) {
+  // OpenSubdiv trusts its descriptor (an out-of-range index is undefined
+  // behaviour there), so check the arrays before handing them over.
+  if (isolation_level < 1 || isolation_level > 10)
+    throw std::invalid_argument("isolation level " + std::to_string(isolation_level) + " outside 1..=10");
+  if (num_vertices > static_cast<std::uint32_t>(INT32_MAX)) throw std::invalid_argument("too many vertices");
+  std::size_t total = 0;
+  for (auto n : face_sizes) {
+    if (n < 3) throw std::invalid_argument("face with fewer than 3 vertices");
+    total += n;
+  }
+  if (total != face_indices.size())
+    throw std::invalid_argument("face sizes sum to " + std::to_string(total) + " but " +
+                                std::to_string(face_indices.size()) + " indices were given");
+  auto check_index = [&](std::uint32_t i, const char* what) {
+    if (i >= num_vertices)
+      throw std::invalid_argument(std::string(what) + " vertex index " + std::to_string(i) + " out of range");
+  };
+  for (auto i : face_indices) check_index(i, "face");
+  if (crease_vertices.size() != 2 * crease_weights.size())
+    throw std::invalid_argument("creases need two vertices per weight");
+  for (auto i : crease_vertices) check_index(i, "crease");
+  if (corner_vertices.size() != corner_weights.size())
+    throw std::invalid_argument("corners need one vertex per weight");
+  for (auto i : corner_vertices) check_index(i, "corner");
+
+  auto t = std::make_unique<OsdTopology>();
+  t->num_vertices_ = static_cast<int>(num_vertices);
+  t->face_sizes_.assign(face_sizes.begin(), face_sizes.end());
+  t->face_indices_.assign(face_indices.begin(), face_indices.end());
+  t->crease_vertices_.assign(crease_vertices.begin(), crease_vertices.end());
+  t->crease_weights_.assign(crease_weights.begin(), crease_weights.end());
+  t->corner_vertices_.assign(corner_vertices.begin(), corner_vertices.end());
+  t->corner_weights_.assign(corner_weights.begin(), corner_weights.end());
+
+  std::lock_guard<std::mutex> lock(g_construction_mutex);
+  ErrorScope errors;
+
+  t->adaptive_.reset(t->make_refiner());
+  if (!t->adaptive_) errors.fail("TopologyRefinerFactory<TopologyDescriptor>::Create");
+
+  // Feature-adaptive refinement isolates extraordinary vertices and
+  // semi-sharp features down to `isolation_level`; the remaining irregular
+  // patches become Gregory basis end caps (the only approximation left).
+  // useInfSharpPatch: infinitely sharp creases/corners are represented exactly
+  // by sharp B-spline patches instead of being isolated and end-capped, which
+  // only removes approximation (it is also what Bfr and USD/Hydra use).
+  Far::PatchTableFactory::Options po(isolation_level);
+  po.SetEndCapType(Far::PatchTableFactory::Options::ENDCAP_GREGORY_BASIS);
+  po.SetPatchPrecision<double>();
+  po.useInfSharpPatch = true;
+  po.generateVaryingTables = false;
+  po.generateVaryingLocalPoints = false;
+  t->adaptive_->RefineAdaptive(po.GetRefineAdaptiveOptions());
+  errors.check("TopologyRefiner::RefineAdaptive");
+
+  t->patches_.reset(Far::PatchTableFactory::Create(*t->adaptive_, po));
+  if (!t->patches_) errors.fail("PatchTableFactory::Create");
+  errors.check("PatchTableFactory::Create");
+  t->patch_map_ = std::make_unique<Far::PatchMap>(*t->patches_);
+
+  Far::PtexIndices ptex(*t->adaptive_);
+  t->ptex_base_.resize(face_sizes.size());
+  for (std::size_t f = 0; f < face_sizes.size(); ++f)
+    t->ptex_base_[f] = static_cast<std::uint32_t>(ptex.GetFaceId(static_cast<Far::Index>(f)));
+
+  t->num_refined_ = static_cast<std::size_t>(t->adaptive_->GetNumVerticesTotal());
+  t->num_local_ = static_cast<std::size_t>(t->patches_->GetNumLocalPoints());
+  // SetPatchPrecision<double>() builds the double local-point table; make
+  // sure it is there rather than reading the float one (STACK-NOTES).
+  if (t->num_local_ > 0 && !t->patches_->GetLocalPointStencilTable<double>())
+    throw std::logic_error("patch table has local points but no double-precision stencils for them");
+  return t;
+}
+
+Far::TopologyRefiner* OsdTopology::make_refiner() const {
+  Far::TopologyDescriptor d;
+  d.numVertices = num_vertices_;
+  d.numFaces = static_cast<int>(face_sizes_.size());
+  d.numVertsPerFace = face_sizes_.data();
+  d.vertIndicesPerFace = face_indices_.data();
+  d.numCreases = static_cast<int>(crease_weights_.size());
+  d.creaseVertexIndexPairs = crease_vertices_.data();
+  d.creaseWeights = crease_weights_.data();
+  d.numCorners = static_cast<int>(corner_weights_.size());
+  d.cornerVertexIndices = corner_vertices_.data();
+  d.cornerWeights = corner_weights_.data();
+  using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
+  return Factory::Create(d, Factory::Options(Sdc::SCHEME_CATMARK, sdc_options()));
+}
+
+std::uint32_t OsdTopology::num_control_vertices() const { return static_cast<std::uint32_t>(num_vertices_); }
+
+rust::Vec<std::uint32_t> OsdTopology::ptex_base_indices() const {
+  rust::Vec<std::uint32_t> v;
+  v.reserve(ptex_base_.size());
+  for (auto i : ptex_base_) v.push_back(i);
+  return v;
+}
+
+std::size_t OsdTopology::num_patch_points() const { return num_refined_ + num_local_; }
+
+std::uint32_t OsdTopology::max_level() const { return static_cast<std::uint32_t>(adaptive_->GetMaxLevel()); }
+
+void OsdTopology::compute_patch_points(rust::Slice<const double> positions, rust::Slice<double> points) const {
+  if (positions.size() != 3 * static_cast<std::size_t>(num_vertices_))
+    throw std::invalid_argument("expected " + std::to_string(num_vertices_) + " positions");
+  if (points.size() != 3 * num_patch_points()) throw std::invalid_argument("patch point buffer has the wrong size");
+  // The far tutorials' recipe: interpolate level by level into one buffer
+  // (levels are concatenated, which is the index space of the patch table),
+  // then the end-cap local points from their stencils over that buffer. The
+  // double stencil table is applied directly: ComputeLocalPointValues is
+  // float-only (STACK-NOTES).
+  std::vector<P3> buf(num_patch_points());
+  for (int i = 0; i < num_vertices_; ++i)
+    buf[i] = P3{positions[3 * i], positions[3 * i + 1], positions[3 * i + 2]};
+  Far::PrimvarRefinerReal<double> primvar(*adaptive_);
+  P3* src = buf.data();
+  for (int level = 1; level <= adaptive_->GetMaxLevel(); ++level) {
+    P3* dst = src + adaptive_->GetLevel(level - 1).GetNumVertices();
+    primvar.Interpolate(level, src, dst);
+    src = dst;
+  }
+  if (num_local_ > 0)
+    patches_->GetLocalPointStencilTable<double>()->UpdateValues(buf.data(), buf.data() + num_refined_);
+  for (std::size_t i = 0; i < buf.size(); ++i) put(points, 3 * i, buf[i]);
+}
+
+void OsdTopology::evaluate_patches(rust::Slice<const double> points, rust::Slice<const std::uint32_t> ptex,
+                                   rust::Slice<const double> u, rust::Slice<const double> v,
+                                   rust::Slice<double> out) const {
+  const std::size_t n = ptex.size();
+  if (points.size() != 3 * num_patch_points()) throw std::invalid_argument("patch point buffer has the wrong size");
+  if (u.size() != n || v.size() != n || out.size() != 9 * n)
+    throw std::invalid_argument("location arrays of different lengths");
+  std::array<double, kMaxPatchPoints> wP, wDu, wDv;
+  for (std::size_t i = 0; i < n; ++i) {
+    // PatchMap::FindPatch and PatchTable::EvaluateBasis are const and touch
+    // no shared mutable state: safe from several threads.
+    const Far::PatchTable::PatchHandle* h = patch_map_->FindPatch(static_cast<int>(ptex[i]), u[i], v[i]);
+    if (!h)
+      throw std::runtime_error("no patch at ptex face " + std::to_string(ptex[i]) + " (" + std::to_string(u[i]) +
+                               ", " + std::to_string(v[i]) + ")");
+    Far::ConstIndexArray cvs = patches_->GetPatchVertices(*h);
+    if (cvs.size() > kMaxPatchPoints) throw std::logic_error("patch with more than 20 control points");
+    // EvaluateBasis maps (u, v) of the ptex face into the (sub-)patch and
+    // scales the derivative weights accordingly, so du/dv are with respect
+    // to the ptex face's own parametrisation.
+    patches_->EvaluateBasis(*h, u[i], v[i], wP.data(), wDu.data(), wDv.data());
+    const double dscale = derivative_correction(patches_->GetPatchParam(*h));
+    P3 p, du, dv;
+    for (int k = 0; k < cvs.size(); ++k) {
+      const std::size_t c = 3 * static_cast<std::size_t>(cvs[k]);
+      const P3 x{points[c], points[c + 1], points[c + 2]};
+      p.AddWithWeight(x, wP[k]);
+      du.AddWithWeight(x, dscale * wDu[k]);
+      dv.AddWithWeight(x, dscale * wDv[k]);
+    }
+    put(out, 9 * i, p);
+    put(out, 9 * i + 3, du);
+    put(out, 9 * i + 6, dv);
+  }
+}
+
+const Far::TopologyRefiner& OsdTopology::uniform_refiner() const {
+  std::lock_guard<std::mutex> lazy(lazy_mutex_);
+  if (uniform_) return *uniform_;
+  std::lock_guard<std::mutex> lock(g_construction_mutex);
+  ErrorScope errors;
+  std::unique_ptr<Far::TopologyRefiner> r(make_refiner());
+  if (!r) errors.fail("TopologyRefinerFactory<TopologyDescriptor>::Create");
+  // PrimvarRefiner::Limit needs the full topology of its last level
+  // (STACK-NOTES). One level suffices: every face is a quad there, and a
+  // level-1 child of a control vertex has the same limit as its parent.
+  Far::TopologyRefiner::UniformOptions uo(1);
+  uo.fullTopologyInLastLevel = true;
+  uo.orderVerticesFromFacesFirst = false;  // children of vertices come first
+  r->RefineUniform(uo);
+  errors.check("TopologyRefiner::RefineUniform");
+  // Guard the ordering assumption: child i of control vertex i has its
+  // parent's valence.
+  const auto& l0 = r->GetLevel(0);
+  const auto& l1 = r->GetLevel(1);
+  for (int i = 0; i < num_vertices_; ++i)
+    if (l0.GetVertexEdges(i).size() != l1.GetVertexEdges(i).size())
+      throw std::logic_error("level-1 vertex order is not children-of-vertices first");
+  uniform_ = std::move(r);
+  return *uniform_;
+}
+
+void OsdTopology::vertex_limits(rust::Slice<const double> positions, rust::Slice<double> out) const {
+  if (positions.size() != 3 * static_cast<std::size_t>(num_vertices_))
+    throw std::invalid_argument("expected " + std::to_string(num_vertices_) + " positions");
+  if (out.size() != 9 * static_cast<std::size_t>(num_vertices_))
+    throw std::invalid_argument("output buffer has the wrong size");
+  const Far::TopologyRefiner& r = uniform_refiner();
+  std::vector<P3> base = to_points(positions);
+  const std::size_t n1 = static_cast<std::size_t>(r.GetLevel(1).GetNumVertices());
+  std::vector<P3> level1(n1), pos(n1), tan1(n1), tan2(n1);
+  Far::PrimvarRefinerReal<double> primvar(r);
+  // Far's templates take the buffers by (non-const) reference.
+  const P3* src = base.data();
+  P3* l1 = level1.data();
+  P3 *dp = pos.data(), *dt1 = tan1.data(), *dt2 = tan2.data();
+  primvar.Interpolate(1, src, l1);
+  const P3* l1c = l1;
+  ErrorScope errors;  // Limit reports a missing full topology via the callback
+  primvar.Limit(l1c, dp, dt1, dt2);
+  errors.check("PrimvarRefiner::Limit");
+  for (int i = 0; i < num_vertices_; ++i) {
+    put(out, 9 * i, pos[i]);
+    put(out, 9 * i + 3, tan1[i]);
+    put(out, 9 * i + 6, tan2[i]);
+  }
+}
+
+const Far::StencilTableReal<double>& OsdTopology::control_stencils() const {
+  std::lock_guard<std::mutex> lazy(lazy_mutex_);
+  if (control_stencils_) return *control_stencils_;
+  std::lock_guard<std::mutex> lock(g_construction_mutex);
+  ErrorScope errors;
+  // Stencils of every refined vertex (control vertices included, all
+  // levels: the patch table's index space) factorised down to the control
+  // vertices, then the end-cap local points appended, also factorised. With
+  // this table LimitStencilTableFactory writes rows over control vertices.
+  using Factory = Far::StencilTableFactoryReal<double>;
+  Factory::Options so;
+  so.generateControlVerts = true;
+  so.generateIntermediateLevels = true;
+  so.factorizeIntermediateLevels = true;
+  so.generateOffsets = true;
+  so.maxLevel = static_cast<unsigned>(adaptive_->GetMaxLevel());
+  std::unique_ptr<const Far::StencilTableReal<double>> base(Factory::Create(*adaptive_, so));
+  if (!base) errors.fail("StencilTableFactory::Create");
+  std::unique_ptr<const Far::StencilTableReal<double>> full;
+  if (num_local_ > 0) {
+    full.reset(Factory::AppendLocalPointStencilTable(*adaptive_, base.get(),
+                                                     patches_->GetLocalPointStencilTable<double>(), true));
+    if (!full) errors.fail("StencilTableFactory::AppendLocalPointStencilTable");
+  } else {
+    full = std::move(base);
+  }
+  errors.check("StencilTableFactory");
+  if (static_cast<std::size_t>(full->GetNumStencils()) != num_patch_points())
+    throw std::logic_error("control stencil table has " + std::to_string(full->GetNumStencils()) +
+                           " stencils, the patch table needs " + std::to_string(num_patch_points()));
+  control_stencils_ = std::move(full);
+  return *control_stencils_;
+}
+
+StencilRows OsdTopology::limit_stencils(rust::Slice<const std::uint32_t> ptex, rust::Slice<const double> u,
+                                        rust::Slice<const double> v) const {
+  const std::size_t n = ptex.size();
+  if (u.size() != n || v.size() != n) throw std::invalid_argument("location arrays of different lengths");
+  StencilRows rows;
+  rows.offsets.push_back(0);
+  if (n == 0) return rows;  // the factory returns null for no locations
+  const Far::StencilTableReal<double>& cv = control_stencils();
+
+  using Factory = Far::LimitStencilTableFactoryReal<double>;
+  typename Factory::LocationArrayVec locs(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    locs[i].ptexIdx = static_cast<int>(ptex[i]);
+    locs[i].numLocations = 1;
+    locs[i].s = &u[i];
+    locs[i].t = &v[i];
+  }
+  typename Factory::Options lo;
+  lo.generate1stDerivatives = true;
+  lo.generate2ndDerivatives = false;
+  // Given both tables the factory only reads them (no shared state), so
+  // calls for different chunks may run concurrently; errors land in this
+  // thread's buffer.
+  ErrorScope errors;
+  std::unique_ptr<const Far::LimitStencilTableReal<double>> t(
+      Factory::Create(*adaptive_, locs, &cv, patches_.get(), lo));
+  if (!t) errors.fail("LimitStencilTableFactory::Create");
+  errors.check("LimitStencilTableFactory::Create");
+  // Locations on no patch are dropped silently by the factory.
+  if (static_cast<std::size_t>(t->GetNumStencils()) != n)
+    throw std::runtime_error("LimitStencilTableFactory found patches for " + std::to_string(t->GetNumStencils()) +
+                             " of " + std::to_string(n) + " locations");
+  const auto& sizes = t->GetSizes();
+  const auto& offsets = t->GetOffsets();
+  const auto& idx = t->GetControlIndices();
+  const auto& w = t->GetWeights();
+  const auto& wu = t->GetDuWeights();
+  const auto& wv = t->GetDvWeights();
+  const std::size_t nnz = idx.size();
+  rows.indices.reserve(nnz);
+  rows.weights.reserve(nnz);
+  rows.du_weights.reserve(nnz);
+  rows.dv_weights.reserve(nnz);
+  std::uint32_t at = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::size_t o = static_cast<std::size_t>(offsets[i]);
+    // The factory found this patch too (it drops locations it cannot place,
+    // and the count matched), with the same derivative scaling to undo.
+    const Far::PatchTable::PatchHandle* h = patch_map_->FindPatch(static_cast<int>(ptex[i]), u[i], v[i]);
+    if (!h) throw std::logic_error("no patch at a location the stencil factory placed");
+    const double dscale = derivative_correction(patches_->GetPatchParam(*h));
+    for (int k = 0; k < sizes[i]; ++k) {
+      rows.indices.push_back(static_cast<std::uint32_t>(idx[o + k]));
+      rows.weights.push_back(w[o + k]);
+      rows.du_weights.push_back(dscale * wu[o + k]);
+      rows.dv_weights.push_back(dscale * wv[o + k]);
+    }
+    at += static_cast<std::uint32_t>(sizes[i]);
+    rows.offsets.push_back(at);
+  }
+  return rows;
+}
+
 }  // namespace subdfit::osd

@@ -1,6 +1,108 @@
 #pragma once
+// OpenSubdiv 3.5 (Far) limit evaluation behind the cxx bridge
+// `src/ffi/osd.rs`. One `OsdTopology` is built per control-mesh topology and
+// is immutable afterwards (except for two lazily built, mutex-guarded
+// caches), so every const method may be called from several threads at once.
+//
+// Arrays cross the bridge flat: positions as xyz triples, evaluation results
+// as 9 doubles per location (position, d/du, d/dv).
+
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <vector>
+
+#include <opensubdiv/far/patchMap.h>
+#include <opensubdiv/far/patchTable.h>
+#include <opensubdiv/far/stencilTable.h>
+#include <opensubdiv/far/topologyRefiner.h>
+
 #include "rust/cxx.h"
 
 namespace subdfit::osd {
+
+// Defined by the bridge (shared struct), see src/ffi/osd.rs.
+struct StencilRows;
+
 rust::String library_version();
-}
+
+class OsdTopology {
+ public:
+  // Use `new_osd_topology`; public only for std::make_unique.
+  OsdTopology() = default;
+  OsdTopology(const OsdTopology&) = delete;
+  OsdTopology& operator=(const OsdTopology&) = delete;
+
+  std::uint32_t num_control_vertices() const;
+  // Far::PtexIndices: first ptex face of every base face (a quad has one,
+  // an n-gon n consecutive ones).
+  rust::Vec<std::uint32_t> ptex_base_indices() const;
+  // Refined vertices of every adaptive level followed by the end-cap local
+  // points: the index space of the patch table's control vertices.
+  std::size_t num_patch_points() const;
+  std::uint32_t max_level() const;
+
+  // Control positions (3 per vertex) -> patch points (3 per patch point).
+  void compute_patch_points(rust::Slice<const double> positions, rust::Slice<double> points) const;
+  // Evaluates the patches at (ptex, u, v), 9 doubles per location into
+  // `out`. `points` comes from `compute_patch_points`.
+  void evaluate_patches(rust::Slice<const double> points, rust::Slice<const std::uint32_t> ptex,
+                        rust::Slice<const double> u, rust::Slice<const double> v,
+                        rust::Slice<double> out) const;
+  // Far::PrimvarRefiner::Limit at the level-1 children of the control
+  // vertices: position, tangent 1, tangent 2 (9 doubles per vertex).
+  void vertex_limits(rust::Slice<const double> positions, rust::Slice<double> out) const;
+  // Far::LimitStencilTableFactory rows over the control vertices.
+  StencilRows limit_stencils(rust::Slice<const std::uint32_t> ptex, rust::Slice<const double> u,
+                             rust::Slice<const double> v) const;
+
+ private:
+  friend std::unique_ptr<OsdTopology> new_osd_topology(
+      std::uint32_t, rust::Slice<const std::uint32_t>, rust::Slice<const std::uint32_t>,
+      rust::Slice<const std::uint32_t>, rust::Slice<const double>, rust::Slice<const std::uint32_t>,
+      rust::Slice<const double>, std::uint32_t);
+
+  // A fresh, unrefined refiner from the stored descriptor arrays (null on
+  // failure, with OpenSubdiv's message in the error callback).
+  OpenSubdiv::Far::TopologyRefiner* make_refiner() const;
+  const OpenSubdiv::Far::TopologyRefiner& uniform_refiner() const;
+  const OpenSubdiv::Far::StencilTableReal<double>& control_stencils() const;
+
+  // The descriptor's arrays, kept to build the lazy uniform refiner.
+  int num_vertices_ = 0;
+  std::vector<int> face_sizes_;
+  std::vector<int> face_indices_;
+  std::vector<int> crease_vertices_;
+  std::vector<float> crease_weights_;
+  std::vector<int> corner_vertices_;
+  std::vector<float> corner_weights_;
+
+  std::unique_ptr<OpenSubdiv::Far::TopologyRefiner> adaptive_;
+  std::unique_ptr<const OpenSubdiv::Far::PatchTable> patches_;
+  std::unique_ptr<const OpenSubdiv::Far::PatchMap> patch_map_;
+  std::vector<std::uint32_t> ptex_base_;
+  std::size_t num_refined_ = 0;  // all adaptive levels, control vertices included
+  std::size_t num_local_ = 0;    // end-cap local points
+
+  // Lazily built (only `vertex_limits` / `limit_stencils` need them); the
+  // mutex makes the const methods that build them thread-safe.
+  mutable std::mutex lazy_mutex_;
+  mutable std::unique_ptr<OpenSubdiv::Far::TopologyRefiner> uniform_;
+  mutable std::unique_ptr<const OpenSubdiv::Far::StencilTableReal<double>> control_stencils_;
+};
+
+// Builds the topology (Catmark, boundary "edge and corner", uniform
+// creasing, Catmark triangle rule), refines it adaptively to
+// `isolation_level` and builds a double-precision patch table with Gregory
+// basis end caps. Creases are vertex pairs + sharpness, corners vertex +
+// sharpness. Throws (-> Rust Err) with OpenSubdiv's own message on failure.
+std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
+                                              rust::Slice<const std::uint32_t> face_sizes,
+                                              rust::Slice<const std::uint32_t> face_indices,
+                                              rust::Slice<const std::uint32_t> crease_vertices,
+                                              rust::Slice<const double> crease_weights,
+                                              rust::Slice<const std::uint32_t> corner_vertices,
+                                              rust::Slice<const double> corner_weights,
+                                              std::uint32_t isolation_level);
+
+}  // namespace subdfit::osd

@@ -1,8 +1,79 @@
+//! Bridge to `cpp/osd_bridge.{h,cpp}`: OpenSubdiv Far topology, patch table
+//! and stencils behind one opaque, immutable `OsdTopology`.
+
 #[cxx::bridge(namespace = "subdfit::osd")]
 pub(crate) mod bridge {
+    /// Limit stencils in compressed rows, as `LimitStencilTableFactory`
+    /// writes them (see `crate::subdiv::LimitStencils`).
+    struct StencilRows {
+        offsets: Vec<u32>,
+        indices: Vec<u32>,
+        weights: Vec<f64>,
+        du_weights: Vec<f64>,
+        dv_weights: Vec<f64>,
+    }
+
     unsafe extern "C++" {
         include!("subdfit/cpp/osd_bridge.h");
+
         /// Version string of the wrapped library (smoke test of the bridge).
         fn library_version() -> Result<String>;
+
+        type OsdTopology;
+
+        /// Topology + adaptive refinement + double patch table + patch map.
+        /// Creases are vertex pairs (`2 * crease_weights.len()` indices).
+        #[allow(clippy::too_many_arguments)]
+        fn new_osd_topology(
+            num_vertices: u32,
+            face_sizes: &[u32],
+            face_indices: &[u32],
+            crease_vertices: &[u32],
+            crease_weights: &[f64],
+            corner_vertices: &[u32],
+            corner_weights: &[f64],
+            isolation_level: u32,
+        ) -> Result<UniquePtr<OsdTopology>>;
+
+        fn num_control_vertices(self: &OsdTopology) -> Result<u32>;
+        fn ptex_base_indices(self: &OsdTopology) -> Result<Vec<u32>>;
+        fn num_patch_points(self: &OsdTopology) -> Result<usize>;
+        fn max_level(self: &OsdTopology) -> Result<u32>;
+        /// xyz per control vertex -> xyz per patch point.
+        fn compute_patch_points(
+            self: &OsdTopology,
+            positions: &[f64],
+            points: &mut [f64],
+        ) -> Result<()>;
+        /// 9 doubles per location: position, d/du, d/dv.
+        fn evaluate_patches(
+            self: &OsdTopology,
+            points: &[f64],
+            ptex: &[u32],
+            u: &[f64],
+            v: &[f64],
+            out: &mut [f64],
+        ) -> Result<()>;
+        /// 9 doubles per control vertex: limit position, tangent 1, tangent 2.
+        fn vertex_limits(self: &OsdTopology, positions: &[f64], out: &mut [f64]) -> Result<()>;
+        fn limit_stencils(
+            self: &OsdTopology,
+            ptex: &[u32],
+            u: &[f64],
+            v: &[f64],
+        ) -> Result<StencilRows>;
     }
 }
+
+// SAFETY: `OsdTopology` owns its OpenSubdiv objects (refiner, patch table,
+// patch map, stencil tables) outright; nothing refers to thread-local or
+// thread-affine state, so moving it to another thread is sound.
+unsafe impl Send for bridge::OsdTopology {}
+// SAFETY: after `new_osd_topology` returns, every method reachable through
+// `&OsdTopology` only reads it: `PrimvarRefiner`, `PatchMap::FindPatch`,
+// `PatchTable::EvaluateBasis` and `LimitStencilTableFactory::Create` (given
+// both tables) are const over their inputs. The two lazily built caches
+// (uniform refiner, control stencil table) are created under a mutex inside
+// the object and never changed afterwards, and OpenSubdiv's process-wide
+// error callback writes to a per-thread buffer.
+unsafe impl Sync for bridge::OsdTopology {}
