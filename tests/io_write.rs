@@ -11,7 +11,7 @@ fn awkward_positions() -> Vec<DVec3> {
     vec![
         DVec3::new(1.0 / 3.0, -2.0 / 7.0, 0.1),
         DVec3::new(1e-300, -4.9e-324, 1.7976931348623157e308),
-        DVec3::new(-0.0, 123456789.123456789, 1e16),
+        DVec3::new(-0.0, 123456789.12345679, 1e16),
         DVec3::new(3.0e-5, 9.999999e-6, -1e-7),
         DVec3::new(
             std::f64::consts::PI,

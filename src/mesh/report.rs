@@ -168,9 +168,9 @@ pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
     };
     let mut drop_face = vec![false; nf_in];
     let mut first_repeated = None;
-    for f in 0..nf_in {
+    for (f, d) in drop_face.iter_mut().enumerate() {
         if key(f as u32).windows(2).any(|w| w[0] == w[1]) {
-            drop_face[f] = true;
+            *d = true;
             report.repeated_index_faces += 1;
             first_repeated.get_or_insert(f);
         }
