@@ -210,16 +210,17 @@ pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
     if a.json {
         let mut v = serde_json::to_value(&report)?;
         v["failures"] = serde_json::to_value(&failures)?;
-        println!("{}", serde_json::to_string_pretty(&v)?);
+        crate::emit(&serde_json::to_string_pretty(&v)?)?;
     } else {
-        print!("{report}");
+        let mut text = report.to_string();
         if failures.is_empty() {
-            println!("OK: within tolerance");
+            text += "OK: within tolerance";
         } else {
             for f in &failures {
-                println!("FAIL: {f}");
+                text += &format!("FAIL: {f}\n");
             }
         }
+        crate::emit(&text)?;
     }
     Ok(if failures.is_empty() {
         ExitCode::SUCCESS

@@ -45,21 +45,33 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Info { mesh, json } => {
             let m = subdfit::io::read_mesh(&mesh)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&m.report)?);
+                emit(&serde_json::to_string_pretty(&m.report)?)?;
             } else {
-                print!("{}", m.report);
+                emit(&m.report.to_string())?;
             }
             Ok(ExitCode::SUCCESS)
         }
         Command::Limit(a) => limit::limit(a),
         Command::DiffLimit(a) => limit::diff_limit(a),
         Command::Version => {
-            println!("subdfit {}", env!("CARGO_PKG_VERSION"));
+            let mut text = format!("subdfit {}", env!("CARGO_PKG_VERSION"));
             for (name, v) in subdfit::linked_library_versions() {
-                println!("{name} {v}");
+                text += &format!("\n{name} {v}");
             }
+            emit(&text)?;
             Ok(ExitCode::SUCCESS)
         }
+    }
+}
+
+/// Prints `text` and a newline to stdout. A closed pipe (`subdfit info … |
+/// head`) ends the output quietly instead of panicking like `println!`.
+pub(crate) fn emit(text: &str) -> Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    match writeln!(out, "{}", text.trim_end_matches('\n')).and_then(|_| out.flush()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => Ok(r?),
     }
 }
 
