@@ -233,6 +233,21 @@ impl Default for InterpolationOptions {
     }
 }
 
+impl InterpolationOptions {
+    pub fn with_solver(mut self, solver: InterpolationSolver) -> Self {
+        self.solver = solver;
+        self
+    }
+    pub fn with_tolerance(mut self, tolerance: f64) -> Self {
+        self.tolerance = tolerance;
+        self
+    }
+    pub fn with_max_iterations(mut self, max_iterations: usize) -> Self {
+        self.max_iterations = max_iterations;
+        self
+    }
+}
+
 /// What [`interpolate_limit`] / [`interpolate_limit_local`] did.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct InterpolationReport {
@@ -288,7 +303,8 @@ fn sweep(
             .map(|(r, &v)| targets[v.idx()] - l.apply_row(r, p))
             .collect()
     };
-    let max_norm = |r: &[DVec3]| r.iter().map(|x| x.abs().max_element()).fold(0.0, f64::max);
+    // Euclidean length: the tolerance is a distance (a fraction of the diagonal).
+    let max_norm = |r: &[DVec3]| r.iter().map(|x| x.length()).fold(0.0, f64::max);
     let mut r = residuals(p);
     let mut res = max_norm(&r);
     let first = res;

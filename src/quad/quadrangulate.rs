@@ -57,6 +57,17 @@ impl Default for QuadrangulateOptions {
     }
 }
 
+impl QuadrangulateOptions {
+    pub fn with_planarity_weight(mut self, w: f64) -> Self {
+        self.planarity_weight = w;
+        self
+    }
+    pub fn with_greedy_convex_only(mut self, on: bool) -> Self {
+        self.greedy_convex_only = on;
+        self
+    }
+}
+
 /// Shape of one quad `(q0, q1, q2, q3)` seen as the two triangles
 /// `(q0, q1, q2)` and `(q0, q2, q3)` sharing the diagonal `q0–q2`.
 #[derive(Copy, Clone, Debug, PartialEq)]
