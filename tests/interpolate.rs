@@ -171,9 +171,9 @@ fn regular_grid_matches_tensor_bspline_interpolation() {
     let f: Vec<f64> = (0..nx).map(|i| (i as f64 * 0.9).sin() + 0.2).collect();
     let g: Vec<f64> = (0..ny).map(|j| (j as f64 * 0.6).cos()).collect();
     let mut pos = Vec::new();
-    for j in 0..ny {
-        for i in 0..nx {
-            pos.push(DVec3::new(i as f64, j as f64, f[i] * g[j]));
+    for (j, gj) in g.iter().enumerate() {
+        for (i, fi) in f.iter().enumerate() {
+            pos.push(DVec3::new(i as f64, j as f64, fi * gj));
         }
     }
     let id = |i: usize, j: usize| (j * nx + i) as u32;
@@ -186,10 +186,10 @@ fn regular_grid_matches_tensor_bspline_interpolation() {
     let r = interpolate_limit(&mut k, &pos, &InterpolationOptions::default()).unwrap();
     let (cf, cg) = (bspline_interp_1d(&f), bspline_interp_1d(&g));
     let mut worst = 0.0f64;
-    for j in 0..ny {
-        for i in 0..nx {
+    for (j, cgj) in cg.iter().enumerate() {
+        for (i, cfi) in cf.iter().enumerate() {
             let p = k.position(VertexId(id(i, j)));
-            let want = DVec3::new(i as f64, j as f64, cf[i] * cg[j]);
+            let want = DVec3::new(i as f64, j as f64, cfi * cgj);
             worst = worst.max((p - want).length());
         }
     }

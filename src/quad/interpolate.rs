@@ -349,7 +349,7 @@ pub fn interpolate_limit(
         let (k, r) = sweep(&l, &rows, targets, &mut p, tol, opts.max_iterations);
         iterations = k;
         res = r;
-        if !(res <= tol) {
+        if res.is_nan() || res > tol {
             fell_back = true;
             solver = InterpolationSolver::Direct;
         }
