@@ -5,10 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn subdfit(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_subdfit"))
-        .args(args)
-        .output()
-        .unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_subdfit")).args(args).output().unwrap();
     (
         out.status.code().unwrap_or(-1),
         String::from_utf8_lossy(&out.stdout).into_owned(),
@@ -29,16 +26,8 @@ fn bad_control_meshes_fail_cleanly() {
     let dir = tempfile::tempdir().unwrap();
     let cases: Vec<(&str, String, &[&str])> = vec![
         ("garbage.obj", "v 0 0 zero\nf 1 2 3\n".into(), &["line 1"]),
-        (
-            "range.obj",
-            format!("{QUAD_HEADER}f 1 2 9\n"),
-            &["face 0", "9"],
-        ),
-        (
-            "nan.obj",
-            "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n".into(),
-            &["vertex 1"],
-        ),
+        ("range.obj", format!("{QUAD_HEADER}f 1 2 9\n"), &["face 0", "9"]),
+        ("nan.obj", "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n".into(), &["vertex 1"]),
         (
             "nonmanifold.obj",
             format!("{QUAD_HEADER}v 0 0 1\nv 1 1 1\nf 1 2 3\nf 2 1 4\nf 1 2 5\nf 6 1 3\n"),
@@ -52,15 +41,9 @@ fn bad_control_meshes_fail_cleanly() {
         let (code, _, err) = subdfit(&["limit", p.to_str().unwrap(), "-o", out.to_str().unwrap()]);
         assert_eq!(code, 2, "{name}: exit {code}, stderr: {err}");
         assert!(!err.contains("panicked"), "{name}: {err}");
-        assert!(
-            err.contains(name),
-            "{name}: error does not name the file: {err}"
-        );
+        assert!(err.contains(name), "{name}: error does not name the file: {err}");
         for n in needles {
-            assert!(
-                err.contains(n),
-                "{name}: error does not mention `{n}`: {err}"
-            );
+            assert!(err.contains(n), "{name}: error does not mention `{n}`: {err}");
         }
         assert!(!out.exists(), "{name}: partial output left behind");
     }
@@ -88,10 +71,7 @@ fn missing_file_and_bad_locations_fail_cleanly() {
             out.to_str().unwrap(),
         ]);
         assert_eq!(code, 2, "{backend}: {err}");
-        assert!(
-            err.contains("face 3") || err.contains("location 1"),
-            "{backend}: {err}"
-        );
+        assert!(err.contains("face 3") || err.contains("location 1"), "{backend}: {err}");
         assert!(!err.contains("panicked"), "{err}");
         assert!(!out.exists());
     }
@@ -110,30 +90,18 @@ fn limit_of_the_cube_corners_through_the_cli() {
     let p = write(dir.path(), "cube.obj", &text);
     for backend in ["osd", "rust"] {
         let out = dir.path().join(format!("{backend}.csv"));
-        let (code, _, err) = subdfit(&[
-            "limit",
-            p.to_str().unwrap(),
-            "--backend",
-            backend,
-            "-o",
-            out.to_str().unwrap(),
-        ]);
+        let (code, _, err) = subdfit(&["limit", p.to_str().unwrap(), "--backend", backend, "-o", out.to_str().unwrap()]);
         assert_eq!(code, 0, "{err}");
         let csv = std::fs::read_to_string(&out).unwrap();
         let mut lines = csv.lines();
         assert_eq!(lines.next(), Some("vertex,x,y,z,nx,ny,nz"));
-        let rows: Vec<Vec<f64>> = lines
-            .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
-            .collect();
+        let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|x| x.parse().unwrap()).collect()).collect();
         assert_eq!(rows.len(), 8);
         for r in rows {
             for k in 1..4 {
                 assert!((r[k].abs() - 0.5).abs() < 1e-12, "{backend}: {r:?}");
                 // The normal points outward along the diagonal.
-                assert!(
-                    (r[k + 3] - r[k].signum() / 3f64.sqrt()).abs() < 1e-9,
-                    "{backend}: {r:?}"
-                );
+                assert!((r[k + 3] - r[k].signum() / 3f64.sqrt()).abs() < 1e-9, "{backend}: {r:?}");
             }
         }
     }

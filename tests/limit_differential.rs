@@ -18,13 +18,10 @@ use subdfit::subdiv::{make_evaluator, Backend, EvalOptions};
 
 fn run(name: &str, mesh: &subdfit::mesh::ControlMesh, level: u8, samples: usize) -> DiffReport {
     let opts = EvalOptions::default().with_isolation_level(level);
-    let osd =
-        make_evaluator(Backend::Osd, mesh, &opts).unwrap_or_else(|e| panic!("{name}: osd: {e}"));
-    let rust =
-        make_evaluator(Backend::Rust, mesh, &opts).unwrap_or_else(|e| panic!("{name}: rust: {e}"));
+    let osd = make_evaluator(Backend::Osd, mesh, &opts).unwrap_or_else(|e| panic!("{name}: osd: {e}"));
+    let rust = make_evaluator(Backend::Rust, mesh, &opts).unwrap_or_else(|e| panic!("{name}: rust: {e}"));
     let locs = random_locations(mesh, samples, 7);
-    compare(mesh, osd.as_ref(), rust.as_ref(), &locs, 0.01)
-        .unwrap_or_else(|e| panic!("{name}: {e}"))
+    compare(mesh, osd.as_ref(), rust.as_ref(), &locs, 0.01).unwrap_or_else(|e| panic!("{name}: {e}"))
 }
 
 fn dump_on_failure(name: &str, mesh: &subdfit::mesh::ControlMesh, report: &DiffReport) {
@@ -59,26 +56,13 @@ fn evaluators_agree_on_fixture_collection() {
 #[test]
 fn end_cap_error_shrinks_with_isolation_level() {
     for (name, mesh) in fixtures::collection() {
-        let near: Vec<f64> = [2u8, 6, 10]
-            .iter()
-            .map(|&l| run(name, &mesh, l, 4_000).near_irregular.position)
-            .collect();
+        let near: Vec<f64> = [2u8, 6, 10].iter().map(|&l| run(name, &mesh, l, 4_000).near_irregular.position).collect();
         println!("{name}: near-irregular worst deviation at isolation 2/6/10: {near:?}");
         if near[0] > 1e-9 {
-            assert!(
-                near[2] < near[0],
-                "{name}: {near:?} does not shrink from level 2 to 10"
-            );
-            assert!(
-                near[2] <= near[1] * 1.5 + 1e-12,
-                "{name}: {near:?} grows from level 6 to 10"
-            );
+            assert!(near[2] < near[0], "{name}: {near:?} does not shrink from level 2 to 10");
+            assert!(near[2] <= near[1] * 1.5 + 1e-12, "{name}: {near:?} grows from level 6 to 10");
         }
-        assert!(
-            near[2] < 1e-4,
-            "{name}: end-cap deviation {} at level 10",
-            near[2]
-        );
+        assert!(near[2] < 1e-4, "{name}: end-cap deviation {} at level 10", near[2]);
     }
 }
 
