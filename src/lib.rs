@@ -9,6 +9,7 @@ pub mod error;
 pub mod fixtures;
 pub mod io;
 pub mod mesh;
+pub mod quad;
 pub mod raycast;
 pub mod solve;
 pub mod subdiv;

@@ -1,0 +1,18 @@
+//! Quad control meshes (Fitmaps §3.2): turning the input triangle mesh M into
+//! a pure quad mesh on the same vertex set ([`quadrangulate`], after Tarini et
+//! al. 2010, "Practical quad mesh simplification"), and placing its vertices
+//! so that the Catmull-Clark limit surface interpolates M's vertices
+//! ([`interpolate_limit`], system (1) `L V_K = V_M`).
+
+mod interpolate;
+mod matching;
+mod quadrangulate;
+
+pub use interpolate::{
+    interpolate_limit, interpolate_limit_local, limit_positions, vertex_limit_mask,
+    InterpolationOptions, InterpolationReport, InterpolationSolver,
+};
+pub use quadrangulate::{
+    quad_quality, quadrangulate, ParityFix, ParityFixKind, QuadQuality, QuadSource,
+    QuadrangulateOptions, Quadrangulation, QuadrangulationReport, QualityStats,
+};
