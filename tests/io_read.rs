@@ -1,6 +1,8 @@
 //! Readers: every format, pure Rust against OpenMesh, and the validation
 //! report on the shared test meshes against the numbers in their README.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -405,13 +407,7 @@ const MESHES: &[(&str, usize, usize, bool, i64, usize, f64)] = &[
 ];
 
 fn shared_data() -> Option<PathBuf> {
-    let d = PathBuf::from("/work/shared/data");
-    if d.is_dir() {
-        Some(d)
-    } else {
-        println!("SKIPPED: /work/shared/data is absent; shared-mesh checks not run");
-        None
-    }
+    common::data_dir()
 }
 
 #[test]
