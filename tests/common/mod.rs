@@ -1,0 +1,312 @@
+//! Test helpers shared by the integration tests: meshes (procedural and from
+//! `/work/shared/data`) and random query generators.
+#![allow(dead_code)] // each test binary uses a different subset
+
+use std::path::{Path, PathBuf};
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use subdfit::mesh::TriMesh;
+use subdfit::DVec3;
+
+/// Folder of the shared test meshes, or `None` (with a message saying so)
+/// when it is absent, in which case data-driven tests skip.
+pub fn data_dir() -> Option<PathBuf> {
+    let dir = std::env::var_os("SUBDFIT_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("/work/shared/data"));
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        eprintln!(
+            "SKIPPED: test data folder {} is absent (set SUBDFIT_DATA to the folder holding bunny.ply)",
+            dir.display()
+        );
+        None
+    }
+}
+
+/// Loads a mesh of the shared data set, or `None` if the data is absent.
+pub fn load_data_mesh(name: &str) -> Option<TriMesh> {
+    let path = data_dir()?.join(name);
+    Some(read_ply_tri(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display())))
+}
+
+/// TEMPORARY: a minimal binary-little-endian PLY reader (vertex x/y/z of any
+/// scalar type, faces as a `list` of indices, polygons fan-triangulated),
+/// enough for `/work/shared/data`. To be replaced by `subdfit::io` once the
+/// I/O module is merged.
+pub fn read_ply_tri(path: &Path) -> Result<TriMesh, String> {
+    let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
+    let end = b"end_header\n";
+    let hdr_end = bytes
+        .windows(end.len())
+        .position(|w| w == end)
+        .ok_or("no end_header")?
+        + end.len();
+    let header = std::str::from_utf8(&bytes[..hdr_end]).map_err(|e| e.to_string())?;
+    if !header.contains("format binary_little_endian 1.0") {
+        return Err("only binary_little_endian PLY is supported".into());
+    }
+    #[derive(Default)]
+    struct Elem {
+        name: String,
+        count: usize,
+        // (name, scalar type) or ("list", count type, index type) as
+        // (name, ty, Some(count_ty)).
+        props: Vec<(String, String, Option<String>)>,
+    }
+    let mut elems: Vec<Elem> = Vec::new();
+    for line in header.lines() {
+        let w: Vec<&str> = line.split_whitespace().collect();
+        match w.as_slice() {
+            ["element", name, n] => elems.push(Elem {
+                name: name.to_string(),
+                count: n.parse().map_err(|_| format!("bad count in {line:?}"))?,
+                props: vec![],
+            }),
+            ["property", "list", cty, ity, name] => elems
+                .last_mut()
+                .ok_or("property before element")?
+                .props
+                .push((name.to_string(), ity.to_string(), Some(cty.to_string()))),
+            ["property", ty, name] => elems
+                .last_mut()
+                .ok_or("property before element")?
+                .props
+                .push((name.to_string(), ty.to_string(), None)),
+            _ => {}
+        }
+    }
+    fn size_of(ty: &str) -> Result<usize, String> {
+        Ok(match ty {
+            "char" | "uchar" | "int8" | "uint8" => 1,
+            "short" | "ushort" | "int16" | "uint16" => 2,
+            "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
+            "double" | "float64" => 8,
+            _ => return Err(format!("unknown PLY type {ty}")),
+        })
+    }
+    fn read(ty: &str, b: &[u8]) -> f64 {
+        match ty {
+            "char" | "int8" => b[0] as i8 as f64,
+            "uchar" | "uint8" => b[0] as f64,
+            "short" | "int16" => i16::from_le_bytes([b[0], b[1]]) as f64,
+            "ushort" | "uint16" => u16::from_le_bytes([b[0], b[1]]) as f64,
+            "int" | "int32" => i32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
+            "uint" | "uint32" => u32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
+            "float" | "float32" => f32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
+            _ => f64::from_le_bytes(b[..8].try_into().unwrap()),
+        }
+    }
+    let mut pos = hdr_end;
+    let mut mesh = TriMesh::default();
+    let take = |pos: &mut usize, n: usize| -> Result<&[u8], String> {
+        let s = bytes.get(*pos..*pos + n).ok_or("truncated file")?;
+        *pos += n;
+        Ok(s)
+    };
+    for e in &elems {
+        for _ in 0..e.count {
+            let mut xyz = [0.0; 3];
+            for (name, ty, list) in &e.props {
+                if let Some(cty) = list {
+                    let n = read(cty, take(&mut pos, size_of(cty)?)?) as usize;
+                    let mut idx = Vec::with_capacity(n);
+                    for _ in 0..n {
+                        idx.push(read(ty, take(&mut pos, size_of(ty)?)?) as u32);
+                    }
+                    if e.name == "face" && name.starts_with("vertex_ind") {
+                        for k in 1..n.saturating_sub(1) {
+                            mesh.triangles.push([idx[0], idx[k], idx[k + 1]]);
+                        }
+                    }
+                } else {
+                    let v = read(ty, take(&mut pos, size_of(ty)?)?);
+                    match name.as_str() {
+                        "x" => xyz[0] = v,
+                        "y" => xyz[1] = v,
+                        "z" => xyz[2] = v,
+                        _ => {}
+                    }
+                }
+            }
+            if e.name == "vertex" {
+                mesh.positions.push(DVec3::from_array(xyz));
+            }
+        }
+    }
+    Ok(mesh)
+}
+
+/// Deterministic hash noise in [-1, 1] for procedural meshes.
+fn hash_noise(i: u64) -> f64 {
+    let mut x = i.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    x ^= x >> 31;
+    x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x ^= x >> 29;
+    (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+}
+
+/// A closed torus (major radius `r_major`, minor `r_minor`), `n` x `m` quads
+/// split into `2 n m` triangles, each vertex moved radially (around the tube)
+/// by up to `noise * r_minor`: a curved, irregular, watertight test mesh.
+pub fn perturbed_torus(n: u32, m: u32, r_major: f64, r_minor: f64, noise: f64) -> TriMesh {
+    let mut positions = Vec::with_capacity((n * m) as usize);
+    for i in 0..n {
+        let a = i as f64 / n as f64 * std::f64::consts::TAU;
+        for j in 0..m {
+            let b = j as f64 / m as f64 * std::f64::consts::TAU;
+            let r = r_minor * (1.0 + noise * hash_noise((i * m + j) as u64));
+            let ring = r_major + r * b.cos();
+            positions.push(DVec3::new(ring * a.cos(), ring * a.sin(), r * b.sin()));
+        }
+    }
+    let id = |i: u32, j: u32| (i % n) * m + (j % m);
+    let mut triangles = Vec::with_capacity((2 * n * m) as usize);
+    for i in 0..n {
+        for j in 0..m {
+            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+            triangles.push([a, b, c]);
+            triangles.push([a, c, d]);
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+/// Icosphere of radius `r` centred at `c`: the icosahedron with each face
+/// split `4^level` times, vertices projected onto the sphere (so every face
+/// plane lies inside the sphere).
+pub fn icosphere(level: u32, c: DVec3, r: f64) -> TriMesh {
+    let p = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut pos: Vec<DVec3> = [
+        (-1.0, p, 0.0),
+        (1.0, p, 0.0),
+        (-1.0, -p, 0.0),
+        (1.0, -p, 0.0),
+        (0.0, -1.0, p),
+        (0.0, 1.0, p),
+        (0.0, -1.0, -p),
+        (0.0, 1.0, -p),
+        (p, 0.0, -1.0),
+        (p, 0.0, 1.0),
+        (-p, 0.0, -1.0),
+        (-p, 0.0, 1.0),
+    ]
+    .iter()
+    .map(|&(x, y, z)| DVec3::new(x, y, z).normalize())
+    .collect();
+    let mut tris: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..level {
+        let mut mid = std::collections::HashMap::new();
+        let mut midpoint = |a: u32, b: u32, pos: &mut Vec<DVec3>| -> u32 {
+            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                pos.push((pos[a as usize] + pos[b as usize]).normalize());
+                pos.len() as u32 - 1
+            })
+        };
+        let mut next = Vec::with_capacity(tris.len() * 4);
+        for [a, b, c] in tris {
+            let ab = midpoint(a, b, &mut pos);
+            let bc = midpoint(b, c, &mut pos);
+            let ca = midpoint(c, a, &mut pos);
+            next.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        tris = next;
+    }
+    TriMesh {
+        positions: pos.into_iter().map(|q| c + r * q).collect(),
+        triangles: tris,
+    }
+}
+
+/// An `n` x `n` grid of unit squares in the plane z = 0 (corner at the
+/// origin), two triangles per square; all coordinates are small integers, so
+/// vertices and edge midpoints are exactly representable (watertight tests).
+pub fn flat_grid(n: u32) -> TriMesh {
+    let mut positions = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            positions.push(DVec3::new(i as f64, j as f64, 0.0));
+        }
+    }
+    let mut triangles = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let v = j * (n + 1) + i;
+            triangles.push([v, v + 1, v + n + 2]);
+            triangles.push([v, v + n + 2, v + n + 1]);
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+pub fn seeded_rng(seed: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed)
+}
+
+/// Uniform direction on the unit sphere.
+pub fn random_dir(rng: &mut ChaCha8Rng) -> DVec3 {
+    let z: f64 = rng.gen_range(-1.0..1.0);
+    let phi: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
+    let s = (1.0 - z * z).sqrt();
+    DVec3::new(s * phi.cos(), s * phi.sin(), z)
+}
+
+/// Uniform point in the mesh bounding box grown by `grow` of its size.
+pub fn random_point_in_bbox(rng: &mut ChaCha8Rng, mesh: &TriMesh, grow: f64) -> DVec3 {
+    let (lo, hi) = mesh.bbox();
+    let c = 0.5 * (lo + hi);
+    let h = 0.5 * (hi - lo) * (1.0 + grow);
+    c + DVec3::new(
+        rng.gen_range(-1.0..1.0) * h.x,
+        rng.gen_range(-1.0..1.0) * h.y,
+        rng.gen_range(-1.0..1.0) * h.z,
+    )
+}
+
+/// A random point on a random non-degenerate triangle, with that triangle's
+/// unit normal.
+pub fn random_surface_point(rng: &mut ChaCha8Rng, mesh: &TriMesh) -> (DVec3, DVec3) {
+    loop {
+        let t = rng.gen_range(0..mesh.triangles.len());
+        let [a, b, c] = mesh.triangle(t);
+        let n = (b - a).cross(c - a);
+        if n.length() == 0.0 {
+            continue;
+        }
+        let (mut u, mut v): (f64, f64) = (rng.gen(), rng.gen());
+        if u + v > 1.0 {
+            u = 1.0 - u;
+            v = 1.0 - v;
+        }
+        return ((1.0 - u - v) * a + u * b + v * c, n.normalize());
+    }
+}
