@@ -22,6 +22,7 @@
 
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
+use std::mem::MaybeUninit;
 
 use rayon::prelude::*;
 
@@ -365,7 +366,8 @@ impl BvhCaster {
         let mut best: Option<Hit> = None;
         let mut tfar = ray.tmax;
         slab(&self.nodes[0], tfar)?;
-        let mut stack = [(0u32, 0f64); STACK];
+        // Uninitialised: zeroing 2 KiB per ray costs ~10% on short rays.
+        let mut stack = [const { MaybeUninit::<(u32, f64)>::uninit() }; STACK];
         let mut sp = 0usize;
         let mut node = 0usize;
         loop {
@@ -393,7 +395,7 @@ impl BvhCaster {
                     (Some(tl), Some(tr_)) => {
                         let (near, far, tfar_entry) =
                             if tl <= tr_ { (l, r, tr_) } else { (r, l, tl) };
-                        stack[sp] = (far as u32, tfar_entry);
+                        stack[sp].write((far as u32, tfar_entry));
                         sp += 1;
                         node = near;
                         continue;
@@ -415,7 +417,8 @@ impl BvhCaster {
                     return best;
                 }
                 sp -= 1;
-                let (k, t_entry) = stack[sp];
+                // SAFETY: entries below `sp` were written by the push above.
+                let (k, t_entry) = unsafe { stack[sp].assume_init() };
                 if t_entry <= tfar {
                     node = k as usize;
                     break;
