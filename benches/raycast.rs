@@ -105,7 +105,7 @@ fn main() {
     eprintln!("\nper CPU-second of the tracing thread (best of 3):");
     for rc in &casters {
         let name = rc.name();
-        let mut row = |what: &str, f: &(dyn Fn() + Sync)| {
+        let row = |what: &str, f: &(dyn Fn() + Sync)| {
             let best = (0..3)
                 .map(|_| {
                     pool.install(|| {

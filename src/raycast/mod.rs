@@ -203,7 +203,7 @@ fn check_lines(origins: &[DVec3], dirs: &[DVec3], max_t: f64) -> Result<()> {
             dirs.len()
         )));
     }
-    if !(max_t >= 0.0) {
+    if max_t.is_nan() || max_t < 0.0 {
         return Err(Error::InvalidArgument(format!(
             "line_hits: max_t must be >= 0, got {max_t}"
         )));
@@ -212,7 +212,7 @@ fn check_lines(origins: &[DVec3], dirs: &[DVec3], max_t: f64) -> Result<()> {
 }
 
 pub(crate) fn check_max_dist(max_dist: f64) -> Result<()> {
-    if !(max_dist >= 0.0) {
+    if max_dist.is_nan() || max_dist < 0.0 {
         return Err(Error::InvalidArgument(format!(
             "closest_points: max_dist must be >= 0, got {max_dist}"
         )));
