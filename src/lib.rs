@@ -18,8 +18,8 @@ pub(crate) mod ffi;
 
 pub use error::{Error, Result};
 
-/// Vector types used across the crate (double precision everywhere except
-/// inside the ray casters, which store `f32` triangles like Embree).
+/// Vector types used across the crate: double precision everywhere (only
+/// Embree's copy of the triangles is `f32`; hits are recomputed in `f64`).
 pub use glam::{DVec2, DVec3};
 
 /// Versions of the C++ libraries linked in, as `(name, version)`.

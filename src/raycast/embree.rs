@@ -1,27 +1,197 @@
-use crate::error::Result;
+//! [`RayCaster`] over Embree 3.13 (robust scene, high build quality).
+//!
+//! Embree stores `f32` vertices. To keep their precision the mesh is
+//! translated so that its bounding-box centre is the origin (query origins
+//! are translated the same way, in f64, before rounding). Embree then only
+//! *selects* the triangle: every hit is recomputed in f64 against the original
+//! triangle ([`refine_hit`]), and closest points are computed in f64 both in
+//! the C++ callback and here, so results carry f64 accuracy for the chosen
+//! triangle.
+
+use cxx::UniquePtr;
+use rayon::prelude::*;
+
+use crate::error::{Error, Result};
+use crate::ffi::embree::bridge;
 use crate::mesh::TriMesh;
-use crate::raycast::{ClosestPoint, Hit, Ray, RayCaster};
+use crate::raycast::{
+    check_max_dist, closest_on_triangle, surface_triangles, ClosestPoint, Hit, Ray, RayCaster,
+};
 use crate::DVec3;
 
-pub struct EmbreeCaster {}
+/// Queries per bridge call: large enough to amortise the FFI call and the
+/// FTZ/DAZ switch, small enough to balance across rayon workers.
+const CHUNK: usize = 1024;
+const MISS: u32 = u32::MAX;
+
+pub struct EmbreeCaster {
+    scene: UniquePtr<bridge::EmbreeScene>,
+    /// Subtracted from every position sent to Embree.
+    center: DVec3,
+    /// Embree primitive id -> mesh triangle id (zero-area triangles are not
+    /// given to Embree).
+    prim_to_tri: Vec<u32>,
+    positions: Vec<DVec3>,
+    triangles: Vec<[u32; 3]>,
+}
+
+fn backend_err(e: cxx::Exception) -> Error {
+    Error::backend("Embree", e.what().to_string())
+}
 
 impl EmbreeCaster {
-    pub fn new(_mesh: &TriMesh) -> Result<Self> {
-        Ok(EmbreeCaster {})
+    /// Builds the Embree scene over `mesh`. Errors: invalid mesh (see
+    /// [`surface_triangles`]) or an Embree device error.
+    pub fn new(mesh: &TriMesh) -> Result<Self> {
+        let prim_to_tri = surface_triangles(mesh)?;
+        let (lo, hi) = mesh.bbox();
+        let center = 0.5 * (lo + hi);
+        let vertices: Vec<f32> = mesh
+            .positions
+            .iter()
+            .flat_map(|&p| (p - center).as_vec3().to_array())
+            .collect();
+        let positions_f64: Vec<f64> = mesh.positions.iter().flat_map(|p| p.to_array()).collect();
+        let tris: Vec<u32> = prim_to_tri
+            .iter()
+            .flat_map(|&t| mesh.triangles[t as usize])
+            .collect();
+        let scene = bridge::new_scene(&vertices, &tris, &positions_f64).map_err(backend_err)?;
+        Ok(EmbreeCaster {
+            scene,
+            center,
+            prim_to_tri,
+            positions: mesh.positions.clone(),
+            triangles: mesh.triangles.clone(),
+        })
     }
+
+    fn tri(&self, t: u32) -> [DVec3; 3] {
+        self.triangles[t as usize].map(|i| self.positions[i as usize])
+    }
+
+    fn trace_chunk(&self, rays: &[Ray]) -> Result<Vec<Option<Hit>>> {
+        let mut buf = Vec::with_capacity(8 * rays.len());
+        for r in rays {
+            if r.is_valid() {
+                let o = (r.origin - self.center).as_vec3();
+                let d = r.dir.as_vec3();
+                buf.extend_from_slice(&[
+                    o.x,
+                    o.y,
+                    o.z,
+                    r.tmin as f32,
+                    d.x,
+                    d.y,
+                    d.z,
+                    r.tmax as f32,
+                ]);
+            } else {
+                // tnear > tfar: the bridge reports a miss without tracing.
+                buf.extend_from_slice(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0]);
+            }
+        }
+        let mut tuv = vec![0f32; 3 * rays.len()];
+        let mut prim = vec![MISS; rays.len()];
+        self.scene
+            .intersect(&buf, &mut tuv, &mut prim)
+            .map_err(backend_err)?;
+        Ok(rays
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                if prim[i] == MISS || !r.is_valid() {
+                    return None;
+                }
+                let tri = self.prim_to_tri[prim[i] as usize];
+                let raw = Hit {
+                    t: tuv[3 * i] as f64,
+                    triangle: tri,
+                    u: tuv[3 * i + 1] as f64,
+                    v: tuv[3 * i + 2] as f64,
+                };
+                Some(refine_hit(self.tri(tri), r, raw))
+            })
+            .collect())
+    }
+
+    fn closest_chunk(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>> {
+        let p32: Vec<f32> = points
+            .iter()
+            .flat_map(|&p| {
+                if p.is_finite() {
+                    (p - self.center).as_vec3().to_array()
+                } else {
+                    [0.0; 3] // skipped by the bridge (it checks the f64 copy)
+                }
+            })
+            .collect();
+        let p64: Vec<f64> = points.iter().flat_map(|p| p.to_array()).collect();
+        let mut prim = vec![MISS; points.len()];
+        self.scene
+            .closest_points(&p32, &p64, max_dist, &mut prim)
+            .map_err(backend_err)?;
+        Ok(points
+            .iter()
+            .zip(&prim)
+            .map(|(&p, &k)| {
+                (k != MISS).then(|| {
+                    let tri = self.prim_to_tri[k as usize];
+                    closest_on_triangle(self.tri(tri), tri, p)
+                })
+            })
+            .collect())
+    }
+}
+
+/// Recomputes an f32 Embree hit in f64 against the original triangle: `t`
+/// from the plane of the triangle, `(u, v)` from the barycentrics of the
+/// f64 hit point, clamped to the triangle (Embree picked this triangle, so
+/// any excursion is f32 rounding at an edge). Keeps Embree's values for a
+/// ray parallel to the plane (grazing hit, where the plane gives no `t`).
+pub(crate) fn refine_hit(tri: [DVec3; 3], ray: &Ray, raw: Hit) -> Hit {
+    let [a, b, c] = tri;
+    let e1 = b - a;
+    let e2 = c - a;
+    let n = e1.cross(e2);
+    let denom = n.dot(ray.dir);
+    let t = n.dot(a - ray.origin) / denom;
+    if denom == 0.0 || !t.is_finite() {
+        return raw;
+    }
+    let w = ray.at(t) - a;
+    let (d00, d01, d11) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let (d20, d21) = (w.dot(e1), w.dot(e2));
+    let den = d00 * d11 - d01 * d01;
+    let mut u = ((d11 * d20 - d01 * d21) / den).max(0.0);
+    let mut v = ((d00 * d21 - d01 * d20) / den).max(0.0);
+    if u + v > 1.0 {
+        let s = u + v;
+        u /= s;
+        v /= s;
+    }
+    Hit { t, u, v, ..raw }
 }
 
 impl RayCaster for EmbreeCaster {
     fn name(&self) -> &'static str {
         "embree"
     }
-    fn first_hits(&self, rays: &[Ray]) -> Vec<Option<Hit>> {
-        vec![None; rays.len()]
+
+    fn first_hits(&self, rays: &[Ray]) -> Result<Vec<Option<Hit>>> {
+        let chunks: Vec<Vec<Option<Hit>>> = rays
+            .par_chunks(CHUNK)
+            .map(|c| self.trace_chunk(c))
+            .collect::<Result<_>>()?;
+        Ok(chunks.into_iter().flatten().collect())
     }
-    fn line_hits(&self, origins: &[DVec3], _dirs: &[DVec3], _max_t: f64) -> Vec<Option<Hit>> {
-        vec![None; origins.len()]
-    }
-    fn closest_points(&self, points: &[DVec3], _max_dist: f64) -> Vec<Option<ClosestPoint>> {
-        vec![None; points.len()]
+
+    fn closest_points(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>> {
+        check_max_dist(max_dist)?;
+        let chunks: Vec<Vec<Option<ClosestPoint>>> = points
+            .par_chunks(CHUNK)
+            .map(|c| self.closest_chunk(c, max_dist))
+            .collect::<Result<_>>()?;
+        Ok(chunks.into_iter().flatten().collect())
     }
 }

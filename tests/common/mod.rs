@@ -3,7 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use subdfit::mesh::TriMesh;
+use subdfit::DVec3;
 
 /// The shared test meshes: `$SUBDFIT_DATA`, else `../shared/data` beside the
 /// repository. `None` (with a message saying so) when absent: tests that need
@@ -37,5 +40,187 @@ pub fn load_ply(path: &Path) -> TriMesh {
     TriMesh {
         positions: soup.positions,
         triangles,
+    }
+}
+
+/// Loads a mesh of the shared data set (validated: unreferenced vertices
+/// dropped), or `None` if the data is absent.
+pub fn load_data_mesh(name: &str) -> Option<TriMesh> {
+    let path = data_dir()?.join(name);
+    Some(
+        subdfit::io::read_mesh(&path)
+            .unwrap_or_else(|e| panic!("{e}"))
+            .mesh,
+    )
+}
+/// Deterministic hash noise in [-1, 1] for procedural meshes.
+fn hash_noise(i: u64) -> f64 {
+    let mut x = i.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    x ^= x >> 31;
+    x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x ^= x >> 29;
+    (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+}
+
+/// A closed torus (major radius `r_major`, minor `r_minor`), `n` x `m` quads
+/// split into `2 n m` triangles, each vertex moved radially (around the tube)
+/// by up to `noise * r_minor`: a curved, irregular, watertight test mesh.
+pub fn perturbed_torus(n: u32, m: u32, r_major: f64, r_minor: f64, noise: f64) -> TriMesh {
+    let mut positions = Vec::with_capacity((n * m) as usize);
+    for i in 0..n {
+        let a = i as f64 / n as f64 * std::f64::consts::TAU;
+        for j in 0..m {
+            let b = j as f64 / m as f64 * std::f64::consts::TAU;
+            let r = r_minor * (1.0 + noise * hash_noise((i * m + j) as u64));
+            let ring = r_major + r * b.cos();
+            positions.push(DVec3::new(ring * a.cos(), ring * a.sin(), r * b.sin()));
+        }
+    }
+    let id = |i: u32, j: u32| (i % n) * m + (j % m);
+    let mut triangles = Vec::with_capacity((2 * n * m) as usize);
+    for i in 0..n {
+        for j in 0..m {
+            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+            triangles.push([a, b, c]);
+            triangles.push([a, c, d]);
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+/// Icosphere of radius `r` centred at `c`: the icosahedron with each face
+/// split `4^level` times, vertices projected onto the sphere (so every face
+/// plane lies inside the sphere).
+pub fn icosphere(level: u32, c: DVec3, r: f64) -> TriMesh {
+    let p = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut pos: Vec<DVec3> = [
+        (-1.0, p, 0.0),
+        (1.0, p, 0.0),
+        (-1.0, -p, 0.0),
+        (1.0, -p, 0.0),
+        (0.0, -1.0, p),
+        (0.0, 1.0, p),
+        (0.0, -1.0, -p),
+        (0.0, 1.0, -p),
+        (p, 0.0, -1.0),
+        (p, 0.0, 1.0),
+        (-p, 0.0, -1.0),
+        (-p, 0.0, 1.0),
+    ]
+    .iter()
+    .map(|&(x, y, z)| DVec3::new(x, y, z).normalize())
+    .collect();
+    let mut tris: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..level {
+        let mut mid = std::collections::HashMap::new();
+        let mut midpoint = |a: u32, b: u32, pos: &mut Vec<DVec3>| -> u32 {
+            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                pos.push((pos[a as usize] + pos[b as usize]).normalize());
+                pos.len() as u32 - 1
+            })
+        };
+        let mut next = Vec::with_capacity(tris.len() * 4);
+        for [a, b, c] in tris {
+            let ab = midpoint(a, b, &mut pos);
+            let bc = midpoint(b, c, &mut pos);
+            let ca = midpoint(c, a, &mut pos);
+            next.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        tris = next;
+    }
+    TriMesh {
+        positions: pos.into_iter().map(|q| c + r * q).collect(),
+        triangles: tris,
+    }
+}
+
+/// An `n` x `n` grid of unit squares in the plane z = 0 (corner at the
+/// origin), two triangles per square; all coordinates are small integers, so
+/// vertices and edge midpoints are exactly representable (watertight tests).
+pub fn flat_grid(n: u32) -> TriMesh {
+    let mut positions = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            positions.push(DVec3::new(i as f64, j as f64, 0.0));
+        }
+    }
+    let mut triangles = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let v = j * (n + 1) + i;
+            triangles.push([v, v + 1, v + n + 2]);
+            triangles.push([v, v + n + 2, v + n + 1]);
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+pub fn seeded_rng(seed: u64) -> ChaCha8Rng {
+    ChaCha8Rng::seed_from_u64(seed)
+}
+
+/// Uniform direction on the unit sphere.
+pub fn random_dir(rng: &mut ChaCha8Rng) -> DVec3 {
+    let z: f64 = rng.gen_range(-1.0..1.0);
+    let phi: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
+    let s = (1.0 - z * z).sqrt();
+    DVec3::new(s * phi.cos(), s * phi.sin(), z)
+}
+
+/// Uniform point in the mesh bounding box grown by `grow` of its size.
+pub fn random_point_in_bbox(rng: &mut ChaCha8Rng, mesh: &TriMesh, grow: f64) -> DVec3 {
+    let (lo, hi) = mesh.bbox();
+    let c = 0.5 * (lo + hi);
+    let h = 0.5 * (hi - lo) * (1.0 + grow);
+    c + DVec3::new(
+        rng.gen_range(-1.0..1.0) * h.x,
+        rng.gen_range(-1.0..1.0) * h.y,
+        rng.gen_range(-1.0..1.0) * h.z,
+    )
+}
+
+/// A random point on a random non-degenerate triangle, with that triangle's
+/// unit normal.
+pub fn random_surface_point(rng: &mut ChaCha8Rng, mesh: &TriMesh) -> (DVec3, DVec3) {
+    loop {
+        let t = rng.gen_range(0..mesh.triangles.len());
+        let [a, b, c] = mesh.triangle(t);
+        let n = (b - a).cross(c - a);
+        if n.length() == 0.0 {
+            continue;
+        }
+        let (mut u, mut v): (f64, f64) = (rng.gen(), rng.gen());
+        if u + v > 1.0 {
+            u = 1.0 - u;
+            v = 1.0 - v;
+        }
+        return ((1.0 - u - v) * a + u * b + v * c, n.normalize());
     }
 }
