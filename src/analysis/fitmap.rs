@@ -65,8 +65,9 @@ pub const MIN_FIT_POINTS: usize = 20;
 /// follows scanner noise; at 10 % visible folds pass.
 pub const DEFAULT_TOLERANCE: f64 = 0.05;
 
-/// Fast mode: the largest fit, in vertices; bigger balls are subsampled
-/// uniformly (an unbiased subsample of the least-squares sum of §3.1.2).
+/// Fast mode: the expected size of a fit, in vertices; bigger balls are
+/// subsampled uniformly (an unbiased subsample of the least-squares sum of
+/// §3.1.2, see `keep_vertex`).
 /// 256 points determine a cubic's RMS residual to a few percent.
 pub const FAST_MAX_FIT_POINTS: usize = 256;
 
@@ -316,6 +317,17 @@ fn stream_seed(seed: u64, v: u32, i: usize) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
+}
+
+/// Poisson subsampling of a large ball for the fit: vertex `v` is kept with
+/// probability `keep`, decided by a hash of `(seed, p, v)` alone. Unlike
+/// drawing indices into the ball's list, one vertex entering or leaving the
+/// ball (a boundary vertex within round-off of the radius, after a rigid
+/// motion or a scaling) changes the subsample by that vertex only.
+#[inline]
+fn keep_vertex(seed: u64, p: u32, v: u32, keep: f64) -> bool {
+    let h = stream_seed(seed ^ 0xf17_5ab5, p, v as usize);
+    ((h >> 11) as f64) * (1.0 / (1u64 << 53) as f64) < keep
 }
 
 /// A uniform point of triangle `t`.
@@ -619,10 +631,13 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
                         .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
                 );
             } else {
-                for _ in 0..FAST_MAX_FIT_POINTS {
-                    let v = sorted[rng.gen_range(0..nb)].1;
-                    sc.pts.push(frame.to_local(ctx.mesh.positions[v as usize]));
-                }
+                let keep = FAST_MAX_FIT_POINTS as f64 / nb as f64;
+                sc.pts.extend(
+                    sorted[..nb]
+                        .iter()
+                        .filter(|&&(_, v)| keep_vertex(ctx.opts.seed, p, v, keep))
+                        .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
+                );
             }
             res.fits += 1;
             let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, None, r) else {
@@ -708,9 +723,11 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
                     take(c, sc);
                 }
             } else {
-                for _ in 0..FAST_MAX_FIT_POINTS {
-                    let c = sorted[rng.gen_range(0..sorted.len())].1;
-                    take(c, sc);
+                let keep = FAST_MAX_FIT_POINTS as f64 / sorted.len() as f64;
+                for &(_, c) in &sorted {
+                    if keep_vertex(ctx.opts.seed, p, c, keep) {
+                        take(c, sc);
+                    }
                 }
             }
             res.fits += 1;
