@@ -194,6 +194,11 @@ impl Fitmap {
 /// The radii `r_0..r_h` of §3.1.2 for `mesh`, or an error when they are not
 /// defined (no edges, zero extent, or `r_h <= r_0`: a mesh so coarse that a
 /// quarter of its diagonal is shorter than its mean edge).
+///
+/// The bounding box is the axis-aligned one of §3.1.2, so the radii (and
+/// with them the Fitmap) are invariant under translations and axis
+/// permutations but not under general rotations (a rotated mesh has a
+/// different axis-aligned diagonal, up to a factor √3).
 pub fn fitmap_radii(mesh: &TriMesh) -> Result<Vec<f64>> {
     let (mut sum, mut count) = (0.0, 0usize);
     for tri in &mesh.triangles {
