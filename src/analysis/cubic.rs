@@ -185,6 +185,7 @@ pub struct CubicFit {
     pub rms: f64,
 }
 
+#[allow(clippy::needless_range_loop)] // index loops mirror the Cholesky formulas
 /// Fits `h = g(u, v)` to local points `pts` (weights `w`, all 1 when
 /// `None`) by linear least squares (§3.1.2). `scale` > 0 is the
 /// neighbourhood radius. Returns `None` when the system is rank deficient
@@ -192,7 +193,7 @@ pub struct CubicFit {
 /// no well-posed cubic and the caller skips it.
 pub fn fit_cubic(pts: &[DVec3], w: Option<&[f64]>, scale: f64) -> Option<CubicFit> {
     const N: usize = CUBIC_COEFFICIENTS;
-    if pts.len() < N || !(scale > 0.0) || !scale.is_finite() {
+    if pts.len() < N || scale.is_nan() || scale <= 0.0 || !scale.is_finite() {
         return None;
     }
     let inv = 1.0 / scale;
@@ -220,7 +221,7 @@ pub fn fit_cubic(pts: &[DVec3], w: Option<&[f64]>, scale: f64) -> Option<CubicFi
         for k in 0..j {
             d -= l[j][k] * l[j][k];
         }
-        if !(d > 1e-11 * ata[j][j].max(f64::MIN_POSITIVE)) {
+        if d.is_nan() || d <= 1e-11 * ata[j][j].max(f64::MIN_POSITIVE) {
             return None;
         }
         let d = d.sqrt();

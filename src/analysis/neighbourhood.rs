@@ -131,6 +131,7 @@ impl PartialOrd for Entry {
 /// radius `r` is the prefix with `key <= r`. `centre` is the point distances
 /// are measured from (the position of `p`). `key_of` is scratch of
 /// `positions.len()` entries, all `f64::INFINITY` on entry and on exit.
+#[allow(clippy::too_many_arguments)] // scratch buffers kept by the caller
 pub fn nested_balls(
     adj: &Csr,
     positions: &[DVec3],
@@ -195,6 +196,7 @@ pub struct ProxyLevel {
 }
 
 impl ProxyLevel {
+    #[allow(clippy::needless_range_loop)] // several arrays indexed by vertex
     pub fn new(mesh: &TriMesh, areas: &[f64], vv: &Csr, cell: f64) -> ProxyLevel {
         let n = mesh.positions.len();
         let (lo, _) = mesh.bbox();
