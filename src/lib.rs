@@ -5,6 +5,7 @@
 //! services behind traits, each with a pure-Rust and a C++ implementation so
 //! that tests can cross-check them. [`solve`] wraps Eigen's sparse solvers.
 
+pub mod analysis;
 pub mod error;
 pub mod fixtures;
 pub mod io;

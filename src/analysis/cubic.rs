@@ -1,0 +1,309 @@
+//! The cubic height function of Fitmaps §3.1.2: a neighbourhood expressed as
+//! the graph `h = g(u, v)` over the tangent frame of its centre, fitted by
+//! linear least squares with the 10 monomials of degree <= 3.
+
+use crate::{DVec2, DVec3};
+
+/// Number of coefficients of a bivariate cubic (Fitmaps §3.1.2).
+pub const CUBIC_COEFFICIENTS: usize = 10;
+
+/// An orthonormal frame `(t1, t2, n)` centred at `origin`.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Frame {
+    pub origin: DVec3,
+    pub t1: DVec3,
+    pub t2: DVec3,
+    pub n: DVec3,
+}
+
+impl Frame {
+    /// A frame with normal `n` (unit). The tangent directions are arbitrary:
+    /// the space of cubics is closed under rotations of `(u, v)` (§3.1.2:
+    /// cubics "are independent of the orientation of the local frame"), so
+    /// the fit, its residual and its normals do not depend on the choice.
+    pub fn from_normal(origin: DVec3, n: DVec3) -> Frame {
+        // Cross with the axis least aligned with n: never near-parallel.
+        let a = n.abs();
+        let axis = if a.x <= a.y && a.x <= a.z {
+            DVec3::X
+        } else if a.y <= a.z {
+            DVec3::Y
+        } else {
+            DVec3::Z
+        };
+        let t1 = n.cross(axis).normalize();
+        let t2 = n.cross(t1);
+        Frame { origin, t1, t2, n }
+    }
+
+    /// World point to local `(u, v, h)`.
+    #[inline]
+    pub fn to_local(&self, p: DVec3) -> DVec3 {
+        let d = p - self.origin;
+        DVec3::new(d.dot(self.t1), d.dot(self.t2), d.dot(self.n))
+    }
+
+    /// Local `(u, v, h)` to world point.
+    #[inline]
+    pub fn to_world(&self, l: DVec3) -> DVec3 {
+        self.origin + l.x * self.t1 + l.y * self.t2 + l.z * self.n
+    }
+
+    /// Local direction to world direction.
+    #[inline]
+    pub fn dir_to_world(&self, l: DVec3) -> DVec3 {
+        l.x * self.t1 + l.y * self.t2 + l.z * self.n
+    }
+}
+
+/// `g(u, v) = scale * P(u / scale, v / scale)` with `P` a cubic in the
+/// monomials `[1, x, y, x², xy, y², x³, x²y, xy², y³]`. Coordinates are
+/// scaled by the neighbourhood radius so that the normal equations stay
+/// well conditioned whatever the units of the mesh.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct Cubic {
+    pub coef: [f64; CUBIC_COEFFICIENTS],
+    pub scale: f64,
+}
+
+#[inline]
+fn monomials(x: f64, y: f64) -> [f64; CUBIC_COEFFICIENTS] {
+    [
+        1.0,
+        x,
+        y,
+        x * x,
+        x * y,
+        y * y,
+        x * x * x,
+        x * x * y,
+        x * y * y,
+        y * y * y,
+    ]
+}
+
+impl Cubic {
+    #[inline]
+    pub fn eval(&self, u: f64, v: f64) -> f64 {
+        let m = monomials(u / self.scale, v / self.scale);
+        self.scale * m.iter().zip(&self.coef).map(|(a, b)| a * b).sum::<f64>()
+    }
+
+    /// `(dg/du, dg/dv)`; the scale cancels (g and u share it).
+    #[inline]
+    pub fn grad(&self, u: f64, v: f64) -> DVec2 {
+        let (x, y) = (u / self.scale, v / self.scale);
+        let c = &self.coef;
+        DVec2::new(
+            c[1] + 2.0 * c[3] * x
+                + c[4] * y
+                + 3.0 * c[6] * x * x
+                + 2.0 * c[7] * x * y
+                + c[8] * y * y,
+            c[2] + c[4] * x
+                + 2.0 * c[5] * y
+                + c[7] * x * x
+                + 2.0 * c[8] * x * y
+                + 3.0 * c[9] * y * y,
+        )
+    }
+
+    /// Second derivatives `(g_uu, g_uv, g_vv)`.
+    #[inline]
+    fn hessian(&self, u: f64, v: f64) -> (f64, f64, f64) {
+        let (x, y) = (u / self.scale, v / self.scale);
+        let c = &self.coef;
+        let s = self.scale;
+        (
+            (2.0 * c[3] + 6.0 * c[6] * x + 2.0 * c[7] * y) / s,
+            (c[4] + 2.0 * c[7] * x + 2.0 * c[8] * y) / s,
+            (2.0 * c[5] + 2.0 * c[8] * x + 6.0 * c[9] * y) / s,
+        )
+    }
+
+    /// Unit normal of the graph at `(u, v)` in local coordinates, computed
+    /// analytically as §3.1.3 asks: `(-g_u, -g_v, 1) / |.|`.
+    #[inline]
+    pub fn normal(&self, u: f64, v: f64) -> DVec3 {
+        let g = self.grad(u, v);
+        DVec3::new(-g.x, -g.y, 1.0).normalize()
+    }
+
+    /// The point `(u, v)` of the graph closest to the local point `q`
+    /// (Newton on the squared distance, started below `q`). At that point
+    /// `q - graph(u, v)` is parallel to the graph's normal, so the normal
+    /// line through it passes through `q`. Steps are clamped to `max_step`;
+    /// the iteration stops after a few steps: the caller only needs a foot
+    /// point good to a small fraction of the radius.
+    pub fn foot_point(&self, q: DVec3, max_step: f64) -> DVec2 {
+        let mut p = DVec2::new(q.x, q.y);
+        for _ in 0..8 {
+            let h = self.eval(p.x, p.y);
+            let g = self.grad(p.x, p.y);
+            let (huu, huv, hvv) = self.hessian(p.x, p.y);
+            let dz = h - q.z;
+            // Gradient and Hessian of 1/2 |(u, v, h) - q|^2.
+            let f = DVec2::new(p.x - q.x + dz * g.x, p.y - q.y + dz * g.y);
+            let a = 1.0 + g.x * g.x + dz * huu;
+            let b = g.x * g.y + dz * huv;
+            let d = 1.0 + g.y * g.y + dz * hvv;
+            let det = a * d - b * b;
+            let step = if det > 1e-12 && a > 0.0 {
+                DVec2::new((d * f.x - b * f.y) / det, (a * f.y - b * f.x) / det)
+            } else {
+                // Not locally convex: fall back to Gauss-Newton.
+                let (a, d) = (1.0 + g.x * g.x, 1.0 + g.y * g.y);
+                let b = g.x * g.y;
+                let det = a * d - b * b;
+                DVec2::new((d * f.x - b * f.y) / det, (a * f.y - b * f.x) / det)
+            };
+            let len = step.length();
+            let step = if len > max_step {
+                step * (max_step / len)
+            } else {
+                step
+            };
+            if !step.is_finite() {
+                break;
+            }
+            p -= step;
+            if len <= 1e-12 * self.scale {
+                break;
+            }
+        }
+        p
+    }
+}
+
+/// Result of a least-squares cubic fit.
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub struct CubicFit {
+    pub cubic: Cubic,
+    /// Weighted RMS residual `sqrt(Σ w (g - h)² / Σ w)`: the usual RMS, not
+    /// the `1/n` outside the root printed in §3.1.2 (a known slip, see the
+    /// seeds' README).
+    pub rms: f64,
+}
+
+#[allow(clippy::needless_range_loop)] // index loops mirror the Cholesky formulas
+/// Fits `h = g(u, v)` to local points `pts` (weights `w`, all 1 when
+/// `None`) by linear least squares (§3.1.2). `scale` > 0 is the
+/// neighbourhood radius. Returns `None` when the system is rank deficient
+/// (points on a line or a conic, too few points): such a neighbourhood has
+/// no well-posed cubic and the caller skips it.
+pub fn fit_cubic(pts: &[DVec3], w: Option<&[f64]>, scale: f64) -> Option<CubicFit> {
+    const N: usize = CUBIC_COEFFICIENTS;
+    if pts.len() < N || scale.is_nan() || scale <= 0.0 || !scale.is_finite() {
+        return None;
+    }
+    let inv = 1.0 / scale;
+    // Normal equations in scaled coordinates (|x|, |y| <= ~1).
+    let mut ata = [[0.0f64; N]; N];
+    let mut atb = [0.0f64; N];
+    for (k, p) in pts.iter().enumerate() {
+        let wk = w.map_or(1.0, |w| w[k]);
+        let m = monomials(p.x * inv, p.y * inv);
+        let h = p.z * inv;
+        for i in 0..N {
+            let wi = wk * m[i];
+            atb[i] += wi * h;
+            for j in 0..=i {
+                ata[i][j] += wi * m[j];
+            }
+        }
+    }
+    // Cholesky (lower), with a relative pivot test as the rank check: a pivot
+    // below 1e-11 of its diagonal entry means cond(A) ≳ 3e5 in the scaled
+    // monomials, i.e. the samples do not determine a cubic.
+    let mut l = [[0.0f64; N]; N];
+    for j in 0..N {
+        let mut d = ata[j][j];
+        for k in 0..j {
+            d -= l[j][k] * l[j][k];
+        }
+        if d.is_nan() || d <= 1e-11 * ata[j][j].max(f64::MIN_POSITIVE) {
+            return None;
+        }
+        let d = d.sqrt();
+        l[j][j] = d;
+        for i in j + 1..N {
+            let mut s = ata[i][j];
+            for k in 0..j {
+                s -= l[i][k] * l[j][k];
+            }
+            l[i][j] = s / d;
+        }
+    }
+    let mut y = [0.0f64; N];
+    for i in 0..N {
+        let mut s = atb[i];
+        for k in 0..i {
+            s -= l[i][k] * y[k];
+        }
+        y[i] = s / l[i][i];
+    }
+    let mut c = [0.0f64; N];
+    for i in (0..N).rev() {
+        let mut s = y[i];
+        for k in i + 1..N {
+            s -= l[k][i] * c[k];
+        }
+        c[i] = s / l[i][i];
+    }
+    if c.iter().any(|x| !x.is_finite()) {
+        return None;
+    }
+    let cubic = Cubic { coef: c, scale };
+    // Residual from the points themselves (not from the normal equations,
+    // which would cancel catastrophically on near-exact fits).
+    let (mut sr, mut sw) = (0.0, 0.0);
+    for (k, p) in pts.iter().enumerate() {
+        let wk = w.map_or(1.0, |w| w[k]);
+        let r = cubic.eval(p.x, p.y) - p.z;
+        sr += wk * r * r;
+        sw += wk;
+    }
+    let rms = if sw > 0.0 { (sr / sw).sqrt() } else { 0.0 };
+    Some(CubicFit { cubic, rms })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reproduces_a_cubic_exactly() {
+        let truth =
+            |u: f64, v: f64| 0.3 + 0.1 * u - 0.2 * v + u * u - 0.5 * u * v * v + 0.7 * v * v * v;
+        let pts: Vec<DVec3> = (0..49)
+            .map(|k| {
+                let (u, v) = ((k % 7) as f64 * 0.3 - 0.9, (k / 7) as f64 * 0.3 - 0.9);
+                DVec3::new(u, v, truth(u, v))
+            })
+            .collect();
+        let fit = fit_cubic(&pts, None, 1.0).unwrap();
+        assert!(fit.rms < 1e-12, "rms {}", fit.rms);
+        assert!((fit.cubic.eval(0.45, -0.2) - truth(0.45, -0.2)).abs() < 1e-10);
+        // Collinear points: no cubic.
+        let line: Vec<DVec3> = (0..30)
+            .map(|k| DVec3::new(k as f64, 2.0 * k as f64, 0.0))
+            .collect();
+        assert!(fit_cubic(&line, None, 30.0).is_none());
+    }
+
+    #[test]
+    fn foot_point_is_orthogonal() {
+        let c = Cubic {
+            coef: [0.0, 0.1, 0.0, 0.5, 0.2, -0.3, 0.1, 0.0, 0.2, 0.0],
+            scale: 1.0,
+        };
+        let q = DVec3::new(0.3, -0.2, 0.4);
+        let f = c.foot_point(q, 1.0);
+        let p = DVec3::new(f.x, f.y, c.eval(f.x, f.y));
+        let d = q - p;
+        let g = c.grad(f.x, f.y);
+        // d is orthogonal to both tangents (1, 0, g_u) and (0, 1, g_v).
+        assert!(d.dot(DVec3::new(1.0, 0.0, g.x)).abs() < 1e-9);
+        assert!(d.dot(DVec3::new(0.0, 1.0, g.y)).abs() < 1e-9);
+    }
+}

@@ -1,0 +1,898 @@
+//! The Fitmap of Fitmaps §3.1: per vertex of the input M, the S-fitmap
+//! `F_S` (how fast the RMS error of one cubic patch grows with its radius)
+//! and the M-fitmap `F_M` (how large a patch can grow before normal
+//! projection onto M breaks), interpolated linearly over the faces.
+//!
+//! Two modes compute the same quantities:
+//! - **exact** ([`FitmapOptions::exact`]) follows §3.1.2–3.1.3 literally: one
+//!   breadth-first traversal per radius, every vertex of the ball in the
+//!   fit, `4 n_M |B| / |M|` samples per radius, a triangle is flipped when no
+//!   ray hits it. Quadratic in the mesh size (the largest ball is a quarter
+//!   of the model); the reference.
+//! - **fast** (default) gathers every ball of the small radii with one
+//!   traversal (the balls are *identical* to the literal ones, see
+//!   [`neighbourhood::nested_balls`]); bounds the fit to
+//!   [`FAST_MAX_FIT_POINTS`] uniformly drawn vertices; replaces M by a
+//!   clustered proxy ([`ProxyLevel`], cell = r / [`FAST_PROXY_CELLS_PER_RADIUS`])
+//!   for radii whose ball would hold more than [`FAST_LEVEL0_MAX_VERTICES`]
+//!   vertices; estimates the flipped area of large balls by Monte Carlo over
+//!   [`FAST_M_SAMPLES`] surface points (see [`flip_fraction_sampled`]); stops
+//!   the M-test at the first failing radius. Every estimate is of the same
+//!   quantity as the exact mode (a subsample of the same sum, an area
+//!   fraction estimated by sampling the same area), which
+//!   [`crate::analysis::compare`] checks.
+//!
+//! Both modes are deterministic: each vertex and radius seeds its own
+//! generator from [`FitmapOptions::seed`], and results are gathered in
+//! vertex order whatever the thread count.
+
+use std::collections::BinaryHeap;
+use std::time::Instant;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::cubic::{fit_cubic, Cubic, CubicFit, Frame};
+use super::neighbourhood::{bfs_ball, nested_balls, Adjacency, Entry, ProxyLevel};
+use super::normals::{triangle_areas, vertex_normals};
+use crate::error::{Error, Result};
+use crate::mesh::TriMesh;
+use crate::raycast::RayCaster;
+use crate::DVec3;
+
+/// Number of radius steps `h`: radii `r_0..r_h` (Fitmaps §3.1.2, "h = 8").
+pub const RADIUS_STEPS: usize = 8;
+
+/// `r_h` as a fraction of the bounding-box diagonal (§3.1.2, "1/4").
+pub const LARGEST_RADIUS_OF_DIAGONAL: f64 = 0.25;
+
+/// Samples per vertex of M in the M-test: `4 n_M |B| / |M|` samples on a
+/// ball of area `|B|` (§3.1.3).
+pub const SAMPLES_PER_VERTEX: f64 = 4.0;
+
+/// A ball takes part in the fits only with at least this many vertices (not
+/// from the paper). A cubic has 10 coefficients: with 10 points it
+/// interpolates them and `E = 0` says nothing; twice as many leaves the
+/// residual as many degrees of freedom as the fit. In practice the ball of
+/// `r_0` (the 1-ring, ~7 vertices) is skipped and the fits start at `r_1`
+/// or `r_2`. The system must also be well posed ([`fit_cubic`]'s rank test).
+pub const MIN_FIT_POINTS: usize = 20;
+
+/// Default tolerance τ (§3.1.3 uses 1 % and 10 %). 5 % sits between them:
+/// at 1 % a single unhit triangle out of 100 already fails a ball, so F_M
+/// follows scanner noise; at 10 % visible folds pass.
+pub const DEFAULT_TOLERANCE: f64 = 0.05;
+
+/// Fast mode: the expected size of a fit, in vertices; bigger balls are
+/// subsampled uniformly (an unbiased subsample of the least-squares sum of
+/// §3.1.2, see `keep_vertex`).
+/// 256 points determine a cubic's RMS residual to a few percent.
+pub const FAST_MAX_FIT_POINTS: usize = 256;
+
+/// Fast mode: balls expected (`π r² n_M / |M|`) to hold more vertices than
+/// this are gathered on a proxy of M instead of M itself.
+pub const FAST_LEVEL0_MAX_VERTICES: f64 = 1500.0;
+
+/// Fast mode: proxy cell size = r / this, so that a ball holds about
+/// `π · 8² ≈ 200` clusters and M's shape is resolved to 1/8 of the radius.
+pub const FAST_PROXY_CELLS_PER_RADIUS: f64 = 8.0;
+
+/// Fast mode: the M-test of a ball with more triangles than this uses
+/// [`FAST_M_SAMPLES`] Monte Carlo samples instead of the literal test.
+pub const FAST_LITERAL_M_MAX_TRIANGLES: usize = 200;
+
+/// Fast mode: Monte Carlo samples of the flipped area of a large ball. The
+/// standard error of a fraction f is `sqrt(f (1 - f) / 400)`: ±1.1 % at
+/// f = 5 %.
+pub const FAST_M_SAMPLES: usize = 400;
+
+/// Options of [`compute_fitmap`]. τ is the only parameter of the method
+/// (§3.1.3); the others choose how it is computed.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[non_exhaustive]
+pub struct FitmapOptions {
+    /// τ: the largest flipped fraction of a ball's area that still lets a
+    /// patch of that radius project onto M (§3.1.3). In (0, 1].
+    pub tolerance: f64,
+    /// Literal §3.1.2–3.1.3 computation (slow, the reference).
+    pub exact: bool,
+    /// Seed of the random samples; each vertex and radius derives its own.
+    pub seed: u64,
+}
+
+impl Default for FitmapOptions {
+    fn default() -> Self {
+        FitmapOptions {
+            tolerance: DEFAULT_TOLERANCE,
+            exact: false,
+            seed: 0x005e_edf1_7aa9,
+        }
+    }
+}
+
+impl FitmapOptions {
+    pub fn with_tolerance(mut self, t: f64) -> Self {
+        self.tolerance = t;
+        self
+    }
+    pub fn with_exact(mut self, e: bool) -> Self {
+        self.exact = e;
+        self
+    }
+    pub fn with_seed(mut self, s: u64) -> Self {
+        self.seed = s;
+        self
+    }
+}
+
+/// Counters and timings of one computation.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct FitmapStats {
+    pub vertices: usize,
+    pub triangles: usize,
+    pub exact: bool,
+    /// Vertices with no ball of enough points for a cubic (tiny components,
+    /// lone vertices of a degenerate fan): F_S = 0 there (no measurable
+    /// error growth) and F_M = r_h (no radius tested, so none failed).
+    pub undefined_vertices: usize,
+    /// Vertices whose first tested radius already failed the M-test
+    /// (F_M clamped to r_0, see [`Fitmap::m`]).
+    pub m_floor_vertices: usize,
+    pub cubic_fits: u64,
+    pub rays: u64,
+    /// Proxy levels of the fast mode: `(radius index, clusters)`.
+    pub proxy_levels: Vec<(usize, usize)>,
+    pub setup_seconds: f64,
+    pub analysis_seconds: f64,
+}
+
+/// The Fitmap of a mesh: per-vertex fields, in the mesh's vertex order.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Fitmap {
+    /// `r_0..r_h`: `r_0` = mean edge length of M, `r_h` = bbox diagonal / 4,
+    /// exponential spacing in between (§3.1.2).
+    pub radii: Vec<f64>,
+    /// F_S = a^(1/4), `a` the least-squares fit of `E(r) = a r⁴` over the
+    /// radii with a well-posed cubic (§3.1.2). Units: 1 / length^(3/4).
+    pub s: Vec<f64>,
+    /// F_M = `radii[m_step]`: the largest radius `r_k` such that no tested
+    /// radius `r_i <= r_k` has a flipped fraction `>= τ` (§3.1.3; the M-test
+    /// stops at the first failure, which is what "how much a patch can
+    /// extend before projection becomes impossible" asks; radii without a
+    /// well-posed cubic are not tested and never fail). When the first
+    /// tested radius already fails, F_M = r_0: r_0 is the input's own edge
+    /// length, below which no patch of the simplifier can shrink anyway, so
+    /// r_0 is the tightest bound that means anything.
+    pub m: Vec<f64>,
+    /// Index into `radii` of F_M.
+    pub m_step: Vec<u8>,
+    pub tolerance: f64,
+    pub stats: FitmapStats,
+}
+
+impl Fitmap {
+    #[inline]
+    fn interp(field: &[f64], mesh: &TriMesh, tri: u32, u: f64, v: f64) -> f64 {
+        let [a, b, c] = mesh.triangles[tri as usize];
+        (1.0 - u - v) * field[a as usize] + u * field[b as usize] + v * field[c as usize]
+    }
+
+    /// F_S at the point `(1 - u - v) a + u b + v c` of triangle `tri`
+    /// (linear interpolation over faces, §3.1.1; Embree's barycentrics).
+    pub fn s_at(&self, mesh: &TriMesh, tri: u32, u: f64, v: f64) -> f64 {
+        Self::interp(&self.s, mesh, tri, u, v)
+    }
+
+    /// F_M at a surface point, as [`Fitmap::s_at`].
+    pub fn m_at(&self, mesh: &TriMesh, tri: u32, u: f64, v: f64) -> f64 {
+        Self::interp(&self.m, mesh, tri, u, v)
+    }
+}
+
+/// The radii `r_0..r_h` of §3.1.2 for `mesh`, or an error when they are not
+/// defined (no edges, zero extent, or `r_h <= r_0`: a mesh so coarse that a
+/// quarter of its diagonal is shorter than its mean edge).
+///
+/// The bounding box is the axis-aligned one of §3.1.2, so the radii (and
+/// with them the Fitmap) are invariant under translations and axis
+/// permutations but not under general rotations (a rotated mesh has a
+/// different axis-aligned diagonal, up to a factor √3).
+pub fn fitmap_radii(mesh: &TriMesh) -> Result<Vec<f64>> {
+    let (mut sum, mut count) = (0.0, 0usize);
+    for tri in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            // Each interior edge is seen twice, boundary edges once: weight
+            // by 1/2 per incidence would need the edge set; the mean over
+            // incidences differs only at the boundary, by O(boundary / n).
+            let l = (mesh.positions[a as usize] - mesh.positions[b as usize]).length();
+            if l.is_finite() {
+                sum += l;
+                count += 1;
+            }
+        }
+    }
+    if count == 0 {
+        return Err(Error::InvalidArgument(
+            "fitmap: the mesh has no edges".into(),
+        ));
+    }
+    let r0 = sum / count as f64;
+    let rh = LARGEST_RADIUS_OF_DIAGONAL * mesh.bbox_diagonal();
+    if !(r0 > 0.0 && rh.is_finite() && rh > r0) {
+        return Err(Error::InvalidArgument(format!(
+            "fitmap: radii undefined (mean edge r_0 = {r0}, bbox diagonal / 4 = r_h = {rh}); \
+             the mesh must be finite, non-degenerate and finer than a quarter of its diagonal"
+        )));
+    }
+    Ok((0..=RADIUS_STEPS)
+        .map(|i| r0 * (rh / r0).powf(i as f64 / RADIUS_STEPS as f64))
+        .collect())
+}
+
+/// Shared read-only state of one computation.
+struct Ctx<'a> {
+    mesh: &'a TriMesh,
+    caster: &'a dyn RayCaster,
+    opts: &'a FitmapOptions,
+    areas: Vec<f64>,
+    normals: Vec<DVec3>,
+    adj: Adjacency,
+    radii: Vec<f64>,
+    /// `4 n_M / |M|`: samples per unit area (§3.1.3).
+    sample_density: f64,
+    /// Fast mode: for each radius, `None` = gathered on M, `Some(k)` =
+    /// gathered on `levels[k]`.
+    level_of: Vec<Option<usize>>,
+    levels: Vec<ProxyLevel>,
+}
+
+/// Per-thread scratch (allocated once per rayon job, never shared).
+struct Scratch {
+    mark: Vec<u32>,
+    tmark: Vec<u32>,
+    hitmark: Vec<u32>,
+    stamp: u32,
+    key_at: Vec<f64>,
+    key_of: Vec<f64>,
+    level_key_of: Vec<Vec<f64>>,
+    heap: BinaryHeap<Entry>,
+    ball: Vec<u32>,
+    sorted: Vec<(f64, u32)>,
+    tris: Vec<(f64, u32)>,
+    pts: Vec<DVec3>,
+    w: Vec<f64>,
+}
+
+impl Scratch {
+    fn new(ctx: &Ctx) -> Scratch {
+        let n = ctx.mesh.positions.len();
+        let nt = ctx.mesh.triangles.len();
+        Scratch {
+            mark: vec![0; n],
+            tmark: vec![0; nt],
+            hitmark: vec![0; nt],
+            stamp: 0,
+            key_at: vec![f64::INFINITY; n],
+            key_of: vec![f64::INFINITY; n],
+            level_key_of: ctx
+                .levels
+                .iter()
+                .map(|l| vec![f64::INFINITY; l.len()])
+                .collect(),
+            heap: BinaryHeap::new(),
+            ball: Vec::new(),
+            sorted: Vec::new(),
+            tris: Vec::new(),
+            pts: Vec::new(),
+            w: Vec::new(),
+        }
+    }
+
+    fn next_stamp(&mut self) -> u32 {
+        if self.stamp == u32::MAX {
+            self.mark.fill(0);
+            self.tmark.fill(0);
+            self.hitmark.fill(0);
+            self.stamp = 0;
+        }
+        self.stamp += 1;
+        self.stamp
+    }
+}
+
+#[derive(Copy, Clone, Default)]
+struct VertexResult {
+    s: f64,
+    m_step: u8,
+    defined: bool,
+    m_floor: bool,
+    fits: u64,
+    rays: u64,
+}
+
+/// SplitMix64 of (seed, vertex, radius): independent streams per task, so
+/// results do not depend on which thread runs which vertex.
+fn stream_seed(seed: u64, v: u32, i: usize) -> u64 {
+    let mut z = seed
+        ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (i as u64).wrapping_mul(0xD1B5_4A32_D192_ED03);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Poisson subsampling of a large ball for the fit: vertex `v` is kept with
+/// probability `keep`, decided by a hash of `(seed, p, v)` alone. Unlike
+/// drawing indices into the ball's list, one vertex entering or leaving the
+/// ball (a boundary vertex within round-off of the radius, after a rigid
+/// motion or a scaling) changes the subsample by that vertex only.
+#[inline]
+fn keep_vertex(seed: u64, p: u32, v: u32, keep: f64) -> bool {
+    let h = stream_seed(seed ^ 0xf17_5ab5, p, v as usize);
+    ((h >> 11) as f64) * (1.0 / (1u64 << 53) as f64) < keep
+}
+
+/// A uniform point of triangle `t`.
+fn sample_triangle(mesh: &TriMesh, t: u32, rng: &mut ChaCha8Rng) -> DVec3 {
+    let [a, b, c] = mesh.triangle(t as usize);
+    let (r1, r2): (f64, f64) = (rng.gen(), rng.gen());
+    let s = r1.sqrt();
+    a * (1.0 - s) + b * (s * (1.0 - r2)) + c * (s * r2)
+}
+
+/// The literal M-test of §3.1.3 on the ball whose triangles are `tris`:
+/// `N = ⌈4 n_M |B| / |M|⌉` samples drawn on the ball, lifted onto the cubic
+/// (the point of the graph above the sample's `(u, v)`), one line per
+/// sample along the cubic's analytic normal (nearest hit either way, within
+/// the radius), triangles of the ball never hit are flipped. Returns the
+/// flipped fraction of the ball's area (`None`: the ball has no area) and
+/// the number of rays.
+///
+/// The samples are stratified by area (systematic sampling with one random
+/// offset, then uniform inside each triangle) and every triangle of
+/// positive area gets at least one: with independent uniform samples at
+/// the paper's density (2 per triangle on average) a fraction e⁻² ≈ 13.5 %
+/// of a perfect plane would never be hit, i.e. "flipped" by sampling luck
+/// alone, above both of the paper's τ. With stratification a triangle is
+/// flipped only because the rays above it land elsewhere.
+#[allow(clippy::too_many_arguments)]
+fn flip_fraction_literal(
+    ctx: &Ctx,
+    frame: &Frame,
+    cubic: &Cubic,
+    r: f64,
+    tris: &[u32],
+    hitmark: &mut [u32],
+    stamp: u32,
+    rng: &mut ChaCha8Rng,
+) -> (Option<f64>, u64) {
+    let area: f64 = tris.iter().map(|&t| ctx.areas[t as usize]).sum();
+    if area.is_nan() || area <= 0.0 {
+        return (None, 0);
+    }
+    let n = (ctx.sample_density * area).ceil().max(1.0);
+    let spacing = area / n;
+    let mut next = rng.gen::<f64>() * spacing;
+    let mut cum = 0.0;
+    let (mut origins, mut dirs) = (Vec::new(), Vec::new());
+    for &t in tris {
+        let a = ctx.areas[t as usize];
+        if a <= 0.0 {
+            continue;
+        }
+        cum += a;
+        let mut k = 0;
+        while next < cum {
+            k += 1;
+            next += spacing;
+        }
+        for _ in 0..k.max(1) {
+            let x = frame.to_local(sample_triangle(ctx.mesh, t, rng));
+            let h = cubic.eval(x.x, x.y);
+            origins.push(frame.to_world(DVec3::new(x.x, x.y, h)));
+            dirs.push(frame.dir_to_world(cubic.normal(x.x, x.y)));
+        }
+    }
+    let hits = ctx.caster.line_hits(&origins, &dirs, r);
+    for h in hits.iter().flatten() {
+        if let Some(m) = hitmark.get_mut(h.triangle as usize) {
+            *m = stamp;
+        }
+    }
+    let flipped: f64 = tris
+        .iter()
+        .filter(|&&t| hitmark[t as usize] != stamp)
+        .map(|&t| ctx.areas[t as usize])
+        .sum();
+    (Some(flipped / area), origins.len() as u64)
+}
+
+/// Fast-mode estimate of the same flipped area fraction, by Monte Carlo
+/// over surface points: `points` are uniform (by area) on the ball. For a
+/// point x, let c be the point of the cubic closest to x: x lies on the
+/// cubic's normal line at c, so the normal projection of §3.1.3 can reach
+/// x. x is *covered* when the nearest hit of that line is x itself (or
+/// within `eps` of it), *flipped* when another part of M is nearer to the
+/// cubic along it, i.e. when projection lands elsewhere. The fraction of
+/// flipped points estimates the flipped area fraction of the literal test
+/// without casting rays over the whole ball. A line that hits nothing (a
+/// ray slipping between triangles) counts as covered: that is a numerical
+/// miss, not a fold.
+fn flip_fraction_sampled(
+    ctx: &Ctx,
+    frame: &Frame,
+    cubic: &Cubic,
+    r: f64,
+    points: &[DVec3],
+) -> (Option<f64>, u64) {
+    if points.is_empty() {
+        return (None, 0);
+    }
+    let eps = (0.01 * r).min(0.1 * ctx.radii[0]);
+    let mut origins = Vec::with_capacity(points.len());
+    let mut dirs = Vec::with_capacity(points.len());
+    let mut dist = Vec::with_capacity(points.len());
+    for &x in points {
+        let q = frame.to_local(x);
+        let f = cubic.foot_point(q, 0.5 * r);
+        let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
+        let n = cubic.normal(f.x, f.y);
+        origins.push(frame.to_world(c));
+        dirs.push(frame.dir_to_world(n));
+        dist.push((q - c).length());
+    }
+    let max_t = dist.iter().fold(r, |m, &d| m.max(d + eps));
+    let hits = ctx.caster.line_hits(&origins, &dirs, max_t);
+    let flipped = hits
+        .iter()
+        .zip(&dist)
+        .filter(|(h, &d)| h.is_some_and(|h| h.t.abs() < d - eps))
+        .count();
+    (
+        Some(flipped as f64 / points.len() as f64),
+        points.len() as u64,
+    )
+}
+
+/// Area-proportional draw from a cumulative table.
+fn draw(cum: &[f64], rng: &mut ChaCha8Rng) -> usize {
+    let total = *cum.last().unwrap_or(&0.0);
+    let x = rng.gen::<f64>() * total;
+    cum.partition_point(|&c| c <= x)
+        .min(cum.len().saturating_sub(1))
+}
+
+/// Least-squares `a` of `E(r) = a r⁴` (§3.1.2): `a = Σ E r⁴ / Σ r⁸`, in
+/// units of `r_h` to keep `r⁸` in range.
+fn s_from_errors(errors: &[(f64, f64)], rh: f64) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for &(r, e) in errors {
+        let x = (r / rh).powi(4);
+        num += e * x;
+        den += x * x;
+    }
+    if den > 0.0 {
+        let a = (num / den) / rh.powi(4);
+        a.max(0.0).powf(0.25)
+    } else {
+        0.0
+    }
+}
+
+fn analyse_vertex_exact(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
+    let h = RADIUS_STEPS;
+    let mut res = VertexResult {
+        m_step: h as u8,
+        ..Default::default()
+    };
+    let n = ctx.normals[p as usize];
+    if n == DVec3::ZERO {
+        return res;
+    }
+    let frame = Frame::from_normal(ctx.mesh.positions[p as usize], n);
+    let mut errors = Vec::with_capacity(h + 1);
+    let mut m_done = false;
+    let mut first_tested = true;
+    for (i, &r) in ctx.radii.iter().enumerate() {
+        let stamp = sc.next_stamp();
+        let mut ball = std::mem::take(&mut sc.ball);
+        bfs_ball(
+            &ctx.adj.vv,
+            &ctx.mesh.positions,
+            p,
+            r,
+            &mut sc.mark,
+            stamp,
+            &mut ball,
+        );
+        sc.pts.clear();
+        sc.pts.extend(
+            ball.iter()
+                .map(|&v| frame.to_local(ctx.mesh.positions[v as usize])),
+        );
+        let fit = if ball.len() >= MIN_FIT_POINTS {
+            res.fits += 1;
+            fit_cubic(&sc.pts, None, r)
+        } else {
+            None
+        };
+        if let Some(CubicFit { cubic, rms }) = fit {
+            errors.push((r, rms));
+            if !m_done {
+                // Triangles of the ball: all three vertices inside.
+                let mut tris = Vec::new();
+                for &v in &ball {
+                    for &t in ctx.adj.vt.row(v as usize) {
+                        if sc.tmark[t as usize] != stamp
+                            && ctx.mesh.triangles[t as usize]
+                                .iter()
+                                .all(|&w| sc.mark[w as usize] == stamp)
+                        {
+                            sc.tmark[t as usize] = stamp;
+                            tris.push(t);
+                        }
+                    }
+                }
+                let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(ctx.opts.seed, p, i));
+                let (flip, rays) = flip_fraction_literal(
+                    ctx,
+                    &frame,
+                    &cubic,
+                    r,
+                    &tris,
+                    &mut sc.hitmark,
+                    stamp,
+                    &mut rng,
+                );
+                res.rays += rays;
+                if let Some(f) = flip {
+                    if f >= ctx.opts.tolerance {
+                        m_done = true;
+                        res.m_floor = first_tested;
+                        res.m_step = i.saturating_sub(1) as u8;
+                    }
+                    first_tested = false;
+                }
+            }
+        }
+        sc.ball = ball;
+    }
+    res.defined = !errors.is_empty();
+    res.s = s_from_errors(&errors, ctx.radii[h]);
+    res
+}
+
+fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
+    let h = RADIUS_STEPS;
+    let mut res = VertexResult {
+        m_step: h as u8,
+        ..Default::default()
+    };
+    let n = ctx.normals[p as usize];
+    if n == DVec3::ZERO {
+        return res;
+    }
+    let centre = ctx.mesh.positions[p as usize];
+    let frame = Frame::from_normal(centre, n);
+    let mut errors = Vec::with_capacity(h + 1);
+    let mut m_done = false;
+    let mut first_tested = true;
+
+    // Radii gathered on M itself: one traversal for all of them.
+    let i0 = ctx.level_of.iter().take_while(|l| l.is_none()).count();
+    if i0 > 0 {
+        let mut sorted = std::mem::take(&mut sc.sorted);
+        nested_balls(
+            &ctx.adj.vv,
+            &ctx.mesh.positions,
+            p,
+            centre,
+            ctx.radii[i0 - 1],
+            &mut sc.key_of,
+            &mut sc.heap,
+            &mut sorted,
+        );
+        for &(k, v) in &sorted {
+            sc.key_at[v as usize] = k;
+        }
+        // Triangles with their key: the radius from which all three vertices
+        // are in the ball.
+        let stamp = sc.next_stamp();
+        sc.tris.clear();
+        for &(_, v) in &sorted {
+            for &t in ctx.adj.vt.row(v as usize) {
+                if sc.tmark[t as usize] != stamp {
+                    sc.tmark[t as usize] = stamp;
+                    let k = ctx.mesh.triangles[t as usize]
+                        .iter()
+                        .map(|&w| sc.key_at[w as usize])
+                        .fold(f64::NEG_INFINITY, f64::max);
+                    if k.is_finite() {
+                        sc.tris.push((k, t));
+                    }
+                }
+            }
+        }
+        sc.tris
+            .sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        for &(_, v) in &sorted {
+            sc.key_at[v as usize] = f64::INFINITY;
+        }
+        for i in 0..i0 {
+            let r = ctx.radii[i];
+            let nb = sorted.partition_point(|&(k, _)| k <= r);
+            if nb < MIN_FIT_POINTS {
+                continue;
+            }
+            let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(ctx.opts.seed, p, i));
+            sc.pts.clear();
+            if nb <= FAST_MAX_FIT_POINTS {
+                sc.pts.extend(
+                    sorted[..nb]
+                        .iter()
+                        .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
+                );
+            } else {
+                let keep = FAST_MAX_FIT_POINTS as f64 / nb as f64;
+                sc.pts.extend(
+                    sorted[..nb]
+                        .iter()
+                        .filter(|&&(_, v)| keep_vertex(ctx.opts.seed, p, v, keep))
+                        .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
+                );
+            }
+            res.fits += 1;
+            let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, None, r) else {
+                continue;
+            };
+            errors.push((r, rms));
+            if m_done {
+                continue;
+            }
+            let nt = sc.tris.partition_point(|&(k, _)| k <= r);
+            let (flip, rays) = if nt <= FAST_LITERAL_M_MAX_TRIANGLES {
+                let tris: Vec<u32> = sc.tris[..nt].iter().map(|&(_, t)| t).collect();
+                let stamp = sc.next_stamp();
+                flip_fraction_literal(
+                    ctx,
+                    &frame,
+                    &cubic,
+                    r,
+                    &tris,
+                    &mut sc.hitmark,
+                    stamp,
+                    &mut rng,
+                )
+            } else {
+                let mut cum = Vec::with_capacity(nt);
+                let mut acc = 0.0;
+                for &(_, t) in &sc.tris[..nt] {
+                    acc += ctx.areas[t as usize];
+                    cum.push(acc);
+                }
+                let pts: Vec<DVec3> = if acc > 0.0 {
+                    (0..FAST_M_SAMPLES)
+                        .map(|_| {
+                            let t = sc.tris[draw(&cum, &mut rng)].1;
+                            sample_triangle(ctx.mesh, t, &mut rng)
+                        })
+                        .collect()
+                } else {
+                    Vec::new()
+                };
+                flip_fraction_sampled(ctx, &frame, &cubic, r, &pts)
+            };
+            res.rays += rays;
+            if let Some(f) = flip {
+                if f >= ctx.opts.tolerance {
+                    m_done = true;
+                    res.m_floor = first_tested;
+                    res.m_step = i.saturating_sub(1) as u8;
+                }
+                first_tested = false;
+            }
+        }
+        sc.sorted = sorted;
+    }
+
+    // Large radii on the proxies.
+    for i in i0..=h {
+        let Some(li) = ctx.level_of[i] else { continue };
+        let level = &ctx.levels[li];
+        let r = ctx.radii[i];
+        let mut sorted = std::mem::take(&mut sc.sorted);
+        nested_balls(
+            &level.adj,
+            &level.rep,
+            level.cluster_of[p as usize],
+            centre,
+            r,
+            &mut sc.level_key_of[li],
+            &mut sc.heap,
+            &mut sorted,
+        );
+        let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(ctx.opts.seed, p, i));
+        sc.pts.clear();
+        sc.w.clear();
+        let total_w: f64 = sorted.iter().map(|&(_, c)| level.weight[c as usize]).sum();
+        if total_w >= MIN_FIT_POINTS as f64 && sorted.len() >= MIN_FIT_POINTS.min(10) {
+            let take = |c: u32, sc: &mut Scratch| {
+                sc.pts.push(frame.to_local(level.rep[c as usize]));
+                sc.w.push(level.weight[c as usize]);
+            };
+            if sorted.len() <= FAST_MAX_FIT_POINTS {
+                for &(_, c) in &sorted {
+                    take(c, sc);
+                }
+            } else {
+                let keep = FAST_MAX_FIT_POINTS as f64 / sorted.len() as f64;
+                for &(_, c) in &sorted {
+                    if keep_vertex(ctx.opts.seed, p, c, keep) {
+                        take(c, sc);
+                    }
+                }
+            }
+            res.fits += 1;
+            if let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, Some(&sc.w), r) {
+                errors.push((r, rms));
+                if !m_done {
+                    let mut cum = Vec::with_capacity(sorted.len());
+                    let mut acc = 0.0;
+                    for &(_, c) in &sorted {
+                        acc += level.area[c as usize];
+                        cum.push(acc);
+                    }
+                    let mut pts = Vec::new();
+                    if acc > 0.0 {
+                        for _ in 0..FAST_M_SAMPLES {
+                            let c = sorted[draw(&cum, &mut rng)].1 as usize;
+                            let row = level.tris.row(c);
+                            let mut tc = Vec::with_capacity(row.len());
+                            let mut a = 0.0;
+                            for &t in row {
+                                a += ctx.areas[t as usize];
+                                tc.push(a);
+                            }
+                            let t = row[draw(&tc, &mut rng)];
+                            pts.push(sample_triangle(ctx.mesh, t, &mut rng));
+                        }
+                    }
+                    let (flip, rays) = flip_fraction_sampled(ctx, &frame, &cubic, r, &pts);
+                    res.rays += rays;
+                    if let Some(f) = flip {
+                        if f >= ctx.opts.tolerance {
+                            m_done = true;
+                            res.m_floor = first_tested;
+                            res.m_step = i.saturating_sub(1) as u8;
+                        }
+                        first_tested = false;
+                    }
+                }
+            }
+        }
+        sc.sorted = sorted;
+    }
+    res.defined = !errors.is_empty();
+    res.s = s_from_errors(&errors, ctx.radii[h]);
+    res
+}
+
+/// Computes the Fitmap of `mesh` (§3.1), rays cast with `caster` (built
+/// over the same mesh). Errors: τ outside (0, 1], a mesh whose radii are
+/// undefined ([`fitmap_radii`]), non-finite coordinates, or a mesh where no
+/// vertex has a ball big enough for a cubic.
+pub fn compute_fitmap(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    opts: &FitmapOptions,
+) -> Result<Fitmap> {
+    let t0 = Instant::now();
+    if !(opts.tolerance > 0.0 && opts.tolerance <= 1.0) {
+        return Err(Error::InvalidArgument(format!(
+            "fitmap: tolerance τ = {} must be in (0, 1] (a fraction: 0.01 = 1 %)",
+            opts.tolerance
+        )));
+    }
+    if let Some(v) = mesh.positions.iter().position(|p| !p.is_finite()) {
+        return Err(Error::InvalidArgument(format!(
+            "fitmap: vertex {v} has a non-finite coordinate"
+        )));
+    }
+    let nv = mesh.positions.len();
+    if let Some(t) = mesh
+        .triangles
+        .iter()
+        .position(|t| t.iter().any(|&v| v as usize >= nv))
+    {
+        return Err(Error::InvalidArgument(format!(
+            "fitmap: triangle {t} indexes a vertex out of range"
+        )));
+    }
+    let radii = fitmap_radii(mesh)?;
+    let areas = triangle_areas(mesh);
+    let total_area: f64 = areas.iter().sum();
+    if total_area.is_nan() || total_area <= 0.0 {
+        return Err(Error::InvalidArgument(
+            "fitmap: the mesh has zero area".into(),
+        ));
+    }
+    let normals = vertex_normals(mesh);
+    let adj = Adjacency::new(mesh);
+    let sample_density = SAMPLES_PER_VERTEX * nv as f64 / total_area;
+
+    let mut level_of = vec![None; radii.len()];
+    let mut levels = Vec::new();
+    let mut proxy_levels = Vec::new();
+    if !opts.exact {
+        for (i, &r) in radii.iter().enumerate() {
+            let expected = std::f64::consts::PI * r * r * nv as f64 / total_area;
+            let cell = r / FAST_PROXY_CELLS_PER_RADIUS;
+            if expected > FAST_LEVEL0_MAX_VERTICES && cell > 2.0 * radii[0] {
+                let level = ProxyLevel::new(mesh, &areas, &adj.vv, cell);
+                proxy_levels.push((i, level.len()));
+                level_of[i] = Some(levels.len());
+                levels.push(level);
+            }
+        }
+    }
+    let ctx = Ctx {
+        mesh,
+        caster,
+        opts,
+        areas,
+        normals,
+        adj,
+        radii: radii.clone(),
+        sample_density,
+        level_of,
+        levels,
+    };
+    let setup_seconds = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let results: Vec<VertexResult> = (0..nv as u32)
+        .into_par_iter()
+        .with_min_len(32)
+        .map_init(
+            || Scratch::new(&ctx),
+            |sc, p| {
+                if opts.exact {
+                    analyse_vertex_exact(&ctx, sc, p)
+                } else {
+                    analyse_vertex_fast(&ctx, sc, p)
+                }
+            },
+        )
+        .collect();
+    let analysis_seconds = t1.elapsed().as_secs_f64();
+    let undefined = results.iter().filter(|r| !r.defined).count();
+    if undefined == nv {
+        return Err(Error::InvalidArgument(format!(
+            "fitmap: no vertex has {MIN_FIT_POINTS} vertices within r_h = {:.4e} in a \
+             well-posed configuration; the mesh is too small for a cubic fit",
+            radii[RADIUS_STEPS]
+        )));
+    }
+    let stats = FitmapStats {
+        vertices: nv,
+        triangles: mesh.triangles.len(),
+        exact: opts.exact,
+        undefined_vertices: undefined,
+        m_floor_vertices: results.iter().filter(|r| r.m_floor).count(),
+        cubic_fits: results.iter().map(|r| r.fits).sum(),
+        rays: results.iter().map(|r| r.rays).sum(),
+        proxy_levels,
+        setup_seconds,
+        analysis_seconds,
+    };
+    Ok(Fitmap {
+        s: results.iter().map(|r| r.s).collect(),
+        m: results.iter().map(|r| radii[r.m_step as usize]).collect(),
+        m_step: results.iter().map(|r| r.m_step).collect(),
+        radii,
+        tolerance: opts.tolerance,
+        stats,
+    })
+}

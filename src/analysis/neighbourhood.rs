@@ -1,0 +1,302 @@
+//! Neighbourhoods `B(p, r)` of Fitmaps §3.1.2: the vertices reached by a
+//! breadth-first traversal of M from `p` that only steps onto vertices within
+//! Euclidean distance `r` of `p`.
+//!
+//! Two ways to gather them:
+//! - [`bfs_ball`]: the literal traversal, one per radius (exact mode);
+//! - [`nested_balls`]: one best-first traversal that yields every radius at
+//!   once. The key of a vertex `q` is the smallest `r` for which the literal
+//!   BFS reaches it, i.e. the minimum over paths from `p` to `q` of the
+//!   largest `|x - p|` along the path (a bottleneck shortest path, computed by
+//!   Dijkstra with `max` instead of `+`). Hence `B(p, r) = {q : key(q) <= r}`
+//!   *exactly*, for every `r`, and the balls are prefixes of one list sorted
+//!   by key.
+
+use std::cmp::Ordering;
+use std::collections::{BinaryHeap, HashMap};
+
+use crate::mesh::TriMesh;
+use crate::DVec3;
+
+/// Compressed adjacency `offsets[i]..offsets[i + 1]` into `items`.
+#[derive(Clone, Debug, Default)]
+pub struct Csr {
+    pub offsets: Vec<u32>,
+    pub items: Vec<u32>,
+}
+
+impl Csr {
+    #[inline]
+    pub fn row(&self, i: usize) -> &[u32] {
+        &self.items[self.offsets[i] as usize..self.offsets[i + 1] as usize]
+    }
+
+    /// From `(row, item)` pairs; rows sorted and deduplicated.
+    pub fn from_pairs(n: usize, mut pairs: Vec<(u32, u32)>) -> Csr {
+        pairs.sort_unstable();
+        pairs.dedup();
+        let mut offsets = vec![0u32; n + 1];
+        for &(r, _) in &pairs {
+            offsets[r as usize + 1] += 1;
+        }
+        for i in 0..n {
+            offsets[i + 1] += offsets[i];
+        }
+        Csr {
+            offsets,
+            items: pairs.into_iter().map(|(_, x)| x).collect(),
+        }
+    }
+}
+
+/// Vertex–vertex and vertex–triangle adjacency of a triangle mesh.
+#[derive(Clone, Debug, Default)]
+pub struct Adjacency {
+    pub vv: Csr,
+    pub vt: Csr,
+}
+
+impl Adjacency {
+    pub fn new(mesh: &TriMesh) -> Adjacency {
+        let n = mesh.positions.len();
+        let mut e = Vec::with_capacity(mesh.triangles.len() * 6);
+        let mut vt = Vec::with_capacity(mesh.triangles.len() * 3);
+        for (t, tri) in mesh.triangles.iter().enumerate() {
+            for k in 0..3 {
+                let (a, b) = (tri[k], tri[(k + 1) % 3]);
+                if a != b {
+                    e.push((a, b));
+                    e.push((b, a));
+                }
+                vt.push((tri[k], t as u32));
+            }
+        }
+        Adjacency {
+            vv: Csr::from_pairs(n, e),
+            vt: Csr::from_pairs(n, vt),
+        }
+    }
+}
+
+/// Literal §3.1.2 traversal: breadth-first from `p`, entering only vertices
+/// within distance `r` of `positions[p]`. Appends the ball to `out` (cleared
+/// first), `p` first. `mark` is scratch of `positions.len()` entries, all
+/// different from `stamp` on entry; visited vertices are set to `stamp`.
+pub fn bfs_ball(
+    adj: &Csr,
+    positions: &[DVec3],
+    p: u32,
+    r: f64,
+    mark: &mut [u32],
+    stamp: u32,
+    out: &mut Vec<u32>,
+) {
+    out.clear();
+    let c = positions[p as usize];
+    let r2 = r * r;
+    mark[p as usize] = stamp;
+    out.push(p);
+    let mut head = 0;
+    while head < out.len() {
+        let v = out[head] as usize;
+        head += 1;
+        for &w in adj.row(v) {
+            if mark[w as usize] != stamp && (positions[w as usize] - c).length_squared() <= r2 {
+                mark[w as usize] = stamp;
+                out.push(w);
+            }
+        }
+    }
+}
+
+/// Heap entry of [`nested_balls`] (public so that callers can keep the heap
+/// allocation between calls).
+#[derive(Copy, Clone, PartialEq)]
+pub struct Entry(f64, u32);
+impl Eq for Entry {}
+impl Ord for Entry {
+    fn cmp(&self, o: &Self) -> Ordering {
+        // Min-heap on key, ties by index for determinism.
+        o.0.total_cmp(&self.0).then(o.1.cmp(&self.1))
+    }
+}
+impl PartialOrd for Entry {
+    fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
+        Some(self.cmp(o))
+    }
+}
+
+/// Every ball `B(p, r)` with `r <= r_max` at once (see the module docs):
+/// fills `out` with `(key, vertex)` sorted by key, so that the ball of
+/// radius `r` is the prefix with `key <= r`. `centre` is the point distances
+/// are measured from (the position of `p`). `key_of` is scratch of
+/// `positions.len()` entries, all `f64::INFINITY` on entry and on exit.
+#[allow(clippy::too_many_arguments)] // scratch buffers kept by the caller
+pub fn nested_balls(
+    adj: &Csr,
+    positions: &[DVec3],
+    start: u32,
+    centre: DVec3,
+    r_max: f64,
+    key_of: &mut [f64],
+    heap: &mut BinaryHeap<Entry>,
+    out: &mut Vec<(f64, u32)>,
+) {
+    out.clear();
+    heap.clear();
+    // The start (p itself, or the cluster holding p) always belongs to its
+    // own ball: key 0.
+    key_of[start as usize] = 0.0;
+    heap.push(Entry(0.0, start));
+    while let Some(Entry(k, v)) = heap.pop() {
+        if k > key_of[v as usize] || k > r_max {
+            continue;
+        }
+        out.push((k, v));
+        // Settled: NEG_INFINITY makes every later pop and relaxation skip it.
+        key_of[v as usize] = f64::NEG_INFINITY;
+        for &w in adj.row(v as usize) {
+            let kw = k.max((positions[w as usize] - centre).length());
+            if kw <= r_max && kw < key_of[w as usize] {
+                key_of[w as usize] = kw;
+                heap.push(Entry(kw, w));
+            }
+        }
+    }
+    // Reset scratch: every touched vertex is either settled (in `out`) or
+    // was pushed with a key <= r_max and later settled or left in the heap.
+    for &(_, v) in out.iter() {
+        key_of[v as usize] = f64::INFINITY;
+    }
+    for &(_, v) in out.iter() {
+        for &w in adj.row(v as usize) {
+            key_of[w as usize] = f64::INFINITY;
+        }
+    }
+}
+
+/// A coarse proxy of M used by the fast mode for large radii: vertices are
+/// clustered by a grid of cell size `cell`, split into the connected pieces
+/// of M inside each cell (so that two sheets crossing one cell stay apart),
+/// each cluster represented by its member nearest to the members' centroid
+/// (a true vertex of M, so residuals measure M itself, not a smoothed copy)
+/// and weighted by its member count (so that a weighted fit over clusters
+/// estimates the unweighted fit over all vertices of §3.1.2).
+#[derive(Clone, Debug)]
+pub struct ProxyLevel {
+    pub cell: f64,
+    pub cluster_of: Vec<u32>,
+    pub rep: Vec<DVec3>,
+    pub weight: Vec<f64>,
+    /// Total area of the triangles assigned to the cluster.
+    pub area: Vec<f64>,
+    pub adj: Csr,
+    /// Triangles assigned to each cluster (by their first vertex).
+    pub tris: Csr,
+}
+
+impl ProxyLevel {
+    #[allow(clippy::needless_range_loop)] // several arrays indexed by vertex
+    pub fn new(mesh: &TriMesh, areas: &[f64], vv: &Csr, cell: f64) -> ProxyLevel {
+        let n = mesh.positions.len();
+        let (lo, _) = mesh.bbox();
+        let mut cell_id: HashMap<(i64, i64, i64), u32> = HashMap::new();
+        let cells: Vec<u32> = mesh
+            .positions
+            .iter()
+            .map(|p| {
+                let q = (*p - lo) / cell;
+                let key = (q.x.floor() as i64, q.y.floor() as i64, q.z.floor() as i64);
+                let next = cell_id.len() as u32;
+                *cell_id.entry(key).or_insert(next)
+            })
+            .collect();
+        // Union-find of edges inside one cell.
+        let mut parent: Vec<u32> = (0..n as u32).collect();
+        fn find(p: &mut [u32], mut x: u32) -> u32 {
+            while p[x as usize] != x {
+                p[x as usize] = p[p[x as usize] as usize];
+                x = p[x as usize];
+            }
+            x
+        }
+        for v in 0..n {
+            for &w in vv.row(v) {
+                if cells[v] == cells[w as usize] {
+                    let (a, b) = (find(&mut parent, v as u32), find(&mut parent, w));
+                    if a != b {
+                        let (a, b) = (a.min(b), a.max(b));
+                        parent[b as usize] = a;
+                    }
+                }
+            }
+        }
+        let mut id = vec![u32::MAX; n];
+        let mut cluster_of = vec![0u32; n];
+        let mut count = 0u32;
+        for v in 0..n {
+            let r = find(&mut parent, v as u32) as usize;
+            if id[r] == u32::MAX {
+                id[r] = count;
+                count += 1;
+            }
+            cluster_of[v] = id[r];
+        }
+        let m = count as usize;
+        let mut centroid = vec![DVec3::ZERO; m];
+        let mut weight = vec![0.0; m];
+        for v in 0..n {
+            centroid[cluster_of[v] as usize] += mesh.positions[v];
+            weight[cluster_of[v] as usize] += 1.0;
+        }
+        for c in 0..m {
+            centroid[c] /= weight[c];
+        }
+        let mut best = vec![(f64::INFINITY, 0u32); m];
+        for v in 0..n {
+            let c = cluster_of[v] as usize;
+            let d = (mesh.positions[v] - centroid[c]).length_squared();
+            if d < best[c].0 {
+                best[c] = (d, v as u32);
+            }
+        }
+        let rep = best
+            .iter()
+            .map(|&(_, v)| mesh.positions[v as usize])
+            .collect();
+        let mut pairs = Vec::new();
+        for v in 0..n {
+            for &w in vv.row(v) {
+                let (a, b) = (cluster_of[v], cluster_of[w as usize]);
+                if a != b {
+                    pairs.push((a, b));
+                }
+            }
+        }
+        let adj = Csr::from_pairs(m, pairs);
+        let mut area = vec![0.0; m];
+        let mut tp = Vec::with_capacity(mesh.triangles.len());
+        for (t, tri) in mesh.triangles.iter().enumerate() {
+            let c = cluster_of[tri[0] as usize];
+            area[c as usize] += areas[t];
+            tp.push((c, t as u32));
+        }
+        ProxyLevel {
+            cell,
+            cluster_of,
+            rep,
+            weight,
+            area,
+            adj,
+            tris: Csr::from_pairs(m, tp),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.rep.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.rep.is_empty()
+    }
+}
