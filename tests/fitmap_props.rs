@@ -1,6 +1,5 @@
 //! Property tests of the Fitmap (Fitmaps §3.1) on small procedural meshes,
-//! with a small BVH ray caster written here as a test double (the crate's
-//! casters are developed on other branches): plane, sphere, scaling, rigid
+//! with the Embree ray caster: plane, sphere, scaling, rigid
 //! motion, bumps, τ monotonicity, fast vs exact, thread-count determinism,
 //! robustness on awkward input.
 
@@ -8,195 +7,12 @@ use std::collections::HashMap;
 
 use subdfit::analysis::{compare_fitmaps, compute_fitmap, Fitmap, FitmapOptions};
 use subdfit::mesh::TriMesh;
-use subdfit::raycast::{ClosestPoint, Hit, Ray, RayCaster};
+use subdfit::raycast::{make_raycaster, RayBackend, RayCaster};
 use subdfit::DVec3;
 
-// ---------------------------------------------------------------------------
-// Test double: a median-split BVH with Möller–Trumbore in double precision.
-
-struct Node {
-    lo: DVec3,
-    hi: DVec3,
-    /// Leaf: `start..start+count` into `order`; inner: children `left`, `left + 1`... (indices).
-    left: usize,
-    right: usize,
-    start: usize,
-    count: usize,
-}
-
-struct TestCaster {
-    tris: Vec<[DVec3; 3]>,
-    order: Vec<u32>,
-    nodes: Vec<Node>,
-}
-
-impl TestCaster {
-    fn new(mesh: &TriMesh) -> TestCaster {
-        let tris: Vec<[DVec3; 3]> = (0..mesh.triangles.len())
-            .map(|t| mesh.triangle(t))
-            .collect();
-        let mut c = TestCaster {
-            order: (0..tris.len() as u32).collect(),
-            tris,
-            nodes: Vec::new(),
-        };
-        let n = c.order.len();
-        if n > 0 {
-            c.build(0, n);
-        }
-        c
-    }
-
-    fn build(&mut self, start: usize, end: usize) -> usize {
-        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-        for &t in &self.order[start..end] {
-            for p in self.tris[t as usize] {
-                lo = lo.min(p);
-                hi = hi.max(p);
-            }
-        }
-        let id = self.nodes.len();
-        self.nodes.push(Node {
-            lo,
-            hi,
-            left: 0,
-            right: 0,
-            start,
-            count: end - start,
-        });
-        if end - start > 4 {
-            let ext = hi - lo;
-            let axis = if ext.x >= ext.y && ext.x >= ext.z {
-                0
-            } else if ext.y >= ext.z {
-                1
-            } else {
-                2
-            };
-            let tris = &self.tris;
-            let key = |t: u32| {
-                let [a, b, c] = tris[t as usize];
-                (a + b + c)[axis]
-            };
-            self.order[start..end].sort_by(|&x, &y| key(x).total_cmp(&key(y)).then(x.cmp(&y)));
-            let mid = (start + end) / 2;
-            let l = self.build(start, mid);
-            let r = self.build(mid, end);
-            self.nodes[id].left = l;
-            self.nodes[id].right = r;
-            self.nodes[id].count = 0;
-        }
-        id
-    }
-
-    /// Intersections of the line `o + t d`, `t` in `[t0, t1]`; keeps the one
-    /// minimising `score(t)`.
-    fn query(
-        &self,
-        o: DVec3,
-        d: DVec3,
-        t0: f64,
-        t1: f64,
-        score: impl Fn(f64) -> f64,
-    ) -> Option<Hit> {
-        let mut best: Option<Hit> = None;
-        if self.nodes.is_empty() {
-            return None;
-        }
-        let mut stack = vec![0usize];
-        while let Some(n) = stack.pop() {
-            let node = &self.nodes[n];
-            // Slab test, conservative padding for round-off.
-            let pad = 1e-9 * (node.hi - node.lo).length().max(1e-300);
-            let (mut a, mut b) = (t0, t1);
-            for k in 0..3 {
-                let (lo, hi) = (node.lo[k] - pad, node.hi[k] + pad);
-                if d[k].abs() < 1e-300 {
-                    if o[k] < lo || o[k] > hi {
-                        a = f64::INFINITY;
-                    }
-                } else {
-                    let (x, y) = ((lo - o[k]) / d[k], (hi - o[k]) / d[k]);
-                    a = a.max(x.min(y));
-                    b = b.min(x.max(y));
-                }
-            }
-            if a > b {
-                continue;
-            }
-            if node.count == 0 {
-                stack.push(node.left);
-                stack.push(node.right);
-                continue;
-            }
-            for &t in &self.order[node.start..node.start + node.count] {
-                let [p0, p1, p2] = self.tris[t as usize];
-                let (e1, e2) = (p1 - p0, p2 - p0);
-                let pv = d.cross(e2);
-                let det = e1.dot(pv);
-                if det.abs() < 1e-300 {
-                    continue;
-                }
-                let inv = 1.0 / det;
-                let tv = o - p0;
-                let u = tv.dot(pv) * inv;
-                // Small inward-outward slack so that rays through shared
-                // edges hit one of the two triangles ("watertight enough").
-                let eps = 1e-12;
-                if u < -eps || u > 1.0 + eps {
-                    continue;
-                }
-                let qv = tv.cross(e1);
-                let v = d.dot(qv) * inv;
-                if v < -eps || u + v > 1.0 + eps {
-                    continue;
-                }
-                let tt = e2.dot(qv) * inv;
-                if tt < t0 || tt > t1 {
-                    continue;
-                }
-                if best.map_or(true, |h| {
-                    score(tt) < score(h.t) || (score(tt) == score(h.t) && t < h.triangle)
-                }) {
-                    best = Some(Hit {
-                        t: tt,
-                        triangle: t,
-                        u,
-                        v,
-                    });
-                }
-            }
-        }
-        best
-    }
-}
-
-impl RayCaster for TestCaster {
-    fn name(&self) -> &'static str {
-        "test-bvh"
-    }
-    fn first_hits(&self, rays: &[Ray]) -> Vec<Option<Hit>> {
-        rays.iter()
-            .map(|r| self.query(r.origin, r.dir, r.tmin, r.tmax, |t| t))
-            .collect()
-    }
-    fn line_hits(&self, origins: &[DVec3], dirs: &[DVec3], max_t: f64) -> Vec<Option<Hit>> {
-        origins
-            .iter()
-            .zip(dirs)
-            .map(|(&o, &d)| {
-                let l = d.length();
-                if l.is_nan() || l <= 0.0 {
-                    return None;
-                }
-                self.query(o, d, -max_t, max_t, f64::abs)
-            })
-            .collect()
-    }
-    fn closest_points(&self, points: &[DVec3], _max_dist: f64) -> Vec<Option<ClosestPoint>> {
-        // Not used by the Fitmap.
-        vec![None; points.len()]
-    }
+/// The production ray caster (Embree): the Fitmap is tested with what it runs on.
+fn caster(m: &TriMesh) -> Box<dyn RayCaster> {
+    make_raycaster(RayBackend::Embree, m).expect("ray caster")
 }
 
 // ---------------------------------------------------------------------------
@@ -315,8 +131,8 @@ fn transform(m: &TriMesh, f: impl Fn(DVec3) -> DVec3) -> TriMesh {
 }
 
 fn run(m: &TriMesh, opts: &FitmapOptions) -> Fitmap {
-    let caster = TestCaster::new(m);
-    compute_fitmap(m, &caster, opts).expect("fitmap")
+    let caster = caster(m);
+    compute_fitmap(m, caster.as_ref(), opts).expect("fitmap")
 }
 
 fn mean(x: &[f64]) -> f64 {
@@ -673,22 +489,23 @@ fn awkward_input_gives_no_nan() {
     }
 
     // Errors instead of garbage.
-    let caster = TestCaster::new(&m);
-    assert!(compute_fitmap(&m, &caster, &FitmapOptions::default().with_tolerance(0.0)).is_err());
+    let caster = caster(&m);
+    let caster = caster.as_ref();
+    assert!(compute_fitmap(&m, caster, &FitmapOptions::default().with_tolerance(0.0)).is_err());
     assert!(compute_fitmap(
         &m,
-        &caster,
+        caster,
         &FitmapOptions::default().with_tolerance(f64::NAN)
     )
     .is_err());
     let empty = TriMesh::default();
-    assert!(compute_fitmap(&empty, &TestCaster::new(&empty), &FitmapOptions::default()).is_err());
+    assert!(compute_fitmap(&empty, caster, &FitmapOptions::default()).is_err());
     let tiny = TriMesh {
         positions: vec![DVec3::ZERO, DVec3::X, DVec3::Y],
         triangles: vec![[0, 1, 2]],
     };
-    assert!(compute_fitmap(&tiny, &TestCaster::new(&tiny), &FitmapOptions::default()).is_err());
+    assert!(compute_fitmap(&tiny, caster, &FitmapOptions::default()).is_err());
     let mut nan = m.clone();
     nan.positions[5].x = f64::NAN;
-    assert!(compute_fitmap(&nan, &caster, &FitmapOptions::default()).is_err());
+    assert!(compute_fitmap(&nan, caster, &FitmapOptions::default()).is_err());
 }

@@ -39,7 +39,7 @@ use super::neighbourhood::{bfs_ball, nested_balls, Adjacency, Entry, ProxyLevel}
 use super::normals::{triangle_areas, vertex_normals};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
-use crate::raycast::RayCaster;
+use crate::raycast::{Hit, RayCaster};
 use crate::DVec3;
 
 /// Number of radius steps `h`: radii `r_0..r_h` (Fitmaps §3.1.2, "h = 8").
@@ -247,6 +247,22 @@ struct Ctx<'a> {
     /// gathered on `levels[k]`.
     level_of: Vec<Option<usize>>,
     levels: Vec<ProxyLevel>,
+    /// The first ray-casting failure: the per-vertex analysis runs inside
+    /// rayon and keeps going; `compute_fitmap` returns this error at the end.
+    failure: std::sync::Mutex<Option<Error>>,
+}
+
+impl Ctx<'_> {
+    fn line_hits(&self, origins: &[DVec3], dirs: &[DVec3], max_t: f64) -> Option<Vec<Option<Hit>>> {
+        match self.caster.line_hits(origins, dirs, max_t) {
+            Ok(h) => Some(h),
+            Err(e) => {
+                let mut f = self.failure.lock().unwrap_or_else(|p| p.into_inner());
+                f.get_or_insert(e);
+                None
+            }
+        }
+    }
 }
 
 /// Per-thread scratch (allocated once per rayon job, never shared).
@@ -396,7 +412,9 @@ fn flip_fraction_literal(
             dirs.push(frame.dir_to_world(cubic.normal(x.x, x.y)));
         }
     }
-    let hits = ctx.caster.line_hits(&origins, &dirs, r);
+    let Some(hits) = ctx.line_hits(&origins, &dirs, r) else {
+        return (None, 0);
+    };
     for h in hits.iter().flatten() {
         if let Some(m) = hitmark.get_mut(h.triangle as usize) {
             *m = stamp;
@@ -445,7 +463,9 @@ fn flip_fraction_sampled(
         dist.push((q - c).length());
     }
     let max_t = dist.iter().fold(r, |m, &d| m.max(d + eps));
-    let hits = ctx.caster.line_hits(&origins, &dirs, max_t);
+    let Some(hits) = ctx.line_hits(&origins, &dirs, max_t) else {
+        return (None, 0);
+    };
     let flipped = hits
         .iter()
         .zip(&dist)
@@ -849,6 +869,7 @@ pub fn compute_fitmap(
         sample_density,
         level_of,
         levels,
+        failure: std::sync::Mutex::new(None),
     };
     let setup_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
@@ -866,6 +887,9 @@ pub fn compute_fitmap(
             },
         )
         .collect();
+    if let Some(e) = ctx.failure.lock().unwrap_or_else(|p| p.into_inner()).take() {
+        return Err(e);
+    }
     let analysis_seconds = t1.elapsed().as_secs_f64();
     let undefined = results.iter().filter(|r| !r.defined).count();
     if undefined == nv {
