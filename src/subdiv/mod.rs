@@ -16,6 +16,7 @@
 
 pub mod catmark;
 pub mod osd;
+pub mod refine;
 
 use serde::Serialize;
 
