@@ -20,16 +20,17 @@ fn eval(m: &ControlMesh) -> RustEvaluator {
     RustEvaluator::new(m, &EvalOptions::default()).expect("evaluator")
 }
 
+/// Angle between two vectors, accurate near 0 (acos is not: ~1.5e-8).
 fn angle(a: DVec3, b: DVec3) -> f64 {
-    a.normalize().dot(b.normalize()).clamp(-1.0, 1.0).acos()
+    a.cross(b).length().atan2(a.dot(b))
 }
 
-/// Whether `v` is interior, smooth, all its faces quads (a unique normal,
-/// comparable between masks and patches).
+/// Whether `v` is interior, smooth or a dart (at most one sharp edge), all
+/// its faces quads: a unique normal, comparable between masks and patches.
 fn smooth_quad_vertex(m: &ControlMesh, v: VertexId) -> bool {
     !m.is_boundary_vertex(v)
         && m.vertex_sharpness(v) == 0.0
-        && m.outgoing(v).all(|h| m.edge_sharpness(h.edge()) == 0.0)
+        && m.outgoing(v).filter(|h| m.edge_sharpness(h.edge()) > 0.0).count() <= 1
         && m.vertex_faces(v).all(|f| m.face_size(f) == 4)
 }
 
