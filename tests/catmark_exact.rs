@@ -143,6 +143,29 @@ fn face_corners_are_vertex_limits() {
             }
         }
         let got = ev.evaluate(m.positions(), &locs).unwrap();
+        // Just inside the face, the surface is evaluated by local
+        // subdivision down to a regular patch (~47 levels), not by the masks:
+        // the normal must converge to the mask normal (continuity), at the
+        // rate (λ3/λ2)^levels: 0.82^47 ≈ 1e-4 for valence 8 (λ2 = 0.61,
+        // λ3 = 1/2), ~1e-10 at valence 3. Positions within |du|·1e-14.
+        let eps = 1e-14;
+        let near: Vec<SurfaceLocation> = locs
+            .iter()
+            .map(|l| SurfaceLocation {
+                u: if l.u == 0.0 { eps } else { 1.0 - eps },
+                v: if l.v == 0.0 { eps } else { 1.0 - eps },
+                ..*l
+            })
+            .collect();
+        let near = ev.evaluate(m.positions(), &near).unwrap();
+        for ((l, g), v) in locs.iter().zip(&near).zip(&verts) {
+            let d = (g.position - lim[v.idx()].position).length() / diag;
+            assert!(d < 1e-6, "{name}: near {l:?} vs {v}: {d:e}");
+            if smooth_quad_vertex(&m, *v) {
+                let a = angle(g.normal(), lim[v.idx()].normal());
+                assert!(a < 1e-4, "{name}: near {l:?} vs {v}: normal {a} rad");
+            }
+        }
         for ((l, g), v) in locs.iter().zip(&got).zip(&verts) {
             let d = (g.position - lim[v.idx()].position).length() / diag;
             assert!(d < 1e-13, "{name}: {l:?} vs {v}: {d:e}");

@@ -307,6 +307,16 @@ fn child_of(s: f64, t: f64) -> (usize, [[f64; 2]; 2], [f64; 2]) {
     }
 }
 
+/// Translates all points of `t` by minus its first point, adding that
+/// point to `offset`.
+fn recenter<P: Pt>(t: &mut Topo<P>, offset: &mut P) {
+    let o = t.pts[t.face(0)[0] as usize].clone();
+    for p in t.pts.iter_mut() {
+        p.axpy(-1.0, &o);
+    }
+    offset.axpy(1.0, &o);
+}
+
 /// Exact limit at `(u, v)` of sub-face `sub` of face 0 of `t` (the 1-ring
 /// of that face), by local subdivision until the location lies in a
 /// regular patch. Returns position and derivatives w.r.t. `(u, v)`.
@@ -326,6 +336,16 @@ pub(crate) fn eval_local<P: Pt>(
         t = r.ring(&radj, &cv, Some(child)).0;
         adj = t.adjacency();
     }
+    // Points are kept relative to `offset` (a point of the current face):
+    // near an extraordinary vertex the neighbourhood shrinks like λ^level
+    // while its coordinates do not, and differences of nearby absolute
+    // coordinates would lose the derivatives to cancellation (a relative
+    // error ~1e-16/λ^level, 1e-4 at 1e-9 from a valence-3 vertex). The rules
+    // are affine, so subdividing the translated points is exact; for
+    // stencils the same holds with weight vectors (the centred weights are
+    // the small differences themselves).
+    let mut offset = P::zero();
+    recenter(&mut t, &mut offset);
     let (mut s, mut tt) = (u, v);
     // J = ∂(s, t)/∂(u, v).
     let mut jac = [[1.0, 0.0], [0.0, 1.0]];
@@ -347,7 +367,8 @@ pub(crate) fn eval_local<P: Pt>(
                     }
                 }
             }
-            let [p, ds, dt] = out;
+            let [mut p, ds, dt] = out;
+            p.axpy(1.0, &offset);
             let (du, dv) = chain(&ds, &dt, &jac);
             return (p, du, dv);
         }
@@ -368,7 +389,8 @@ pub(crate) fn eval_local<P: Pt>(
         if let Some(k) = stop {
             let fv = t.face(0);
             let (c, n) = (fv[k], fv[(k + 1) % 4]);
-            let (p, a, b) = vertex_limit(&t, &adj, c, Some(n));
+            let (mut p, a, b) = vertex_limit(&t, &adj, c, Some(n));
+            p.axpy(1.0, &offset);
             // a points along the edge to corner k+1, b a quarter turn
             // (2π/valence) on; express them along s and t.
             let neg = |x: &P| comb(&[(-1.0, x)]);
@@ -403,6 +425,7 @@ pub(crate) fn eval_local<P: Pt>(
         let cv = r.face(child).to_vec();
         let radj = r.adjacency();
         t = r.ring(&radj, &cv, Some(child)).0;
+        recenter(&mut t, &mut offset);
         adj = t.adjacency();
     }
     unreachable!("the loop returns at MAX_DEPTH")
@@ -558,11 +581,15 @@ fn left_apply(s: &[Vec<f64>], w: &[f64]) -> Vec<f64> {
 }
 
 /// Exact limit masks of a dart (a smooth vertex with one infinitely sharp
-/// edge) over `c, e_i, f_i`: the dominant left eigenvector of the fan's
-/// subdivision matrix (power iteration from the vertex itself, i.e. the
-/// stencil of its descendant after many levels) and a basis of the
-/// subdominant left invariant subspace (orthogonal iteration from the smooth
-/// tangent masks, which keeps their orientation).
+/// edge, `e[0]`) over `c, e_i, f_i`: the dominant left eigenvector of the
+/// fan's subdivision matrix (power iteration from the vertex itself, i.e.
+/// the stencil of its descendant after many levels), and the two tangent
+/// masks. The matrix commutes with the reflection through the dart edge, so
+/// the tangent along the dart is the dominant zero-sum symmetric left
+/// eigenvector and the one across it the dominant antisymmetric one; each is
+/// found by power iteration inside its symmetry class (started from the
+/// smooth masks, projected back every step so round-off cannot leak into a
+/// mode of the other class).
 fn dart_masks<P: Clone>(
     t: &Topo<P>,
     adj: &Adj,
@@ -573,16 +600,28 @@ fn dart_masks<P: Clone>(
     let n = e.len();
     let s = fan_matrix(t, adj, c, e, f);
     let m = s.len();
+    let maxdiff =
+        |x: &[f64], y: &[f64]| x.iter().zip(y).fold(0.0f64, |a, (p, q)| a.max((p - q).abs()));
     let mut p = vec![0.0; m];
     p[0] = 1.0;
     for _ in 0..2000 {
         let np = left_apply(&s, &p);
-        let d = np.iter().zip(&p).fold(0.0f64, |a, (x, y)| a.max((x - y).abs()));
+        let d = maxdiff(&np, &p);
         p = np;
         if d < 1e-17 {
             break;
         }
     }
+    // Reflection: e_i <-> e_-i, f_i <-> f_-i-1.
+    let refl = |w: &[f64]| -> Vec<f64> {
+        let mut r = vec![0.0; m];
+        r[0] = w[0];
+        for i in 0..n {
+            r[1 + (n - i) % n] = w[1 + i];
+            r[1 + n + (2 * n - i - 1) % n] = w[1 + n + i];
+        }
+        r
+    };
     let th = 2.0 * std::f64::consts::PI / n as f64;
     let mut a = vec![0.0; m];
     let mut b = vec![0.0; m];
@@ -593,29 +632,23 @@ fn dart_masks<P: Clone>(
         b[1 + i] = 4.0 * a0.sin();
         b[1 + n + i] = a0.sin() + a1.sin();
     }
-    let dot = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(p, q)| p * q).sum::<f64>();
-    let orth = |a: &mut Vec<f64>, b: &mut Vec<f64>| {
-        let na = dot(a, a).sqrt();
-        a.iter_mut().for_each(|x| *x /= na);
-        let pr = dot(a, b);
-        b.iter_mut().zip(a.iter()).for_each(|(y, x)| *y -= pr * x);
-        let nb = dot(b, b).sqrt();
-        b.iter_mut().for_each(|x| *x /= nb);
-    };
-    orth(&mut a, &mut b);
-    for _ in 0..2000 {
-        let (mut na, mut nb) = (left_apply(&s, &a), left_apply(&s, &b));
-        orth(&mut na, &mut nb);
-        let d = na
-            .iter()
-            .zip(&a)
-            .chain(nb.iter().zip(&b))
-            .fold(0.0f64, |acc, (x, y)| acc.max((x - y).abs()));
-        a = na;
-        b = nb;
-        if d < 1e-15 {
-            break;
+    for (w, sign) in [(&mut a, 1.0), (&mut b, -1.0)] {
+        for _ in 0..4000 {
+            let x = left_apply(&s, w);
+            let rx = refl(&x);
+            let mut x: Vec<f64> = x.iter().zip(&rx).map(|(p, q)| 0.5 * (p + sign * q)).collect();
+            let norm = x.iter().fold(0.0f64, |acc, v| acc.max(v.abs()));
+            x.iter_mut().for_each(|v| *v *= 1.0 / norm);
+            let d = maxdiff(&x, w);
+            *w = x;
+            if d < 1e-16 {
+                break;
+            }
         }
+    }
+    // Scale like the smooth masks (the tangents' scale is conventional).
+    for w in [&mut a, &mut b] {
+        w.iter_mut().for_each(|v| *v /= 3.0);
     }
     (p, a, b)
 }
@@ -667,6 +700,9 @@ pub(crate) fn vertex_limit<P: Pt>(t0: &Topo<P>, adj0: &Adj, c0: u32, start: Opti
             // off by ~5e-3 of the size on `fixtures::creased_cube`). Sdc uses
             // the smooth masks anyway; we stay exact, see
             // `subdiv::known_differences`.
+            let i0 = sharp.iter().position(|&s| s > 0.0).unwrap_or(0);
+            e.rotate_left(i0);
+            f.rotate_left(i0);
             let (p, t1, t2) = dart_masks(&t, &adj, c, &e, &f);
             let apply = |w: &[f64]| {
                 let mut r = P::zero();
