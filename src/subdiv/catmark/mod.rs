@@ -508,15 +508,24 @@ fn crease_cross_mask(k: usize) -> Vec<f64> {
     for j in 0..k {
         w[vf(j)] = 1.0 / nint;
     }
-    for _ in 0..400 {
-        let mut nw = vec![0.0; m];
-        for (row, wr) in s.iter().zip(&w) {
-            if *wr != 0.0 {
-                for c in 0..m {
-                    nw[c] += wr * row[c];
-                }
-            }
+    // The position mask (e_0 + 4v + e_k)/6, to project out eigenvalue 1.
+    let mut l0 = vec![0.0; m];
+    l0[0] = 4.0 / 6.0;
+    l0[ve(0)] += 1.0 / 6.0;
+    l0[ve(k)] += 1.0 / 6.0;
+    for _ in 0..4000 {
+        let x = left_apply(&s, &w);
+        // Symmetrise (e_i <-> e_k-i, f_j <-> f_k-1-j) and remove the
+        // eigenvalue-1 component, both of which round-off would seed.
+        let mut nw = x.clone();
+        for i in 0..=k {
+            nw[ve(i)] = 0.5 * (x[ve(i)] + x[ve(k - i)]);
         }
+        for j in 0..k {
+            nw[vf(j)] = 0.5 * (x[vf(j)] + x[vf(k - 1 - j)]);
+        }
+        let sum: f64 = nw.iter().sum();
+        nw.iter_mut().zip(&l0).for_each(|(v, l)| *v -= sum * l);
         let norm = nw.iter().fold(0.0f64, |a, x| a.max(x.abs()));
         for x in nw.iter_mut() {
             *x /= norm;
@@ -637,6 +646,10 @@ fn dart_masks<P: Clone>(
             let x = left_apply(&s, w);
             let rx = refl(&x);
             let mut x: Vec<f64> = x.iter().zip(&rx).map(|(p, q)| 0.5 * (p + sign * q)).collect();
+            // Remove the eigenvalue-1 component that round-off seeds (it
+            // would grow by 1/λ per step): the masks must sum to zero.
+            let sum: f64 = x.iter().sum();
+            x.iter_mut().zip(&p).for_each(|(v, l)| *v -= sum * l);
             let norm = x.iter().fold(0.0f64, |acc, v| acc.max(v.abs()));
             x.iter_mut().for_each(|v| *v *= 1.0 / norm);
             let d = maxdiff(&x, w);
