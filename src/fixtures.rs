@@ -164,7 +164,9 @@ pub fn creased_cube(seed: u64) -> ControlMesh {
     let centre = m
         .outgoing(e02)
         .map(|h| m.head(h))
-        .find(|&c| m.valence(c) == 4 && c.0 >= 20 && m.find_halfedge(c, edge_child(&m, 2, 3)).is_some())
+        .find(|&c| {
+            m.valence(c) == 4 && c.0 >= 20 && m.find_halfedge(c, edge_child(&m, 2, 3)).is_some()
+        })
         .expect("bottom face centre");
     m.set_crease(e02, centre, INFINITELY_SHARP).expect("edge");
     m.set_corner(VertexId(3), 2.5).expect("vertex");

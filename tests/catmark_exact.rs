@@ -30,7 +30,10 @@ fn angle(a: DVec3, b: DVec3) -> f64 {
 fn smooth_quad_vertex(m: &ControlMesh, v: VertexId) -> bool {
     !m.is_boundary_vertex(v)
         && m.vertex_sharpness(v) == 0.0
-        && m.outgoing(v).filter(|h| m.edge_sharpness(h.edge()) > 0.0).count() <= 1
+        && m.outgoing(v)
+            .filter(|h| m.edge_sharpness(h.edge()) > 0.0)
+            .count()
+            <= 1
         && m.vertex_faces(v).all(|f| m.face_size(f) == 4)
 }
 

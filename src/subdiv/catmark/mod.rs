@@ -157,7 +157,11 @@ impl RustEvaluator {
             .map(|&v| {
                 let faces: Vec<FaceId> = mesh.vertex_faces(v).collect();
                 let t = topo_from_mesh(mesh, Some(&faces));
-                let local = t.pts.iter().position(|&g| g == v.0).expect("v is in its ring") as u32;
+                let local = t
+                    .pts
+                    .iter()
+                    .position(|&g| g == v.0)
+                    .expect("v is in its ring") as u32;
                 let t = map_pts(t, Sparse::unit);
                 let adj = t.adjacency();
                 let (p, a, b) = vertex_limit(&t, &adj, local, None);
@@ -609,8 +613,11 @@ fn dart_masks<P: Clone>(
     let n = e.len();
     let s = fan_matrix(t, adj, c, e, f);
     let m = s.len();
-    let maxdiff =
-        |x: &[f64], y: &[f64]| x.iter().zip(y).fold(0.0f64, |a, (p, q)| a.max((p - q).abs()));
+    let maxdiff = |x: &[f64], y: &[f64]| {
+        x.iter()
+            .zip(y)
+            .fold(0.0f64, |a, (p, q)| a.max((p - q).abs()))
+    };
     let mut p = vec![0.0; m];
     p[0] = 1.0;
     for _ in 0..2000 {
@@ -645,7 +652,11 @@ fn dart_masks<P: Clone>(
         for _ in 0..4000 {
             let x = left_apply(&s, w);
             let rx = refl(&x);
-            let mut x: Vec<f64> = x.iter().zip(&rx).map(|(p, q)| 0.5 * (p + sign * q)).collect();
+            let mut x: Vec<f64> = x
+                .iter()
+                .zip(&rx)
+                .map(|(p, q)| 0.5 * (p + sign * q))
+                .collect();
             // Remove the eigenvalue-1 component that round-off seeds (it
             // would grow by 1/λ per step): the masks must sum to zero.
             let sum: f64 = x.iter().sum();
@@ -670,7 +681,12 @@ fn dart_masks<P: Clone>(
 /// be complete in `t`). The first tangent points along the edge to `start`
 /// when `c` is smooth and `start` given; `t1 × t2` is the outward normal
 /// for outward-oriented faces.
-pub(crate) fn vertex_limit<P: Pt>(t0: &Topo<P>, adj0: &Adj, c0: u32, start: Option<u32>) -> (P, P, P) {
+pub(crate) fn vertex_limit<P: Pt>(
+    t0: &Topo<P>,
+    adj0: &Adj,
+    c0: u32,
+    start: Option<u32>,
+) -> (P, P, P) {
     let (mut t, map) = t0.ring(adj0, &[c0], None);
     let mut c = map[c0 as usize];
     let mut start = start.map(|s| map[s as usize]);
@@ -813,7 +829,11 @@ pub(crate) fn vertex_limit<P: Pt>(t0: &Topo<P>, adj0: &Adj, c0: u32, start: Opti
             // The corner interpolates; the tangents are the edges of the
             // first sector (of the whole boundary sector when open), like
             // Sdc's corner tangent masks.
-            let last = if closed { e[1 % e.len()] } else { e[e.len() - 1] };
+            let last = if closed {
+                e[1 % e.len()]
+            } else {
+                e[e.len() - 1]
+            };
             let t1 = comb(&[(1.0, pt(e[0])), (-1.0, v)]);
             let t2 = comb(&[(1.0, pt(last)), (-1.0, v)]);
             (v.clone(), t1, t2)
@@ -881,4 +901,3 @@ impl LimitEvaluator for RustEvaluator {
         Ok(st)
     }
 }
-
