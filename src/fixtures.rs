@@ -144,7 +144,6 @@ fn edge_child(refined: &ControlMesh, a: u32, b: u32) -> VertexId {
 /// corner.
 pub fn creased_cube(seed: u64) -> ControlMesh {
     let mut m = refine_uniform(&cube(), 1).expect("cube refines");
-    let original = cube();
     let mut set = |a: u32, b: u32, s: f64| {
         let e = edge_child(&m, a, b);
         m.set_crease(VertexId(a), e, s).expect("edge exists");
@@ -153,11 +152,10 @@ pub fn creased_cube(seed: u64) -> ControlMesh {
     set(0, 1, 0.5);
     set(2, 3, 1.5);
     set(4, 5, 2.0);
-    // An infinitely sharp loop around the top face z = +1 (4 5 7 6) would
-    // make its corners crease vertices of valence 3; use two edges of it.
+    // Two edges of the top face z = +1 (4 5 7 6), infinitely sharp: vertex 7
+    // becomes a crease vertex of valence 3, 5 and 6 dart tips.
     set(5, 7, INFINITELY_SHARP);
     set(7, 6, INFINITELY_SHARP);
-    drop(original);
     // Dart: from the edge point of (0, 2) into the face centre of the
     // bottom face (0 2 3 1).
     let e02 = edge_child(&m, 0, 2);

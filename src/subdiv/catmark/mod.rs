@@ -21,9 +21,12 @@
 //! `(v_k, m(k, k+1), centre, m(k-1, k))` (`m` = edge midpoints) with
 //! `(0,0)` at corner `v_k`, u running towards the midpoint of edge
 //! `(k, k+1)`, v towards the midpoint of edge `(k-1, k)`, and `(1,1)` at the
-//! face centre. This is OpenSubdiv's ptex sub-face convention
-//! (`Far::PtexIndices`, sub-faces in corner order) as we understand it; the
-//! differential tests against OpenSubdiv are the arbiter.
+//! face centre. This is OpenSubdiv's convention for the sub-faces of a
+//! non-quad face (ptex faces in corner order), checked against
+//! `Bfr::Parameterization::GetEdgeCoord` (OpenSubdiv 3.5, `QUAD_SUBFACES`):
+//! along edge (k, k+1), the first half runs in sub-face k with u increasing
+//! from corner k, the second half in sub-face k+1 with v decreasing to its
+//! corner. The differential tests against OpenSubdiv remain the arbiter.
 
 pub(crate) mod patch;
 pub(crate) mod topo;
@@ -109,8 +112,8 @@ fn merge3(p: &Sparse, a: &Sparse, b: &Sparse) -> Vec<(u32, [f64; 3])> {
     for (i, w) in all {
         match out.last_mut() {
             Some(l) if l.0 == i => {
-                for k in 0..3 {
-                    l.1[k] += w[k];
+                for (a, b) in l.1.iter_mut().zip(w) {
+                    *a += b;
                 }
             }
             _ => out.push((i, w)),
@@ -243,8 +246,7 @@ impl RustEvaluator {
                 let p = &self.patches[pi as usize];
                 let w = patch_weights(l.u, l.v, &self.rules[p.mask as usize]);
                 let mut r = LimitPoint::default();
-                for s in 0..16 {
-                    let c = p.cv[s];
+                for (s, &c) in p.cv.iter().enumerate() {
                     if c != u32::MAX {
                         let x = positions[c as usize];
                         r.position += w[0][s] * x;
