@@ -153,7 +153,8 @@ pub fn creased_cube(seed: u64) -> ControlMesh {
     set(2, 3, 1.5);
     set(4, 5, 2.0);
     // Two edges of the top face z = +1 (4 5 7 6), infinitely sharp: vertex 7
-    // becomes a crease vertex of valence 3, 5 and 6 dart tips.
+    // becomes a crease vertex of valence 3, vertex 6 a dart tip and vertex 5
+    // a crease between an infinite and a 2.0 edge.
     set(5, 7, INFINITELY_SHARP);
     set(7, 6, INFINITELY_SHARP);
     // Dart: from the edge point of (0, 2) into the face centre of the

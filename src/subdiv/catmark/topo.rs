@@ -16,9 +16,38 @@
 //! control vertices ([`Sparse`]), which turns the same code into a stencil
 //! generator — subdivision is linear in the control points.
 
-use std::collections::HashMap;
+use std::collections::HashMap as StdHashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 
 use crate::DVec3;
+
+/// A multiplicative hasher for the small integer keys of local meshes
+/// (FxHash's mixing step): SipHash dominated the cost of local subdivision.
+#[derive(Default, Clone, Copy)]
+pub(crate) struct IntHasher(u64);
+
+impl Hasher for IntHasher {
+    #[inline]
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    #[inline]
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(b as u64);
+        }
+    }
+    #[inline]
+    fn write_u32(&mut self, i: u32) {
+        self.write_u64(i as u64);
+    }
+    #[inline]
+    fn write_u64(&mut self, i: u64) {
+        self.0 = (self.0.rotate_left(5) ^ i).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+}
+
+pub(crate) type HashMap<K, V> = StdHashMap<K, V, BuildHasherDefault<IntHasher>>;
 
 /// OpenSubdiv's `Sdc::Crease::SHARPNESS_INFINITE`.
 pub(crate) const INF: f64 = 10.0;
@@ -169,10 +198,10 @@ impl<P> Topo<P> {
         let nv = self.pts.len();
         let mut a = Adj {
             edges: Vec::new(),
-            edge_id: HashMap::new(),
+            edge_id: HashMap::default(),
             edge_faces: Vec::new(),
             edge_nfaces: Vec::new(),
-            directed: HashMap::new(),
+            directed: HashMap::default(),
             vedges: vec![Vec::new(); nv],
             vfaces: vec![Vec::new(); nv],
         };
@@ -256,7 +285,7 @@ impl<P> Topo<P> {
             vsharp: Vec::new(),
             foff: vec![0],
             fv: Vec::new(),
-            esharp: HashMap::new(),
+            esharp: HashMap::default(),
         };
         for &f in &faces {
             for &v in self.face(f) {
@@ -428,7 +457,7 @@ impl<P: Pt> Topo<P> {
                 foff.push(fv.len() as u32);
             }
         }
-        let mut esharp = HashMap::new();
+        let mut esharp = HashMap::default();
         for (&(a, b), &s) in &self.esharp {
             let d = decrement(s);
             if d > 0.0 {
@@ -469,13 +498,13 @@ pub(crate) fn topo_from_mesh(
         }
     };
     let whole = faces.len() == mesh.num_faces();
-    let mut map: HashMap<u32, u32> = HashMap::new();
+    let mut map: HashMap<u32, u32> = HashMap::default();
     let mut t = Topo {
         pts: Vec::new(),
         vsharp: Vec::new(),
         foff: vec![0],
         fv: Vec::new(),
-        esharp: HashMap::new(),
+        esharp: HashMap::default(),
     };
     if whole {
         t.pts = (0..mesh.num_vertices() as u32).collect();
