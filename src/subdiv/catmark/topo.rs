@@ -1,0 +1,540 @@
+//! A small polygon mesh with generic per-vertex "points", and one level of
+//! Catmull-Clark refinement on it with OpenSubdiv 3.5's rules (Sdc, Catmark
+//! scheme, `VTX_BOUNDARY_EDGE_AND_CORNER`, `CREASE_UNIFORM`,
+//! `TRI_SUB_CATMARK`).
+//!
+//! The same code refines whole meshes ([`crate::subdiv::refine`]) and the
+//! local neighbourhoods the exact evaluator subdivides around a location.
+//! A local neighbourhood is cut out of a larger mesh, so its rim looks like a
+//! boundary: the rules read "boundary" from the topology (an edge with one
+//! face), which is right for every vertex whose fan is complete. The
+//! evaluator only ever uses points computed at such vertices (the 1-ring of a
+//! face is enough to compute the 1-ring of each of its children), so the
+//! garbage computed on the rim is never read.
+//!
+//! Points are generic ([`Pt`]): positions (`DVec3`) or sparse weights over
+//! control vertices ([`Sparse`]), which turns the same code into a stencil
+//! generator — subdivision is linear in the control points.
+
+use std::collections::HashMap as StdHashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+use crate::DVec3;
+
+/// A multiplicative hasher for the small integer keys of local meshes
+/// (FxHash's mixing step): SipHash dominated the cost of local subdivision.
+#[derive(Default, Clone, Copy)]
+pub(crate) struct IntHasher(u64);
+
+impl Hasher for IntHasher {
+    #[inline]
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    #[inline]
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(b as u64);
+        }
+    }
+    #[inline]
+    fn write_u32(&mut self, i: u32) {
+        self.write_u64(i as u64);
+    }
+    #[inline]
+    fn write_u64(&mut self, i: u64) {
+        self.0 = (self.0.rotate_left(5) ^ i).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+}
+
+pub(crate) type HashMap<K, V> = StdHashMap<K, V, BuildHasherDefault<IntHasher>>;
+
+/// OpenSubdiv's `Sdc::Crease::SHARPNESS_INFINITE`.
+pub(crate) const INF: f64 = 10.0;
+
+/// Something subdivision can combine linearly.
+pub(crate) trait Pt: Clone {
+    fn zero() -> Self;
+    /// `self += w * x`.
+    fn axpy(&mut self, w: f64, x: &Self);
+}
+
+impl Pt for DVec3 {
+    #[inline]
+    fn zero() -> Self {
+        DVec3::ZERO
+    }
+    #[inline]
+    fn axpy(&mut self, w: f64, x: &Self) {
+        *self += w * *x;
+    }
+}
+
+/// Sparse weights over control vertices, sorted by index.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct Sparse(pub Vec<(u32, f64)>);
+
+impl Sparse {
+    pub fn unit(i: u32) -> Self {
+        Sparse(vec![(i, 1.0)])
+    }
+}
+
+impl Pt for Sparse {
+    fn zero() -> Self {
+        Sparse(Vec::new())
+    }
+    fn axpy(&mut self, w: f64, x: &Self) {
+        if w == 0.0 {
+            return;
+        }
+        let a = &self.0;
+        let b = &x.0;
+        let mut out = Vec::with_capacity(a.len() + b.len());
+        let (mut i, mut j) = (0, 0);
+        while i < a.len() || j < b.len() {
+            if j == b.len() || (i < a.len() && a[i].0 < b[j].0) {
+                out.push(a[i]);
+                i += 1;
+            } else if i == a.len() || b[j].0 < a[i].0 {
+                out.push((b[j].0, w * b[j].1));
+                j += 1;
+            } else {
+                out.push((a[i].0, a[i].1 + w * b[j].1));
+                i += 1;
+                j += 1;
+            }
+        }
+        self.0 = out;
+    }
+}
+
+/// `Σ w_i x_i`.
+#[inline]
+pub(crate) fn comb<P: Pt>(terms: &[(f64, &P)]) -> P {
+    let mut r = P::zero();
+    for (w, x) in terms {
+        r.axpy(*w, x);
+    }
+    r
+}
+
+/// `Sdc::Crease::SubdivideUniformSharpness`: infinite stays infinite,
+/// otherwise one less per level, clamped at 0.
+#[inline]
+pub(crate) fn decrement(s: f64) -> f64 {
+    if s >= INF {
+        s
+    } else if s > 1.0 {
+        s - 1.0
+    } else {
+        0.0
+    }
+}
+
+#[inline]
+pub(crate) fn key(a: u32, b: u32) -> (u32, u32) {
+    if a < b {
+        (a, b)
+    } else {
+        (b, a)
+    }
+}
+
+/// `Sdc::Crease::Rule` (dart merged into smooth: both use the smooth masks).
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub(crate) enum Rule {
+    Smooth,
+    Crease,
+    Corner,
+}
+
+/// `Sdc::Crease::DetermineVertexVertexRule`.
+pub(crate) fn vertex_rule(vertex_sharpness: f64, edge_sharpness: &[f64]) -> Rule {
+    if vertex_sharpness > 0.0 {
+        return Rule::Corner;
+    }
+    match edge_sharpness.iter().filter(|&&s| s > 0.0).count() {
+        0 | 1 => Rule::Smooth,
+        2 => Rule::Crease,
+        _ => Rule::Corner,
+    }
+}
+
+/// A polygon mesh with per-vertex points and user sharpness (boundaries are
+/// read from the topology, see the module doc).
+#[derive(Clone, Debug)]
+pub(crate) struct Topo<P> {
+    pub pts: Vec<P>,
+    pub vsharp: Vec<f64>,
+    pub foff: Vec<u32>,
+    pub fv: Vec<u32>,
+    /// Non-zero crease sharpness by sorted vertex pair.
+    pub esharp: HashMap<(u32, u32), f64>,
+}
+
+/// Adjacency derived from a [`Topo`].
+pub(crate) struct Adj {
+    pub edges: Vec<(u32, u32)>,
+    pub edge_id: HashMap<(u32, u32), u32>,
+    pub edge_faces: Vec<[u32; 2]>,
+    pub edge_nfaces: Vec<u8>,
+    /// Directed edge `a -> b` to the face that contains it.
+    pub directed: HashMap<(u32, u32), u32>,
+    pub vedges: Vec<Vec<u32>>,
+    pub vfaces: Vec<Vec<u32>>,
+}
+
+impl<P> Topo<P> {
+    pub fn num_faces(&self) -> usize {
+        self.foff.len() - 1
+    }
+    #[inline]
+    pub fn face(&self, f: u32) -> &[u32] {
+        &self.fv[self.foff[f as usize] as usize..self.foff[f as usize + 1] as usize]
+    }
+
+    pub fn adjacency(&self) -> Adj {
+        let nv = self.pts.len();
+        let mut a = Adj {
+            edges: Vec::new(),
+            edge_id: HashMap::default(),
+            edge_faces: Vec::new(),
+            edge_nfaces: Vec::new(),
+            directed: HashMap::default(),
+            vedges: vec![Vec::new(); nv],
+            vfaces: vec![Vec::new(); nv],
+        };
+        for f in 0..self.num_faces() as u32 {
+            let fv = self.face(f);
+            let n = fv.len();
+            for k in 0..n {
+                let (p, q) = (fv[k], fv[(k + 1) % n]);
+                a.vfaces[p as usize].push(f);
+                a.directed.insert((p, q), f);
+                let kk = key(p, q);
+                let e = *a.edge_id.entry(kk).or_insert_with(|| {
+                    a.edges.push(kk);
+                    a.edge_faces.push([u32::MAX; 2]);
+                    a.edge_nfaces.push(0);
+                    a.vedges[p as usize].push(a.edges.len() as u32 - 1);
+                    a.vedges[q as usize].push(a.edges.len() as u32 - 1);
+                    a.edges.len() as u32 - 1
+                }) as usize;
+                let c = a.edge_nfaces[e] as usize;
+                if c < 2 {
+                    a.edge_faces[e][c] = f;
+                }
+                a.edge_nfaces[e] = a.edge_nfaces[e].saturating_add(1);
+            }
+        }
+        a
+    }
+
+    /// Effective sharpness of edge `e`: boundary edges are infinitely sharp.
+    #[inline]
+    pub fn edge_sharp(&self, adj: &Adj, e: u32) -> f64 {
+        if adj.edge_nfaces[e as usize] < 2 {
+            INF
+        } else {
+            let (p, q) = adj.edges[e as usize];
+            self.esharp.get(&(p, q)).copied().unwrap_or(0.0)
+        }
+    }
+    /// Effective corner sharpness: a boundary vertex with a single face is an
+    /// infinitely sharp corner (`VTX_BOUNDARY_EDGE_AND_CORNER`).
+    #[inline]
+    pub fn vert_sharp(&self, adj: &Adj, v: u32) -> f64 {
+        let vi = v as usize;
+        if adj.vfaces[vi].len() == 1 && adj.vedges[vi].len() == 2 {
+            INF
+        } else {
+            self.vsharp[vi]
+        }
+    }
+    pub fn other(&self, adj: &Adj, e: u32, v: u32) -> u32 {
+        let (p, q) = adj.edges[e as usize];
+        if p == v {
+            q
+        } else {
+            p
+        }
+    }
+
+    /// The sub-mesh made of `first` (if any, it becomes face 0 with the
+    /// same vertex rotation) and all faces around `verts`. Returns it and the
+    /// old-to-new vertex map (`u32::MAX` for vertices left out).
+    pub fn ring(&self, adj: &Adj, verts: &[u32], first: Option<u32>) -> (Topo<P>, Vec<u32>)
+    where
+        P: Clone,
+    {
+        let mut faces: Vec<u32> = Vec::with_capacity(16);
+        if let Some(f) = first {
+            faces.push(f);
+        }
+        for &v in verts {
+            for &f in &adj.vfaces[v as usize] {
+                if !faces.contains(&f) {
+                    faces.push(f);
+                }
+            }
+        }
+        let mut map = vec![u32::MAX; self.pts.len()];
+        let mut t = Topo {
+            pts: Vec::new(),
+            vsharp: Vec::new(),
+            foff: vec![0],
+            fv: Vec::new(),
+            esharp: HashMap::default(),
+        };
+        for &f in &faces {
+            for &v in self.face(f) {
+                if map[v as usize] == u32::MAX {
+                    map[v as usize] = t.pts.len() as u32;
+                    t.pts.push(self.pts[v as usize].clone());
+                    t.vsharp.push(self.vsharp[v as usize]);
+                }
+                t.fv.push(map[v as usize]);
+            }
+            t.foff.push(t.fv.len() as u32);
+        }
+        for (&(p, q), &s) in &self.esharp {
+            let (a, b) = (map[p as usize], map[q as usize]);
+            if a != u32::MAX && b != u32::MAX && adj.edge_id.contains_key(&(p, q)) {
+                t.esharp.insert(key(a, b), s);
+            }
+        }
+        (t, map)
+    }
+}
+
+impl<P: Pt> Topo<P> {
+    /// Index of the child vertex of edge `e` in the refined mesh.
+    #[inline]
+    pub fn edge_child(&self, e: u32) -> u32 {
+        self.pts.len() as u32 + e
+    }
+    fn vertex_mask(&self, adj: &Adj, v: u32, rule: Rule, sharp: &[f64], fpts: &[P]) -> P {
+        let vi = v as usize;
+        let x = &self.pts[vi];
+        match rule {
+            Rule::Corner => x.clone(),
+            Rule::Crease => {
+                let mut r = P::zero();
+                r.axpy(0.75, x);
+                for (k, &e) in adj.vedges[vi].iter().enumerate() {
+                    if sharp[k] > 0.0 {
+                        r.axpy(0.125, &self.pts[self.other(adj, e, v) as usize]);
+                    }
+                }
+                r
+            }
+            Rule::Smooth => {
+                // Catmark smooth vertex rule with face centroids
+                // (Sdc `assignSmoothMaskForVertex`): (n-2)/n v + Σe/n² + ΣF/n².
+                let n = adj.vedges[vi].len() as f64;
+                let mut r = P::zero();
+                r.axpy((n - 2.0) / n, x);
+                let w = 1.0 / (n * n);
+                for &e in &adj.vedges[vi] {
+                    r.axpy(w, &self.pts[self.other(adj, e, v) as usize]);
+                }
+                for &f in &adj.vfaces[vi] {
+                    r.axpy(w, &fpts[f as usize]);
+                }
+                r
+            }
+        }
+    }
+
+    /// One level of Catmull-Clark refinement. Child vertices are numbered
+    /// vertex points, then edge points (by edge id), then face points; child
+    /// face `foff[f] + k` of face `f` is the quad at its corner k,
+    /// `(v_k, e(k, k+1), f, e(k-1, k))`.
+    pub fn refine(&self, adj: &Adj) -> Topo<P> {
+        let nv = self.pts.len();
+        let ne = adj.edges.len();
+        let nf = self.num_faces();
+        let mut pts = Vec::with_capacity(nv + ne + nf);
+        let fpts: Vec<P> = (0..nf as u32)
+            .map(|f| {
+                let fv = self.face(f);
+                let w = 1.0 / fv.len() as f64;
+                let mut r = P::zero();
+                for &v in fv {
+                    r.axpy(w, &self.pts[v as usize]);
+                }
+                r
+            })
+            .collect();
+        // Vertex points (Sdc `ComputeVertexVertexMask`): the parent rule, or
+        // for a transition between rules (a semi-sharp feature running out
+        // at this level) a blend of the parent and child masks weighted by
+        // `Crease::ComputeFractionalWeightAtVertex`.
+        let mut ps = Vec::new();
+        let mut cs = Vec::new();
+        for v in 0..nv as u32 {
+            let vi = v as usize;
+            ps.clear();
+            cs.clear();
+            for &e in &adj.vedges[vi] {
+                let s = self.edge_sharp(adj, e);
+                ps.push(s);
+                cs.push(decrement(s));
+            }
+            let psv = self.vert_sharp(adj, v);
+            let csv = decrement(psv);
+            let prule = vertex_rule(psv, &ps);
+            let crule = vertex_rule(csv, &cs);
+            let p = if prule == Rule::Smooth || prule == crule {
+                self.vertex_mask(adj, v, prule, &ps, &fpts)
+            } else {
+                let mut count = 0usize;
+                let mut sum = 0.0;
+                if psv > 0.0 && csv <= 0.0 {
+                    count += 1;
+                    sum += psv;
+                }
+                for k in 0..ps.len() {
+                    if ps[k] > 0.0 && cs[k] <= 0.0 {
+                        count += 1;
+                        sum += ps[k];
+                    }
+                }
+                let w = if count == 0 {
+                    0.0
+                } else {
+                    (sum / count as f64).min(1.0)
+                };
+                let pm = self.vertex_mask(adj, v, prule, &ps, &fpts);
+                let cm = self.vertex_mask(adj, v, crule, &cs, &fpts);
+                comb(&[(w, &pm), (1.0 - w, &cm)])
+            };
+            pts.push(p);
+        }
+        // Edge points: smooth (v0 + v1 + F0 + F1)/4, sharp midpoint, and a
+        // fractional sharpness in (0, 1) blends the two (Sdc
+        // `ComputeEdgeVertexMask`).
+        for e in 0..ne {
+            let (a, b) = adj.edges[e];
+            let s = self.edge_sharp(adj, e as u32);
+            let mid = comb(&[(0.5, &self.pts[a as usize]), (0.5, &self.pts[b as usize])]);
+            let p = if s >= 1.0 || adj.edge_nfaces[e] != 2 {
+                mid
+            } else {
+                let [f0, f1] = adj.edge_faces[e];
+                let smooth = comb(&[
+                    (0.25, &self.pts[a as usize]),
+                    (0.25, &self.pts[b as usize]),
+                    (0.25, &fpts[f0 as usize]),
+                    (0.25, &fpts[f1 as usize]),
+                ]);
+                if s > 0.0 {
+                    comb(&[(s, &mid), (1.0 - s, &smooth)])
+                } else {
+                    smooth
+                }
+            };
+            pts.push(p);
+        }
+        pts.extend(fpts);
+
+        let mut fv = Vec::with_capacity(4 * self.fv.len());
+        let mut foff = Vec::with_capacity(self.fv.len() + 1);
+        foff.push(0u32);
+        for f in 0..nf as u32 {
+            let c = self.face(f);
+            let n = c.len();
+            let fp = (nv + ne) as u32 + f;
+            for k in 0..n {
+                let (p, q, r) = (c[(k + n - 1) % n], c[k], c[(k + 1) % n]);
+                fv.extend_from_slice(&[
+                    q,
+                    nv as u32 + adj.edge_id[&key(q, r)],
+                    fp,
+                    nv as u32 + adj.edge_id[&key(p, q)],
+                ]);
+                foff.push(fv.len() as u32);
+            }
+        }
+        let mut esharp = HashMap::default();
+        for (&(a, b), &s) in &self.esharp {
+            let d = decrement(s);
+            if d > 0.0 {
+                if let Some(&e) = adj.edge_id.get(&(a, b)) {
+                    let ep = nv as u32 + e;
+                    esharp.insert(key(a, ep), d);
+                    esharp.insert(key(b, ep), d);
+                }
+            }
+        }
+        let mut vsharp: Vec<f64> = self.vsharp.iter().map(|&s| decrement(s)).collect();
+        vsharp.resize(nv + ne + nf, 0.0);
+        Topo {
+            pts,
+            vsharp,
+            foff,
+            fv,
+            esharp,
+        }
+    }
+}
+
+/// The faces `faces` of `mesh` (all of them when `None`) as a [`Topo`] whose
+/// points are global vertex ids, vertices renumbered in order of appearance
+/// (face `faces[0]` keeps its vertex rotation). Returns the local-to-global
+/// vertex map in `pts`.
+pub(crate) fn topo_from_mesh(
+    mesh: &crate::mesh::ControlMesh,
+    faces: Option<&[crate::mesh::FaceId]>,
+) -> Topo<u32> {
+    use crate::mesh::FaceId;
+    let all: Vec<FaceId>;
+    let faces = match faces {
+        Some(f) => f,
+        None => {
+            all = mesh.faces().collect();
+            &all
+        }
+    };
+    let whole = faces.len() == mesh.num_faces();
+    let mut map: HashMap<u32, u32> = HashMap::default();
+    let mut t = Topo {
+        pts: Vec::new(),
+        vsharp: Vec::new(),
+        foff: vec![0],
+        fv: Vec::new(),
+        esharp: HashMap::default(),
+    };
+    if whole {
+        t.pts = (0..mesh.num_vertices() as u32).collect();
+        t.vsharp = mesh.vertices().map(|v| mesh.vertex_sharpness(v)).collect();
+    }
+    for &f in faces {
+        for h in mesh.face_halfedges(f) {
+            let v = mesh.tail(h);
+            let id = if whole {
+                v.0
+            } else {
+                *map.entry(v.0).or_insert_with(|| {
+                    t.pts.push(v.0);
+                    t.vsharp.push(mesh.vertex_sharpness(v));
+                    t.pts.len() as u32 - 1
+                })
+            };
+            t.fv.push(id);
+        }
+        t.foff.push(t.fv.len() as u32);
+    }
+    for f in faces {
+        for h in mesh.face_halfedges(*f) {
+            let s = mesh.edge_sharpness(h.edge());
+            if s > 0.0 {
+                let (a, b) = (mesh.tail(h).0, mesh.head(h).0);
+                let (a, b) = if whole { (a, b) } else { (map[&a], map[&b]) };
+                t.esharp.insert(key(a, b), s);
+            }
+        }
+    }
+    t
+}

@@ -1,0 +1,49 @@
+//! Pure-Rust uniform Catmull-Clark refinement with OpenSubdiv 3.5's rules
+//! (see [`crate::subdiv`] for the conventions): the independent check of the
+//! limit evaluators, and the tessellator of later stages.
+
+use crate::error::{Error, Result};
+use crate::mesh::{ControlMesh, VertexId};
+use crate::subdiv::catmark::topo::{topo_from_mesh, Topo};
+use crate::DVec3;
+
+/// The most levels [`refine_uniform`] accepts: each level multiplies the face
+/// count by about 4.
+pub const MAX_UNIFORM_LEVELS: u32 = 8;
+
+/// Refines `mesh` `levels` times. Vertex `i` of the result is the child of
+/// vertex `i` of `mesh` at every level (vertex points first, then edge
+/// points, then face points), and face `f` of the result at level 1 is the
+/// quad of parent face `p` at its corner `k`, numbered in order of `(p, k)`.
+/// Crease and corner sharpness are carried over, decremented by one per
+/// level (`Sdc::Options::CREASE_UNIFORM`).
+pub fn refine_uniform(mesh: &ControlMesh, levels: u32) -> Result<ControlMesh> {
+    if levels > MAX_UNIFORM_LEVELS {
+        return Err(Error::InvalidArgument(format!(
+            "refine_uniform: {levels} levels requested, at most {MAX_UNIFORM_LEVELS} supported"
+        )));
+    }
+    let ids = topo_from_mesh(mesh, None);
+    let mut t: Topo<DVec3> = Topo {
+        pts: mesh.positions().to_vec(),
+        vsharp: ids.vsharp,
+        foff: ids.foff,
+        fv: ids.fv,
+        esharp: ids.esharp,
+    };
+    for _ in 0..levels {
+        let adj = t.adjacency();
+        t = t.refine(&adj);
+    }
+    let polys: Vec<&[u32]> = (0..t.num_faces() as u32).map(|f| t.face(f)).collect();
+    let mut out = ControlMesh::from_polygons(t.pts.clone(), &polys)?;
+    for (&(a, b), &s) in &t.esharp {
+        out.set_crease(VertexId(a), VertexId(b), s)?;
+    }
+    for (v, &s) in t.vsharp.iter().enumerate() {
+        if s > 0.0 {
+            out.set_corner(VertexId(v as u32), s)?;
+        }
+    }
+    Ok(out)
+}
