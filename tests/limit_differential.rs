@@ -3,7 +3,11 @@
 //! boundaries, creases and corners, triangles and n-gons, several
 //! components. Tolerances are relative to the bounding-box diagonal:
 //! - control vertices: 1e-9 (both evaluate closed-form limit masks; the
-//!   margin covers round-off of refinement at semi-sharp features);
+//!   margin covers round-off of refinement at semi-sharp features); normals
+//!   1e-5 rad: where a semi-sharp feature is still sharp at level 1,
+//!   OpenSubdiv evaluates the vertex on its patches, and where the vertex is
+//!   extraordinary once the feature runs out that is a Gregory end cap whose
+//!   tangent plane is ~2e-6 rad off at isolation level 10;
 //! - ≥ 10,000 random locations per mesh, OpenSubdiv at isolation level 10:
 //!   1e-8 and 1e-6 rad wherever the location is ≥ 0.01 (in u or v) from an
 //!   irregular corner — both are exact there (bicubic patches);
@@ -13,7 +17,7 @@
 //! and checked to be reported.
 
 use subdfit::fixtures;
-use subdfit::subdiv::diff::{compare, random_locations, DiffReport};
+use subdfit::subdiv::diff::{compare, near_irregular_locations, random_locations, DiffReport};
 use subdfit::subdiv::{make_evaluator, Backend, EvalOptions};
 
 fn run(name: &str, mesh: &subdfit::mesh::ControlMesh, level: u8, samples: usize) -> DiffReport {
@@ -22,7 +26,8 @@ fn run(name: &str, mesh: &subdfit::mesh::ControlMesh, level: u8, samples: usize)
         make_evaluator(Backend::Osd, mesh, &opts).unwrap_or_else(|e| panic!("{name}: osd: {e}"));
     let rust =
         make_evaluator(Backend::Rust, mesh, &opts).unwrap_or_else(|e| panic!("{name}: rust: {e}"));
-    let locs = random_locations(mesh, samples, 7);
+    let mut locs = random_locations(mesh, samples, 7);
+    locs.extend(near_irregular_locations(mesh, 8, 0.01, 11));
     compare(mesh, osd.as_ref(), rust.as_ref(), &locs, 0.01)
         .unwrap_or_else(|e| panic!("{name}: {e}"))
 }
@@ -44,7 +49,7 @@ fn evaluators_agree_on_fixture_collection() {
         let r = run(name, &mesh, 10, 10_000);
         println!("{name}: {r}");
         let ok = r.vertices.position <= 1e-9
-            && r.vertices.normal <= 1e-6
+            && r.vertices.normal <= 1e-5
             && r.regular.position <= 1e-8
             && r.regular.normal <= 1e-6
             && r.regular.count >= 5_000;
@@ -66,16 +71,15 @@ fn end_cap_error_shrinks_with_isolation_level() {
         println!("{name}: near-irregular worst deviation at isolation 2/6/10: {near:?}");
         if near[0] > 1e-9 {
             assert!(
-                near[2] < near[0],
-                "{name}: {near:?} does not shrink from level 2 to 10"
-            );
-            assert!(
-                near[2] <= near[1] * 1.5 + 1e-12,
-                "{name}: {near:?} grows from level 6 to 10"
+                near[2] < near[1] && near[1] < near[0],
+                "{name}: {near:?} does not shrink with the isolation level"
             );
         }
+        // Gregory end caps also parametrise the corner region differently,
+        // so (u, v)-matched points differ more than the surfaces do; the
+        // bound is loose on purpose, the trend is the point.
         assert!(
-            near[2] < 1e-4,
+            near[2] < 1e-3,
             "{name}: end-cap deviation {} at level 10",
             near[2]
         );
@@ -84,13 +88,28 @@ fn end_cap_error_shrinks_with_isolation_level() {
 
 #[test]
 fn known_differences_are_named() {
-    let (name, mesh) = fixtures::collection()
-        .into_iter()
-        .find(|(_, m)| !subdfit::subdiv::known_differences(m).is_empty())
-        .expect("the collection has a mesh with an interior valence-2 vertex");
-    let r = run(name, &mesh, 10, 1_000);
-    assert!(!r.known_differences.is_empty());
-    // OpenSubdiv keeps the vertex in place; the exact limit moves: the
-    // difference is real, not round-off (STACK-NOTES: 2e-3 of the diagonal).
-    assert!(r.known.position > 1e-6, "{name}: {r}");
+    let mut seen = [false; 2];
+    for (name, mesh) in fixtures::collection() {
+        let known = subdfit::subdiv::known_differences(&mesh);
+        if known.is_empty() {
+            continue;
+        }
+        let r = run(name, &mesh, 10, 1_000);
+        assert_eq!(r.known_differences, known);
+        if known.iter().any(|k| !k.normal_only) {
+            // OpenSubdiv's mask moves the vertex elsewhere than the exact
+            // limit: a real difference, not round-off (STACK-NOTES: 2e-3).
+            assert!(r.known.position > 1e-6, "{name}: {r}");
+            seen[0] = true;
+        } else {
+            assert!(r.known.normal > 1e-6, "{name}: {r}");
+            assert!(r.vertices.position <= 1e-9, "{name}: {r}");
+            seen[1] = true;
+        }
+    }
+    assert_eq!(
+        seen,
+        [true, true],
+        "the collection covers both kinds of known difference"
+    );
 }
