@@ -10,6 +10,7 @@ pub mod error;
 pub mod fixtures;
 pub mod io;
 pub mod mesh;
+pub mod project;
 pub mod quad;
 pub mod raycast;
 pub mod solve;
