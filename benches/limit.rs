@@ -1,6 +1,7 @@
 //! Limit evaluations per second on regular faces and on faces next to
-//! extraordinary vertices, per backend. The OpenSubdiv backend slots in by
-//! adding `Backend::Osd` to `BACKENDS` once it is implemented.
+//! extraordinary vertices, for both backends (OpenSubdiv at its default
+//! isolation level 10; a call includes its per-call refinement of the
+//! control points, so batches are what is measured).
 //!
 //! Mesh: the valence-6 polar sphere refined twice (~2300 quads; valence-6
 //! poles and valence-3 corners, i.e. both kinds of faces).
@@ -15,7 +16,7 @@ use subdfit::mesh::{ControlMesh, FaceId};
 use subdfit::subdiv::refine::refine_uniform;
 use subdfit::subdiv::{make_evaluator, Backend, EvalOptions, SurfaceLocation};
 
-const BACKENDS: &[Backend] = &[Backend::Rust];
+const BACKENDS: &[Backend] = &[Backend::Rust, Backend::Osd];
 const LOCATIONS: usize = 20_000;
 
 /// Faces whose corners are all interior valence-4 vertices with all-quad
