@@ -13,8 +13,10 @@
 //!   irregular corner — both are exact there (bicubic patches);
 //! - nearer, OpenSubdiv's end caps approximate the limit: reported apart, and
 //!   shown to shrink as the isolation level grows.
-//! Known deliberate differences (interior valence-2 vertices) are excluded
-//! and checked to be reported.
+//!
+//! Known deliberate differences (interior valence-2 vertices, darts,
+//! OpenSubdiv's boundary tangent masks) are excluded and checked to be
+//! reported.
 
 use subdfit::fixtures;
 use subdfit::subdiv::diff::{compare, near_irregular_locations, random_locations, DiffReport};

@@ -246,10 +246,10 @@ impl ControlMesh {
         // A vertex whose interior faces form several closed fans (two cones
         // touching at a point) has no boundary half-edge yet is non-manifold:
         // rotation from its stored half-edge does not reach all the others.
-        let mut seen = vec![0u32; nv];
-        for v in 0..nv {
-            seen[v] = mesh.outgoing(VertexId(v as u32)).count() as u32;
-        }
+        let seen: Vec<u32> = mesh
+            .vertices()
+            .map(|v| mesh.outgoing(v).count() as u32)
+            .collect();
         let mut total = vec![0u32; nv];
         for h in 0..mesh.he_vertex.len() {
             total[mesh.he_vertex[h].idx()] += 1;

@@ -118,7 +118,8 @@ pub fn normal_is_defined(mesh: &ControlMesh, v: VertexId) -> bool {
         .count();
     let boundary_corner = mesh.is_boundary_vertex(v) && mesh.valence(v) == 2;
     let corner = mesh.vertex_sharpness(v) >= INFINITELY_SHARP;
-    sharp < 2 && !boundary_corner && !corner && !(mesh.is_boundary_vertex(v) && sharp > 0)
+    let sharp_on_boundary = mesh.is_boundary_vertex(v) && sharp > 0;
+    sharp < 2 && !(boundary_corner || corner || sharp_on_boundary)
 }
 
 /// Corners of the sub-quad of `loc` that are irregular, as `(u, v)` corners

@@ -191,7 +191,8 @@ pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
     let report = diff::compare(&mesh, osd.as_ref(), rust.as_ref(), &locs, a.margin)?;
     let mut failures = Vec::new();
     let mut check = |what: &str, value: f64, tol: f64| {
-        if !(value <= tol) {
+        // NaN counts as a failure.
+        if value.is_nan() || value > tol {
             failures.push(format!("{what} {value:.3e} > {tol:.1e}"));
         }
     };
