@@ -8,4 +8,7 @@ cd "$(dirname "$0")/.."
 if [ -f "$HOME/.cargo/env" ]; then . "$HOME/.cargo/env"; fi
 cargo build --release
 ./target/release/subdfit info data/spot.ply
-./target/release/subdfit diff-limit data/samples/cube_creased.obj
+for control in data/samples/*.obj; do
+  echo "== diff-limit $control"
+  ./target/release/subdfit diff-limit "$control"
+done
