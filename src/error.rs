@@ -45,6 +45,9 @@ pub enum Error {
     /// A caller passed an argument out of its domain.
     #[error("{0}")]
     InvalidArgument(String),
+    /// A long computation was cancelled through its progress callback.
+    #[error("{0}: cancelled")]
+    Cancelled(&'static str),
 }
 
 impl Error {

@@ -96,6 +96,13 @@ pub struct ControlMesh {
     vertex_he: Vec<HalfedgeId>,
     edge_sharpness: Vec<f64>,
     vertex_sharpness: Vec<f64>,
+    /// Deleted face slots, reused by [`ControlMesh::replace_faces`]. A
+    /// deleted face has size 0.
+    free_faces: Vec<FaceId>,
+    /// Deleted edge slots (both half-edges have origin `INVALID`).
+    free_edges: Vec<EdgeId>,
+    /// Number of deleted vertices (their stored half-edge is `INVALID`).
+    deleted_vertices: usize,
 }
 
 impl ControlMesh {
@@ -242,6 +249,9 @@ impl ControlMesh {
             vertex_he,
             edge_sharpness: vec![0.0; ne],
             vertex_sharpness: vec![0.0; nv],
+            free_faces: Vec::new(),
+            free_edges: Vec::new(),
+            deleted_vertices: 0,
         };
         // A vertex whose interior faces form several closed fans (two cones
         // touching at a point) has no boundary half-edge yet is non-manifold:
@@ -483,7 +493,8 @@ impl ControlMesh {
             .collect()
     }
     pub fn is_all_quads(&self) -> bool {
-        self.face_size.iter().all(|&n| n == 4)
+        // Deleted slots (size 0) are not faces.
+        self.face_size.iter().all(|&n| n == 4 || n == 0)
     }
 
     /// Connected components (by faces sharing vertices).
@@ -492,7 +503,7 @@ impl ControlMesh {
         let mut count = 0;
         let mut stack = Vec::new();
         for s in self.vertices() {
-            if label[s.idx()] != u32::MAX {
+            if label[s.idx()] != u32::MAX || self.is_vertex_deleted(s) {
                 continue;
             }
             label[s.idx()] = count;
@@ -517,7 +528,7 @@ impl ControlMesh {
         let mut loops = 0;
         for h in 0..self.num_halfedges() {
             let hid = HalfedgeId(h as u32);
-            if seen[h] || !self.is_boundary_halfedge(hid) {
+            if seen[h] || self.is_halfedge_deleted(hid) || !self.is_boundary_halfedge(hid) {
                 continue;
             }
             loops += 1;
@@ -550,6 +561,14 @@ impl ControlMesh {
         for h in 0..nh {
             let hid = HalfedgeId(h as u32);
             let el = || hid.to_string();
+            if self.is_halfedge_deleted(hid) {
+                chk(
+                    self.is_halfedge_deleted(hid.twin()),
+                    el(),
+                    "deleted half-edge with a live twin",
+                )?;
+                continue;
+            }
             chk(
                 self.he_next[h].idx() < nh && self.he_prev[h].idx() < nh,
                 el(),
@@ -578,11 +597,25 @@ impl ControlMesh {
                 el(),
                 "edge with no face on either side",
             )?;
+            chk(
+                !self.is_vertex_deleted(self.tail(hid)),
+                el(),
+                "leaves a deleted vertex",
+            )?;
+            chk(
+                !self.is_halfedge_deleted(self.next(hid)),
+                el(),
+                "next is a deleted half-edge",
+            )?;
             if let Some(f) = self.face_of(hid) {
                 chk(f.idx() < nf, el(), "face out of range")?;
+                chk(!self.is_face_deleted(f), el(), "lies in a deleted face")?;
             }
         }
         for f in self.faces() {
+            if self.is_face_deleted(f) {
+                continue;
+            }
             let h0 = self.face_he[f.idx()];
             chk(
                 self.face_of(h0) == Some(f),
@@ -611,9 +644,14 @@ impl ControlMesh {
         }
         let mut out_count = vec![0usize; nv];
         for h in 0..nh {
-            out_count[self.he_vertex[h].idx()] += 1;
+            if !self.is_halfedge_deleted(HalfedgeId(h as u32)) {
+                out_count[self.he_vertex[h].idx()] += 1;
+            }
         }
         for v in self.vertices() {
+            if self.is_vertex_deleted(v) {
+                continue;
+            }
             let h = self.vertex_he[v.idx()];
             chk(
                 h.idx() < nh && self.tail(h) == v,
@@ -655,6 +693,27 @@ impl ControlMesh {
                 "corner sharpness must be finite and >= 0",
             )?;
         }
+        let dead_f = self.faces().filter(|&f| self.is_face_deleted(f)).count();
+        chk(
+            dead_f == self.free_faces.len(),
+            "mesh".into(),
+            "deleted faces and the free list disagree",
+        )?;
+        let dead_e = self.edges().filter(|&e| self.is_edge_deleted(e)).count();
+        chk(
+            dead_e == self.free_edges.len(),
+            "mesh".into(),
+            "deleted edges and the free list disagree",
+        )?;
+        let dead_v = self
+            .vertices()
+            .filter(|&v| self.is_vertex_deleted(v))
+            .count();
+        chk(
+            dead_v == self.deleted_vertices,
+            "mesh".into(),
+            "deleted vertex count disagrees",
+        )?;
         for e in self.edges() {
             let s = self.edge_sharpness[e.idx()];
             chk(
@@ -664,6 +723,414 @@ impl ControlMesh {
             )?;
         }
         Ok(())
+    }
+}
+
+/// The renumbering done by [`ControlMesh::compact`]: `old → new`, `None`
+/// for deleted elements.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Compaction {
+    pub vertex_map: Vec<Option<VertexId>>,
+    pub face_map: Vec<Option<FaceId>>,
+}
+
+/// Local editing (used by the simplification operators of `crate::quad`).
+///
+/// Elements are deleted by flags, so ids of the others stay stable while a
+/// simplification runs: `num_vertices`/`num_faces`/`num_edges` and the
+/// `vertices`/`faces`/`edges` iterators count *slots*, deleted ones
+/// included; [`ControlMesh::is_vertex_deleted`] and friends tell them
+/// apart, and [`ControlMesh::compact`] renumbers the survivors densely.
+/// The rest of the crate (evaluators, writers) expects a compact mesh.
+impl ControlMesh {
+    #[inline]
+    pub fn is_vertex_deleted(&self, v: VertexId) -> bool {
+        !self.vertex_he[v.idx()].is_valid()
+    }
+    #[inline]
+    pub fn is_face_deleted(&self, f: FaceId) -> bool {
+        self.face_size[f.idx()] == 0
+    }
+    #[inline]
+    pub fn is_edge_deleted(&self, e: EdgeId) -> bool {
+        self.is_halfedge_deleted(e.halfedge())
+    }
+    #[inline]
+    pub fn is_halfedge_deleted(&self, h: HalfedgeId) -> bool {
+        !self.he_vertex[h.idx()].is_valid()
+    }
+    /// Whether some element was deleted and [`ControlMesh::compact`] has not
+    /// run since.
+    pub fn has_deletions(&self) -> bool {
+        self.deleted_vertices > 0 || !self.free_faces.is_empty() || !self.free_edges.is_empty()
+    }
+    pub fn num_live_vertices(&self) -> usize {
+        self.num_vertices() - self.deleted_vertices
+    }
+    pub fn num_live_faces(&self) -> usize {
+        self.num_faces() - self.free_faces.len()
+    }
+    pub fn num_live_edges(&self) -> usize {
+        self.num_edges() - self.free_edges.len()
+    }
+    pub fn live_vertices(&self) -> impl Iterator<Item = VertexId> + '_ {
+        self.vertices().filter(move |&v| !self.is_vertex_deleted(v))
+    }
+    pub fn live_faces(&self) -> impl Iterator<Item = FaceId> + '_ {
+        self.faces().filter(move |&f| !self.is_face_deleted(f))
+    }
+
+    /// Replaces the faces `remove` by the polygons `add` (vertex lists,
+    /// oriented like their neighbours) and deletes the vertices `delete`,
+    /// which must lose all their faces. Edges left with no face are deleted;
+    /// edges the new faces need are reused when they exist, created
+    /// otherwise. Returns the ids of the new faces, in the order of `add`.
+    ///
+    /// Everything is checked *before* anything changes, so on error the
+    /// mesh is untouched: out-of-range or deleted elements, repeated vertices
+    /// in a polygon, a directed edge used twice (more than two faces on an
+    /// edge, or inconsistent orientation), a vertex whose faces would no
+    /// longer form a single fan (non-manifold), a vertex left with no face
+    /// that is not in `delete`, or a vertex in `delete` that keeps a face.
+    /// Only vertices of the removed and added faces are looked at, so the
+    /// cost is that of their 1-rings.
+    pub fn replace_faces(
+        &mut self,
+        remove: &[FaceId],
+        add: &[&[VertexId]],
+        delete: &[VertexId],
+    ) -> Result<Vec<FaceId>> {
+        self.check_replace(remove, add, delete)?;
+        // Every vertex whose half-edges may change.
+        let mut touched: Vec<VertexId> = Vec::new();
+        for &f in remove {
+            touched.extend(self.face_vertices(f));
+        }
+        for p in add {
+            touched.extend_from_slice(p);
+        }
+        touched.extend_from_slice(delete);
+        touched.sort_unstable();
+        touched.dedup();
+        // All half-edges leaving touched vertices (and their twins): every
+        // edge the new faces can reuse joins two touched vertices.
+        let mut local: Vec<HalfedgeId> = Vec::new();
+        for &v in &touched {
+            local.extend(self.outgoing(v).flat_map(|h| [h, h.twin()]));
+        }
+        for &f in remove {
+            let hs: Vec<HalfedgeId> = self.face_halfedges(f).collect();
+            for h in hs {
+                self.he_face[h.idx()] = FaceId::INVALID;
+            }
+            self.face_size[f.idx()] = 0;
+            self.face_he[f.idx()] = HalfedgeId::INVALID;
+            self.free_faces.push(f);
+        }
+        // Reuse freed slots from the smallest id, so the result does not
+        // depend on the order of `remove`.
+        self.free_faces.sort_unstable_by(|a, b| b.cmp(a));
+        let mut new_faces = Vec::with_capacity(add.len());
+        for p in add {
+            let f = match self.free_faces.pop() {
+                Some(f) => f,
+                None => {
+                    self.face_he.push(HalfedgeId::INVALID);
+                    self.face_size.push(0);
+                    FaceId(self.face_he.len() as u32 - 1)
+                }
+            };
+            let n = p.len();
+            let mut hs = Vec::with_capacity(n);
+            for k in 0..n {
+                let (a, b) = (p[k], p[(k + 1) % n]);
+                let found = local
+                    .iter()
+                    .copied()
+                    .find(|&h| self.tail(h) == a && self.head(h) == b);
+                let h = match found {
+                    Some(h) => h,
+                    None => {
+                        let e = self.new_edge(a, b);
+                        let h = e.halfedge();
+                        local.push(h);
+                        local.push(h.twin());
+                        h
+                    }
+                };
+                self.he_face[h.idx()] = f;
+                hs.push(h);
+            }
+            for k in 0..n {
+                self.he_next[hs[k].idx()] = hs[(k + 1) % n];
+                self.he_prev[hs[(k + 1) % n].idx()] = hs[k];
+            }
+            self.face_he[f.idx()] = hs[0];
+            self.face_size[f.idx()] = n as u32;
+            new_faces.push(f);
+        }
+        // Edges with no face left on either side disappear.
+        local.sort_unstable();
+        local.dedup();
+        for &h in &local {
+            if !self.is_halfedge_deleted(h)
+                && self.is_boundary_halfedge(h)
+                && self.is_boundary_halfedge(h.twin())
+            {
+                let e = h.edge();
+                for x in [e.halfedge(), e.halfedge().twin()] {
+                    self.he_vertex[x.idx()] = VertexId::INVALID;
+                    self.he_next[x.idx()] = HalfedgeId::INVALID;
+                    self.he_prev[x.idx()] = HalfedgeId::INVALID;
+                }
+                self.edge_sharpness[e.idx()] = 0.0;
+                self.free_edges.push(e);
+            }
+        }
+        self.free_edges.sort_unstable_by(|a, b| b.cmp(a));
+        for &v in delete {
+            self.vertex_he[v.idx()] = HalfedgeId::INVALID;
+            self.vertex_sharpness[v.idx()] = 0.0;
+            self.deleted_vertices += 1;
+        }
+        // Stored half-edges and boundary links of the touched vertices. A
+        // boundary vertex stores its (unique, by the check) outgoing
+        // boundary half-edge; the incoming boundary half-edge links to it.
+        for &v in &touched {
+            if self.is_vertex_deleted(v) {
+                continue;
+            }
+            let mut any = HalfedgeId::INVALID;
+            let mut bout = HalfedgeId::INVALID;
+            for &h in &local {
+                if self.is_halfedge_deleted(h) || self.tail(h) != v {
+                    continue;
+                }
+                if !any.is_valid() {
+                    any = h;
+                }
+                if self.is_boundary_halfedge(h) {
+                    bout = h;
+                }
+            }
+            self.vertex_he[v.idx()] = if bout.is_valid() { bout } else { any };
+        }
+        for &h in &local {
+            if !self.is_halfedge_deleted(h) && self.is_boundary_halfedge(h) {
+                let n = self.vertex_he[self.head(h).idx()];
+                self.he_next[h.idx()] = n;
+                self.he_prev[n.idx()] = h;
+            }
+        }
+        Ok(new_faces)
+    }
+
+    fn new_edge(&mut self, a: VertexId, b: VertexId) -> EdgeId {
+        let e = match self.free_edges.pop() {
+            Some(e) => e,
+            None => {
+                self.he_vertex.extend([VertexId::INVALID; 2]);
+                self.he_face.extend([FaceId::INVALID; 2]);
+                self.he_next.extend([HalfedgeId::INVALID; 2]);
+                self.he_prev.extend([HalfedgeId::INVALID; 2]);
+                self.edge_sharpness.push(0.0);
+                EdgeId(self.edge_sharpness.len() as u32 - 1)
+            }
+        };
+        let h = e.halfedge();
+        self.he_vertex[h.idx()] = a;
+        self.he_vertex[h.twin().idx()] = b;
+        self.he_face[h.idx()] = FaceId::INVALID;
+        self.he_face[h.twin().idx()] = FaceId::INVALID;
+        self.edge_sharpness[e.idx()] = 0.0;
+        e
+    }
+
+    /// The dry run of [`ControlMesh::replace_faces`]: simulates the fans of
+    /// the touched vertices after the change.
+    fn check_replace(
+        &self,
+        remove: &[FaceId],
+        add: &[&[VertexId]],
+        delete: &[VertexId],
+    ) -> Result<()> {
+        let live_v = |v: VertexId| v.idx() < self.num_vertices() && !self.is_vertex_deleted(v);
+        for (i, &f) in remove.iter().enumerate() {
+            if f.idx() >= self.num_faces() || self.is_face_deleted(f) || remove[..i].contains(&f) {
+                return Err(Error::topology(
+                    f.to_string(),
+                    "cannot remove: out of range, deleted or listed twice",
+                ));
+            }
+        }
+        for (i, p) in add.iter().enumerate() {
+            if p.len() < 3 {
+                return Err(Error::topology(
+                    format!("new face {i}"),
+                    "fewer than 3 vertices",
+                ));
+            }
+            for (k, &v) in p.iter().enumerate() {
+                if !live_v(v) || delete.contains(&v) || p[..k].contains(&v) {
+                    return Err(Error::topology(
+                        format!("new face {i}"),
+                        format!("{v} is out of range, deleted, or repeated"),
+                    ));
+                }
+            }
+        }
+        for &v in delete {
+            if !live_v(v) {
+                return Err(Error::topology(
+                    v.to_string(),
+                    "cannot delete: out of range or deleted",
+                ));
+            }
+        }
+        let mut touched: Vec<VertexId> = Vec::new();
+        for &f in remove {
+            touched.extend(self.face_vertices(f));
+        }
+        for p in add {
+            touched.extend_from_slice(p);
+        }
+        touched.extend_from_slice(delete);
+        touched.sort_unstable();
+        touched.dedup();
+        // Directed edges that will carry a face: those of kept faces at
+        // touched vertices, and those of the new faces; each at most once.
+        let mut used: Vec<(VertexId, VertexId)> = Vec::new();
+        for &v in &touched {
+            for h in self.outgoing(v) {
+                if let Some(f) = self.face_of(h) {
+                    if !remove.contains(&f) {
+                        used.push((v, self.head(h)));
+                    }
+                }
+            }
+        }
+        for p in add {
+            let n = p.len();
+            for k in 0..n {
+                let d = (p[k], p[(k + 1) % n]);
+                if used.contains(&d) {
+                    return Err(Error::topology(
+                        format!("edge ({}, {})", d.0 .0, d.1 .0),
+                        "would be used twice in the same direction (more than two faces, or inconsistent orientation)",
+                    ));
+                }
+                used.push(d);
+            }
+        }
+        // Fan of each touched vertex after the change: each face at v links
+        // the neighbour after v (out) to the one before v (in). Manifold iff
+        // those links form a single chain or a single cycle.
+        for &v in &touched {
+            let mut links: Vec<(VertexId, VertexId)> = Vec::new();
+            for h in self.outgoing(v) {
+                if let Some(f) = self.face_of(h) {
+                    if !remove.contains(&f) {
+                        links.push((self.head(h), self.tail(self.prev(h))));
+                    }
+                }
+            }
+            for p in add {
+                if let Some(k) = p.iter().position(|&x| x == v) {
+                    let n = p.len();
+                    links.push((p[(k + 1) % n], p[(k + n - 1) % n]));
+                }
+            }
+            let deleting = delete.contains(&v);
+            if deleting != links.is_empty() {
+                return Err(Error::topology(
+                    v.to_string(),
+                    if deleting {
+                        "is to be deleted but keeps faces"
+                    } else {
+                        "would be left with no face"
+                    },
+                ));
+            }
+            if links.is_empty() {
+                continue;
+            }
+            // Rotation: the face whose `out` is this face's `in` comes next.
+            let starts: Vec<usize> = (0..links.len())
+                .filter(|&i| !links.iter().any(|l| l.1 == links[i].0))
+                .collect();
+            if starts.len() > 1 {
+                return Err(Error::topology(
+                    v.to_string(),
+                    "would become non-manifold (its faces would form several fans)",
+                ));
+            }
+            let mut cur = starts.first().copied().unwrap_or(0);
+            let mut seen = 1;
+            while let Some(nx) = links.iter().position(|l| l.0 == links[cur].1) {
+                if nx == starts.first().copied().unwrap_or(0) || seen > links.len() {
+                    break;
+                }
+                cur = nx;
+                seen += 1;
+            }
+            if seen != links.len() {
+                return Err(Error::topology(
+                    v.to_string(),
+                    "would become non-manifold (its faces would form several fans)",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Renumbers the live vertices and faces densely (in id order), drops
+    /// deleted slots, and returns the renumbering. Crease and corner
+    /// sharpness follow their elements.
+    pub fn compact(&mut self) -> Result<Compaction> {
+        let mut vertex_map = vec![None; self.num_vertices()];
+        let mut positions = Vec::with_capacity(self.num_live_vertices());
+        let mut vsharp = Vec::with_capacity(self.num_live_vertices());
+        for v in self.vertices() {
+            if !self.is_vertex_deleted(v) {
+                vertex_map[v.idx()] = Some(VertexId(positions.len() as u32));
+                positions.push(self.position(v));
+                vsharp.push(self.vertex_sharpness(v));
+            }
+        }
+        let mut face_map = vec![None; self.num_faces()];
+        let mut polys: Vec<Vec<u32>> = Vec::with_capacity(self.num_live_faces());
+        for f in self.faces() {
+            if !self.is_face_deleted(f) {
+                face_map[f.idx()] = Some(FaceId(polys.len() as u32));
+                polys.push(
+                    self.face_vertices(f)
+                        .map(|v| vertex_map[v.idx()].expect("live face uses live vertices").0)
+                        .collect(),
+                );
+            }
+        }
+        let creases: Vec<(u32, u32, f64)> = self
+            .edges()
+            .filter(|&e| !self.is_edge_deleted(e) && self.edge_sharpness(e) > 0.0)
+            .map(|e| {
+                let (a, b) = self.edge_vertices(e);
+                (
+                    vertex_map[a.idx()].expect("live").0,
+                    vertex_map[b.idx()].expect("live").0,
+                    self.edge_sharpness(e),
+                )
+            })
+            .collect();
+        let mut m = ControlMesh::from_polygons(positions, &polys)?;
+        m.vertex_sharpness = vsharp;
+        for (a, b, s) in creases {
+            m.set_crease(VertexId(a), VertexId(b), s)?;
+        }
+        *self = m;
+        Ok(Compaction {
+            vertex_map,
+            face_map,
+        })
     }
 }
 

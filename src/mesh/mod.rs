@@ -7,6 +7,8 @@ mod control;
 mod report;
 mod soup;
 
-pub use control::{ControlMesh, EdgeId, FaceId, HalfedgeId, VertexId, INFINITELY_SHARP};
+pub use control::{
+    Compaction, ControlMesh, EdgeId, FaceId, HalfedgeId, VertexId, INFINITELY_SHARP,
+};
 pub use report::{validate_soup, MeshReport, ValidatedMesh};
 pub use soup::{PolySoup, TriMesh};

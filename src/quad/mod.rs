@@ -6,7 +6,9 @@
 
 mod interpolate;
 mod matching;
+pub mod ops;
 mod quadrangulate;
+pub mod simplify;
 
 pub use interpolate::{
     interpolate_limit, interpolate_limit_local, limit_positions, vertex_limit_mask,
@@ -15,4 +17,8 @@ pub use interpolate::{
 pub use quadrangulate::{
     quad_quality, quadrangulate, ParityFix, ParityFixKind, QuadQuality, QuadSource,
     QuadrangulateOptions, Quadrangulation, QuadrangulationReport, QualityStats,
+};
+pub use simplify::{
+    face_centre_limit, simplify, simplify_control, simplify_with_progress, Progress, Simplified,
+    SimplifyOptions, SimplifyStats, StopReason,
 };

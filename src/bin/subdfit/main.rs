@@ -2,6 +2,8 @@
 //! (e.g. `diff-limit` above tolerance), 2 an error (bad input, I/O, ...).
 
 mod limit;
+mod quadrangulate;
+mod simplify;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -36,6 +38,10 @@ enum Command {
     Limit(limit::LimitArgs),
     /// Compare the OpenSubdiv and pure-Rust limit evaluators on a control mesh.
     DiffLimit(limit::DiffArgs),
+    /// Turn a triangle mesh into a pure quad mesh on the same vertices.
+    Quadrangulate(quadrangulate::QuadrangulateArgs),
+    /// Simplify a triangle mesh into an adaptive quad control mesh (Fitmaps).
+    Simplify(simplify::SimplifyArgs),
     /// Print the versions of subdfit and the linked C++ libraries.
     Version,
 }
@@ -53,6 +59,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
         }
         Command::Limit(a) => limit::limit(a),
         Command::DiffLimit(a) => limit::diff_limit(a),
+        Command::Quadrangulate(a) => quadrangulate::run(a),
+        Command::Simplify(a) => simplify::run(a),
         Command::Version => {
             let mut text = format!("subdfit {}", env!("CARGO_PKG_VERSION"));
             for (name, v) in subdfit::linked_library_versions() {
