@@ -5,7 +5,9 @@
 //! `cargo run --example export_fixtures -- OUTDIR`
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let dir = std::env::args().nth(1).ok_or("usage: export_fixtures OUTDIR")?;
+    let dir = std::env::args()
+        .nth(1)
+        .ok_or("usage: export_fixtures OUTDIR")?;
     std::fs::create_dir_all(&dir)?;
     for (name, mesh) in subdfit::fixtures::collection() {
         let path = std::path::Path::new(&dir).join(format!("{name}.obj"));
