@@ -12,7 +12,7 @@
 //! - polygons are fan-triangulated from their first corner.
 //!
 //! Hard errors: a face index out of range, a face with fewer than 3 corners,
-//! a non-finite coordinate on a used vertex, no face left.
+//! a non-finite coordinate on any vertex, no face left.
 //!
 //! Everything is O(n): faces and edges are grouped by their smallest vertex
 //! with a counting sort instead of hash maps (cache-friendly and in a fixed
@@ -248,40 +248,32 @@ pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
             remap[i as usize] = 0;
         }
     }
+    // A non-finite coordinate is an error even on an unreferenced vertex:
+    // it means the file is corrupt, and the rest of it cannot be trusted.
+    if let Some(i) = soup.positions.iter().position(|p| !p.is_finite()) {
+        let p = soup.positions[i];
+        let what = if p.is_nan() { "NaN" } else { "infinite" };
+        return Err(Error::invalid_mesh(
+            path,
+            format!("vertex {i}"),
+            format!("non-finite coordinate ({what}): {p}"),
+        ));
+    }
     let mut positions = Vec::with_capacity(nv_in);
     for (i, r) in remap.iter_mut().enumerate() {
         if *r == UNUSED {
             continue;
         }
         let p = soup.positions[i];
-        if !p.is_finite() {
-            let what = if p.is_nan() { "NaN" } else { "infinite" };
-            return Err(Error::invalid_mesh(
-                path,
-                format!("vertex {i}"),
-                format!("non-finite coordinate ({what}): {p}"),
-            ));
-        }
         *r = positions.len() as u32;
         positions.push(p);
     }
     report.vertices = positions.len();
     report.unreferenced_vertices = nv_in - positions.len();
     if report.unreferenced_vertices > 0 {
-        let nonfinite = soup
-            .positions
-            .iter()
-            .zip(&remap)
-            .filter(|(p, &r)| r == UNUSED && !p.is_finite())
-            .count();
         report.notes.push(format!(
-            "dropped {} unreferenced vertices{}; the others are renumbered in their original order",
-            report.unreferenced_vertices,
-            if nonfinite > 0 {
-                format!(" ({nonfinite} of them with non-finite coordinates)")
-            } else {
-                String::new()
-            }
+            "dropped {} unreferenced vertices; the others are renumbered in their original order",
+            report.unreferenced_vertices
         ));
     }
     let (lo, hi) = bbox(&positions);

@@ -83,12 +83,28 @@ pub(crate) fn emit(text: &str) -> Result<()> {
     }
 }
 
+/// The error and its causes, `: `-separated, skipping a cause whose text the
+/// message before it already contains (our typed errors print their source).
+fn error_chain(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if !out.contains(&text) {
+            if !out.is_empty() {
+                out += ": ";
+            }
+            out += &text;
+        }
+    }
+    out
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(cli) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("subdfit: error: {e:#}");
+            eprintln!("subdfit: error: {}", error_chain(&e));
             ExitCode::from(2)
         }
     }
