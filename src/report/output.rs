@@ -56,6 +56,20 @@ pub fn write_outputs(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<PathBuf>> 
         .map_err(|e| Error::io(&staging, e))
         .and_then(|_| write_all(&staging, out))
         .and_then(|names| {
+            // Everything that can make a rename fail short of a crash is
+            // checked before the first rename, so renaming is all or nothing.
+            for name in &names {
+                let to = dir.join(name);
+                if to.is_dir() {
+                    return Err(Error::io(
+                        &to,
+                        std::io::Error::new(
+                            std::io::ErrorKind::AlreadyExists,
+                            "a folder is in the way of an output file; move it away",
+                        ),
+                    ));
+                }
+            }
             let mut done = Vec::new();
             for name in names {
                 let to = dir.join(name);
