@@ -16,6 +16,10 @@ fn main() -> anyhow::Result<()> {
     let targets = control.positions().to_vec();
     interpolate_limit(&mut control, &targets, &InterpolationOptions::default())?;
     subdfit::io::write_control_obj(args[2].as_ref(), &control)?;
-    eprintln!("{} quads, {} vertices", control.num_faces(), control.num_vertices());
+    eprintln!(
+        "{} quads, {} vertices",
+        control.num_faces(),
+        control.num_vertices()
+    );
     Ok(())
 }

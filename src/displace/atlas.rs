@@ -129,7 +129,10 @@ impl Atlas {
     /// lossless ZIP compression. Deterministic bytes: sequential encoding,
     /// increasing line order.
     pub fn encode_exr(&self, texels: &[f32]) -> Result<Vec<u8>> {
-        use exr::prelude::{AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, SmallVec, WritableImage};
+        use exr::prelude::{
+            AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes,
+            SmallVec, WritableImage,
+        };
         if texels.len() != self.width * self.height {
             return Err(Error::InvalidArgument(format!(
                 "atlas: {} texels for {} × {}",
@@ -166,9 +169,11 @@ pub fn read_exr(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
         .map_err(|e| Error::backend("exr", format!("{}: {e}", path.display())))?;
     let layer = img.layer_data;
     let size = layer.size;
-    let ch = layer.channel_data.list.first().ok_or_else(|| {
-        Error::parse(path, "layer", "no channel")
-    })?;
+    let ch = layer
+        .channel_data
+        .list
+        .first()
+        .ok_or_else(|| Error::parse(path, "layer", "no channel"))?;
     let texels: Vec<f32> = ch.sample_data.values_as_f32().collect();
     Ok((size.0, size.1, texels))
 }

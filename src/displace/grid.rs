@@ -159,11 +159,7 @@ impl PatchGrid {
             edge(hs[3], r1 - j)
         } else {
             let m = self.res - 2;
-            (self.num_vertices
-                + self.num_edges * m
-                + f * m * m
-                + (j - 1) * m
-                + (i - 1)) as u32
+            (self.num_vertices + self.num_edges * m + f * m * m + (j - 1) * m + (i - 1)) as u32
         }
     }
 

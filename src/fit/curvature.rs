@@ -91,13 +91,21 @@ mod tests {
         ];
         let p = dirs.map(|d| d * r);
         let c = shape_operator(p, dirs).unwrap();
-        assert!((c.k1 - 0.5).abs() < 1e-9 && (c.k2 - 0.5).abs() < 1e-9, "{c:?}");
+        assert!(
+            (c.k1 - 0.5).abs() < 1e-9 && (c.k2 - 0.5).abs() < 1e-9,
+            "{c:?}"
+        );
     }
 
     #[test]
     fn cylinder_triangle_has_one_zero_curvature() {
         // Cylinder of radius 1 around the z axis: κ1 = 1 across, κ2 = 0 along.
-        let at = |t: f64, z: f64| (DVec3::new(t.cos(), t.sin(), z), DVec3::new(t.cos(), t.sin(), 0.0));
+        let at = |t: f64, z: f64| {
+            (
+                DVec3::new(t.cos(), t.sin(), z),
+                DVec3::new(t.cos(), t.sin(), 0.0),
+            )
+        };
         let (p0, n0) = at(0.0, 0.0);
         let (p1, n1) = at(0.1, 0.0);
         let (p2, n2) = at(0.05, 0.1);

@@ -163,7 +163,10 @@ impl FitOptions {
     fn check(&self) -> Result<()> {
         let bad = |m: String| Err(Error::InvalidArgument(format!("fit: {m}")));
         if !(1..=10).contains(&self.isolation_level) {
-            return bad(format!("isolation level {} not in 1..=10", self.isolation_level));
+            return bad(format!(
+                "isolation level {} not in 1..=10",
+                self.isolation_level
+            ));
         }
         if self.min_samples_per_side == 0 || self.min_samples_per_side > 64 {
             return bad(format!(
@@ -175,7 +178,10 @@ impl FitOptions {
             return bad(format!("fairness {} must be finite and > 0", self.fairness));
         }
         if !(self.min_improvement.is_finite() && self.min_improvement >= 0.0) {
-            return bad(format!("min_improvement {} must be >= 0", self.min_improvement));
+            return bad(format!(
+                "min_improvement {} must be >= 0",
+                self.min_improvement
+            ));
         }
         if !(self.sdm_tangent_floor > 0.0 && self.sdm_tangent_floor <= 1.0) {
             return bad(format!(
@@ -248,7 +254,9 @@ pub fn fit_with_progress(
     let t0 = Instant::now();
     opts.check()?;
     if mesh.positions.is_empty() || mesh.triangles.is_empty() {
-        return Err(Error::InvalidArgument("fit: the input mesh is empty".into()));
+        return Err(Error::InvalidArgument(
+            "fit: the input mesh is empty".into(),
+        ));
     }
     let diag = mesh.bbox_diagonal();
     if !(diag.is_finite() && diag > 0.0) {
@@ -259,7 +267,8 @@ pub fn fit_with_progress(
     let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));
     report_progress(progress, "fit", 0.0)?;
 
-    let (mut locations, ks) = patch_samples(&control, mesh.positions.len(), opts.min_samples_per_side);
+    let (mut locations, ks) =
+        patch_samples(&control, mesh.positions.len(), opts.min_samples_per_side);
     let data_samples = locations.len();
     locations.extend(vertex_locations(&control));
     let vertex_equations = locations.len() - data_samples;
@@ -311,20 +320,31 @@ pub fn fit_with_progress(
         if !improved || round == opts.max_iterations {
             break;
         }
-        report_progress(progress, "fit", (round as f64 + 0.5) / (opts.max_iterations as f64 + 1.0))?;
+        report_progress(
+            progress,
+            "fit",
+            (round as f64 + 0.5) / (opts.max_iterations as f64 + 1.0),
+        )?;
         let delta = match &sdm {
             None => solve_point(&stencils, &limit, &hits, &laplacian, nv, opts)?,
-            Some((normals, curv)) => {
-                solve_sdm(mesh, normals, curv, &stencils, &limit, &hits, &laplacian, nv, opts)?
-            }
+            Some((normals, curv)) => solve_sdm(
+                mesh, normals, curv, &stencils, &limit, &hits, &laplacian, nv, opts,
+            )?,
         };
         if delta.iter().any(|d| !d.is_finite()) {
-            return Err(Error::backend("Eigen", "the fit produced non-finite control points"));
+            return Err(Error::backend(
+                "Eigen",
+                "the fit produced non-finite control points",
+            ));
         }
         for (p, d) in positions.iter_mut().zip(&delta) {
             *p += *d;
         }
-        report_progress(progress, "fit", (round as f64 + 1.0) / (opts.max_iterations as f64 + 1.0))?;
+        report_progress(
+            progress,
+            "fit",
+            (round as f64 + 1.0) / (opts.max_iterations as f64 + 1.0),
+        )?;
     }
     let (positions, rms, best_iteration) = best;
     control.set_positions(positions)?;
@@ -353,7 +373,10 @@ pub fn fit_with_progress(
 /// n-gon: corner, edge midpoint, centroid, edge midpoint, as Catmull-Clark
 /// splits it).
 fn patch_corners(control: &ControlMesh, f: FaceId) -> Vec<[DVec3; 4]> {
-    let p: Vec<DVec3> = control.face_vertices(f).map(|v| control.position(v)).collect();
+    let p: Vec<DVec3> = control
+        .face_vertices(f)
+        .map(|v| control.position(v))
+        .collect();
     let n = p.len();
     if n == 4 {
         return vec![[p[0], p[1], p[2], p[3]]];
@@ -386,7 +409,11 @@ pub fn patch_samples(
     let mut locs = Vec::new();
     let mut ks = Vec::with_capacity(patches.len());
     for &(face, sub, area) in &patches {
-        let share = if total > 0.0 { area / total } else { 1.0 / patches.len() as f64 };
+        let share = if total > 0.0 {
+            area / total
+        } else {
+            1.0 / patches.len() as f64
+        };
         // Capped at 64 per side: a patch that would need more is one of a
         // control mesh as dense as M, where 64² samples are plenty.
         let k = ((mesh_vertices as f64 * share).sqrt().floor() as usize).clamp(min_k, 64);
@@ -496,8 +523,15 @@ fn solve_point(
         r += 1;
     }
     let reg = regulariser(laplacian, nv, 1);
-    let x = least_squares(&a, &b, Some((&reg, lambda(opts, rows, nv))), &LsqOptions::default())?;
-    Ok((0..nv).map(|v| DVec3::new(x[0][v], x[1][v], x[2][v])).collect())
+    let x = least_squares(
+        &a,
+        &b,
+        Some((&reg, lambda(opts, rows, nv))),
+        &LsqOptions::default(),
+    )?;
+    Ok((0..nv)
+        .map(|v| DVec3::new(x[0][v], x[1][v], x[2][v]))
+        .collect())
 }
 
 #[allow(clippy::too_many_arguments)]

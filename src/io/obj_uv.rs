@@ -13,7 +13,11 @@ use super::write::fmt_f64;
 
 /// Writes `mesh` with per-face corner UVs `uvs` (one `[DVec2; 4]` per quad,
 /// in the face's corner order) to `path`, atomically.
-pub fn write_control_obj_with_uvs(path: &Path, mesh: &ControlMesh, uvs: &[[DVec2; 4]]) -> Result<()> {
+pub fn write_control_obj_with_uvs(
+    path: &Path,
+    mesh: &ControlMesh,
+    uvs: &[[DVec2; 4]],
+) -> Result<()> {
     if uvs.len() != mesh.num_faces() || !mesh.is_all_quads() {
         return Err(Error::InvalidArgument(format!(
             "{}: {} UV quads for {} faces (UVs need a pure-quad mesh)",
@@ -23,7 +27,10 @@ pub fn write_control_obj_with_uvs(path: &Path, mesh: &ControlMesh, uvs: &[[DVec2
         )));
     }
     if uvs.iter().flatten().any(|u| !u.is_finite()) {
-        return Err(Error::InvalidArgument(format!("{}: non-finite UV", path.display())));
+        return Err(Error::InvalidArgument(format!(
+            "{}: non-finite UV",
+            path.display()
+        )));
     }
     super::write_atomically(path, |w| {
         let io = |e| Error::io(path, e);

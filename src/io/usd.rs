@@ -38,7 +38,11 @@ pub fn write_usda(path: &Path, mesh: &ControlMesh, uvs: Option<&[[DVec2; 4]]>) -
     })
 }
 
-fn list<T>(out: &mut String, items: impl IntoIterator<Item = T>, mut f: impl FnMut(&mut String, T)) {
+fn list<T>(
+    out: &mut String,
+    items: impl IntoIterator<Item = T>,
+    mut f: impl FnMut(&mut String, T),
+) {
     out.push('[');
     for (k, it) in items.into_iter().enumerate() {
         if k > 0 {

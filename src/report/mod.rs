@@ -52,7 +52,9 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::analysis::normals::triangle_areas;
-use crate::displace::{auto_resolution, compute_displacement, Displacement, DisplacementStats, PatchGrid};
+use crate::displace::{
+    auto_resolution, compute_displacement, Displacement, DisplacementStats, PatchGrid,
+};
 use crate::error::{Error, Result};
 use crate::fit::{report_progress, Progress};
 use crate::mesh::{ControlMesh, TriMesh};
@@ -162,7 +164,8 @@ pub fn evaluate_surfaces(
         .unwrap_or_else(|| auto_resolution(n, patches));
     report_progress(progress, "displacement", 0.0)?;
     let evaluator = make_evaluator(Backend::Osd, control, &EvalOptions::default())?;
-    let displacement = compute_displacement(control, evaluator.as_ref(), caster, r, max_dist, diag)?;
+    let displacement =
+        compute_displacement(control, evaluator.as_ref(), caster, r, max_dist, diag)?;
     report_progress(progress, "displacement", 1.0)?;
 
     report_progress(progress, "metrics", 0.0)?;
@@ -185,7 +188,14 @@ pub fn evaluate_surfaces(
     let limit_acc = accuracy(mesh, caster, &limit, limit_caster.as_ref(), diag, false)?;
     report_progress(progress, "metrics", 0.5)?;
     let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
-    let displaced_acc = accuracy(mesh, caster, &displaced, displaced_caster.as_ref(), diag, true)?;
+    let displaced_acc = accuracy(
+        mesh,
+        caster,
+        &displaced,
+        displaced_caster.as_ref(),
+        diag,
+        true,
+    )?;
     report_progress(progress, "metrics", 0.7)?;
 
     // Projectability, see the module docs.
@@ -200,7 +210,9 @@ pub fn evaluate_surfaces(
     let locations: Vec<_> = closest
         .iter()
         .map(|c| {
-            let c = c.ok_or_else(|| Error::backend("ray caster", "closest point query returned nothing"))?;
+            let c = c.ok_or_else(|| {
+                Error::backend("ray caster", "closest point query returned nothing")
+            })?;
             Ok(grid.triangle_location(c.triangle as usize, c.u, c.v))
         })
         .collect::<Result<_>>()?;
@@ -371,7 +383,10 @@ pub fn control_stats(control: &ControlMesh) -> ControlStats {
         faces: control.num_faces(),
         vertices: control.num_vertices(),
         edges: control.num_edges(),
-        quads: control.faces().filter(|&f| control.face_size(f) == 4).count(),
+        quads: control
+            .faces()
+            .filter(|&f| control.face_size(f) == 4)
+            .count(),
         boundary_vertices: boundary,
         irregular_vertices: irregular,
         irregular_convention: IRREGULAR_CONVENTION,

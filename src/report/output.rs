@@ -89,7 +89,9 @@ pub fn write_outputs(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<PathBuf>> 
 fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<&'static str>> {
     let d = &out.surfaces.displacement;
     let atlas = Atlas::new(d.grid.num_patches(), d.grid.res(), DEFAULT_GUTTER)?;
-    let uvs: Vec<_> = (0..d.grid.num_patches()).map(|f| atlas.corner_uvs(f)).collect();
+    let uvs: Vec<_> = (0..d.grid.num_patches())
+        .map(|f| atlas.corner_uvs(f))
+        .collect();
     let mut names = Vec::new();
     let mut file = |name: &'static str| {
         names.push(name);
@@ -98,10 +100,20 @@ fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<&'static str>> {
     write_control_obj_with_uvs(&file("control.obj"), out.control, &uvs)?;
     write_usda(&file("control.usda"), out.control, Some(&uvs))?;
     let lim = &out.surfaces.limit;
-    write_ply(&file("limit.ply"), &lim.positions, &lim.triangles, &[], None)?;
+    write_ply(
+        &file("limit.ply"),
+        &lim.positions,
+        &lim.triangles,
+        &[],
+        None,
+    )?;
     let dis = &out.surfaces.displaced;
     let offsets: Vec<f32> = d.offsets.iter().map(|&x| x as f32).collect();
-    let projected: Vec<f32> = d.projected.iter().map(|&p| if p { 1.0 } else { 0.0 }).collect();
+    let projected: Vec<f32> = d
+        .projected
+        .iter()
+        .map(|&p| if p { 1.0 } else { 0.0 })
+        .collect();
     write_ply(
         &file("displaced.ply"),
         &dis.positions,
@@ -112,7 +124,9 @@ fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<&'static str>> {
     let texels = atlas.bake(d)?;
     let exr = atlas.encode_exr(&texels)?;
     let exr_path = file("displacement.exr");
-    write_atomically(&exr_path, |w| w.write_all(&exr).map_err(|e| Error::io(&exr_path, e)))?;
+    write_atomically(&exr_path, |w| {
+        w.write_all(&exr).map_err(|e| Error::io(&exr_path, e))
+    })?;
     if let Some(fm) = out.fitmap {
         let s: Vec<f32> = fm.s.iter().map(|&x| x as f32).collect();
         let m: Vec<f32> = fm.m.iter().map(|&x| x as f32).collect();

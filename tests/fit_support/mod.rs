@@ -139,3 +139,17 @@ pub fn brute_stats(points: &[DVec3], w: &[f64], mesh: &TriMesh, diag: f64) -> (f
     let k = 1000.0 / diag;
     (k * (s2 / sw).sqrt(), k * s1 / sw, k * mx)
 }
+
+/// A shared test mesh (`$SUBDFIT_DATA`, else `../shared/data` beside the
+/// crate), or `None` when the data is not there.
+pub fn data_mesh(name: &str) -> Option<TriMesh> {
+    let dir = std::env::var_os("SUBDFIT_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    let p = dir.join(name);
+    p.exists().then(|| {
+        subdfit::io::read_mesh(&p)
+            .expect("shared test mesh reads")
+            .mesh
+    })
+}

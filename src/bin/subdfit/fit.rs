@@ -100,7 +100,9 @@ pub fn fit(a: FitArgs) -> Result<ExitCode> {
     let input = timer.run("read", || subdfit::io::read_mesh(&a.mesh))?;
     let control = subdfit::io::read_control_mesh(&a.control)
         .with_context(|| format!("reading the control mesh {}", a.control.display()))?;
-    let caster = timer.run("raycaster", || make_raycaster(RayBackend::Embree, &input.mesh))?;
+    let caster = timer.run("raycaster", || {
+        make_raycaster(RayBackend::Embree, &input.mesh)
+    })?;
     let objective = match a.fit {
         FitArg::Point => Objective::Point,
         FitArg::Sdm => Objective::Sdm,
