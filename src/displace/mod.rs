@@ -82,17 +82,42 @@ impl Displacement {
 /// patch and measures the offset to M (`caster` is built over M) along the
 /// limit normal, within `max_dist`. `diag` is M's bounding-box diagonal
 /// (the unit of the reported figures).
+///
+/// With `limit_surface` (a ray caster over a tessellation of the same limit
+/// surface), a hit is kept only if the sample is (about) the closest point
+/// of L to it: the closest point of L to φ(s) must be at least half as far
+/// as s. Otherwise the normal line went past M here and met another sheet
+/// of M (across a hole, a thin part, a fold) — a correct φ but a useless
+/// displacement, which would raise a spike across the model; such samples
+/// count as unprojectable.
 pub fn compute_displacement(
     control: &ControlMesh,
     evaluator: &dyn LimitEvaluator,
     caster: &dyn RayCaster,
+    limit_surface: Option<&dyn RayCaster>,
     res: usize,
     max_dist: f64,
     diag: f64,
 ) -> Result<Displacement> {
     let grid = PatchGrid::new(control, res)?;
     let limit = evaluator.evaluate(control.positions(), grid.locations())?;
-    let (hits, pstats): (_, ProjectionStats) = project_along_normals(caster, &limit, max_dist)?;
+    let (mut hits, mut pstats): (_, ProjectionStats) =
+        project_along_normals(caster, &limit, max_dist)?;
+    if let Some(l) = limit_surface {
+        let feet: Vec<DVec3> = hits
+            .iter()
+            .map(|h| h.map_or(DVec3::NAN, |h| h.point))
+            .collect();
+        let back = l.closest_points(&feet, f64::INFINITY)?;
+        for (h, b) in hits.iter_mut().zip(back) {
+            let (Some(hit), Some(b)) = (*h, b) else { continue };
+            // Below 1e-9 of the diagonal the sample is on M: nothing to test.
+            if hit.offset.abs() > 1e-9 * diag && b.distance < 0.5 * hit.offset.abs() {
+                *h = None;
+                pstats.unprojectable += 1;
+            }
+        }
+    }
     let offsets: Vec<f64> = hits.iter().map(|h| h.map_or(0.0, |h| h.offset)).collect();
     let projected: Vec<bool> = hits.iter().map(Option::is_some).collect();
     let max_abs = offsets.iter().fold(0.0f64, |m, d| m.max(d.abs()));

@@ -117,6 +117,13 @@ pub struct FitOptions {
     pub max_dist: Option<f64>,
     /// Smallest tangential weight of the SDM approximant: 0.05.
     pub sdm_tangent_floor: f64,
+    /// Outlier rejection: a sample whose projection is further than this
+    /// many times the median projection distance of the first round is left
+    /// out of the system (and counted): 10. φ takes the nearest hit on the
+    /// normal line within [`FitOptions::max_dist`], which near holes and
+    /// thin parts can be another sheet of M far away; a handful of such
+    /// rows is enough to pull control points into spikes.
+    pub outlier_factor: f64,
 }
 
 impl Default for FitOptions {
@@ -130,6 +137,7 @@ impl Default for FitOptions {
             fairness: 0.01,
             max_dist: None,
             sdm_tangent_floor: 0.05,
+            outlier_factor: 10.0,
         }
     }
 }
@@ -189,6 +197,9 @@ impl FitOptions {
                 self.sdm_tangent_floor
             ));
         }
+        if !(self.outlier_factor.is_finite() && self.outlier_factor > 1.0) {
+            return bad(format!("outlier_factor {} must be > 1", self.outlier_factor));
+        }
         if let Some(d) = self.max_dist {
             if !(d.is_finite() && d > 0.0) {
                 return bad(format!("max_dist {d} must be finite and > 0"));
@@ -201,9 +212,11 @@ impl FitOptions {
 /// One parameter-correction round, measured before its solve.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FitIteration {
-    /// RMS of `|s − φ(s)|` over the projected samples, ‰ of M's diagonal.
+    /// RMS of `|s − φ(s)|` over the samples used, ‰ of M's diagonal.
     pub rms_permille: f64,
     pub unprojectable: usize,
+    /// Projected samples left out as outliers.
+    pub outliers: usize,
 }
 
 /// What [`fit`] did.
@@ -293,9 +306,27 @@ pub fn fit_with_progress(
     let mut iterations: Vec<FitIteration> = Vec::new();
     let mut best = (positions.clone(), f64::INFINITY, 0usize);
     let permille = 1000.0 / diag;
+    let mut outlier_bound = f64::INFINITY;
     for round in 0..=opts.max_iterations {
         let limit = stencils.apply(&positions);
-        let (hits, stats) = project_along_normals(caster, &limit, max_dist)?;
+        let (mut hits, stats) = project_along_normals(caster, &limit, max_dist)?;
+        if round == 0 {
+            let mut d: Vec<f64> = hits.iter().flatten().map(|h| h.offset.abs()).collect();
+            if !d.is_empty() {
+                let mid = d.len() / 2;
+                let median = *d.select_nth_unstable_by(mid, f64::total_cmp).1;
+                // A zero median (a control mesh already on M) must not
+                // reject everything else: floor at 1e-6 of the diagonal.
+                outlier_bound = opts.outlier_factor * median.max(1e-6 * diag);
+            }
+        }
+        let mut outliers = 0;
+        for h in hits.iter_mut() {
+            if matches!(h, Some(p) if p.offset.abs() > outlier_bound) {
+                *h = None;
+                outliers += 1;
+            }
+        }
         let (sum2, count) = hits
             .iter()
             .zip(&limit)
@@ -312,6 +343,7 @@ pub fn fit_with_progress(
         iterations.push(FitIteration {
             rms_permille: rms * permille,
             unprojectable: stats.unprojectable,
+            outliers,
         });
         let improved = rms < best.1 * (1.0 - opts.min_improvement);
         if rms < best.1 {

@@ -162,29 +162,35 @@ pub fn evaluate_surfaces(
     let r = opts
         .displacement_res
         .unwrap_or_else(|| auto_resolution(n, patches));
-    report_progress(progress, "displacement", 0.0)?;
     let evaluator = make_evaluator(Backend::Osd, control, &EvalOptions::default())?;
-    let displacement =
-        compute_displacement(control, evaluator.as_ref(), caster, r, max_dist, diag)?;
-    report_progress(progress, "displacement", 1.0)?;
-
-    report_progress(progress, "metrics", 0.0)?;
     let t = opts.tessellation_res.unwrap_or_else(|| {
         let t = (4.0 * n as f64 / patches.max(1) as f64).sqrt().ceil() as usize + 1;
         t.clamp(r.min(64), 64).max(r)
     });
+    report_progress(progress, "displacement", 0.0)?;
     let grid = PatchGrid::new(control, t)?;
     let limit_pts = evaluator.evaluate(control.positions(), grid.locations())?;
     let limit = TriMesh {
         positions: limit_pts.iter().map(|p| p.position).collect(),
         triangles: grid.triangles(),
     };
+    let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
+    let displacement = compute_displacement(
+        control,
+        evaluator.as_ref(),
+        caster,
+        Some(limit_caster.as_ref()),
+        r,
+        max_dist,
+        diag,
+    )?;
+    report_progress(progress, "displacement", 1.0)?;
+    report_progress(progress, "metrics", 0.0)?;
     let displaced = TriMesh {
         positions: displacement.displaced_positions(),
         triangles: displacement.grid.triangles(),
     };
     report_progress(progress, "metrics", 0.2)?;
-    let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
     let limit_acc = accuracy(mesh, caster, &limit, limit_caster.as_ref(), diag, false)?;
     report_progress(progress, "metrics", 0.5)?;
     let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
