@@ -138,3 +138,51 @@ fn fit_reduces_rms_of_the_initial_interpolating_control_mesh() {
         results.push(after.limit.rms_permille);
     }
 }
+
+#[test]
+fn fit_of_a_coarse_control_mesh_to_a_dense_mesh() {
+    // The situation of `convert`: few patches (64), many samples per patch
+    // (k ≈ 15), M dense (32k triangles).
+    let mesh = bumpy_sphere(6);
+    let control = initial_control(&bumpy_sphere(2));
+    let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+    let mopts = MetricsOptions::default();
+    let before = subdfit::report::metrics(&mesh, &control, caster.as_ref(), &mopts).unwrap();
+    for objective in [Objective::Point, Objective::Sdm] {
+        let t0 = std::time::Instant::now();
+        let fitted = fit(
+            &mesh,
+            control.clone(),
+            caster.as_ref(),
+            &FitOptions::default().with_objective(objective),
+        )
+        .unwrap();
+        let secs = t0.elapsed().as_secs_f64();
+        let after =
+            subdfit::report::metrics(&mesh, &fitted.control, caster.as_ref(), &mopts).unwrap();
+        eprintln!(
+            "coarse {objective:?}: RMS L {:.4}‰ → {:.4}‰, D {:.4}‰, unprojectable {:.3}%, {} rounds, {secs:.2} s, k {:?}",
+            before.limit.rms_permille,
+            after.limit.rms_permille,
+            after.displaced.rms_permille,
+            after.unprojectable_area_percent,
+            fitted.report.iterations.len(),
+            fitted.report.samples_per_side,
+        );
+        assert!(
+            fitted.report.samples_per_side.1 >= 10,
+            "{:?}",
+            fitted.report
+        );
+        // 64 patches interpolating 66 points of the bumps: the least-squares
+        // fit over 16k samples must cut the limit error by at least a third.
+        assert!(
+            after.limit.rms_permille < 0.67 * before.limit.rms_permille,
+            "{objective:?}: {} vs {}",
+            after.limit.rms_permille,
+            before.limit.rms_permille
+        );
+        // Displacement recovers the detail the 64 patches cannot hold.
+        assert!(after.displaced.rms_permille < 0.2 * after.limit.rms_permille);
+    }
+}

@@ -110,7 +110,9 @@ pub fn compute_displacement(
             .collect();
         let back = l.closest_points(&feet, f64::INFINITY)?;
         for (h, b) in hits.iter_mut().zip(back) {
-            let (Some(hit), Some(b)) = (*h, b) else { continue };
+            let (Some(hit), Some(b)) = (*h, b) else {
+                continue;
+            };
             // Below 1e-9 of the diagonal the sample is on M: nothing to test.
             if hit.offset.abs() > 1e-9 * diag && b.distance < 0.5 * hit.offset.abs() {
                 *h = None;

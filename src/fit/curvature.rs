@@ -54,7 +54,9 @@ fn shape_operator(p: [DVec3; 3], n: [DVec3; 3]) -> Option<TriCurvature> {
     }
     let det = m.determinant();
     let scale = m.x_axis.x + m.y_axis.y + m.z_axis.z;
-    if !(det.abs() > 1e-12 * scale.powi(3)) {
+    // Also rejects NaN (from degenerate normals).
+    let well_posed = det.abs() > 1e-12 * scale.powi(3);
+    if !well_posed {
         return None;
     }
     let s = m.inverse() * rhs;

@@ -198,7 +198,10 @@ impl FitOptions {
             ));
         }
         if !(self.outlier_factor.is_finite() && self.outlier_factor > 1.0) {
-            return bad(format!("outlier_factor {} must be > 1", self.outlier_factor));
+            return bad(format!(
+                "outlier_factor {} must be > 1",
+                self.outlier_factor
+            ));
         }
         if let Some(d) = self.max_dist {
             if !(d.is_finite() && d > 0.0) {
@@ -541,7 +544,7 @@ fn solve_point(
 ) -> Result<Vec<DVec3>> {
     let rows = hits.iter().filter(|h| h.is_some()).count();
     let mut a = Triplets::new(rows, nv);
-    let mut b = vec![Vec::with_capacity(rows); 3];
+    let mut b: Vec<Vec<f64>> = (0..3).map(|_| Vec::with_capacity(rows)).collect();
     let mut r = 0;
     for (i, h) in hits.iter().enumerate() {
         let Some(h) = h else { continue };
