@@ -28,6 +28,11 @@
 //! the weight of one vertex's fairness against one vertex's share of the
 //! data; ε keeps the system definite on vertices no sample reaches.
 //!
+//! Samples projected further than [`FitOptions::outlier_factor`] times the
+//! first round's median distance are left out too (counted per round in
+//! [`FitIteration::outliers`]): near holes and thin parts the normal line
+//! can meet another sheet of M, and a few such rows pull spikes.
+//!
 //! Parameter correction: the limit points move, so the samples are
 //! re-projected and the system re-solved while the RMS distance keeps
 //! falling (by more than [`FitOptions::min_improvement`], relative), at most
@@ -50,7 +55,10 @@
 //!   undetermined; the floor keeps a trace of the point distance
 //!   (Pottmann–Leopoldseder's own remedy is the same blend of TDM and PDM).
 //!   The coordinates are coupled, so the system has 3·nv unknowns and one
-//!   right-hand side.
+//!   right-hand side, and three rows per sample: each round costs about
+//!   ten times a `Point` round (measured: 64 patches on a 32k-triangle
+//!   mesh, 0.6 s vs 6.8 s for nine rounds). It fits better: RMS L 0.98‰
+//!   vs 1.37‰ there, 3–8 % lower on dense control meshes.
 
 pub mod curvature;
 
