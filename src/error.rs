@@ -45,9 +45,9 @@ pub enum Error {
     /// A caller passed an argument out of its domain.
     #[error("{0}")]
     InvalidArgument(String),
-    /// A long computation was cancelled through its progress callback.
-    #[error("{0}: cancelled")]
-    Cancelled(&'static str),
+    /// The progress callback asked to stop; nothing was written.
+    #[error("cancelled during stage '{stage}'")]
+    Cancelled { stage: String },
 }
 
 impl Error {

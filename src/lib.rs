@@ -6,13 +6,16 @@
 //! that tests can cross-check them. [`solve`] wraps Eigen's sparse solvers.
 
 pub mod analysis;
+pub mod displace;
 pub mod error;
+pub mod fit;
 pub mod fixtures;
 pub mod io;
 pub mod mesh;
 pub mod project;
 pub mod quad;
 pub mod raycast;
+pub mod report;
 pub mod solve;
 pub mod subdiv;
 

@@ -182,6 +182,6 @@ fn progress_can_cancel() {
             false
         },
     );
-    assert!(matches!(r, Err(Error::Cancelled(_))), "{r:?}");
+    assert!(matches!(r, Err(Error::Cancelled { .. })), "{r:?}");
     assert_eq!(calls, 1);
 }

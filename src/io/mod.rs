@@ -6,8 +6,10 @@
 //! [`ControlMesh`] with the sharpness tags of an OBJ shape file.
 
 mod obj;
+mod obj_uv;
 mod openmesh;
 mod ply;
+pub mod usd;
 mod write;
 
 use std::path::Path;
@@ -16,8 +18,10 @@ use crate::error::{Error, Result};
 use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId};
 
 pub use obj::{parse_obj, read_obj, ObjMesh};
+pub use obj_uv::write_control_obj_with_uvs;
 pub use openmesh::read_openmesh;
 pub use ply::{parse_ply, read_ply};
+pub use usd::write_usda;
 pub use write::{write_atomically, write_control_obj, write_obj, write_ply};
 
 /// Which implementation parses a file.

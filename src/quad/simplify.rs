@@ -553,7 +553,9 @@ impl<'a> Simplifier<'a> {
                     seconds: t0.elapsed().as_secs_f64(),
                 };
                 if !progress(p) {
-                    return Err(Error::Cancelled("simplification"));
+                    return Err(Error::Cancelled {
+                        stage: "simplification".into(),
+                    });
                 }
             }
         }

@@ -1,7 +1,9 @@
 //! The `subdfit` command line. Exit status: 0 success, 1 a check failed
 //! (e.g. `diff-limit` above tolerance), 2 an error (bad input, I/O, ...).
 
+mod fit;
 mod limit;
+mod metrics;
 mod quadrangulate;
 mod simplify;
 
@@ -44,6 +46,10 @@ enum Command {
     Simplify(simplify::SimplifyArgs),
     /// Print the versions of subdfit and the linked C++ libraries.
     Version,
+    /// Fit a given control mesh to a mesh and write the surface, displacement and report.
+    Fit(fit::FitArgs),
+    /// Accuracy and projectability of a control mesh against a mesh (Table 1 figures).
+    Metrics(metrics::MetricsArgs),
 }
 
 fn run(cli: Cli) -> Result<ExitCode> {
@@ -61,6 +67,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::DiffLimit(a) => limit::diff_limit(a),
         Command::Quadrangulate(a) => quadrangulate::run(a),
         Command::Simplify(a) => simplify::run(a),
+        Command::Fit(a) => fit::fit(a),
+        Command::Metrics(a) => metrics::metrics(a),
         Command::Version => {
             let mut text = format!("subdfit {}", env!("CARGO_PKG_VERSION"));
             for (name, v) in subdfit::linked_library_versions() {

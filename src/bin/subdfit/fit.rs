@@ -1,0 +1,204 @@
+//! `subdfit fit MESH CONTROL -o OUTDIR` and `subdfit metrics MESH CONTROL`:
+//! the fitting and measuring half of a conversion, from any given control
+//! mesh (Fitmaps §3.5, §4).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use indicatif::{ProgressBar, ProgressStyle};
+use subdfit::fit::{FitOptions, Objective};
+use subdfit::raycast::{make_raycaster, RayBackend};
+use subdfit::report::{fit_and_write, metrics, MetricsOptions, PipelineOptions, StageTimer};
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum FitArg {
+    /// Point distance to the normal projection (Fitmaps §3.5).
+    Point,
+    /// Squared-distance minimisation (Pottmann–Leopoldseder, Lavoué §7.1).
+    Sdm,
+}
+
+#[derive(Args)]
+pub struct FitArgs {
+    /// The dense input mesh M (OBJ, PLY, OFF, STL).
+    mesh: PathBuf,
+    /// The control mesh to fit (OBJ with `t crease` / `t corner` tags, or
+    /// any mesh format); pure quads for the displacement outputs.
+    control: PathBuf,
+    /// Output folder (created; existing files of the same names replaced).
+    #[arg(short, long)]
+    output: PathBuf,
+    #[arg(long, value_enum, default_value_t = FitArg::Point)]
+    fit: FitArg,
+    /// Displacement samples per patch side (default: total ≈ M's vertices).
+    #[arg(long)]
+    displacement_res: Option<usize>,
+    /// Parameter-correction rounds at most.
+    #[arg(long, default_value_t = 8)]
+    max_iterations: usize,
+    /// Skip `fitmap.ply` (the Fitmap analysis of M).
+    #[arg(long)]
+    no_fitmap: bool,
+    /// No progress bars.
+    #[arg(long)]
+    quiet: bool,
+    /// Print report.json to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+pub struct MetricsArgs {
+    /// The dense input mesh M.
+    mesh: PathBuf,
+    /// The control mesh (pure quads).
+    control: PathBuf,
+    /// Displacement samples per patch side (default: total ≈ M's vertices).
+    #[arg(long)]
+    displacement_res: Option<usize>,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+/// A progress callback drawing one bar per stage on stderr (none when
+/// `quiet`).
+pub fn progress_bars(quiet: bool) -> impl FnMut(&str, f64) -> bool {
+    let mut current: Option<(String, ProgressBar)> = None;
+    move |stage: &str, fraction: f64| {
+        if quiet {
+            return true;
+        }
+        let same = matches!(&current, Some((s, _)) if s == stage);
+        if !same {
+            if let Some((_, bar)) = current.take() {
+                bar.finish();
+            }
+            let bar = ProgressBar::new(1000);
+            bar.set_style(
+                ProgressStyle::with_template("{prefix:>14} [{bar:30}] {percent:>3}% {elapsed}")
+                    .expect("static template")
+                    .progress_chars("=> "),
+            );
+            bar.set_prefix(stage.to_string());
+            current = Some((stage.to_string(), bar));
+        }
+        if let Some((_, bar)) = &current {
+            bar.set_position((fraction * 1000.0) as u64);
+            if fraction >= 1.0 {
+                bar.finish();
+            }
+        }
+        true
+    }
+}
+
+pub fn fit(a: FitArgs) -> Result<ExitCode> {
+    let mut timer = StageTimer::default();
+    let input = timer.run("read", || subdfit::io::read_mesh(&a.mesh))?;
+    let control = subdfit::io::read_control_mesh(&a.control)
+        .with_context(|| format!("reading the control mesh {}", a.control.display()))?;
+    let caster = timer.run("raycaster", || {
+        make_raycaster(RayBackend::Embree, &input.mesh)
+    })?;
+    let objective = match a.fit {
+        FitArg::Point => Objective::Point,
+        FitArg::Sdm => Objective::Sdm,
+    };
+    let opts = PipelineOptions::default()
+        .with_fit(
+            FitOptions::default()
+                .with_objective(objective)
+                .with_max_iterations(a.max_iterations),
+        )
+        .with_metrics(MetricsOptions::default().with_displacement_res(a.displacement_res))
+        .with_fitmap((!a.no_fitmap).then(subdfit::analysis::FitmapOptions::default));
+    let extra = serde_json::json!({
+        "command": "fit",
+        "mesh": a.mesh.display().to_string(),
+        "control": a.control.display().to_string(),
+    });
+    let mut progress = progress_bars(a.quiet || a.json);
+    let (report, written) = fit_and_write(
+        &input,
+        control,
+        caster.as_ref(),
+        &opts,
+        timer,
+        extra,
+        None,
+        &a.output,
+        &mut progress,
+    )?;
+    if a.json {
+        crate::emit(&serde_json::to_string_pretty(&report)?)?;
+    } else if !a.quiet {
+        let m = &report.accuracy;
+        crate::emit(&format!(
+            "{} patches, {} irregular vertices; RMS L {:.3}‰, RMS D {:.3}‰ of the diagonal; \
+             unprojectable {:.2}% of M's area\nwrote {}",
+            report.control.faces,
+            report.control.irregular_vertices,
+            m.limit.rms_permille,
+            m.displaced.rms_permille,
+            report.projectability.unprojectable_area_percent,
+            written
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+pub fn metrics_cmd(a: MetricsArgs) -> Result<ExitCode> {
+    let input = subdfit::io::read_mesh(&a.mesh)?;
+    let control = subdfit::io::read_control_mesh(&a.control)
+        .with_context(|| format!("reading the control mesh {}", a.control.display()))?;
+    let caster = make_raycaster(RayBackend::Embree, &input.mesh)?;
+    let m = metrics(
+        &input.mesh,
+        &control,
+        caster.as_ref(),
+        &MetricsOptions::default().with_displacement_res(a.displacement_res),
+    )?;
+    let stats = subdfit::report::control_stats(&control);
+    if a.json {
+        let v = serde_json::json!({ "control": stats, "metrics": m });
+        crate::emit(&serde_json::to_string_pretty(&v)?)?;
+    } else {
+        let l = &m.limit;
+        let d = &m.displaced;
+        crate::emit(&format!(
+            "patches {}  irregular {}  unprojectable {:.2}% (area)\n\
+             limit L      RMS {:.3}‰  (L→M rms {:.3} mean {:.3} max {:.3}; M→L rms {:.3} mean {:.3} max {:.3})\n\
+             displaced D  RMS {:.3}‰  (D→M rms {:.3} mean {:.3} max {:.3}; M→D rms {:.3} mean {:.3} max {:.3})\n\
+             displacement {}×{} per patch, {} samples, {} unprojectable",
+            stats.faces,
+            stats.irregular_vertices,
+            m.unprojectable_area_percent,
+            l.rms_permille,
+            l.surface_to_mesh.rms_permille,
+            l.surface_to_mesh.mean_permille,
+            l.surface_to_mesh.max_permille,
+            l.mesh_to_surface.rms_permille,
+            l.mesh_to_surface.mean_permille,
+            l.mesh_to_surface.max_permille,
+            d.rms_permille,
+            d.surface_to_mesh.rms_permille,
+            d.surface_to_mesh.mean_permille,
+            d.surface_to_mesh.max_permille,
+            d.mesh_to_surface.rms_permille,
+            d.mesh_to_surface.mean_permille,
+            d.mesh_to_surface.max_permille,
+            m.displacement.resolution,
+            m.displacement.resolution,
+            m.displacement.samples,
+            m.displacement.unprojectable,
+        ))?;
+    }
+    Ok(ExitCode::SUCCESS)
+}

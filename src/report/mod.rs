@@ -1,0 +1,510 @@
+//! Quality figures of a fitted surface (Fitmaps §4, Table 1) and the
+//! `report.json` of a run.
+//!
+//! Units: every distance is in ‰ (thousandths) of M's bounding-box
+//! diagonal, as in Table 1; percentages are of M's area or of samples, as
+//! named.
+//!
+//! Accuracy of a surface S (the limit L or the displaced surface D) against
+//! M is measured in both directions, on triangulations:
+//! - S → M: sample points of S to their closest points of M;
+//! - M → S: sample points of M to their closest points of S's tessellation.
+//!
+//! Sample points of a triangulated surface are those of the symmetric
+//! 3-point quadrature rule (barycentrics (2/3, 1/6, 1/6) and permutations,
+//! weight a third of the triangle's area each; exact for quadratics), not
+//! the vertices: the limit surface of the initial control mesh interpolates
+//! M's vertices and the displaced surface's vertices lie on M by
+//! construction, so vertex samples would report zero error for both
+//! whatever the surface does between them. L's tessellation is fine enough
+//! (below) that its own vertices, weighted by a third of their triangles'
+//! areas, serve as its samples (the 3-point rule there would cost 6× the
+//! queries for the same figure).
+//! RMS and mean are area-weighted; max is over all samples. `rms_permille`
+//! of an [`Accuracy`] is the larger of the two directional RMS (a
+//! symmetric figure that neither a surface covering only part of M nor one
+//! with a fin sticking out can pass).
+//!
+//! Tessellations: L is evaluated (OpenSubdiv, isolation level 10, the
+//! reference setting of STACK-NOTES) on a welded `t × t` grid per patch,
+//! `t` large enough that L has about four times as many samples as M has
+//! vertices (at least the displacement resolution, at most 64): its chordal
+//! error is then well below M's own. D is the displacement grid itself: the
+//! limit point plus the measured offset at every `R × R` sample, linear in
+//! between — what `displaced.ply` holds.
+//!
+//! Projectability (Table 1, "Unp."): the percentage of M's area not reached
+//! correctly by the normal projection φ from L. For each triangle of M, its
+//! centroid c is mapped to the closest point of L's tessellation, that
+//! point's patch location is evaluated exactly, and φ is cast along the
+//! exact limit normal; c counts as reached when φ lands within one mean edge
+//! length of M from c (a miss, or a hit on another sheet of M, is not).
+
+mod output;
+mod pipeline;
+
+pub use output::{write_outputs, OutputFiles, OUTPUT_NAMES};
+pub use pipeline::{fit_and_write, PipelineOptions};
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::analysis::normals::triangle_areas;
+use crate::displace::{
+    auto_resolution, compute_displacement, Displacement, DisplacementStats, PatchGrid,
+};
+use crate::error::{Error, Result};
+use crate::fit::{report_progress, Progress};
+use crate::mesh::{ControlMesh, TriMesh};
+use crate::project::default_max_dist;
+use crate::raycast::{make_raycaster, RayBackend, RayCaster};
+use crate::subdiv::{make_evaluator, Backend, EvalOptions};
+use crate::DVec3;
+
+/// Options of [`metrics`] / [`evaluate_surfaces`].
+#[derive(Clone, Debug, Default, Serialize)]
+#[non_exhaustive]
+pub struct MetricsOptions {
+    /// Displacement samples per patch side; `None`: [`auto_resolution`]
+    /// (total samples ≈ M's vertex count, Fitmaps §4).
+    pub displacement_res: Option<usize>,
+    /// Limit tessellation per patch side; `None`: see the module docs.
+    pub tessellation_res: Option<usize>,
+    /// φ's search distance; `None`: a quarter of M's diagonal.
+    pub max_dist: Option<f64>,
+}
+
+impl MetricsOptions {
+    pub fn with_displacement_res(mut self, r: Option<usize>) -> Self {
+        self.displacement_res = r;
+        self
+    }
+    pub fn with_tessellation_res(mut self, r: Option<usize>) -> Self {
+        self.tessellation_res = r;
+        self
+    }
+}
+
+/// Distances in one direction, ‰ of M's bounding-box diagonal.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct DistanceStats {
+    pub rms_permille: f64,
+    pub mean_permille: f64,
+    pub max_permille: f64,
+    pub samples: usize,
+}
+
+/// Accuracy of one surface against M (see the module docs).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Accuracy {
+    pub surface_to_mesh: DistanceStats,
+    pub mesh_to_surface: DistanceStats,
+    /// max of the two directional RMS.
+    pub rms_permille: f64,
+}
+
+/// Table 1's figures for one control mesh.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Metrics {
+    pub bbox_diagonal: f64,
+    /// Limit surface L.
+    pub limit: Accuracy,
+    /// Displaced surface D.
+    pub displaced: Accuracy,
+    /// Percentage of M's area not reached by φ from L.
+    pub unprojectable_area_percent: f64,
+    pub displacement: DisplacementStats,
+    pub tessellation_res: usize,
+}
+
+/// The surfaces the metrics were measured on, for writing out.
+#[derive(Clone, Debug)]
+pub struct Surfaces {
+    pub displacement: Displacement,
+    /// L's tessellation (welded, watertight where the control mesh is).
+    pub limit: TriMesh,
+    /// D's tessellation, on the displacement grid.
+    pub displaced: TriMesh,
+    pub metrics: Metrics,
+}
+
+/// Table 1's accuracy and projectability for `control` against `mesh`
+/// (`caster` built over `mesh`).
+pub fn metrics(
+    mesh: &TriMesh,
+    control: &ControlMesh,
+    caster: &dyn RayCaster,
+    opts: &MetricsOptions,
+) -> Result<Metrics> {
+    Ok(evaluate_surfaces(mesh, control, caster, opts, &mut |_, _| true)?.metrics)
+}
+
+/// Displacement, tessellations and metrics in one go (stages
+/// `"displacement"` and `"metrics"` for `progress`).
+pub fn evaluate_surfaces(
+    mesh: &TriMesh,
+    control: &ControlMesh,
+    caster: &dyn RayCaster,
+    opts: &MetricsOptions,
+    progress: &mut Progress<'_>,
+) -> Result<Surfaces> {
+    let diag = mesh.bbox_diagonal();
+    if mesh.triangles.is_empty() || !(diag.is_finite() && diag > 0.0) {
+        return Err(Error::InvalidArgument(
+            "metrics: the input mesh is empty or has a degenerate bounding box".into(),
+        ));
+    }
+    let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));
+    let patches = control.num_faces();
+    let n = mesh.positions.len();
+    let r = opts
+        .displacement_res
+        .unwrap_or_else(|| auto_resolution(n, patches));
+    let evaluator = make_evaluator(Backend::Osd, control, &EvalOptions::default())?;
+    let t = opts.tessellation_res.unwrap_or_else(|| {
+        let t = (4.0 * n as f64 / patches.max(1) as f64).sqrt().ceil() as usize + 1;
+        t.clamp(r.min(64), 64).max(r)
+    });
+    report_progress(progress, "displacement", 0.0)?;
+    let grid = PatchGrid::new(control, t)?;
+    let limit_pts = evaluator.evaluate(control.positions(), grid.locations())?;
+    let limit = TriMesh {
+        positions: limit_pts.iter().map(|p| p.position).collect(),
+        triangles: grid.triangles(),
+    };
+    let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
+    let displacement = compute_displacement(
+        control,
+        evaluator.as_ref(),
+        caster,
+        Some(limit_caster.as_ref()),
+        r,
+        max_dist,
+        diag,
+    )?;
+    report_progress(progress, "displacement", 1.0)?;
+    report_progress(progress, "metrics", 0.0)?;
+    let displaced = TriMesh {
+        positions: displacement.displaced_positions(),
+        triangles: displacement.grid.triangles(),
+    };
+    report_progress(progress, "metrics", 0.2)?;
+    let limit_acc = accuracy(mesh, caster, &limit, limit_caster.as_ref(), diag, false)?;
+    report_progress(progress, "metrics", 0.5)?;
+    let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
+    let displaced_acc = accuracy(
+        mesh,
+        caster,
+        &displaced,
+        displaced_caster.as_ref(),
+        diag,
+        true,
+    )?;
+    report_progress(progress, "metrics", 0.7)?;
+
+    // Projectability, see the module docs.
+    let areas = triangle_areas(mesh);
+    let centroids: Vec<DVec3> = (0..mesh.triangles.len())
+        .map(|t| {
+            let [a, b, c] = mesh.triangle(t);
+            (a + b + c) / 3.0
+        })
+        .collect();
+    let closest = limit_caster.closest_points(&centroids, f64::INFINITY)?;
+    let locations: Vec<_> = closest
+        .iter()
+        .map(|c| {
+            let c = c.ok_or_else(|| {
+                Error::backend("ray caster", "closest point query returned nothing")
+            })?;
+            Ok(grid.triangle_location(c.triangle as usize, c.u, c.v))
+        })
+        .collect::<Result<_>>()?;
+    let exact = evaluator.evaluate(control.positions(), &locations)?;
+    let (hits, _) = crate::project::project_along_normals(caster, &exact, max_dist)?;
+    let tol = mean_edge_length(mesh);
+    let total_area: f64 = areas.iter().sum();
+    let unreached: f64 = hits
+        .iter()
+        .zip(&centroids)
+        .zip(&areas)
+        .filter(|((h, c), _)| !matches!(h, Some(h) if (h.point - **c).length() <= tol))
+        // fold from +0.0: `Sum` of no f64 is -0.0.
+        .fold(0.0, |acc, (_, a)| acc + a);
+    report_progress(progress, "metrics", 1.0)?;
+    let metrics = Metrics {
+        bbox_diagonal: diag,
+        limit: limit_acc,
+        displaced: displaced_acc,
+        unprojectable_area_percent: 100.0 * unreached / total_area.max(f64::MIN_POSITIVE),
+        displacement: displacement.stats.clone(),
+        tessellation_res: t,
+    };
+    Ok(Surfaces {
+        displacement,
+        limit,
+        displaced,
+        metrics,
+    })
+}
+
+/// A third of the area of each vertex's triangles.
+pub fn vertex_areas(mesh: &TriMesh) -> Vec<f64> {
+    let mut w = vec![0.0; mesh.positions.len()];
+    for (t, a) in mesh.triangles.iter().zip(triangle_areas(mesh)) {
+        for &v in t {
+            w[v as usize] += a / 3.0;
+        }
+    }
+    w
+}
+
+fn mean_edge_length(mesh: &TriMesh) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for t in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            // Each interior edge twice, boundary edges once: close enough
+            // for a tolerance.
+            sum += (mesh.positions[a as usize] - mesh.positions[b as usize]).length();
+            n += 1;
+        }
+    }
+    sum / n.max(1) as f64
+}
+
+/// Area-weighted distance statistics of `points` (weights `w`) to the
+/// surface behind `to`, in ‰ of `diag`.
+pub fn distance_stats(
+    points: &[DVec3],
+    w: &[f64],
+    to: &dyn RayCaster,
+    diag: f64,
+) -> Result<DistanceStats> {
+    let closest = to.closest_points(points, f64::INFINITY)?;
+    let (mut sw, mut s1, mut s2, mut max, mut count) = (0.0, 0.0, 0.0, 0.0f64, 0usize);
+    for (c, &wi) in closest.iter().zip(w) {
+        if wi <= 0.0 {
+            continue;
+        }
+        let d = c
+            .ok_or_else(|| Error::backend("ray caster", "closest point query returned nothing"))?
+            .distance;
+        sw += wi;
+        s1 += wi * d;
+        s2 += wi * d * d;
+        max = max.max(d);
+        count += 1;
+    }
+    let k = 1000.0 / diag;
+    let sw = sw.max(f64::MIN_POSITIVE);
+    Ok(DistanceStats {
+        rms_permille: k * (s2 / sw).sqrt(),
+        mean_permille: k * s1 / sw,
+        max_permille: k * max,
+        samples: count,
+    })
+}
+
+fn accuracy(
+    mesh: &TriMesh,
+    mesh_caster: &dyn RayCaster,
+    surface: &TriMesh,
+    surface_caster: &dyn RayCaster,
+    diag: f64,
+    surface_quadrature: bool,
+) -> Result<Accuracy> {
+    let (sp, sw) = if surface_quadrature {
+        quadrature_points(surface)
+    } else {
+        (surface.positions.clone(), vertex_areas(surface))
+    };
+    let s2m = distance_stats(&sp, &sw, mesh_caster, diag)?;
+    let (mp, mw) = quadrature_points(mesh);
+    let m2s = distance_stats(&mp, &mw, surface_caster, diag)?;
+    Ok(Accuracy {
+        rms_permille: s2m.rms_permille.max(m2s.rms_permille),
+        surface_to_mesh: s2m,
+        mesh_to_surface: m2s,
+    })
+}
+
+/// The sample points and weights of the 3-point rule (module docs), three
+/// per triangle in triangle order.
+pub fn quadrature_points(mesh: &TriMesh) -> (Vec<DVec3>, Vec<f64>) {
+    let areas = triangle_areas(mesh);
+    let mut p = Vec::with_capacity(3 * mesh.triangles.len());
+    let mut w = Vec::with_capacity(3 * mesh.triangles.len());
+    for (t, &a) in areas.iter().enumerate() {
+        let [x, y, z] = mesh.triangle(t);
+        for (b0, b1, b2) in [(4.0, 1.0, 1.0), (1.0, 4.0, 1.0), (1.0, 1.0, 4.0)] {
+            p.push((b0 * x + b1 * y + b2 * z) / 6.0);
+            w.push(a / 3.0);
+        }
+    }
+    (p, w)
+}
+
+/// Control-mesh statistics of `report.json`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ControlStats {
+    pub faces: usize,
+    pub vertices: usize,
+    pub edges: usize,
+    pub quads: usize,
+    pub boundary_vertices: usize,
+    pub irregular_vertices: usize,
+    pub irregular_convention: &'static str,
+    /// Valence (incident edges) → number of vertices.
+    pub valence_histogram: BTreeMap<usize, usize>,
+    pub creases: usize,
+    pub corners: usize,
+}
+
+/// The convention of [`ControlStats::irregular_vertices`].
+pub const IRREGULAR_CONVENTION: &str = "interior vertex with valence != 4; boundary vertex with \
+     a number of incident faces other than 2, except boundary corners with exactly 1 face \
+     (regular under edge-and-corner boundary interpolation)";
+
+pub fn control_stats(control: &ControlMesh) -> ControlStats {
+    let mut hist = BTreeMap::new();
+    let mut irregular = 0;
+    let mut boundary = 0;
+    for v in control.vertices() {
+        let val = control.valence(v);
+        *hist.entry(val).or_insert(0) += 1;
+        if control.is_boundary_vertex(v) {
+            boundary += 1;
+            let faces = control.vertex_faces(v).count();
+            if faces != 2 && faces != 1 {
+                irregular += 1;
+            }
+        } else if val != 4 {
+            irregular += 1;
+        }
+    }
+    ControlStats {
+        faces: control.num_faces(),
+        vertices: control.num_vertices(),
+        edges: control.num_edges(),
+        quads: control
+            .faces()
+            .filter(|&f| control.face_size(f) == 4)
+            .count(),
+        boundary_vertices: boundary,
+        irregular_vertices: irregular,
+        irregular_convention: IRREGULAR_CONVENTION,
+        valence_histogram: hist,
+        creases: control.creases().len(),
+        corners: control.corners().len(),
+    }
+}
+
+/// Peak resident memory of this process so far (`VmHWM` of
+/// `/proc/self/status`), in MiB; `None` where there is no procfs.
+pub fn peak_memory_mib() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// Wall time and peak memory of one stage. Peak memory is the process-wide
+/// high-water mark at the end of the stage (it never decreases: a stage's
+/// own peak is the first stage whose figure jumps).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StageStat {
+    pub stage: String,
+    pub seconds: f64,
+    pub peak_memory_mib: Option<f64>,
+}
+
+/// Collects [`StageStat`]s.
+#[derive(Debug, Default)]
+pub struct StageTimer {
+    pub stages: Vec<StageStat>,
+}
+
+impl StageTimer {
+    /// Runs `f` as stage `name`.
+    pub fn run<T>(&mut self, name: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
+        let t0 = Instant::now();
+        let r = f()?;
+        self.stages.push(StageStat {
+            stage: name.to_string(),
+            seconds: t0.elapsed().as_secs_f64(),
+            peak_memory_mib: peak_memory_mib(),
+        });
+        Ok(r)
+    }
+}
+
+/// `report.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    /// `subdfit x.y.z` and the linked C++ libraries.
+    pub version: BTreeMap<String, String>,
+    pub input: crate::mesh::MeshReport,
+    pub control: ControlStats,
+    pub fit: Option<crate::fit::FitReport>,
+    pub accuracy: ReportAccuracy,
+    pub projectability: ReportProjectability,
+    pub stages: Vec<StageStat>,
+    /// The options of the run, as given.
+    pub options: serde_json::Value,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ReportAccuracy {
+    pub unit: &'static str,
+    pub limit: Accuracy,
+    pub displaced: Accuracy,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ReportProjectability {
+    /// % of M's area not reached by φ from the limit surface.
+    pub unprojectable_area_percent: f64,
+    pub displacement: DisplacementStats,
+}
+
+/// Versions for [`Report::version`].
+pub fn versions() -> BTreeMap<String, String> {
+    let mut v = BTreeMap::new();
+    v.insert("subdfit".to_string(), env!("CARGO_PKG_VERSION").to_string());
+    for (name, ver) in crate::linked_library_versions() {
+        v.insert(name.to_string(), ver);
+    }
+    v
+}
+
+impl Report {
+    pub fn new(
+        input: crate::mesh::MeshReport,
+        control: &ControlMesh,
+        fit: Option<crate::fit::FitReport>,
+        metrics: &Metrics,
+        stages: Vec<StageStat>,
+        options: serde_json::Value,
+    ) -> Report {
+        Report {
+            version: versions(),
+            input,
+            control: control_stats(control),
+            fit,
+            accuracy: ReportAccuracy {
+                unit: "permille of the input's bounding-box diagonal",
+                limit: metrics.limit.clone(),
+                displaced: metrics.displaced.clone(),
+            },
+            projectability: ReportProjectability {
+                unprojectable_area_percent: metrics.unprojectable_area_percent,
+                displacement: metrics.displacement.clone(),
+            },
+            stages,
+            options,
+        }
+    }
+}

@@ -1,0 +1,101 @@
+//! The tail of every conversion, shared by `subdfit fit` and `convert`:
+//! global fit of a given control mesh, displacement, metrics, Fitmap, and
+//! the all-or-nothing write of the outputs.
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::analysis::{compute_fitmap, Fitmap, FitmapOptions};
+use crate::error::Result;
+use crate::fit::{fit_with_progress, FitOptions, Progress};
+use crate::mesh::{ControlMesh, ValidatedMesh};
+use crate::raycast::RayCaster;
+
+use super::{evaluate_surfaces, write_outputs, MetricsOptions, OutputFiles, Report, StageTimer};
+
+/// Options of [`fit_and_write`].
+#[derive(Clone, Debug, Default, Serialize)]
+#[non_exhaustive]
+pub struct PipelineOptions {
+    pub fit: FitOptions,
+    pub metrics: MetricsOptions,
+    /// `fitmap.ply` is computed and written when set.
+    pub fitmap: Option<FitmapOptions>,
+}
+
+impl PipelineOptions {
+    pub fn with_fit(mut self, f: FitOptions) -> Self {
+        self.fit = f;
+        self
+    }
+    pub fn with_metrics(mut self, m: MetricsOptions) -> Self {
+        self.metrics = m;
+        self
+    }
+    pub fn with_fitmap(mut self, f: Option<FitmapOptions>) -> Self {
+        self.fitmap = f;
+        self
+    }
+}
+
+/// Fits `control` to `input.mesh` (`caster` built over it), measures the
+/// result and writes every output into `dir` (see [`write_outputs`]).
+/// `timer` carries the stages run before (reading, simplification …) into
+/// the report; `extra_options` is stored in `report.json` beside the
+/// pipeline's own options. `precomputed_fitmap` (e.g. the one the
+/// simplification used) is written as `fitmap.ply` instead of computing
+/// one. Stages for `progress`: `"fit"`,
+/// `"displacement"`, `"metrics"`, `"fitmap"`, `"write"`.
+#[allow(clippy::too_many_arguments)]
+pub fn fit_and_write(
+    input: &ValidatedMesh,
+    control: ControlMesh,
+    caster: &dyn RayCaster,
+    opts: &PipelineOptions,
+    mut timer: StageTimer,
+    extra_options: serde_json::Value,
+    precomputed_fitmap: Option<&Fitmap>,
+    dir: &Path,
+    progress: &mut Progress<'_>,
+) -> Result<(Report, Vec<PathBuf>)> {
+    let mesh = &input.mesh;
+    let fitted = timer.run("fit", || {
+        fit_with_progress(mesh, control, caster, &opts.fit, progress)
+    })?;
+    let surfaces = timer.run("displacement+metrics", || {
+        evaluate_surfaces(mesh, &fitted.control, caster, &opts.metrics, progress)
+    })?;
+    let computed = match (&opts.fitmap, precomputed_fitmap) {
+        (Some(fo), None) => Some(timer.run("fitmap", || {
+            crate::fit::report_progress(progress, "fitmap", 0.0)?;
+            let f = compute_fitmap(mesh, caster, fo)?;
+            crate::fit::report_progress(progress, "fitmap", 1.0)?;
+            Ok(f)
+        })?),
+        _ => None,
+    };
+    let fitmap = precomputed_fitmap.or(computed.as_ref());
+    crate::fit::report_progress(progress, "write", 0.0)?;
+    let options = serde_json::json!({ "pipeline": opts, "run": extra_options });
+    let report = Report::new(
+        input.report.clone(),
+        &fitted.control,
+        Some(fitted.report.clone()),
+        &surfaces.metrics,
+        timer.stages,
+        options,
+    );
+    let written = write_outputs(
+        dir,
+        &OutputFiles {
+            mesh,
+            control: &fitted.control,
+            surfaces: &surfaces,
+            fitmap,
+            report: &report,
+        },
+    )?;
+    crate::fit::report_progress(progress, "write", 1.0)?;
+    Ok((report, written))
+}
