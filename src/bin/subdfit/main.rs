@@ -1,6 +1,7 @@
 //! The `subdfit` command line. Exit status: 0 success, 1 a check failed
 //! (e.g. `diff-limit` above tolerance), 2 an error (bad input, I/O, ...).
 
+mod fitmap;
 mod limit;
 
 use std::path::PathBuf;
@@ -36,6 +37,8 @@ enum Command {
     Limit(limit::LimitArgs),
     /// Compare the OpenSubdiv and pure-Rust limit evaluators on a control mesh.
     DiffLimit(limit::DiffArgs),
+    /// Compute the Fitmap (S- and M-fitmap, Fitmaps §3.1) of a mesh.
+    Fitmap(fitmap::FitmapArgs),
     /// Print the versions of subdfit and the linked C++ libraries.
     Version,
 }
@@ -53,6 +56,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         }
         Command::Limit(a) => limit::limit(a),
         Command::DiffLimit(a) => limit::diff_limit(a),
+        Command::Fitmap(a) => fitmap::fitmap(a),
         Command::Version => {
             let mut text = format!("subdfit {}", env!("CARGO_PKG_VERSION"));
             for (name, v) in subdfit::linked_library_versions() {
