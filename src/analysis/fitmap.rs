@@ -9,7 +9,11 @@
 //!   fit, `4 n_M |B| / |M|` samples per radius, a triangle is flipped when no
 //!   ray hits it. Quadratic in the mesh size (the largest ball is a quarter
 //!   of the model); the reference.
-//! - **fast** (default) gathers every ball of the small radii with one
+//! - **fast** (default) analyses only the seed vertices of
+//!   [`FAST_SEED_RULE`] (a maximal independent set, ~27 % of the vertices)
+//!   and interpolates the others from them where their seed neighbours
+//!   agree on F_M (else analyses them too); per analysed vertex it
+//!   gathers every ball of the small radii with one
 //!   traversal (the balls are *identical* to the literal ones, see
 //!   [`neighbourhood::nested_balls`]); bounds the fit to
 //!   [`FAST_MAX_FIT_POINTS`] uniformly drawn vertices; replaces M by a
@@ -37,7 +41,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::cubic::{fit_cubic, Cubic, CubicFit, Frame};
-use super::neighbourhood::{bfs_ball, nested_balls, Adjacency, Entry, ProxyLevel};
+use super::neighbourhood::{bfs_ball, nested_balls, Adjacency, Csr, Entry, ProxyLevel};
 use super::normals::{triangle_areas, vertex_normals};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
@@ -86,13 +90,20 @@ pub const FAST_PROXY_CELLS_PER_RADIUS: f64 = 6.0;
 /// [`FAST_M_SAMPLES`] Monte Carlo samples instead of the literal test.
 pub const FAST_LITERAL_M_MAX_TRIANGLES: usize = 64;
 
-/// Fast mode: the most Monte Carlo samples of the flipped area of a large
-/// ball ([`flip_test_sampled`]). Where the sequential test has not decided by
+/// Fast mode: the most triangles drawn to estimate the flipped area of a
+/// large ball ([`flip_test_sampled`]). Where the sequential test has not decided by
 /// then the fraction is within ~±2 standard errors of τ, i.e.
 /// `sqrt(f (1 - f) / 384)` ≈ ±1.1 % at f = 5 %.
 pub const FAST_M_SAMPLES: usize = 384;
 
-/// Fast mode: samples per batch of the sequential M-test (one batch of
+/// Fast mode: points per drawn triangle in the sampled M-test: the literal
+/// test's density, `4 n_M / |M|` samples per unit area (§3.1.3), is about
+/// two per triangle (a closed mesh has about twice as many triangles as
+/// vertices), so a triangle of the literal test is hit when one of about
+/// two lines reaches it.
+pub const FAST_M_POINTS_PER_TRIANGLE: usize = 2;
+
+/// Fast mode: triangles per batch of the sequential M-test (one batch of
 /// rays per Embree call).
 pub const FAST_M_BATCH: usize = 48;
 
@@ -152,6 +163,9 @@ pub struct FitmapStats {
     /// Vertices where every tested radius failed the M-test
     /// (F_M clamped to r_0, see [`Fitmap::m`]).
     pub m_floor_vertices: usize,
+    /// Vertices analysed directly: all in the exact mode; the seeds (and
+    /// the rare fallbacks) in the fast mode, see [`FAST_SEED_RULE`].
+    pub analysed_vertices: usize,
     pub cubic_fits: u64,
     pub rays: u64,
     /// Proxy levels of the fast mode: `(radius index, clusters)`.
@@ -387,10 +401,10 @@ fn sample_triangle(mesh: &TriMesh, t: u32, rng: &mut ChaCha8Rng) -> DVec3 {
 pub const GRAZE_TOLERANCE_OF_R0: f64 = 0.1;
 
 /// The literal M-test of §3.1.3 on the ball whose triangles are `tris`:
-/// `N = ⌈4 n_M |B| / |M|⌉` samples drawn on the ball, lifted onto the cubic
-/// (the point of the graph above the sample's `(u, v)`), one line per
-/// sample along the cubic's analytic normal (nearest hit either way, within
-/// the radius), triangles of the ball never hit (within the grazing
+/// `N = ⌈4 n_M |B| / |M|⌉` samples drawn on the ball, each carried to the
+/// point of the cubic g̃ closest to it, one line per sample along the
+/// cubic's analytic normal there (nearest hit either way, within the
+/// radius or the sample's distance), triangles of the ball never hit (within the grazing
 /// tolerance, [`GRAZE_TOLERANCE_OF_R0`]) are flipped. Returns the flipped
 /// fraction of the ball's area (`None`: the ball has no area) and the
 /// number of lines cast.
@@ -402,6 +416,15 @@ pub const GRAZE_TOLERANCE_OF_R0: f64 = 0.1;
 /// of a perfect plane would never be hit, i.e. "flipped" by sampling luck
 /// alone, above both of the paper's τ. With stratification a triangle is
 /// flipped only because the rays above it land elsewhere.
+///
+/// Samples of g̃ (§3.1.3 samples the cubic, at a density given by M's area)
+/// are taken as the closest points of g̃ to uniform samples x of M's ball,
+/// so that the normal line from each passes through its x: x is hit unless
+/// another sheet of M is nearer to g̃ — a fold, which is what the test is
+/// for. Lifting x vertically in the frame instead lands the ray away from
+/// x wherever g̃ is steep in the frame or fits loosely (the large radii),
+/// and leaves triangles unhit by ray scatter alone (on spot.ply this made
+/// r_h fail everywhere).
 #[allow(clippy::too_many_arguments)]
 fn flip_fraction_literal(
     ctx: &Ctx,
@@ -422,6 +445,8 @@ fn flip_fraction_literal(
     let mut next = rng.gen::<f64>() * spacing;
     let mut cum = 0.0;
     let (mut origins, mut dirs) = (Vec::new(), Vec::new());
+    let delta = GRAZE_TOLERANCE_OF_R0 * ctx.radii[0];
+    let mut max_t = r;
     for &t in tris {
         let a = ctx.areas[t as usize];
         if a <= 0.0 {
@@ -434,16 +459,20 @@ fn flip_fraction_literal(
             next += spacing;
         }
         for _ in 0..k.max(1) {
-            let x = frame.to_local(sample_triangle(ctx.mesh, t, rng));
-            let h = cubic.eval(x.x, x.y);
-            origins.push(frame.to_world(DVec3::new(x.x, x.y, h)));
-            dirs.push(frame.dir_to_world(cubic.normal(x.x, x.y)));
+            // The sample of g̃ is the cubic's point closest to the sample x
+            // of the ball, so the normal line of g̃ through it passes
+            // through x (see the function docs).
+            let q = frame.to_local(sample_triangle(ctx.mesh, t, rng));
+            let f = cubic.foot_point(q, 0.5 * r);
+            let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
+            origins.push(frame.to_world(c));
+            dirs.push(frame.dir_to_world(cubic.normal(f.x, f.y)));
+            max_t = max_t.max((q - c).length() + delta);
         }
     }
-    let Some(hits) = ctx.line_hits(&origins, &dirs, r) else {
+    let Some(hits) = ctx.line_hits(&origins, &dirs, max_t) else {
         return (None, 0);
     };
-    let delta = GRAZE_TOLERANCE_OF_R0 * ctx.radii[0];
     for h in hits.iter().flatten() {
         let t = h.triangle as usize;
         let Some(m) = hitmark.get_mut(t) else { continue };
@@ -472,69 +501,79 @@ fn flip_fraction_literal(
     (Some(flipped / area), origins.len() as u64)
 }
 
-/// Fast-mode M-test of a large ball: the same flipped area fraction,
-/// estimated by Monte Carlo over surface points drawn uniformly (by area)
-/// on the ball by `draw`. For a point x, let c be the point of the cubic
-/// closest to x: x lies on the cubic's normal line at c, so the normal
-/// projection of §3.1.3 can reach x. x is *reached* when the nearest hit of
-/// that line is x itself (within the grazing tolerance
-/// [`GRAZE_TOLERANCE_OF_R0`]), *flipped* when another part of M is nearer
-/// to the cubic along it. A line that hits nothing (a ray slipping between
-/// triangles) counts as reached: a numerical miss, not a fold.
+/// Fast-mode M-test of a large ball: the literal test's flipped area
+/// fraction, estimated by Monte Carlo over the ball's triangles. `draw`
+/// picks a triangle of the ball with probability proportional to its area;
+/// the triangle counts as hit — as in the literal test, where a triangle is
+/// hit when any ray lands on it — when at least one of
+/// [`FAST_M_POINTS_PER_TRIANGLE`] uniform points x in it is *reached*: let c
+/// be the point of the cubic closest to x; x lies on the cubic's normal
+/// line at c, and x is reached when the nearest hit of that line (either
+/// way, as in the literal test) is x itself, within the grazing tolerance
+/// [`GRAZE_TOLERANCE_OF_R0`]. A line that hits nothing (a ray slipping
+/// between triangles) counts as reaching x: a numerical miss, not a fold.
+/// The fraction of drawn triangles not hit estimates the literal fraction
+/// of the ball's area in unhit triangles.
 ///
-/// Sequential test: points come in batches of [`FAST_M_BATCH`]; after each
-/// batch the test stops as soon as the Wilson score interval (z =
+/// Sequential test: triangles come in batches of [`FAST_M_BATCH`]; after
+/// each batch the test stops as soon as the Wilson score interval (z =
 /// [`FAST_M_Z`]) of the flipped fraction lies entirely below τ (pass) or
-/// above it (fail); after [`FAST_M_SAMPLES`] points the estimate decides.
+/// above it (fail); after [`FAST_M_SAMPLES`] triangles the estimate decides.
 /// Typical balls are far from τ (no fold at all, or a fold filling much of
-/// the ball) and stop after one or two batches. Returns `Some(passes)`
+/// the ball) and stop after one to three batches. Returns `Some(passes)`
 /// (`None`: nothing to test) and the number of lines cast.
 ///
-/// The decision is monotone in τ for a given seed (the points are a prefix
-/// of one stream; a lower bound above a smaller τ... see the proof in the
-/// test `bumps_lower_m_and_m_falls_with_tolerance`): with `UB(n) < τ₁`
-/// at the stop for τ₁, every `LB(n') <= τ₁ < τ₂` before it, so τ₂ > τ₁
-/// cannot fail earlier and passes by the same n.
+/// The decision is monotone in τ for a given seed: the draws are a prefix
+/// of one stream, and if the test for τ₁ passes at n (upper bound < τ₁),
+/// every lower bound before n was <= τ₁ < τ₂, so the test for τ₂ cannot
+/// fail earlier and passes by n.
 fn flip_test_sampled(
     ctx: &Ctx,
     frame: &Frame,
     cubic: &Cubic,
     r: f64,
-    draw: &mut dyn FnMut(&mut ChaCha8Rng) -> Option<DVec3>,
+    draw: &mut dyn FnMut(&mut ChaCha8Rng) -> Option<u32>,
     rng: &mut ChaCha8Rng,
 ) -> (Option<bool>, u64) {
+    const J: usize = FAST_M_POINTS_PER_TRIANGLE;
     let tau = ctx.opts.tolerance;
     let eps = (0.01 * r).min(GRAZE_TOLERANCE_OF_R0 * ctx.radii[0]);
     let (mut n, mut k, mut rays) = (0usize, 0usize, 0u64);
-    let mut origins = Vec::with_capacity(FAST_M_BATCH);
-    let mut dirs = Vec::with_capacity(FAST_M_BATCH);
-    let mut dist = Vec::with_capacity(FAST_M_BATCH);
+    let mut origins = Vec::with_capacity(FAST_M_BATCH * J);
+    let mut dirs = Vec::with_capacity(FAST_M_BATCH * J);
+    let mut dist = Vec::with_capacity(FAST_M_BATCH * J);
     while n < FAST_M_SAMPLES {
         origins.clear();
         dirs.clear();
         dist.clear();
         for _ in 0..FAST_M_BATCH {
-            let Some(x) = draw(rng) else {
+            let Some(t) = draw(rng) else {
                 return (None, rays);
             };
-            let q = frame.to_local(x);
-            let f = cubic.foot_point(q, 0.5 * r);
-            let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
-            let nrm = cubic.normal(f.x, f.y);
-            origins.push(frame.to_world(c));
-            dirs.push(frame.dir_to_world(nrm));
-            dist.push((q - c).length());
+            for _ in 0..J {
+                let q = frame.to_local(sample_triangle(ctx.mesh, t, rng));
+                let f = cubic.foot_point(q, 0.5 * r);
+                let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
+                let nrm = cubic.normal(f.x, f.y);
+                origins.push(frame.to_world(c));
+                dirs.push(frame.dir_to_world(nrm));
+                dist.push((q - c).length());
+            }
         }
         let max_t = dist.iter().fold(r, |m, &d| m.max(d + eps));
         let Some(hits) = ctx.line_hits(&origins, &dirs, max_t) else {
             return (None, rays);
         };
         rays += origins.len() as u64;
-        n += origins.len();
-        k += hits
+        n += FAST_M_BATCH;
+        let reached: Vec<bool> = hits
             .iter()
             .zip(&dist)
-            .filter(|(h, &d)| h.is_some_and(|h| h.t.abs() < d - eps))
+            .map(|(h, &d)| !h.is_some_and(|h| h.t.abs() < d - eps))
+            .collect();
+        k += reached
+            .chunks_exact(J)
+            .filter(|c| !c.iter().any(|&x| x))
             .count();
         let (lo, hi) = wilson(k, n, FAST_M_Z);
         if hi < tau {
@@ -868,12 +907,8 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
                     acc += ctx.areas[t as usize];
                     cum.push(acc);
                 }
-                let mut sample = |rng: &mut ChaCha8Rng| {
-                    (acc > 0.0).then(|| {
-                        let t = tris[draw(&cum, rng)].1;
-                        sample_triangle(ctx.mesh, t, rng)
-                    })
-                };
+                let mut sample =
+                    |rng: &mut ChaCha8Rng| (acc > 0.0).then(|| tris[draw(&cum, rng)].1);
                 flip_test_sampled(ctx, &frame, cubic, r, &mut sample, &mut rng)
             }
             FastBall::Proxy(li, clusters) => {
@@ -889,8 +924,7 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
                         return None;
                     }
                     let c = clusters[draw(&cum, rng)] as usize;
-                    let t = level.tris.row(c)[draw(level.tri_cum_row(c), rng)];
-                    Some(sample_triangle(ctx.mesh, t, rng))
+                    Some(level.tris.row(c)[draw(level.tri_cum_row(c), rng)])
                 };
                 flip_test_sampled(ctx, &frame, cubic, r, &mut sample, &mut rng)
             }
@@ -905,6 +939,66 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
     res
 }
 
+
+/// Fast mode: which vertices are analysed, and how the others get their
+/// values. The seeds are the greedy maximal independent set of the vertex
+/// graph in vertex order (a vertex is a seed unless an earlier neighbour
+/// is one): about a quarter to a third of the vertices, every other vertex
+/// adjacent to at least one seed, so no vertex is more than one edge (~r_0)
+/// from an analysed one. A non-seed vertex takes
+/// - F_S = the mean of its seed neighbours' F_S (linear interpolation of
+///   the field at the scale of one edge, the same interpolation §3.1.1
+///   uses over faces), and
+/// - F_M = the step its seed neighbours agree on. Where they do not all
+///   agree the field changes at the scale of one edge (a fold's border,
+///   where the flipped fraction sits at τ over several radii) and no
+///   interpolation is trustworthy: the vertex is analysed itself.
+///
+/// Seeds whose analysis is undefined (no well-posed cubic) do not count;
+/// a vertex with no defined seed neighbour is analysed itself.
+pub const FAST_SEED_RULE: &str =
+    "greedy 1-ring independent set; F_S mean, F_M agreed step, else analysed";
+
+/// The seeds of [`FAST_SEED_RULE`], in increasing order.
+fn fast_seeds(vv: &Csr, nv: usize) -> Vec<u32> {
+    let mut seed = vec![false; nv];
+    let mut out = Vec::with_capacity(nv / 3);
+    for v in 0..nv {
+        if !vv.row(v).iter().any(|&w| (w as usize) < v && seed[w as usize]) {
+            seed[v] = true;
+            out.push(v as u32);
+        }
+    }
+    out
+}
+
+/// A non-seed vertex's values from its analysed neighbours
+/// ([`FAST_SEED_RULE`]); `None` when no neighbour has a defined analysis.
+fn interpolate_from_seeds(
+    vv: &Csr,
+    v: usize,
+    results: &[VertexResult],
+    analysed: &[bool],
+) -> Option<VertexResult> {
+    let (mut s, mut k, mut step, mut hi) = (0.0, 0usize, u8::MAX, 0u8);
+    for &w in vv.row(v) {
+        let r = &results[w as usize];
+        if analysed[w as usize] && r.defined {
+            s += r.s;
+            k += 1;
+            step = step.min(r.m_step);
+            hi = hi.max(r.m_step);
+        }
+    }
+    (k > 0 && hi == step).then(|| VertexResult {
+        s: s / k as f64,
+        m_step: step,
+        defined: true,
+        m_floor: step == 0,
+        fits: 0,
+        rays: 0,
+    })
+}
 
 /// Computes the Fitmap of `mesh` (§3.1), rays cast with `caster` (built
 /// over the same mesh). Errors: τ outside (0, 1], a mesh whose radii are
@@ -991,22 +1085,53 @@ pub fn compute_fitmap_with_progress(
     };
     let setup_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
-    let results: Vec<VertexResult> = (0..nv as u32)
-        .into_par_iter()
-        .with_min_len(32)
-        .map_init(
-            || Scratch::new(&ctx),
-            |sc, p| {
-                let r = if opts.exact {
-                    analyse_vertex_exact(&ctx, sc, p)
-                } else {
-                    analyse_vertex_fast(&ctx, sc, p)
-                };
-                progress(1);
-                r
-            },
-        )
-        .collect();
+    let analyse = |sc: &mut Scratch, p: u32| {
+        let r = if opts.exact {
+            analyse_vertex_exact(&ctx, sc, p)
+        } else {
+            analyse_vertex_fast(&ctx, sc, p)
+        };
+        progress(1);
+        r
+    };
+    let run = |list: &[u32]| -> Vec<VertexResult> {
+        list.par_iter()
+            .with_min_len(32)
+            .map_init(|| Scratch::new(&ctx), |sc, &p| analyse(sc, p))
+            .collect()
+    };
+    let mut results = vec![VertexResult::default(); nv];
+    let mut analysed = vec![false; nv];
+    // The fast mode analyses the seeds (a maximal independent set of the
+    // vertex graph, see `fast_seeds`) and interpolates the others from their
+    // seed neighbours; the exact mode analyses every vertex.
+    let first: Vec<u32> = if opts.exact {
+        (0..nv as u32).collect()
+    } else {
+        fast_seeds(&ctx.adj.vv, nv)
+    };
+    for (&p, r) in first.iter().zip(run(&first)) {
+        results[p as usize] = r;
+        analysed[p as usize] = true;
+    }
+    if !opts.exact {
+        let mut fallback = Vec::new();
+        for v in 0..nv {
+            if analysed[v] {
+                continue;
+            }
+            match interpolate_from_seeds(&ctx.adj.vv, v, &results, &analysed) {
+                Some(r) => results[v] = r,
+                None => fallback.push(v as u32),
+            }
+        }
+        progress(nv - first.len() - fallback.len());
+        for (&p, r) in fallback.iter().zip(run(&fallback)) {
+            results[p as usize] = r;
+            analysed[p as usize] = true;
+        }
+    }
+    let analysed_vertices = analysed.iter().filter(|&&a| a).count();
     if let Some(e) = ctx.failure.lock().unwrap_or_else(|p| p.into_inner()).take() {
         return Err(e);
     }
@@ -1025,6 +1150,7 @@ pub fn compute_fitmap_with_progress(
         exact: opts.exact,
         undefined_vertices: undefined,
         m_floor_vertices: results.iter().filter(|r| r.m_floor).count(),
+        analysed_vertices,
         cubic_fits: results.iter().map(|r| r.fits).sum(),
         rays: results.iter().map(|r| r.rays).sum(),
         proxy_levels,
