@@ -87,7 +87,9 @@ fn compare(paths: &[String]) -> Result<bool> {
         let fast = compute_fitmap(&m, caster.as_ref(), &opts)?;
         let tf = t.elapsed().as_secs_f64();
         let a = compare_fitmaps(&exact, &fast);
-        let name = Path::new(p).file_name().map_or(p.clone(), |n| n.to_string_lossy().into());
+        let name = Path::new(p)
+            .file_name()
+            .map_or(p.clone(), |n| n.to_string_lossy().into());
         println!(
             "{:<18} {:>7} {:>9.2} {:>9.2} {:>10.4} {:>8.2}% {:>9} {:>8}",
             name,
@@ -115,7 +117,9 @@ fn speed(path: &str, splits: u32) -> Result<()> {
     let f = compute_fitmap(&m, caster.as_ref(), &FitmapOptions::default())?;
     let wall = t.elapsed().as_secs_f64();
     let cpu = cpu_seconds().unwrap_or(0.0) - c0;
-    let name = Path::new(path).file_name().map_or(path.into(), |n| n.to_string_lossy().into_owned());
+    let name = Path::new(path)
+        .file_name()
+        .map_or(path.into(), |n| n.to_string_lossy().into_owned());
     println!(
         "{}",
         serde_json::json!({

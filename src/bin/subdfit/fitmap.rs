@@ -24,12 +24,14 @@ pub enum ColourBy {
 }
 
 #[derive(Args)]
-#[command(long_about = "Computes the Fitmap of a triangle mesh (Fitmaps §3.1): per vertex, \
+#[command(
+    long_about = "Computes the Fitmap of a triangle mesh (Fitmaps §3.1): per vertex, \
 the S-fitmap F_S (how fast the RMS error of one cubic patch grows with its radius, \
 E(r) ≈ F_S⁴ r⁴) and the M-fitmap F_M (the largest of 9 radii r_0..r_h, r_0 = mean edge, \
 r_h = bbox diagonal / 4, at which a patch still projects onto the mesh along its normals). \
 Writes the mesh as binary PLY with float vertex properties fitmap_s and fitmap_m and a colour \
-ramp in the vertex colours (see --colour-by).")]
+ramp in the vertex colours (see --colour-by)."
+)]
 pub struct FitmapArgs {
     /// Input triangle mesh (OBJ, PLY, OFF, STL); polygons are triangulated,
     /// unreferenced vertices dropped.
@@ -151,8 +153,8 @@ pub fn colours(f: &Fitmap, by: ColourBy) -> Vec<[u8; 3]> {
 
 pub fn fitmap(a: FitmapArgs) -> Result<ExitCode> {
     let t0 = Instant::now();
-    let vm = subdfit::io::read_mesh(&a.mesh)
-        .with_context(|| format!("reading {}", a.mesh.display()))?;
+    let vm =
+        subdfit::io::read_mesh(&a.mesh).with_context(|| format!("reading {}", a.mesh.display()))?;
     let mesh = vm.mesh;
     let seconds_read = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
@@ -174,9 +176,7 @@ pub fn fitmap(a: FitmapArgs) -> Result<ExitCode> {
         b
     };
     let t2 = Instant::now();
-    let f = compute_fitmap_with_progress(&mesh, caster.as_ref(), &opts, &|k| {
-        bar.inc(k as u64)
-    })?;
+    let f = compute_fitmap_with_progress(&mesh, caster.as_ref(), &opts, &|k| bar.inc(k as u64))?;
     bar.finish_and_clear();
     let seconds_fitmap = t2.elapsed().as_secs_f64();
     let t3 = Instant::now();
