@@ -749,6 +749,7 @@ enum FastBall {
     Proxy(usize, Vec<u32>),
 }
 
+#[allow(clippy::needless_range_loop)] // radius index shared by several per-radius arrays
 fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
     let h = RADIUS_STEPS;
     let mut res = VertexResult {
