@@ -14,4 +14,6 @@ pub mod neighbourhood;
 pub mod normals;
 
 pub use compare::{compare_fitmaps, spearman, FitmapAgreement};
-pub use fitmap::{compute_fitmap, fitmap_radii, Fitmap, FitmapOptions, FitmapStats};
+pub use fitmap::{
+    compute_fitmap, compute_fitmap_with_progress, fitmap_radii, Fitmap, FitmapOptions, FitmapStats,
+};

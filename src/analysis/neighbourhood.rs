@@ -193,6 +193,9 @@ pub struct ProxyLevel {
     pub adj: Csr,
     /// Triangles assigned to each cluster (by their first vertex).
     pub tris: Csr,
+    /// Cumulative areas of `tris`, row by row (area-proportional draws of a
+    /// triangle of a cluster in O(log) without rebuilding a table).
+    pub tri_cum: Vec<f64>,
 }
 
 impl ProxyLevel {
@@ -281,6 +284,15 @@ impl ProxyLevel {
             area[c as usize] += areas[t];
             tp.push((c, t as u32));
         }
+        let tris = Csr::from_pairs(m, tp);
+        let mut tri_cum = vec![0.0; tris.items.len()];
+        for c in 0..m {
+            let mut acc = 0.0;
+            for k in tris.offsets[c] as usize..tris.offsets[c + 1] as usize {
+                acc += areas[tris.items[k] as usize];
+                tri_cum[k] = acc;
+            }
+        }
         ProxyLevel {
             cell,
             cluster_of,
@@ -288,8 +300,14 @@ impl ProxyLevel {
             weight,
             area,
             adj,
-            tris: Csr::from_pairs(m, tp),
+            tris,
+            tri_cum,
         }
+    }
+
+    /// The cumulative areas of the triangles of cluster `c`.
+    pub fn tri_cum_row(&self, c: usize) -> &[f64] {
+        &self.tri_cum[self.tris.offsets[c] as usize..self.tris.offsets[c + 1] as usize]
     }
 
     pub fn len(&self) -> usize {

@@ -2,6 +2,7 @@
 //! (e.g. `diff-limit` above tolerance), 2 an error (bad input, I/O, ...).
 
 mod fit;
+mod fitmap;
 mod limit;
 mod metrics;
 mod quadrangulate;
@@ -44,6 +45,8 @@ enum Command {
     Quadrangulate(quadrangulate::QuadrangulateArgs),
     /// Simplify a triangle mesh into an adaptive quad control mesh (Fitmaps).
     Simplify(simplify::SimplifyArgs),
+    /// Compute the Fitmap (S- and M-fitmap, Fitmaps §3.1) of a mesh.
+    Fitmap(fitmap::FitmapArgs),
     /// Print the versions of subdfit and the linked C++ libraries.
     Version,
     /// Fit a given control mesh to a mesh and write the surface, displacement and report.
@@ -69,6 +72,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Simplify(a) => simplify::run(a),
         Command::Fit(a) => fit::fit(a),
         Command::Metrics(a) => metrics::metrics(a),
+        Command::Fitmap(a) => fitmap::fitmap(a),
         Command::Version => {
             let mut text = format!("subdfit {}", env!("CARGO_PKG_VERSION"));
             for (name, v) in subdfit::linked_library_versions() {

@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# Fast vs exact Fitmap on shared meshes (issue 3: Spearman ρ of F_S >= 0.95,
+# F_M on the same radius step for >= 90 % of vertices, never more than one
+# step apart). The exact mode is quadratic: these meshes take minutes each
+# on 2 cores. Usage: bench/fitmap_compare.sh [MESH...]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DATA=${DATA:-/work/shared/data}
+if [ $# -eq 0 ]; then
+  set -- "$DATA/spot.ply" "$DATA/homer.ply" "$DATA/fandisk.ply"
+fi
+cargo build --release --example fitmap_bench
+exec target/release/examples/fitmap_bench compare "$@"

@@ -1,0 +1,156 @@
+//! Fitmap benchmarks for `bench/fitmap_compare.sh` and
+//! `bench/fitmap_speed.sh` (issue 3):
+//!
+//! - `fitmap_bench compare MESH...`: fast vs exact on each mesh, printing
+//!   Spearman ρ of F_S, the fraction of vertices with F_M on the same radius
+//!   step, the largest step difference, and both times; exits 1 when a mesh
+//!   fails the issue's criterion (ρ >= 0.95, >= 90 % same step, never more
+//!   than one step apart).
+//! - `fitmap_bench speed MESH [SPLITS]`: the fast mode on MESH after
+//!   `SPLITS` 1→4 midpoint subdivisions (the geometry is unchanged, the
+//!   sampling four times denser each time), printing wall time, CPU time
+//!   and the process's peak resident memory (VmHWM) as one JSON line.
+//!
+//! Both use the Embree caster and all threads of rayon's pool
+//! (`RAYON_NUM_THREADS` to pin it).
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{bail, Context, Result};
+use subdfit::analysis::{compare_fitmaps, compute_fitmap, FitmapOptions};
+use subdfit::mesh::TriMesh;
+use subdfit::raycast::{make_raycaster, RayBackend};
+
+/// One 1→4 midpoint split: every triangle into four, shared edge midpoints.
+fn split(m: &TriMesh) -> TriMesh {
+    let mut positions = m.positions.clone();
+    let mut mid: HashMap<(u32, u32), u32> = HashMap::with_capacity(m.triangles.len() * 3 / 2);
+    let mut triangles = Vec::with_capacity(m.triangles.len() * 4);
+    for t in &m.triangles {
+        let mut e = [0u32; 3];
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            e[k] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                positions.push((positions[a as usize] + positions[b as usize]) * 0.5);
+                (positions.len() - 1) as u32
+            });
+        }
+        triangles.push([t[0], e[0], e[2]]);
+        triangles.push([t[1], e[1], e[0]]);
+        triangles.push([t[2], e[2], e[1]]);
+        triangles.push(e);
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+fn peak_rss_bytes() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    Some(line.split_whitespace().nth(1)?.parse::<u64>().ok()? * 1024)
+}
+
+/// CPU seconds (user + system) of this process, from `/proc/self/stat`.
+fn cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0) // USER_HZ is 100 on Linux
+}
+
+fn load(path: &str) -> Result<TriMesh> {
+    Ok(subdfit::io::read_mesh(Path::new(path))
+        .with_context(|| format!("reading {path}"))?
+        .mesh)
+}
+
+fn compare(paths: &[String]) -> Result<bool> {
+    let mut all = true;
+    println!(
+        "{:<18} {:>7} {:>9} {:>9} {:>10} {:>9} {:>9} {:>8}",
+        "mesh", "verts", "exact s", "fast s", "rho(F_S)", "same F_M", "max diff", "passes"
+    );
+    for p in paths {
+        let m = load(p)?;
+        let caster = make_raycaster(RayBackend::Embree, &m)?;
+        let opts = FitmapOptions::default();
+        let t = Instant::now();
+        let exact = compute_fitmap(&m, caster.as_ref(), &opts.clone().with_exact(true))?;
+        let te = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let fast = compute_fitmap(&m, caster.as_ref(), &opts)?;
+        let tf = t.elapsed().as_secs_f64();
+        let a = compare_fitmaps(&exact, &fast);
+        let name = Path::new(p)
+            .file_name()
+            .map_or(p.clone(), |n| n.to_string_lossy().into());
+        println!(
+            "{:<18} {:>7} {:>9.2} {:>9.2} {:>10.4} {:>8.2}% {:>9} {:>8}",
+            name,
+            m.positions.len(),
+            te,
+            tf,
+            a.s_spearman.unwrap_or(f64::NAN),
+            100.0 * a.m_same_step,
+            a.m_max_step_diff,
+            a.passes()
+        );
+        all &= a.passes();
+    }
+    Ok(all)
+}
+
+fn speed(path: &str, splits: u32) -> Result<()> {
+    let mut m = load(path)?;
+    for _ in 0..splits {
+        m = split(&m);
+    }
+    let c0 = cpu_seconds().unwrap_or(0.0);
+    let t = Instant::now();
+    let caster = make_raycaster(RayBackend::Embree, &m)?;
+    let f = compute_fitmap(&m, caster.as_ref(), &FitmapOptions::default())?;
+    let wall = t.elapsed().as_secs_f64();
+    let cpu = cpu_seconds().unwrap_or(0.0) - c0;
+    let name = Path::new(path)
+        .file_name()
+        .map_or(path.into(), |n| n.to_string_lossy().into_owned());
+    println!(
+        "{}",
+        serde_json::json!({
+            "mesh": name,
+            "splits": splits,
+            "vertices": m.positions.len(),
+            "triangles": m.triangles.len(),
+            "threads": rayon::current_num_threads(),
+            "wall_seconds": wall,
+            "cpu_seconds": cpu,
+            "analysed_vertices": f.stats.analysed_vertices,
+            "rays": f.stats.rays,
+            "peak_rss_bytes": peak_rss_bytes(),
+        })
+    );
+    Ok(())
+}
+
+fn main() -> Result<ExitCode> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match args.first().map(String::as_str) {
+        Some("compare") if args.len() > 1 => Ok(if compare(&args[1..])? {
+            ExitCode::SUCCESS
+        } else {
+            ExitCode::from(1)
+        }),
+        Some("speed") if args.len() == 2 || args.len() == 3 => {
+            let splits = args.get(2).map_or(Ok(0), |s| s.parse()).context("SPLITS")?;
+            speed(&args[1], splits)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        _ => bail!("usage: fitmap_bench compare MESH... | fitmap_bench speed MESH [SPLITS]"),
+    }
+}
