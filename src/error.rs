@@ -45,6 +45,9 @@ pub enum Error {
     /// A caller passed an argument out of its domain.
     #[error("{0}")]
     InvalidArgument(String),
+    /// The caller's progress callback asked to stop (C++ embedding).
+    #[error("cancelled by the caller")]
+    Cancelled,
 }
 
 impl Error {

@@ -6,6 +6,7 @@
 //! that tests can cross-check them. [`solve`] wraps Eigen's sparse solvers.
 
 pub mod analysis;
+pub mod embed;
 pub mod error;
 pub mod fixtures;
 pub mod io;
