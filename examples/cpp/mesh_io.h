@@ -43,7 +43,7 @@ inline FlatMesh read_mesh(const std::string& path) {
   out.positions.reserve(3 * mesh.n_vertices());
   for (auto v : mesh.vertices()) {
     const auto& p = mesh.point(v);
-    out.positions.insert(out.positions.end(), {p[0], p[1], p[2]});
+    for (int k = 0; k < 3; ++k) out.positions.push_back(p[k]);
   }
   out.face_sizes.reserve(mesh.n_faces());
   for (auto f : mesh.faces()) {
