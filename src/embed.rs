@@ -300,7 +300,11 @@ impl ControlArrays<'_> {
             start += n as usize;
         }
         let mut mesh = ControlMesh::from_polygons(self.mesh.points(), &faces)?;
-        for (ab, &s) in self.crease_vertices.chunks_exact(2).zip(self.crease_weights) {
+        for (ab, &s) in self
+            .crease_vertices
+            .chunks_exact(2)
+            .zip(self.crease_weights)
+        {
             mesh.set_crease(VertexId(ab[0]), VertexId(ab[1]), s)?;
         }
         for (&v, &s) in self.corner_vertices.iter().zip(self.corner_weights) {
@@ -482,7 +486,9 @@ pub fn self_test(what: &str, progress: &Progress) -> Result<()> {
             })?;
             progress.report("self-test", 1.0)
         }
-        _ => Err(Error::InvalidArgument(format!("unknown self-test `{what}`"))),
+        _ => Err(Error::InvalidArgument(format!(
+            "unknown self-test `{what}`"
+        ))),
     }
 }
 
@@ -542,7 +548,11 @@ mod tests {
             face_sizes: &[3],
             face_indices: &[0, 1, 2],
         };
-        assert!(m.to_soup().unwrap_err().to_string().contains("multiple of 3"));
+        assert!(m
+            .to_soup()
+            .unwrap_err()
+            .to_string()
+            .contains("multiple of 3"));
         let m = MeshArrays {
             positions: &[0.0; 9],
             face_sizes: &[3, 3],

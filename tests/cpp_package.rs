@@ -134,7 +134,10 @@ fn cpp_package_builds_installs_and_matches_the_cli() {
     // --- limit: byte-identical to `subdfit limit` with both backends ---------
     let control = tmp.path().join("control.obj");
     write_control_mesh(&control);
-    let (cpp_osd, cpp_rust) = (tmp.path().join("cpp_osd.csv"), tmp.path().join("cpp_rust.csv"));
+    let (cpp_osd, cpp_rust) = (
+        tmp.path().join("cpp_osd.csv"),
+        tmp.path().join("cpp_rust.csv"),
+    );
     run_ok(
         Command::new(example("limit"))
             .arg(&control)
@@ -172,7 +175,10 @@ fn cpp_package_builds_installs_and_matches_the_cli() {
         .trim()
         .strip_prefix("subdfit: error: ")
         .unwrap_or_else(|| panic!("unexpected CLI output {cli_msg}"));
-    assert!(cli_msg.contains("no_faces.obj: mesh: has no faces"), "{cli_msg}");
+    assert!(
+        cli_msg.contains("no_faces.obj: mesh: has no faces"),
+        "{cli_msg}"
+    );
     assert!(
         stderr(&out).contains(&format!("convert: error: {cli_msg}")),
         "C++ message {:?} is not the CLI's {cli_msg:?}",
@@ -181,8 +187,7 @@ fn cpp_package_builds_installs_and_matches_the_cli() {
 
     // --- a panic inside the library is an error, never an abort --------------
     for hook in ["panic", "panic-in-worker"] {
-        let out = run(Command::new(example("convert"))
-            .args(["-", "-", "--self-test", hook]));
+        let out = run(Command::new(example("convert")).args(["-", "-", "--self-test", hook]));
         let err = stderr(&out);
         assert_eq!(out.status.code(), Some(1), "{hook}: {err}");
         assert!(
@@ -209,7 +214,10 @@ fn cpp_package_builds_installs_and_matches_the_cli() {
         .and_then(|l| l.trim_end_matches(" ms").parse().ok())
         .unwrap_or_else(|| panic!("no cancel latency in {err}"));
     // The bar is 1 s; the fake stage's steps are 1 ms each.
-    assert!(latency_ms < 1000.0, "cancelled call took {latency_ms} ms to return");
+    assert!(
+        latency_ms < 1000.0,
+        "cancelled call took {latency_ms} ms to return"
+    );
 
     // --- convert on a real mesh, and from two threads at once ----------------
     let spot = root.join("data/spot.ply");
@@ -233,6 +241,12 @@ fn cpp_package_builds_installs_and_matches_the_cli() {
     // LEAD: with `convert` wired, the spot.ply job succeeds and its output
     // must equal the lone call's.
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains(&format!("{}: error: {cli_msg}", bad.display())), "{err}");
-    assert!(err.contains("convert is not available in this build yet"), "{err}");
+    assert!(
+        err.contains(&format!("{}: error: {cli_msg}", bad.display())),
+        "{err}"
+    );
+    assert!(
+        err.contains("convert is not available in this build yet"),
+        "{err}"
+    );
 }

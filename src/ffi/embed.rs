@@ -191,11 +191,7 @@ impl<'a> SinkAdapter<'a> {
     fn run<T>(&self, f: impl FnOnce(&Progress) -> crate::Result<T>) -> crate::Result<T> {
         let cb = |stage: &str, fraction: f64| self.call(stage, fraction);
         let r = f(&Progress::new(&cb));
-        let thrown = self
-            .thrown
-            .lock()
-            .unwrap_or_else(|p| p.into_inner())
-            .take();
+        let thrown = self.thrown.lock().unwrap_or_else(|p| p.into_inner()).take();
         match (r, thrown) {
             (Err(crate::Error::Cancelled), Some(msg)) => Err(crate::Error::InvalidArgument(
                 format!("the progress callback threw an exception: {msg}"),
@@ -209,34 +205,36 @@ fn backend(b: u8) -> crate::Result<Backend> {
     match b {
         0 => Ok(Backend::Osd),
         1 => Ok(Backend::Rust),
-        _ => Err(crate::Error::InvalidArgument(format!("unknown backend {b}"))),
+        _ => Err(crate::Error::InvalidArgument(format!(
+            "unknown backend {b}"
+        ))),
     }
 }
 
 fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
-    let mut r = embed::Options::default();
-    r.tolerance = o.tolerance;
-    r.target_faces = o.target_faces;
-    r.mode = match o.mode {
-        0 => embed::Mode::Organic,
-        1 => embed::Mode::Mechanical,
-        m => return Err(crate::Error::InvalidArgument(format!("unknown mode {m}"))),
-    };
-    r.fit_method = match o.fit_method {
-        0 => embed::FitMethod::Point,
-        1 => embed::FitMethod::Sdm,
-        m => {
-            return Err(crate::Error::InvalidArgument(format!(
-                "unknown fit method {m}"
-            )))
-        }
-    };
-    r.displacement_resolution = o.displacement_resolution;
-    r.threads = o.threads;
-    if !o.source_name.is_empty() {
-        r.source_name = o.source_name.clone();
-    }
-    Ok(r)
+    let bad = |what: &str, v: u8| crate::Error::InvalidArgument(format!("unknown {what} {v}"));
+    let defaults = embed::Options::default();
+    Ok(embed::Options {
+        tolerance: o.tolerance,
+        target_faces: o.target_faces,
+        mode: match o.mode {
+            0 => embed::Mode::Organic,
+            1 => embed::Mode::Mechanical,
+            m => return Err(bad("mode", m)),
+        },
+        fit_method: match o.fit_method {
+            0 => embed::FitMethod::Point,
+            1 => embed::FitMethod::Sdm,
+            m => return Err(bad("fit method", m)),
+        },
+        displacement_resolution: o.displacement_resolution,
+        threads: o.threads,
+        source_name: if o.source_name.is_empty() {
+            defaults.source_name
+        } else {
+            o.source_name.to_string()
+        },
+    })
 }
 
 fn flatten(points: &[LimitPoint]) -> Vec<f64> {
