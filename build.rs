@@ -11,6 +11,7 @@ const BRIDGES: &[&str] = &[
     "src/ffi/embree.rs",
     "src/ffi/eigen.rs",
     "src/ffi/openmesh.rs",
+    "src/ffi/embed.rs",
 ];
 
 fn main() {
@@ -39,5 +40,6 @@ fn main() {
         println!("cargo:rerun-if-changed={p}");
     }
     println!("cargo:rerun-if-changed=cpp");
+    println!("cargo:rerun-if-changed=include");
     println!("cargo:rerun-if-changed=CMakeLists.txt");
 }

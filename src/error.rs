@@ -45,8 +45,9 @@ pub enum Error {
     /// A caller passed an argument out of its domain.
     #[error("{0}")]
     InvalidArgument(String),
-    /// The progress callback asked to stop; nothing was written.
-    #[error("cancelled during stage '{stage}'")]
+    /// The caller's progress callback asked to stop (CLI, library, C++
+    /// embedding); nothing was written and no state is left behind.
+    #[error("cancelled by the caller during stage '{stage}'")]
     Cancelled { stage: String },
 }
 

@@ -7,6 +7,7 @@
 
 pub mod analysis;
 pub mod displace;
+pub mod embed;
 pub mod error;
 pub mod fit;
 pub mod fixtures;

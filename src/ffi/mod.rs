@@ -3,6 +3,7 @@
 //! a Rust `Err` instead of crossing the boundary.
 
 pub(crate) mod eigen;
+pub(crate) mod embed;
 pub(crate) mod embree;
 pub(crate) mod openmesh;
 pub(crate) mod osd;

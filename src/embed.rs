@@ -1,0 +1,592 @@
+//! The library API behind the C++ embedding (`include/subdfit/subdfit.hpp`).
+//!
+//! Everything a C++ host can call goes through this module: the cxx bridge in
+//! `src/ffi/embed.rs` only turns flat slices into the borrowed views below,
+//! catches panics and formats errors. Keeping the logic here means the C++
+//! API and the Rust API cannot drift apart, and everything is testable from
+//! Rust.
+//!
+//! # Progress and cancellation (for the pipeline stages)
+//!
+//! [`convert`] and [`fit`] take a [`Progress`]. Every long stage must
+//!
+//! - call [`Progress::report`]`(stage, fraction)` when it starts (`0.0`), at
+//!   least every ~50 ms of work while it runs (per patch, per solver
+//!   iteration, per chunk of a parallel loop — it is cheap: the host callback
+//!   is rate-limited to one call per [`Progress::MIN_INTERVAL`] except at
+//!   `0.0`, `1.0` and stage changes) and when it ends (`1.0`);
+//! - propagate its `Err(Error::Cancelled { .. })` with `?`, dropping whatever it
+//!   built. Inner loops that cannot afford a call may poll the atomic
+//!   [`Progress::check`] instead.
+//!
+//! A cancelled call therefore returns within one report interval, and since
+//! no stage keeps anything outside its own stack (no global caches: thread
+//! pools made for `Options::threads` are per call too), nothing survives it.
+//!
+//! `report` may be called from rayon workers: calls into the host callback
+//! are serialised (a worker that finds the callback busy skips its report
+//! instead of waiting), so the host sees one call at a time, though not
+//! necessarily on its own thread.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use crate::error::{Error, Result};
+use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId};
+use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
+use crate::{DVec2, DVec3};
+
+// ---- options ------------------------------------------------------------------
+
+/// Which pipeline `convert` runs (the CLI's `--mode`).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default)]
+pub enum Mode {
+    /// Smooth organic shapes (Fitmaps, Lavoué et al.).
+    #[default]
+    Organic,
+    /// CAD-like shapes with sharp features (creases and corners).
+    Mechanical,
+}
+
+/// How the control points are fitted (the CLI's `--fit`).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default)]
+pub enum FitMethod {
+    /// Point distance (Fitmaps §3.5).
+    #[default]
+    Point,
+    /// Squared-distance minimisation (Pottmann and Leopoldseder).
+    Sdm,
+}
+
+/// Options of [`convert`] and [`fit`], mirroring the CLI's flags.
+#[derive(Clone, Debug)]
+#[non_exhaustive]
+pub struct Options {
+    /// `--tolerance`: simplification tolerance τ, as a fraction of the
+    /// bounding-box diagonal (Fitmaps Table 1 uses 1% and 10%).
+    pub tolerance: f64,
+    /// `--faces`: target number of control faces; 0 lets τ decide.
+    pub target_faces: u32,
+    /// `--mode`.
+    pub mode: Mode,
+    /// `--fit`.
+    pub fit_method: FitMethod,
+    /// `--displacement-res`: samples per patch side; 0 picks it so the total
+    /// roughly matches the input's vertex count (Fitmaps Table 1).
+    pub displacement_resolution: u32,
+    /// Worker threads; 0 uses rayon's global pool (all cores). A non-zero
+    /// value runs the call on a pool of its own that ends with the call.
+    pub threads: u32,
+    /// Name used for the input in error messages (the CLI uses the path, so
+    /// a host that passes the file name gets the CLI's messages verbatim).
+    pub source_name: String,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            tolerance: 0.01,
+            target_faces: 0,
+            mode: Mode::Organic,
+            fit_method: FitMethod::Point,
+            displacement_resolution: 0,
+            threads: 0,
+            source_name: "input mesh".to_owned(),
+        }
+    }
+}
+
+impl Options {
+    /// Rejects values no stage could use, before any work starts.
+    pub fn check(&self) -> Result<()> {
+        if !(self.tolerance.is_finite() && self.tolerance > 0.0 && self.tolerance < 1.0) {
+            return Err(Error::InvalidArgument(format!(
+                "tolerance {} out of range: it is a fraction of the bounding-box diagonal, \
+                 in (0, 1), e.g. 0.01 for 1%",
+                self.tolerance
+            )));
+        }
+        if self.displacement_resolution > 4096 {
+            return Err(Error::InvalidArgument(format!(
+                "displacement resolution {} too large (at most 4096 samples per patch side)",
+                self.displacement_resolution
+            )));
+        }
+        Ok(())
+    }
+}
+
+// ---- progress -----------------------------------------------------------------
+
+/// The host's progress callback: `(stage, fraction)`, returns `false` to
+/// cancel.
+pub type ProgressFn<'a> = dyn Fn(&str, f64) -> bool + Sync + 'a;
+
+/// Progress reporting and cancellation for one call; see the module doc.
+pub struct Progress<'a> {
+    sink: Option<&'a ProgressFn<'a>>,
+    cancelled: AtomicBool,
+    /// Held while the host callback runs; also the time of the last call and
+    /// the last stage, for rate limiting.
+    state: Mutex<(Option<Instant>, String)>,
+}
+
+impl<'a> Progress<'a> {
+    /// Shortest interval between two host calls within a stage.
+    pub const MIN_INTERVAL: Duration = Duration::from_millis(20);
+
+    /// No callback: reports are dropped and nothing cancels.
+    pub fn none() -> Self {
+        Progress {
+            sink: None,
+            cancelled: AtomicBool::new(false),
+            state: Mutex::new((None, String::new())),
+        }
+    }
+
+    pub fn new(sink: &'a ProgressFn<'a>) -> Self {
+        Progress {
+            sink: Some(sink),
+            ..Progress::none()
+        }
+    }
+
+    /// Tells the host that `stage` is `fraction` (0..=1) done and asks
+    /// whether to go on: `Err(Error::Cancelled { .. })` once the host said stop.
+    pub fn report(&self, stage: &str, fraction: f64) -> Result<()> {
+        self.check()?;
+        let Some(sink) = self.sink else {
+            return Ok(());
+        };
+        let fraction = if fraction.is_finite() {
+            fraction.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        // A worker that finds another one inside the callback skips its
+        // report: the host gets serialised calls and workers never queue.
+        let Ok(mut state) = self.state.try_lock() else {
+            return Ok(());
+        };
+        let now = Instant::now();
+        let boundary = fraction == 0.0 || fraction == 1.0 || state.1 != stage;
+        if !boundary && state.0.is_some_and(|t| now - t < Self::MIN_INTERVAL) {
+            return Ok(());
+        }
+        state.0 = Some(now);
+        if state.1 != stage {
+            state.1 = stage.to_owned();
+        }
+        if !sink(stage, fraction) {
+            self.cancelled.store(true, Ordering::Relaxed);
+        }
+        drop(state);
+        self.check()
+    }
+
+    /// Cheap poll for inner loops (one atomic load).
+    pub fn check(&self) -> Result<()> {
+        if self.is_cancelled() {
+            let stage = self
+                .state
+                .try_lock()
+                .map(|s| s.1.clone())
+                .unwrap_or_default();
+            Err(Error::Cancelled { stage })
+        } else {
+            Ok(())
+        }
+    }
+
+    pub fn is_cancelled(&self) -> bool {
+        self.cancelled.load(Ordering::Relaxed)
+    }
+}
+
+// ---- inputs -------------------------------------------------------------------
+
+/// A polygon mesh as flat arrays borrowed from the host (no copy until it is
+/// validated into the pipeline's own mesh).
+#[derive(Copy, Clone, Debug)]
+pub struct MeshArrays<'a> {
+    /// xyz per vertex.
+    pub positions: &'a [f64],
+    /// Corner count per face.
+    pub face_sizes: &'a [u32],
+    /// Vertex indices of all faces, concatenated.
+    pub face_indices: &'a [u32],
+}
+
+impl MeshArrays<'_> {
+    fn check_shape(&self) -> Result<()> {
+        if self.positions.len() % 3 != 0 {
+            return Err(Error::InvalidArgument(format!(
+                "positions hold {} doubles, not a multiple of 3 (x, y, z per vertex)",
+                self.positions.len()
+            )));
+        }
+        let total: u64 = self.face_sizes.iter().map(|&n| u64::from(n)).sum();
+        if total != self.face_indices.len() as u64 {
+            return Err(Error::InvalidArgument(format!(
+                "face sizes add up to {total} but {} face indices were given",
+                self.face_indices.len()
+            )));
+        }
+        Ok(())
+    }
+
+    fn points(&self) -> Vec<DVec3> {
+        self.positions
+            .chunks_exact(3)
+            .map(|p| DVec3::new(p[0], p[1], p[2]))
+            .collect()
+    }
+
+    /// The polygons as a soup, indices unchecked (validation names the bad
+    /// element with the same messages as the file readers).
+    pub fn to_soup(&self) -> Result<PolySoup> {
+        self.check_shape()?;
+        let mut soup = PolySoup {
+            positions: self.points(),
+            face_offsets: Vec::with_capacity(self.face_sizes.len() + 1),
+            face_indices: self.face_indices.to_vec(),
+        };
+        let mut end = 0u32;
+        soup.face_offsets.push(0);
+        for &n in self.face_sizes {
+            end += n; // cannot overflow: the sum equals face_indices.len()
+            soup.face_offsets.push(end);
+        }
+        Ok(soup)
+    }
+
+    /// The validated triangle mesh the pipeline starts from, as
+    /// `subdfit::io::read_mesh` gives it for a file called `name`.
+    pub fn to_validated(&self, name: &str) -> Result<ValidatedMesh> {
+        validate_soup(self.to_soup()?, Path::new(name))
+    }
+}
+
+/// A control mesh as flat arrays borrowed from the host.
+#[derive(Copy, Clone, Debug)]
+pub struct ControlArrays<'a> {
+    pub mesh: MeshArrays<'a>,
+    /// Pairs of vertex indices, one pair per crease edge.
+    pub crease_vertices: &'a [u32],
+    pub crease_weights: &'a [f64],
+    pub corner_vertices: &'a [u32],
+    pub corner_weights: &'a [f64],
+}
+
+impl ControlArrays<'_> {
+    /// Builds (and checks) the half-edge control mesh.
+    pub fn to_control_mesh(&self) -> Result<ControlMesh> {
+        self.mesh.check_shape()?;
+        if self.crease_vertices.len() != 2 * self.crease_weights.len() {
+            return Err(Error::InvalidArgument(format!(
+                "{} crease vertex indices for {} crease weights (two per crease expected)",
+                self.crease_vertices.len(),
+                self.crease_weights.len()
+            )));
+        }
+        if self.corner_vertices.len() != self.corner_weights.len() {
+            return Err(Error::InvalidArgument(format!(
+                "{} corner vertices for {} corner weights",
+                self.corner_vertices.len(),
+                self.corner_weights.len()
+            )));
+        }
+        let mut faces = Vec::with_capacity(self.mesh.face_sizes.len());
+        let mut start = 0usize;
+        for &n in self.mesh.face_sizes {
+            faces.push(&self.mesh.face_indices[start..start + n as usize]);
+            start += n as usize;
+        }
+        let mut mesh = ControlMesh::from_polygons(self.mesh.points(), &faces)?;
+        for (ab, &s) in self
+            .crease_vertices
+            .chunks_exact(2)
+            .zip(self.crease_weights)
+        {
+            mesh.set_crease(VertexId(ab[0]), VertexId(ab[1]), s)?;
+        }
+        for (&v, &s) in self.corner_vertices.iter().zip(self.corner_weights) {
+            mesh.set_corner(VertexId(v), s)?;
+        }
+        Ok(mesh)
+    }
+}
+
+// ---- outputs ------------------------------------------------------------------
+
+/// One patch's displacement samples: `resolution × resolution` scalar
+/// offsets along the limit normal, row-major in the patch's `(u, v)`
+/// (`v` rows, `u` columns), as baked into the atlas.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DisplacementTile {
+    pub face: u32,
+    pub resolution: u32,
+    pub values: Vec<f32>,
+}
+
+/// What [`convert`] and [`fit`] produce.
+#[derive(Clone, Debug)]
+pub struct Conversion {
+    pub control: ControlMesh,
+    /// Per-corner UVs into the displacement atlas: `uv_indices` runs
+    /// parallel to the control mesh's face indices and points into `uvs`.
+    pub uvs: Vec<DVec2>,
+    pub uv_indices: Vec<u32>,
+    pub tiles: Vec<DisplacementTile>,
+    /// The numeric leaves of `report.json`, keys as dotted paths
+    /// (`"limit.rms_permille"`), in the file's order.
+    pub metrics: Vec<(String, f64)>,
+    /// `report.json`, byte for byte what the CLI writes.
+    pub report_json: String,
+}
+
+/// Flattens the numeric leaves of a JSON report into dotted keys, so a C++
+/// host gets the metrics without a JSON parser.
+pub fn flatten_metrics(report: &serde_json::Value) -> Vec<(String, f64)> {
+    fn walk(v: &serde_json::Value, key: &mut String, out: &mut Vec<(String, f64)>) {
+        match v {
+            serde_json::Value::Number(n) => {
+                if let Some(x) = n.as_f64() {
+                    out.push((key.clone(), x));
+                }
+            }
+            serde_json::Value::Object(m) => {
+                for (k, v) in m {
+                    let len = key.len();
+                    if !key.is_empty() {
+                        key.push('.');
+                    }
+                    key.push_str(k);
+                    walk(v, key, out);
+                    key.truncate(len);
+                }
+            }
+            serde_json::Value::Array(a) => {
+                for (i, v) in a.iter().enumerate() {
+                    let len = key.len();
+                    key.push_str(&format!("[{i}]"));
+                    walk(v, key, out);
+                    key.truncate(len);
+                }
+            }
+            _ => {}
+        }
+    }
+    let mut out = Vec::new();
+    walk(report, &mut String::new(), &mut out);
+    out
+}
+
+// ---- entry points -------------------------------------------------------------
+
+/// Limit position, derivatives (tangent masks) at every control vertex, in
+/// order — what `subdfit limit CONTROL` writes.
+pub fn limit_points(control: &ControlArrays, backend: Backend) -> Result<Vec<LimitPoint>> {
+    let mesh = control.to_control_mesh()?;
+    let eval = make_evaluator(backend, &mesh, &EvalOptions::default())?;
+    eval.vertex_limits(mesh.positions())
+}
+
+/// Limit position and derivatives at each location.
+pub fn evaluate(
+    control: &ControlArrays,
+    locations: &[SurfaceLocation],
+    backend: Backend,
+) -> Result<Vec<LimitPoint>> {
+    let mesh = control.to_control_mesh()?;
+    let eval = make_evaluator(backend, &mesh, &EvalOptions::default())?;
+    eval.evaluate(mesh.positions(), locations)
+}
+
+/// Runs `f` on a pool of `threads` workers made for this call (0: rayon's
+/// global pool). The pool is dropped, its threads joined, before returning.
+fn with_threads<T: Send>(threads: u32, f: impl FnOnce() -> Result<T> + Send) -> Result<T> {
+    if threads == 0 {
+        return f();
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads as usize)
+        .thread_name(|i| format!("subdfit-{i}"))
+        .build()
+        .map_err(|e| Error::InvalidArgument(format!("cannot start {threads} threads: {e}")))?;
+    pool.install(f)
+}
+
+/// Stand-in until the conversion pipeline (issue 5) lands.
+// LEAD: replace every call of this with the pipeline; then delete it.
+fn not_available(what: &str) -> Error {
+    Error::InvalidArgument(format!("{what} is not available in this build yet"))
+}
+
+/// Dense mesh → control mesh + displacement + metrics: `subdfit convert`.
+pub fn convert(input: &MeshArrays, options: &Options, progress: &Progress) -> Result<Conversion> {
+    options.check()?;
+    with_threads(options.threads, || {
+        progress.report("read", 0.0)?;
+        let mesh = input.to_validated(&options.source_name)?;
+        progress.report("read", 1.0)?;
+        // LEAD: wire the pipeline here, e.g.
+        //   let out = crate::convert::run(&mesh, &pipeline_options(options), progress)?;
+        //   Ok(Conversion { control: out.control, uvs: out.uvs, uv_indices: out.uv_indices,
+        //       tiles: out.tiles, metrics: flatten_metrics(&out.report),
+        //       report_json: out.report_json })
+        let _ = mesh;
+        Err(not_available("convert"))
+    })
+}
+
+/// Fits a given control mesh to a dense mesh: `subdfit fit`.
+pub fn fit(
+    input: &MeshArrays,
+    control: &ControlArrays,
+    options: &Options,
+    progress: &Progress,
+) -> Result<Conversion> {
+    options.check()?;
+    with_threads(options.threads, || {
+        progress.report("read", 0.0)?;
+        let mesh = input.to_validated(&options.source_name)?;
+        let control = control.to_control_mesh()?;
+        progress.report("read", 1.0)?;
+        // LEAD: wire the pipeline here (as in `convert`, from `control`).
+        let _ = (mesh, control);
+        Err(not_available("fit"))
+    })
+}
+
+/// Test hooks for the C++ package test (not part of the API): `"panic"`
+/// panics on the calling thread, `"panic-in-worker"` inside a rayon worker,
+/// `"error"` returns an error, `"progress"` runs a fake ten-second stage on
+/// all workers that reports every millisecond, so a host can time its
+/// cancellation.
+#[doc(hidden)]
+pub fn self_test(what: &str, progress: &Progress) -> Result<()> {
+    use rayon::prelude::*;
+    match what {
+        "panic" => panic!("self-test panic requested by the host"),
+        "panic-in-worker" => {
+            (0..64u32).into_par_iter().for_each(|i| {
+                if i == 37 {
+                    panic!("self-test panic in a worker thread");
+                }
+            });
+            Ok(())
+        }
+        "error" => Err(Error::InvalidArgument("self-test error".into())),
+        "progress" => {
+            const STEPS: u32 = 10_000;
+            let done = std::sync::atomic::AtomicU32::new(0);
+            progress.report("self-test", 0.0)?;
+            (0..STEPS).into_par_iter().try_for_each(|_| {
+                std::thread::sleep(Duration::from_millis(1));
+                let n = done.fetch_add(1, Ordering::Relaxed) + 1;
+                progress.report("self-test", f64::from(n) / f64::from(STEPS))
+            })?;
+            progress.report("self-test", 1.0)
+        }
+        _ => Err(Error::InvalidArgument(format!(
+            "unknown self-test `{what}`"
+        ))),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::AtomicU32;
+
+    fn cube() -> (Vec<f64>, Vec<u32>, Vec<u32>) {
+        let mut p = Vec::new();
+        for i in 0..8 {
+            for b in 0..3 {
+                p.push(if i >> b & 1 == 1 { 1.0 } else { -1.0 });
+            }
+        }
+        let f = [
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+        ];
+        (p, vec![4; 6], f.iter().flatten().copied().collect())
+    }
+
+    #[test]
+    fn limit_points_of_cube_corners_are_at_half() {
+        // STACK-NOTES: the valence-3 limit mask puts the cube's corners at
+        // ±1/2 exactly; both backends must agree to rounding.
+        let (p, s, i) = cube();
+        let c = ControlArrays {
+            mesh: MeshArrays {
+                positions: &p,
+                face_sizes: &s,
+                face_indices: &i,
+            },
+            crease_vertices: &[],
+            crease_weights: &[],
+            corner_vertices: &[],
+            corner_weights: &[],
+        };
+        for b in [Backend::Osd, Backend::Rust] {
+            let l = limit_points(&c, b).unwrap();
+            assert_eq!(l.len(), 8);
+            for (k, q) in l.iter().enumerate() {
+                let want = DVec3::new(p[3 * k], p[3 * k + 1], p[3 * k + 2]) * 0.5;
+                assert!((q.position - want).length() < 1e-12, "{b:?} {k}: {q:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn malformed_arrays_are_errors_not_panics() {
+        let m = MeshArrays {
+            positions: &[0.0; 7],
+            face_sizes: &[3],
+            face_indices: &[0, 1, 2],
+        };
+        assert!(m
+            .to_soup()
+            .unwrap_err()
+            .to_string()
+            .contains("multiple of 3"));
+        let m = MeshArrays {
+            positions: &[0.0; 9],
+            face_sizes: &[3, 3],
+            face_indices: &[0, 1, 2],
+        };
+        assert!(m.to_soup().unwrap_err().to_string().contains("add up to 6"));
+        let m = MeshArrays {
+            positions: &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            face_sizes: &[3],
+            face_indices: &[0, 1, 9],
+        };
+        let e = convert(&m, &Options::default(), &Progress::none()).unwrap_err();
+        assert!(e.to_string().contains("input mesh"), "{e}");
+    }
+
+    #[test]
+    fn cancellation_stops_the_self_test_promptly() {
+        let calls = AtomicU32::new(0);
+        let cb = |_: &str, f: f64| {
+            calls.fetch_add(1, Ordering::Relaxed);
+            f < 0.05
+        };
+        let p = Progress::new(&cb);
+        let t = Instant::now();
+        let e = self_test("progress", &p).unwrap_err();
+        assert!(matches!(e, Error::Cancelled { .. }), "{e}");
+        // 5% of a 10 s stage is 0.5 s of work; one report interval plus the
+        // in-flight 1 ms steps after the stop must fit well inside 3 s.
+        assert!(t.elapsed() < Duration::from_secs(3), "{:?}", t.elapsed());
+        assert!(calls.load(Ordering::Relaxed) >= 2);
+    }
+}
