@@ -13,6 +13,7 @@ pub mod fit;
 pub mod fixtures;
 pub mod io;
 pub mod mesh;
+pub mod pipeline;
 pub mod project;
 pub mod quad;
 pub mod raycast;

@@ -135,23 +135,28 @@ pub fn fit(a: FitArgs) -> Result<ExitCode> {
     if a.json {
         crate::emit(&serde_json::to_string_pretty(&report)?)?;
     } else if !a.quiet {
-        let m = &report.accuracy;
-        crate::emit(&format!(
-            "{} patches, {} irregular vertices; RMS L {:.3}‰, RMS D {:.3}‰ of the diagonal; \
-             unprojectable {:.2}% of M's area\nwrote {}",
-            report.control.faces,
-            report.control.irregular_vertices,
-            m.limit.rms_permille,
-            m.displaced.rms_permille,
-            report.projectability.unprojectable_area_percent,
-            written
-                .iter()
-                .map(|p| p.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        ))?;
+        print_summary(&report, &written)?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The one-paragraph summary `fit` and `convert` print.
+pub fn print_summary(report: &subdfit::report::Report, written: &[PathBuf]) -> Result<()> {
+    let m = &report.accuracy;
+    crate::emit(&format!(
+        "{} patches, {} irregular vertices; RMS L {:.3}‰, RMS D {:.3}‰ of the diagonal; \
+         unprojectable {:.2}% of M's area\nwrote {}",
+        report.control.faces,
+        report.control.irregular_vertices,
+        m.limit.rms_permille,
+        m.displaced.rms_permille,
+        report.projectability.unprojectable_area_percent,
+        written
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    ))
 }
 
 pub fn metrics_cmd(a: MetricsArgs) -> Result<ExitCode> {

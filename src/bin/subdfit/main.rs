@@ -1,6 +1,7 @@
 //! The `subdfit` command line. Exit status: 0 success, 1 a check failed
 //! (e.g. `diff-limit` above tolerance), 2 an error (bad input, I/O, ...).
 
+mod convert;
 mod fit;
 mod fitmap;
 mod limit;
@@ -49,6 +50,8 @@ enum Command {
     Fitmap(fitmap::FitmapArgs),
     /// Print the versions of subdfit and the linked C++ libraries.
     Version,
+    /// Convert a dense mesh into a fitted Catmull-Clark surface with displacement (Fitmaps).
+    Convert(convert::ConvertArgs),
     /// Fit a given control mesh to a mesh and write the surface, displacement and report.
     Fit(fit::FitArgs),
     /// Accuracy and projectability of a control mesh against a mesh (Table 1 figures).
@@ -70,6 +73,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::DiffLimit(a) => limit::diff_limit(a),
         Command::Quadrangulate(a) => quadrangulate::run(a),
         Command::Simplify(a) => simplify::run(a),
+        Command::Convert(a) => convert::convert(a),
         Command::Fit(a) => fit::fit(a),
         Command::Metrics(a) => metrics::metrics(a),
         Command::Fitmap(a) => fitmap::fitmap(a),

@@ -1,0 +1,80 @@
+//! `subdfit convert MESH -o OUTDIR`: the whole organic pipeline (Fitmaps).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Result;
+use clap::Args;
+use subdfit::fit::Objective;
+use subdfit::pipeline::{convert as run_convert, ConvertOptions};
+
+use crate::fit::{progress_bars, FitArg};
+
+#[derive(Args)]
+pub struct ConvertArgs {
+    /// The dense input mesh M (OBJ, PLY, OFF, STL): one closed or open
+    /// manifold surface.
+    mesh: PathBuf,
+    /// Output folder: control.obj, control.usda, limit.ply, displaced.ply,
+    /// displacement.exr, fitmap.ply, report.json (all or nothing).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// τ, the only parameter of the method (Fitmaps §3.1.3): the share of a
+    /// neighbourhood allowed to be unreachable by normal projection, as a
+    /// fraction (0.01 = the paper's 1 %, 0.1 = its 10 %); larger τ, fewer
+    /// patches. Default: the Fitmap's default (see `subdfit fitmap --help`).
+    #[arg(long)]
+    tolerance: Option<f64>,
+    /// Stop simplifying at this many faces (the paper's "*" rows).
+    #[arg(long)]
+    faces: Option<usize>,
+    /// Global fit objective.
+    #[arg(long, value_enum, default_value_t = FitArg::Point)]
+    fit: FitArg,
+    /// Displacement samples per patch side (default: total ≈ M's vertices).
+    #[arg(long)]
+    displacement_res: Option<usize>,
+    /// Lift the projectability (M-fitmap) test (the paper's Fig. 7).
+    #[arg(long)]
+    no_mfitmap: bool,
+    /// No progress bars.
+    #[arg(long)]
+    quiet: bool,
+    /// Print report.json to stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
+    let input = subdfit::io::read_mesh(&a.mesh)?;
+    let opts = ConvertOptions::default()
+        .with_tolerance(a.tolerance)
+        .with_target_faces(a.faces)
+        .with_m_fitmap(!a.no_mfitmap)
+        .with_objective(match a.fit {
+            FitArg::Point => Objective::Point,
+            FitArg::Sdm => Objective::Sdm,
+        })
+        .with_displacement_res(a.displacement_res);
+    let extra = serde_json::json!({
+        "command": "convert",
+        "mesh": a.mesh.display().to_string(),
+    });
+    let mut progress = progress_bars(a.quiet || a.json);
+    let (report, written) = run_convert(&input, &opts, extra, &a.output, &mut progress)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", a.mesh.display()))?;
+    if a.json {
+        crate::emit(&serde_json::to_string_pretty(&report)?)?;
+    } else if !a.quiet {
+        crate::fit::print_summary(&report, &written)?;
+        if let Some(n) = a.faces {
+            if report.control.faces > n {
+                crate::emit(&format!(
+                    "note: simplification ended at {} faces, above --faces {n}",
+                    report.control.faces
+                ))?;
+            }
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}

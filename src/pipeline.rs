@@ -1,0 +1,132 @@
+//! `convert`: the whole organic pipeline of the Fitmaps paper in one call —
+//! Fitmap analysis (§3.1), quadrangulation and limit interpolation (§3.2),
+//! simplification with local fitting (§3.3–3.4), global fit and
+//! displacement (§3.5), outputs and metrics (§4).
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use crate::analysis::{compute_fitmap, FitmapOptions};
+use crate::error::{Error, Result};
+use crate::fit::{FitOptions, Objective};
+use crate::mesh::ValidatedMesh;
+use crate::quad::{simplify_with_progress, SimplifyOptions};
+use crate::raycast::{make_raycaster, RayBackend};
+use crate::report::{fit_and_write, MetricsOptions, PipelineOptions, Report, StageTimer};
+
+/// Options of [`convert`], mirroring `subdfit convert`.
+#[derive(Clone, Debug, Serialize)]
+#[non_exhaustive]
+pub struct ConvertOptions {
+    /// τ of the M-fitmap (§3.1.3), a fraction: the only parameter of the
+    /// method. `None`: the Fitmap's default.
+    pub tolerance: Option<f64>,
+    /// Stop the simplification at this many faces (the paper's "*" rows).
+    pub target_faces: Option<usize>,
+    /// Lift the projectability test (the paper's Fig. 7 experiment).
+    pub no_m_fitmap: bool,
+    pub objective: Objective,
+    /// Displacement samples per patch side; `None`: total ≈ M's vertices.
+    pub displacement_res: Option<usize>,
+}
+
+impl Default for ConvertOptions {
+    fn default() -> Self {
+        ConvertOptions {
+            tolerance: None,
+            target_faces: None,
+            no_m_fitmap: false,
+            objective: Objective::Point,
+            displacement_res: None,
+        }
+    }
+}
+
+impl ConvertOptions {
+    pub fn with_tolerance(mut self, t: Option<f64>) -> Self {
+        self.tolerance = t;
+        self
+    }
+    pub fn with_target_faces(mut self, n: Option<usize>) -> Self {
+        self.target_faces = n;
+        self
+    }
+    pub fn with_m_fitmap(mut self, on: bool) -> Self {
+        self.no_m_fitmap = !on;
+        self
+    }
+    pub fn with_objective(mut self, o: Objective) -> Self {
+        self.objective = o;
+        self
+    }
+    pub fn with_displacement_res(mut self, r: Option<usize>) -> Self {
+        self.displacement_res = r;
+        self
+    }
+}
+
+/// Converts `input` and writes every output into `dir` (all or nothing).
+/// `progress(stage, fraction)` is called per stage (`"fitmap"`,
+/// `"simplify"`, then the fitting stages of [`fit_and_write`]); returning
+/// `false` cancels with [`Error::Cancelled`] and writes nothing.
+pub fn convert(
+    input: &ValidatedMesh,
+    opts: &ConvertOptions,
+    extra_options: serde_json::Value,
+    dir: &Path,
+    progress: &mut dyn FnMut(&str, f64) -> bool,
+) -> Result<(Report, Vec<PathBuf>)> {
+    let mut timer = StageTimer::default();
+    let stage = |progress: &mut dyn FnMut(&str, f64) -> bool, name: &str, f: f64| {
+        if progress(name, f) {
+            Ok(())
+        } else {
+            Err(Error::Cancelled { stage: name.into() })
+        }
+    };
+    let mesh = &input.mesh;
+    let caster = timer.run("raycaster", || make_raycaster(RayBackend::Embree, mesh))?;
+    let mut fo = FitmapOptions::default();
+    if let Some(t) = opts.tolerance {
+        fo = fo.with_tolerance(t);
+    }
+    stage(progress, "fitmap", 0.0)?;
+    let fitmap = timer.run("fitmap", || compute_fitmap(mesh, caster.as_ref(), &fo))?;
+    stage(progress, "fitmap", 1.0)?;
+    let so = SimplifyOptions::default()
+        .with_target_faces(opts.target_faces)
+        .with_m_fitmap(!opts.no_m_fitmap);
+    stage(progress, "simplify", 0.0)?;
+    let simplified = timer.run("simplify", || {
+        simplify_with_progress(mesh, &fitmap, caster.as_ref(), &so, &mut |p| {
+            let goal = p
+                .initial_faces
+                .saturating_sub(opts.target_faces.unwrap_or(0))
+                .max(1);
+            let done = p.initial_faces.saturating_sub(p.faces) as f64 / goal as f64;
+            progress("simplify", done.min(0.99))
+        })
+    })?;
+    stage(progress, "simplify", 1.0)?;
+    let po = PipelineOptions::default()
+        .with_fit(FitOptions::default().with_objective(opts.objective))
+        .with_metrics(MetricsOptions::default().with_displacement_res(opts.displacement_res))
+        .with_fitmap(Some(fo));
+    let extra = serde_json::json!({
+        "convert": opts,
+        "simplification": simplified.stats,
+        "run": extra_options,
+    });
+    fit_and_write(
+        input,
+        simplified.mesh,
+        caster.as_ref(),
+        &po,
+        timer,
+        extra,
+        Some(&fitmap),
+        dir,
+        progress,
+    )
+}
