@@ -31,3 +31,9 @@ if ! command -v cargo >/dev/null 2>&1; then
     curl -sSf https://sh.rustup.rs | sh -s -- -y --profile minimal -c clippy,rustfmt
   fi
 fi
+
+# Pixar's USD Python bindings, to check that control.usda loads (tests).
+if command -v python3 >/dev/null 2>&1 && ! python3 -c "import pxr" >/dev/null 2>&1; then
+  echo "install-deps: installing usd-core (Pixar USD) with pip"
+  python3 -m pip install --quiet --disable-pip-version-check usd-core
+fi
