@@ -32,8 +32,9 @@ use super::{QuadrangulateOptions, Quadrangulation};
 use crate::analysis::Fitmap;
 use crate::error::{Error, Result};
 use crate::mesh::{ControlMesh, FaceId, TriMesh, VertexId};
-use crate::project::{default_max_dist, project_along_normals, Projected};
-use crate::raycast::RayCaster;
+use crate::project::{default_max_dist, Projected};
+use crate::raycast::bvh::BvhCaster;
+use crate::raycast::{nearer_on_line, Ray, RayCaster};
 use crate::subdiv::LimitPoint;
 use crate::DVec3;
 
@@ -341,6 +342,10 @@ struct Simplifier<'a> {
     m: &'a TriMesh,
     fitmap: &'a Fitmap,
     caster: &'a dyn RayCaster,
+    /// Pure-Rust BVH over M for the per-collapse φ queries: one ray at a
+    /// time inside the sequential loop, without the fixed cost of a batched
+    /// (rayon + FFI) call for a handful of rays.
+    bvh: BvhCaster,
     opts: SimplifyOptions,
     max_dist: f64,
     k: ControlMesh,
@@ -348,6 +353,9 @@ struct Simplifier<'a> {
     version: Vec<u32>,
     fs: Vec<f64>,
     fm: Vec<f64>,
+    /// Limit position of every live control vertex (kept current in the
+    /// refit region; the M-fitmap test reads it).
+    lim: Vec<DVec3>,
     heap: BinaryHeap<Reverse<(u64, u32, u8, u32)>>,
     projections: usize,
     unprojectable: usize,
@@ -357,6 +365,40 @@ struct Simplifier<'a> {
 
 fn euler(k: &ControlMesh) -> i64 {
     k.num_live_vertices() as i64 - k.num_live_edges() as i64 + k.num_live_faces() as i64
+}
+
+/// φ of one point along the unit direction `n` on the BVH: the nearer hit of
+/// the line within `max_t` in either direction, `+n` winning ties (the
+/// semantics of [`RayCaster::line_hits`]). The backward ray only searches up
+/// to the forward hit.
+fn phi_line(bvh: &BvhCaster, o: DVec3, n: DVec3, max_t: f64) -> Option<Projected> {
+    if n == DVec3::ZERO || !o.is_finite() || !n.is_finite() {
+        return None;
+    }
+    let ray = |dir: DVec3, tmax: f64| Ray {
+        origin: o,
+        dir,
+        tmin: 0.0,
+        tmax,
+    };
+    let fwd = bvh.first_hit(&ray(n, max_t));
+    let bwd = bvh.first_hit(&ray(-n, fwd.map_or(max_t, |h| h.t)));
+    nearer_on_line(fwd, bwd).map(|h| Projected {
+        point: o + h.t * n,
+        offset: h.t,
+        triangle: h.triangle,
+        u: h.u,
+        v: h.v,
+    })
+}
+
+/// Search distance of φ around a feature of size `scale` (a ring's or a
+/// face's extent): a point of the limit surface further than twice that
+/// from M along its normal has no meaningful projection there, and a short
+/// ray is what makes the query cheap. Capped by the global `max_dist`.
+#[inline]
+fn local_reach(scale: f64, max_dist: f64) -> f64 {
+    (2.0 * scale).min(max_dist)
 }
 
 impl<'a> Simplifier<'a> {
@@ -380,10 +422,27 @@ impl<'a> Simplifier<'a> {
         let valence_targets = ValenceTargets::new(&k);
         let invariants = (k.num_components(), k.num_boundary_loops(), euler(&k));
         let nf = k.num_faces();
+        let bvh = BvhCaster::new(m)?;
+        let lim = {
+            use rayon::prelude::*;
+            let kk = &k;
+            (0..kk.num_vertices())
+                .into_par_iter()
+                .map(|i| {
+                    let v = VertexId(i as u32);
+                    if kk.is_vertex_deleted(v) {
+                        Ok(kk.position(v))
+                    } else {
+                        vertex_limit_mask(kk, v).map(|m| limit_of(kk, &m))
+                    }
+                })
+                .collect::<Result<Vec<_>>>()?
+        };
         Ok(Simplifier {
             m,
             fitmap,
             caster,
+            bvh,
             opts: opts.clone(),
             max_dist,
             k,
@@ -391,6 +450,7 @@ impl<'a> Simplifier<'a> {
             version: vec![0; nf],
             fs: vec![0.0; nf],
             fm: vec![0.0; nf],
+            lim,
             heap: BinaryHeap::new(),
             projections: 0,
             unprojectable: 0,
@@ -398,16 +458,17 @@ impl<'a> Simplifier<'a> {
         })
     }
 
-    /// φ of a batch of limit points; misses fall back to `None`.
-    fn project(&mut self, pts: &[LimitPoint]) -> Result<Vec<Option<Projected>>> {
-        let (p, st) = project_along_normals(self.caster, pts, self.max_dist)?;
-        self.projections += st.points;
-        self.unprojectable += st.unprojectable;
-        Ok(p)
+    /// φ of one point (counted).
+    fn phi(&mut self, o: DVec3, n: DVec3, scale: f64) -> Option<Projected> {
+        self.projections += 1;
+        let p = phi_line(&self.bvh, o, n, local_reach(scale, self.max_dist));
+        if p.is_none() {
+            self.unprojectable += 1;
+        }
+        p
     }
 
-    /// Recomputes centre, F_S, F_M and heap entries of `faces` (live ones),
-    /// with one batch of φ queries.
+    /// Recomputes centre, F_S, F_M and heap entries of `faces` (live ones).
     fn update_faces(&mut self, faces: &[FaceId]) -> Result<()> {
         let nf = self.k.num_faces();
         if self.version.len() < nf {
@@ -420,22 +481,30 @@ impl<'a> Simplifier<'a> {
             .copied()
             .filter(|&f| !self.k.is_face_deleted(f))
             .collect();
-        let k = &self.k;
-        let pts: Vec<LimitPoint> = if faces.len() > 512 {
-            use rayon::prelude::*;
-            faces.par_iter().map(|&f| face_centre_limit(k, f)).collect()
-        } else {
-            faces.iter().map(|&f| face_centre_limit(k, f)).collect()
+        let (k, bvh, max_dist) = (&self.k, &self.bvh, self.max_dist);
+        let one = |f: FaceId| {
+            let l = face_centre_limit(k, f);
+            let q = super::ops::quad_positions(k, f);
+            let scale = (q[2] - q[0]).length().max((q[3] - q[1]).length());
+            let p = phi_line(bvh, l.position, l.normal(), local_reach(scale, max_dist));
+            (l.position, p)
         };
-        let proj = self.project(&pts)?;
+        // Map order is input order: the same result whatever the threads.
+        let proj: Vec<(DVec3, Option<Projected>)> = if faces.len() > 512 {
+            use rayon::prelude::*;
+            faces.par_iter().map(|&f| one(f)).collect()
+        } else {
+            faces.iter().map(|&f| one(f)).collect()
+        };
+        self.projections += proj.len();
         // A centre with no hit along its normal still needs Fitmap values:
         // take them at the closest point of M (the miss is counted).
         let miss: Vec<DVec3> = proj
             .iter()
-            .zip(&pts)
-            .filter(|(p, _)| p.is_none())
-            .map(|(_, l)| l.position)
+            .filter(|(_, p)| p.is_none())
+            .map(|(c, _)| *c)
             .collect();
+        self.unprojectable += miss.len();
         let mut closest = if miss.is_empty() {
             Vec::new()
         } else {
@@ -443,7 +512,7 @@ impl<'a> Simplifier<'a> {
         }
         .into_iter();
         for (i, &f) in faces.iter().enumerate() {
-            let (tri, u, v) = match proj[i] {
+            let (tri, u, v) = match proj[i].1 {
                 Some(p) => (p.triangle, p.u, p.v),
                 None => match closest.next().flatten() {
                     Some(c) => (c.triangle, c.u, c.v),
@@ -679,27 +748,18 @@ impl<'a> Simplifier<'a> {
             for (&v, p) in w.iter().zip(smooth) {
                 self.k.positions_mut()[v.idx()] = p;
             }
-            let k = &self.k;
-            let pts: Vec<LimitPoint> = w
-                .iter()
-                .zip(&masks)
-                .map(|(&v, m)| {
-                    let n = vertex_normal(k, v);
-                    // A LimitPoint whose du × dv is the unit normal.
-                    let (du, dv) = n.any_orthonormal_pair();
-                    LimitPoint {
-                        position: limit_of(k, m),
-                        du,
-                        dv,
-                    }
-                })
-                .collect();
-            let proj = self.project(&pts)?;
-            let targets: Vec<DVec3> = proj
-                .iter()
-                .zip(&pts)
-                .map(|(p, l)| p.map_or(l.position, |p| p.point))
-                .collect();
+            let mut targets = Vec::with_capacity(w.len());
+            for (&v, m) in w.iter().zip(&masks) {
+                let k = &self.k;
+                let l = limit_of(k, m);
+                let n = vertex_normal(k, v);
+                let p = k.position(v);
+                let scale = k
+                    .outgoing(v)
+                    .map(|h| (k.position(k.head(h)) - p).length())
+                    .fold(0.0, f64::max);
+                targets.push(self.phi(l, n, scale).map_or(l, |p| p.point));
+            }
             for _ in 0..self.opts.fit_sweeps {
                 let delta: Vec<DVec3> = masks
                     .iter()
@@ -715,6 +775,15 @@ impl<'a> Simplifier<'a> {
         let mut faces: Vec<FaceId> = w.iter().flat_map(|&v| k.vertex_faces(v)).collect();
         faces.sort_unstable();
         faces.dedup();
+        // Limit points change for every corner of these faces (their masks
+        // reach into W).
+        let mut corners: Vec<VertexId> = faces.iter().flat_map(|&f| k.face_vertices(f)).collect();
+        corners.sort_unstable();
+        corners.dedup();
+        for v in corners {
+            let l = limit_of(&self.k, &vertex_limit_mask(&self.k, v)?);
+            self.lim[v.idx()] = l;
+        }
         self.update_faces(&faces)
     }
 }
