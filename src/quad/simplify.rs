@@ -24,7 +24,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::ops::{
-    can_collapse_diagonal, can_rotate_edge, collapse_diagonal, remove_doublets, rotate_edge,
+    can_collapse_diagonal, can_rotate_edge, CollapsePlan, collapse_diagonal, remove_doublets, rotate_edge,
     rotation_energy_gain, Rotation, ValenceTargets,
 };
 use super::{interpolate_limit, quadrangulate, vertex_limit_mask, InterpolationOptions};
@@ -545,31 +545,49 @@ impl<'a> Simplifier<'a> {
     /// The M-fitmap test (§3.1.1 / §3.3.1 with the README's correction):
     /// every patch the collapse enlarges — the faces around both ends of the
     /// diagonal except the collapsed one — must keep `radius <= F_M` at its
-    /// projected centre. Radius and centre are measured on the control
-    /// polygon with the merged vertex at its planned position: that is
-    /// known before the collapse in O(ring) (the limit patch after the
-    /// collapse depends on the refit that follows it), and after the limit
-    /// interpolation the control quad and its limit patch have nearly the
-    /// same extent. F_M is the cached value at the face's projected limit
-    /// centre, which the collapse moves little.
-    fn m_test(&self, f: FaceId, a: VertexId, c: VertexId, pos: DVec3) -> bool {
-        let k = &self.k;
+    /// projected centre.
+    ///
+    /// The patch is the limit surface's, not the control polygon's (the
+    /// control polygon stands off a curved surface and is larger than its
+    /// patch): its corners are the limit points of its control vertices
+    /// (cached, [`vertex_limit_mask`]), the merged vertex's limit taken at
+    /// the midpoint of the two ends' limits (where the refit will put it,
+    /// the collapse placing the control vertex at the diagonal's midpoint;
+    /// at the boundary end's limit when one end is on the boundary). The
+    /// centre is the corners' mean, projected by φ along the corners'
+    /// normal; F_M is interpolated there, linearly over M's triangle
+    /// ([`Fitmap::m_at`]). A centre φ cannot project keeps the face's
+    /// cached F_M.
+    fn m_test(&mut self, f: FaceId, plan: &CollapsePlan) -> bool {
+        let (a, c) = (plan.keep, plan.remove);
+        let boundary = self.k.is_boundary_vertex(a) || self.k.is_boundary_vertex(c);
+        let merged = if boundary {
+            self.lim[plan.keep.idx()]
+        } else {
+            0.5 * (self.lim[a.idx()] + self.lim[c.idx()])
+        };
+        let mut faces: Vec<FaceId> = Vec::with_capacity(12);
         for v in [a, c] {
-            for g in k.vertex_faces(v) {
-                if g == f {
-                    continue;
-                }
-                let mut q = super::ops::quad_positions(k, g);
-                for (i, x) in k.face_vertices(g).enumerate() {
-                    if x == a || x == c {
-                        q[i] = pos;
-                    }
-                }
-                let ctr = 0.25 * (q[0] + q[1] + q[2] + q[3]);
-                let r = q.iter().map(|p| (*p - ctr).length()).fold(0.0, f64::max);
-                if r > self.fm[g.idx()] {
-                    return false;
-                }
+            faces.extend(self.k.vertex_faces(v).filter(|&g| g != f));
+        }
+        for g in faces {
+            let mut q = [DVec3::ZERO; 4];
+            for (i, x) in self.k.face_vertices(g).enumerate() {
+                q[i] = if x == a || x == c {
+                    merged
+                } else {
+                    self.lim[x.idx()]
+                };
+            }
+            let ctr = 0.25 * (q[0] + q[1] + q[2] + q[3]);
+            let r = q.iter().map(|p| (*p - ctr).length()).fold(0.0, f64::max);
+            let n = (q[2] - q[0]).cross(q[3] - q[1]).normalize_or_zero();
+            let fm = match self.phi(ctr, n, 2.0 * r) {
+                Some(p) => self.fitmap.m_at(self.m, p.triangle, p.u, p.v),
+                None => self.fm[g.idx()],
+            };
+            if r > fm {
+                return false;
             }
         }
         true
@@ -602,7 +620,7 @@ impl<'a> Simplifier<'a> {
                     continue;
                 }
             };
-            if self.opts.m_fitmap && !self.m_test(f, plan.keep, plan.remove, plan.position) {
+            if self.opts.m_fitmap && !self.m_test(f, &plan) {
                 stats.refused_m_fitmap += 1;
                 continue;
             }
