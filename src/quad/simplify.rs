@@ -18,7 +18,7 @@
 //! number of threads.
 
 use std::cmp::Reverse;
-use std::collections::BinaryHeap;
+use std::collections::{BTreeMap, BinaryHeap};
 use std::time::Instant;
 
 use serde::Serialize;
@@ -121,6 +121,8 @@ pub struct SimplifyStats {
     pub doublets: usize,
     /// Heap entries refused by the topological checks.
     pub refused_topology: usize,
+    /// The same, by the reason [`can_collapse_diagonal`] gave.
+    pub refused_topology_by_reason: BTreeMap<String, usize>,
     /// Heap entries refused by the M-fitmap test.
     pub refused_m_fitmap: usize,
     /// φ queries and those with no hit (counted, then handled by a closest
@@ -131,6 +133,15 @@ pub struct SimplifyStats {
     pub seconds_interpolate: f64,
     pub seconds_simplify: f64,
     pub stop: Option<StopReason>,
+    /// Adaptivity of the result (issue 4): Spearman rank correlation, over
+    /// the final patches, between the patch radius (largest centre-to-corner
+    /// distance of the limit patch) and 1/F_S at its projected centre.
+    /// `None` with fewer than two patches or constant values.
+    pub adaptivity_spearman: Option<f64>,
+    /// Median over the final patches of radius / F_M at the centre (how
+    /// close the patches came to the M-fitmap bound; above 1 where the test
+    /// was off or a doublet removal merged two patches).
+    pub median_radius_over_fm: f64,
 }
 
 /// The simplified control mesh (compact) and its statistics.
@@ -183,19 +194,7 @@ pub fn simplify_with_progress(
     let t = Instant::now();
     let mut s = Simplifier::new(mesh, fitmap, caster, opts, k)?;
     s.run(&mut stats, progress)?;
-    let Simplifier {
-        k, valence_targets, ..
-    } = s;
-    let mut k = k;
-    stats.irregular_vertices = k
-        .live_vertices()
-        .filter(|&v| valence_targets.is_irregular(&k, v))
-        .count();
-    k.compact()?;
-    stats.faces = k.num_faces();
-    stats.vertices = k.num_vertices();
-    stats.seconds_simplify = t.elapsed().as_secs_f64();
-    Ok(Simplified { mesh: k, stats })
+    s.finish(stats, t)
 }
 
 /// Simplifies a quad control mesh `k` already fitted to `mesh` (its limit
@@ -216,20 +215,7 @@ pub fn simplify_control(
     let t = Instant::now();
     let mut s = Simplifier::new(mesh, fitmap, caster, opts, k)?;
     s.run(&mut stats, progress)?;
-    let Simplifier {
-        mut k,
-        valence_targets,
-        ..
-    } = s;
-    stats.irregular_vertices = k
-        .live_vertices()
-        .filter(|&v| valence_targets.is_irregular(&k, v))
-        .count();
-    k.compact()?;
-    stats.faces = k.num_faces();
-    stats.vertices = k.num_vertices();
-    stats.seconds_simplify = t.elapsed().as_secs_f64();
-    Ok(Simplified { mesh: k, stats })
+    s.finish(stats, t)
 }
 
 // ---- closed-form limit quantities -------------------------------------------
@@ -615,8 +601,12 @@ impl<'a> Simplifier<'a> {
             }
             let plan = match can_collapse_diagonal(&self.k, f, d as usize) {
                 Ok(p) => p,
-                Err(_) => {
+                Err(why) => {
                     stats.refused_topology += 1;
+                    *stats
+                        .refused_topology_by_reason
+                        .entry(why.to_string())
+                        .or_default() += 1;
                     continue;
                 }
             };
@@ -651,6 +641,41 @@ impl<'a> Simplifier<'a> {
         stats.projections = self.projections;
         stats.unprojectable = self.unprojectable;
         Ok(())
+    }
+
+    /// Final counts and the adaptivity figures, then the compact mesh.
+    fn finish(self, mut stats: SimplifyStats, t: Instant) -> Result<Simplified> {
+        let (mut radius, mut inv_fs, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
+        for f in self.k.live_faces() {
+            let q: Vec<DVec3> = self.k.face_vertices(f).map(|v| self.lim[v.idx()]).collect();
+            let ctr = q.iter().sum::<DVec3>() / q.len() as f64;
+            let r = q.iter().map(|p| (*p - ctr).length()).fold(0.0, f64::max);
+            let (fs, fm) = (self.fs[f.idx()], self.fm[f.idx()]);
+            if fs > 0.0 {
+                radius.push(r);
+                inv_fs.push(1.0 / fs);
+            }
+            if fm > 0.0 {
+                ratio.push(r / fm);
+            }
+        }
+        stats.adaptivity_spearman = crate::analysis::spearman(&radius, &inv_fs);
+        ratio.sort_unstable_by(f64::total_cmp);
+        stats.median_radius_over_fm = ratio.get(ratio.len() / 2).copied().unwrap_or(0.0);
+        let Simplifier {
+            mut k,
+            valence_targets,
+            ..
+        } = self;
+        stats.irregular_vertices = k
+            .live_vertices()
+            .filter(|&v| valence_targets.is_irregular(&k, v))
+            .count();
+        k.compact()?;
+        stats.faces = k.num_faces();
+        stats.vertices = k.num_vertices();
+        stats.seconds_simplify = t.elapsed().as_secs_f64();
+        Ok(Simplified { mesh: k, stats })
     }
 
     /// Test hook: the invariants after every step.
