@@ -743,8 +743,9 @@ impl<'a> Simplifier<'a> {
     }
 
     /// Local refit (§3.4) of W = the touched vertices plus their 1-ring:
-    /// `refit_rounds` times, Laplacian smoothing (each vertex midway to the
-    /// mean of its faces' centroids; boundary vertices along the boundary,
+    /// `refit_rounds` times, tangential Laplacian smoothing (each vertex to
+    /// the mean of its faces' centroids, within its tangent plane; boundary
+    /// vertices midway along the boundary,
     /// corners fixed) then `fit_sweeps` fixed-point sweeps `P += φ − L`
     /// towards the φ targets of the smoothed limit points. Then the faces
     /// around W get new centres, Fitmap values and heap entries.
@@ -785,7 +786,14 @@ impl<'a> Simplifier<'a> {
                         c += centroid(k, f);
                         n += 1.0;
                     }
-                    0.5 * (p + c / n)
+                    // Tangent-space smoothing (§3.4): the whole step to the
+                    // mean of the face centroids, less its component along
+                    // the limit normal, so smoothing evens the patches out
+                    // without pulling the surface off M (the fit that
+                    // follows corrects what is left).
+                    let d = c / n - p;
+                    let nrm = vertex_normal(k, v);
+                    p + d - nrm * nrm.dot(d)
                 })
                 .collect();
             for (&v, p) in w.iter().zip(smooth) {
