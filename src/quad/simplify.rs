@@ -24,8 +24,8 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::ops::{
-    can_collapse_diagonal, can_rotate_edge, CollapsePlan, collapse_diagonal, remove_doublets, rotate_edge,
-    rotation_energy_gain, Rotation, ValenceTargets,
+    can_collapse_diagonal, can_rotate_edge, collapse_diagonal, remove_doublets, rotate_edge,
+    rotation_energy_gain, CollapsePlan, Rotation, ValenceTargets,
 };
 use super::{interpolate_limit, quadrangulate, vertex_limit_mask, InterpolationOptions};
 use super::{QuadrangulateOptions, Quadrangulation};
@@ -125,6 +125,8 @@ pub struct SimplifyStats {
     pub refused_topology_by_reason: BTreeMap<String, usize>,
     /// Heap entries refused by the M-fitmap test.
     pub refused_m_fitmap: usize,
+    /// Full re-evaluations of every face after the heap ran dry.
+    pub sweeps: usize,
     /// φ queries and those with no hit (counted, then handled by a closest
     /// point look-up for the Fitmap values, or by not moving the vertex).
     pub projections: usize,
@@ -590,7 +592,23 @@ impl<'a> Simplifier<'a> {
         self.update_faces(&all)?;
         let target = self.opts.target_faces.unwrap_or(0);
         let mut stop = StopReason::NaturalEnd;
-        while let Some(Reverse((_, fi, d, ver))) = self.heap.pop() {
+        let mut at_last_sweep = stats.collapses;
+        loop {
+            let Some(Reverse((_, fi, d, ver))) = self.heap.pop() else {
+                // The heap only re-evaluates faces around a refit region; a
+                // refused collapse whose blocking neighbour changed later
+                // from further away was never looked at again. Before
+                // declaring the natural end, re-evaluate every face once
+                // more, as long as the previous sweep led to collapses.
+                if stats.collapses == at_last_sweep {
+                    break;
+                }
+                at_last_sweep = stats.collapses;
+                stats.sweeps += 1;
+                let all: Vec<FaceId> = self.k.live_faces().collect();
+                self.update_faces(&all)?;
+                continue;
+            };
             if self.k.num_live_faces() <= target {
                 stop = StopReason::TargetFaces;
                 break;
