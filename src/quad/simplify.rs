@@ -140,6 +140,10 @@ pub struct SimplifyStats {
     /// distance of the limit patch) and 1/F_S at its projected centre.
     /// `None` with fewer than two patches or constant values.
     pub adaptivity_spearman: Option<f64>,
+    /// The same with F_M instead of 1/F_S: at the natural end with the
+    /// M-fitmap test on, F_M (the bound that stopped the collapses) rather
+    /// than F_S (the order they came in) sets the patch sizes.
+    pub spearman_radius_fm: Option<f64>,
     /// Median over the final patches of radius / F_M at the centre (how
     /// close the patches came to the M-fitmap bound; above 1 where the test
     /// was off or a doublet removal merged two patches).
@@ -558,17 +562,26 @@ impl<'a> Simplifier<'a> {
         for v in [a, c] {
             faces.extend(self.k.vertex_faces(v).filter(|&g| g != f));
         }
-        for g in faces {
-            let mut q = [DVec3::ZERO; 4];
-            for (i, x) in self.k.face_vertices(g).enumerate() {
-                q[i] = if x == a || x == c {
-                    merged
-                } else {
-                    self.lim[x.idx()]
-                };
-            }
+        let radius = |q: &[DVec3; 4]| {
             let ctr = 0.25 * (q[0] + q[1] + q[2] + q[3]);
             let r = q.iter().map(|p| (*p - ctr).length()).fold(0.0, f64::max);
+            (ctr, r)
+        };
+        for g in faces {
+            let mut q = [DVec3::ZERO; 4];
+            let mut before = [DVec3::ZERO; 4];
+            for (i, x) in self.k.face_vertices(g).enumerate() {
+                before[i] = self.lim[x.idx()];
+                q[i] = if x == a || x == c { merged } else { before[i] };
+            }
+            let (ctr, r) = radius(&q);
+            // Only a patch the collapse *extends* is tested (§3.3.1): one
+            // that does not grow (the merged corner moves towards its
+            // centre) cannot lose projectability by it, even if a doublet
+            // removal or a rotation already left it above F_M.
+            if r <= radius(&before).1 {
+                continue;
+            }
             let n = (q[2] - q[0]).cross(q[3] - q[1]).normalize_or_zero();
             let fm = match self.phi(ctr, n, 2.0 * r) {
                 Some(p) => self.fitmap.m_at(self.m, p.triangle, p.u, p.v),
@@ -664,6 +677,7 @@ impl<'a> Simplifier<'a> {
     /// Final counts and the adaptivity figures, then the compact mesh.
     fn finish(self, mut stats: SimplifyStats, t: Instant) -> Result<Simplified> {
         let (mut radius, mut inv_fs, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut radius_m, mut fms) = (Vec::new(), Vec::new());
         for f in self.k.live_faces() {
             let q: Vec<DVec3> = self.k.face_vertices(f).map(|v| self.lim[v.idx()]).collect();
             let ctr = q.iter().sum::<DVec3>() / q.len() as f64;
@@ -675,9 +689,12 @@ impl<'a> Simplifier<'a> {
             }
             if fm > 0.0 {
                 ratio.push(r / fm);
+                radius_m.push(r);
+                fms.push(fm);
             }
         }
         stats.adaptivity_spearman = crate::analysis::spearman(&radius, &inv_fs);
+        stats.spearman_radius_fm = crate::analysis::spearman(&radius_m, &fms);
         ratio.sort_unstable_by(f64::total_cmp);
         stats.median_radius_over_fm = ratio.get(ratio.len() / 2).copied().unwrap_or(0.0);
         let Simplifier {
