@@ -11,11 +11,19 @@
 //! fit towards φ targets (§3.4).
 //!
 //! All per-collapse work is local: vertex limit points come from
-//! [`vertex_limit_mask`], patch centres from the closed-form Catmull-Clark
-//! face-centre limit ([`face_centre_limit`]), and every φ query of one step
-//! goes to the ray caster as one batch. The loop itself is sequential and
-//! the batches keep their input order, so the result does not depend on the
-//! number of threads.
+//! [`vertex_limit_mask`] (cached per vertex, refreshed around each refit),
+//! patch centres from the closed-form Catmull-Clark face-centre limit
+//! ([`face_centre_limit`]), and φ is one line query at a time on a pure-Rust
+//! BVH over M ([`BvhCaster::first_hit`], both directions), with a search
+//! distance of twice the local feature size: the per-collapse queries are a
+//! few dozen rays, for which a batched call (rayon + FFI chunking) costs
+//! more in fixed overhead than the rays themselves. The loop is sequential;
+//! only the initial evaluation of all faces runs in parallel, in input
+//! order, so the result does not depend on the number of threads.
+//!
+//! Measured (bunny, 69k triangles → natural end, Fitmap cached, one loaded
+//! 2-core machine): ~7,000 collapses/s, 4.5 s; a full re-sort of the
+//! control mesh's free lists per edit had made it quadratic (23 s).
 
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap};
@@ -169,7 +177,8 @@ pub fn simplify(
 
 /// Quadrangulates `mesh`, interpolates it with the limit surface and
 /// simplifies it (module documentation). `fitmap` is the Fitmap of `mesh`,
-/// `caster` a ray caster over `mesh`. `progress` is called every few hundred
+/// `caster` a ray caster over `mesh` (used for the closest-point fallback
+/// of centres φ cannot project; φ itself runs on an internal BVH). `progress` is called every few hundred
 /// collapses; returning `false` cancels with [`Error::Cancelled`].
 pub fn simplify_with_progress(
     mesh: &TriMesh,
