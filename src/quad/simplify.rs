@@ -660,7 +660,8 @@ impl<'a> Simplifier<'a> {
             self.check_step("collapse")?;
             let mut touched = vec![done.keep, plan.sides[0], plan.sides[1]];
             touched.retain(|&v| !self.k.is_vertex_deleted(v));
-            stats.rotations += self.rotate_around(done.keep, &mut touched)?;
+            let centres = touched.clone();
+            stats.rotations += self.rotate_around(&centres, &mut touched)?;
             self.refit(&touched)?;
             if stats.collapses % 256 == 0 {
                 let p = Progress {
@@ -754,13 +755,21 @@ impl<'a> Simplifier<'a> {
         Ok(())
     }
 
-    /// Edge rotations (§3.3.2) on the edges of the faces around `v`: each
-    /// edge turns the way that lowers the valence energy most, if any does.
-    fn rotate_around(&mut self, v: VertexId, touched: &mut Vec<VertexId>) -> Result<usize> {
-        let mut edges: Vec<_> = self
-            .k
-            .vertex_faces(v)
-            .flat_map(|f| self.k.face_halfedges(f).collect::<Vec<_>>())
+    /// Edge rotations (§3.3.2) on the edges of the faces around `centres`
+    /// (the merged vertex and the collapsed quad's surviving side corners:
+    /// the 1-ring of the collapsed element): each edge turns the way that
+    /// lowers the valence energy most, if any does.
+    fn rotate_around(
+        &mut self,
+        centres: &[VertexId],
+        touched: &mut Vec<VertexId>,
+    ) -> Result<usize> {
+        let k = &self.k;
+        let mut edges: Vec<_> = centres
+            .iter()
+            .filter(|&&v| !k.is_vertex_deleted(v))
+            .flat_map(|&v| k.vertex_faces(v))
+            .flat_map(|f| k.face_halfedges(f))
             .map(|h| h.edge().halfedge())
             .collect();
         edges.sort_unstable();
