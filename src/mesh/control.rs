@@ -82,6 +82,44 @@ impl EdgeId {
 /// OpenSubdiv's value for an infinitely sharp crease or corner.
 pub const INFINITELY_SHARP: f64 = 10.0;
 
+/// Free slots, handed out smallest first: a min-heap, so that an edit costs
+/// O(log n) however many slots are free (re-sorting a free list per edit
+/// made long simplifications quadratic). Equality compares the sets.
+#[derive(Clone, Debug)]
+struct FreeList<T: Ord>(std::collections::BinaryHeap<std::cmp::Reverse<T>>);
+
+impl<T: Ord> Default for FreeList<T> {
+    fn default() -> Self {
+        FreeList(std::collections::BinaryHeap::new())
+    }
+}
+
+impl<T: Ord + Copy> FreeList<T> {
+    fn push(&mut self, x: T) {
+        self.0.push(std::cmp::Reverse(x));
+    }
+    fn pop(&mut self) -> Option<T> {
+        self.0.pop().map(|r| r.0)
+    }
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+    fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+    fn sorted(&self) -> Vec<T> {
+        let mut v: Vec<T> = self.0.iter().map(|r| r.0).collect();
+        v.sort_unstable();
+        v
+    }
+}
+
+impl<T: Ord + Copy> PartialEq for FreeList<T> {
+    fn eq(&self, other: &Self) -> bool {
+        self.len() == other.len() && self.sorted() == other.sorted()
+    }
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct ControlMesh {
     positions: Vec<DVec3>,
@@ -98,9 +136,9 @@ pub struct ControlMesh {
     vertex_sharpness: Vec<f64>,
     /// Deleted face slots, reused by [`ControlMesh::replace_faces`]. A
     /// deleted face has size 0.
-    free_faces: Vec<FaceId>,
+    free_faces: FreeList<FaceId>,
     /// Deleted edge slots (both half-edges have origin `INVALID`).
-    free_edges: Vec<EdgeId>,
+    free_edges: FreeList<EdgeId>,
     /// Number of deleted vertices (their stored half-edge is `INVALID`).
     deleted_vertices: usize,
 }
@@ -249,8 +287,8 @@ impl ControlMesh {
             vertex_he,
             edge_sharpness: vec![0.0; ne],
             vertex_sharpness: vec![0.0; nv],
-            free_faces: Vec::new(),
-            free_edges: Vec::new(),
+            free_faces: FreeList::default(),
+            free_edges: FreeList::default(),
             deleted_vertices: 0,
         };
         // A vertex whose interior faces form several closed fans (two cones
@@ -827,9 +865,8 @@ impl ControlMesh {
             self.face_he[f.idx()] = HalfedgeId::INVALID;
             self.free_faces.push(f);
         }
-        // Reuse freed slots from the smallest id, so the result does not
-        // depend on the order of `remove`.
-        self.free_faces.sort_unstable_by(|a, b| b.cmp(a));
+        // Freed slots are reused from the smallest id (a min-heap), so the
+        // result does not depend on the order of `remove`.
         let mut new_faces = Vec::with_capacity(add.len());
         for p in add {
             let f = match self.free_faces.pop() {
@@ -887,7 +924,6 @@ impl ControlMesh {
                 self.free_edges.push(e);
             }
         }
-        self.free_edges.sort_unstable_by(|a, b| b.cmp(a));
         for &v in delete {
             self.vertex_he[v.idx()] = HalfedgeId::INVALID;
             self.vertex_sharpness[v.idx()] = 0.0;
