@@ -3,7 +3,7 @@
 //! motion, bumps, τ monotonicity, fast vs exact, thread-count determinism,
 //! robustness on awkward input.
 
-use std::collections::HashMap;
+mod common;
 
 use subdfit::analysis::{compare_fitmaps, compute_fitmap, Fitmap, FitmapOptions};
 use subdfit::mesh::TriMesh;
@@ -41,70 +41,7 @@ fn plane(k: usize) -> TriMesh {
 
 /// Unit icosphere after `level` 1-to-4 subdivisions (10·4^level + 2 vertices).
 fn icosphere(level: u32) -> TriMesh {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut p: Vec<DVec3> = [
-        (-1.0, t, 0.0),
-        (1.0, t, 0.0),
-        (-1.0, -t, 0.0),
-        (1.0, -t, 0.0),
-        (0.0, -1.0, t),
-        (0.0, 1.0, t),
-        (0.0, -1.0, -t),
-        (0.0, 1.0, -t),
-        (t, 0.0, -1.0),
-        (t, 0.0, 1.0),
-        (-t, 0.0, -1.0),
-        (-t, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| DVec3::new(x, y, z).normalize())
-    .collect();
-    let mut f: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..level {
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut nf = Vec::with_capacity(f.len() * 4);
-        for tri in &f {
-            let mut m = [0u32; 3];
-            for k in 0..3 {
-                let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                let key = (a.min(b), a.max(b));
-                m[k] = *mid.entry(key).or_insert_with(|| {
-                    p.push(((p[a as usize] + p[b as usize]) * 0.5).normalize());
-                    (p.len() - 1) as u32
-                });
-            }
-            nf.push([tri[0], m[0], m[2]]);
-            nf.push([tri[1], m[1], m[0]]);
-            nf.push([tri[2], m[2], m[1]]);
-            nf.push(m);
-        }
-        f = nf;
-    }
-    TriMesh {
-        positions: p,
-        triangles: f,
-    }
+    common::icosphere(level, DVec3::ZERO, 1.0)
 }
 
 /// Bump weight: 1 on the upper cap z > 0.3, 0 below z < 0.1, smooth between.
