@@ -214,26 +214,7 @@ mod tests {
     use super::*;
     use crate::DVec3;
 
-    fn cube() -> ControlMesh {
-        let p = (0..8)
-            .map(|i| {
-                DVec3::new(
-                    (i & 1) as f64 * 2.0 - 1.0,
-                    ((i >> 1) & 1) as f64 * 2.0 - 1.0,
-                    ((i >> 2) & 1) as f64 * 2.0 - 1.0,
-                )
-            })
-            .collect();
-        let f: [[u32; 4]; 6] = [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
-        ControlMesh::from_polygons(p, &f).unwrap()
-    }
+    use crate::fixtures::cube;
 
     #[test]
     fn welded_grid_on_a_closed_mesh_is_a_closed_manifold() {

@@ -1185,26 +1185,7 @@ fn check_sharpness(el: &str, s: f64) -> Result<()> {
 mod tests {
     use super::*;
 
-    fn cube() -> ControlMesh {
-        let p: Vec<DVec3> = (0..8)
-            .map(|i| {
-                DVec3::new(
-                    (i & 1) as f64 * 2.0 - 1.0,
-                    ((i >> 1) & 1) as f64 * 2.0 - 1.0,
-                    ((i >> 2) & 1) as f64 * 2.0 - 1.0,
-                )
-            })
-            .collect();
-        let f = [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
-        ControlMesh::from_polygons(p, &f).unwrap()
-    }
+    use crate::fixtures::cube;
 
     #[test]
     fn cube_is_valid_and_closed() {
