@@ -33,8 +33,15 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
+use crate::analysis::FitmapOptions;
+use crate::displace::{Atlas, DEFAULT_GUTTER};
 use crate::error::{Error, Result};
+use crate::fit::{FitOptions, Objective};
+use crate::io::control_obj_with_uvs;
 use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId};
+use crate::pipeline::{convert_in_memory, ConvertOptions};
+use crate::raycast::{make_raycaster, RayBackend};
+use crate::report::{fit_and_measure, Converted, MetricsOptions, PipelineOptions, StageTimer};
 use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
 use crate::{DVec2, DVec3};
 
@@ -64,8 +71,9 @@ pub enum FitMethod {
 #[derive(Clone, Debug)]
 #[non_exhaustive]
 pub struct Options {
-    /// `--tolerance`: simplification tolerance τ, as a fraction of the
-    /// bounding-box diagonal (Fitmaps Table 1 uses 1% and 10%).
+    /// `--tolerance`: τ of the M-fitmap (Fitmaps §3.1.3), the share of a
+    /// neighbourhood allowed to be unreachable by normal projection (the
+    /// paper's Table 1 uses 0.01 and 0.1); larger τ, fewer patches.
     pub tolerance: f64,
     /// `--faces`: target number of control faces; 0 lets τ decide.
     pub target_faces: u32,
@@ -87,7 +95,7 @@ pub struct Options {
 impl Default for Options {
     fn default() -> Self {
         Options {
-            tolerance: 0.01,
+            tolerance: crate::analysis::fitmap::DEFAULT_TOLERANCE,
             target_faces: 0,
             mode: Mode::Organic,
             fit_method: FitMethod::Point,
@@ -103,8 +111,7 @@ impl Options {
     pub fn check(&self) -> Result<()> {
         if !(self.tolerance.is_finite() && self.tolerance > 0.0 && self.tolerance < 1.0) {
             return Err(Error::InvalidArgument(format!(
-                "tolerance {} out of range: it is a fraction of the bounding-box diagonal, \
-                 in (0, 1), e.g. 0.01 for 1%",
+                "tolerance {} out of range: it is a fraction in (0, 1), e.g. 0.01 for 1%",
                 self.tolerance
             )));
         }
@@ -343,8 +350,55 @@ pub struct Conversion {
     /// The numeric leaves of `report.json`, keys as dotted paths
     /// (`"limit.rms_permille"`), in the file's order.
     pub metrics: Vec<(String, f64)>,
-    /// `report.json`, byte for byte what the CLI writes.
+    /// `report.json`, byte for byte what the CLI writes (timings differ
+    /// from run to run).
     pub report_json: String,
+    /// `control.obj`, byte for byte what the CLI writes.
+    pub control_obj: Vec<u8>,
+}
+
+impl Conversion {
+    /// Everything a host gets from a pipeline result, taken from the same
+    /// values the CLI writes (so files made from it match the CLI's).
+    fn from_converted(c: Converted) -> Result<Conversion> {
+        let d = &c.surfaces.displacement;
+        let (patches, res) = (d.grid.num_patches(), d.grid.res());
+        let atlas = Atlas::new(patches, res, DEFAULT_GUTTER)?;
+        let quads: Vec<[DVec2; 4]> = (0..patches).map(|f| atlas.corner_uvs(f)).collect();
+        let control_obj = control_obj_with_uvs(&c.control, &quads)?;
+        // One `vt` per face corner, as in control.obj.
+        let uvs: Vec<DVec2> = quads.iter().flatten().copied().collect();
+        let uv_indices = (0..uvs.len() as u32).collect();
+        let tiles = (0..patches)
+            .map(|f| {
+                let mut values = Vec::with_capacity(res * res);
+                for j in 0..res {
+                    for i in 0..res {
+                        values.push(d.offsets[d.grid.sample(f, i, j) as usize] as f32);
+                    }
+                }
+                DisplacementTile {
+                    face: f as u32,
+                    resolution: res as u32,
+                    values,
+                }
+            })
+            .collect();
+        let value = serde_json::to_value(&c.report)
+            .map_err(|e| Error::InvalidArgument(format!("report.json: {e}")))?;
+        let mut report_json = serde_json::to_string_pretty(&c.report)
+            .map_err(|e| Error::InvalidArgument(format!("report.json: {e}")))?;
+        report_json.push('\n');
+        Ok(Conversion {
+            metrics: flatten_metrics(&value),
+            control: c.control,
+            uvs,
+            uv_indices,
+            tiles,
+            report_json,
+            control_obj,
+        })
+    }
 }
 
 /// Flattens the numeric leaves of a JSON report into dotted keys, so a C++
@@ -419,10 +473,16 @@ fn with_threads<T: Send>(threads: u32, f: impl FnOnce() -> Result<T> + Send) -> 
     pool.install(f)
 }
 
-/// Stand-in until the conversion pipeline (issue 5) lands.
-// LEAD: replace every call of this with the pipeline; then delete it.
-fn not_available(what: &str) -> Error {
-    Error::InvalidArgument(format!("{what} is not available in this build yet"))
+/// The pipeline's progress callback over a host [`Progress`]: a `false`
+/// from the host (or an earlier one) stops the pipeline at its next report.
+fn sink<'p>(progress: &'p Progress<'p>) -> impl FnMut(&str, f64) -> bool + 'p {
+    move |stage, fraction| progress.report(stage, fraction).is_ok()
+}
+
+/// The `"run"` part of `report.json`, as the CLI writes it for a file
+/// called `source_name`.
+fn run_info(command: &str, options: &Options) -> serde_json::Value {
+    serde_json::json!({ "command": command, "mesh": options.source_name })
 }
 
 /// Dense mesh → control mesh + displacement + metrics: `subdfit convert`.
@@ -432,14 +492,44 @@ pub fn convert(input: &MeshArrays, options: &Options, progress: &Progress) -> Re
         progress.report("read", 0.0)?;
         let mesh = input.to_validated(&options.source_name)?;
         progress.report("read", 1.0)?;
-        // LEAD: wire the pipeline here, e.g.
-        //   let out = crate::convert::run(&mesh, &pipeline_options(options), progress)?;
-        //   Ok(Conversion { control: out.control, uvs: out.uvs, uv_indices: out.uv_indices,
-        //       tiles: out.tiles, metrics: flatten_metrics(&out.report),
-        //       report_json: out.report_json })
-        let _ = mesh;
-        Err(not_available("convert"))
+        if options.mode == Mode::Mechanical {
+            return Err(Error::InvalidArgument(
+                "mode `mechanical` is not available in this build".into(),
+            ));
+        }
+        let opts = ConvertOptions::default()
+            .with_tolerance(Some(options.tolerance))
+            .with_target_faces((options.target_faces > 0).then_some(options.target_faces as usize))
+            .with_objective(objective(options.fit_method))
+            .with_displacement_res(
+                (options.displacement_resolution > 0)
+                    .then_some(options.displacement_resolution as usize),
+            );
+        let c = convert_in_memory(
+            &mesh,
+            &opts,
+            run_info("convert", options),
+            &mut sink(progress),
+        )
+        .map_err(|e| with_source(e, options))?;
+        Conversion::from_converted(c)
     })
+}
+
+fn objective(m: FitMethod) -> Objective {
+    match m {
+        FitMethod::Point => Objective::Point,
+        FitMethod::Sdm => Objective::Sdm,
+    }
+}
+
+/// The CLI prefixes pipeline errors with the input's name; so does the API,
+/// so a host passing the file name gets the CLI's message verbatim.
+fn with_source(e: Error, options: &Options) -> Error {
+    match e {
+        Error::Cancelled { .. } => e,
+        e => Error::InvalidArgument(format!("{}: {e}", options.source_name)),
+    }
 }
 
 /// Fits a given control mesh to a dense mesh: `subdfit fit`.
@@ -455,9 +545,32 @@ pub fn fit(
         let mesh = input.to_validated(&options.source_name)?;
         let control = control.to_control_mesh()?;
         progress.report("read", 1.0)?;
-        // LEAD: wire the pipeline here (as in `convert`, from `control`).
-        let _ = (mesh, control);
-        Err(not_available("fit"))
+        let mut timer = StageTimer::default();
+        let caster = timer.run("raycaster", || {
+            make_raycaster(RayBackend::Embree, &mesh.mesh)
+        })?;
+        let po = PipelineOptions::default()
+            .with_fit(FitOptions::default().with_objective(objective(options.fit_method)))
+            .with_metrics(
+                MetricsOptions::default().with_displacement_res(
+                    (options.displacement_resolution > 0)
+                        .then_some(options.displacement_resolution as usize),
+                ),
+            )
+            .with_fitmap(Some(
+                FitmapOptions::default().with_tolerance(options.tolerance),
+            ));
+        let c = fit_and_measure(
+            &mesh,
+            control,
+            caster.as_ref(),
+            &po,
+            timer,
+            run_info("fit", options),
+            None,
+            &mut sink(progress),
+        )?;
+        Conversion::from_converted(c)
     })
 }
 

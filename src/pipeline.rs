@@ -13,7 +13,10 @@ use crate::fit::{FitOptions, Objective};
 use crate::mesh::ValidatedMesh;
 use crate::quad::{simplify_with_progress, SimplifyOptions};
 use crate::raycast::{make_raycaster, RayBackend};
-use crate::report::{fit_and_write, MetricsOptions, PipelineOptions, Report, StageTimer};
+use crate::report::{
+    fit_and_measure, write_converted, Converted, MetricsOptions, PipelineOptions, Report,
+    StageTimer,
+};
 
 /// Options of [`convert`], mirroring `subdfit convert`.
 #[derive(Clone, Debug, Serialize)]
@@ -68,8 +71,9 @@ impl ConvertOptions {
 
 /// Converts `input` and writes every output into `dir` (all or nothing).
 /// `progress(stage, fraction)` is called per stage (`"fitmap"`,
-/// `"simplify"`, then the fitting stages of [`fit_and_write`]); returning
-/// `false` cancels with [`Error::Cancelled`] and writes nothing.
+/// `"simplify"`, then the fitting stages of [`fit_and_measure`] and
+/// `"write"`); returning `false` cancels with [`Error::Cancelled`] and
+/// writes nothing.
 pub fn convert(
     input: &ValidatedMesh,
     opts: &ConvertOptions,
@@ -77,6 +81,20 @@ pub fn convert(
     dir: &Path,
     progress: &mut dyn FnMut(&str, f64) -> bool,
 ) -> Result<(Report, Vec<PathBuf>)> {
+    let c = convert_in_memory(input, opts, extra_options, progress)?;
+    let written = write_converted(input, &c, dir, progress)?;
+    Ok((c.report, written))
+}
+
+/// [`convert`] without writing anything: the fitted control mesh, the
+/// surfaces, the report and the Fitmap, for hosts that keep results in
+/// memory (the C++ API).
+pub fn convert_in_memory(
+    input: &ValidatedMesh,
+    opts: &ConvertOptions,
+    extra_options: serde_json::Value,
+    progress: &mut dyn FnMut(&str, f64) -> bool,
+) -> Result<Converted> {
     let mut timer = StageTimer::default();
     let stage = |progress: &mut dyn FnMut(&str, f64) -> bool, name: &str, f: f64| {
         if progress(name, f) {
@@ -118,15 +136,14 @@ pub fn convert(
         "simplification": simplified.stats,
         "run": extra_options,
     });
-    fit_and_write(
+    fit_and_measure(
         input,
         simplified.mesh,
         caster.as_ref(),
         &po,
         timer,
         extra,
-        Some(&fitmap),
-        dir,
+        Some(fitmap),
         progress,
     )
 }

@@ -203,50 +203,155 @@ fn cpp_package_builds_installs_and_matches_the_cli() {
         "--self-test",
         "progress",
         "--cancel-at",
-        "0.3",
+        "self-test:0.3",
     ]));
     let err = stderr(&out);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("cancelled by the caller"), "{err}");
-    let latency_ms: f64 = err
-        .lines()
-        .find_map(|l| l.strip_prefix("cancel latency: "))
-        .and_then(|l| l.trim_end_matches(" ms").parse().ok())
-        .unwrap_or_else(|| panic!("no cancel latency in {err}"));
+    let latency_ms = cancel_latency_ms(&err);
     // The issue's bar is 1 s; the fake stage's steps are 1 ms each.
     assert!(
         latency_ms < 1000.0,
         "cancelled call took {latency_ms} ms to return"
     );
 
-    // --- convert on a real mesh, and from two threads at once ----------------
+    // --- convert on a real mesh: the same control mesh bytes and metrics as
+    // the CLI's. Both read `data/spot.ply` under the same name, so even the
+    // "run" part of report.json agrees; only timings may differ.
     let spot = root.join("data/spot.ply");
-    let out = run(Command::new(example("convert"))
-        .arg(&spot)
-        .arg(tmp.path().join("spot.obj")));
-    // LEAD: once `convert` is wired, expect success here and compare
-    // spot.obj (and the metrics) with `subdfit convert data/spot.ply`.
-    assert_eq!(out.status.code(), Some(1), "{}", stderr(&out));
-    assert!(
-        stderr(&out).contains("convert is not available in this build yet"),
-        "{}",
-        stderr(&out)
+    let cpp_obj = tmp.path().join("spot.obj");
+    let cpp_report = tmp.path().join("spot_report.json");
+    run_ok(
+        Command::new(example("convert"))
+            .arg(&spot)
+            .arg(&cpp_obj)
+            .arg("--report")
+            .arg(&cpp_report),
     );
+    let cli_dir = tmp.path().join("cli_spot");
+    run_ok(
+        Command::new(cli)
+            .arg("convert")
+            .arg(&spot)
+            .arg("-o")
+            .arg(&cli_dir)
+            .arg("--quiet"),
+    );
+    let cli_obj = std::fs::read(cli_dir.join("control.obj")).unwrap();
+    assert!(
+        std::fs::read(&cpp_obj).unwrap() == cli_obj,
+        "the C++ host's control.obj differs from the CLI's"
+    );
+    let metrics = |path: &Path| {
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        let mut out = Vec::new();
+        flatten_numbers(&v, String::new(), &mut out);
+        // Wall-clock times and memory peaks vary from run to run.
+        out.retain(|(k, _)| !(k.contains("seconds") || k.contains("peak_memory")));
+        out
+    };
+    let (cpp_m, cli_m) = (metrics(&cpp_report), metrics(&cli_dir.join("report.json")));
+    assert!(cli_m.len() > 50, "too few metrics: {cli_m:?}");
+    assert!(
+        cli_m
+            .iter()
+            .any(|(k, _)| k == "accuracy.limit.rms_permille"),
+        "{cli_m:?}"
+    );
+    assert_eq!(cpp_m, cli_m, "C++ and CLI metrics differ");
+
+    // --- two conversions at once from two host threads: each equals the lone
+    // call's result, and an error in one leaves the other alone.
+    let (a_obj, b_obj) = (tmp.path().join("a.obj"), tmp.path().join("b.obj"));
+    run_ok(
+        Command::new(example("convert_concurrent"))
+            .arg(&spot)
+            .arg(&spot)
+            .arg(&a_obj)
+            .arg(&b_obj),
+    );
+    for out in [&a_obj, &b_obj] {
+        assert!(std::fs::read(out).unwrap() == cli_obj, "{}", out.display());
+    }
+    let _ = std::fs::remove_file(&a_obj);
     let out = run(Command::new(example("convert_concurrent"))
         .arg(&spot)
         .arg(&bad)
-        .arg(tmp.path().join("a.obj"))
-        .arg(tmp.path().join("b.obj")));
+        .arg(&a_obj)
+        .arg(&b_obj));
     let err = stderr(&out);
-    // LEAD: with `convert` wired, the spot.ply job succeeds and its output
-    // must equal the lone call's.
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(
         err.contains(&format!("{}: error: {cli_msg}", bad.display())),
         "{err}"
     );
-    assert!(
-        err.contains("convert is not available in this build yet"),
-        "{err}"
-    );
+    assert!(std::fs::read(&a_obj).unwrap() == cli_obj, "{err}");
+
+    // --- cancelling a real conversion (bunny, ../shared/data) at 30 % of its
+    // two long stages: the call returns within 1 s of the cancel.
+    let bunny = data_dir().map(|d| d.join("bunny.ply"));
+    match bunny {
+        Some(bunny) if bunny.is_file() => {
+            for stage in ["fitmap", "simplify"] {
+                let out = run(Command::new(example("convert"))
+                    .arg(&bunny)
+                    .arg(tmp.path().join("bunny.obj"))
+                    .arg("--cancel-at")
+                    .arg(format!("{stage}:0.3")));
+                let err = stderr(&out);
+                assert_eq!(out.status.code(), Some(1), "{err}");
+                assert!(err.contains("cancelled by the caller"), "{err}");
+                assert!(!tmp.path().join("bunny.obj").exists());
+                let ms = cancel_latency_ms(&err);
+                println!("bunny cancelled at {stage} 30 %: returned in {ms:.1} ms");
+                assert!(
+                    ms < 1000.0,
+                    "{stage}: cancelled call took {ms} ms to return"
+                );
+            }
+        }
+        _ => println!(
+            "SKIPPED (bunny cancellation): bunny.ply not found; set SUBDFIT_DATA or \
+             provide ../shared/data"
+        ),
+    }
+}
+
+fn cancel_latency_ms(err: &str) -> f64 {
+    err.lines()
+        .find_map(|l| l.strip_prefix("cancel latency: "))
+        .and_then(|l| l.trim_end_matches(" ms").parse().ok())
+        .unwrap_or_else(|| panic!("no cancel latency in {err}"))
+}
+
+/// Where the shared test meshes are: `$SUBDFIT_DATA` or `../shared/data`.
+fn data_dir() -> Option<PathBuf> {
+    let d = std::env::var_os("SUBDFIT_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data"));
+    d.is_dir().then_some(d)
+}
+
+/// The numeric leaves of a JSON value as (dotted path, value).
+fn flatten_numbers(v: &serde_json::Value, key: String, out: &mut Vec<(String, f64)>) {
+    match v {
+        serde_json::Value::Number(n) => out.push((key, n.as_f64().unwrap())),
+        serde_json::Value::Object(m) => {
+            for (k, v) in m {
+                let k = if key.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{key}.{k}")
+                };
+                flatten_numbers(v, k, out);
+            }
+        }
+        serde_json::Value::Array(a) => {
+            for (i, v) in a.iter().enumerate() {
+                flatten_numbers(v, format!("{key}[{i}]"), out);
+            }
+        }
+        _ => {}
+    }
 }

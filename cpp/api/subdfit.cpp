@@ -122,6 +122,7 @@ Result result(ffi::FfiConversion&& c) {
   r.metrics.reserve(c.metrics.size());
   for (const ffi::FfiMetric& x : c.metrics) r.metrics.push_back(Metric{to_string(x.name), x.value});
   r.report_json = to_string(c.report_json);
+  r.control_obj.assign(reinterpret_cast<const char*>(c.control_obj.data()), c.control_obj.size());
   return r;
 }
 

@@ -92,12 +92,15 @@ inline void append_obj_number(std::string& out, double x) {
     append_exp(out, x);
 }
 
+inline void write_file(const std::string& path, const std::string& text);
+
 // Writes the control mesh as subdfit's OBJ writer does: positions, UVs when
 // there are any, faces (1-based), then OpenSubdiv's crease/corner tags.
 inline void write_control_obj(const std::string& path, const subdfit::ControlMesh& m) {
   std::string text = "# subdfit 0.1.0\n# " + std::to_string(m.num_vertices()) + " vertices, " +
                      std::to_string(m.num_faces()) + " faces, " + std::to_string(m.creases.size()) +
-                     " creases, " + std::to_string(m.corners.size()) + " corners\n";
+                     " creases, " + std::to_string(m.corners.size()) + " corners" +
+                     (m.uvs.empty() ? "" : "; vt: displacement.exr atlas") + "\n";
   for (std::size_t i = 0; i < m.num_vertices(); ++i) {
     text += 'v';
     for (int k = 0; k < 3; ++k) {
@@ -133,7 +136,12 @@ inline void write_control_obj(const std::string& path, const subdfit::ControlMes
     append_obj_number(text, c.sharpness);
     text += '\n';
   }
-  // Write under a temporary name, then rename: never a half-written file.
+  write_file(path, text);
+}
+
+// Writes `text` under a temporary name, then renames: never a half-written
+// file.
+inline void write_file(const std::string& path, const std::string& text) {
   const std::string tmp = path + ".tmp";
   std::FILE* f = std::fopen(tmp.c_str(), "wb");
   if (!f) throw std::runtime_error(path + ": cannot open for writing");

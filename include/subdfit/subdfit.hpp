@@ -111,9 +111,10 @@ enum class FitMethod { Point, Sdm };
 
 // The options of `subdfit convert` / `subdfit fit`, with the CLI's defaults.
 struct Options {
-  // --tolerance: simplification tolerance as a fraction of the input's
-  // bounding-box diagonal (0.01 = 1%).
-  double tolerance = 0.01;
+  // --tolerance: τ of the M-fitmap (Fitmaps §3.1.3), the share of a
+  // neighbourhood allowed to be unreachable by normal projection (the paper
+  // uses 0.01 and 0.1); larger τ, fewer patches. Default as the CLI's.
+  double tolerance = 0.05;
   // --faces: target number of control faces; 0 lets the tolerance decide.
   std::uint32_t target_faces = 0;
   // --mode
@@ -146,7 +147,8 @@ struct Result {
   ControlMesh control;
   std::vector<DisplacementTile> tiles;
   std::vector<Metric> metrics;  // the numbers of report.json, in its order
-  std::string report_json;      // report.json, byte for byte as the CLI writes it
+  std::string report_json;      // report.json as the CLI writes it (timings vary per run)
+  std::string control_obj;      // control.obj, byte for byte as the CLI writes it
 
   // The metric called `name`, or nullptr.
   const double* metric(std::string_view name) const {

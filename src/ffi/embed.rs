@@ -58,6 +58,7 @@ pub(crate) mod bridge {
         tiles: Vec<FfiTile>,
         metrics: Vec<FfiMetric>,
         report_json: String,
+        control_obj: Vec<u8>,
     }
 
     extern "Rust" {
@@ -283,6 +284,7 @@ fn conversion(c: embed::Conversion) -> FfiConversion {
             .map(|(name, value)| FfiMetric { name, value })
             .collect(),
         report_json: c.report_json,
+        control_obj: c.control_obj,
     }
 }
 

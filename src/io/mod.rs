@@ -18,7 +18,7 @@ use crate::error::{Error, Result};
 use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId};
 
 pub use obj::{parse_obj, read_obj, ObjMesh};
-pub use obj_uv::write_control_obj_with_uvs;
+pub use obj_uv::{control_obj_with_uvs, write_control_obj_with_uvs};
 pub use openmesh::read_openmesh;
 pub use ply::{parse_ply, read_ply};
 pub use usd::write_usda;

@@ -44,7 +44,7 @@ mod output;
 mod pipeline;
 
 pub use output::{write_outputs, OutputFiles, OUTPUT_NAMES};
-pub use pipeline::{fit_and_write, PipelineOptions};
+pub use pipeline::{fit_and_measure, fit_and_write, write_converted, Converted, PipelineOptions};
 
 use std::collections::BTreeMap;
 use std::time::Instant;

@@ -12,7 +12,9 @@ use crate::fit::{fit_with_progress, FitOptions, Progress};
 use crate::mesh::{ControlMesh, ValidatedMesh};
 use crate::raycast::RayCaster;
 
-use super::{evaluate_surfaces, write_outputs, MetricsOptions, OutputFiles, Report, StageTimer};
+use super::{
+    evaluate_surfaces, write_outputs, MetricsOptions, OutputFiles, Report, StageTimer, Surfaces,
+};
 
 /// Options of [`fit_and_write`].
 #[derive(Clone, Debug, Default, Serialize)]
@@ -39,26 +41,35 @@ impl PipelineOptions {
     }
 }
 
-/// Fits `control` to `input.mesh` (`caster` built over it), measures the
-/// result and writes every output into `dir` (see [`write_outputs`]).
-/// `timer` carries the stages run before (reading, simplification …) into
-/// the report; `extra_options` is stored in `report.json` beside the
+/// Everything a conversion produces, before anything is written: what
+/// [`write_converted`] puts on disk and what the C++ API hands to a host.
+pub struct Converted {
+    /// The fitted control mesh.
+    pub control: ControlMesh,
+    pub surfaces: Surfaces,
+    pub report: Report,
+    /// The Fitmap written as `fitmap.ply`, when one was computed or given.
+    pub fitmap: Option<Fitmap>,
+}
+
+/// Fits `control` to `input.mesh` (`caster` built over it) and measures the
+/// result. `timer` carries the stages run before (reading, simplification
+/// …) into the report; `extra_options` is stored in `report.json` beside the
 /// pipeline's own options. `precomputed_fitmap` (e.g. the one the
-/// simplification used) is written as `fitmap.ply` instead of computing
-/// one. Stages for `progress`: `"fit"`,
-/// `"displacement"`, `"metrics"`, `"fitmap"`, `"write"`.
+/// simplification used) is kept for `fitmap.ply` instead of computing one.
+/// Stages for `progress`: `"fit"`, `"displacement"`, `"metrics"`,
+/// `"fitmap"`.
 #[allow(clippy::too_many_arguments)]
-pub fn fit_and_write(
+pub fn fit_and_measure(
     input: &ValidatedMesh,
     control: ControlMesh,
     caster: &dyn RayCaster,
     opts: &PipelineOptions,
     mut timer: StageTimer,
     extra_options: serde_json::Value,
-    precomputed_fitmap: Option<&Fitmap>,
-    dir: &Path,
+    precomputed_fitmap: Option<Fitmap>,
     progress: &mut Progress<'_>,
-) -> Result<(Report, Vec<PathBuf>)> {
+) -> Result<Converted> {
     let mesh = &input.mesh;
     let fitted = timer.run("fit", || {
         fit_with_progress(mesh, control, caster, &opts.fit, progress)
@@ -66,17 +77,16 @@ pub fn fit_and_write(
     let surfaces = timer.run("displacement+metrics", || {
         evaluate_surfaces(mesh, &fitted.control, caster, &opts.metrics, progress)
     })?;
-    let computed = match (&opts.fitmap, precomputed_fitmap) {
+    let fitmap = match (&opts.fitmap, precomputed_fitmap) {
+        (_, Some(f)) => Some(f),
         (Some(fo), None) => Some(timer.run("fitmap", || {
             crate::fit::report_progress(progress, "fitmap", 0.0)?;
             let f = compute_fitmap(mesh, caster, fo)?;
             crate::fit::report_progress(progress, "fitmap", 1.0)?;
             Ok(f)
         })?),
-        _ => None,
+        (None, None) => None,
     };
-    let fitmap = precomputed_fitmap.or(computed.as_ref());
-    crate::fit::report_progress(progress, "write", 0.0)?;
     let options = serde_json::json!({ "pipeline": opts, "run": extra_options });
     let report = Report::new(
         input.report.clone(),
@@ -86,16 +96,60 @@ pub fn fit_and_write(
         timer.stages,
         options,
     );
+    Ok(Converted {
+        control: fitted.control,
+        surfaces,
+        report,
+        fitmap,
+    })
+}
+
+/// Writes a conversion into `dir` (all or nothing, see [`write_outputs`]).
+/// Stage for `progress`: `"write"`.
+pub fn write_converted(
+    input: &ValidatedMesh,
+    c: &Converted,
+    dir: &Path,
+    progress: &mut Progress<'_>,
+) -> Result<Vec<PathBuf>> {
+    crate::fit::report_progress(progress, "write", 0.0)?;
     let written = write_outputs(
         dir,
         &OutputFiles {
-            mesh,
-            control: &fitted.control,
-            surfaces: &surfaces,
-            fitmap,
-            report: &report,
+            mesh: &input.mesh,
+            control: &c.control,
+            surfaces: &c.surfaces,
+            fitmap: c.fitmap.as_ref(),
+            report: &c.report,
         },
     )?;
     crate::fit::report_progress(progress, "write", 1.0)?;
-    Ok((report, written))
+    Ok(written)
+}
+
+/// [`fit_and_measure`] then [`write_converted`]: every output into `dir`.
+#[allow(clippy::too_many_arguments)]
+pub fn fit_and_write(
+    input: &ValidatedMesh,
+    control: ControlMesh,
+    caster: &dyn RayCaster,
+    opts: &PipelineOptions,
+    timer: StageTimer,
+    extra_options: serde_json::Value,
+    precomputed_fitmap: Option<Fitmap>,
+    dir: &Path,
+    progress: &mut Progress<'_>,
+) -> Result<(Report, Vec<PathBuf>)> {
+    let c = fit_and_measure(
+        input,
+        control,
+        caster,
+        opts,
+        timer,
+        extra_options,
+        precomputed_fitmap,
+        progress,
+    )?;
+    let written = write_converted(input, &c, dir, progress)?;
+    Ok((c.report, written))
 }

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use anyhow::Result;
 use clap::Args;
+use subdfit::analysis::fitmap::DEFAULT_TOLERANCE;
 use subdfit::fit::Objective;
 use subdfit::pipeline::{convert as run_convert, ConvertOptions};
 
@@ -22,9 +23,10 @@ pub struct ConvertArgs {
     /// τ, the only parameter of the method (Fitmaps §3.1.3): the share of a
     /// neighbourhood allowed to be unreachable by normal projection, as a
     /// fraction (0.01 = the paper's 1 %, 0.1 = its 10 %); larger τ, fewer
-    /// patches. Default: the Fitmap's default (see `subdfit fitmap --help`).
-    #[arg(long)]
-    tolerance: Option<f64>,
+    /// patches. The default, 5 %, sits between the paper's two settings
+    /// (see `subdfit fitmap --help`).
+    #[arg(long, default_value_t = DEFAULT_TOLERANCE)]
+    tolerance: f64,
     /// Stop simplifying at this many faces (the paper's "*" rows).
     #[arg(long)]
     faces: Option<usize>,
@@ -48,7 +50,7 @@ pub struct ConvertArgs {
 pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
     let input = subdfit::io::read_mesh(&a.mesh)?;
     let opts = ConvertOptions::default()
-        .with_tolerance(a.tolerance)
+        .with_tolerance(Some(a.tolerance))
         .with_target_faces(a.faces)
         .with_m_fitmap(!a.no_mfitmap)
         .with_objective(match a.fit {
