@@ -570,7 +570,7 @@ UniformRefinement uniform_refine(std::uint32_t scheme, std::uint32_t num_vertice
     std::vector<std::uint8_t> kind(n, 255);
     std::vector<std::vector<std::uint32_t>> comp(n);
     auto assign = [&](Far::Index child, std::uint8_t k, Far::ConstIndexArray verts) {
-      if (child == Far::INDEX_INVALID) return;  // e.g. Loop faces have no child vertex
+      if (child == Far::INDEX_INVALID) return;
       if (child < 0 || static_cast<std::size_t>(child) >= n || kind[child] != 255)
         throw std::logic_error("refined vertex with no or several parents");
       kind[child] = k;
@@ -581,7 +581,11 @@ UniformRefinement uniform_refine(std::uint32_t scheme, std::uint32_t num_vertice
       assign(parent.GetVertexChildVertex(v), 0, Far::ConstIndexArray(one, 1));
     }
     for (int e = 0; e < parent.GetNumEdges(); ++e) assign(parent.GetEdgeChildVertex(e), 1, parent.GetEdgeVertices(e));
-    for (int f = 0; f < parent.GetNumFaces(); ++f) assign(parent.GetFaceChildVertex(f), 2, parent.GetFaceVertices(f));
+    // Loop's triangle split creates no face vertices, and its refinement
+    // keeps no face-child-vertex table to ask (reading it is out of bounds).
+    if (scheme == 0)
+      for (int f = 0; f < parent.GetNumFaces(); ++f)
+        assign(parent.GetFaceChildVertex(f), 2, parent.GetFaceVertices(f));
     for (std::size_t c = 0; c < n; ++c) {
       if (kind[c] == 255) throw std::logic_error("refined vertex without a parent component");
       out.kinds.push_back(kind[c]);

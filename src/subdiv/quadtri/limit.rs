@@ -117,8 +117,9 @@ fn power_limit_row(l: &Level, w: u32) -> Result<Sparse> {
                 .parents
                 .iter()
                 .position(|p| *p == super::Parent::Face(f))
-                .ok_or_else(|| Error::topology(format!("vertex {w}"), "quad without a child vertex"))?
-                as u32;
+                .ok_or_else(|| {
+                    Error::topology(format!("vertex {w}"), "quad without a child vertex")
+                })? as u32;
             slot_child.push(fc);
         }
     }
@@ -157,7 +158,11 @@ fn power_limit_row(l: &Level, w: u32) -> Result<Sparse> {
                 }
             }
         }
-        let d = x.iter().zip(&y).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        let d = x
+            .iter()
+            .zip(&y)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
         std::mem::swap(&mut x, &mut y);
         if d < 1e-16 {
             converged = true;
@@ -221,7 +226,8 @@ impl QuadTriEvaluator {
         let rows = (0..fine.num_vertices() as u32)
             .map(|v| limit_row(fine, v))
             .collect::<Result<Vec<_>>>()?;
-        let limits = SparseRows::from_sparse(&rows).compose(&refiner.stencils(level), mesh.num_vertices());
+        let limits =
+            SparseRows::from_sparse(&rows).compose(&refiner.stencils(level), mesh.num_vertices());
         Ok(QuadTriEvaluator {
             refiner,
             face_sizes: mesh.face_sizes(),
@@ -294,17 +300,27 @@ impl QuadTriEvaluator {
             let p3 = std::array::from_fn::<f64, 3, _>(|i| 0.5 * (e(k)[i] + e(k + 2)[i]));
             let (u, v) = (loc.u, loc.v);
             let mut b: [f64; 3] = std::array::from_fn(|i| {
-                (1.0 - u) * (1.0 - v) * p0[i] + u * (1.0 - v) * p1[i] + u * v * p2[i] + (1.0 - u) * v * p3[i]
+                (1.0 - u) * (1.0 - v) * p0[i]
+                    + u * (1.0 - v) * p1[i]
+                    + u * v * p2[i]
+                    + (1.0 - u) * v * p3[i]
             });
-            let mut bu: [f64; 3] =
-                std::array::from_fn(|i| -(1.0 - v) * p0[i] + (1.0 - v) * p1[i] + v * p2[i] - v * p3[i]);
-            let mut bv: [f64; 3] =
-                std::array::from_fn(|i| -(1.0 - u) * p0[i] - u * p1[i] + u * p2[i] + (1.0 - u) * p3[i]);
+            let mut bu: [f64; 3] = std::array::from_fn(|i| {
+                -(1.0 - v) * p0[i] + (1.0 - v) * p1[i] + v * p2[i] - v * p3[i]
+            });
+            let mut bv: [f64; 3] = std::array::from_fn(|i| {
+                -(1.0 - u) * p0[i] - u * p1[i] + u * p2[i] + (1.0 - u) * p3[i]
+            });
             for l in 0..self.level {
                 let child = (0..3).find(|&i| b[i] >= 0.5);
                 let (c, perm, off, sc): (u32, [usize; 3], [f64; 3], f64) = match child {
                     // Corner child (v_k, e(k,k+1), e(k-1,k)): (2b_k - 1, 2b_k+1, 2b_k-1).
-                    Some(i) => (i as u32, [i, (i + 1) % 3, (i + 2) % 3], [-1.0, 0.0, 0.0], 2.0),
+                    Some(i) => (
+                        i as u32,
+                        [i, (i + 1) % 3, (i + 2) % 3],
+                        [-1.0, 0.0, 0.0],
+                        2.0,
+                    ),
                     // Centre (e01, e12, e20): (1 - 2b2, 1 - 2b0, 1 - 2b1).
                     None => (3, [2, 0, 1], [1.0, 1.0, 1.0], -2.0),
                 };
@@ -360,7 +376,10 @@ impl LimitEvaluator for QuadTriEvaluator {
                 let mut du = DVec3::ZERO;
                 for &f in &fine.adj.vfaces[v] {
                     let c = fine.topo.face(f);
-                    let k = c.iter().position(|&x| x as usize == v).expect("v in its face");
+                    let k = c
+                        .iter()
+                        .position(|&x| x as usize == v)
+                        .expect("v in its face");
                     let next = lim[c[(k + 1) % c.len()] as usize] - p;
                     let prev = lim[c[(k + c.len() - 1) % c.len()] as usize] - p;
                     n += next.cross(prev);
@@ -378,7 +397,11 @@ impl LimitEvaluator for QuadTriEvaluator {
             })
             .collect())
     }
-    fn evaluate(&self, positions: &[DVec3], locations: &[SurfaceLocation]) -> Result<Vec<LimitPoint>> {
+    fn evaluate(
+        &self,
+        positions: &[DVec3],
+        locations: &[SurfaceLocation],
+    ) -> Result<Vec<LimitPoint>> {
         crate::subdiv::check_positions(self.num_control_vertices(), positions)?;
         crate::subdiv::check_locations(&self.face_sizes, locations)?;
         let lim = self.limits.apply(positions);

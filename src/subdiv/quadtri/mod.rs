@@ -163,7 +163,8 @@ impl SparseRows {
 pub fn check_mesh(mesh: &ControlMesh) -> Result<()> {
     if mesh.has_deletions() {
         return Err(Error::InvalidArgument(
-            "quad/triangle subdivision: the control mesh has deleted elements; compact it first".into(),
+            "quad/triangle subdivision: the control mesh has deleted elements; compact it first"
+                .into(),
         ));
     }
     mesh.validate()?;
