@@ -342,8 +342,8 @@ impl QuadTriEvaluator {
             for (c, x) in self.limits.row(v as usize) {
                 match out.iter_mut().find(|e| e.0 == c) {
                     Some(e) => {
-                        for k in 0..3 {
-                            e.1[k] += w[k] * x;
+                        for (acc, wk) in e.1.iter_mut().zip(w) {
+                            *acc += wk * x;
                         }
                     }
                     None => out.push((c, [w[0] * x, w[1] * x, w[2] * x])),
