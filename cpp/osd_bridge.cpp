@@ -447,3 +447,171 @@ StencilRows OsdTopology::limit_stencils(rust::Slice<const std::uint32_t> ptex, r
 }
 
 }  // namespace subdfit::osd
+
+// ---- uniform refinement (Catmark or Loop) ------------------------------------
+
+namespace subdfit::osd {
+
+namespace {
+
+// The descriptor checks of `new_osd_topology` (OpenSubdiv trusts its
+// descriptor: an out-of-range index is undefined behaviour there).
+void check_descriptor(std::uint32_t num_vertices, rust::Slice<const std::uint32_t> face_sizes,
+                      rust::Slice<const std::uint32_t> face_indices, rust::Slice<const std::uint32_t> crease_vertices,
+                      rust::Slice<const double> crease_weights, rust::Slice<const std::uint32_t> corner_vertices,
+                      rust::Slice<const double> corner_weights) {
+  if (num_vertices > static_cast<std::uint32_t>(INT32_MAX)) throw std::invalid_argument("too many vertices");
+  std::size_t total = 0;
+  for (auto n : face_sizes) {
+    if (n < 3) throw std::invalid_argument("face with fewer than 3 vertices");
+    total += n;
+  }
+  if (total != face_indices.size())
+    throw std::invalid_argument("face sizes sum to " + std::to_string(total) + " but " +
+                                std::to_string(face_indices.size()) + " indices were given");
+  auto check_index = [&](std::uint32_t i, const char* what) {
+    if (i >= num_vertices)
+      throw std::invalid_argument(std::string(what) + " vertex index " + std::to_string(i) + " out of range");
+  };
+  for (auto i : face_indices) check_index(i, "face");
+  if (crease_vertices.size() != 2 * crease_weights.size())
+    throw std::invalid_argument("creases need two vertices per weight");
+  for (auto i : crease_vertices) check_index(i, "crease");
+  if (corner_vertices.size() != corner_weights.size())
+    throw std::invalid_argument("corners need one vertex per weight");
+  for (auto i : corner_vertices) check_index(i, "corner");
+}
+
+}  // namespace
+
+UniformRefinement uniform_refine(std::uint32_t scheme, std::uint32_t num_vertices,
+                                 rust::Slice<const std::uint32_t> face_sizes,
+                                 rust::Slice<const std::uint32_t> face_indices,
+                                 rust::Slice<const std::uint32_t> crease_vertices,
+                                 rust::Slice<const double> crease_weights,
+                                 rust::Slice<const std::uint32_t> corner_vertices,
+                                 rust::Slice<const double> corner_weights, rust::Slice<const double> positions,
+                                 std::uint32_t levels, bool limits) {
+  if (scheme > 1) throw std::invalid_argument("scheme " + std::to_string(scheme) + " is neither Catmark (0) nor Loop (1)");
+  // RefineUniform stores the level in 4 bits; 10 is OpenSubdiv's documented maximum.
+  if (levels < 1 || levels > 10)
+    throw std::invalid_argument("uniform refinement level " + std::to_string(levels) + " outside 1..=10");
+  check_descriptor(num_vertices, face_sizes, face_indices, crease_vertices, crease_weights, corner_vertices,
+                   corner_weights);
+  if (positions.size() != 3 * static_cast<std::size_t>(num_vertices))
+    throw std::invalid_argument("expected " + std::to_string(num_vertices) + " positions");
+
+  std::vector<int> sizes(face_sizes.begin(), face_sizes.end());
+  std::vector<int> indices(face_indices.begin(), face_indices.end());
+  std::vector<int> cverts(crease_vertices.begin(), crease_vertices.end());
+  std::vector<float> cweights(crease_weights.begin(), crease_weights.end());
+  std::vector<int> kverts(corner_vertices.begin(), corner_vertices.end());
+  std::vector<float> kweights(corner_weights.begin(), corner_weights.end());
+  Far::TopologyDescriptor d;
+  d.numVertices = static_cast<int>(num_vertices);
+  d.numFaces = static_cast<int>(sizes.size());
+  d.numVertsPerFace = sizes.data();
+  d.vertIndicesPerFace = indices.data();
+  d.numCreases = static_cast<int>(cweights.size());
+  d.creaseVertexIndexPairs = cverts.data();
+  d.creaseWeights = cweights.data();
+  d.numCorners = static_cast<int>(kweights.size());
+  d.cornerVertexIndices = kverts.data();
+  d.cornerWeights = kweights.data();
+
+  std::unique_ptr<Far::TopologyRefiner> r;
+  {
+    std::lock_guard<std::mutex> lock(g_construction_mutex);
+    ErrorScope errors;
+    // Same options as the Catmark evaluator (sdc_options); the triangle
+    // subdivision rule only matters to Catmark.
+    using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
+    const Sdc::SchemeType type = scheme == 0 ? Sdc::SCHEME_CATMARK : Sdc::SCHEME_LOOP;
+    r.reset(Factory::Create(d, Factory::Options(type, sdc_options())));
+    if (!r) errors.fail("TopologyRefinerFactory<TopologyDescriptor>::Create");
+    errors.check("TopologyRefinerFactory<TopologyDescriptor>::Create");
+    // Full topology in the last level: PrimvarRefiner::Limit needs it
+    // (STACK-NOTES), and it costs nothing that matters here.
+    Far::TopologyRefiner::UniformOptions uo(static_cast<int>(levels));
+    uo.fullTopologyInLastLevel = true;
+    r->RefineUniform(uo);
+    errors.check("TopologyRefiner::RefineUniform");
+  }
+
+  UniformRefinement out;
+  const int nlevels = r->GetNumLevels();  // levels + 1
+  std::vector<std::size_t> first(static_cast<std::size_t>(nlevels) + 1, 0);
+  for (int l = 0; l < nlevels; ++l)
+    first[l + 1] = first[l] + static_cast<std::size_t>(r->GetLevel(l).GetNumVertices());
+  for (auto f : first) out.level_offsets.push_back(static_cast<std::uint32_t>(f));
+
+  // Positions of every level in one buffer (the far tutorials' recipe).
+  std::vector<P3> buf(first.back());
+  for (std::uint32_t i = 0; i < num_vertices; ++i)
+    buf[i] = P3{positions[3 * i], positions[3 * i + 1], positions[3 * i + 2]};
+  Far::PrimvarRefinerReal<double> primvar(*r);
+  for (int l = 1; l < nlevels; ++l) {
+    const P3* src = buf.data() + first[l - 1];
+    P3* dst = buf.data() + first[l];
+    primvar.Interpolate(l, src, dst);
+  }
+  out.positions.reserve(3 * buf.size());
+  for (const P3& p : buf) {
+    out.positions.push_back(p.x);
+    out.positions.push_back(p.y);
+    out.positions.push_back(p.z);
+  }
+
+  // Parent component of every refined vertex, from the parent level's
+  // child indices (TopologyLevel::Get*ChildVertex).
+  for (int l = 1; l < nlevels; ++l) {
+    const Far::TopologyLevel& parent = r->GetLevel(l - 1);
+    const std::size_t n = static_cast<std::size_t>(r->GetLevel(l).GetNumVertices());
+    std::vector<std::uint8_t> kind(n, 255);
+    std::vector<std::vector<std::uint32_t>> comp(n);
+    auto assign = [&](Far::Index child, std::uint8_t k, Far::ConstIndexArray verts) {
+      if (child == Far::INDEX_INVALID) return;
+      if (child < 0 || static_cast<std::size_t>(child) >= n || kind[child] != 255)
+        throw std::logic_error("refined vertex with no or several parents");
+      kind[child] = k;
+      for (int i = 0; i < verts.size(); ++i) comp[child].push_back(static_cast<std::uint32_t>(verts[i]));
+    };
+    for (int v = 0; v < parent.GetNumVertices(); ++v) {
+      const Far::Index one[1] = {v};
+      assign(parent.GetVertexChildVertex(v), 0, Far::ConstIndexArray(one, 1));
+    }
+    for (int e = 0; e < parent.GetNumEdges(); ++e) assign(parent.GetEdgeChildVertex(e), 1, parent.GetEdgeVertices(e));
+    // Loop's triangle split creates no face vertices, and its refinement
+    // keeps no face-child-vertex table to ask (reading it is out of bounds).
+    if (scheme == 0)
+      for (int f = 0; f < parent.GetNumFaces(); ++f)
+        assign(parent.GetFaceChildVertex(f), 2, parent.GetFaceVertices(f));
+    for (std::size_t c = 0; c < n; ++c) {
+      if (kind[c] == 255) throw std::logic_error("refined vertex without a parent component");
+      out.kinds.push_back(kind[c]);
+      out.parent_offsets.push_back(static_cast<std::uint32_t>(out.parents.size()));
+      for (auto v : comp[c]) out.parents.push_back(v);
+    }
+  }
+  out.parent_offsets.push_back(static_cast<std::uint32_t>(out.parents.size()));
+
+  if (limits) {
+    const int last = nlevels - 1;
+    const std::size_t n = static_cast<std::size_t>(r->GetLevel(last).GetNumVertices());
+    std::vector<P3> lim(n);
+    const P3* src = buf.data() + first[last];
+    P3* dst = lim.data();
+    ErrorScope errors;  // Limit reports a missing full topology via the callback
+    primvar.Limit(src, dst);
+    errors.check("PrimvarRefiner::Limit");
+    out.limits.reserve(3 * n);
+    for (const P3& p : lim) {
+      out.limits.push_back(p.x);
+      out.limits.push_back(p.y);
+      out.limits.push_back(p.z);
+    }
+  }
+  return out;
+}
+
+}  // namespace subdfit::osd

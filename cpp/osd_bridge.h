@@ -21,8 +21,9 @@
 
 namespace subdfit::osd {
 
-// Defined by the bridge (shared struct), see src/ffi/osd.rs.
+// Defined by the bridge (shared structs), see src/ffi/osd.rs.
 struct StencilRows;
+struct UniformRefinement;
 
 rust::String library_version();
 
@@ -104,5 +105,24 @@ std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
                                               rust::Slice<const std::uint32_t> corner_vertices,
                                               rust::Slice<const double> corner_weights,
                                               std::uint32_t isolation_level);
+
+// Uniform refinement of vertex positions with `scheme` 0 = Catmark, 1 = Loop
+// (same boundary and creasing options as above; Loop needs an all-triangle
+// mesh, which OpenSubdiv itself checks), `levels` in 1..=10:
+// Far::TopologyRefiner::RefineUniform + PrimvarRefiner::Interpolate, level by
+// level. Every refined vertex also carries its parent component (kind 0 =
+// vertex, 1 = edge, 2 = face, with that component's vertices at the parent
+// level), so a caller can match OpenSubdiv's vertex order with its own. With
+// `limits`, PrimvarRefiner::Limit positions of the last level's vertices
+// are added. Independent of OsdTopology (no patch table is built). Throws
+// (-> Rust Err) on bad input or OpenSubdiv's refusal.
+UniformRefinement uniform_refine(std::uint32_t scheme, std::uint32_t num_vertices,
+                                 rust::Slice<const std::uint32_t> face_sizes,
+                                 rust::Slice<const std::uint32_t> face_indices,
+                                 rust::Slice<const std::uint32_t> crease_vertices,
+                                 rust::Slice<const double> crease_weights,
+                                 rust::Slice<const std::uint32_t> corner_vertices,
+                                 rust::Slice<const double> corner_weights, rust::Slice<const double> positions,
+                                 std::uint32_t levels, bool limits);
 
 }  // namespace subdfit::osd

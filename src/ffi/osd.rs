@@ -13,6 +13,22 @@ pub(crate) mod bridge {
         dv_weights: Vec<f64>,
     }
 
+    /// Uniform refinement of positions (`uniform_refine`): every level's
+    /// vertices, level `l` at `level_offsets[l]..level_offsets[l + 1]`
+    /// (xyz each in `positions`); for every refined vertex (levels 1.., in
+    /// that order) its parent component's kind (0 vertex, 1 edge, 2 face)
+    /// and vertices at the parent level (`parents[parent_offsets[i]..
+    /// parent_offsets[i + 1]]`); `limits` (xyz per last-level vertex) when
+    /// asked for.
+    struct UniformRefinement {
+        level_offsets: Vec<u32>,
+        positions: Vec<f64>,
+        kinds: Vec<u8>,
+        parent_offsets: Vec<u32>,
+        parents: Vec<u32>,
+        limits: Vec<f64>,
+    }
+
     unsafe extern "C++" {
         include!("subdfit/cpp/osd_bridge.h");
 
@@ -62,6 +78,22 @@ pub(crate) mod bridge {
             u: &[f64],
             v: &[f64],
         ) -> Result<StencilRows>;
+
+        /// `scheme` 0 = Catmark, 1 = Loop; `levels` in 1..=10.
+        #[allow(clippy::too_many_arguments)]
+        fn uniform_refine(
+            scheme: u32,
+            num_vertices: u32,
+            face_sizes: &[u32],
+            face_indices: &[u32],
+            crease_vertices: &[u32],
+            crease_weights: &[f64],
+            corner_vertices: &[u32],
+            corner_weights: &[f64],
+            positions: &[f64],
+            levels: u32,
+            limits: bool,
+        ) -> Result<UniformRefinement>;
     }
 }
 

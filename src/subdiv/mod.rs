@@ -17,7 +17,10 @@
 pub mod catmark;
 pub mod diff;
 pub mod osd;
+pub mod quadtri;
 pub mod refine;
+
+pub use quadtri::{QuadTriEvaluator, QuadTriRefiner};
 
 use serde::Serialize;
 

@@ -358,6 +358,140 @@ impl LimitEvaluator for OsdEvaluator {
     }
 }
 
+/// OpenSubdiv's subdivision scheme for [`osd_refine_uniform`].
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum OsdScheme {
+    /// `Sdc::SCHEME_CATMARK` (any polygons).
+    Catmark,
+    /// `Sdc::SCHEME_LOOP` (triangles only; OpenSubdiv refuses other faces).
+    Loop,
+}
+
+/// The parent component of a vertex refined by OpenSubdiv, named by its
+/// vertices at the parent level (OpenSubdiv's numbering of that level).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum OsdParent {
+    Vertex(u32),
+    Edge(u32, u32),
+    /// The face's vertices in order.
+    Face(Vec<u32>),
+}
+
+/// Result of [`osd_refine_uniform`].
+#[derive(Clone, Debug)]
+pub struct OsdUniformRefinement {
+    /// Vertex positions of levels `0..=levels` in OpenSubdiv's order.
+    pub levels: Vec<Vec<DVec3>>,
+    /// `parents[l - 1][i]`: the parent component of vertex `i` of level `l`.
+    pub parents: Vec<Vec<OsdParent>>,
+    /// `PrimvarRefiner::Limit` positions of the last level's vertices, when
+    /// asked for.
+    pub limits: Option<Vec<DVec3>>,
+}
+
+/// Uniform refinement of `mesh`'s positions by OpenSubdiv to `levels`
+/// (1..=10): `Far::TopologyRefiner::RefineUniform` and
+/// `PrimvarRefiner::Interpolate`, with the conventions of the module doc
+/// (boundary "edge and corner", uniform creasing). OpenSubdiv orders refined
+/// vertices its own way; [`OsdUniformRefinement::parents`] names each one's
+/// parent component so callers can match them with another refiner's. With
+/// `limits`, `PrimvarRefiner::Limit` of the last level too. This is the
+/// reference of the quad/triangle scheme's differential test (Catmark on
+/// all-quad meshes, Loop on all-triangle meshes).
+pub fn osd_refine_uniform(
+    mesh: &ControlMesh,
+    scheme: OsdScheme,
+    levels: u32,
+    limits: bool,
+) -> Result<OsdUniformRefinement> {
+    if !(1..=10).contains(&levels) {
+        return Err(Error::InvalidArgument(format!(
+            "OpenSubdiv uniform refinement: {levels} levels requested, 1..=10 supported"
+        )));
+    }
+    let num_vertices = mesh.num_vertices();
+    let nv = u32::try_from(num_vertices).map_err(|_| {
+        Error::InvalidArgument(format!("{num_vertices} control vertices are too many"))
+    })?;
+    if let Some(i) = mesh.positions().iter().position(|p| !p.is_finite()) {
+        return Err(Error::InvalidArgument(format!(
+            "control position of vertex {i} is not finite"
+        )));
+    }
+    let creases = mesh.creases();
+    let crease_vertices: Vec<u32> = creases.iter().flat_map(|c| [c.0 .0, c.1 .0]).collect();
+    let crease_weights: Vec<f64> = creases.iter().map(|c| c.2).collect();
+    let corners = mesh.corners();
+    let corner_vertices: Vec<u32> = corners.iter().map(|c| c.0 .0).collect();
+    let corner_weights: Vec<f64> = corners.iter().map(|c| c.1).collect();
+    let flat: Vec<f64> = mesh.positions().iter().flat_map(|p| p.to_array()).collect();
+    let r = bridge::uniform_refine(
+        match scheme {
+            OsdScheme::Catmark => 0,
+            OsdScheme::Loop => 1,
+        },
+        nv,
+        &mesh.face_sizes(),
+        &mesh.face_indices_flat(),
+        &crease_vertices,
+        &crease_weights,
+        &corner_vertices,
+        &corner_weights,
+        &flat,
+        levels,
+        limits,
+    )
+    .map_err(backend)?;
+    let broken = |what: &str| Error::backend("OpenSubdiv", format!("uniform refinement: {what}"));
+    let offs: Vec<usize> = r.level_offsets.iter().map(|&o| o as usize).collect();
+    if offs.len() != levels as usize + 2 || r.positions.len() != 3 * offs[offs.len() - 1] {
+        return Err(broken("level offsets do not match the positions"));
+    }
+    let pts: Vec<DVec3> = r
+        .positions
+        .chunks_exact(3)
+        .map(|x| DVec3::new(x[0], x[1], x[2]))
+        .collect();
+    let level_pts: Vec<Vec<DVec3>> = offs.windows(2).map(|w| pts[w[0]..w[1]].to_vec()).collect();
+    let refined = offs[offs.len() - 1] - offs[1];
+    if r.kinds.len() != refined || r.parent_offsets.len() != refined + 1 {
+        return Err(broken("parent arrays do not match the refined vertices"));
+    }
+    let mut all = Vec::with_capacity(refined);
+    for (i, &k) in r.kinds.iter().enumerate() {
+        let p = &r.parents[r.parent_offsets[i] as usize..r.parent_offsets[i + 1] as usize];
+        all.push(match (k, p) {
+            (0, &[v]) => OsdParent::Vertex(v),
+            (1, &[a, b]) => OsdParent::Edge(a, b),
+            (2, f) if f.len() >= 3 => OsdParent::Face(f.to_vec()),
+            _ => return Err(broken("malformed parent component")),
+        });
+    }
+    let mut parents = Vec::with_capacity(levels as usize);
+    let mut at = 0;
+    for l in 1..=levels as usize {
+        let n = offs[l + 1] - offs[l];
+        parents.push(all[at..at + n].to_vec());
+        at += n;
+    }
+    let limits = limits.then(|| {
+        r.limits
+            .chunks_exact(3)
+            .map(|x| DVec3::new(x[0], x[1], x[2]))
+            .collect::<Vec<_>>()
+    });
+    if let Some(l) = &limits {
+        if l.len() != level_pts[levels as usize].len() {
+            return Err(broken("limit positions do not match the last level"));
+        }
+    }
+    Ok(OsdUniformRefinement {
+        levels: level_pts,
+        parents,
+        limits,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
