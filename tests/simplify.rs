@@ -158,8 +158,20 @@ fn deterministic_across_thread_counts() {
     subdfit::io::write_control_obj(&pb, &b.mesh).unwrap();
     assert_eq!(std::fs::read(&pa).unwrap(), std::fs::read(&pb).unwrap());
     eprintln!(
-        "spot natural end with F_M = 5 % diag: {} faces",
-        a.stats.faces
+        "spot natural end with F_M = 5 % diag: {} faces, median radius / F_M {:.3}, \
+         {} collapses refused by the M-fitmap test",
+        a.stats.faces, a.stats.median_radius_over_fm, a.stats.refused_m_fitmap
+    );
+    // The M-fitmap test bounds the patches it lets grow: at the natural end
+    // the typical patch is within F_M (doublet removals, which merge two
+    // patches unchecked, and rotations are the only way past it) and, the
+    // test being what ended the simplification, not far below it either
+    // (a collapse at most doubles a neighbour's area, so its radius by ~√2).
+    assert!(a.stats.refused_m_fitmap > 0);
+    assert!(
+        a.stats.median_radius_over_fm <= 1.0 && a.stats.median_radius_over_fm > 0.5,
+        "median radius / F_M = {}",
+        a.stats.median_radius_over_fm
     );
 }
 
