@@ -855,7 +855,9 @@ impl ControlMesh {
         revive: &[VertexId],
     ) -> Result<Vec<FaceId>> {
         for (i, &v) in revive.iter().enumerate() {
-            if v.idx() >= self.num_vertices() || !self.is_vertex_deleted(v) || revive[..i].contains(&v)
+            if v.idx() >= self.num_vertices()
+                || !self.is_vertex_deleted(v)
+                || revive[..i].contains(&v)
             {
                 return Err(Error::topology(
                     v.to_string(),

@@ -67,13 +67,17 @@ pub struct SimplifyOptions {
     pub check_every_step: bool,
     /// The surface guard (see [`Simplifier::guard`]): after the local refit
     /// every patch around the refit region must keep its centre within
-    /// `guard_scale · (F_S · r)⁴ + guard_floor · diag` of M along its normal
+    /// `guard_scale · (F_S · r)⁴ + guard_floor · √τ · diag` of M along its normal
     /// (`(F_S r)⁴ = a r⁴` is the S-fitmap's prediction of the RMS error of
     /// one patch of radius r, §3.1.2), and its limit normal must agree with
     /// M's there (`cos > guard_min_cos`); otherwise the collapse is undone
     /// and refused. `guard_scale = 0` turns the guard off.
     pub guard_scale: f64,
-    /// See `guard_scale`: a fraction of M's bounding-box diagonal.
+    /// See `guard_scale`: times √τ, a fraction of M's bounding-box
+    /// diagonal. τ, the Fitmap's tolerance to lost projectability, is the
+    /// method's one parameter (§3.1.3); the floor grows with it so that a
+    /// larger τ buys coarser patches from the guard too (0.05: 5‰ at
+    /// τ = 1 %, 16‰ at 10 %; below that the S-fitmap term rules).
     pub guard_floor: f64,
     /// See `guard_scale`.
     pub guard_min_cos: f64,
@@ -88,8 +92,8 @@ impl Default for SimplifyOptions {
             fit_sweeps: 3,
             max_dist: None,
             check_every_step: false,
-            guard_scale: 4.0,
-            guard_floor: 2e-3,
+            guard_scale: 8.0,
+            guard_floor: 0.05,
             guard_min_cos: 0.3,
         }
     }
@@ -747,7 +751,10 @@ impl<'a> Simplifier<'a> {
                     continue;
                 }
             };
-            let pair = (plan.keep.0.min(plan.remove.0), plan.keep.0.max(plan.remove.0));
+            let pair = (
+                plan.keep.0.min(plan.remove.0),
+                plan.keep.0.max(plan.remove.0),
+            );
             if self.refused.contains(&pair) {
                 continue;
             }
@@ -756,11 +763,7 @@ impl<'a> Simplifier<'a> {
                 continue;
             }
             let guard = self.opts.guard_scale > 0.0;
-            let snap = if guard {
-                Some(self.snapshot(f))
-            } else {
-                None
-            };
+            let snap = if guard { Some(self.snapshot(f)) } else { None };
             self.pos_log.clear();
             self.lim_log.clear();
             self.pos_log.push((plan.keep, self.k.position(plan.keep)));
@@ -963,7 +966,7 @@ impl<'a> Simplifier<'a> {
     /// the bound is the limit patch's (largest distance of a corner's limit
     /// point to their mean).
     fn guard(&self, checks: &[CentreCheck]) -> Option<bool> {
-        let floor = self.opts.guard_floor * self.diag;
+        let floor = self.opts.guard_floor * self.fitmap.tolerance.max(0.0).sqrt() * self.diag;
         for c in checks {
             if self.k.is_face_deleted(c.face) {
                 continue;
