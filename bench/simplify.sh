@@ -22,6 +22,6 @@ for mesh in bunny gargoyle; do
     /usr/bin/time -f "wall %e s, peak %M KB" taskset -c 0,1 \
       "$root/target/release/subdfit" simplify "$data/$mesh.ply" -o "$out/$mesh-$tau.obj" \
       --tolerance "$tau" --json --fitmap-cache "$root/target/fitmaps/$mesh-$tau.bin" |
-      grep -E '^  "(faces|irregular_vertices|collapses|stopped_at|seconds_fitmap|seconds_simplify|collapses_per_second)"|"(adaptivity_spearman|spearman_radius_fm|median_radius_over_fm|refused_m_fitmap)"'
+      grep -E '^  "(faces|irregular_vertices|collapses|stopped_at|seconds_fitmap|seconds_simplify|collapses_per_second)"|"(adaptivity_spearman|spearman_radius_fm|median_radius_over_fm|refused_m_fitmap|refused_guard_distance|refused_guard_normal)"'
   done
 done

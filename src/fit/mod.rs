@@ -334,6 +334,7 @@ pub fn fit_with_progress(
     let mut best = (positions.clone(), f64::INFINITY, 0usize, f64::INFINITY);
     let permille = 1000.0 / diag;
     let mut outlier_bound = f64::INFINITY;
+    let mut first_back: Option<f64> = None;
     for round in 0..=opts.max_iterations {
         let limit = stencils.apply(&positions);
         let (mut hits, stats) = project_along_normals(caster, &limit, max_dist)?;
@@ -401,10 +402,12 @@ pub fn fit_with_progress(
         // The other direction: φ only looks from the surface, so a surface
         // that leaves part of M uncovered (a patch flown off to another
         // sheet) can still score well one way. The RMS distance from M's
-        // vertices to the tessellated sample grids catches it; the larger
-        // of the two is the iterate's error (as the report's RMS L).
+        // vertices to the tessellated sample grids catches it; that measure
+        // is biased by the gaps between the grids (dominant on a dense
+        // control mesh), so only its rise over the first round counts.
         let back = mesh_to_samples_rms(mesh, &limit[..data_samples], &ks)?;
-        let score = one_way.max(back);
+        let back0 = *first_back.get_or_insert(back);
+        let score = one_way + (back - back0).max(0.0);
         iterations.push(FitIteration {
             rms_permille: rms * permille,
             score_permille: score * permille,
