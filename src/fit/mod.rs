@@ -34,9 +34,14 @@
 //! can meet another sheet of M, and a few such rows pull spikes.
 //!
 //! Parameter correction: the limit points move, so the samples are
-//! re-projected and the system re-solved while the RMS distance keeps
-//! falling (by more than [`FitOptions::min_improvement`], relative), at most
-//! [`FitOptions::max_iterations`] times; the best iterate is kept.
+//! re-projected and the system re-solved while the error keeps falling (by
+//! more than [`FitOptions::min_improvement`], relative), at most
+//! [`FitOptions::max_iterations`] times; the best iterate is kept, so the
+//! fit never returns a control mesh worse than its input. The error compared
+//! is [`FitIteration::score_permille`]: the RMS over *all* samples with the
+//! lost ones (unprojectable, outliers, feet on another sheet — see
+//! [`FitOptions::min_normal_cos`]) counted at the outlier bound, so that an
+//! update cannot look better by pushing samples out of reach.
 //!
 //! Objectives ([`Objective`]):
 //! - `Point`: point distance `|s − φ(s)|²`, x, y and z separate (three
@@ -132,6 +137,12 @@ pub struct FitOptions {
     /// thin parts can be another sheet of M far away; a handful of such
     /// rows is enough to pull control points into spikes.
     pub outlier_factor: f64,
+    /// A sample whose foot point's normal on M (interpolated vertex
+    /// normals) makes a cosine below this with the limit normal is left out
+    /// like an outlier: 0.3 (beyond ~73°). Such a foot is on another sheet
+    /// (the inside of a fold, the far side of a thin part), and pulling the
+    /// surface there folds it.
+    pub min_normal_cos: f64,
 }
 
 impl Default for FitOptions {
@@ -146,6 +157,7 @@ impl Default for FitOptions {
             max_dist: None,
             sdm_tangent_floor: 0.05,
             outlier_factor: 10.0,
+            min_normal_cos: 0.3,
         }
     }
 }
@@ -225,6 +237,9 @@ impl FitOptions {
 pub struct FitIteration {
     /// RMS of `|s − φ(s)|` over the samples used, ‰ of M's diagonal.
     pub rms_permille: f64,
+    /// RMS over all samples with the lost ones (unprojectable, outliers)
+    /// at the outlier bound, ‰: what the best iterate minimises.
+    pub score_permille: f64,
     pub unprojectable: usize,
     /// Projected samples left out as outliers.
     pub outliers: usize,
@@ -303,21 +318,23 @@ pub fn fit_with_progress(
     )?;
     let stencils = evaluator.stencils(&locations)?;
     let laplacian = umbrella(&control);
+    let m_normals = vertex_normals(mesh);
     let sdm = match opts.objective {
         Objective::Point => None,
         Objective::Sdm => {
-            let normals = vertex_normals(mesh);
-            let curv = curvature::triangle_curvatures(mesh, &normals);
-            Some((normals, curv))
+            let curv = curvature::triangle_curvatures(mesh, &m_normals);
+            Some((m_normals.clone(), curv))
         }
     };
 
     let nv = control.num_vertices();
     let mut positions = control.positions().to_vec();
     let mut iterations: Vec<FitIteration> = Vec::new();
-    let mut best = (positions.clone(), f64::INFINITY, 0usize);
+    // (positions, rms, round, score) of the best iterate so far.
+    let mut best = (positions.clone(), f64::INFINITY, 0usize, f64::INFINITY);
     let permille = 1000.0 / diag;
     let mut outlier_bound = f64::INFINITY;
+    let mut first_back: Option<f64> = None;
     for round in 0..=opts.max_iterations {
         let limit = stencils.apply(&positions);
         let (mut hits, stats) = project_along_normals(caster, &limit, max_dist)?;
@@ -332,8 +349,16 @@ pub fn fit_with_progress(
             }
         }
         let mut outliers = 0;
-        for h in hits.iter_mut() {
-            if matches!(h, Some(p) if p.offset.abs() > outlier_bound) {
+        for (h, s) in hits.iter_mut().zip(&limit) {
+            let Some(p) = h else { continue };
+            // Another sheet: too far, or facing away from the limit normal
+            // (M's interpolated normal at the foot against the sample's).
+            let t = mesh.triangles[p.triangle as usize];
+            let nm = (1.0 - p.u - p.v) * m_normals[t[0] as usize]
+                + p.u * m_normals[t[1] as usize]
+                + p.v * m_normals[t[2] as usize];
+            let facing = nm.normalize_or_zero().dot(s.normal()) >= opts.min_normal_cos;
+            if p.offset.abs() > outlier_bound || !facing {
                 *h = None;
                 outliers += 1;
             }
@@ -351,14 +376,47 @@ pub fn fit_with_progress(
             ));
         }
         let rms = (sum2 / count as f64).sqrt();
+        // The iterate's score: every sample counts, a lost one (no hit,
+        // outlier, other sheet) too, so an update that "improves" by losing
+        // samples does not look better.
+        // A lost sample counts at its distance to the closest point of M
+        // (at least the outlier bound when there is one): a spike whose
+        // samples φ cannot follow must weigh what it is, not vanish.
+        let lost_pts: Vec<DVec3> = hits
+            .iter()
+            .zip(&limit)
+            .filter(|(h, _)| h.is_none())
+            .map(|(_, s)| s.position)
+            .collect();
+        let floor = if outlier_bound.is_finite() {
+            outlier_bound
+        } else {
+            0.0
+        };
+        let lost2: f64 = caster
+            .closest_points(&lost_pts, f64::INFINITY)?
+            .iter()
+            .map(|c| c.map_or(max_dist, |c| c.distance).max(floor).powi(2))
+            .sum();
+        let one_way = ((sum2 + lost2) / limit.len() as f64).sqrt();
+        // The other direction: φ only looks from the surface, so a surface
+        // that leaves part of M uncovered (a patch flown off to another
+        // sheet) can still score well one way. The RMS distance from M's
+        // vertices to the tessellated sample grids catches it; that measure
+        // is biased by the gaps between the grids (dominant on a dense
+        // control mesh), so only its rise over the first round counts.
+        let back = mesh_to_samples_rms(mesh, &limit[..data_samples], &ks)?;
+        let back0 = *first_back.get_or_insert(back);
+        let score = one_way + (back - back0).max(0.0);
         iterations.push(FitIteration {
             rms_permille: rms * permille,
+            score_permille: score * permille,
             unprojectable: stats.unprojectable,
             outliers,
         });
-        let improved = rms < best.1 * (1.0 - opts.min_improvement);
-        if rms < best.1 {
-            best = (positions.clone(), rms, round);
+        let improved = score < best.3 * (1.0 - opts.min_improvement);
+        if score < best.3 {
+            best = (positions.clone(), rms, round, score);
         }
         if !improved || round == opts.max_iterations {
             break;
@@ -389,7 +447,7 @@ pub fn fit_with_progress(
             (round as f64 + 1.0) / (opts.max_iterations as f64 + 1.0),
         )?;
     }
-    let (positions, rms, best_iteration) = best;
+    let (positions, rms, best_iteration, _) = best;
     control.set_positions(positions)?;
     report_progress(progress, "fit", 1.0)?;
     Ok(Fitted {
@@ -409,6 +467,50 @@ pub fn fit_with_progress(
             best_iteration,
             seconds: t0.elapsed().as_secs_f64(),
         },
+    })
+}
+
+/// RMS distance from (up to 20,000, evenly strided) vertices of `mesh` to
+/// the triangulated `k × k` sample grids of the patches (`samples` in
+/// patch order, `ks` their sides): a cheap stand-in for the mesh-to-limit
+/// half of RMS L, biased upwards by the half-cell gaps between patches but
+/// the same bias for every iterate, which is all the comparison needs.
+fn mesh_to_samples_rms(
+    mesh: &TriMesh,
+    samples: &[crate::subdiv::LimitPoint],
+    ks: &[usize],
+) -> Result<f64> {
+    let mut tm = TriMesh {
+        positions: samples.iter().map(|s| s.position).collect(),
+        triangles: Vec::new(),
+    };
+    let mut base = 0u32;
+    for &k in ks {
+        let k32 = k as u32;
+        for j in 0..k32.saturating_sub(1) {
+            for i in 0..k32 - 1 {
+                let a = base + j * k32 + i;
+                let (b, c, d) = (a + 1, a + k32 + 1, a + k32);
+                tm.triangles.push([a, b, c]);
+                tm.triangles.push([a, c, d]);
+            }
+        }
+        base += k32 * k32;
+    }
+    if tm.triangles.is_empty() {
+        return Ok(0.0);
+    }
+    let caster = crate::raycast::make_raycaster(crate::raycast::RayBackend::Rust, &tm)?;
+    let stride = mesh.positions.len().div_ceil(20_000).max(1);
+    let pts: Vec<DVec3> = mesh.positions.iter().step_by(stride).copied().collect();
+    let hits = caster.closest_points(&pts, f64::INFINITY)?;
+    let (sum2, n) = hits.iter().flatten().fold((0.0, 0usize), |(s, n), h| {
+        (s + h.distance * h.distance, n + 1)
+    });
+    Ok(if n == 0 {
+        0.0
+    } else {
+        (sum2 / n as f64).sqrt()
     })
 }
 

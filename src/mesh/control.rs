@@ -838,7 +838,44 @@ impl ControlMesh {
         add: &[&[VertexId]],
         delete: &[VertexId],
     ) -> Result<Vec<FaceId>> {
-        self.check_replace(remove, add, delete)?;
+        self.replace_impl(remove, add, delete, &[])
+    }
+
+    /// The inverse of a [`ControlMesh::replace_faces`] that deleted
+    /// vertices: replaces the faces `remove` by `add`, where `add` may use
+    /// the deleted vertices `revive`, which come back to life (each must get
+    /// a face; their positions are whatever they were, their corner
+    /// sharpness 0). Lets a caller undo a local edit (e.g. a refused
+    /// collapse) without copying the mesh. Checked before anything changes,
+    /// like [`ControlMesh::replace_faces`].
+    pub fn restore_faces(
+        &mut self,
+        remove: &[FaceId],
+        add: &[&[VertexId]],
+        revive: &[VertexId],
+    ) -> Result<Vec<FaceId>> {
+        for (i, &v) in revive.iter().enumerate() {
+            if v.idx() >= self.num_vertices()
+                || !self.is_vertex_deleted(v)
+                || revive[..i].contains(&v)
+            {
+                return Err(Error::topology(
+                    v.to_string(),
+                    "cannot revive: out of range, live, or listed twice",
+                ));
+            }
+        }
+        self.replace_impl(remove, add, &[], revive)
+    }
+
+    fn replace_impl(
+        &mut self,
+        remove: &[FaceId],
+        add: &[&[VertexId]],
+        delete: &[VertexId],
+        revive: &[VertexId],
+    ) -> Result<Vec<FaceId>> {
+        self.check_replace(remove, add, delete, revive)?;
         // Every vertex whose half-edges may change.
         let mut touched: Vec<VertexId> = Vec::new();
         for &f in remove {
@@ -854,6 +891,9 @@ impl ControlMesh {
         // edge the new faces can reuse joins two touched vertices.
         let mut local: Vec<HalfedgeId> = Vec::new();
         for &v in &touched {
+            if self.is_vertex_deleted(v) {
+                continue; // a revived vertex: no half-edge yet
+            }
             local.extend(self.outgoing(v).flat_map(|h| [h, h.twin()]));
         }
         for &f in remove {
@@ -932,8 +972,9 @@ impl ControlMesh {
         // Stored half-edges and boundary links of the touched vertices. A
         // boundary vertex stores its (unique, by the check) outgoing
         // boundary half-edge; the incoming boundary half-edge links to it.
+        self.deleted_vertices -= revive.len();
         for &v in &touched {
-            if self.is_vertex_deleted(v) {
+            if self.is_vertex_deleted(v) && !revive.contains(&v) {
                 continue;
             }
             let mut any = HalfedgeId::INVALID;
@@ -989,8 +1030,11 @@ impl ControlMesh {
         remove: &[FaceId],
         add: &[&[VertexId]],
         delete: &[VertexId],
+        revive: &[VertexId],
     ) -> Result<()> {
-        let live_v = |v: VertexId| v.idx() < self.num_vertices() && !self.is_vertex_deleted(v);
+        let live_v = |v: VertexId| {
+            v.idx() < self.num_vertices() && (!self.is_vertex_deleted(v) || revive.contains(&v))
+        };
         for (i, &f) in remove.iter().enumerate() {
             if f.idx() >= self.num_faces() || self.is_face_deleted(f) || remove[..i].contains(&f) {
                 return Err(Error::topology(
@@ -1036,8 +1080,10 @@ impl ControlMesh {
         // Directed edges that will carry a face: those of kept faces at
         // touched vertices, and those of the new faces; each at most once.
         let mut used: Vec<(VertexId, VertexId)> = Vec::new();
+        // A revived vertex has no half-edge yet, hence no kept face.
+        let kept = |v: VertexId| !self.is_vertex_deleted(v);
         for &v in &touched {
-            for h in self.outgoing(v) {
+            for h in self.outgoing(v).take(if kept(v) { usize::MAX } else { 0 }) {
                 if let Some(f) = self.face_of(h) {
                     if !remove.contains(&f) {
                         used.push((v, self.head(h)));
@@ -1063,7 +1109,7 @@ impl ControlMesh {
         // those links form a single chain or a single cycle.
         for &v in &touched {
             let mut links: Vec<(VertexId, VertexId)> = Vec::new();
-            for h in self.outgoing(v) {
+            for h in self.outgoing(v).take(if kept(v) { usize::MAX } else { 0 }) {
                 if let Some(f) = self.face_of(h) {
                     if !remove.contains(&f) {
                         links.push((self.head(h), self.tail(self.prev(h))));

@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
-use subdfit::analysis::{compute_fitmap, FitmapOptions};
+use subdfit::analysis::{compute_fitmap, Fitmap, FitmapOptions};
 use subdfit::quad::{simplify_with_progress, SimplifyOptions, SimplifyStats, StopReason};
 use subdfit::raycast::{make_raycaster, RayBackend};
 
@@ -33,6 +33,73 @@ pub struct SimplifyArgs {
     /// Print a JSON summary instead of text (no progress bar).
     #[arg(long)]
     json: bool,
+    /// Development aid: read the Fitmap from this file if it exists (it
+    /// must match the mesh's vertex count and τ), else compute it and store
+    /// it there. The Fitmap of bunny takes minutes; the simplification alone
+    /// is what `bench/simplify.sh` times.
+    #[arg(long, hide = true)]
+    fitmap_cache: Option<PathBuf>,
+    /// Development aid: the surface guard's "scale,floor,min_cos" (see
+    /// `SimplifyOptions::guard_scale`).
+    #[arg(long, hide = true, value_delimiter = ',')]
+    guard: Option<Vec<f64>>,
+}
+
+/// Raw little-endian cache of the Fitmap fields the simplification reads:
+/// magic, τ, counts, then radii, s, m (f64) and m_step (u8).
+const CACHE_MAGIC: &[u8; 8] = b"SDFFMAP1";
+
+fn save_fitmap(path: &std::path::Path, f: &Fitmap) -> Result<()> {
+    let mut b = Vec::with_capacity(32 + 8 * (f.radii.len() + 2 * f.s.len()) + f.s.len());
+    b.extend_from_slice(CACHE_MAGIC);
+    b.extend_from_slice(&f.tolerance.to_le_bytes());
+    b.extend_from_slice(&(f.radii.len() as u64).to_le_bytes());
+    b.extend_from_slice(&(f.s.len() as u64).to_le_bytes());
+    for x in f.radii.iter().chain(&f.s).chain(&f.m) {
+        b.extend_from_slice(&x.to_le_bytes());
+    }
+    b.extend_from_slice(&f.m_step);
+    let tmp = path.with_extension("tmp");
+    std::fs::write(&tmp, &b).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
+}
+
+fn load_fitmap(path: &std::path::Path, nv: usize, tolerance: f64) -> Result<Option<Fitmap>> {
+    let Ok(b) = std::fs::read(path) else {
+        return Ok(None);
+    };
+    let bad = || anyhow::anyhow!("{}: not a Fitmap cache of this mesh and τ", path.display());
+    let f64_at = |i: usize| -> Result<f64> {
+        let s = b.get(i..i + 8).ok_or_else(bad)?;
+        Ok(f64::from_le_bytes(s.try_into().expect("8 bytes")))
+    };
+    if b.get(..8) != Some(CACHE_MAGIC.as_slice()) || f64_at(8)? != tolerance {
+        return Err(bad());
+    }
+    let nr = f64_at(16)?.to_bits() as usize;
+    let n = f64_at(24)?.to_bits() as usize;
+    if n != nv || b.len() != 32 + 8 * (nr + 2 * n) + n {
+        return Err(bad());
+    }
+    let mut at = 32;
+    let mut take = |k: usize| -> Result<Vec<f64>> {
+        let v = (0..k).map(|i| f64_at(at + 8 * i)).collect::<Result<_>>()?;
+        at += 8 * k;
+        Ok(v)
+    };
+    let radii = take(nr)?;
+    let s = take(n)?;
+    let m = take(n)?;
+    let m_step = b[32 + 8 * (nr + 2 * n)..].to_vec();
+    Ok(Some(Fitmap {
+        radii,
+        s,
+        m,
+        m_step,
+        tolerance,
+        stats: Default::default(),
+    }))
 }
 
 #[derive(Serialize)]
@@ -71,12 +138,29 @@ pub fn run(a: SimplifyArgs) -> Result<ExitCode> {
         fo = fo.with_tolerance(tau);
     }
     let tolerance = fo.tolerance;
-    let fitmap = compute_fitmap(&m.mesh, caster.as_ref(), &fo)
-        .with_context(|| format!("{}: Fitmap", a.mesh.display()))?;
+    let cached = match &a.fitmap_cache {
+        Some(p) => load_fitmap(p, m.mesh.positions.len(), tolerance)?,
+        None => None,
+    };
+    let fitmap = match cached {
+        Some(f) => f,
+        None => {
+            let f = compute_fitmap(&m.mesh, caster.as_ref(), &fo)
+                .with_context(|| format!("{}: Fitmap", a.mesh.display()))?;
+            if let Some(p) = &a.fitmap_cache {
+                save_fitmap(p, &f)?;
+            }
+            f
+        }
+    };
     let seconds_fitmap = t.elapsed().as_secs_f64();
-    let opts = SimplifyOptions::default()
+    let mut opts = SimplifyOptions::default()
         .with_target_faces(a.faces)
         .with_m_fitmap(!a.no_mfitmap);
+    if let Some(g) = &a.guard {
+        anyhow::ensure!(g.len() == 3, "--guard takes scale,floor,min_cos");
+        opts = opts.with_guard(g[0], g[1], g[2]);
+    }
     let bar = if a.json {
         ProgressBar::hidden()
     } else {
