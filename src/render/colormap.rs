@@ -21,6 +21,9 @@ const STOPS: [[f32; 3]; 5] = [
 /// The colour of `t` in `[0, 1]` (clamped; NaN maps to 0).
 pub fn colour_map(t: f64) -> [f32; 3] {
     let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+    if t >= 1.0 {
+        return STOPS[STOPS.len() - 1];
+    }
     let x = t * (STOPS.len() - 1) as f64;
     let i = (x.floor() as usize).min(STOPS.len() - 2);
     let f = (x - i as f64) as f32;
@@ -136,7 +139,7 @@ pub fn format_tick(x: f64) -> String {
     } else if a >= 1.0 {
         2
     } else {
-        // Enough decimals for 2 significant digits.
+        // Enough decimals for 3 significant digits.
         (2 - a.log10().floor() as i64).clamp(2, 8) as usize
     };
     let mut s = format!("{x:.digits$}");
@@ -232,7 +235,7 @@ mod tests {
         assert_eq!(format_tick(0.0), "0");
         assert_eq!(format_tick(2.5), "2.5");
         assert_eq!(format_tick(12.26), "12.3");
-        assert_eq!(format_tick(0.0123), "0.012");
+        assert_eq!(format_tick(0.01234), "0.0123");
         assert_eq!(format_tick(250.0), "250");
     }
 }

@@ -120,7 +120,7 @@ pub struct Shading {
 impl Default for Shading {
     fn default() -> Self {
         Shading {
-            ao_rays: 6,
+            ao_rays: 8,
             ao_radius: 0.1,
             line_width: 1.5,
             marker_radius: 3.0,
@@ -381,7 +381,11 @@ pub fn render_frame(
                     for k in 0..nao {
                         // Stratified cosine-weighted hemisphere samples,
                         // rotated per pixel (Cranley-Patterson).
-                        let u1 = ((k as f64 + 0.5) / nao as f64 + r1).fract();
+                        // Directions within 60° of the normal only
+                        // (u1 ≤ 3/4): grazing rays carry little cosine
+                        // weight but, hitting or not depending on the
+                        // pixel's rotation, most of the noise.
+                        let u1 = 0.75 * ((k as f64 + 0.5) / nao as f64 + r1).fract();
                         let u2 = (vdc(k as u32) + r2).fract();
                         let (r, phi) = (u1.sqrt(), std::f64::consts::TAU * u2);
                         let mut d = r * phi.cos() * t1 + r * phi.sin() * t2 + (1.0 - u1).sqrt() * ns;
@@ -418,9 +422,17 @@ pub fn render_frame(
         for (i, s) in shaded.into_iter().enumerate() {
             let Some((s, rays)) = s else { continue };
             let n = rays.len();
-            let open = ao_hits[k..k + n].iter().filter(|h| h.is_none()).count();
+            // Occlusion fades with the hit distance, (1 - t/len)²: a
+            // blocker at the end of the AO radius counts for nothing, so the
+            // estimate varies smoothly from pixel to pixel (less noise than
+            // counting hits at a few rays per pixel).
+            let occluded: f64 = ao_hits[k..k + n]
+                .iter()
+                .flatten()
+                .map(|h| (1.0 - (h.t / ao_len).clamp(0.0, 1.0)).powi(2))
+                .sum();
             k += n;
-            let ao = if n == 0 { 1.0 } else { open as f64 / n as f64 };
+            let ao = if n == 0 { 1.0 } else { 1.0 - occluded / n as f64 };
             // Ambient (occluded) plus headlight diffuse, the latter also
             // darkened in occluded creases so that concavities read.
             let light = 0.30 * ao + 0.70 * s.facing.max(0.0) * (0.55 + 0.45 * ao);
