@@ -90,7 +90,10 @@ impl Camera {
                 if i & 4 == 0 { lo.z } else { hi.z },
             )
         });
-        let (mut rx, mut ry) = ((f64::INFINITY, f64::NEG_INFINITY), (f64::INFINITY, f64::NEG_INFINITY));
+        let (mut rx, mut ry) = (
+            (f64::INFINITY, f64::NEG_INFINITY),
+            (f64::INFINITY, f64::NEG_INFINITY),
+        );
         for c in corners {
             let (a, b) = (c.dot(right), c.dot(up));
             rx = (rx.0.min(a), rx.1.max(a));
@@ -104,8 +107,16 @@ impl Camera {
         // must not divide by zero: fall back to the other axis or 1.
         let ext = |r: (f64, f64)| (r.1 - r.0).max(0.0);
         let (ex, ey) = (ext(rx), ext(ry));
-        let sx = if ex > 0.0 { width as f64 * usable / ex } else { f64::INFINITY };
-        let sy = if ey > 0.0 { height as f64 * usable / ey } else { f64::INFINITY };
+        let sx = if ex > 0.0 {
+            width as f64 * usable / ex
+        } else {
+            f64::INFINITY
+        };
+        let sy = if ey > 0.0 {
+            height as f64 * usable / ey
+        } else {
+            f64::INFINITY
+        };
         let mut scale = sx.min(sy);
         if !scale.is_finite() || scale <= 0.0 {
             scale = 1.0;
@@ -154,7 +165,13 @@ mod tests {
 
     #[test]
     fn project_inverts_ray_at() {
-        let cam = Camera::fit(View::Iso, DVec3::splat(-1.0), DVec3::new(2.0, 1.0, 0.5), 320, 200);
+        let cam = Camera::fit(
+            View::Iso,
+            DVec3::splat(-1.0),
+            DVec3::new(2.0, 1.0, 0.5),
+            320,
+            200,
+        );
         let p = DVec3::new(0.3, -0.2, 0.1);
         let (px, py, t) = cam.project(p);
         let r = cam.ray_at(px, py);
@@ -163,7 +180,13 @@ mod tests {
 
     #[test]
     fn fit_centres_and_fills() {
-        let cam = Camera::fit(View::Front, DVec3::new(0.0, 0.0, 0.0), DVec3::new(4.0, 1.0, 1.0), 200, 200);
+        let cam = Camera::fit(
+            View::Front,
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(4.0, 1.0, 1.0),
+            200,
+            200,
+        );
         // x extent 4 fills 90 % of 200 px.
         assert!((cam.scale - 45.0).abs() < 1e-12);
         let (px, py, _) = cam.project(DVec3::new(2.0, 0.5, 0.5));

@@ -172,7 +172,13 @@ pub fn draw_bar(img: &mut Image, bar: &ColourBar, x: usize, y: usize, w: usize, 
     let bh = 6 * s;
     for i in 0..bar_w {
         let t = (i as f64 + 0.5) / bar_w as f64;
-        img.fill_rect((bx + i) as i64, by as i64, 1, bh as i64, to_rgb8(colour_map(t)));
+        img.fill_rect(
+            (bx + i) as i64,
+            by as i64,
+            1,
+            bh as i64,
+            to_rgb8(colour_map(t)),
+        );
     }
     // Frame the bar so that its light end stays visible on white.
     let frame = [90, 90, 90];
@@ -193,7 +199,14 @@ pub fn draw_bar(img: &mut Image, bar: &ColourBar, x: usize, y: usize, w: usize, 
     if let Some((label, c)) = &bar.swatch {
         let sx = bx + bar_w + 6 * s;
         img.fill_rect(sx as i64, by as i64, 10 * s as i64, bh as i64, to_rgb8(*c));
-        draw_text(img, (sx + 13 * s) as i64, (by + bh / 2) as i64 - th as i64 / 2, label, s, TEXT);
+        draw_text(
+            img,
+            (sx + 13 * s) as i64,
+            (by + bh / 2) as i64 - th as i64 / 2,
+            label,
+            s,
+            TEXT,
+        );
     }
 }
 

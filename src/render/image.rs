@@ -99,7 +99,9 @@ impl Image {
     /// leaves `path` as it was).
     pub fn write_png(&self, path: &Path) -> Result<()> {
         let bytes = self.encode_png()?;
-        write_atomically(path, |w| w.write_all(&bytes).map_err(|e| Error::io(path, e)))
+        write_atomically(path, |w| {
+            w.write_all(&bytes).map_err(|e| Error::io(path, e))
+        })
     }
 }
 

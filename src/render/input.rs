@@ -174,7 +174,11 @@ pub fn read_trimesh_as_is(path: &Path) -> Result<TriMesh> {
         triangles.push([face[0], face[1], face[2]]);
     }
     if let Some(i) = soup.positions.iter().position(|p| !p.is_finite()) {
-        return Err(Error::invalid_mesh(path, format!("vertex {i}"), "non-finite position"));
+        return Err(Error::invalid_mesh(
+            path,
+            format!("vertex {i}"),
+            "non-finite position",
+        ));
     }
     Ok(TriMesh {
         positions: soup.positions,
@@ -210,7 +214,9 @@ pub fn read_ply_vertex_floats(path: &Path, names: &[&str]) -> Result<Vec<Vec<f64
                 return Err(Error::parse(
                     path,
                     at(),
-                    format!("format {f}: only binary_little_endian vertex properties are read here"),
+                    format!(
+                        "format {f}: only binary_little_endian vertex properties are read here"
+                    ),
                 ))
             }
             ["element", name, n] => {
@@ -220,11 +226,18 @@ pub fn read_ply_vertex_floats(path: &Path, names: &[&str]) -> Result<Vec<Vec<f64
                 if *name != "vertex" {
                     return Err(Error::parse(path, at(), "the first element must be vertex"));
                 }
-                count = Some(n.parse::<usize>().map_err(|_| Error::parse(path, at(), "bad count"))?);
+                count = Some(
+                    n.parse::<usize>()
+                        .map_err(|_| Error::parse(path, at(), "bad count"))?,
+                );
                 in_vertex = true;
             }
             ["property", "list", ..] if in_vertex => {
-                return Err(Error::parse(path, at(), "list property in the vertex element"))
+                return Err(Error::parse(
+                    path,
+                    at(),
+                    "list property in the vertex element",
+                ))
             }
             ["property", ty, name] if in_vertex => {
                 let size = match *ty {
@@ -256,12 +269,16 @@ pub fn read_ply_vertex_floats(path: &Path, names: &[&str]) -> Result<Vec<Vec<f64
                 .map(|i| {
                     let b = &bytes[hend + i * stride + off..];
                     match ty {
-                        "float" | "float32" => f32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
+                        "float" | "float32" => {
+                            f32::from_le_bytes(b[..4].try_into().unwrap()) as f64
+                        }
                         "double" | "float64" => f64::from_le_bytes(b[..8].try_into().unwrap()),
                         "int" | "int32" => i32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
                         "uint" | "uint32" => u32::from_le_bytes(b[..4].try_into().unwrap()) as f64,
                         "short" | "int16" => i16::from_le_bytes(b[..2].try_into().unwrap()) as f64,
-                        "ushort" | "uint16" => u16::from_le_bytes(b[..2].try_into().unwrap()) as f64,
+                        "ushort" | "uint16" => {
+                            u16::from_le_bytes(b[..2].try_into().unwrap()) as f64
+                        }
                         "char" | "int8" => b[0] as i8 as f64,
                         _ => b[0] as f64,
                     }
@@ -280,8 +297,14 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("f.ply");
         let pos = vec![crate::DVec3::ZERO, crate::DVec3::X, crate::DVec3::Y];
-        crate::io::write_ply(&p, &pos, &[[0u32, 1, 2]], &[("s", &[1.0, 2.0, 3.0]), ("m", &[4.0, 5.0, 6.5])], None)
-            .unwrap();
+        crate::io::write_ply(
+            &p,
+            &pos,
+            &[[0u32, 1, 2]],
+            &[("s", &[1.0, 2.0, 3.0]), ("m", &[4.0, 5.0, 6.5])],
+            None,
+        )
+        .unwrap();
         let v = read_ply_vertex_floats(&p, &["m", "s"]).unwrap();
         assert_eq!(v, vec![vec![4.0, 5.0, 6.5], vec![1.0, 2.0, 3.0]]);
         assert!(read_ply_vertex_floats(&p, &["q"]).is_err());

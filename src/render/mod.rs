@@ -144,7 +144,10 @@ pub fn panels(sources: &mut Sources, opts: &RenderOptions) -> Result<Vec<Panel>>
     Ok(match opts.what {
         What::Input => vec![plain(Surface::plain(sources.input()?.clone(), CLAY))],
         What::Limit if sources.is_dir => {
-            vec![plain(Surface::plain(sources.surface_file("limit.ply")?, CLAY))]
+            vec![plain(Surface::plain(
+                sources.surface_file("limit.ply")?,
+                CLAY,
+            ))]
         }
         What::Limit | What::Patches => {
             let control = sources.control()?;
@@ -212,7 +215,9 @@ pub fn pick_view(mesh: &TriMesh, caster: &dyn RayCaster) -> Result<View> {
 
 /// Text scale of labels for a picture of this size (2 at 1024 × 768).
 pub fn text_scale(width: usize, height: usize) -> usize {
-    ((width as f64 / 512.0).min(height as f64 / 384.0)).round().max(1.0) as usize
+    ((width as f64 / 512.0).min(height as f64 / 384.0))
+        .round()
+        .max(1.0) as usize
 }
 
 fn check_size(width: usize, height: usize) -> Result<()> {
@@ -253,7 +258,11 @@ pub fn render_panels(
         } else {
             0
         };
-        let bottom = if panel.bar.is_some() { bar_height(s) } else { 0 };
+        let bottom = if panel.bar.is_some() {
+            bar_height(s)
+        } else {
+            0
+        };
         let ph = opts.height.saturating_sub(top + bottom).max(8);
         let cam = Camera::fit(view, lo, hi, pw, ph);
         let frame = render_frame(
@@ -264,7 +273,13 @@ pub fn render_panels(
             &mut |f| progress((k as f64 + f) / n as f64),
         )?;
         let mut pic = frame.to_image(BACKGROUND);
-        tracer::draw_markers(&mut pic, &panel.surface, caster.as_ref(), &cam, &opts.shading)?;
+        tracer::draw_markers(
+            &mut pic,
+            &panel.surface,
+            caster.as_ref(),
+            &cam,
+            &opts.shading,
+        )?;
         let x0 = k * pw;
         img.blit(&pic, x0, top);
         if let Some(t) = &panel.title {
@@ -293,7 +308,8 @@ pub fn render(
 
 /// Parses `WxH` (e.g. `1024x768`).
 pub fn parse_size(s: &str) -> Result<(usize, usize)> {
-    let bad = || Error::InvalidArgument(format!("size '{s}': expected WIDTHxHEIGHT, e.g. 1024x768"));
+    let bad =
+        || Error::InvalidArgument(format!("size '{s}': expected WIDTHxHEIGHT, e.g. 1024x768"));
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
     let w: usize = w.trim().parse().map_err(|_| bad())?;
     let h: usize = h.trim().parse().map_err(|_| bad())?;

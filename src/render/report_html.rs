@@ -113,9 +113,8 @@ pub fn write_report_html(
 ) -> Result<PathBuf> {
     let report_path = dir.join("report.json");
     let text = std::fs::read_to_string(&report_path).map_err(|e| Error::io(&report_path, e))?;
-    let report: Value = serde_json::from_str(&text).map_err(|e| {
-        Error::parse(&report_path, format!("line {}", e.line()), e.to_string())
-    })?;
+    let report: Value = serde_json::from_str(&text)
+        .map_err(|e| Error::parse(&report_path, format!("line {}", e.line()), e.to_string()))?;
     let mut sources = Sources::new(dir, input)?;
     if !sources.is_dir {
         return Err(Error::InvalidArgument(format!(
@@ -126,7 +125,12 @@ pub fn write_report_html(
     let mesh_name = report["options"]["run"]["run"]["mesh"]
         .as_str()
         .or_else(|| report["options"]["run"]["mesh"].as_str())
-        .and_then(|p| Path::new(p).file_stem().and_then(|s| s.to_str()).map(String::from))
+        .and_then(|p| {
+            Path::new(p)
+                .file_stem()
+                .and_then(|s| s.to_str())
+                .map(String::from)
+        })
         .unwrap_or_else(|| "input".into());
     // One view for every picture, chosen on the input, so they compare.
     let view = if opts.view == View::Auto {
@@ -138,7 +142,11 @@ pub fn write_report_html(
     };
     let jobs = [
         (What::Input, opts.thumb, "input M"),
-        (What::Patches, opts.thumb, "patches of the limit surface (red: extraordinary vertices)"),
+        (
+            What::Patches,
+            opts.thumb,
+            "patches of the limit surface (red: extraordinary vertices)",
+        ),
         (What::Displaced, opts.thumb, "displaced surface"),
         (What::Error, opts.wide, "error map"),
         (What::Fitmap, opts.wide, "Fitmap"),

@@ -283,7 +283,8 @@ pub fn error_field(
         let eval = make_evaluator(Backend::Osd, control, &EvalOptions::default())?;
         let exact = eval.evaluate(control.positions(), &locations)?;
         let input_caster = make_raycaster(rays, input)?;
-        let (hits, _) = project_along_normals(input_caster.as_ref(), &exact, default_max_dist(input))?;
+        let (hits, _) =
+            project_along_normals(input_caster.as_ref(), &exact, default_max_dist(input))?;
         let tol = mean_edge_length(input);
         unprojectable = hits
             .par_iter()
@@ -333,11 +334,7 @@ impl ErrorField {
 /// (`a = F_S⁴`) in units of `1/d³` (so that `E/d = a (r/d)⁴`), on a log
 /// scale (it spans orders of magnitude between flat and detailed parts);
 /// the M-fitmap shows the patch size limit F_M in units of d, linear.
-pub fn fitmap_surfaces(
-    mesh: &TriMesh,
-    s: &[f64],
-    m: &[f64],
-) -> Result<[(Surface, ColourBar); 2]> {
+pub fn fitmap_surfaces(mesh: &TriMesh, s: &[f64], m: &[f64]) -> Result<[(Surface, ColourBar); 2]> {
     let n = mesh.positions.len();
     if s.len() != n || m.len() != n {
         return Err(Error::InvalidArgument(format!(
@@ -379,7 +376,10 @@ pub fn fitmap_surfaces(
         surf.vertex_colours = Some(v.iter().map(|&x| bar.colour(x)).collect());
         surf
     };
-    Ok([(colour(&s_bar, &a), s_bar.clone()), (colour(&m_bar, &md), m_bar)])
+    Ok([
+        (colour(&s_bar, &a), s_bar.clone()),
+        (colour(&m_bar, &md), m_bar),
+    ])
 }
 
 #[cfg(test)]

@@ -314,9 +314,7 @@ pub fn render_frame(
     while y0 < h {
         let y1 = (y0 + band).min(h);
         let npx = (y1 - y0) * w;
-        let rays: Vec<Ray> = (0..npx)
-            .map(|i| cam.pixel_ray(i % w, y0 + i / w))
-            .collect();
+        let rays: Vec<Ray> = (0..npx).map(|i| cam.pixel_ray(i % w, y0 + i / w)).collect();
         let hits = caster.first_hits(&rays)?;
         // Shade every hit pixel; collect its AO rays (nao per hit pixel).
         let shaded: Vec<Option<(Sample, Vec<Ray>)>> = hits
@@ -388,7 +386,8 @@ pub fn render_frame(
                         let u1 = 0.75 * ((k as f64 + 0.5) / nao as f64 + r1).fract();
                         let u2 = (vdc(k as u32) + r2).fract();
                         let (r, phi) = (u1.sqrt(), std::f64::consts::TAU * u2);
-                        let mut d = r * phi.cos() * t1 + r * phi.sin() * t2 + (1.0 - u1).sqrt() * ns;
+                        let mut d =
+                            r * phi.cos() * t1 + r * phi.sin() * t2 + (1.0 - u1).sqrt() * ns;
                         // Keep the ray on the geometric front side.
                         let dn = d.dot(ng);
                         if dn < 0.0 {
@@ -432,7 +431,11 @@ pub fn render_frame(
                 .map(|h| (1.0 - (h.t / ao_len).clamp(0.0, 1.0)).powi(2))
                 .sum();
             k += n;
-            let ao = if n == 0 { 1.0 } else { 1.0 - occluded / n as f64 };
+            let ao = if n == 0 {
+                1.0
+            } else {
+                1.0 - occluded / n as f64
+            };
             // Ambient (occluded) plus headlight diffuse, the latter also
             // darkened in occluded creases so that concavities read.
             let light = 0.30 * ao + 0.70 * s.facing.max(0.0) * (0.55 + 0.45 * ao);
