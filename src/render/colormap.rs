@@ -92,7 +92,7 @@ impl ColourBar {
                 x.max(f64::MIN_POSITIVE).log10(),
             ),
         };
-        if !(b > a) {
+        if b.partial_cmp(&a) != Some(std::cmp::Ordering::Greater) {
             return 0.0;
         }
         ((v - a) / (b - a)).clamp(0.0, 1.0)
@@ -132,6 +132,10 @@ pub fn format_tick(x: f64) -> String {
         return "0".into();
     }
     let a = x.abs();
+    if a < 1e-3 {
+        // Scientific below 0.001 (small a·d³ of the S-fitmap): "2.7e-6".
+        return format!("{x:.1e}");
+    }
     let digits = if a >= 100.0 {
         0
     } else if a >= 10.0 {
@@ -250,5 +254,6 @@ mod tests {
         assert_eq!(format_tick(12.26), "12.3");
         assert_eq!(format_tick(0.01234), "0.0123");
         assert_eq!(format_tick(250.0), "250");
+        assert_eq!(format_tick(2.66e-6), "2.7e-6");
     }
 }

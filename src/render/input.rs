@@ -9,6 +9,9 @@ use crate::io::{read_control_mesh, read_mesh, read_soup};
 use crate::mesh::{ControlMesh, TriMesh};
 use crate::raycast::{make_raycaster, RayBackend};
 
+/// `(F_S, F_M)` per vertex.
+pub type FitmapFields = (Vec<f64>, Vec<f64>);
+
 /// The data behind the pictures, loaded on demand and kept.
 pub struct Sources {
     /// The mesh file, or the output folder.
@@ -18,7 +21,7 @@ pub struct Sources {
     pub input_override: Option<PathBuf>,
     input: Option<TriMesh>,
     control: Option<ControlMesh>,
-    fitmap: Option<(Vec<f64>, Vec<f64>)>,
+    fitmap: Option<FitmapFields>,
 }
 
 impl Sources {
@@ -124,7 +127,7 @@ impl Sources {
 
     /// `(F_S, F_M)` per vertex of M: from `fitmap.ply` of a folder (its own
     /// geometry is M), else computed on the mesh file (default options).
-    pub fn fitmap(&mut self, rays: RayBackend) -> Result<(&TriMesh, &(Vec<f64>, Vec<f64>))> {
+    pub fn fitmap(&mut self, rays: RayBackend) -> Result<(&TriMesh, &FitmapFields)> {
         if self.fitmap.is_none() {
             // A folder's fitmap.ply is the Fitmap of its input M (checked
             // against an overridden M by vertex count below).

@@ -215,7 +215,9 @@ pub fn pick_view(mesh: &TriMesh, caster: &dyn RayCaster) -> Result<View> {
 
 /// Text scale of labels for a picture of this size (2 at 1024 × 768).
 pub fn text_scale(width: usize, height: usize) -> usize {
-    ((width as f64 / 512.0).min(height as f64 / 384.0))
+    // By area, so that wide multi-panel pictures get readable labels too.
+    ((width * height) as f64 / (512.0 * 384.0))
+        .sqrt()
         .round()
         .max(1.0) as usize
 }
@@ -329,5 +331,6 @@ mod tests {
         assert!(parse_size("100000x10").is_err());
         assert_eq!(text_scale(1024, 768), 2);
         assert_eq!(text_scale(300, 200), 1);
+        assert_eq!(text_scale(1200, 560), 2);
     }
 }

@@ -36,9 +36,9 @@ impl LimitTessellation {
         let p = &self.patch_uv[t];
         let w = [1.0 - bu - bv, bu, bv];
         let (mut u, mut v) = (0.0, 0.0);
-        for k in 0..3 {
-            u += w[k] * p.uv[k][0] as f64;
-            v += w[k] * p.uv[k][1] as f64;
+        for (wk, c) in w.iter().zip(&p.uv) {
+            u += wk * c[0] as f64;
+            v += wk * c[1] as f64;
         }
         let (face, sub) = self.patch[t];
         SurfaceLocation {

@@ -210,7 +210,7 @@ fn plane_barycentrics(q: DVec3, a: DVec3, b: DVec3, c: DVec3) -> Option<(f64, f6
     let (e1, e2, r) = (b - a, c - a, q - a);
     let (d11, d12, d22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
     let det = d11 * d22 - d12 * d12;
-    if !(det.abs() > 0.0) {
+    if det == 0.0 || !det.is_finite() {
         return None;
     }
     let (r1, r2) = (r.dot(e1), r.dot(e2));
@@ -237,9 +237,9 @@ fn line_coverage(
     let param = |beta: f64, gamma: f64| {
         let w = [1.0 - beta - gamma, beta, gamma];
         let mut uv = [0.0f64; 2];
-        for k in 0..3 {
-            uv[0] += w[k] * puv.uv[k][0] as f64;
-            uv[1] += w[k] * puv.uv[k][1] as f64;
+        for (wk, c) in w.iter().zip(&puv.uv) {
+            uv[0] += wk * c[0] as f64;
+            uv[1] += wk * c[1] as f64;
         }
         uv
     };
@@ -272,7 +272,7 @@ fn line_coverage(
         let g = if flip { 1.0 - p0[k] } else { p0[k] };
         let (gx, gy) = (px1[k] - p0[k], py1[k] - p0[k]);
         let grad = (gx * gx + gy * gy).sqrt();
-        if !(grad > 0.0) {
+        if grad == 0.0 || !grad.is_finite() {
             continue;
         }
         let d = g.max(0.0) / grad;
