@@ -33,7 +33,7 @@ impl Default for ReportHtmlOptions {
         ReportHtmlOptions {
             view: View::Auto,
             rays: RayBackend::Embree,
-            thumb: (480, 400),
+            thumb: (400, 340),
             wide: (1000, 560),
         }
     }
