@@ -4,7 +4,8 @@
 # Run as root (or with sudo available).
 set -euo pipefail
 
-PKGS=(cmake g++ make pkg-config libosd-dev libembree-dev libeigen3-dev libopenmesh-dev)
+# chromium: the headless browser that tests/render.rs opens report.html in.
+PKGS=(cmake g++ make pkg-config libosd-dev libembree-dev libeigen3-dev libopenmesh-dev chromium)
 SUDO=""
 if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
 

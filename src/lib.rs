@@ -17,6 +17,7 @@ pub mod pipeline;
 pub mod project;
 pub mod quad;
 pub mod raycast;
+pub mod render;
 pub mod report;
 pub mod solve;
 pub mod subdiv;

@@ -45,6 +45,10 @@ pub struct ConvertArgs {
     /// Print report.json to stdout.
     #[arg(long)]
     json: bool,
+    /// Also write OUTDIR/report.html: pictures and Table 1 in one
+    /// self-contained page.
+    #[arg(long)]
+    report: bool,
 }
 
 pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
@@ -65,6 +69,18 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
     let mut progress = progress_bars(a.quiet || a.json);
     let (report, written) = run_convert(&input, &opts, extra, &a.output, &mut progress)
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.mesh.display()))?;
+    if a.report {
+        let html = subdfit::render::report_html::write_report_html(
+            &a.output,
+            Some(&a.mesh),
+            &Default::default(),
+            &mut |f| progress("report", f),
+        )
+        .map_err(|e| anyhow::anyhow!("{}: report.html: {e}", a.output.display()))?;
+        if !(a.quiet || a.json) {
+            crate::emit(&format!("wrote {}", html.display()))?;
+        }
+    }
     if a.json {
         crate::emit(&serde_json::to_string_pretty(&report)?)?;
     } else if !a.quiet {

@@ -7,6 +7,7 @@ mod fitmap;
 mod limit;
 mod metrics;
 mod quadrangulate;
+mod render;
 mod simplify;
 
 use std::path::PathBuf;
@@ -56,6 +57,9 @@ enum Command {
     Fit(fit::FitArgs),
     /// Accuracy and projectability of a control mesh against a mesh (Table 1 figures).
     Metrics(metrics::MetricsArgs),
+    /// Render a picture (PNG) of a mesh or a convert output folder: input, fitmap,
+    /// patches, limit, displaced or error map.
+    Render(render::RenderArgs),
 }
 
 fn run(cli: Cli) -> Result<ExitCode> {
@@ -77,6 +81,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Fit(a) => fit::fit(a),
         Command::Metrics(a) => metrics::metrics(a),
         Command::Fitmap(a) => fitmap::fitmap(a),
+        Command::Render(a) => render::run(a),
         Command::Version => {
             let mut text = format!("subdfit {}", env!("CARGO_PKG_VERSION"));
             for (name, v) in subdfit::linked_library_versions() {
