@@ -11,6 +11,7 @@ pub mod embed;
 pub mod error;
 pub mod fit;
 pub mod fixtures;
+pub mod mechanical;
 pub mod io;
 pub mod mesh;
 pub mod pipeline;
