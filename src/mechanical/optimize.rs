@@ -93,6 +93,9 @@ pub fn optimize(
     let limit = o.max_error * diag;
     let max_dist = default_max_dist(mesh);
     let mut rounds = Vec::new();
+    // The best state met (by RMS): enrichment is not guaranteed to lower
+    // the error, and the result must never be worse than a state measured.
+    let mut best: Option<(f64, Polys)> = None;
     for round in 0..=o.max_rounds {
         if std::env::var_os("SUBDFIT_DEBUG").is_some() {
             let used: HashSet<u32> = polys.faces.iter().flatten().copied().collect();
@@ -104,8 +107,9 @@ pub fn optimize(
         let st = eval.stencils(&locs)?;
         let nfree = polys.positions.len() - polys.fixed;
         let mut dists: Vec<f64> = Vec::new();
-        let mut iters = 0;
+        let mut iters: usize = 0;
         let mut prev_rms = f64::INFINITY;
+        let mut prev_pos = polys.positions.clone();
         let lap = umbrella(&control, polys.fixed);
         for m in 0..=o.m0 {
             let lp = st.apply(&polys.positions);
@@ -117,10 +121,24 @@ pub fn optimize(
                 .collect();
             let ok: Vec<f64> = dists.iter().copied().filter(|d| d.is_finite()).collect();
             let rms = (ok.iter().map(|d| d * d).sum::<f64>() / ok.len().max(1) as f64).sqrt();
+            if rms > prev_rms {
+                // The last step made it worse: undo it and measure again.
+                polys.positions = prev_pos.clone();
+                let lp = st.apply(&polys.positions);
+                let (hits, _) = project_along_normals(caster, &lp, max_dist)?;
+                dists = hits
+                    .iter()
+                    .zip(&lp)
+                    .map(|(h, s)| h.map_or(f64::NAN, |h| (h.point - s.position).length()))
+                    .collect();
+                iters = iters.saturating_sub(1);
+                break;
+            }
             if nfree == 0 || m == o.m0 || rms > prev_rms * 0.995 || rms <= 0.1 * limit {
                 break;
             }
             prev_rms = rms;
+            prev_pos = polys.positions.clone();
             // Outliers (another sheet hit): 10× the median.
             let mut sorted = ok.clone();
             sorted.sort_by(f64::total_cmp);
@@ -206,6 +224,9 @@ pub fn optimize(
             local_fields: 0,
             diffuse_fields: 0,
         };
+        if best.as_ref().is_none_or(|b| rec.rms_permille < b.0) {
+            best = Some((rec.rms_permille, polys.clone()));
+        }
         if over.is_empty() || round == o.max_rounds || nf >= o.max_faces {
             rounds.push(rec);
             break;
@@ -214,6 +235,9 @@ pub fn optimize(
         rec.local_fields = local;
         rec.diffuse_fields = diffuse;
         rounds.push(rec);
+    }
+    if let Some((_, b)) = best {
+        *polys = b;
     }
     Ok(rounds)
 }
