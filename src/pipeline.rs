@@ -15,7 +15,6 @@ use crate::quad::{simplify_with_progress, SimplifyOptions};
 use crate::raycast::{make_raycaster, RayBackend};
 use crate::report::{fit_and_write, MetricsOptions, PipelineOptions, Report, StageTimer};
 
-
 /// Options of [`convert`], mirroring `subdfit convert`.
 #[derive(Clone, Debug, Serialize)]
 #[non_exhaustive]
@@ -118,14 +117,27 @@ pub fn convert(
         forced => {
             let mut c = crate::mechanical::choose_mode(mesh);
             c.how = "forced";
-            c.mode = if forced == Mode::Mechanical { "mechanical" } else { "organic" };
+            c.mode = if forced == Mode::Mechanical {
+                "mechanical"
+            } else {
+                "organic"
+            };
             c.reason = format!("--mode {} given; {}", c.mode, c.reason);
             c
         }
     };
     let caster = timer.run("raycaster", || make_raycaster(RayBackend::Embree, mesh))?;
     if choice.mode == "mechanical" {
-        return convert_mechanical(input, opts, choice, caster.as_ref(), timer, extra_options, dir, progress);
+        return convert_mechanical(
+            input,
+            opts,
+            choice,
+            caster.as_ref(),
+            timer,
+            extra_options,
+            dir,
+            progress,
+        );
     }
     let extra_options = serde_json::json!({ "mode": choice, "options": extra_options });
     let mut fo = FitmapOptions::default();
@@ -196,8 +208,10 @@ fn convert_mechanical(
     progress: &mut dyn FnMut(&str, f64) -> bool,
 ) -> Result<(Report, Vec<PathBuf>)> {
     use crate::mesh::{VertexId, INFINITELY_SHARP};
-    let mo = crate::mechanical::MechanicalOptions::default()
-        .with_max_error(opts.max_error.unwrap_or(crate::mechanical::DEFAULT_MAX_ERROR));
+    let mo = crate::mechanical::MechanicalOptions::default().with_max_error(
+        opts.max_error
+            .unwrap_or(crate::mechanical::DEFAULT_MAX_ERROR),
+    );
     crate::fit::report_progress(progress, "mechanical", 0.0)?;
     let built = timer.run("mechanical", || {
         crate::mechanical::build_control(&input.mesh, caster, &mo)

@@ -111,13 +111,20 @@ pub fn vertex_curvatures(
                         area += topo.face_areas[tr as usize];
                     }
                 }
-                for &e in topo.vertex_edges(u) {
-                    if !seen_e.contains(&e) {
-                        seen_e.push(e);
+            }
+            // Edges of B's triangles, weighted by the share of their two
+            // triangles inside B: |e ∩ B| for B the union of the triangles.
+            let mut half: Vec<(u32, f64)> = Vec::new();
+            for &tr in &seen_t {
+                for &e in &topo.tri_edges[tr as usize] {
+                    match half.iter_mut().find(|x| x.0 == e) {
+                        Some(x) => x.1 += 0.5,
+                        None => half.push((e, 0.5)),
                     }
                 }
             }
-            for &e in &seen_e {
+            seen_e.extend(half.iter().map(|x| x.0));
+            for (&e, &(_, share)) in seen_e.iter().zip(&half) {
                 let ed = &topo.edges[e as usize];
                 if !ed.is_interior() || sharp[e as usize] {
                     continue;
@@ -128,7 +135,7 @@ pub fn vertex_curvatures(
                     continue;
                 }
                 let u = d / len;
-                let w = ed.beta * len;
+                let w = ed.beta * len * share;
                 for (r, row) in t.iter_mut().enumerate() {
                     for (c, x) in row.iter_mut().enumerate() {
                         *x += w * u[r] * u[c];

@@ -159,7 +159,11 @@ fn cholesky_solve(mut a: Vec<f64>, n: usize, mut b: Vec<DVec3>) -> Option<Vec<DV
 /// curves).
 fn solve(points: &[DVec3], params: &[f64], n: usize, closed: bool) -> Option<Vec<DVec3>> {
     let (first, last) = (points[0], points[points.len() - 1]);
-    let free: Vec<usize> = if closed { (0..n).collect() } else { (1..n - 1).collect() };
+    let free: Vec<usize> = if closed {
+        (0..n).collect()
+    } else {
+        (1..n - 1).collect()
+    };
     let mut control = vec![DVec3::ZERO; n];
     if !closed {
         control[0] = first;
@@ -169,7 +173,15 @@ fn solve(points: &[DVec3], params: &[f64], n: usize, closed: bool) -> Option<Vec
         return Some(control);
     }
     let nf = free.len();
-    let col = |i: usize| if closed { Some(i) } else if i == 0 || i == n - 1 { None } else { Some(i - 1) };
+    let col = |i: usize| {
+        if closed {
+            Some(i)
+        } else if i == 0 || i == n - 1 {
+            None
+        } else {
+            Some(i - 1)
+        }
+    };
     let mut a = vec![0.0; nf * nf];
     let mut b = vec![DVec3::ZERO; nf];
     for (p, &t) in points.iter().zip(params) {
@@ -249,7 +261,11 @@ fn chord_params(points: &[DVec3], n: usize, closed: bool) -> Vec<f64> {
 /// non-decreasing.
 fn correct(points: &[DVec3], params: &mut [f64], control: &[DVec3], closed: bool) {
     let n = control.len();
-    let hi = if closed { f64::INFINITY } else { (n - 1) as f64 };
+    let hi = if closed {
+        f64::INFINITY
+    } else {
+        (n - 1) as f64
+    };
     let m = points.len();
     for (j, (p, t)) in points.iter().zip(params.iter_mut()).enumerate() {
         if !closed && (j == 0 || j == m - 1) {
@@ -263,7 +279,8 @@ fn correct(points: &[DVec3], params: &mut [f64], control: &[DVec3], closed: bool
                 break;
             }
             let step = (c - *p).dot(d) / dd;
-            *t = (*t - step.clamp(-0.5, 0.5)).clamp(if closed { f64::NEG_INFINITY } else { 0.0 }, hi);
+            *t = (*t - step.clamp(-0.5, 0.5))
+                .clamp(if closed { f64::NEG_INFINITY } else { 0.0 }, hi);
         }
     }
     if !closed {
@@ -293,7 +310,8 @@ pub fn fit_curve(points: &[DVec3], closed: bool, tol: f64, min_n: usize) -> Curv
     let mut n = lo;
     loop {
         let mut params = chord_params(points, n, closed);
-        let mut control = solve(points, &params, n, closed).unwrap_or_else(|| linear(points, n, closed));
+        let mut control =
+            solve(points, &params, n, closed).unwrap_or_else(|| linear(points, n, closed));
         for _ in 0..4 {
             correct(points, &mut params, &control, closed);
             if let Some(c) = solve(points, &params, n, closed) {

@@ -51,9 +51,9 @@ pub const DEFAULT_M0: usize = 5;
 /// by at most 4⁸, and [`MechanicalOptions::max_faces`] caps the total.
 pub const DEFAULT_MAX_ROUNDS: usize = 8;
 /// `--mode auto` picks mechanical when at least this share of M's interior
-/// edges is sharp (dihedral above [`SHARP_DIHEDRAL_DEG`]): 0.5 %. A CAD
-/// tessellation has its feature lines as edges (fandisk: ~4 %); an organic
-/// scan has a few noisy spikes at most (spot: 0 %, scans ≲ 0.1 %).
+/// edges is sharp (dihedral above [`SHARP_DIHEDRAL_DEG`]): 0.5 % (and see
+/// [`AUTO_FLAT_SHARE`]). A CAD tessellation has its feature lines as edges
+/// (fandisk: 3.7 %); a dense organic scan a few noisy spikes at most.
 pub const AUTO_SHARP_SHARE: f64 = 0.005;
 
 /// Options of [`build_control`].
@@ -143,13 +143,30 @@ pub struct Built {
     pub stats: MechanicalStats,
 }
 
-/// Share of M's interior edges that are sharp.
-pub fn sharp_edge_share(mesh: &TriMesh) -> f64 {
+/// Share of M's interior edges that are sharp, and share that are flat
+/// (dihedral below [`FLAT_DIHEDRAL_DEG`]).
+pub fn edge_shares(mesh: &TriMesh) -> (f64, f64) {
     let topo = Topology::new(mesh);
     let interior = topo.edges.iter().filter(|e| e.is_interior()).count();
     let sharp = topo.sharp_edges().iter().filter(|&&s| s).count();
-    sharp as f64 / interior.max(1) as f64
+    let flat_t = FLAT_DIHEDRAL_DEG.to_radians();
+    let flat = topo
+        .edges
+        .iter()
+        .filter(|e| e.is_interior() && e.beta.abs() < flat_t)
+        .count();
+    let n = interior.max(1) as f64;
+    (sharp as f64 / n, flat as f64 / n)
 }
+
+/// An edge bending by less than this (degrees) is flat: 1°.
+pub const FLAT_DIHEDRAL_DEG: f64 = 1.0;
+/// `--mode auto` also asks for this share of flat edges: 30 %. Sharp
+/// edges alone do not tell a CAD part from a coarse organic mesh (spot, a
+/// 6k-triangle cow, has 3.2 % of edges above 30°, fandisk 3.7 %); what
+/// does is that a CAD part is mostly flat or singly curved between its
+/// features, so most of its edges do not bend at all.
+pub const AUTO_FLAT_SHARE: f64 = 0.3;
 
 /// Why a mode was used, for `report.json`.
 #[derive(Clone, Debug, Serialize)]
@@ -160,29 +177,38 @@ pub struct ModeChoice {
     pub how: &'static str,
     pub sharp_edge_share: f64,
     pub threshold: f64,
+    pub flat_edge_share: f64,
+    pub flat_threshold: f64,
     pub reason: String,
 }
 
 /// `--mode auto`'s rule (see [`AUTO_SHARP_SHARE`]).
 pub fn choose_mode(mesh: &TriMesh) -> ModeChoice {
-    let share = sharp_edge_share(mesh);
-    let mech = share >= AUTO_SHARP_SHARE;
+    let (share, flat) = edge_shares(mesh);
+    let mech = share >= AUTO_SHARP_SHARE && flat >= AUTO_FLAT_SHARE;
     ModeChoice {
         mode: if mech { "mechanical" } else { "organic" },
         how: "auto",
         sharp_edge_share: share,
         threshold: AUTO_SHARP_SHARE,
+        flat_edge_share: flat,
+        flat_threshold: AUTO_FLAT_SHARE,
         reason: format!(
-            "{:.2} % of the interior edges have a dihedral angle above {SHARP_DIHEDRAL_DEG}° ({} the {:.2} % threshold)",
+            "{:.2} % of the interior edges are sharp (dihedral > {SHARP_DIHEDRAL_DEG}°; mechanical needs >= {:.2} %) and {:.1} % flat (< {FLAT_DIHEDRAL_DEG}°; needs >= {:.0} %)",
             100.0 * share,
-            if mech { "at or above" } else { "below" },
-            100.0 * AUTO_SHARP_SHARE
+            100.0 * AUTO_SHARP_SHARE,
+            100.0 * flat,
+            100.0 * AUTO_FLAT_SHARE
         ),
     }
 }
 
 /// Builds the mechanical control mesh of `mesh` (`caster` over it).
-pub fn build_control(mesh: &TriMesh, caster: &dyn RayCaster, opts: &MechanicalOptions) -> Result<Built> {
+pub fn build_control(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    opts: &MechanicalOptions,
+) -> Result<Built> {
     opts.check()?;
     let diag = mesh.bbox_diagonal();
     if mesh.triangles.is_empty() || !(diag.is_finite() && diag > 0.0) {
@@ -207,7 +233,12 @@ pub fn build_control(mesh: &TriMesh, caster: &dyn RayCaster, opts: &MechanicalOp
     // §5: curves, with enough control points that no two curves share a
     // control edge and no curve is a degenerate loop.
     let tol = opts.curve_tolerance * diag;
-    let pts = |p: &curves::Piece| -> Vec<DVec3> { p.verts.iter().map(|&v| mesh.positions[v as usize]).collect() };
+    let pts = |p: &curves::Piece| -> Vec<DVec3> {
+        p.verts
+            .iter()
+            .map(|&v| mesh.positions[v as usize])
+            .collect()
+    };
     let min_n = |p: &curves::Piece| {
         if p.closed {
             4
@@ -329,8 +360,21 @@ pub fn build_control(mesh: &TriMesh, caster: &dyn RayCaster, opts: &MechanicalOp
         if poly.is_none() {
             skipped += 1;
             if std::env::var_os("SUBDFIT_DEBUG").is_some() {
-                eprintln!("region {r}: loops {:?} tris {}", net.loops[r], region_tris[r].len());
-                for l in &net.loops[r] { for &(pi,_) in l { eprintln!("  piece {pi}: closed {} verts {} ctrl {:?}", net.pieces[pi].closed, net.pieces[pi].verts.len(), piece_ctrl[pi].iter().map(|x| x.id).collect::<Vec<_>>()); } }
+                eprintln!(
+                    "region {r}: loops {:?} tris {}",
+                    net.loops[r],
+                    region_tris[r].len()
+                );
+                for l in &net.loops[r] {
+                    for &(pi, _) in l {
+                        eprintln!(
+                            "  piece {pi}: closed {} verts {} ctrl {:?}",
+                            net.pieces[pi].closed,
+                            net.pieces[pi].verts.len(),
+                            piece_ctrl[pi].iter().map(|x| x.id).collect::<Vec<_>>()
+                        );
+                    }
+                }
             }
         }
         polygons.push(poly);
@@ -339,11 +383,28 @@ pub fn build_control(mesh: &TriMesh, caster: &dyn RayCaster, opts: &MechanicalOp
         let used: HashSet<u32> = polygons.iter().flatten().flatten().map(|x| x.id).collect();
         for (pi, pc) in piece_ctrl.iter().enumerate() {
             if pc.iter().any(|x| !used.contains(&x.id)) {
-                eprintln!("piece {pi} unused: {:?} closed {} regions {:?} nverts {} first {} last {}", pc.iter().map(|x| x.id).collect::<Vec<_>>(), net.pieces[pi].closed, net.pieces[pi].regions, net.pieces[pi].verts.len(), net.pieces[pi].verts[0], net.pieces[pi].verts.last().unwrap());
-                for r in net.pieces[pi].regions { if (r as usize) < net.loops.len() { eprintln!("  region {r} loops {:?}", net.loops[r as usize]); } }
+                eprintln!(
+                    "piece {pi} unused: {:?} closed {} regions {:?} nverts {} first {} last {}",
+                    pc.iter().map(|x| x.id).collect::<Vec<_>>(),
+                    net.pieces[pi].closed,
+                    net.pieces[pi].regions,
+                    net.pieces[pi].verts.len(),
+                    net.pieces[pi].verts[0],
+                    net.pieces[pi].verts.last().unwrap()
+                );
+                for r in net.pieces[pi].regions {
+                    if (r as usize) < net.loops.len() {
+                        eprintln!("  region {r} loops {:?}", net.loops[r as usize]);
+                    }
+                }
             }
         }
-        eprintln!("regions {} pieces {} corners {}", seg.num_regions, net.pieces.len(), corners.len());
+        eprintln!(
+            "regions {} pieces {} corners {}",
+            seg.num_regions,
+            net.pieces.len(),
+            corners.len()
+        );
     }
     let mut planar_regions = 0;
     let mut edges: HashSet<(u32, u32)> = creases.clone();
@@ -426,7 +487,9 @@ pub fn build_control(mesh: &TriMesh, caster: &dyn RayCaster, opts: &MechanicalOp
             corners: corners.len(),
             curves: net.pieces.len(),
             curve_control_points: fixed,
-            curve_max_error_permille: 1000.0 * fitted.iter().map(|c| c.max_error).fold(0.0, f64::max) / diag,
+            curve_max_error_permille: 1000.0
+                * fitted.iter().map(|c| c.max_error).fold(0.0, f64::max)
+                / diag,
             initial_faces,
             initial_vertices,
             star_fallback,

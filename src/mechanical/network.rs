@@ -36,7 +36,13 @@ pub fn build_network(
     sharp: &[bool],
 ) -> Network {
     let nv = mesh.positions.len();
-    let side = |f: u32| if f == u32::MAX { u32::MAX } else { region[f as usize] };
+    let side = |f: u32| {
+        if f == u32::MAX {
+            u32::MAX
+        } else {
+            region[f as usize]
+        }
+    };
     let is_b: Vec<bool> = topo
         .edges
         .iter()
@@ -83,7 +89,11 @@ pub fn build_network(
         if bedges.len() == 2 && bedges.iter().all(|&e| sharp[e as usize]) {
             let other = |e: u32| {
                 let ed = &topo.edges[e as usize];
-                if ed.v[0] as usize == v { ed.v[1] } else { ed.v[0] }
+                if ed.v[0] as usize == v {
+                    ed.v[1]
+                } else {
+                    ed.v[0]
+                }
             };
             let p = mesh.positions[v];
             let a = (p - mesh.positions[other(bedges[0]) as usize]).normalize_or_zero();
@@ -96,35 +106,36 @@ pub fn build_network(
     // Walk pieces.
     let mut edge_piece: Vec<u32> = vec![u32::MAX; topo.edges.len()];
     let mut pieces: Vec<Piece> = Vec::new();
-    let walk = |start_v: u32, start_e: u32, edge_piece: &mut Vec<u32>, pid: u32| -> (Vec<u32>, bool) {
-        let mut verts = vec![start_v];
-        let mut v = start_v;
-        let mut e = start_e;
-        loop {
-            edge_piece[e as usize] = pid;
-            let ed = &topo.edges[e as usize];
-            let w = if ed.v[0] == v { ed.v[1] } else { ed.v[0] };
-            if w == start_v {
-                return (verts, !corner[w as usize]);
-            }
-            verts.push(w);
-            if corner[w as usize] {
-                return (verts, false);
-            }
-            let next = topo
-                .vertex_edges(w)
-                .iter()
-                .copied()
-                .find(|&f| is_b[f as usize] && edge_piece[f as usize] == u32::MAX);
-            match next {
-                Some(f) => {
-                    v = w;
-                    e = f;
+    let walk =
+        |start_v: u32, start_e: u32, edge_piece: &mut Vec<u32>, pid: u32| -> (Vec<u32>, bool) {
+            let mut verts = vec![start_v];
+            let mut v = start_v;
+            let mut e = start_e;
+            loop {
+                edge_piece[e as usize] = pid;
+                let ed = &topo.edges[e as usize];
+                let w = if ed.v[0] == v { ed.v[1] } else { ed.v[0] };
+                if w == start_v {
+                    return (verts, !corner[w as usize]);
                 }
-                None => return (verts, false),
+                verts.push(w);
+                if corner[w as usize] {
+                    return (verts, false);
+                }
+                let next = topo
+                    .vertex_edges(w)
+                    .iter()
+                    .copied()
+                    .find(|&f| is_b[f as usize] && edge_piece[f as usize] == u32::MAX);
+                match next {
+                    Some(f) => {
+                        v = w;
+                        e = f;
+                    }
+                    None => return (verts, false),
+                }
             }
-        }
-    };
+        };
     let regions_of = |e: u32| {
         let ed = &topo.edges[e as usize];
         let mut r = [side(ed.faces[0]), side(ed.faces[1])];

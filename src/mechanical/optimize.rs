@@ -99,11 +99,23 @@ pub fn optimize(
     for round in 0..=o.max_rounds {
         if std::env::var_os("SUBDFIT_DEBUG").is_some() {
             let used: HashSet<u32> = polys.faces.iter().flatten().copied().collect();
-            eprintln!("round {round}: {} verts {} faces fixed {} unused {:?}", polys.positions.len(), polys.faces.len(), polys.fixed, (0..polys.positions.len() as u32).filter(|v| !used.contains(v)).collect::<Vec<_>>());
+            eprintln!(
+                "round {round}: {} verts {} faces fixed {} unused {:?}",
+                polys.positions.len(),
+                polys.faces.len(),
+                polys.fixed,
+                (0..polys.positions.len() as u32)
+                    .filter(|v| !used.contains(v))
+                    .collect::<Vec<_>>()
+            );
         }
         let control = polys.to_control()?;
         let (locs, _) = crate::fit::patch_samples(&control, mesh.positions.len(), 3);
-        let eval = make_evaluator(Backend::Osd, &control, &EvalOptions::default().with_isolation_level(5))?;
+        let eval = make_evaluator(
+            Backend::Osd,
+            &control,
+            &EvalOptions::default().with_isolation_level(5),
+        )?;
         let st = eval.stencils(&locs)?;
         let nfree = polys.positions.len() - polys.fixed;
         let mut dists: Vec<f64> = Vec::new();
@@ -142,7 +154,12 @@ pub fn optimize(
             // Outliers (another sheet hit): 10× the median.
             let mut sorted = ok.clone();
             sorted.sort_by(f64::total_cmp);
-            let bound = 10.0 * sorted.get(sorted.len() / 2).copied().unwrap_or(0.0).max(1e-6 * diag);
+            let bound = 10.0
+                * sorted
+                    .get(sorted.len() / 2)
+                    .copied()
+                    .unwrap_or(0.0)
+                    .max(1e-6 * diag);
             let mut rows: Vec<(usize, DVec3)> = Vec::new();
             for (i, h) in hits.iter().enumerate() {
                 let Some(h) = h else { continue };
@@ -209,7 +226,9 @@ pub fn optimize(
                 fmax[f] = fmax[f].max(*d);
             }
         }
-        let frms: Vec<f64> = (0..nf).map(|f| (fsum[f] / fcnt[f].max(1) as f64).sqrt()).collect();
+        let frms: Vec<f64> = (0..nf)
+            .map(|f| (fsum[f] / fcnt[f].max(1) as f64).sqrt())
+            .collect();
         let ok: Vec<f64> = dists.iter().copied().filter(|d| d.is_finite()).collect();
         let cnt = ok.len().max(1) as f64;
         let over: Vec<usize> = (0..nf).filter(|&f| frms[f] > limit).collect();
@@ -255,7 +274,11 @@ fn umbrella(control: &ControlMesh, fixed: usize) -> Vec<Vec<(u32, f64)>> {
             let nb: Vec<u32> = control.outgoing(v).map(|h| control.head(h).0).collect();
             let w = 1.0 / nb.len().max(1) as f64;
             std::iter::once((v.0 - fixed as u32, 1.0))
-                .chain(nb.into_iter().filter(|&u| u as usize >= fixed).map(|u| (u - fixed as u32, -w)))
+                .chain(
+                    nb.into_iter()
+                        .filter(|&u| u as usize >= fixed)
+                        .map(|u| (u - fixed as u32, -w)),
+                )
                 .collect()
         })
         .collect()
@@ -277,7 +300,10 @@ fn enrich(polys: &mut Polys, over: &[usize], sample_face: &[u32], dists: &[f64])
     let mut edge_faces: HashMap<(u32, u32), Vec<usize>> = HashMap::new();
     for (f, poly) in polys.faces.iter().enumerate() {
         for k in 0..poly.len() {
-            edge_faces.entry(key(poly[k], poly[(k + 1) % poly.len()])).or_default().push(f);
+            edge_faces
+                .entry(key(poly[k], poly[(k + 1) % poly.len()]))
+                .or_default()
+                .push(f);
         }
     }
     // Fields: connected components of over-limit faces across non-crease edges.
@@ -317,7 +343,9 @@ fn enrich(polys: &mut Polys, over: &[usize], sample_face: &[u32], dists: &[f64])
         let ds: Vec<f64> = sample_face
             .iter()
             .zip(dists)
-            .filter(|(f, d)| d.is_finite() && field[**f as usize] != usize::MAX && comp.contains(&(**f as usize)))
+            .filter(|(f, d)| {
+                d.is_finite() && field[**f as usize] != usize::MAX && comp.contains(&(**f as usize))
+            })
             .map(|(_, &d)| d)
             .collect();
         let dmax = ds.iter().copied().fold(0.0, f64::max);
@@ -392,7 +420,9 @@ fn enrich(polys: &mut Polys, over: &[usize], sample_face: &[u32], dists: &[f64])
     }
     // Case 1: merged polygon + one point, fan.
     for comp in &merges {
-        let Some(lp) = merge_loop(&polys.faces, comp, &edge_faces) else { continue };
+        let Some(lp) = merge_loop(&polys.faces, comp, &edge_faces) else {
+            continue;
+        };
         // The merge loop may gain midpoints of neighbours' split edges.
         let mut seq: Vec<u32> = Vec::new();
         for k in 0..lp.len() {
@@ -449,7 +479,11 @@ fn merge_loop(
         let p = &faces[f];
         for k in 0..p.len() {
             let (a, b) = (p[k], p[(k + 1) % p.len()]);
-            let inner = edge_faces[&(a.min(b), a.max(b))].iter().filter(|g| set.contains(g)).count() == 2;
+            let inner = edge_faces[&(a.min(b), a.max(b))]
+                .iter()
+                .filter(|g| set.contains(g))
+                .count()
+                == 2;
             if !inner {
                 if next.insert(a, b).is_some() {
                     return None;

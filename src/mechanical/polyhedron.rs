@@ -57,7 +57,10 @@ impl<'a> RegionGeom<'a> {
         on_boundary: &'a [bool],
         diag: f64,
     ) -> Self {
-        let mut verts: Vec<u32> = tris.iter().flat_map(|&t| mesh.triangles[t as usize]).collect();
+        let mut verts: Vec<u32> = tris
+            .iter()
+            .flat_map(|&t| mesh.triangles[t as usize])
+            .collect();
         verts.sort_unstable();
         verts.dedup();
         let idx = |v: u32| verts.binary_search(&v).unwrap_or(0);
@@ -66,7 +69,9 @@ impl<'a> RegionGeom<'a> {
             let tri = mesh.triangles[t as usize];
             for k in 0..3 {
                 let (a, b) = (idx(tri[k]), idx(tri[(k + 1) % 3]));
-                let w = (mesh.positions[tri[k] as usize] - mesh.positions[tri[(k + 1) % 3] as usize]).length();
+                let w = (mesh.positions[tri[k] as usize]
+                    - mesh.positions[tri[(k + 1) % 3] as usize])
+                    .length();
                 if !adj[a].iter().any(|x| x.0 == b) {
                     adj[a].push((b, w));
                     adj[b].push((a, w));
@@ -77,7 +82,11 @@ impl<'a> RegionGeom<'a> {
         // (power iteration on the inverted-spectrum covariance is overkill;
         // use the normal of the area-weighted triangle normals instead,
         // which is the plane normal whenever the region is planar).
-        let c = verts.iter().map(|&v| mesh.positions[v as usize]).sum::<DVec3>() / verts.len().max(1) as f64;
+        let c = verts
+            .iter()
+            .map(|&v| mesh.positions[v as usize])
+            .sum::<DVec3>()
+            / verts.len().max(1) as f64;
         let mut n = DVec3::ZERO;
         for &t in tris {
             let [a, b, cc] = mesh.triangle(t as usize);
@@ -85,9 +94,9 @@ impl<'a> RegionGeom<'a> {
         }
         let n = n.normalize_or_zero();
         let planar = (n != DVec3::ZERO
-            && verts
-                .iter()
-                .all(|&v| (mesh.positions[v as usize] - c).dot(n).abs() <= PLANAR_TOLERANCE * diag))
+            && verts.iter().all(|&v| {
+                (mesh.positions[v as usize] - c).dot(n).abs() <= PLANAR_TOLERANCE * diag
+            }))
         .then_some((c, n));
         RegionGeom {
             mesh,
@@ -267,16 +276,22 @@ fn convex_parts(
         let p = positions[i as usize];
         (p.dot(e1), p.dot(e2))
     };
-    let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0);
+    let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| {
+        (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+    };
     let mut stack = vec![ids.to_vec()];
     while let Some(p) = stack.pop() {
         let k = p.len();
         let pts: Vec<(f64, f64)> = p.iter().map(|&i| p2(i)).collect();
-        let area: f64 = (0..k).map(|i| cross((0.0, 0.0), pts[i], pts[(i + 1) % k])).sum::<f64>();
+        let area: f64 = (0..k)
+            .map(|i| cross((0.0, 0.0), pts[i], pts[(i + 1) % k]))
+            .sum::<f64>();
         let sign = area.signum();
         let scale = area.abs().max(1e-300);
         let reflex: Vec<usize> = (0..k)
-            .filter(|&i| sign * cross(pts[(i + k - 1) % k], pts[i], pts[(i + 1) % k]) < -1e-9 * scale)
+            .filter(|&i| {
+                sign * cross(pts[(i + k - 1) % k], pts[i], pts[(i + 1) % k]) < -1e-9 * scale
+            })
             .collect();
         if reflex.is_empty() || k <= 3 {
             out.push(p);

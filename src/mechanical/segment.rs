@@ -205,8 +205,8 @@ pub fn segment(
                 } else {
                     continue;
                 };
-                let len = (mesh.positions[ed.v[0] as usize] - mesh.positions[ed.v[1] as usize])
-                    .length();
+                let len =
+                    (mesh.positions[ed.v[0] as usize] - mesh.positions[ed.v[1] as usize]).length();
                 match shared.iter_mut().find(|s| s.0 == other) {
                     Some(s) => s.1 += len,
                     None => shared.push((other, len)),
@@ -235,7 +235,9 @@ pub fn segment(
     let mut splits = 0;
     let mut queue: Vec<u32> = (0..renumber(&mut region)).collect();
     while let Some(r) = queue.pop() {
-        let tris: Vec<u32> = (0..nt as u32).filter(|&t| region[t as usize] == r).collect();
+        let tris: Vec<u32> = (0..nt as u32)
+            .filter(|&t| region[t as usize] == r)
+            .collect();
         if tris.len() < 2 || is_disc(mesh, topo, &region, r, &tris) || splits >= opts.max_splits {
             continue;
         }
@@ -266,7 +268,12 @@ pub fn segment(
 
 /// Connected components of triangles over edges where `pass(e)`, within
 /// the same `within` label when given.
-fn flood(nt: usize, topo: &Topology, pass: impl Fn(usize) -> bool, within: Option<&[u32]>) -> Vec<u32> {
+fn flood(
+    nt: usize,
+    topo: &Topology,
+    pass: impl Fn(usize) -> bool,
+    within: Option<&[u32]>,
+) -> Vec<u32> {
     let mut label = vec![u32::MAX; nt];
     let mut next = 0;
     let mut q = VecDeque::new();
@@ -340,7 +347,10 @@ fn is_disc(mesh: &TriMesh, topo: &Topology, region: &[u32], r: u32, tris: &[u32]
         .collect();
     verts.sort_unstable();
     verts.dedup();
-    let mut edges: Vec<u32> = tris.iter().flat_map(|&t| topo.tri_edges[t as usize]).collect();
+    let mut edges: Vec<u32> = tris
+        .iter()
+        .flat_map(|&t| topo.tri_edges[t as usize])
+        .collect();
     edges.sort_unstable();
     edges.dedup();
     let chi = verts.len() as i64 - edges.len() as i64 + tris.len() as i64;
@@ -394,8 +404,14 @@ fn split_region(topo: &Topology, region: &mut [u32], r: u32, new: u32, tris: &[u
                 }
             }
         }
-        let ds = tris.iter().map(|t| dist.get(t).copied().unwrap_or(u32::MAX)).collect();
-        let os = tris.iter().map(|t| owner.get(t).copied().unwrap_or(0)).collect();
+        let ds = tris
+            .iter()
+            .map(|t| dist.get(t).copied().unwrap_or(u32::MAX))
+            .collect();
+        let os = tris
+            .iter()
+            .map(|t| owner.get(t).copied().unwrap_or(0))
+            .collect();
         (ds, os)
     };
     let far = |d: &[u32]| -> u32 {

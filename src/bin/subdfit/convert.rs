@@ -47,7 +47,7 @@ pub struct ConvertArgs {
     /// Pipeline: `organic` (Fitmaps), `mechanical` (Lavoué et al. 2007:
     /// sharp features as creases, compact quad/triangle control mesh), or
     /// `auto`: mechanical when at least 0.5 % of the edges are sharp
-    /// (dihedral > 30°); report.json says which and why. Mechanical mode
+    /// (dihedral > 30°) and at least 30 % flat (< 1°); report.json says which and why. Mechanical mode
     /// enriches in at most 8 rounds (5 geometry iterations each) and stops
     /// at 20 000 faces, so it always terminates.
     #[arg(long, value_enum, default_value_t = ModeArg::Auto)]
