@@ -12,6 +12,7 @@ pub mod error;
 pub mod fit;
 pub mod fixtures;
 pub mod io;
+pub mod mechanical;
 pub mod mesh;
 pub mod pipeline;
 pub mod project;

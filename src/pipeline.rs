@@ -32,6 +32,22 @@ pub struct ConvertOptions {
     pub objective: Objective,
     /// Displacement samples per patch side; `None`: total ≈ M's vertices.
     pub displacement_res: Option<usize>,
+    /// Which pipeline: Fitmaps (organic), Lavoué et al. (mechanical), or
+    /// chosen from the share of sharp edges (auto, the default).
+    pub mode: Mode,
+    /// Mechanical mode's `E_limit`, fraction of the diagonal; `None`:
+    /// [`crate::mechanical::DEFAULT_MAX_ERROR`].
+    pub max_error: Option<f64>,
+}
+
+/// `convert --mode`.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    #[default]
+    Auto,
+    Organic,
+    Mechanical,
 }
 
 impl Default for ConvertOptions {
@@ -42,6 +58,8 @@ impl Default for ConvertOptions {
             no_m_fitmap: false,
             objective: Objective::Point,
             displacement_res: None,
+            mode: Mode::Auto,
+            max_error: None,
         }
     }
 }
@@ -65,6 +83,14 @@ impl ConvertOptions {
     }
     pub fn with_displacement_res(mut self, r: Option<usize>) -> Self {
         self.displacement_res = r;
+        self
+    }
+    pub fn with_mode(mut self, m: Mode) -> Self {
+        self.mode = m;
+        self
+    }
+    pub fn with_max_error(mut self, e: Option<f64>) -> Self {
+        self.max_error = e;
         self
     }
 }
@@ -104,7 +130,34 @@ pub fn convert_in_memory(
         }
     };
     let mesh = &input.mesh;
+    let choice = match opts.mode {
+        Mode::Auto => crate::mechanical::choose_mode(mesh),
+        forced => {
+            let mut c = crate::mechanical::choose_mode(mesh);
+            c.how = "forced";
+            c.mode = if forced == Mode::Mechanical {
+                "mechanical"
+            } else {
+                "organic"
+            };
+            c.reason = format!("--mode {} given; {}", c.mode, c.reason);
+            c
+        }
+    };
     let caster = timer.run("raycaster", || make_raycaster(RayBackend::Embree, mesh))?;
+    if choice.mode == "mechanical" {
+        return convert_mechanical(
+            input,
+            opts,
+            choice,
+            caster.as_ref(),
+            timer,
+            extra_options,
+            dir,
+            progress,
+        );
+    }
+    let extra_options = serde_json::json!({ "mode": choice, "options": extra_options });
     let mut fo = FitmapOptions::default();
     if let Some(t) = opts.tolerance {
         fo = fo.with_tolerance(t);
@@ -132,9 +185,10 @@ pub fn convert_in_memory(
         .with_metrics(MetricsOptions::default().with_displacement_res(opts.displacement_res))
         .with_fitmap(Some(fo));
     let extra = serde_json::json!({
+        "mode": extra_options["mode"],
         "convert": opts,
         "simplification": simplified.stats,
-        "run": extra_options,
+        "run": extra_options["options"],
     });
     fit_and_measure(
         input,
@@ -146,4 +200,93 @@ pub fn convert_in_memory(
         Some(fitmap),
         progress,
     )
+}
+
+/// The mechanical branch of [`convert`] (Lavoué et al. 2007, see
+/// [`crate::mechanical`]): the control mesh is built and fitted there, then
+/// measured and written with the shared code.
+///
+/// The mechanical control mesh mixes triangles, quads and larger faces,
+/// while the displacement atlas and the tessellations need quads: they are
+/// computed on its Catmull-Clark refinement by one level (infinitely sharp
+/// creases and corners re-tagged as infinitely sharp), which has *exactly*
+/// the same limit surface. `control.obj` / `control.usda` are the compact
+/// mixed mesh (creases and corners tagged, no UVs); `control_quads.obj` is
+/// the refined mesh that `displacement.exr`'s atlas is laid out on.
+#[allow(clippy::too_many_arguments)]
+fn convert_mechanical(
+    input: &ValidatedMesh,
+    opts: &ConvertOptions,
+    choice: crate::mechanical::ModeChoice,
+    caster: &dyn crate::raycast::RayCaster,
+    mut timer: StageTimer,
+    extra_options: serde_json::Value,
+    dir: &Path,
+    progress: &mut dyn FnMut(&str, f64) -> bool,
+) -> Result<(Report, Vec<PathBuf>)> {
+    use crate::mesh::{VertexId, INFINITELY_SHARP};
+    let mo = crate::mechanical::MechanicalOptions::default().with_max_error(
+        opts.max_error
+            .unwrap_or(crate::mechanical::DEFAULT_MAX_ERROR),
+    );
+    crate::fit::report_progress(progress, "mechanical", 0.0)?;
+    let built = timer.run("mechanical", || {
+        crate::mechanical::build_control(&input.mesh, caster, &mo)
+    })?;
+    crate::fit::report_progress(progress, "mechanical", 1.0)?;
+    let control = built.control;
+    let quads = timer.run("refine", || {
+        if control.is_all_quads() {
+            return Ok(control.clone());
+        }
+        let mut r = crate::subdiv::refine::refine_uniform(&control, 1)?;
+        // refine_uniform decrements sharpness per level; 10 stays infinite.
+        for (a, b, s) in r.creases() {
+            if s >= INFINITELY_SHARP - 1.0 {
+                r.set_crease(a, b, INFINITELY_SHARP)?;
+            }
+        }
+        for (v, s) in r.corners() {
+            if s >= INFINITELY_SHARP - 1.0 {
+                r.set_corner(VertexId(v.0), INFINITELY_SHARP)?;
+            }
+        }
+        Ok(r)
+    })?;
+    let mopts = MetricsOptions::default().with_displacement_res(opts.displacement_res);
+    let surfaces = timer.run("displacement+metrics", || {
+        crate::report::evaluate_surfaces(&input.mesh, &quads, caster, &mopts, progress)
+    })?;
+    crate::fit::report_progress(progress, "write", 0.0)?;
+    let extra = serde_json::json!({
+        "mode": choice,
+        "convert": opts,
+        "mechanical": { "options": mo, "stats": built.stats },
+        "run": extra_options,
+    });
+    let report = Report::new(
+        input.report.clone(),
+        &control,
+        None,
+        &surfaces.metrics,
+        timer.stages,
+        extra,
+    );
+    let mut written = crate::report::write_outputs(
+        dir,
+        &crate::report::OutputFiles {
+            mesh: &input.mesh,
+            control: &quads,
+            surfaces: &surfaces,
+            fitmap: None,
+            report: &report,
+        },
+    )?;
+    let quads_path = dir.join("control_quads.obj");
+    std::fs::rename(dir.join("control.obj"), &quads_path).map_err(|e| Error::io(&quads_path, e))?;
+    crate::io::write_control_obj(&dir.join("control.obj"), &control)?;
+    crate::io::write_usda(&dir.join("control.usda"), &control, None)?;
+    written.push(quads_path);
+    crate::fit::report_progress(progress, "write", 1.0)?;
+    Ok((report, written))
 }

@@ -1,0 +1,350 @@
+//! Boundary curves (Lavoué et al. §5): the network of region boundaries cut
+//! into pieces between *corners*, each piece approximated by a subdivision
+//! curve with as few control points as the tolerance allows.
+//!
+//! The curve rule is the sharp-edge rule of Hoppe et al. (eq. 1): new
+//! points at edge midpoints, old points `P' = (P₋ + 6P + P₊)/8`, and the
+//! corner rule `P' = P` (eq. 2) at the ends. Its limit is the uniform cubic
+//! B-spline of the control polygon, with phantom points `2P₀ − P₁` at
+//! corner ends (the point that makes the 1-6-1 mask fix `P₀`), and the
+//! periodic B-spline on a closed piece without corners. This is exactly the
+//! limit of a Catmull-Clark crease, so a piece fitted here is the crease
+//! curve of the output surface once its control points are joined by
+//! infinitely sharp edges and its ends tagged as corners.
+//!
+//! Fitting (the active-curve approach of Pottmann–Leopoldseder / Lavoué,
+//! Dupont & Baskurt 2005b, in its least-squares form): start from the
+//! fewest control points (two for an open piece: the corners; four for a
+//! closed one), fit by linear least squares with chord-length parameters,
+//! correct the parameters by Newton projection of the polyline points on
+//! the curve, and while the largest distance exceeds the tolerance add
+//! control points (~20 % more, at least one) and refit. With uniform knots
+//! a new control point refines the curve everywhere; the parameter
+//! correction moves control points towards where the error was largest.
+
+use crate::DVec3;
+
+/// A boundary piece: a polyline of M's vertices between two corners (open)
+/// or a corner-free loop (closed, first vertex not repeated).
+#[derive(Clone, Debug)]
+pub struct Piece {
+    pub verts: Vec<u32>,
+    pub closed: bool,
+    /// The regions on either side (`u32::MAX`: outside M, an open boundary).
+    pub regions: [u32; 2],
+}
+
+/// A fitted subdivision curve.
+#[derive(Clone, Debug)]
+pub struct Curve {
+    /// Control points; on an open curve the first and last are the corners.
+    pub control: Vec<DVec3>,
+    pub closed: bool,
+    /// Curve parameter of each polyline vertex (non-decreasing on open
+    /// curves), in `[0, n−1]` (open) or `[0, n)` (closed).
+    pub params: Vec<f64>,
+    /// Largest polyline-vertex-to-curve distance.
+    pub max_error: f64,
+}
+
+/// Basis of the uniform cubic B-spline on one segment.
+fn basis(u: f64) -> [f64; 4] {
+    let u2 = u * u;
+    let u3 = u2 * u;
+    [
+        (1.0 - u).powi(3) / 6.0,
+        (3.0 * u3 - 6.0 * u2 + 4.0) / 6.0,
+        (-3.0 * u3 + 3.0 * u2 + 3.0 * u + 1.0) / 6.0,
+        u3 / 6.0,
+    ]
+}
+
+fn dbasis(u: f64) -> [f64; 4] {
+    let u2 = u * u;
+    [
+        -0.5 * (1.0 - u).powi(2),
+        (9.0 * u2 - 12.0 * u) / 6.0,
+        (-9.0 * u2 + 6.0 * u + 3.0) / 6.0,
+        0.5 * u2,
+    ]
+}
+
+/// Weights of `C(t)` (or `C'(t)` with `derivative`) over the control
+/// points, phantoms folded in: up to 6 `(index, weight)` pairs.
+pub fn weights(n: usize, closed: bool, t: f64, derivative: bool) -> Vec<(usize, f64)> {
+    let segs = if closed { n } else { n - 1 };
+    let t = if closed {
+        t.rem_euclid(n as f64)
+    } else {
+        t.clamp(0.0, segs as f64)
+    };
+    let s = (t.floor() as usize).min(segs - 1);
+    let u = t - s as f64;
+    let b = if derivative { dbasis(u) } else { basis(u) };
+    let mut out: Vec<(usize, f64)> = Vec::with_capacity(6);
+    let mut add = |i: usize, w: f64| match out.iter_mut().find(|p| p.0 == i) {
+        Some(p) => p.1 += w,
+        None => out.push((i, w)),
+    };
+    for (k, &w) in b.iter().enumerate() {
+        let j = s as i64 + k as i64 - 1;
+        if closed {
+            add(j.rem_euclid(n as i64) as usize, w);
+        } else if j < 0 {
+            add(0, 2.0 * w);
+            add(1, -w);
+        } else if j as usize >= n {
+            add(n - 1, 2.0 * w);
+            add(n - 2, -w);
+        } else {
+            add(j as usize, w);
+        }
+    }
+    out
+}
+
+pub fn eval(control: &[DVec3], closed: bool, t: f64) -> DVec3 {
+    weights(control.len(), closed, t, false)
+        .into_iter()
+        .map(|(i, w)| w * control[i])
+        .sum()
+}
+
+fn eval_d(control: &[DVec3], closed: bool, t: f64) -> DVec3 {
+    weights(control.len(), closed, t, true)
+        .into_iter()
+        .map(|(i, w)| w * control[i])
+        .sum()
+}
+
+/// Solves the SPD system `a x = b` (dense, row-major, `n × n`) for three
+/// right-hand sides by Cholesky; `None` if not positive definite.
+fn cholesky_solve(mut a: Vec<f64>, n: usize, mut b: Vec<DVec3>) -> Option<Vec<DVec3>> {
+    for j in 0..n {
+        let mut d = a[j * n + j];
+        for k in 0..j {
+            d -= a[j * n + k] * a[j * n + k];
+        }
+        if d <= 0.0 || !d.is_finite() {
+            return None;
+        }
+        let d = d.sqrt();
+        a[j * n + j] = d;
+        for i in j + 1..n {
+            let mut s = a[i * n + j];
+            for k in 0..j {
+                s -= a[i * n + k] * a[j * n + k];
+            }
+            a[i * n + j] = s / d;
+        }
+    }
+    for i in 0..n {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= a[i * n + k] * b[k];
+        }
+        b[i] = s / a[i * n + i];
+    }
+    for i in (0..n).rev() {
+        let mut s = b[i];
+        for k in i + 1..n {
+            s -= a[k * n + i] * b[k];
+        }
+        b[i] = s / a[i * n + i];
+    }
+    Some(b)
+}
+
+/// Least-squares control points for fixed parameters (ends fixed on open
+/// curves).
+fn solve(points: &[DVec3], params: &[f64], n: usize, closed: bool) -> Option<Vec<DVec3>> {
+    let (first, last) = (points[0], points[points.len() - 1]);
+    let free: Vec<usize> = if closed {
+        (0..n).collect()
+    } else {
+        (1..n - 1).collect()
+    };
+    let mut control = vec![DVec3::ZERO; n];
+    if !closed {
+        control[0] = first;
+        control[n - 1] = last;
+    }
+    if free.is_empty() {
+        return Some(control);
+    }
+    let nf = free.len();
+    let col = |i: usize| {
+        if closed {
+            Some(i)
+        } else if i == 0 || i == n - 1 {
+            None
+        } else {
+            Some(i - 1)
+        }
+    };
+    let mut a = vec![0.0; nf * nf];
+    let mut b = vec![DVec3::ZERO; nf];
+    for (p, &t) in points.iter().zip(params) {
+        let w = weights(n, closed, t, false);
+        let mut rhs = *p;
+        for &(i, wi) in &w {
+            if col(i).is_none() {
+                rhs -= wi * control[i];
+            }
+        }
+        for &(i, wi) in &w {
+            let Some(ci) = col(i) else { continue };
+            b[ci] += wi * rhs;
+            for &(j, wj) in &w {
+                if let Some(cj) = col(j) {
+                    a[ci * nf + cj] += wi * wj;
+                }
+            }
+        }
+    }
+    // A tiny ridge keeps a control point no polyline vertex reaches (more
+    // control points than vertices on a segment) determined: it drifts to
+    // the origin-free average of its neighbours' pull instead of failing.
+    let trace: f64 = (0..nf).map(|i| a[i * nf + i]).sum::<f64>() / nf as f64;
+    for i in 0..nf {
+        a[i * nf + i] += 1e-9 * trace.max(1e-300);
+    }
+    // Smoothness: second differences of the free points, weight 1e-6 of
+    // the data, so under-determined spans interpolate linearly.
+    for k in 1..n.saturating_sub(1) {
+        let idx = [(k - 1, 1.0), (k, -2.0), (k + 1, 1.0)];
+        let lam = 1e-6 * trace.max(1e-300);
+        let mut rhs = DVec3::ZERO;
+        for &(i, w) in &idx {
+            if col(i).is_none() {
+                rhs -= w * control[i];
+            }
+        }
+        for &(i, wi) in &idx {
+            let Some(ci) = col(i) else { continue };
+            b[ci] += lam * wi * rhs;
+            for &(j, wj) in &idx {
+                if let Some(cj) = col(j) {
+                    a[ci * nf + cj] += lam * wi * wj;
+                }
+            }
+        }
+    }
+    let x = cholesky_solve(a, nf, b)?;
+    for (k, &i) in free.iter().enumerate() {
+        control[i] = x[k];
+    }
+    Some(control)
+}
+
+/// Chord-length parameters scaled to the curve's parameter range.
+fn chord_params(points: &[DVec3], n: usize, closed: bool) -> Vec<f64> {
+    let m = points.len();
+    let mut acc = vec![0.0; m];
+    for i in 1..m {
+        acc[i] = acc[i - 1] + (points[i] - points[i - 1]).length();
+    }
+    let total = if closed {
+        acc[m - 1] + (points[0] - points[m - 1]).length()
+    } else {
+        acc[m - 1]
+    };
+    let range = if closed { n as f64 } else { (n - 1) as f64 };
+    if total <= 0.0 {
+        return (0..m).map(|i| range * i as f64 / m.max(2) as f64).collect();
+    }
+    acc.iter().map(|a| range * a / total).collect()
+}
+
+/// Newton projection of each point on the curve, from its current
+/// parameter; open curves keep the ends at the ends and the parameters
+/// non-decreasing.
+fn correct(points: &[DVec3], params: &mut [f64], control: &[DVec3], closed: bool) {
+    let n = control.len();
+    let hi = if closed {
+        f64::INFINITY
+    } else {
+        (n - 1) as f64
+    };
+    let m = points.len();
+    for (j, (p, t)) in points.iter().zip(params.iter_mut()).enumerate() {
+        if !closed && (j == 0 || j == m - 1) {
+            continue;
+        }
+        for _ in 0..4 {
+            let c = eval(control, closed, *t);
+            let d = eval_d(control, closed, *t);
+            let dd = d.length_squared();
+            if dd <= 0.0 {
+                break;
+            }
+            let step = (c - *p).dot(d) / dd;
+            *t = (*t - step.clamp(-0.5, 0.5))
+                .clamp(if closed { f64::NEG_INFINITY } else { 0.0 }, hi);
+        }
+    }
+    if !closed {
+        for j in 1..m {
+            if params[j] < params[j - 1] {
+                params[j] = params[j - 1];
+            }
+        }
+    }
+}
+
+fn max_error(points: &[DVec3], params: &[f64], control: &[DVec3], closed: bool) -> f64 {
+    points
+        .iter()
+        .zip(params)
+        .map(|(p, &t)| (eval(control, closed, t) - *p).length())
+        .fold(0.0, f64::max)
+}
+
+/// Fits a curve to `points` (see the module docs) with at least `min_n`
+/// control points, to within `tol` (largest vertex distance) if it can.
+pub fn fit_curve(points: &[DVec3], closed: bool, tol: f64, min_n: usize) -> Curve {
+    let m = points.len();
+    let lo = if closed { min_n.max(3) } else { min_n.max(2) };
+    // More control points than polyline vertices cannot help.
+    let cap = lo.max(if closed { m } else { m.max(2) });
+    let mut n = lo;
+    loop {
+        let mut params = chord_params(points, n, closed);
+        let mut control =
+            solve(points, &params, n, closed).unwrap_or_else(|| linear(points, n, closed));
+        for _ in 0..4 {
+            correct(points, &mut params, &control, closed);
+            if let Some(c) = solve(points, &params, n, closed) {
+                control = c;
+            }
+        }
+        correct(points, &mut params, &control, closed);
+        let err = max_error(points, &params, &control, closed);
+        if err <= tol || n >= cap {
+            if closed {
+                for t in params.iter_mut() {
+                    *t = t.rem_euclid(n as f64);
+                }
+            }
+            return Curve {
+                control,
+                closed,
+                params,
+                max_error: err,
+            };
+        }
+        n = (n + (n / 5).max(1)).min(cap);
+    }
+}
+
+/// Fallback: control points sampled on the polyline.
+fn linear(points: &[DVec3], n: usize, closed: bool) -> Vec<DVec3> {
+    let m = points.len();
+    let den = if closed { n } else { n - 1 }.max(1);
+    (0..n)
+        .map(|i| {
+            let k = (i * (if closed { m } else { m - 1 })) / den;
+            points[k.min(m - 1)]
+        })
+        .collect()
+}

@@ -1,0 +1,250 @@
+//! The boundary network of a segmentation (§5, Fig. 7.b): pieces of region
+//! boundary between corners, and each region's oriented boundary loop as a
+//! sequence of (piece, direction).
+
+use std::collections::HashMap;
+
+use super::curves::Piece;
+use super::topology::Topology;
+use crate::mesh::TriMesh;
+
+/// A boundary turning by more than this (degrees, between consecutive
+/// edges) at a vertex where both edges are sharp edges of M makes the
+/// vertex a corner, so the crease curve keeps the kink (eq. 2's corner
+/// rule) instead of rounding it. Only along sharp edges: a boundary between
+/// curvature classes zigzags along triangle edges and is not a feature.
+pub const CORNER_TURN_DEG: f64 = 40.0;
+
+/// Pieces, corner flags per vertex of M, and for each region its boundary
+/// loops as `(piece, forward)` sequences.
+#[derive(Clone, Debug)]
+pub struct Network {
+    pub pieces: Vec<Piece>,
+    pub corner: Vec<bool>,
+    /// Per region: loops, each a sequence of `(piece index, forward)` in the
+    /// region's orientation (M's triangle orientation).
+    pub loops: Vec<Vec<Vec<(usize, bool)>>>,
+    /// Whether each vertex of M lies on a region boundary.
+    pub on_boundary: Vec<bool>,
+}
+
+pub fn build_network(
+    mesh: &TriMesh,
+    topo: &Topology,
+    region: &[u32],
+    num_regions: usize,
+    sharp: &[bool],
+) -> Network {
+    let nv = mesh.positions.len();
+    let side = |f: u32| {
+        if f == u32::MAX {
+            u32::MAX
+        } else {
+            region[f as usize]
+        }
+    };
+    let is_b: Vec<bool> = topo
+        .edges
+        .iter()
+        .map(|e| !e.is_interior() || side(e.faces[0]) != side(e.faces[1]))
+        .collect();
+    let mut deg = vec![0u32; nv];
+    let mut on_boundary = vec![false; nv];
+    for (e, ed) in topo.edges.iter().enumerate() {
+        if is_b[e] {
+            for &v in &ed.v {
+                deg[v as usize] += 1;
+                on_boundary[v as usize] = true;
+            }
+        }
+    }
+    let mut corner = vec![false; nv];
+    let cos_turn = CORNER_TURN_DEG.to_radians().cos();
+    for v in 0..nv {
+        if deg[v] == 0 {
+            continue;
+        }
+        if deg[v] != 2 {
+            corner[v] = true;
+            continue;
+        }
+        let mut sides: Vec<u32> = Vec::new();
+        let mut bedges: Vec<u32> = Vec::new();
+        for &e in topo.vertex_edges(v as u32) {
+            let ed = &topo.edges[e as usize];
+            for &f in &ed.faces {
+                let s = side(f);
+                if !sides.contains(&s) {
+                    sides.push(s);
+                }
+            }
+            if is_b[e as usize] {
+                bedges.push(e);
+            }
+        }
+        if sides.len() >= 3 {
+            corner[v] = true;
+            continue;
+        }
+        if bedges.len() == 2 && bedges.iter().all(|&e| sharp[e as usize]) {
+            let other = |e: u32| {
+                let ed = &topo.edges[e as usize];
+                if ed.v[0] as usize == v {
+                    ed.v[1]
+                } else {
+                    ed.v[0]
+                }
+            };
+            let p = mesh.positions[v];
+            let a = (p - mesh.positions[other(bedges[0]) as usize]).normalize_or_zero();
+            let b = (mesh.positions[other(bedges[1]) as usize] - p).normalize_or_zero();
+            if a.dot(b) < cos_turn {
+                corner[v] = true;
+            }
+        }
+    }
+    // Walk pieces.
+    let mut edge_piece: Vec<u32> = vec![u32::MAX; topo.edges.len()];
+    let mut pieces: Vec<Piece> = Vec::new();
+    let walk =
+        |start_v: u32, start_e: u32, edge_piece: &mut Vec<u32>, pid: u32| -> (Vec<u32>, bool) {
+            let mut verts = vec![start_v];
+            let mut v = start_v;
+            let mut e = start_e;
+            loop {
+                edge_piece[e as usize] = pid;
+                let ed = &topo.edges[e as usize];
+                let w = if ed.v[0] == v { ed.v[1] } else { ed.v[0] };
+                if w == start_v {
+                    return (verts, !corner[w as usize]);
+                }
+                verts.push(w);
+                if corner[w as usize] {
+                    return (verts, false);
+                }
+                let next = topo
+                    .vertex_edges(w)
+                    .iter()
+                    .copied()
+                    .find(|&f| is_b[f as usize] && edge_piece[f as usize] == u32::MAX);
+                match next {
+                    Some(f) => {
+                        v = w;
+                        e = f;
+                    }
+                    None => return (verts, false),
+                }
+            }
+        };
+    let regions_of = |e: u32| {
+        let ed = &topo.edges[e as usize];
+        let mut r = [side(ed.faces[0]), side(ed.faces[1])];
+        r.sort_unstable();
+        r
+    };
+    for v in 0..nv as u32 {
+        if !corner[v as usize] {
+            continue;
+        }
+        for &e in topo.vertex_edges(v) {
+            if is_b[e as usize] && edge_piece[e as usize] == u32::MAX {
+                let pid = pieces.len() as u32;
+                let (mut verts, closed) = walk(v, e, &mut edge_piece, pid);
+                if !closed && verts.first() == verts.last() && verts.len() > 1 {
+                    // A loop through one corner: the last vertex repeats
+                    // the corner, which is how an open piece is stored.
+                } else if closed {
+                    verts.dedup();
+                }
+                pieces.push(Piece {
+                    verts,
+                    closed: false,
+                    regions: regions_of(e),
+                });
+            }
+        }
+    }
+    for e in 0..topo.edges.len() as u32 {
+        if is_b[e as usize] && edge_piece[e as usize] == u32::MAX {
+            let pid = pieces.len() as u32;
+            let v = topo.edges[e as usize].v[0];
+            let (verts, _) = walk(v, e, &mut edge_piece, pid);
+            pieces.push(Piece {
+                verts,
+                closed: true,
+                regions: regions_of(e),
+            });
+        }
+    }
+    // Directed region boundary edges → loops of pieces.
+    let mut piece_pos: HashMap<(u32, u32), (usize, bool)> = HashMap::new();
+    for (pi, p) in pieces.iter().enumerate() {
+        let m = p.verts.len();
+        let segs = if p.closed { m } else { m - 1 };
+        for k in 0..segs {
+            let (a, b) = (p.verts[k], p.verts[(k + 1) % m]);
+            piece_pos.insert((a, b), (pi, true));
+            piece_pos.insert((b, a), (pi, false));
+        }
+    }
+    let mut loops: Vec<Vec<Vec<(usize, bool)>>> = vec![Vec::new(); num_regions];
+    // Per region, its directed boundary half-edges (a → b as in a triangle).
+    let mut out: Vec<HashMap<u32, Vec<u32>>> = vec![HashMap::new(); num_regions];
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        for k in 0..3 {
+            let e = topo.tri_edges[t][k];
+            if is_b[e as usize] {
+                out[region[t] as usize]
+                    .entry(tri[k])
+                    .or_default()
+                    .push(tri[(k + 1) % 3]);
+            }
+        }
+    }
+    for (r, outr) in out.iter_mut().enumerate() {
+        let mut starts: Vec<u32> = outr.keys().copied().collect();
+        starts.sort_unstable();
+        // Start loops at corners so that a loop's first piece begins there.
+        starts.sort_by_key(|&v| !corner[v as usize]);
+        for s in starts {
+            while let Some(b) = outr.get_mut(&s).and_then(|l| l.pop()) {
+                let mut seq: Vec<(usize, bool)> = Vec::new();
+                let (mut a, mut b) = (s, b);
+                let mut guard = 0;
+                loop {
+                    if let Some(&(pi, fwd)) = piece_pos.get(&(a, b)) {
+                        if seq.last().map(|l| l.0) != Some(pi) || pieces[pi].closed {
+                            if seq.last() != Some(&(pi, fwd)) {
+                                seq.push((pi, fwd));
+                            }
+                        }
+                    }
+                    if b == s {
+                        break;
+                    }
+                    a = b;
+                    match outr.get_mut(&a).and_then(|l| l.pop()) {
+                        Some(n) => b = n,
+                        None => break,
+                    }
+                    guard += 1;
+                    if guard > 10_000_000 {
+                        break;
+                    }
+                }
+                // A loop may start in the middle of its first piece (no
+                // corner on it): merge a split first/last occurrence.
+                if seq.len() > 1 && seq.first() == seq.last() {
+                    seq.pop();
+                }
+                loops[r].push(seq);
+            }
+        }
+    }
+    Network {
+        pieces,
+        corner,
+        loops,
+        on_boundary,
+    }
+}

@@ -1,0 +1,507 @@
+//! Local optimisation and enrichment (Lavoué et al. §7), on the assembled
+//! control mesh with every curve control point fixed (§7.3: "boundary
+//! control points are fixed, to insure that no crack will appear"; here it
+//! also keeps the crease curves where §5 fitted them).
+//!
+//! Geometry (§7.1): samples of the limit surface (the ptex grids of
+//! [`crate::fit::patch_samples`], about one per vertex of M), their feet
+//! φ(s) on M along the limit normal, and a linear least-squares update of
+//! the free control points minimising `Σ |s − φ(s)|²` plus a small umbrella
+//! fairness on the update (as in [`crate::fit`]): the point-distance
+//! objective; up to `m₀` rounds, stopping early when the RMS stops falling.
+//!
+//! Enrichment (§7.2): faces whose RMS sample distance exceeds the limit form
+//! error fields (connected over non-crease edges). A field whose samples
+//! above `D_max/2` are mostly below `0.8 D_max` is a *local* error: its
+//! faces are merged and one point inserted, connected to the merged
+//! polygon's corners (case 1); otherwise (a plateau, or a single face) every
+//! face of the field is split Catmull-Clark style, with the edges shared by
+//! two enriched faces cut (case 2). Crease edges are never cut.
+
+use std::collections::{HashMap, HashSet};
+
+use crate::error::{Error, Result};
+use crate::mesh::{ControlMesh, TriMesh, INFINITELY_SHARP};
+use crate::project::{default_max_dist, project_along_normals};
+use crate::raycast::RayCaster;
+use crate::solve::{least_squares, LsqOptions, Triplets};
+use crate::subdiv::{make_evaluator, Backend, EvalOptions};
+use crate::DVec3;
+
+/// The control mesh under construction as polygons (rebuilt into a
+/// [`ControlMesh`] after each topology change).
+#[derive(Clone, Debug)]
+pub struct Polys {
+    pub positions: Vec<DVec3>,
+    pub faces: Vec<Vec<u32>>,
+    /// Vertices `0..fixed` are curve control points (never moved).
+    pub fixed: usize,
+    pub creases: HashSet<(u32, u32)>,
+    pub corners: Vec<u32>,
+}
+
+impl Polys {
+    pub fn to_control(&self) -> Result<ControlMesh> {
+        let mut c = ControlMesh::from_polygons(self.positions.clone(), &self.faces)?;
+        let mut cr: Vec<&(u32, u32)> = self.creases.iter().collect();
+        cr.sort_unstable();
+        for &&(a, b) in &cr {
+            use crate::mesh::VertexId;
+            if c.find_halfedge(VertexId(a), VertexId(b)).is_some() {
+                c.set_crease(VertexId(a), VertexId(b), INFINITELY_SHARP)?;
+            }
+        }
+        for &v in &self.corners {
+            c.set_corner(crate::mesh::VertexId(v), INFINITELY_SHARP)?;
+        }
+        Ok(c)
+    }
+}
+
+/// Per-round record.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Round {
+    pub faces: usize,
+    pub vertices: usize,
+    /// Mean and RMS sample distance after the geometry step, ‰ of diagonal.
+    pub mean_permille: f64,
+    pub rms_permille: f64,
+    pub max_permille: f64,
+    pub geometry_iterations: usize,
+    pub faces_over_limit: usize,
+    pub local_fields: usize,
+    pub diffuse_fields: usize,
+}
+
+pub struct OptimizeOptions {
+    pub max_error: f64,
+    pub m0: usize,
+    pub max_rounds: usize,
+    pub max_faces: usize,
+    pub fairness: f64,
+}
+
+/// Runs §7.3's loop; returns the rounds. `polys` ends with the last
+/// measured, fitted state.
+pub fn optimize(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    polys: &mut Polys,
+    o: &OptimizeOptions,
+) -> Result<Vec<Round>> {
+    let diag = mesh.bbox_diagonal();
+    let limit = o.max_error * diag;
+    let max_dist = default_max_dist(mesh);
+    let mut rounds = Vec::new();
+    // The best state met (by RMS): enrichment is not guaranteed to lower
+    // the error, and the result must never be worse than a state measured.
+    let mut best: Option<(f64, Polys)> = None;
+    for round in 0..=o.max_rounds {
+        if std::env::var_os("SUBDFIT_DEBUG").is_some() {
+            let used: HashSet<u32> = polys.faces.iter().flatten().copied().collect();
+            eprintln!(
+                "round {round}: {} verts {} faces fixed {} unused {:?}",
+                polys.positions.len(),
+                polys.faces.len(),
+                polys.fixed,
+                (0..polys.positions.len() as u32)
+                    .filter(|v| !used.contains(v))
+                    .collect::<Vec<_>>()
+            );
+        }
+        let control = polys.to_control()?;
+        let (locs, _) = crate::fit::patch_samples(&control, mesh.positions.len(), 3);
+        let eval = make_evaluator(
+            Backend::Osd,
+            &control,
+            &EvalOptions::default().with_isolation_level(5),
+        )?;
+        let st = eval.stencils(&locs)?;
+        let nfree = polys.positions.len() - polys.fixed;
+        let mut dists: Vec<f64> = Vec::new();
+        let mut iters: usize = 0;
+        let mut prev_rms = f64::INFINITY;
+        let mut prev_pos = polys.positions.clone();
+        let lap = umbrella(&control, polys.fixed);
+        for m in 0..=o.m0 {
+            let lp = st.apply(&polys.positions);
+            let (hits, _) = project_along_normals(caster, &lp, max_dist)?;
+            dists = hits
+                .iter()
+                .zip(&lp)
+                .map(|(h, s)| h.map_or(f64::NAN, |h| (h.point - s.position).length()))
+                .collect();
+            let ok: Vec<f64> = dists.iter().copied().filter(|d| d.is_finite()).collect();
+            let rms = (ok.iter().map(|d| d * d).sum::<f64>() / ok.len().max(1) as f64).sqrt();
+            if rms > prev_rms {
+                // The last step made it worse: undo it and measure again.
+                polys.positions = prev_pos.clone();
+                let lp = st.apply(&polys.positions);
+                let (hits, _) = project_along_normals(caster, &lp, max_dist)?;
+                dists = hits
+                    .iter()
+                    .zip(&lp)
+                    .map(|(h, s)| h.map_or(f64::NAN, |h| (h.point - s.position).length()))
+                    .collect();
+                iters = iters.saturating_sub(1);
+                break;
+            }
+            if nfree == 0 || m == o.m0 || rms > prev_rms * 0.995 || rms <= 0.1 * limit {
+                break;
+            }
+            prev_rms = rms;
+            prev_pos = polys.positions.clone();
+            // Outliers (another sheet hit): 10× the median.
+            let mut sorted = ok.clone();
+            sorted.sort_by(f64::total_cmp);
+            let bound = 10.0
+                * sorted
+                    .get(sorted.len() / 2)
+                    .copied()
+                    .unwrap_or(0.0)
+                    .max(1e-6 * diag);
+            let mut rows: Vec<(usize, DVec3)> = Vec::new();
+            for (i, h) in hits.iter().enumerate() {
+                let Some(h) = h else { continue };
+                if (h.point - lp[i].position).length() > bound {
+                    continue;
+                }
+                let mut any = false;
+                for k in st.row(i) {
+                    let v = st.indices[k] as usize;
+                    if v >= polys.fixed {
+                        any = true;
+                    }
+                }
+                if !any {
+                    continue;
+                }
+                rows.push((i, h.point - lp[i].position));
+            }
+            let r = rows.len();
+            if r == 0 {
+                break;
+            }
+            let mut a = Triplets::new(r, nfree);
+            let mut b: Vec<Vec<f64>> = vec![Vec::with_capacity(r); 3];
+            for (row, &(i, d)) in rows.iter().enumerate() {
+                for k in st.row(i) {
+                    let v = st.indices[k] as usize;
+                    if v >= polys.fixed {
+                        a.push(row, v - polys.fixed, st.weights[k]);
+                    }
+                }
+                for (c, bc) in b.iter_mut().enumerate() {
+                    bc.push(d[c]);
+                }
+            }
+            let mut reg = Triplets::new(2 * nfree, nfree);
+            for (v, row) in lap.iter().enumerate() {
+                for &(u, w) in row {
+                    reg.push(v, u as usize, w);
+                }
+                reg.push(nfree + v, v, 1e-2);
+            }
+            let lambda = o.fairness * r as f64 / nfree as f64;
+            let x = least_squares(&a, &b, Some((&reg, lambda)), &LsqOptions::default())?;
+            for v in 0..nfree {
+                let d = DVec3::new(x[0][v], x[1][v], x[2][v]);
+                if !d.is_finite() {
+                    return Err(Error::backend("Eigen", "non-finite control update"));
+                }
+                polys.positions[polys.fixed + v] += d;
+            }
+            iters += 1;
+        }
+        // Per-face error.
+        let nf = polys.faces.len();
+        let mut fsum = vec![0.0; nf];
+        let mut fcnt = vec![0usize; nf];
+        let mut fmax = vec![0.0f64; nf];
+        for (l, d) in locs.iter().zip(&dists) {
+            if d.is_finite() {
+                let f = l.face.idx();
+                fsum[f] += d * d;
+                fcnt[f] += 1;
+                fmax[f] = fmax[f].max(*d);
+            }
+        }
+        let frms: Vec<f64> = (0..nf)
+            .map(|f| (fsum[f] / fcnt[f].max(1) as f64).sqrt())
+            .collect();
+        let ok: Vec<f64> = dists.iter().copied().filter(|d| d.is_finite()).collect();
+        let cnt = ok.len().max(1) as f64;
+        let over: Vec<usize> = (0..nf).filter(|&f| frms[f] > limit).collect();
+        let mut rec = Round {
+            faces: nf,
+            vertices: polys.positions.len(),
+            mean_permille: 1000.0 * ok.iter().sum::<f64>() / cnt / diag,
+            rms_permille: 1000.0 * (ok.iter().map(|d| d * d).sum::<f64>() / cnt).sqrt() / diag,
+            max_permille: 1000.0 * ok.iter().copied().fold(0.0, f64::max) / diag,
+            geometry_iterations: iters,
+            faces_over_limit: over.len(),
+            local_fields: 0,
+            diffuse_fields: 0,
+        };
+        if best.as_ref().is_none_or(|b| rec.rms_permille < b.0) {
+            best = Some((rec.rms_permille, polys.clone()));
+        }
+        if over.is_empty() || round == o.max_rounds || nf >= o.max_faces {
+            rounds.push(rec);
+            break;
+        }
+        let (local, diffuse) = enrich(polys, &over, &locs_faces(&locs), &dists);
+        rec.local_fields = local;
+        rec.diffuse_fields = diffuse;
+        rounds.push(rec);
+    }
+    if let Some((_, b)) = best {
+        *polys = b;
+    }
+    Ok(rounds)
+}
+
+fn locs_faces(locs: &[crate::subdiv::SurfaceLocation]) -> Vec<u32> {
+    locs.iter().map(|l| l.face.0).collect()
+}
+
+/// Umbrella rows over the free vertices (fixed neighbours have δ = 0).
+fn umbrella(control: &ControlMesh, fixed: usize) -> Vec<Vec<(u32, f64)>> {
+    control
+        .vertices()
+        .skip(fixed)
+        .map(|v| {
+            let nb: Vec<u32> = control.outgoing(v).map(|h| control.head(h).0).collect();
+            let w = 1.0 / nb.len().max(1) as f64;
+            std::iter::once((v.0 - fixed as u32, 1.0))
+                .chain(
+                    nb.into_iter()
+                        .filter(|&u| u as usize >= fixed)
+                        .map(|u| (u - fixed as u32, -w)),
+                )
+                .collect()
+        })
+        .collect()
+}
+
+/// Enriches the faces in `over` (see the module docs); returns the number
+/// of local and diffuse fields.
+fn enrich(polys: &mut Polys, over: &[usize], sample_face: &[u32], dists: &[f64]) -> (usize, usize) {
+    let key = |a: u32, b: u32| (a.min(b), a.max(b));
+    let nf = polys.faces.len();
+    let is_over: Vec<bool> = {
+        let mut v = vec![false; nf];
+        for &f in over {
+            v[f] = true;
+        }
+        v
+    };
+    // Edge → faces.
+    let mut edge_faces: HashMap<(u32, u32), Vec<usize>> = HashMap::new();
+    for (f, poly) in polys.faces.iter().enumerate() {
+        for k in 0..poly.len() {
+            edge_faces
+                .entry(key(poly[k], poly[(k + 1) % poly.len()]))
+                .or_default()
+                .push(f);
+        }
+    }
+    // Fields: connected components of over-limit faces across non-crease edges.
+    let mut field = vec![usize::MAX; nf];
+    let mut fields: Vec<Vec<usize>> = Vec::new();
+    for &s in over {
+        if field[s] != usize::MAX {
+            continue;
+        }
+        let id = fields.len();
+        let mut comp = vec![s];
+        field[s] = id;
+        let mut i = 0;
+        while i < comp.len() {
+            let f = comp[i];
+            i += 1;
+            let poly = &polys.faces[f];
+            for k in 0..poly.len() {
+                let e = key(poly[k], poly[(k + 1) % poly.len()]);
+                if polys.creases.contains(&e) {
+                    continue;
+                }
+                for &g in &edge_faces[&e] {
+                    if is_over[g] && field[g] == usize::MAX {
+                        field[g] = id;
+                        comp.push(g);
+                    }
+                }
+            }
+        }
+        fields.push(comp);
+    }
+    let mut split: Vec<bool> = vec![false; nf];
+    let mut merges: Vec<Vec<usize>> = Vec::new();
+    let (mut nlocal, mut ndiff) = (0, 0);
+    for comp in &fields {
+        let ds: Vec<f64> = sample_face
+            .iter()
+            .zip(dists)
+            .filter(|(f, d)| {
+                d.is_finite() && field[**f as usize] != usize::MAX && comp.contains(&(**f as usize))
+            })
+            .map(|(_, &d)| d)
+            .collect();
+        let dmax = ds.iter().copied().fold(0.0, f64::max);
+        let set: Vec<f64> = ds.iter().copied().filter(|&d| d >= 0.5 * dmax).collect();
+        let high = set.iter().filter(|&&d| d >= 0.8 * dmax).count();
+        let local = comp.len() > 1 && (high as f64) < 0.5 * set.len() as f64;
+        if local && merge_loop(&polys.faces, comp, &edge_faces).is_some() {
+            merges.push(comp.clone());
+            nlocal += 1;
+        } else {
+            for &f in comp {
+                split[f] = true;
+            }
+            ndiff += 1;
+        }
+    }
+    // Case 2: split faces; cut non-crease edges of split faces.
+    let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+    let mut positions = polys.positions.clone();
+    for (f, poly) in polys.faces.iter().enumerate() {
+        if !split[f] {
+            continue;
+        }
+        for k in 0..poly.len() {
+            let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
+            let e = key(a, b);
+            if polys.creases.contains(&e) || mid.contains_key(&e) {
+                continue;
+            }
+            positions.push(0.5 * (positions[a as usize] + positions[b as usize]));
+            mid.insert(e, positions.len() as u32 - 1);
+        }
+    }
+    let mut faces: Vec<Vec<u32>> = Vec::new();
+    let merged_faces: HashSet<usize> = merges.iter().flatten().copied().collect();
+    for (f, poly) in polys.faces.iter().enumerate() {
+        if merged_faces.contains(&f) {
+            continue;
+        }
+        let n = poly.len();
+        // Boundary sequence with midpoints inserted.
+        let mut seq: Vec<(u32, bool)> = Vec::new();
+        for k in 0..n {
+            seq.push((poly[k], true));
+            if let Some(&m) = mid.get(&key(poly[k], poly[(k + 1) % n])) {
+                seq.push((m, false));
+            }
+        }
+        if !split[f] {
+            faces.push(seq.iter().map(|s| s.0).collect());
+            continue;
+        }
+        let c = poly.iter().map(|&v| positions[v as usize]).sum::<DVec3>() / n as f64;
+        positions.push(c);
+        let ci = positions.len() as u32 - 1;
+        let m = seq.len();
+        // Quads at corners flanked by midpoints, triangles elsewhere.
+        let mut covered = vec![false; m];
+        for i in 0..m {
+            let (prev, cur, next) = (seq[(i + m - 1) % m], seq[i], seq[(i + 1) % m]);
+            if cur.1 && !prev.1 && !next.1 {
+                faces.push(vec![prev.0, cur.0, next.0, ci]);
+                covered[(i + m - 1) % m] = true;
+                covered[i] = true;
+            }
+        }
+        for i in 0..m {
+            if !covered[i] {
+                faces.push(vec![seq[i].0, seq[(i + 1) % m].0, ci]);
+            }
+        }
+    }
+    // Case 1: merged polygon + one point, fan.
+    for comp in &merges {
+        let Some(lp) = merge_loop(&polys.faces, comp, &edge_faces) else {
+            continue;
+        };
+        // The merge loop may gain midpoints of neighbours' split edges.
+        let mut seq: Vec<u32> = Vec::new();
+        for k in 0..lp.len() {
+            seq.push(lp[k]);
+            if let Some(&m) = mid.get(&key(lp[k], lp[(k + 1) % lp.len()])) {
+                seq.push(m);
+            }
+        }
+        let c = seq.iter().map(|&v| positions[v as usize]).sum::<DVec3>() / seq.len() as f64;
+        positions.push(c);
+        let ci = positions.len() as u32 - 1;
+        for k in 0..seq.len() {
+            faces.push(vec![seq[k], seq[(k + 1) % seq.len()], ci]);
+        }
+    }
+    // Merging leaves the merged faces' inner vertices unused: drop them
+    // (free vertices only; curve control points lie on creases, which no
+    // field crosses) and renumber.
+    let mut used = vec![false; positions.len()];
+    for f in &faces {
+        for &v in f {
+            used[v as usize] = true;
+        }
+    }
+    let mut map = vec![u32::MAX; positions.len()];
+    let mut kept = Vec::with_capacity(positions.len());
+    for (v, p) in positions.into_iter().enumerate() {
+        if used[v] || v < polys.fixed {
+            map[v] = kept.len() as u32;
+            kept.push(p);
+        }
+    }
+    for f in faces.iter_mut() {
+        for v in f.iter_mut() {
+            *v = map[*v as usize];
+        }
+    }
+    polys.positions = kept;
+    polys.faces = faces;
+    (nlocal, ndiff)
+}
+
+/// The single boundary loop of the union of `comp`'s faces, if it is a
+/// disc whose loop visits no vertex twice and has no crease inside.
+fn merge_loop(
+    faces: &[Vec<u32>],
+    comp: &[usize],
+    edge_faces: &HashMap<(u32, u32), Vec<usize>>,
+) -> Option<Vec<u32>> {
+    let set: HashSet<usize> = comp.iter().copied().collect();
+    let mut next: HashMap<u32, u32> = HashMap::new();
+    let mut nb = 0;
+    for &f in comp {
+        let p = &faces[f];
+        for k in 0..p.len() {
+            let (a, b) = (p[k], p[(k + 1) % p.len()]);
+            let inner = edge_faces[&(a.min(b), a.max(b))]
+                .iter()
+                .filter(|g| set.contains(g))
+                .count()
+                == 2;
+            if !inner {
+                if next.insert(a, b).is_some() {
+                    return None;
+                }
+                nb += 1;
+            }
+        }
+    }
+    let &start = next.keys().min()?;
+    let mut lp = vec![start];
+    let mut v = next[&start];
+    while v != start {
+        lp.push(v);
+        v = *next.get(&v)?;
+        if lp.len() > nb {
+            return None;
+        }
+    }
+    // Interior vertices must exist (V − E + F = 1 for a disc).
+    (lp.len() == nb && lp.len() >= 3).then_some(lp)
+}

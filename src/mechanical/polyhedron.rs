@@ -1,0 +1,378 @@
+//! Initial control polyhedron per region (Lavoué et al. §6).
+//!
+//! Each region's boundary control polygon is read off the curve network
+//! (shared control points: the polygons of neighbouring regions are
+//! synchronised by construction, §6.1). The region is a disc (see
+//! [`super::segment`]), so its polygon can be laid on a circle in
+//! boundary order: a convex polygon, in which *any* set of non-crossing
+//! chords is a valid planar subdivision. The polygon is then cut
+//! recursively (§6.3.2) along the chord of smallest coherency score SC
+//! (eq. 3, Dijkstra paths on M between the chord ends' anchors, isotropic
+//! vertices counting 45°, vertices on a boundary 90°), until the pieces
+//! are quads or triangles; a region that is planar (all its vertices within
+//! [`PLANAR_TOLERANCE`] of a plane) keeps one facet per convex part instead
+//! (its limit patch is then exactly planar, bounded by its crease curves),
+//! split at reflex vertices as Hertel–Mehlhorn do.
+//!
+//! Chords never duplicate an edge that already exists (a curve segment or
+//! another region's chord), so the assembled mesh stays manifold.
+
+use std::collections::{BinaryHeap, HashSet};
+
+use super::curvature::VertexCurvature;
+use crate::mesh::TriMesh;
+use crate::DVec3;
+
+/// A region is planar when its vertices lie within this fraction of M's
+/// diagonal of their least-squares plane: 2e-4 (a tenth of the paper's
+/// curve threshold: flat CAD faces are flat to the float resolution).
+pub const PLANAR_TOLERANCE: f64 = 2e-4;
+
+/// One boundary control point of a region polygon.
+#[derive(Copy, Clone, Debug)]
+pub struct PolyVertex {
+    /// Control vertex id in the assembled mesh.
+    pub id: u32,
+    /// Nearest vertex of M along the boundary (for the Dijkstra paths).
+    pub anchor: u32,
+}
+
+/// Region data needed by the cutting.
+pub struct RegionGeom<'a> {
+    pub mesh: &'a TriMesh,
+    pub curv: &'a [VertexCurvature],
+    /// Vertices of M in the region (sorted).
+    pub verts: Vec<u32>,
+    /// Adjacency within the region (per entry of `verts`).
+    pub adj: Vec<Vec<(usize, f64)>>,
+    pub on_boundary: &'a [bool],
+    pub planar: Option<(DVec3, DVec3)>,
+}
+
+impl<'a> RegionGeom<'a> {
+    pub fn new(
+        mesh: &'a TriMesh,
+        curv: &'a [VertexCurvature],
+        tris: &[u32],
+        on_boundary: &'a [bool],
+        diag: f64,
+    ) -> Self {
+        let mut verts: Vec<u32> = tris
+            .iter()
+            .flat_map(|&t| mesh.triangles[t as usize])
+            .collect();
+        verts.sort_unstable();
+        verts.dedup();
+        let idx = |v: u32| verts.binary_search(&v).unwrap_or(0);
+        let mut adj: Vec<Vec<(usize, f64)>> = vec![Vec::new(); verts.len()];
+        for &t in tris {
+            let tri = mesh.triangles[t as usize];
+            for k in 0..3 {
+                let (a, b) = (idx(tri[k]), idx(tri[(k + 1) % 3]));
+                let w = (mesh.positions[tri[k] as usize]
+                    - mesh.positions[tri[(k + 1) % 3] as usize])
+                    .length();
+                if !adj[a].iter().any(|x| x.0 == b) {
+                    adj[a].push((b, w));
+                    adj[b].push((a, w));
+                }
+            }
+        }
+        // Least-squares plane: centroid and the smallest-variance axis
+        // (power iteration on the inverted-spectrum covariance is overkill;
+        // use the normal of the area-weighted triangle normals instead,
+        // which is the plane normal whenever the region is planar).
+        let c = verts
+            .iter()
+            .map(|&v| mesh.positions[v as usize])
+            .sum::<DVec3>()
+            / verts.len().max(1) as f64;
+        let mut n = DVec3::ZERO;
+        for &t in tris {
+            let [a, b, cc] = mesh.triangle(t as usize);
+            n += (b - a).cross(cc - a);
+        }
+        let n = n.normalize_or_zero();
+        let planar = (n != DVec3::ZERO
+            && verts.iter().all(|&v| {
+                (mesh.positions[v as usize] - c).dot(n).abs() <= PLANAR_TOLERANCE * diag
+            }))
+        .then_some((c, n));
+        RegionGeom {
+            mesh,
+            curv,
+            verts,
+            adj,
+            on_boundary,
+            planar,
+        }
+    }
+
+    fn local(&self, v: u32) -> Option<usize> {
+        self.verts.binary_search(&v).ok()
+    }
+
+    /// Shortest path (local indices) from `a` to every vertex: predecessor.
+    fn dijkstra(&self, a: usize) -> Vec<usize> {
+        let n = self.verts.len();
+        let mut dist = vec![f64::INFINITY; n];
+        let mut pred = vec![usize::MAX; n];
+        let mut heap = BinaryHeap::new();
+        dist[a] = 0.0;
+        heap.push((std::cmp::Reverse(OrdF(0.0)), a));
+        while let Some((std::cmp::Reverse(OrdF(d)), u)) = heap.pop() {
+            if d > dist[u] {
+                continue;
+            }
+            for &(w, l) in &self.adj[u] {
+                let nd = d + l;
+                if nd < dist[w] {
+                    dist[w] = nd;
+                    pred[w] = u;
+                    heap.push((std::cmp::Reverse(OrdF(nd)), w));
+                }
+            }
+        }
+        pred
+    }
+}
+
+#[derive(Copy, Clone, PartialEq)]
+struct OrdF(f64);
+impl Eq for OrdF {}
+impl PartialOrd for OrdF {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for OrdF {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&o.0)
+    }
+}
+
+/// Coherency scores SC (eq. 3) of every pair of polygon vertices.
+fn scores(g: &RegionGeom<'_>, poly: &[PolyVertex]) -> Vec<Vec<f64>> {
+    let k = poly.len();
+    let mut sc = vec![vec![90.0; k]; k];
+    let locals: Vec<Option<usize>> = poly.iter().map(|p| g.local(p.anchor)).collect();
+    for i in 0..k {
+        let Some(a) = locals[i] else { continue };
+        let pred = g.dijkstra(a);
+        for j in 0..k {
+            if i == j {
+                continue;
+            }
+            let Some(b) = locals[j] else { continue };
+            let pa = g.mesh.positions[poly[i].anchor as usize];
+            let pb = g.mesh.positions[poly[j].anchor as usize];
+            let seg = pb - pa;
+            let (mut smin, mut smax, mut n) = (0.0, 0.0, 0usize);
+            let mut u = pred[b];
+            let mut guard = 0;
+            while u != usize::MAX && u != a && guard < g.verts.len() {
+                let v = g.verts[u] as usize;
+                let c = &g.curv[v];
+                let (tmin, tmax) = if g.on_boundary[v] {
+                    (90.0, 90.0)
+                } else if c.isotropic {
+                    (45.0, 45.0)
+                } else {
+                    let d = (seg - seg.dot(c.normal) * c.normal).normalize_or_zero();
+                    let ang = |e: DVec3| d.dot(e).abs().clamp(0.0, 1.0).acos().to_degrees();
+                    (ang(c.d_min), ang(c.d_max))
+                };
+                smin += tmin;
+                smax += tmax;
+                n += 1;
+                u = pred[u];
+                guard += 1;
+            }
+            sc[i][j] = if pred[b] == usize::MAX && a != b {
+                90.0
+            } else if n == 0 {
+                45.0
+            } else {
+                f64::min(smin, smax) / n as f64
+            };
+        }
+    }
+    sc
+}
+
+/// Cuts a region polygon into facets (see the module docs). `edges` holds
+/// the undirected control edges that exist already; chords are added to it.
+pub fn cut_region(
+    g: &RegionGeom<'_>,
+    poly: &[PolyVertex],
+    positions: &[DVec3],
+    edges: &mut HashSet<(u32, u32)>,
+) -> Vec<Vec<u32>> {
+    let key = |a: u32, b: u32| (a.min(b), a.max(b));
+    let mut out = Vec::new();
+    if let Some((_, n)) = g.planar {
+        let ids: Vec<u32> = poly.iter().map(|p| p.id).collect();
+        convex_parts(&ids, positions, n, edges, &mut out);
+        return out;
+    }
+    let sc = scores(g, poly);
+    // Work on index lists into `poly`.
+    let mut stack: Vec<Vec<usize>> = vec![(0..poly.len()).collect()];
+    while let Some(p) = stack.pop() {
+        let k = p.len();
+        if k <= 4 {
+            out.push(p.iter().map(|&i| poly[i].id).collect());
+            continue;
+        }
+        let mut best: Option<(f64, usize, usize)> = None;
+        for a in 0..k {
+            for b in a + 2..k {
+                if a == 0 && b == k - 1 {
+                    continue;
+                }
+                let (ia, ib) = (p[a], p[b]);
+                if poly[ia].id == poly[ib].id || edges.contains(&key(poly[ia].id, poly[ib].id)) {
+                    continue;
+                }
+                let s1 = b - a + 1;
+                let s2 = k - (b - a) + 1;
+                // Prefer quads: a triangle piece costs 10°, and a balanced cut
+                // is preferred among equal scores.
+                let tri_pen = if s1 == 3 || s2 == 3 { 10.0 } else { 0.0 };
+                let bal = 5.0 * (1.0 - s1.min(s2) as f64 / s1.max(s2) as f64);
+                let score = 0.5 * (sc[ia][ib] + sc[ib][ia]) + tri_pen + bal;
+                if best.is_none_or(|x| score < x.0) {
+                    best = Some((score, a, b));
+                }
+            }
+        }
+        match best {
+            Some((_, a, b)) => {
+                edges.insert(key(poly[p[a]].id, poly[p[b]].id));
+                stack.push(p[a..=b].to_vec());
+                let mut rest: Vec<usize> = p[b..].to_vec();
+                rest.extend_from_slice(&p[..=a]);
+                stack.push(rest);
+            }
+            None => out.push(p.iter().map(|&i| poly[i].id).collect()),
+        }
+    }
+    out
+}
+
+/// Convex decomposition of a planar polygon (normal `n`) by diagonals from
+/// reflex vertices (Hertel–Mehlhorn style); a polygon with no usable
+/// diagonal is kept whole.
+fn convex_parts(
+    ids: &[u32],
+    positions: &[DVec3],
+    n: DVec3,
+    edges: &mut HashSet<(u32, u32)>,
+    out: &mut Vec<Vec<u32>>,
+) {
+    let e1 = n.any_orthonormal_vector();
+    let e2 = n.cross(e1);
+    let p2 = |i: u32| {
+        let p = positions[i as usize];
+        (p.dot(e1), p.dot(e2))
+    };
+    let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| {
+        (a.0 - o.0) * (b.1 - o.1) - (a.1 - o.1) * (b.0 - o.0)
+    };
+    let mut stack = vec![ids.to_vec()];
+    while let Some(p) = stack.pop() {
+        let k = p.len();
+        let pts: Vec<(f64, f64)> = p.iter().map(|&i| p2(i)).collect();
+        let area: f64 = (0..k)
+            .map(|i| cross((0.0, 0.0), pts[i], pts[(i + 1) % k]))
+            .sum::<f64>();
+        let sign = area.signum();
+        let scale = area.abs().max(1e-300);
+        let reflex: Vec<usize> = (0..k)
+            .filter(|&i| {
+                sign * cross(pts[(i + k - 1) % k], pts[i], pts[(i + 1) % k]) < -1e-9 * scale
+            })
+            .collect();
+        if reflex.is_empty() || k <= 3 {
+            out.push(p);
+            continue;
+        }
+        let r = reflex[0];
+        // Best diagonal from r: inside the polygon, crossing no edge,
+        // closest to bisecting the reflex angle.
+        let mut best: Option<(f64, usize)> = None;
+        for j in 0..k {
+            if j == r || j == (r + 1) % k || j == (r + k - 1) % k || p[j] == p[r] {
+                continue;
+            }
+            if edges.contains(&(p[r].min(p[j]), p[r].max(p[j]))) {
+                continue;
+            }
+            let (a, b) = (pts[r], pts[j]);
+            let crosses = (0..k).any(|i| {
+                let (c, d) = (pts[i], pts[(i + 1) % k]);
+                if i == r || (i + 1) % k == r || i == j || (i + 1) % k == j {
+                    return false;
+                }
+                let d1 = cross(a, b, c);
+                let d2 = cross(a, b, d);
+                let d3 = cross(c, d, a);
+                let d4 = cross(c, d, b);
+                d1 * d2 < 0.0 && d3 * d4 < 0.0
+            });
+            if crosses {
+                continue;
+            }
+            // Inside: the diagonal leaves r into the polygon's interior
+            // (between the incoming and outgoing edges, the reflex side).
+            let prev = pts[(r + k - 1) % k];
+            let next = pts[(r + 1) % k];
+            let inside = !(sign * cross(prev, a, b) < 0.0 && sign * cross(a, next, b) < 0.0);
+            if !inside {
+                continue;
+            }
+            // Both parts must keep positive orientation.
+            let part = |from: usize, to: usize| -> f64 {
+                let mut s = 0.0;
+                let mut i = from;
+                loop {
+                    let nx = if i == to { from } else { (i + 1) % k };
+                    s += cross((0.0, 0.0), pts[i], pts[nx]);
+                    if i == to {
+                        break;
+                    }
+                    i = nx;
+                }
+                s * sign
+            };
+            if part(r, j) <= 0.0 || part(j, r) <= 0.0 {
+                continue;
+            }
+            let bis = {
+                let u = ((prev.0 - a.0), (prev.1 - a.1));
+                let v = ((next.0 - a.0), (next.1 - a.1));
+                let nu = (u.0 * u.0 + u.1 * u.1).sqrt().max(1e-300);
+                let nv = (v.0 * v.0 + v.1 * v.1).sqrt().max(1e-300);
+                (-(u.0 / nu + v.0 / nv), -(u.1 / nu + v.1 / nv))
+            };
+            let d = (b.0 - a.0, b.1 - a.1);
+            let nd = (d.0 * d.0 + d.1 * d.1).sqrt().max(1e-300);
+            let nb = (bis.0 * bis.0 + bis.1 * bis.1).sqrt().max(1e-300);
+            let score = -(d.0 * bis.0 + d.1 * bis.1) / (nd * nb);
+            if best.is_none_or(|x| score < x.0) {
+                best = Some((score, j));
+            }
+        }
+        match best {
+            Some((_, j)) => {
+                edges.insert((p[r].min(p[j]), p[r].max(p[j])));
+                let (a, b) = (r.min(j), r.max(j));
+                stack.push(p[a..=b].to_vec());
+                let mut rest: Vec<u32> = p[b..].to_vec();
+                rest.extend_from_slice(&p[..=a]);
+                stack.push(rest);
+            }
+            None => out.push(p),
+        }
+    }
+}
