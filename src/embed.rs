@@ -50,11 +50,13 @@ use crate::{DVec2, DVec3};
 /// Which pipeline `convert` runs (the CLI's `--mode`).
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Default)]
 pub enum Mode {
-    /// Smooth organic shapes (Fitmaps, Lavoué et al.).
-    #[default]
+    /// Smooth organic shapes (Fitmaps, Panozzo et al.).
     Organic,
-    /// CAD-like shapes with sharp features (creases and corners).
+    /// CAD-like shapes with sharp features kept as creases (Lavoué et al.).
     Mechanical,
+    /// Picks one from the share of sharp feature edges (the CLI's default).
+    #[default]
+    Auto,
 }
 
 /// How the control points are fitted (the CLI's `--fit`).
@@ -97,7 +99,7 @@ impl Default for Options {
         Options {
             tolerance: crate::analysis::fitmap::DEFAULT_TOLERANCE,
             target_faces: 0,
-            mode: Mode::Organic,
+            mode: Mode::Auto,
             fit_method: FitMethod::Point,
             displacement_resolution: 0,
             threads: 0,
@@ -361,11 +363,15 @@ impl Conversion {
     /// Everything a host gets from a pipeline result, taken from the same
     /// values the CLI writes (so files made from it match the CLI's).
     fn from_converted(c: Converted) -> Result<Conversion> {
+        // Mechanical mode: the atlas is laid out on the once-refined quad
+        // mesh (same limit surface), which the host gets, so that UVs and
+        // tiles apply to the mesh it holds (the CLI's control_quads.obj).
+        let control = c.quad_control.unwrap_or(c.control);
         let d = &c.surfaces.displacement;
         let (patches, res) = (d.grid.num_patches(), d.grid.res());
         let atlas = Atlas::new(patches, res, DEFAULT_GUTTER)?;
         let quads: Vec<[DVec2; 4]> = (0..patches).map(|f| atlas.corner_uvs(f)).collect();
-        let control_obj = control_obj_with_uvs(&c.control, &quads)?;
+        let control_obj = control_obj_with_uvs(&control, &quads)?;
         // One `vt` per face corner, as in control.obj.
         let uvs: Vec<DVec2> = quads.iter().flatten().copied().collect();
         let uv_indices = (0..uvs.len() as u32).collect();
@@ -391,7 +397,7 @@ impl Conversion {
         report_json.push('\n');
         Ok(Conversion {
             metrics: flatten_metrics(&value),
-            control: c.control,
+            control,
             uvs,
             uv_indices,
             tiles,
@@ -492,12 +498,12 @@ pub fn convert(input: &MeshArrays, options: &Options, progress: &Progress) -> Re
         progress.report("read", 0.0)?;
         let mesh = input.to_validated(&options.source_name)?;
         progress.report("read", 1.0)?;
-        if options.mode == Mode::Mechanical {
-            return Err(Error::InvalidArgument(
-                "mode `mechanical` is not available in this build".into(),
-            ));
-        }
         let opts = ConvertOptions::default()
+            .with_mode(match options.mode {
+                Mode::Auto => crate::pipeline::Mode::Auto,
+                Mode::Organic => crate::pipeline::Mode::Organic,
+                Mode::Mechanical => crate::pipeline::Mode::Mechanical,
+            })
             .with_tolerance(Some(options.tolerance))
             .with_target_faces((options.target_faces > 0).then_some(options.target_faces as usize))
             .with_objective(objective(options.fit_method))

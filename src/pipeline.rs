@@ -153,7 +153,6 @@ pub fn convert_in_memory(
             caster.as_ref(),
             timer,
             extra_options,
-            dir,
             progress,
         );
     }
@@ -221,9 +220,8 @@ fn convert_mechanical(
     caster: &dyn crate::raycast::RayCaster,
     mut timer: StageTimer,
     extra_options: serde_json::Value,
-    dir: &Path,
     progress: &mut dyn FnMut(&str, f64) -> bool,
-) -> Result<(Report, Vec<PathBuf>)> {
+) -> Result<Converted> {
     use crate::mesh::{VertexId, INFINITELY_SHARP};
     let mo = crate::mechanical::MechanicalOptions::default().with_max_error(
         opts.max_error
@@ -257,7 +255,6 @@ fn convert_mechanical(
     let surfaces = timer.run("displacement+metrics", || {
         crate::report::evaluate_surfaces(&input.mesh, &quads, caster, &mopts, progress)
     })?;
-    crate::fit::report_progress(progress, "write", 0.0)?;
     let extra = serde_json::json!({
         "mode": choice,
         "convert": opts,
@@ -272,21 +269,11 @@ fn convert_mechanical(
         timer.stages,
         extra,
     );
-    let mut written = crate::report::write_outputs(
-        dir,
-        &crate::report::OutputFiles {
-            mesh: &input.mesh,
-            control: &quads,
-            surfaces: &surfaces,
-            fitmap: None,
-            report: &report,
-        },
-    )?;
-    let quads_path = dir.join("control_quads.obj");
-    std::fs::rename(dir.join("control.obj"), &quads_path).map_err(|e| Error::io(&quads_path, e))?;
-    crate::io::write_control_obj(&dir.join("control.obj"), &control)?;
-    crate::io::write_usda(&dir.join("control.usda"), &control, None)?;
-    written.push(quads_path);
-    crate::fit::report_progress(progress, "write", 1.0)?;
-    Ok((report, written))
+    Ok(Converted {
+        quad_control: (!control.is_all_quads()).then_some(quads),
+        control,
+        surfaces,
+        report,
+        fitmap: None,
+    })
 }

@@ -84,7 +84,7 @@ ffi::FfiOptions ffi_options(const Options& o) {
   ffi::FfiOptions r;
   r.tolerance = o.tolerance;
   r.target_faces = o.target_faces;
-  r.mode = o.mode == Mode::Mechanical ? 1 : 0;
+  r.mode = o.mode == Mode::Organic ? 0 : o.mode == Mode::Mechanical ? 1 : 2;
   r.fit_method = o.fit_method == FitMethod::Sdm ? 1 : 0;
   r.displacement_resolution = o.displacement_resolution;
   r.threads = o.threads;

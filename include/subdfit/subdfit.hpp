@@ -86,7 +86,9 @@ struct ControlMeshView {
   View<Corner> corners;
 };
 
-// A control mesh made by the library.
+// A control mesh made by the library. In mechanical mode it is the
+// once-refined all-quad mesh (the CLI's control_quads.obj: the same limit
+// surface, creases and corners tagged) so that the UVs and tiles apply.
 struct ControlMesh {
   std::vector<std::uint32_t> face_sizes;
   std::vector<std::uint32_t> face_indices;
@@ -106,7 +108,9 @@ struct ControlMesh {
   }
 };
 
-enum class Mode { Organic, Mechanical };
+// Organic: Fitmaps (Panozzo et al.); Mechanical: sharp features kept as
+// creases (Lavoué et al.); Auto: picks one from the share of sharp edges.
+enum class Mode { Organic, Mechanical, Auto };
 enum class FitMethod { Point, Sdm };
 
 // The options of `subdfit convert` / `subdfit fit`, with the CLI's defaults.
@@ -118,7 +122,7 @@ struct Options {
   // --faces: target number of control faces; 0 lets the tolerance decide.
   std::uint32_t target_faces = 0;
   // --mode
-  Mode mode = Mode::Organic;
+  Mode mode = Mode::Auto;
   // --fit
   FitMethod fit_method = FitMethod::Point;
   // --displacement-res: samples per patch side; 0 = automatic.

@@ -221,6 +221,7 @@ fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
         mode: match o.mode {
             0 => embed::Mode::Organic,
             1 => embed::Mode::Mechanical,
+            2 => embed::Mode::Auto,
             m => return Err(bad("mode", m)),
         },
         fit_method: match o.fit_method {

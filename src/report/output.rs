@@ -12,7 +12,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use crate::analysis::Fitmap;
 use crate::displace::{Atlas, DEFAULT_GUTTER};
 use crate::error::{Error, Result};
-use crate::io::{write_atomically, write_control_obj_with_uvs, write_ply, write_usda};
+use crate::io::{
+    write_atomically, write_control_obj, write_control_obj_with_uvs, write_ply, write_usda,
+};
 use crate::mesh::{ControlMesh, TriMesh};
 
 use super::{Report, Surfaces};
@@ -22,6 +24,11 @@ pub struct OutputFiles<'a> {
     /// M, for `fitmap.ply`.
     pub mesh: &'a TriMesh,
     pub control: &'a ControlMesh,
+    /// The all-quad mesh the atlas is laid out on when `control` has other
+    /// faces (see [`super::Converted::quad_control`]): then `control.obj`
+    /// and `control.usda` carry `control` without UVs, and
+    /// `control_quads.obj` this mesh with them.
+    pub quad_control: Option<&'a ControlMesh>,
     pub surfaces: &'a Surfaces,
     /// `fitmap.ply` is written when given.
     pub fitmap: Option<&'a Fitmap>,
@@ -97,8 +104,17 @@ fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<&'static str>> {
         names.push(name);
         dir.join(name)
     };
-    write_control_obj_with_uvs(&file("control.obj"), out.control, &uvs)?;
-    write_usda(&file("control.usda"), out.control, Some(&uvs))?;
+    match out.quad_control {
+        None => {
+            write_control_obj_with_uvs(&file("control.obj"), out.control, &uvs)?;
+            write_usda(&file("control.usda"), out.control, Some(&uvs))?;
+        }
+        Some(quads) => {
+            write_control_obj(&file("control.obj"), out.control)?;
+            write_usda(&file("control.usda"), out.control, None)?;
+            write_control_obj_with_uvs(&file("control_quads.obj"), quads, &uvs)?;
+        }
+    }
     let lim = &out.surfaces.limit;
     write_ply(
         &file("limit.ply"),

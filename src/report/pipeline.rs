@@ -46,6 +46,10 @@ impl PipelineOptions {
 pub struct Converted {
     /// The fitted control mesh.
     pub control: ControlMesh,
+    /// When `control` is not all quads (mechanical mode): its Catmull-Clark
+    /// refinement by one level, which has the same limit surface and is the
+    /// mesh the displacement atlas (and `surfaces`) are laid out on.
+    pub quad_control: Option<ControlMesh>,
     pub surfaces: Surfaces,
     pub report: Report,
     /// The Fitmap written as `fitmap.ply`, when one was computed or given.
@@ -98,6 +102,7 @@ pub fn fit_and_measure(
     );
     Ok(Converted {
         control: fitted.control,
+        quad_control: None,
         surfaces,
         report,
         fitmap,
@@ -118,6 +123,7 @@ pub fn write_converted(
         &OutputFiles {
             mesh: &input.mesh,
             control: &c.control,
+            quad_control: c.quad_control.as_ref(),
             surfaces: &c.surfaces,
             fitmap: c.fitmap.as_ref(),
             report: &c.report,
