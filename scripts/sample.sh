@@ -9,8 +9,8 @@ cd "$(dirname "$0")/.."
 if [ -f "$HOME/.cargo/env" ]; then . "$HOME/.cargo/env"; fi
 cargo build --release
 ./target/release/subdfit info data/spot.ply
-./target/release/subdfit convert data/spot.ply -o out/spot
-echo "== results in out/spot: control.obj (+ control.usda), limit.ply, displaced.ply, displacement.exr, fitmap.ply, report.json"
+./target/release/subdfit convert data/spot.ply -o out/spot --report
+echo "== results in out/spot: report.html (open it in a browser), control.obj (+ control.usda), limit.ply, displaced.ply, displacement.exr, fitmap.ply, report.json"
 for control in data/samples/*.obj; do
   echo "== diff-limit $control"
   ./target/release/subdfit diff-limit "$control"
