@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::analysis::{compute_fitmap, FitmapOptions};
+use crate::analysis::FitmapOptions;
 use crate::error::{Error, Result};
 use crate::fit::{FitOptions, Objective};
 use crate::mesh::ValidatedMesh;
@@ -162,7 +162,9 @@ pub fn convert_in_memory(
         fo = fo.with_tolerance(t);
     }
     stage(progress, "fitmap", 0.0)?;
-    let fitmap = timer.run("fitmap", || compute_fitmap(mesh, caster.as_ref(), &fo))?;
+    let fitmap = timer.run("fitmap", || {
+        fitmap_reporting(mesh, caster.as_ref(), &fo, &mut *progress)
+    })?;
     stage(progress, "fitmap", 1.0)?;
     let so = SimplifyOptions::default()
         .with_target_faces(opts.target_faces)
@@ -199,6 +201,53 @@ pub fn convert_in_memory(
         Some(fitmap),
         progress,
     )
+}
+
+/// The Fitmap (§3.1) with progress and cancellation: the analysis runs as
+/// a task of the current rayon pool (so `Options::threads` holds) while this
+/// thread reports the workers' count of analysed vertices every 20 ms
+/// through `progress`. The host callback thus runs on the caller's thread,
+/// never concurrently, and a `false` stops the workers within one vertex
+/// each. On a one-thread pool this thread runs the task itself
+/// (`yield_now`), reporting when it is done.
+fn fitmap_reporting(
+    mesh: &crate::mesh::TriMesh,
+    caster: &dyn crate::raycast::RayCaster,
+    fo: &FitmapOptions,
+    progress: &mut dyn FnMut(&str, f64) -> bool,
+) -> Result<crate::analysis::Fitmap> {
+    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    let done = AtomicUsize::new(0);
+    let stop = AtomicBool::new(false);
+    let result = std::sync::Mutex::new(None);
+    let total = mesh.positions.len().max(1) as f64;
+    rayon::in_place_scope(|scope| {
+        scope.spawn(|_| {
+            let r = crate::analysis::compute_fitmap_cancellable(mesh, caster, fo, &|k| {
+                done.fetch_add(k, Ordering::Relaxed);
+                !stop.load(Ordering::Relaxed)
+            });
+            *result.lock().unwrap_or_else(|p| p.into_inner()) = Some(r);
+        });
+        loop {
+            if result.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
+                break;
+            }
+            if rayon::yield_now() != Some(rayon::Yield::Executed) {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            let f = done.load(Ordering::Relaxed) as f64 / total;
+            if !stop.load(Ordering::Relaxed) && !progress("fitmap", f.min(0.99)) {
+                stop.store(true, Ordering::Relaxed);
+            }
+        }
+    });
+    let r = result.into_inner().unwrap_or_else(|p| p.into_inner());
+    r.unwrap_or_else(|| {
+        Err(Error::Cancelled {
+            stage: "fitmap".into(),
+        })
+    })
 }
 
 /// The mechanical branch of [`convert`] (Lavoué et al. 2007, see

@@ -1033,6 +1033,29 @@ pub fn compute_fitmap_with_progress(
     opts: &FitmapOptions,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Fitmap> {
+    compute_fitmap_cancellable(mesh, caster, opts, &|k| {
+        progress(k);
+        true
+    })
+}
+
+/// [`compute_fitmap_with_progress`] that stops early: once `progress`
+/// returns `false`, the workers skip the vertices they have not started
+/// (each vertex takes milliseconds, so the call returns within one vertex
+/// per worker) and the call returns [`Error::Cancelled`].
+pub fn compute_fitmap_cancellable(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    opts: &FitmapOptions,
+    progress: &(dyn Fn(usize) -> bool + Sync),
+) -> Result<Fitmap> {
+    let cancelled = std::sync::atomic::AtomicBool::new(false);
+    let stop = || cancelled.load(std::sync::atomic::Ordering::Relaxed);
+    let progress = |k: usize| {
+        if !progress(k) {
+            cancelled.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    };
     let t0 = Instant::now();
     if !(opts.tolerance > 0.0 && opts.tolerance <= 1.0) {
         return Err(Error::InvalidArgument(format!(
@@ -1098,6 +1121,9 @@ pub fn compute_fitmap_with_progress(
     let setup_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let analyse = |sc: &mut Scratch, p: u32| {
+        if stop() {
+            return VertexResult::default();
+        }
         let r = if opts.exact {
             analyse_vertex_exact(&ctx, sc, p)
         } else {
@@ -1142,6 +1168,11 @@ pub fn compute_fitmap_with_progress(
             results[p as usize] = r;
             analysed[p as usize] = true;
         }
+    }
+    if stop() {
+        return Err(Error::Cancelled {
+            stage: "fitmap".into(),
+        });
     }
     let analysed_vertices = analysed.iter().filter(|&&a| a).count();
     if let Some(e) = ctx.failure.lock().unwrap_or_else(|p| p.into_inner()).take() {
