@@ -180,3 +180,25 @@ fn spot_in_mechanical_mode_terminates() {
     assert!(last.rms_permille.is_finite());
     assert!(built.stats.rounds.len() <= 3);
 }
+
+/// Diagnostic: prints fandisk's rounds (`cargo test --release --test
+/// mechanical fandisk_rounds -- --ignored --nocapture`).
+#[test]
+#[ignore]
+fn fandisk_rounds() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data");
+    let fan = subdfit::io::read_mesh(&dir.join("fandisk.ply"))
+        .unwrap()
+        .mesh;
+    let caster =
+        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &fan).unwrap();
+    let t = std::time::Instant::now();
+    let built =
+        mechanical::build_control(&fan, caster.as_ref(), &Default::default()).unwrap();
+    println!("total {:.3}s {:?}", t.elapsed().as_secs_f64(), built.stats.seconds);
+    println!("initial {} faces {} verts", built.stats.initial_faces, built.stats.initial_vertices);
+    for r in &built.stats.rounds {
+        println!("{r:?}");
+    }
+    println!("final {} verts {} faces", built.control.num_vertices(), built.control.num_faces());
+}

@@ -414,13 +414,16 @@ pub fn build_control(
         }
     }
     let mut faces: Vec<Vec<u32>> = Vec::new();
+    let mut face_region: Vec<u32> = Vec::new();
     for r in 0..seg.num_regions {
         let Some(poly) = &polygons[r] else { continue };
         let g = polyhedron::RegionGeom::new(mesh, &curv, &region_tris[r], &net.on_boundary, diag);
         if g.planar.is_some() {
             planar_regions += 1;
         }
-        faces.extend(polyhedron::cut_region(&g, poly, &positions, &mut edges));
+        let fr = polyhedron::cut_region(&g, poly, &positions, &mut edges);
+        face_region.extend(std::iter::repeat_n(r as u32, fr.len()));
+        faces.extend(fr);
     }
     let mut polys = optimize::Polys {
         positions: positions.clone(),
@@ -428,6 +431,7 @@ pub fn build_control(
         fixed,
         creases: creases.clone(),
         corners: corners.clone(),
+        face_region,
     };
     let mut star_fallback = false;
     if polys.to_control().is_err() {
@@ -435,6 +439,7 @@ pub fn build_control(
         star_fallback = true;
         let mut pos = positions.clone();
         let mut faces = Vec::new();
+        let mut face_region = Vec::new();
         for (r, poly) in polygons.iter().enumerate() {
             let Some(poly) = poly else { continue };
             let c = region_tris[r]
@@ -449,10 +454,12 @@ pub fn build_control(
             let ci = pos.len() as u32 - 1;
             for k in 0..poly.len() {
                 faces.push(vec![poly[k].id, poly[(k + 1) % poly.len()].id, ci]);
+                face_region.push(r as u32);
             }
         }
         polys.positions = pos;
         polys.faces = faces;
+        polys.face_region = face_region;
         polys.to_control()?;
     }
     let initial_faces = polys.faces.len();
@@ -462,6 +469,7 @@ pub fn build_control(
     let rounds = optimize::optimize(
         mesh,
         caster,
+        &seg.region,
         &mut polys,
         &optimize::OptimizeOptions {
             max_error: opts.max_error,
