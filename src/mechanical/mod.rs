@@ -240,9 +240,7 @@ pub fn build_control(
             .collect()
     };
     let min_n = |p: &curves::Piece| {
-        if p.closed {
-            4
-        } else if p.verts.first() == p.verts.last() {
+        if p.closed || p.verts.first() == p.verts.last() {
             4
         } else {
             2
@@ -359,52 +357,8 @@ pub fn build_control(
             });
         if poly.is_none() {
             skipped += 1;
-            if std::env::var_os("SUBDFIT_DEBUG").is_some() {
-                eprintln!(
-                    "region {r}: loops {:?} tris {}",
-                    net.loops[r],
-                    region_tris[r].len()
-                );
-                for l in &net.loops[r] {
-                    for &(pi, _) in l {
-                        eprintln!(
-                            "  piece {pi}: closed {} verts {} ctrl {:?}",
-                            net.pieces[pi].closed,
-                            net.pieces[pi].verts.len(),
-                            piece_ctrl[pi].iter().map(|x| x.id).collect::<Vec<_>>()
-                        );
-                    }
-                }
-            }
         }
         polygons.push(poly);
-    }
-    if std::env::var_os("SUBDFIT_DEBUG").is_some() {
-        let used: HashSet<u32> = polygons.iter().flatten().flatten().map(|x| x.id).collect();
-        for (pi, pc) in piece_ctrl.iter().enumerate() {
-            if pc.iter().any(|x| !used.contains(&x.id)) {
-                eprintln!(
-                    "piece {pi} unused: {:?} closed {} regions {:?} nverts {} first {} last {}",
-                    pc.iter().map(|x| x.id).collect::<Vec<_>>(),
-                    net.pieces[pi].closed,
-                    net.pieces[pi].regions,
-                    net.pieces[pi].verts.len(),
-                    net.pieces[pi].verts[0],
-                    net.pieces[pi].verts.last().unwrap()
-                );
-                for r in net.pieces[pi].regions {
-                    if (r as usize) < net.loops.len() {
-                        eprintln!("  region {r} loops {:?}", net.loops[r as usize]);
-                    }
-                }
-            }
-        }
-        eprintln!(
-            "regions {} pieces {} corners {}",
-            seg.num_regions,
-            net.pieces.len(),
-            corners.len()
-        );
     }
     let mut planar_regions = 0;
     let mut edges: HashSet<(u32, u32)> = creases.clone();
@@ -422,7 +376,7 @@ pub fn build_control(
             planar_regions += 1;
         }
         let fr = polyhedron::cut_region(&g, poly, &positions, &mut edges);
-        face_region.extend(std::iter::repeat_n(r as u32, fr.len()));
+        face_region.extend(std::iter::repeat(r as u32).take(fr.len()));
         faces.extend(fr);
     }
     let mut polys = optimize::Polys {
