@@ -240,9 +240,7 @@ pub fn build_control(
             .collect()
     };
     let min_n = |p: &curves::Piece| {
-        if p.closed {
-            4
-        } else if p.verts.first() == p.verts.last() {
+        if p.closed || p.verts.first() == p.verts.last() {
             4
         } else {
             2
@@ -359,52 +357,8 @@ pub fn build_control(
             });
         if poly.is_none() {
             skipped += 1;
-            if std::env::var_os("SUBDFIT_DEBUG").is_some() {
-                eprintln!(
-                    "region {r}: loops {:?} tris {}",
-                    net.loops[r],
-                    region_tris[r].len()
-                );
-                for l in &net.loops[r] {
-                    for &(pi, _) in l {
-                        eprintln!(
-                            "  piece {pi}: closed {} verts {} ctrl {:?}",
-                            net.pieces[pi].closed,
-                            net.pieces[pi].verts.len(),
-                            piece_ctrl[pi].iter().map(|x| x.id).collect::<Vec<_>>()
-                        );
-                    }
-                }
-            }
         }
         polygons.push(poly);
-    }
-    if std::env::var_os("SUBDFIT_DEBUG").is_some() {
-        let used: HashSet<u32> = polygons.iter().flatten().flatten().map(|x| x.id).collect();
-        for (pi, pc) in piece_ctrl.iter().enumerate() {
-            if pc.iter().any(|x| !used.contains(&x.id)) {
-                eprintln!(
-                    "piece {pi} unused: {:?} closed {} regions {:?} nverts {} first {} last {}",
-                    pc.iter().map(|x| x.id).collect::<Vec<_>>(),
-                    net.pieces[pi].closed,
-                    net.pieces[pi].regions,
-                    net.pieces[pi].verts.len(),
-                    net.pieces[pi].verts[0],
-                    net.pieces[pi].verts.last().unwrap()
-                );
-                for r in net.pieces[pi].regions {
-                    if (r as usize) < net.loops.len() {
-                        eprintln!("  region {r} loops {:?}", net.loops[r as usize]);
-                    }
-                }
-            }
-        }
-        eprintln!(
-            "regions {} pieces {} corners {}",
-            seg.num_regions,
-            net.pieces.len(),
-            corners.len()
-        );
     }
     let mut planar_regions = 0;
     let mut edges: HashSet<(u32, u32)> = creases.clone();
@@ -414,13 +368,16 @@ pub fn build_control(
         }
     }
     let mut faces: Vec<Vec<u32>> = Vec::new();
+    let mut face_region: Vec<u32> = Vec::new();
     for r in 0..seg.num_regions {
         let Some(poly) = &polygons[r] else { continue };
         let g = polyhedron::RegionGeom::new(mesh, &curv, &region_tris[r], &net.on_boundary, diag);
         if g.planar.is_some() {
             planar_regions += 1;
         }
-        faces.extend(polyhedron::cut_region(&g, poly, &positions, &mut edges));
+        let fr = polyhedron::cut_region(&g, poly, &positions, &mut edges);
+        face_region.extend(std::iter::repeat(r as u32).take(fr.len()));
+        faces.extend(fr);
     }
     let mut polys = optimize::Polys {
         positions: positions.clone(),
@@ -428,6 +385,7 @@ pub fn build_control(
         fixed,
         creases: creases.clone(),
         corners: corners.clone(),
+        face_region,
     };
     let mut star_fallback = false;
     if polys.to_control().is_err() {
@@ -435,6 +393,7 @@ pub fn build_control(
         star_fallback = true;
         let mut pos = positions.clone();
         let mut faces = Vec::new();
+        let mut face_region = Vec::new();
         for (r, poly) in polygons.iter().enumerate() {
             let Some(poly) = poly else { continue };
             let c = region_tris[r]
@@ -449,10 +408,12 @@ pub fn build_control(
             let ci = pos.len() as u32 - 1;
             for k in 0..poly.len() {
                 faces.push(vec![poly[k].id, poly[(k + 1) % poly.len()].id, ci]);
+                face_region.push(r as u32);
             }
         }
         polys.positions = pos;
         polys.faces = faces;
+        polys.face_region = face_region;
         polys.to_control()?;
     }
     let initial_faces = polys.faces.len();
@@ -462,6 +423,7 @@ pub fn build_control(
     let rounds = optimize::optimize(
         mesh,
         caster,
+        &seg.region,
         &mut polys,
         &optimize::OptimizeOptions {
             max_error: opts.max_error,

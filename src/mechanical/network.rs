@@ -213,10 +213,10 @@ pub fn build_network(
                 let mut guard = 0;
                 loop {
                     if let Some(&(pi, fwd)) = piece_pos.get(&(a, b)) {
-                        if seq.last().map(|l| l.0) != Some(pi) || pieces[pi].closed {
-                            if seq.last() != Some(&(pi, fwd)) {
-                                seq.push((pi, fwd));
-                            }
+                        if (seq.last().map(|l| l.0) != Some(pi) || pieces[pi].closed)
+                            && seq.last() != Some(&(pi, fwd))
+                        {
+                            seq.push((pi, fwd));
                         }
                     }
                     if b == s {

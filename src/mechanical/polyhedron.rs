@@ -241,7 +241,7 @@ pub fn cut_region(
                 let tri_pen = if s1 == 3 || s2 == 3 { 10.0 } else { 0.0 };
                 let bal = 5.0 * (1.0 - s1.min(s2) as f64 / s1.max(s2) as f64);
                 let score = 0.5 * (sc[ia][ib] + sc[ib][ia]) + tri_pen + bal;
-                if best.is_none_or(|x| score < x.0) {
+                if best.map_or(true, |x| score < x.0) {
                     best = Some((score, a, b));
                 }
             }
@@ -359,7 +359,7 @@ fn convex_parts(
             let nd = (d.0 * d.0 + d.1 * d.1).sqrt().max(1e-300);
             let nb = (bis.0 * bis.0 + bis.1 * bis.1).sqrt().max(1e-300);
             let score = -(d.0 * bis.0 + d.1 * bis.1) / (nd * nb);
-            if best.is_none_or(|x| score < x.0) {
+            if best.map_or(true, |x| score < x.0) {
                 best = Some((score, j));
             }
         }

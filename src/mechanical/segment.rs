@@ -290,7 +290,7 @@ fn flood(
                 }
                 if let Some(g) = topo.edges[e as usize].other_face(f) {
                     if label[g as usize] == u32::MAX
-                        && within.is_none_or(|w| w[g as usize] == w[f as usize])
+                        && within.map_or(true, |w| w[g as usize] == w[f as usize])
                     {
                         label[g as usize] = next;
                         q.push_back(g);
