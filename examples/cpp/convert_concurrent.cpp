@@ -14,12 +14,23 @@ int main(int argc, char** argv) {
     return 2;
   }
   std::string errors[2];
-  auto job = [&](int k) {
+  // OpenMesh's readers share process-wide state (its IOManager singleton and
+  // per-format reader objects), so the host reads both inputs first; the
+  // two subdfit::convert calls then run at the same time.
+  example::FlatMesh meshes[2];
+  for (int k = 0; k < 2; ++k) {
     try {
-      const example::FlatMesh mesh = example::read_mesh(argv[1 + k]);
+      meshes[k] = example::read_mesh(argv[1 + k]);
+    } catch (const std::exception& e) {
+      errors[k] = e.what();
+    }
+  }
+  auto job = [&](int k) {
+    if (!errors[k].empty()) return;
+    try {
       subdfit::Options options;
       options.source_name = argv[1 + k];
-      const subdfit::Result r = subdfit::convert(mesh.view(), options);
+      const subdfit::Result r = subdfit::convert(meshes[k].view(), options);
       example::write_control_obj(argv[3 + k], r.control);
     } catch (const std::exception& e) {
       errors[k] = e.what();
