@@ -124,20 +124,12 @@ double derivative_correction(const Far::PatchParam& param) {
   return param.NonQuadRoot() ? 0.5 : 1.0;
 }
 
-}  // namespace
-
-std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
-                                              rust::Slice<const std::uint32_t> face_sizes,
-                                              rust::Slice<const std::uint32_t> face_indices,
-                                              rust::Slice<const std::uint32_t> crease_vertices,
-                                              rust::Slice<const double> crease_weights,
-                                              rust::Slice<const std::uint32_t> corner_vertices,
-                                              rust::Slice<const double> corner_weights,
-                                              std::uint32_t isolation_level) {
-  // OpenSubdiv trusts its descriptor (an out-of-range index is undefined
-  // behaviour there), so check the arrays before handing them over.
-  if (isolation_level < 1 || isolation_level > 10)
-    throw std::invalid_argument("isolation level " + std::to_string(isolation_level) + " outside 1..=10");
+// The descriptor checks of `new_osd_topology` and `uniform_refine` (OpenSubdiv trusts its
+// descriptor: an out-of-range index is undefined behaviour there).
+void check_descriptor(std::uint32_t num_vertices, rust::Slice<const std::uint32_t> face_sizes,
+                      rust::Slice<const std::uint32_t> face_indices, rust::Slice<const std::uint32_t> crease_vertices,
+                      rust::Slice<const double> crease_weights, rust::Slice<const std::uint32_t> corner_vertices,
+                      rust::Slice<const double> corner_weights) {
   if (num_vertices > static_cast<std::uint32_t>(INT32_MAX)) throw std::invalid_argument("too many vertices");
   std::size_t total = 0;
   for (auto n : face_sizes) {
@@ -158,6 +150,24 @@ std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
   if (corner_vertices.size() != corner_weights.size())
     throw std::invalid_argument("corners need one vertex per weight");
   for (auto i : corner_vertices) check_index(i, "corner");
+}
+
+}  // namespace
+
+std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
+                                              rust::Slice<const std::uint32_t> face_sizes,
+                                              rust::Slice<const std::uint32_t> face_indices,
+                                              rust::Slice<const std::uint32_t> crease_vertices,
+                                              rust::Slice<const double> crease_weights,
+                                              rust::Slice<const std::uint32_t> corner_vertices,
+                                              rust::Slice<const double> corner_weights,
+                                              std::uint32_t isolation_level) {
+  // OpenSubdiv trusts its descriptor (an out-of-range index is undefined
+  // behaviour there), so check the arrays before handing them over.
+  if (isolation_level < 1 || isolation_level > 10)
+    throw std::invalid_argument("isolation level " + std::to_string(isolation_level) + " outside 1..=10");
+  check_descriptor(num_vertices, face_sizes, face_indices, crease_vertices, crease_weights, corner_vertices,
+                   corner_weights);
 
   auto t = std::make_unique<OsdTopology>();
   t->num_vertices_ = static_cast<int>(num_vertices);
@@ -452,37 +462,6 @@ StencilRows OsdTopology::limit_stencils(rust::Slice<const std::uint32_t> ptex, r
 
 namespace subdfit::osd {
 
-namespace {
-
-// The descriptor checks of `new_osd_topology` (OpenSubdiv trusts its
-// descriptor: an out-of-range index is undefined behaviour there).
-void check_descriptor(std::uint32_t num_vertices, rust::Slice<const std::uint32_t> face_sizes,
-                      rust::Slice<const std::uint32_t> face_indices, rust::Slice<const std::uint32_t> crease_vertices,
-                      rust::Slice<const double> crease_weights, rust::Slice<const std::uint32_t> corner_vertices,
-                      rust::Slice<const double> corner_weights) {
-  if (num_vertices > static_cast<std::uint32_t>(INT32_MAX)) throw std::invalid_argument("too many vertices");
-  std::size_t total = 0;
-  for (auto n : face_sizes) {
-    if (n < 3) throw std::invalid_argument("face with fewer than 3 vertices");
-    total += n;
-  }
-  if (total != face_indices.size())
-    throw std::invalid_argument("face sizes sum to " + std::to_string(total) + " but " +
-                                std::to_string(face_indices.size()) + " indices were given");
-  auto check_index = [&](std::uint32_t i, const char* what) {
-    if (i >= num_vertices)
-      throw std::invalid_argument(std::string(what) + " vertex index " + std::to_string(i) + " out of range");
-  };
-  for (auto i : face_indices) check_index(i, "face");
-  if (crease_vertices.size() != 2 * crease_weights.size())
-    throw std::invalid_argument("creases need two vertices per weight");
-  for (auto i : crease_vertices) check_index(i, "crease");
-  if (corner_vertices.size() != corner_weights.size())
-    throw std::invalid_argument("corners need one vertex per weight");
-  for (auto i : corner_vertices) check_index(i, "corner");
-}
-
-}  // namespace
 
 UniformRefinement uniform_refine(std::uint32_t scheme, std::uint32_t num_vertices,
                                  rust::Slice<const std::uint32_t> face_sizes,

@@ -621,22 +621,11 @@ mod tests {
     use super::*;
     use std::sync::atomic::AtomicU32;
 
+    /// `fixtures::cube` as the flat arrays a host passes.
     fn cube() -> (Vec<f64>, Vec<u32>, Vec<u32>) {
-        let mut p = Vec::new();
-        for i in 0..8 {
-            for b in 0..3 {
-                p.push(if i >> b & 1 == 1 { 1.0 } else { -1.0 });
-            }
-        }
-        let f = [
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-        ];
-        (p, vec![4; 6], f.iter().flatten().copied().collect())
+        let c = crate::fixtures::cube();
+        let p = c.positions().iter().flat_map(|p| p.to_array()).collect();
+        (p, c.face_sizes(), c.face_indices_flat())
     }
 
     #[test]

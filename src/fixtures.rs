@@ -83,14 +83,14 @@ pub fn polar_sphere(n: usize, seed: u64) -> ControlMesh {
     perturb(m, 0.03, seed)
 }
 
-/// An open `nx × ny` grid of quads in the xy plane with a bumpy z; its
-/// boundary has regular (valence 3) vertices and four corners.
-pub fn grid(nx: u32, ny: u32, seed: u64) -> ControlMesh {
+/// An open, flat `nx × ny` grid of unit quads in the plane z = 0 (corner at
+/// the origin, vertex `j (nx + 1) + i` at `(i, j)`): patch boundaries at
+/// integer coordinates.
+pub fn flat_grid(nx: u32, ny: u32) -> ControlMesh {
     let mut p = Vec::new();
     for j in 0..=ny {
         for i in 0..=nx {
-            let (x, y) = (i as f64, j as f64);
-            p.push(DVec3::new(x, y, 0.3 * (0.7 * x).sin() * (0.5 * y).cos()));
+            p.push(DVec3::new(i as f64, j as f64, 0.0));
         }
     }
     let mut f = Vec::new();
@@ -100,7 +100,17 @@ pub fn grid(nx: u32, ny: u32, seed: u64) -> ControlMesh {
             f.push(vec![a, a + 1, a + nx + 2, a + nx + 1]);
         }
     }
-    perturb(build("grid", p, &f), 0.05, seed)
+    build("flat grid", p, &f)
+}
+
+/// An open `nx × ny` grid of quads in the xy plane with a bumpy z; its
+/// boundary has regular (valence 3) vertices and four corners.
+pub fn grid(nx: u32, ny: u32, seed: u64) -> ControlMesh {
+    let mut mesh = flat_grid(nx, ny);
+    for q in mesh.positions_mut() {
+        q.z = 0.3 * (0.7 * q.x).sin() * (0.5 * q.y).cos();
+    }
+    perturb(mesh, 0.05, seed)
 }
 
 /// A fan of `k` quads around a centre vertex spanning `angle` radians:

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use common::*;
-use subdfit::mesh::{ControlMesh, TriMesh};
+use subdfit::mesh::TriMesh;
 use subdfit::raycast::{make_raycaster, RayBackend};
 use subdfit::render::colormap::{to_rgb8, CLAY, ZERO};
 use subdfit::render::image::decode_png;
@@ -140,21 +140,7 @@ fn embree_and_rust_give_the_same_picture() {
 /// 5 of them, at pixel x = 20 + 90 i (90 px per unit, 5 % margin).
 #[test]
 fn patch_lines_are_where_the_patch_boundaries_are() {
-    let n = 4u32;
-    let mut p = Vec::new();
-    for j in 0..=n {
-        for i in 0..=n {
-            p.push(DVec3::new(i as f64, j as f64, 0.0));
-        }
-    }
-    let mut faces = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let a = j * (n + 1) + i;
-            faces.push(vec![a, a + 1, a + n + 2, a + n + 1]);
-        }
-    }
-    let control = ControlMesh::from_polygons(p, &faces).unwrap();
+    let control = subdfit::fixtures::flat_grid(4, 4);
     let tess = tessellate_limit(&control, 9, Backend::Osd).unwrap();
     assert!(tess.extraordinary.is_empty());
     let surface = tess.patches_surface();
