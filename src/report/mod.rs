@@ -179,10 +179,10 @@ pub fn evaluate_surfaces(
         control,
         evaluator.as_ref(),
         caster,
-        Some(limit_caster.as_ref()),
         r,
         max_dist,
         diag,
+        0.5 * mean_edge_length(mesh),
     )?;
     report_progress(progress, "displacement", 1.0)?;
     report_progress(progress, "metrics", 0.0)?;
