@@ -186,3 +186,71 @@ fn fit_of_a_coarse_control_mesh_to_a_dense_mesh() {
         assert!(after.displaced.rms_permille < 0.2 * after.limit.rms_permille);
     }
 }
+
+/// A square `[0, 4]²` at z = 0, cells of 0.25, triangulated: an open M.
+fn open_square() -> subdfit::mesh::TriMesh {
+    let n = 16u32;
+    let mut positions = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            positions.push(subdfit::DVec3::new(0.25 * i as f64, 0.25 * j as f64, 0.0));
+        }
+    }
+    let mut triangles = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let a = j * (n + 1) + i;
+            triangles.push([a, a + 1, a + n + 2]);
+            triangles.push([a, a + n + 2, a + n + 1]);
+        }
+    }
+    subdfit::mesh::TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+#[test]
+fn fit_pulls_a_border_overhanging_an_open_mesh_back_onto_its_rim() {
+    // The control grid covers [-0.5, 4.5]²: its limit surface overhangs
+    // the open square M by 0.5 on every side (88‰ of M's diagonal 5.66).
+    // Beyond the rim the normal lines miss M; without the boundary fit
+    // those samples are dropped and the overhang stays.
+    let mesh = open_square();
+    let mut control = subdfit::fixtures::flat_grid(4, 4);
+    for p in control.positions_mut() {
+        *p = subdfit::DVec3::new(1.25 * p.x - 0.5, 1.25 * p.y - 0.5, 0.05);
+    }
+    let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+    let mopts = MetricsOptions::default().with_displacement_res(Some(9));
+    let before = subdfit::report::metrics(&mesh, &control, caster.as_ref(), &mopts).unwrap();
+    assert!(
+        before.limit.surface_to_mesh.max_permille > 80.0,
+        "{before:?}"
+    );
+    let fitted = fit(
+        &mesh,
+        control,
+        caster.as_ref(),
+        &FitOptions::default().with_max_iterations(8),
+    )
+    .unwrap();
+    let after = subdfit::report::metrics(&mesh, &fitted.control, caster.as_ref(), &mopts).unwrap();
+    eprintln!(
+        "overhang: L max {:.2}‰ → {:.2}‰, unprojectable samples {} → {}",
+        before.limit.surface_to_mesh.max_permille,
+        after.limit.surface_to_mesh.max_permille,
+        before.displacement.unprojectable,
+        after.displacement.unprojectable
+    );
+    // Pulled back: the largest distance from L to M at most a tenth of the
+    // overhang, and far fewer displacement samples past the rim.
+    assert!(
+        after.limit.surface_to_mesh.max_permille < 0.1 * before.limit.surface_to_mesh.max_permille,
+        "{after:?}"
+    );
+    assert!(
+        2 * after.displacement.unprojectable < before.displacement.unprojectable,
+        "{after:?}"
+    );
+}

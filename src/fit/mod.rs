@@ -33,6 +33,19 @@
 //! [`FitIteration::outliers`]): near holes and thin parts the normal line
 //! can meet another sheet of M, and a few such rows pull spikes.
 //!
+//! Boundary fit: where M is open (holes, borders), φ is undefined beyond
+//! its rim, and a sample there would be dropped, leaving the border patches
+//! of the limit surface to the fairness term: they drift past the rim
+//! (bunny, τ = 1 %: the patches along its five holes overhung them by 3.5‰
+//! median, and a seventh of the displacement samples missed M). So the
+//! border curves of the limit surface are sampled too (k points per
+//! boundary edge of the control mesh, k its patch's), and these samples,
+//! the limit points of the boundary vertices, and any lost sample whose
+//! closest point of M lies on a boundary edge of M take the closest point
+//! of M's rim as their target, as a point-distance row whatever the
+//! objective (the tangent plane at a rim extends past M's end). On a closed
+//! M none of this applies and the system is unchanged.
+//!
 //! Parameter correction: the limit points move, so the samples are
 //! re-projected and the system re-solved while the error keeps falling (by
 //! more than [`FitOptions::min_improvement`], relative), at most
@@ -311,6 +324,20 @@ pub fn fit_with_progress(
     let data_samples = locations.len();
     locations.extend(vertex_locations(&control));
     let vertex_equations = locations.len() - data_samples;
+    // Boundary fit (see the module docs): samples on the border curves of
+    // the limit surface and the limit points of the boundary vertices take
+    // the closest point of M's rim as their target.
+    let rim = rim_edges(mesh);
+    let rim_segments = rim_segments(mesh, &rim);
+    let mut rim_sample = vec![false; locations.len()];
+    if !rim_segments.is_empty() {
+        for (v, flag) in control.vertices().zip(&mut rim_sample[data_samples..]) {
+            *flag = control.is_boundary_vertex(v);
+        }
+        let border = border_locations(&control, &ks);
+        rim_sample.resize(rim_sample.len() + border.len(), true);
+        locations.extend(border);
+    }
     let evaluator = make_evaluator(
         Backend::Osd,
         &control,
@@ -319,7 +346,6 @@ pub fn fit_with_progress(
     let stencils = evaluator.stencils(&locations)?;
     let laplacian = umbrella(&control);
     let m_normals = vertex_normals(mesh);
-    let rim = rim_edges(mesh);
     let sdm = match opts.objective {
         Objective::Point => None,
         Objective::Sdm => {
@@ -372,10 +398,19 @@ pub fn fit_with_progress(
         // seventh of the displacement samples missed M). Its target is that
         // closest point, a point-distance row whatever the objective, which
         // pulls the limit surface's border onto the rim.
+        let mut on_rim = vec![false; hits.len()];
+        let border_idx: Vec<usize> = (0..hits.len()).filter(|&i| rim_sample[i]).collect();
+        let border_pts: Vec<DVec3> = border_idx.iter().map(|&i| limit[i].position).collect();
+        for (&i, target) in border_idx
+            .iter()
+            .zip(closest_on_segments(&rim_segments, &border_pts))
+        {
+            hits[i] = target;
+            on_rim[i] = target.is_some();
+        }
         let lost_idx: Vec<usize> = (0..hits.len()).filter(|&i| hits[i].is_none()).collect();
         let lost_pts: Vec<DVec3> = lost_idx.iter().map(|&i| limit[i].position).collect();
         let lost_closest = caster.closest_points(&lost_pts, f64::INFINITY)?;
-        let mut on_rim = vec![false; hits.len()];
         for (&i, c) in lost_idx.iter().zip(&lost_closest) {
             if let Some(c) = c {
                 if on_rim_edge(rim[c.triangle as usize], c.u, c.v) {
@@ -653,6 +688,110 @@ fn rim_edges(mesh: &TriMesh) -> Vec<u8> {
             })
         })
         .collect()
+}
+
+/// A boundary edge of M: its end points, its triangle and which edge of it
+/// (0: (a, b), 1: (b, c), 2: (c, a)).
+#[derive(Copy, Clone, Debug)]
+struct RimSegment {
+    a: DVec3,
+    b: DVec3,
+    triangle: u32,
+    edge: u8,
+}
+
+fn rim_segments(mesh: &TriMesh, rim: &[u8]) -> Vec<RimSegment> {
+    let mut out = Vec::new();
+    for (t, &mask) in rim.iter().enumerate() {
+        let p = mesh.triangle(t);
+        for k in 0..3u8 {
+            if mask & (1 << k) != 0 {
+                out.push(RimSegment {
+                    a: p[k as usize],
+                    b: p[(k as usize + 1) % 3],
+                    triangle: t as u32,
+                    edge: k,
+                });
+            }
+        }
+    }
+    out
+}
+
+/// The closest point of the rim (all boundary edges of M) to each point,
+/// as a [`Projected`] on the edge's triangle. Brute force over the
+/// segments, in parallel over the points (order kept): rims are short next
+/// to M (bunny: 223 edges for 69k triangles) and only border samples ask.
+fn closest_on_segments(segs: &[RimSegment], pts: &[DVec3]) -> Vec<Option<Projected>> {
+    use rayon::prelude::*;
+    pts.par_iter()
+        .map(|&p| {
+            let mut best: Option<(f64, &RimSegment, f64)> = None;
+            for s in segs {
+                let ab = s.b - s.a;
+                let l2 = ab.length_squared();
+                let t = if l2 > 0.0 {
+                    ((p - s.a).dot(ab) / l2).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let d2 = (s.a + t * ab - p).length_squared();
+                if best.is_none_or(|b| d2 < b.0) {
+                    best = Some((d2, s, t));
+                }
+            }
+            best.map(|(d2, s, t)| {
+                // Barycentrics of a + t (b − a) on the triangle's edge.
+                let (u, v) = match s.edge {
+                    0 => (t, 0.0),
+                    1 => (1.0 - t, t),
+                    _ => (0.0, 1.0 - t),
+                };
+                Projected {
+                    point: s.a + t * (s.b - s.a),
+                    offset: d2.sqrt(),
+                    triangle: s.triangle,
+                    u,
+                    v,
+                }
+            })
+        })
+        .collect()
+}
+
+/// Samples on the border curves of the limit surface: for every boundary
+/// edge of a quad face, its patch's `k` points at `(i + ½)/k` along the
+/// edge (`ks` as from [`patch_samples`]). Borders of n-gon faces are left
+/// to their vertex equations (the pipeline's control meshes are quads).
+fn border_locations(control: &ControlMesh, ks: &[usize]) -> Vec<SurfaceLocation> {
+    let mut out = Vec::new();
+    let mut patch = 0;
+    for f in control.faces() {
+        let n = control.face_size(f);
+        if n != 4 {
+            patch += n;
+            continue;
+        }
+        let k = ks[patch];
+        patch += 1;
+        for (c, h) in control.face_halfedges(f).enumerate() {
+            if !control.is_boundary_halfedge(h.twin()) {
+                continue;
+            }
+            for i in 0..k {
+                let t = (i as f64 + 0.5) / k as f64;
+                // h_c runs from corner c to corner c+1: (0,0)→(1,0)→(1,1)→(0,1).
+                let (u, v) = match c {
+                    0 => (t, 0.0),
+                    1 => (1.0, t),
+                    2 => (1.0 - t, 1.0),
+                    _ => (0.0, 1.0 - t),
+                };
+                out.push(SurfaceLocation::quad(f, u, v));
+            }
+        }
+    }
+    out
 }
 
 /// Whether the point with Embree barycentrics `(u, v)` (`(1-u-v) a + u b +

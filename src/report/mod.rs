@@ -31,7 +31,8 @@
 //! vertices (at least the displacement resolution, at most 64): its chordal
 //! error is then well below M's own. D is the displacement grid itself: the
 //! limit point plus the measured offset at every `R × R` sample, linear in
-//! between — what `displaced.ply` holds.
+//! between — what `displaced.ply` holds. Unprojectable samples carry their
+//! inpainted offsets ([`crate::displace`]), so D is measured as written.
 //!
 //! Projectability (Table 1, "Unp."): the percentage of M's area not reached
 //! correctly by the normal projection φ from L. For each triangle of M, its
