@@ -736,7 +736,7 @@ fn closest_on_segments(segs: &[RimSegment], pts: &[DVec3]) -> Vec<Option<Project
                     0.0
                 };
                 let d2 = (s.a + t * ab - p).length_squared();
-                if best.is_none_or(|b| d2 < b.0) {
+                if best.map_or(true, |b| d2 < b.0) {
                     best = Some((d2, s, t));
                 }
             }
