@@ -663,7 +663,11 @@ impl<'a> Simplifier<'a> {
     fn m_test(&mut self, f: FaceId, plan: &CollapsePlan) -> bool {
         let (a, c) = (plan.keep, plan.remove);
         let boundary = self.k.is_boundary_vertex(a) || self.k.is_boundary_vertex(c);
-        let merged = if boundary {
+        let merged = if let Some(s) = plan.corner {
+            // Along the boundary: the merged vertex starts at the removed
+            // corner, whose limit is itself (see `can_collapse_diagonal`).
+            self.lim[s.idx()]
+        } else if boundary {
             self.lim[plan.keep.idx()]
         } else {
             0.5 * (self.lim[a.idx()] + self.lim[c.idx()])
