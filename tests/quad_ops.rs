@@ -148,7 +148,11 @@ fn boundary_rules_on_a_grid() {
     assert_eq!(p.corner, Some(VertexId(0)));
     assert_eq!(p.position, k.position(VertexId(0)));
     let mut k3 = k.clone();
-    let nb = |k: &ControlMesh| k.live_vertices().filter(|&v| k.is_boundary_vertex(v)).count();
+    let nb = |k: &ControlMesh| {
+        k.live_vertices()
+            .filter(|&v| k.is_boundary_vertex(v))
+            .count()
+    };
     let done = collapse_diagonal(&mut k3, FaceId(0), 1, None).unwrap();
     check(&k3, inv, "collapse along the boundary");
     assert!(k3.is_vertex_deleted(VertexId(0)));
@@ -182,7 +186,11 @@ fn boundary_loop_coarsens_and_survives() {
     let mut k = subdfit::fixtures::grid(8, 8, 11);
     let inv = invariants(&k);
     assert_eq!(inv.1, 1);
-    let nb = |k: &ControlMesh| k.live_vertices().filter(|&v| k.is_boundary_vertex(v)).count();
+    let nb = |k: &ControlMesh| {
+        k.live_vertices()
+            .filter(|&v| k.is_boundary_vertex(v))
+            .count()
+    };
     let b0 = nb(&k);
     let (mut along, mut total) = (0, 0);
     loop {
