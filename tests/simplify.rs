@@ -210,11 +210,11 @@ fn guard_undoes_collapses_and_keeps_the_surface_on_m() {
     let caster = make_raycaster(RayBackend::Embree, &m).unwrap();
     let diag = m.bbox_diagonal();
     let fitmap = synthetic(&m, |_| 1.0, 0.25 * diag);
-    // Floor 0.01 · √τ (τ = 0.05) ≈ 2.2‰ of the diagonal; the S-fitmap term
+    // Floor 0.0047 · τ^¼ (τ = 0.05) ≈ 2.2‰ of the diagonal; the S-fitmap term
     // is negligible with F_S = 1 on a unit-size mesh.
     let opts = SimplifyOptions::default()
         .with_check_every_step(true)
-        .with_guard(1e-6, 0.01, 0.3);
+        .with_guard(1e-6, 0.0047, 0.3);
     let r = simplify(&m, &fitmap, caster.as_ref(), &opts).unwrap();
     let s = &r.stats;
     eprintln!(
@@ -224,7 +224,7 @@ fn guard_undoes_collapses_and_keeps_the_surface_on_m() {
     assert!(s.refused_guard_distance + s.refused_guard_normal > 0);
     let k = &r.mesh;
     k.validate().unwrap();
-    let bound = 0.01 * 0.05f64.sqrt() * diag;
+    let bound = 0.0047 * 0.05f64.powf(0.25) * diag;
     let pts: Vec<_> = k.faces().map(|f| face_centre_limit(k, f)).collect();
     let (proj, _) = project_along_normals(caster.as_ref(), &pts, 0.25 * diag).unwrap();
     let mut worst = 0.0f64;
