@@ -8,7 +8,10 @@
 //! that lower the valence energy (§3.3.2), doublet removal (§3.3.3, done by
 //! the collapse operator itself), and a local refit of the touched region W
 //! plus its 1-ring, twice alternating Laplacian smoothing and a fixed-point
-//! fit towards φ targets (§3.4).
+//! fit towards φ targets (§3.4). Boundary vertices collapse only along the
+//! boundary (see [`super::ops::can_collapse_diagonal`]): without that the
+//! boundary loops kept every input vertex, and bunny's five holes alone
+//! held 144 of its 299 final patches at τ = 10 %.
 //!
 //! All per-collapse work is local: vertex limit points come from
 //! [`vertex_limit_mask`] (cached per vertex, refreshed around each refit),
