@@ -9,7 +9,12 @@
 # The Fitmap (minutes on bunny) is computed once per mesh and tau and cached
 # under target/fitmaps (hidden option --fitmap-cache), so the second run
 # times the simplification alone; delete the cache to time the whole
-# pipeline. Usage: bench/simplify.sh [DATA_DIR]
+# pipeline. With FIT=1 each control mesh also goes through the global fit
+# (`subdfit fit`, §3.5) and the report's patch count, irregular vertices
+# and RMS L (‰ of the diagonal, Table 1's "L") are printed: the guard and
+# the M-fitmap test must keep the surface on M while the counts drop.
+# On a loaded machine read the "user" CPU seconds, not the wall time.
+# Usage: [FIT=1] bench/simplify.sh [DATA_DIR]
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 data=${1:-$root/../shared/data}
@@ -19,9 +24,14 @@ mkdir -p "$root/target/fitmaps"
 for mesh in bunny gargoyle; do
   for tau in 0.01 0.10; do
     echo "== $mesh tau=$tau"
-    /usr/bin/time -f "wall %e s, peak %M KB" taskset -c 0,1 \
+    /usr/bin/time -f "wall %e s, user %U s, peak %M KB" taskset -c 0,1 \
       "$root/target/release/subdfit" simplify "$data/$mesh.ply" -o "$out/$mesh-$tau.obj" \
       --tolerance "$tau" --json --fitmap-cache "$root/target/fitmaps/$mesh-$tau.bin" |
-      grep -E '^  "(faces|irregular_vertices|collapses|stopped_at|seconds_fitmap|seconds_simplify|collapses_per_second)"|"(adaptivity_spearman|spearman_radius_fm|median_radius_over_fm|refused_m_fitmap|refused_guard_distance|refused_guard_normal)"'
+      grep -E '^  "(faces|irregular_vertices|collapses|stopped_at|seconds_fitmap|seconds_simplify|collapses_per_second)"|"(adaptivity_spearman|spearman_radius_fm|median_radius_over_fm|refused_m_fitmap|refused_guard_distance|refused_guard_normal|sweeps)"'
+    if [ "${FIT:-0}" = 1 ]; then
+      "$root/target/release/subdfit" fit "$data/$mesh.ply" "$out/$mesh-$tau.obj" \
+        -o "$out/fit-$mesh-$tau" 2>&1 | grep -E 'patches.*RMS L'
+      rm -rf "$out/fit-$mesh-$tau"
+    fi
   done
 done

@@ -120,12 +120,14 @@ fn random_operations_keep_invariants_on_open_bunny() {
     random_sequence("bunny.ply", 40, 3);
 }
 
-/// A 4 × 4 grid: a boundary quad whose diagonal joins two boundary vertices
-/// is refused; one joining an interior and a boundary vertex keeps the
-/// boundary vertex and its position.
+/// A 4 × 4 grid: a diagonal joining an interior and a boundary vertex keeps
+/// the boundary vertex and its position; one joining two boundary vertices
+/// is allowed only along the boundary, through a valence-2 corner, which
+/// goes with the quad.
 #[test]
 fn boundary_rules_on_a_grid() {
     let k = subdfit::fixtures::grid(4, 4, 7);
+    let inv = invariants(&k);
     // Face 1 = (1, 2, 7, 6): corners 1, 2 on the boundary, 6, 7 interior.
     let f = FaceId(1);
     let q: Vec<VertexId> = k.face_vertices(f).collect();
@@ -133,17 +135,98 @@ fn boundary_rules_on_a_grid() {
     // Diagonal 0: 1 (boundary) – 7 (interior): allowed, keeps 1 where it is.
     let plan = can_collapse_diagonal(&k, f, 0).unwrap();
     assert_eq!(plan.keep, VertexId(1));
+    assert_eq!(plan.corner, None);
     assert_eq!(plan.position, k.position(VertexId(1)));
     let mut k2 = k.clone();
     collapse_diagonal(&mut k2, f, 0, None).unwrap();
-    check(&k2, invariants(&k), "boundary collapse");
+    check(&k2, inv, "boundary collapse");
     assert!(k2.is_boundary_vertex(VertexId(1)));
     // Corner quad 0 = (0, 1, 6, 5): diagonal 1 joins boundary vertices 1
-    // and 5 (not neighbours along the boundary): refused.
-    assert!(can_collapse_diagonal(&k, FaceId(0), 1).is_err());
-    // Diagonal 0 joins the corner 0 and interior 6: corner stays.
+    // and 5, neighbours along the boundary through the corner 0 (valence
+    // 2): allowed; 0 and one end go, the merged vertex starts at 0.
+    let p = can_collapse_diagonal(&k, FaceId(0), 1).unwrap();
+    assert_eq!(p.corner, Some(VertexId(0)));
+    assert_eq!(p.position, k.position(VertexId(0)));
+    let mut k3 = k.clone();
+    let nb = |k: &ControlMesh| {
+        k.live_vertices()
+            .filter(|&v| k.is_boundary_vertex(v))
+            .count()
+    };
+    let done = collapse_diagonal(&mut k3, FaceId(0), 1, None).unwrap();
+    check(&k3, inv, "collapse along the boundary");
+    assert!(k3.is_vertex_deleted(VertexId(0)));
+    assert!(k3.is_boundary_vertex(done.keep));
+    assert_eq!(nb(&k3), nb(&k) - 2);
+    assert_eq!(k3.num_live_faces(), k.num_live_faces() - 1);
+    // Diagonal 0 of the corner quad joins the corner 0 and interior 6: the
+    // corner stays.
     let p = can_collapse_diagonal(&k, FaceId(0), 0).unwrap();
     assert_eq!(p.keep, VertexId(0));
+    // A 4 × 1 strip: face 1 = (1, 2, 7, 6) has all four corners on the
+    // boundary, none of valence 2; 1 – 7 would pinch the strip: refused.
+    let s = subdfit::fixtures::grid(4, 1, 7);
+    assert_eq!(
+        can_collapse_diagonal(&s, FaceId(1), 0).unwrap_err(),
+        "both ends on the boundary, not neighbours along it"
+    );
+    // A sharp corner (mechanical input) is never absorbed.
+    let mut k4 = k.clone();
+    k4.set_corner(VertexId(0), 1.0).unwrap();
+    assert!(can_collapse_diagonal(&k4, FaceId(0), 1).is_err());
+}
+
+/// Boundary coarsening: on an 8 × 8 grid, collapses of boundary-adjacent
+/// quads, interior-into-boundary and along the boundary, keep every
+/// invariant (one component, one boundary loop, Euler characteristic 1)
+/// after each one, and the boundary loop gets shorter by two vertices per
+/// collapse along it.
+#[test]
+fn boundary_loop_coarsens_and_survives() {
+    let mut k = subdfit::fixtures::grid(8, 8, 11);
+    let inv = invariants(&k);
+    assert_eq!(inv.1, 1);
+    let nb = |k: &ControlMesh| {
+        k.live_vertices()
+            .filter(|&v| k.is_boundary_vertex(v))
+            .count()
+    };
+    let b0 = nb(&k);
+    let (mut along, mut total) = (0, 0);
+    loop {
+        // First applicable boundary collapse in id order (deterministic).
+        let mut step = None;
+        'find: for f in k.live_faces() {
+            if !k.face_vertices(f).any(|v| k.is_boundary_vertex(v)) {
+                continue;
+            }
+            for d in 0..2 {
+                if let Ok(p) = can_collapse_diagonal(&k, f, d) {
+                    step = Some((f, d, p.corner.is_some()));
+                    break 'find;
+                }
+            }
+        }
+        let Some((f, d, corner)) = step else { break };
+        collapse_diagonal(&mut k, f, d, None).unwrap();
+        total += 1;
+        along += usize::from(corner);
+        check(&k, inv, &format!("boundary collapse {total}"));
+        if total > 200 {
+            break;
+        }
+    }
+    eprintln!(
+        "8 x 8 grid: {total} boundary collapses ({along} along the boundary), {b0} -> {} \
+         boundary vertices, {} faces",
+        nb(&k),
+        k.num_live_faces()
+    );
+    assert!(along > 0, "no collapse along the boundary");
+    // Only a collapse along the boundary changes the boundary, by two
+    // vertices (the corner and one end).
+    assert_eq!(nb(&k), b0 - 2 * along);
+    assert_eq!(k.num_boundary_loops(), 1);
 }
 
 /// Edge rotation on a regular grid raises the valence energy, so its gain

@@ -210,11 +210,11 @@ fn guard_undoes_collapses_and_keeps_the_surface_on_m() {
     let caster = make_raycaster(RayBackend::Embree, &m).unwrap();
     let diag = m.bbox_diagonal();
     let fitmap = synthetic(&m, |_| 1.0, 0.25 * diag);
-    // Floor 0.01 · √τ (τ = 0.05) ≈ 2.2‰ of the diagonal; the S-fitmap term
+    // Floor 0.0047 · τ^¼ (τ = 0.05) ≈ 2.2‰ of the diagonal; the S-fitmap term
     // is negligible with F_S = 1 on a unit-size mesh.
     let opts = SimplifyOptions::default()
         .with_check_every_step(true)
-        .with_guard(1e-6, 0.01, 0.3);
+        .with_guard(1e-6, 0.0047, 0.3);
     let r = simplify(&m, &fitmap, caster.as_ref(), &opts).unwrap();
     let s = &r.stats;
     eprintln!(
@@ -224,7 +224,7 @@ fn guard_undoes_collapses_and_keeps_the_surface_on_m() {
     assert!(s.refused_guard_distance + s.refused_guard_normal > 0);
     let k = &r.mesh;
     k.validate().unwrap();
-    let bound = 0.01 * 0.05f64.sqrt() * diag;
+    let bound = 0.0047 * 0.05f64.powf(0.25) * diag;
     let pts: Vec<_> = k.faces().map(|f| face_centre_limit(k, f)).collect();
     let (proj, _) = project_along_normals(caster.as_ref(), &pts, 0.25 * diag).unwrap();
     let mut worst = 0.0f64;
@@ -240,4 +240,94 @@ fn guard_undoes_collapses_and_keeps_the_surface_on_m() {
         1e3 * worst / diag,
         1e3 * bound / diag
     );
+}
+
+/// Adaptivity on the paper's bunny with its real Fitmap (τ = 1 %), the
+/// acceptance figure of issue 4. §3.3.1: "systematically executing the
+/// least expensive collapse causes survivors to have a size proportional
+/// to the inverse of the S-fitmap". That holds while the cost order decides
+/// which patches grow, i.e. before the M-fitmap test halts most regions, so
+/// the rank correlation between patch radius and 1/F_S at the patch centre
+/// is measured on a run stopped at 2000 patches (the paper's "*" rows).
+/// At the natural end the halting rule, F_M, sets the sizes instead: the
+/// second run checks that patch radius follows F_M there and that the five
+/// boundary loops survive while the boundary coarsens.
+///
+/// Threshold 0.3: F_S spans only a factor ≈ 1.5 between its 5th and 95th
+/// percentiles on bunny while one collapse changes a patch's radius by
+/// ≈ √2, so the signal is of the order of the discreteness noise and a
+/// correlation near 1 is not to be expected; on ~2000 patches the standard
+/// error of a null rank correlation is 1/√(n − 1) ≈ 0.022, so 0.3 is far
+/// beyond chance (measured: 0.47; 0.03 at the natural end, where F_M rules).
+#[test]
+fn bunny_patch_size_follows_one_over_fs_and_fm() {
+    let Some(m) = common::load_data_mesh("bunny.ply") else {
+        eprintln!("skipped: bunny.ply not found (set the shared data dir)");
+        return;
+    };
+    let caster = make_raycaster(RayBackend::Embree, &m).unwrap();
+    let fitmap = subdfit::analysis::compute_fitmap(
+        &m,
+        caster.as_ref(),
+        &subdfit::analysis::FitmapOptions::default().with_tolerance(0.01),
+    )
+    .unwrap();
+    // Patch radius (largest distance from the limit centre to a control
+    // corner) against the Fitmap at M's point closest to the limit centre:
+    // computed here independently of the loop's own statistics.
+    let measure = |k: &subdfit::mesh::ControlMesh| {
+        let ctr: Vec<_> = k
+            .faces()
+            .map(|f| face_centre_limit(k, f).position)
+            .collect();
+        let near = caster.closest_points(&ctr, f64::INFINITY).unwrap();
+        let (mut r, mut inv_fs, mut fm) = (Vec::new(), Vec::new(), Vec::new());
+        for (f, (c, p)) in k.faces().zip(ctr.iter().zip(near)) {
+            let p = p.expect("a closest point on M");
+            let rad = k
+                .face_vertices(f)
+                .map(|v| (k.position(v) - *c).length())
+                .fold(0.0, f64::max);
+            r.push(rad);
+            inv_fs.push(1.0 / fitmap.s_at(&m, p.triangle, p.u, p.v));
+            fm.push(fitmap.m_at(&m, p.triangle, p.u, p.v));
+        }
+        (
+            subdfit::analysis::spearman(&r, &inv_fs).unwrap(),
+            subdfit::analysis::spearman(&r, &fm).unwrap(),
+        )
+    };
+    let mid = simplify(
+        &m,
+        &fitmap,
+        caster.as_ref(),
+        &SimplifyOptions::default().with_target_faces(Some(2000)),
+    )
+    .unwrap();
+    let (rho_s, _) = measure(&mid.mesh);
+    let end = simplify(&m, &fitmap, caster.as_ref(), &SimplifyOptions::default()).unwrap();
+    let (rho_s_end, rho_m_end) = measure(&end.mesh);
+    let nb =
+        |k: &subdfit::mesh::ControlMesh| k.vertices().filter(|&v| k.is_boundary_vertex(v)).count();
+    eprintln!(
+        "bunny τ 1 %: at {} patches Spearman(radius, 1/F_S) = {rho_s:.3}; natural end {} \
+         patches: Spearman(radius, 1/F_S) = {rho_s_end:.3}, Spearman(radius, F_M) = \
+         {rho_m_end:.3}; boundary vertices {} -> {}",
+        mid.stats.faces,
+        end.stats.faces,
+        nb(&mid.mesh),
+        nb(&end.mesh)
+    );
+    assert!(rho_s > 0.3, "patch size does not follow 1/F_S: {rho_s}");
+    // At the natural end the M-fitmap test halted every region, so the
+    // sizes follow F_M (measured 0.8; 0.5 leaves room for the rotations and
+    // doublet removals that reshape patches after the test).
+    assert!(
+        rho_m_end > 0.5,
+        "patch size does not follow F_M: {rho_m_end}"
+    );
+    // Holes kept, boundary coarsened (the input's 5 loops; issue 4).
+    assert_eq!(end.mesh.num_boundary_loops(), 5);
+    end.mesh.validate().unwrap();
+    assert!(nb(&end.mesh) < nb(&mid.mesh));
 }

@@ -8,7 +8,10 @@
 //! that lower the valence energy (§3.3.2), doublet removal (§3.3.3, done by
 //! the collapse operator itself), and a local refit of the touched region W
 //! plus its 1-ring, twice alternating Laplacian smoothing and a fixed-point
-//! fit towards φ targets (§3.4).
+//! fit towards φ targets (§3.4). Boundary vertices collapse only along the
+//! boundary (see [`super::ops::can_collapse_diagonal`]): without that the
+//! boundary loops kept every input vertex, and bunny's five holes alone
+//! held 144 of its 299 final patches at τ = 10 %.
 //!
 //! All per-collapse work is local: vertex limit points come from
 //! [`vertex_limit_mask`] (cached per vertex, refreshed around each refit),
@@ -21,8 +24,9 @@
 //! only the initial evaluation of all faces runs in parallel, in input
 //! order, so the result does not depend on the number of threads.
 //!
-//! Measured (bunny, 69k triangles → natural end, Fitmap cached, one loaded
-//! 2-core machine): ~7,000 collapses/s, 4.5 s; a full re-sort of the
+//! Measured (bunny, 69k triangles → natural end, Fitmap cached, 2 shared
+//! cores, 2026-11-22): τ 1 % 5.9 s (5,100 collapses/s), τ 10 % 4.9 s
+//! (6,200/s); gargoyle 4.1 / 4.6 s; peak RSS 76 MB. A full re-sort of the
 //! control mesh's free lists per edit had made it quadratic (23 s).
 
 use std::cmp::Reverse;
@@ -67,17 +71,40 @@ pub struct SimplifyOptions {
     pub check_every_step: bool,
     /// The surface guard (see [`Simplifier::guard`]): after the local refit
     /// every patch around the refit region must keep its centre within
-    /// `guard_scale · (F_S · r)⁴ + guard_floor · √τ · diag` of M along its normal
-    /// (`(F_S r)⁴ = a r⁴` is the S-fitmap's prediction of the RMS error of
-    /// one patch of radius r, §3.1.2), and its limit normal must agree with
-    /// M's there (`cos > guard_min_cos`); otherwise the collapse is undone
-    /// and refused. `guard_scale = 0` turns the guard off.
+    /// `guard_scale · (F_S · r)⁴ + guard_floor · τ^¼ · diag` of M along its
+    /// normal (`(F_S r)⁴ = a r⁴` is the S-fitmap's prediction of the RMS
+    /// error of one patch of radius r, §3.1.2), and its limit normal must
+    /// agree with M's there (`cos > guard_min_cos`); otherwise the collapse
+    /// is undone and refused. `guard_scale = 0` turns the guard off.
     pub guard_scale: f64,
-    /// See `guard_scale`: times √τ, a fraction of M's bounding-box
+    /// See `guard_scale`: times τ^¼, a fraction of M's bounding-box
     /// diagonal. τ, the Fitmap's tolerance to lost projectability, is the
     /// method's one parameter (§3.1.3); the floor grows with it so that a
-    /// larger τ buys coarser patches from the guard too (0.05: 5‰ at
-    /// τ = 1 %, 16‰ at 10 %; below that the S-fitmap term rules).
+    /// larger τ buys coarser patches from the guard too (0.026: 8.2‰ at
+    /// τ = 1 %, 14.6‰ at 10 %; below that the S-fitmap term rules).
+    ///
+    /// The guard is not in the paper, whose only halting rule is the
+    /// M-fitmap test (§3.3.1); it stands in for the accuracy the paper's
+    /// Fitmap delivered at the same τ, and its floor is an empirical
+    /// calibration against Table 1 (bunny, gargoyle; RMS L after the global
+    /// fit of §3.5, measured 2026-11-22 on this crate's Fitmap):
+    /// - no guard: the M-fitmap test alone ends bunny τ = 1 % at 258
+    ///   patches with RMS L 8.6‰ (Table 1: 506 patches, 3.41‰);
+    /// - floor ∝ √τ (3.2× from 1 to 10 %): at 5‰ for τ = 1 % gargoyle keeps
+    ///   1351 patches (Table 1: 1096); at 8‰ the 10 % floor (25‰) no longer
+    ///   binds and bunny τ 10 % ends on the M-fitmap test at 168 patches
+    ///   with RMS L 9.9‰ (Table 1: 218, 8.48‰);
+    /// - floor ∝ τ^¼ (1.8×), 7‰ at 1 % and 12.4‰ at 10 %: bunny 201
+    ///   patches, RMS L 6.96‰ at 10 %; gargoyle 1094 patches, RMS L 1.76‰
+    ///   at 1 % (Table 1: 2.36‰); but the loop's outcome varies by ±5 %
+    ///   with small changes of the bound (gargoyle τ 1 %: 1133 patches at
+    ///   0.023), so the default takes a margin;
+    /// - 0.026 (the default): bunny 353 / 186 patches (τ 1 / 10 %), 109 /
+    ///   55 irregular vertices, RMS L 4.55 / 8.15‰ (Table 1: 506 / 218,
+    ///   216 / 72, 3.41 / 8.48‰); gargoyle 1036 / 387 patches, RMS L 2.12 /
+    ///   4.15‰ (Table 1: 1096 / 493, 2.36 / 4.50‰). 0.024 trades bunny τ 1 %
+    ///   to 382 patches at 3.38‰, but bunny τ 10 % then keeps 75 irregular
+    ///   vertices (Table 1: 72).
     pub guard_floor: f64,
     /// See `guard_scale`.
     pub guard_min_cos: f64,
@@ -93,7 +120,7 @@ impl Default for SimplifyOptions {
             max_dist: None,
             check_every_step: false,
             guard_scale: 8.0,
-            guard_floor: 0.05,
+            guard_floor: 0.026,
             guard_min_cos: 0.3,
         }
     }
@@ -397,7 +424,8 @@ struct Simplifier<'a> {
     m_normals: Vec<DVec3>,
     diag: f64,
     /// Collapses the guard undid, by (smaller, larger) end id: not tried
-    /// again (their heap entries come back with the restored faces).
+    /// again until the next sweep (their heap entries come back with the
+    /// restored faces).
     refused: std::collections::HashSet<(u32, u32)>,
     /// BFS stamps over vertices (region snapshots).
     stamp: Vec<u32>,
@@ -663,7 +691,11 @@ impl<'a> Simplifier<'a> {
     fn m_test(&mut self, f: FaceId, plan: &CollapsePlan) -> bool {
         let (a, c) = (plan.keep, plan.remove);
         let boundary = self.k.is_boundary_vertex(a) || self.k.is_boundary_vertex(c);
-        let merged = if boundary {
+        let merged = if let Some(s) = plan.corner {
+            // Along the boundary: the merged vertex starts at the removed
+            // corner, whose limit is itself (see `can_collapse_diagonal`).
+            self.lim[s.idx()]
+        } else if boundary {
             self.lim[plan.keep.idx()]
         } else {
             0.5 * (self.lim[a.idx()] + self.lim[c.idx()])
@@ -728,6 +760,12 @@ impl<'a> Simplifier<'a> {
                 }
                 at_last_sweep = stats.collapses;
                 stats.sweeps += 1;
+                // A collapse the guard undid was refused for the geometry of
+                // its region then; collapses since may have changed it (the
+                // refits move vertices, neighbouring collapses change the
+                // patches), so it gets one more try per sweep. The loop
+                // still ends: a sweep with no collapse is the last.
+                self.refused.clear();
                 let all: Vec<FaceId> = self.k.live_faces().collect();
                 let _ = self.update_faces(&all)?;
                 continue;
@@ -966,7 +1004,7 @@ impl<'a> Simplifier<'a> {
     /// the bound is the limit patch's (largest distance of a corner's limit
     /// point to their mean).
     fn guard(&self, checks: &[CentreCheck]) -> Option<bool> {
-        let floor = self.opts.guard_floor * self.fitmap.tolerance.max(0.0).sqrt() * self.diag;
+        let floor = self.opts.guard_floor * self.fitmap.tolerance.max(0.0).powf(0.25) * self.diag;
         for c in checks {
             if self.k.is_face_deleted(c.face) {
                 continue;

@@ -16,10 +16,16 @@ pub struct CollapsePlan {
     pub face: FaceId,
     pub keep: VertexId,
     pub remove: VertexId,
-    /// The quad's other two corners (they lose an edge each).
+    /// The quad's other two corners (they lose an edge each; in a collapse
+    /// along the boundary, one of them is `corner` and disappears).
     pub sides: [VertexId; 2],
-    /// Midpoint of the diagonal (§3.3.1), or the boundary end's position when
-    /// one end is on the boundary (the boundary must not move inwards).
+    /// Collapse along the boundary: the boundary corner (valence 2, both
+    /// edges on the boundary) between the two boundary ends, removed with
+    /// the quad. `None` for an ordinary collapse.
+    pub corner: Option<VertexId>,
+    /// Midpoint of the diagonal (§3.3.1); the boundary end's position when
+    /// one end is on the boundary, the removed corner's when both are (the
+    /// boundary must not move inwards: see [`can_collapse_diagonal`]).
     pub position: DVec3,
 }
 
@@ -28,15 +34,27 @@ pub struct CollapsePlan {
 pub struct Collapsed {
     pub keep: VertexId,
     pub removed: VertexId,
+    /// The boundary corner removed by a collapse along the boundary.
+    pub corner: Option<VertexId>,
     /// Doublet vertices removed afterwards.
     pub doublets: Vec<VertexId>,
 }
 
 /// Checks the collapse of diagonal `k` (0: corners 0–2, 1: corners 1–3) of
-/// the quad `f`. Refused when:
-/// - both ends are on the boundary (two boundary vertices that are not
-///   neighbours along the boundary: joining them would pinch the boundary
-///   or join two holes);
+/// the quad `f`. Boundary vertices collapse only along the boundary (issue
+/// 4: holes are never closed or opened): when both ends `a`, `c` are on the
+/// boundary, the collapse is allowed only if they are neighbours along it
+/// through one of the quad's other corners `b` — a boundary corner of
+/// valence 2 (the quad is its only face, `a b` and `b c` are boundary
+/// edges) without corner sharpness — and the fourth corner `d` is interior.
+/// The quad, `b`, `c` and the edges `a b`, `b c`, `c d` go (V − 2, E − 3,
+/// F − 1: the Euler characteristic is kept), the boundary loop loses two
+/// vertices and stays a loop. This is how the boundary coarsens: a collapse
+/// of an interior vertex into the boundary leaves its boundary side corner
+/// with valence 2, and the next collapse along the boundary absorbs it.
+/// Refused when:
+/// - both ends are on the boundary and are not neighbours along it as
+///   above (joining them would pinch the boundary or join two holes);
 /// - the ends are joined by an edge, share a neighbour other than the
 ///   quad's two other corners, or share another face (the result would have
 ///   a doubled edge, a handle change or a face with a repeated vertex: the
@@ -56,8 +74,25 @@ pub fn can_collapse_diagonal(
     let q = quad(mesh, f);
     let (a, b, c, d) = (q[k], q[k + 1], q[k + 2], q[(k + 3) % 4]);
     let (ba, bc) = (mesh.is_boundary_vertex(a), mesh.is_boundary_vertex(c));
+    let mut corner = None;
     if ba && bc {
-        return Err("both ends on the boundary");
+        // A boundary vertex of valence 2 has one face (this quad) and its
+        // two edges, to a and c, on the boundary.
+        let along = |s: VertexId| {
+            mesh.is_boundary_vertex(s) && mesh.valence(s) == 2 && mesh.vertex_sharpness(s) == 0.0
+        };
+        let other = if along(b) {
+            corner = Some(b);
+            d
+        } else if along(d) {
+            corner = Some(d);
+            b
+        } else {
+            return Err("both ends on the boundary, not neighbours along it");
+        };
+        if mesh.is_boundary_vertex(other) {
+            return Err("collapse along the boundary with a boundary fourth corner");
+        }
     }
     if adjacent(mesh, a, c) {
         return Err("the ends are joined by an edge");
@@ -74,10 +109,14 @@ pub fn can_collapse_diagonal(
         }
     }
     // The merged vertex: every edge of a and c, the two pairs (a b, c b) and
-    // (a d, c d) counted once, less one per doublet removed at b or d.
-    let mut merged = mesh.valence(a) + mesh.valence(c) - 2;
+    // (a d, c d) counted once (the edge to a removed corner not at all),
+    // less one per doublet removed at b or d.
+    let mut merged = mesh.valence(a) + mesh.valence(c) - 2 - usize::from(corner.is_some());
     let mut third = [VertexId::INVALID; 2];
     for (i, &s) in [b, d].iter().enumerate() {
+        if corner == Some(s) {
+            continue;
+        }
         let vs = mesh.valence(s);
         if vs - 1 < min_valence(mesh, s) {
             if mesh.is_boundary_vertex(s) {
@@ -105,7 +144,12 @@ pub fn can_collapse_diagonal(
         return Err("the merged vertex would have too few edges");
     }
     let (keep, remove) = if bc { (c, a) } else { (a, c) };
-    let position = if ba || bc {
+    let position = if let Some(s) = corner {
+        // The corner lies on the boundary curve (a valence-2 boundary vertex
+        // is a corner under the edge-and-corner rule: its limit is itself);
+        // the midpoint of a c would cut the curve's chord, inside M.
+        mesh.position(s)
+    } else if ba || bc {
         mesh.position(keep)
     } else {
         0.5 * (mesh.position(a) + mesh.position(c))
@@ -115,6 +159,7 @@ pub fn can_collapse_diagonal(
         keep,
         remove,
         sides: [b, d],
+        corner,
         position,
     })
 }
@@ -145,12 +190,20 @@ pub fn collapse_diagonal(
         removed_faces.push(f);
     }
     let add: Vec<&[VertexId]> = added.iter().map(|p| p.as_slice()).collect();
-    mesh.replace_faces(&removed_faces, &add, &[remove])?;
+    let mut delete = vec![remove];
+    delete.extend(plan.corner);
+    mesh.replace_faces(&removed_faces, &add, &delete)?;
     mesh.positions_mut()[keep.idx()] = position.unwrap_or(plan.position);
-    let (doublets, _) = remove_doublets(mesh, &plan.sides)?;
+    let sides: Vec<VertexId> = plan
+        .sides
+        .into_iter()
+        .filter(|&s| Some(s) != plan.corner)
+        .collect();
+    let (doublets, _) = remove_doublets(mesh, &sides)?;
     Ok(Collapsed {
         keep,
         removed: remove,
+        corner: plan.corner,
         doublets,
     })
 }
