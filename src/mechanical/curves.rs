@@ -303,6 +303,21 @@ fn max_error(points: &[DVec3], params: &[f64], control: &[DVec3], closed: bool) 
 /// Fits a curve to `points` (see the module docs) with at least `min_n`
 /// control points, to within `tol` (largest vertex distance) if it can.
 pub fn fit_curve(points: &[DVec3], closed: bool, tol: f64, min_n: usize) -> Curve {
+    fit_curve_until(points, closed, min_n, &|c: &Curve| c.max_error <= tol)
+}
+
+/// Fits a curve to `points` with the fewest control points (at least
+/// `min_n`, in steps of about 20 %) for which `accept` holds, or with as
+/// many control points as polyline vertices when none does: §5's economy
+/// ("as few control points as the error allows") with the error criterion
+/// left to the caller (distance to the polyline along sharp features,
+/// distance to M along a smooth boundary, see [`super::build_control`]).
+pub fn fit_curve_until(
+    points: &[DVec3],
+    closed: bool,
+    min_n: usize,
+    accept: &dyn Fn(&Curve) -> bool,
+) -> Curve {
     let m = points.len();
     let lo = if closed { min_n.max(3) } else { min_n.max(2) };
     // More control points than polyline vertices cannot help.
@@ -320,18 +335,19 @@ pub fn fit_curve(points: &[DVec3], closed: bool, tol: f64, min_n: usize) -> Curv
         }
         correct(points, &mut params, &control, closed);
         let err = max_error(points, &params, &control, closed);
-        if err <= tol || n >= cap {
-            if closed {
-                for t in params.iter_mut() {
-                    *t = t.rem_euclid(n as f64);
-                }
+        if closed {
+            for t in params.iter_mut() {
+                *t = t.rem_euclid(n as f64);
             }
-            return Curve {
-                control,
-                closed,
-                params,
-                max_error: err,
-            };
+        }
+        let curve = Curve {
+            control,
+            closed,
+            params,
+            max_error: err,
+        };
+        if n >= cap || accept(&curve) {
+            return curve;
         }
         n = (n + (n / 5).max(1)).min(cap);
     }

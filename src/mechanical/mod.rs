@@ -124,8 +124,12 @@ pub struct MechanicalStats {
     pub corners: usize,
     pub curves: usize,
     pub curve_control_points: usize,
-    /// Largest polyline-to-curve distance, ‰ of the diagonal.
+    /// Largest polyline-to-curve distance over the feature (all-sharp)
+    /// pieces, ‰ of the diagonal (smooth pieces: see [`PieceStat`]).
     pub curve_max_error_permille: f64,
+    pub pieces: Vec<PieceStat>,
+    /// Initial facets per region (§6).
+    pub region_initial_faces: Vec<usize>,
     pub initial_faces: usize,
     pub initial_vertices: usize,
     /// A region was rebuilt as a star because the chord layout failed.
@@ -203,6 +207,35 @@ pub fn choose_mode(mesh: &TriMesh) -> ModeChoice {
     }
 }
 
+/// Largest distance from samples of `c` (8 per control segment) to M; a
+/// failed query counts as infinitely far.
+fn curve_to_mesh(c: &curves::Curve, caster: &dyn RayCaster) -> f64 {
+    let n = c.control.len();
+    let segs = if c.closed { n } else { n - 1 };
+    let q: Vec<DVec3> = (0..=8 * segs)
+        .map(|i| curves::eval(&c.control, c.closed, i as f64 / 8.0))
+        .collect();
+    match caster.closest_points(&q, f64::INFINITY) {
+        Ok(h) => h
+            .iter()
+            .map(|x| x.map_or(f64::INFINITY, |x| x.distance))
+            .fold(0.0, f64::max),
+        Err(_) => f64::INFINITY,
+    }
+}
+
+/// One boundary piece's curve, for `report.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct PieceStat {
+    pub polyline_vertices: usize,
+    pub control_points: usize,
+    /// Every edge of the piece is a sharp edge of M.
+    pub sharp: bool,
+    pub closed: bool,
+    /// Largest polyline-to-curve distance, ‰ of the diagonal.
+    pub max_error_permille: f64,
+}
+
 /// Builds the mechanical control mesh of `mesh` (`caster` over it).
 pub fn build_control(
     mesh: &TriMesh,
@@ -247,12 +280,52 @@ pub fn build_control(
         }
     };
     let mut mins: Vec<usize> = net.pieces.iter().map(min_n).collect();
+    // A piece is a feature when every one of its edges is a sharp edge of
+    // M: its polyline *is* the feature line, and the crease curve must
+    // follow it within `curve_tolerance` (the features-kept bar). Any other
+    // piece separates two curvature classes across a smooth (tangent-
+    // continuous) part of M: its polyline zigzags along triangle edges
+    // (amplitude up to an edge length, 14‰ on fandisk), so following it
+    // would cost about one control point per vertex for nothing. What
+    // matters there is that the curve lies on M (distance of curve samples
+    // to M within `curve_tolerance`) and stays near the boundary (within
+    // half the polyline's mean edge length, the zigzag's amplitude), so
+    // each side's region still owns the samples next to it.
+    let sharp_piece: Vec<bool> = net
+        .pieces
+        .iter()
+        .map(|p| {
+            let m = p.verts.len();
+            let segs = if p.closed { m } else { m - 1 };
+            (0..segs).all(|k| {
+                let (a, b) = (p.verts[k], p.verts[(k + 1) % m]);
+                topo.vertex_edges(a).iter().any(|&e| {
+                    let ed = &topo.edges[e as usize];
+                    (ed.v[0] == b || ed.v[1] == b) && sharp[e as usize]
+                })
+            })
+        })
+        .collect();
     let fit_all = |mins: &[usize]| -> Vec<curves::Curve> {
         use rayon::prelude::*;
         net.pieces
             .par_iter()
             .zip(mins)
-            .map(|(p, &m)| curves::fit_curve(&pts(p), p.closed, tol, m))
+            .zip(&sharp_piece)
+            .map(|((p, &m), &sharp)| {
+                let pp = pts(p);
+                if sharp {
+                    return curves::fit_curve(&pp, p.closed, tol, m);
+                }
+                let segs = if p.closed { pp.len() } else { pp.len() - 1 };
+                let len: f64 = (0..segs)
+                    .map(|k| (pp[(k + 1) % pp.len()] - pp[k]).length())
+                    .sum();
+                let loose = tol.max(0.5 * len / segs.max(1) as f64);
+                curves::fit_curve_until(&pp, p.closed, m, &|c: &curves::Curve| {
+                    c.max_error <= loose && curve_to_mesh(c, caster) <= tol
+                })
+            })
             .collect()
     };
     let mut fitted = fit_all(&mins);
@@ -369,6 +442,7 @@ pub fn build_control(
     }
     let mut faces: Vec<Vec<u32>> = Vec::new();
     let mut face_region: Vec<u32> = Vec::new();
+    let mut region_initial_faces = vec![0usize; seg.num_regions];
     for r in 0..seg.num_regions {
         let Some(poly) = &polygons[r] else { continue };
         let g = polyhedron::RegionGeom::new(mesh, &curv, &region_tris[r], &net.on_boundary, diag);
@@ -376,6 +450,7 @@ pub fn build_control(
             planar_regions += 1;
         }
         let fr = polyhedron::cut_region(&g, poly, &positions, &mut edges);
+        region_initial_faces[r] = fr.len();
         face_region.extend(std::iter::repeat(r as u32).take(fr.len()));
         faces.extend(fr);
     }
@@ -450,8 +525,27 @@ pub fn build_control(
             curves: net.pieces.len(),
             curve_control_points: fixed,
             curve_max_error_permille: 1000.0
-                * fitted.iter().map(|c| c.max_error).fold(0.0, f64::max)
+                * fitted
+                    .iter()
+                    .zip(&sharp_piece)
+                    .filter(|(_, &s)| s)
+                    .map(|(c, _)| c.max_error)
+                    .fold(0.0, f64::max)
                 / diag,
+            pieces: net
+                .pieces
+                .iter()
+                .zip(&fitted)
+                .zip(&sharp_piece)
+                .map(|((p, c), &sharp)| PieceStat {
+                    polyline_vertices: p.verts.len(),
+                    control_points: c.control.len(),
+                    sharp,
+                    closed: p.closed,
+                    max_error_permille: 1000.0 * c.max_error / diag,
+                })
+                .collect(),
+            region_initial_faces,
             initial_faces,
             initial_vertices,
             star_fallback,

@@ -73,6 +73,9 @@ pub struct Round {
     pub faces_over_limit: usize,
     pub local_fields: usize,
     pub diffuse_fields: usize,
+    /// RMS distance per region of the segmentation (to the region's own
+    /// part of M, the distance the fit minimises), ‰ of the diagonal.
+    pub region_rms_permille: Vec<f64>,
 }
 
 pub struct OptimizeOptions {
@@ -188,6 +191,19 @@ pub fn optimize(
         let frms: Vec<f64> = (0..nf)
             .map(|f| (fsum[f] / fcnt[f].max(1) as f64).sqrt())
             .collect();
+        let nreg = polys.face_region.iter().map(|&r| r as usize + 1).max().unwrap_or(0);
+        let mut rsum = vec![0.0; nreg];
+        let mut rcnt = vec![0usize; nreg];
+        for (l, d) in locs.iter().zip(&dists) {
+            if d.is_finite() {
+                let r = polys.face_region[l.face.idx()] as usize;
+                rsum[r] += d * d;
+                rcnt[r] += 1;
+            }
+        }
+        let region_rms_permille: Vec<f64> = (0..nreg)
+            .map(|r| 1000.0 * (rsum[r] / rcnt[r].max(1) as f64).sqrt() / diag)
+            .collect();
         let ok: Vec<f64> = report.iter().copied().filter(|d| d.is_finite()).collect();
         let cnt = ok.len().max(1) as f64;
         let over: Vec<usize> = (0..nf).filter(|&f| frms[f] > limit).collect();
@@ -201,6 +217,7 @@ pub fn optimize(
             faces_over_limit: over.len(),
             local_fields: 0,
             diffuse_fields: 0,
+            region_rms_permille,
         };
         if best.as_ref().map_or(true, |b| rec.rms_permille < b.0) {
             best = Some((rec.rms_permille, polys.clone()));
