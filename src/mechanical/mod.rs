@@ -207,6 +207,58 @@ pub fn choose_mode(mesh: &TriMesh) -> ModeChoice {
     }
 }
 
+/// `points` (a boundary piece) with the vertices that touch no sharp edge
+/// (`edge_sharp[k]`: edge `k → k+1`) smoothed and projected onto M (see
+/// [`build_control`]); open pieces keep their ends.
+fn smooth_piece(
+    points: &[DVec3],
+    closed: bool,
+    edge_sharp: &[bool],
+    caster: &dyn RayCaster,
+) -> Vec<DVec3> {
+    let m = points.len();
+    let movable: Vec<bool> = (0..m)
+        .map(|i| {
+            let before = if i > 0 {
+                Some(edge_sharp[i - 1])
+            } else if closed {
+                Some(edge_sharp[m - 1])
+            } else {
+                None
+            };
+            let after = edge_sharp.get(i).copied();
+            match (before, after) {
+                (Some(b), Some(a)) => !a && !b,
+                _ => false,
+            }
+        })
+        .collect();
+    if !movable.iter().any(|&x| x) {
+        return points.to_vec();
+    }
+    let mut p = points.to_vec();
+    for _ in 0..10 {
+        let q = p.clone();
+        for i in 0..m {
+            if movable[i] {
+                let prev = q[(i + m - 1) % m];
+                let next = q[(i + 1) % m];
+                p[i] = 0.5 * q[i] + 0.25 * (prev + next);
+            }
+        }
+    }
+    let idx: Vec<usize> = (0..m).filter(|&i| movable[i]).collect();
+    let q: Vec<DVec3> = idx.iter().map(|&i| p[i]).collect();
+    if let Ok(h) = caster.closest_points(&q, f64::INFINITY) {
+        for (&i, h) in idx.iter().zip(h) {
+            p[i] = h.map_or(points[i], |h| h.point);
+        }
+    } else {
+        return points.to_vec();
+    }
+    p
+}
+
 /// Largest distance from samples of `c` (8 per control segment) to M; a
 /// failed query counts as infinitely far.
 fn curve_to_mesh(c: &curves::Curve, caster: &dyn RayCaster) -> f64 {
@@ -280,31 +332,43 @@ pub fn build_control(
         }
     };
     let mut mins: Vec<usize> = net.pieces.iter().map(min_n).collect();
-    // A piece is a feature when every one of its edges is a sharp edge of
-    // M: its polyline *is* the feature line, and the crease curve must
-    // follow it within `curve_tolerance` (the features-kept bar). Any other
-    // piece separates two curvature classes across a smooth (tangent-
-    // continuous) part of M: its polyline zigzags along triangle edges
-    // (amplitude up to an edge length, 14‰ on fandisk), so following it
-    // would cost about one control point per vertex for nothing. What
-    // matters there is that the curve lies on M (distance of curve samples
-    // to M within `curve_tolerance`) and stays near the boundary (within
-    // half the polyline's mean edge length, the zigzag's amplitude), so
-    // each side's region still owns the samples next to it.
-    let sharp_piece: Vec<bool> = net
+    // Which polyline edges of each piece are sharp edges of M.
+    let edge_sharp = |a: u32, b: u32| {
+        topo.vertex_edges(a).iter().any(|&e| {
+            let ed = &topo.edges[e as usize];
+            (ed.v[0] == b || ed.v[1] == b) && sharp[e as usize]
+        })
+    };
+    let piece_edge_sharp: Vec<Vec<bool>> = net
         .pieces
         .iter()
         .map(|p| {
             let m = p.verts.len();
             let segs = if p.closed { m } else { m - 1 };
-            (0..segs).all(|k| {
-                let (a, b) = (p.verts[k], p.verts[(k + 1) % m]);
-                topo.vertex_edges(a).iter().any(|&e| {
-                    let ed = &topo.edges[e as usize];
-                    (ed.v[0] == b || ed.v[1] == b) && sharp[e as usize]
-                })
-            })
+            (0..segs)
+                .map(|k| edge_sharp(p.verts[k], p.verts[(k + 1) % m]))
+                .collect()
         })
+        .collect();
+    let sharp_piece: Vec<bool> = piece_edge_sharp.iter().map(|e| e.iter().all(|&s| s)).collect();
+    // The points each curve is fitted to. Along a feature (sharp edges of
+    // M) the polyline *is* the feature line and is kept as it is: the
+    // crease must follow it within `curve_tolerance`. Elsewhere a boundary
+    // separates two curvature classes across a smooth part of M and
+    // zigzags along triangle edges (amplitude up to an edge length, 14‰ on
+    // fandisk): fitting that within 0.5‰ costs one control point per
+    // vertex, and a cubic B-spline interpolating a zigzag oscillates far
+    // off M (control points 3 units away on fandisk). §4's boundary
+    // rectification is what removes the zigzag in the paper; here the
+    // vertices not on a sharp edge are smoothed along the piece (10 passes
+    // of the ¼-½-¼ filter, which cancels the period-2 zigzag outright) and
+    // projected back onto M, and the fit is also checked against M itself
+    // (curve samples within `curve_tolerance` of M).
+    let smoothed: Vec<Vec<DVec3>> = net
+        .pieces
+        .iter()
+        .zip(&piece_edge_sharp)
+        .map(|(p, es)| smooth_piece(&pts(p), p.closed, es, caster))
         .collect();
     let fit_all = |mins: &[usize]| -> Vec<curves::Curve> {
         use rayon::prelude::*;
@@ -312,18 +376,13 @@ pub fn build_control(
             .par_iter()
             .zip(mins)
             .zip(&sharp_piece)
-            .map(|((p, &m), &sharp)| {
-                let pp = pts(p);
+            .zip(&smoothed)
+            .map(|(((p, &m), &sharp), pp)| {
                 if sharp {
-                    return curves::fit_curve(&pp, p.closed, tol, m);
+                    return curves::fit_curve(pp, p.closed, tol, m);
                 }
-                let segs = if p.closed { pp.len() } else { pp.len() - 1 };
-                let len: f64 = (0..segs)
-                    .map(|k| (pp[(k + 1) % pp.len()] - pp[k]).length())
-                    .sum();
-                let loose = tol.max(0.5 * len / segs.max(1) as f64);
-                curves::fit_curve_until(&pp, p.closed, m, &|c: &curves::Curve| {
-                    c.max_error <= loose && curve_to_mesh(c, caster) <= tol
+                curves::fit_curve_until(pp, p.closed, m, &|c: &curves::Curve| {
+                    c.max_error <= tol && curve_to_mesh(c, caster) <= tol
                 })
             })
             .collect()
@@ -451,6 +510,17 @@ pub fn build_control(
         }
         let fr = polyhedron::cut_region(&g, poly, &positions, &mut edges);
         region_initial_faces[r] = fr.len();
+        if std::env::var_os("MECH_DUMP").is_some() {
+            eprintln!("REGION {r} tris {} planar {}", region_tris[r].len(), g.planar.is_some());
+            for p in poly.iter() {
+                let x = positions[p.id as usize];
+                let a = mesh.positions[p.anchor as usize];
+                eprintln!("  P {} {:.3} {:.3} {:.3} anchor {} {:.3} {:.3} {:.3}", p.id, x.x, x.y, x.z, p.anchor, a.x, a.y, a.z);
+            }
+            for f in &fr {
+                eprintln!("  F {:?}", f);
+            }
+        }
         face_region.extend(std::iter::repeat(r as u32).take(fr.len()));
         faces.extend(fr);
     }
@@ -495,10 +565,39 @@ pub fn build_control(
     let initial_vertices = polys.positions.len();
     lap("polyhedron", &mut t);
 
+    // Each region's reach for the foot points of §7.1: its triangles and
+    // two rings beyond its smooth (non-sharp) boundary edges, never across
+    // a feature (see `optimize`).
+    let reach: Vec<Vec<u32>> = region_tris
+        .iter()
+        .map(|ts| {
+            let mut seen: HashSet<u32> = ts.iter().copied().collect();
+            let mut front: Vec<u32> = ts.clone();
+            for _ in 0..2 {
+                let mut next = Vec::new();
+                for &t in &front {
+                    for &e in &topo.tri_edges[t as usize] {
+                        if sharp[e as usize] {
+                            continue;
+                        }
+                        if let Some(o) = topo.edges[e as usize].other_face(t) {
+                            if seen.insert(o) {
+                                next.push(o);
+                            }
+                        }
+                    }
+                }
+                front = next;
+            }
+            let mut v: Vec<u32> = seen.into_iter().collect();
+            v.sort_unstable();
+            v
+        })
+        .collect();
     let rounds = optimize::optimize(
         mesh,
         caster,
-        &seg.region,
+        &reach,
         &mut polys,
         &optimize::OptimizeOptions {
             max_error: opts.max_error,

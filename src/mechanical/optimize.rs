@@ -91,7 +91,7 @@ pub struct OptimizeOptions {
 pub fn optimize(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
-    tri_region: &[u32],
+    reach: &[Vec<u32>],
     polys: &mut Polys,
     o: &OptimizeOptions,
 ) -> Result<Vec<Round>> {
@@ -105,8 +105,12 @@ pub fn optimize(
     // region*. Along the limit normal (φ) or unrestricted, a sample near a
     // crease lands on the neighbouring face, and the update pulls the
     // surface across the feature: the error rises instead of falling.
-    // One BVH per region, built once.
-    let region_casters = region_casters(mesh, tri_region)?;
+    // The restriction is to the region's triangles and the two rings of
+    // its neighbours' triangles across *smooth* boundary edges (`reach`,
+    // see `super::build_control`): a crease on a smooth boundary is a
+    // smoothed zigzag, and the samples between it and the staircase
+    // belong to M all the same. One BVH per region, built once.
+    let region_casters = region_casters(mesh, reach)?;
     let whole = |pts: &[DVec3]| -> Result<Vec<f64>> {
         Ok(caster
             .closest_points(pts, f64::INFINITY)?
@@ -501,20 +505,13 @@ fn merge_loop(
 /// A region's ray caster and its triangles of M.
 type RegionCaster = Option<(Box<dyn RayCaster>, Vec<u32>)>;
 
-/// One ray caster per region over that region's triangles (`None` for a
-/// region without any).
-fn region_casters(mesh: &TriMesh, tri_region: &[u32]) -> Result<Vec<RegionCaster>> {
-    let nr = tri_region
-        .iter()
-        .map(|&r| r as usize + 1)
-        .max()
-        .unwrap_or(0);
-    let mut tris: Vec<Vec<u32>> = vec![Vec::new(); nr];
-    for (t, &r) in tri_region.iter().enumerate() {
-        tris[r as usize].push(t as u32);
-    }
+/// One ray caster per region over the triangles it may be fitted to
+/// (`None` for a region without any).
+fn region_casters(mesh: &TriMesh, reach: &[Vec<u32>]) -> Result<Vec<RegionCaster>> {
     use rayon::prelude::*;
-    tris.into_par_iter()
+    reach
+        .to_vec()
+        .into_par_iter()
         .map(|ts| {
             if ts.is_empty() {
                 return Ok(None);
