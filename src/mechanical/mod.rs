@@ -124,6 +124,8 @@ pub struct MechanicalStats {
     pub corners: usize,
     pub curves: usize,
     pub curve_control_points: usize,
+    /// Corners added where a feature line kinks (§5's sharp vertices).
+    pub kink_corners: usize,
     /// Largest polyline-to-curve distance over the feature (all-sharp)
     /// pieces, ‰ of the diagonal (smooth pieces: see [`PieceStat`]).
     pub curve_max_error_permille: f64,
@@ -205,6 +207,210 @@ pub fn choose_mode(mesh: &TriMesh) -> ModeChoice {
             100.0 * AUTO_FLAT_SHARE
         ),
     }
+}
+
+/// Passes of kink detection in §5 (see [`build_control`]).
+const KINK_PASSES: usize = 4;
+/// A boundary vertex turning by less than this (degrees) is not tried as a
+/// kink corner: 10°, below any CAD feature's bend and above the turn of a
+/// feature arc's tessellation on the meshes at hand (fandisk: ≤ 22° per
+/// edge on its tightest arcs, which the fit keeps smooth since splitting
+/// there saves nothing).
+const KINK_MIN_TURN_DEG: f64 = 10.0;
+
+/// §5's curves for a network.
+struct PieceFits {
+    /// Per piece, whether each polyline edge is a sharp edge of M.
+    edge_sharp: Vec<Vec<bool>>,
+    /// Every edge of the piece is sharp.
+    sharp_piece: Vec<bool>,
+    /// The points each curve was fitted to (see [`smooth_piece`]).
+    smoothed: Vec<Vec<DVec3>>,
+    fitted: Vec<curves::Curve>,
+}
+
+/// Fits one piece: against its polyline within `tol` when it is a feature
+/// line (`all_sharp`), and also within `tol` of M when it is not.
+fn fit_one(
+    pts: &[DVec3],
+    closed: bool,
+    min_n: usize,
+    all_sharp: bool,
+    tol: f64,
+    caster: &dyn RayCaster,
+) -> curves::Curve {
+    if all_sharp {
+        return curves::fit_curve(pts, closed, tol, min_n);
+    }
+    curves::fit_curve_until(pts, closed, min_n, &|c: &curves::Curve| {
+        c.max_error <= tol && curve_to_mesh(c, caster) <= tol
+    })
+}
+
+/// Fits every piece of `net` (§5), with enough control points that no two
+/// curves share a control edge and no curve is a degenerate loop.
+fn fit_pieces(
+    mesh: &TriMesh,
+    topo: &Topology,
+    sharp: &[bool],
+    caster: &dyn RayCaster,
+    net: &network::Network,
+    tol: f64,
+) -> PieceFits {
+    use rayon::prelude::*;
+    let edge_sharp_of = |a: u32, b: u32| {
+        topo.vertex_edges(a).iter().any(|&e| {
+            let ed = &topo.edges[e as usize];
+            (ed.v[0] == b || ed.v[1] == b) && sharp[e as usize]
+        })
+    };
+    let edge_sharp: Vec<Vec<bool>> = net
+        .pieces
+        .iter()
+        .map(|p| {
+            let m = p.verts.len();
+            let segs = if p.closed { m } else { m - 1 };
+            (0..segs)
+                .map(|k| edge_sharp_of(p.verts[k], p.verts[(k + 1) % m]))
+                .collect()
+        })
+        .collect();
+    let sharp_piece: Vec<bool> = edge_sharp.iter().map(|e| e.iter().all(|&s| s)).collect();
+    // The points each curve is fitted to. Along a feature (sharp edges of
+    // M) the polyline *is* the feature line and is kept as it is: the
+    // crease must follow it within `curve_tolerance`. Elsewhere a boundary
+    // separates two curvature classes across a smooth part of M and
+    // zigzags along triangle edges (amplitude up to an edge length, 14‰ on
+    // fandisk): fitting that within 0.5‰ costs one control point per
+    // vertex, and a cubic B-spline interpolating a zigzag oscillates far
+    // off M (control points 3 units away on fandisk). §4's boundary
+    // rectification is what removes the zigzag in the paper; here the
+    // vertices not on a sharp edge are smoothed along the piece (10 passes
+    // of the ¼-½-¼ filter, which cancels the period-2 zigzag outright) and
+    // projected back onto M, and the fit is also checked against M itself
+    // (curve samples within `curve_tolerance` of M).
+    let smoothed: Vec<Vec<DVec3>> = net
+        .pieces
+        .par_iter()
+        .zip(&edge_sharp)
+        .map(|(p, es)| {
+            let pts: Vec<DVec3> = p.verts.iter().map(|&v| mesh.positions[v as usize]).collect();
+            smooth_piece(&pts, p.closed, es, caster)
+        })
+        .collect();
+    let mut mins: Vec<usize> = net
+        .pieces
+        .iter()
+        .map(|p| {
+            if p.closed || p.verts.first() == p.verts.last() {
+                4
+            } else {
+                2
+            }
+        })
+        .collect();
+    let fit_all = |mins: &[usize]| -> Vec<curves::Curve> {
+        net.pieces
+            .par_iter()
+            .zip(mins)
+            .zip(&sharp_piece)
+            .zip(&smoothed)
+            .map(|(((p, &m), &s), pp)| fit_one(pp, p.closed, m, s, tol, caster))
+            .collect()
+    };
+    let mut fitted = fit_all(&mins);
+    for _ in 0..3 {
+        let mut seen: HashSet<(u32, u32)> = HashSet::new();
+        let mut again = false;
+        for (i, (p, c)) in net.pieces.iter().zip(&fitted).enumerate() {
+            if !p.closed && c.control.len() == 2 {
+                let (a, b) = (p.verts[0], *p.verts.last().unwrap_or(&p.verts[0]));
+                if !seen.insert((a.min(b), a.max(b))) {
+                    mins[i] = 3;
+                    again = true;
+                }
+            }
+        }
+        if !again {
+            break;
+        }
+        fitted = fit_all(&mins);
+    }
+    PieceFits {
+        edge_sharp,
+        sharp_piece,
+        smoothed,
+        fitted,
+    }
+}
+
+/// Vertices of M where splitting a piece into two curves with a corner
+/// saves control points (see [`build_control`]): per piece of 4 or more
+/// control points, the (up to 3) vertices on a sharp edge that turn most
+/// (over 2 polyline steps where an edge is not sharp, to see past a
+/// zigzag), at least [`KINK_MIN_TURN_DEG`]; the best saving wins.
+fn kinks(net: &network::Network, f: &PieceFits, caster: &dyn RayCaster, tol: f64) -> Vec<u32> {
+    use rayon::prelude::*;
+    let cos_min = KINK_MIN_TURN_DEG.to_radians().cos();
+    net.pieces
+        .par_iter()
+        .enumerate()
+        .filter_map(|(i, p)| {
+            let n = f.fitted[i].control.len();
+            let pp = &f.smoothed[i];
+            let es = &f.edge_sharp[i];
+            let m = pp.len();
+            if n < 4 || m < 3 {
+                return None;
+            }
+            let at = |k: isize| -> Option<usize> {
+                if p.closed {
+                    Some(k.rem_euclid(m as isize) as usize)
+                } else {
+                    (k >= 0 && (k as usize) < m).then_some(k as usize)
+                }
+            };
+            let mut cands: Vec<(f64, usize)> = Vec::new();
+            let range = if p.closed { 0..m } else { 1..m - 1 };
+            for k in range {
+                let before = es[(k + es.len() - 1) % es.len()];
+                let after = es[k % es.len()];
+                if !(before || after) {
+                    continue;
+                }
+                let step = if before && after { 1 } else { 2 };
+                let (Some(a), Some(b)) = (at(k as isize - step), at(k as isize + step)) else {
+                    continue;
+                };
+                let d0 = (pp[k] - pp[a]).normalize_or_zero();
+                let d1 = (pp[b] - pp[k]).normalize_or_zero();
+                let c = d0.dot(d1);
+                if c < cos_min {
+                    cands.push((c, k));
+                }
+            }
+            cands.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+            cands.truncate(3);
+            let all = |r: std::ops::Range<usize>| r.into_iter().all(|j| es[j % es.len()]);
+            let mut best: Option<(usize, usize)> = None;
+            for &(_, k) in &cands {
+                let cost = if p.closed {
+                    let mut q: Vec<DVec3> = pp[k..].to_vec();
+                    q.extend_from_slice(&pp[..=k]);
+                    let s = all(k..k + m);
+                    fit_one(&q, false, 4, s, tol, caster).control.len() - 1
+                } else {
+                    let l = fit_one(&pp[..=k], false, 2, all(0..k), tol, caster);
+                    let r = fit_one(&pp[k..], false, 2, all(k..m - 1), tol, caster);
+                    l.control.len() + r.control.len() - 1
+                };
+                if cost < n && best.map_or(true, |b| cost < b.0) {
+                    best = Some((cost, k));
+                }
+            }
+            best.map(|(_, k)| p.verts[k])
+        })
+        .collect()
 }
 
 /// `points` (a boundary piece) with the vertices that touch no sharp edge
@@ -312,98 +518,56 @@ pub fn build_control(
     lap("curvature", &mut t);
     let seg = segment(mesh, &topo, &curv, &SegmentOptions::default());
     let sharp = topo.sharp_edges();
-    let net = network::build_network(mesh, &topo, &seg.region, seg.num_regions, &sharp);
+    // §5: curves. The paper's fit is "piecewise smooth ... including sharp
+    // vertex processing" (LDB05b): a piece whose polyline kinks along a
+    // feature gets a corner there when that saves control points (a cubic
+    // B-spline needs many points to bend sharply, two straight halves need
+    // none). Up to `KINK_PASSES` passes, each one corner per piece at most.
+    let tol = std::env::var("MECH_CURVE_TOL").ok().and_then(|x| x.parse::<f64>().ok()).unwrap_or(opts.curve_tolerance) * diag;
+    let nv = mesh.positions.len();
+    let mut extra_corner = vec![false; nv];
+    let mut net =
+        network::build_network(mesh, &topo, &seg.region, seg.num_regions, &sharp, &extra_corner);
     lap("segmentation", &mut t);
-
-    // §5: curves, with enough control points that no two curves share a
-    // control edge and no curve is a degenerate loop.
-    let tol = opts.curve_tolerance * diag;
-    let pts = |p: &curves::Piece| -> Vec<DVec3> {
-        p.verts
-            .iter()
-            .map(|&v| mesh.positions[v as usize])
-            .collect()
-    };
-    let min_n = |p: &curves::Piece| {
-        if p.closed || p.verts.first() == p.verts.last() {
-            4
-        } else {
-            2
-        }
-    };
-    let mut mins: Vec<usize> = net.pieces.iter().map(min_n).collect();
-    // Which polyline edges of each piece are sharp edges of M.
-    let edge_sharp = |a: u32, b: u32| {
-        topo.vertex_edges(a).iter().any(|&e| {
-            let ed = &topo.edges[e as usize];
-            (ed.v[0] == b || ed.v[1] == b) && sharp[e as usize]
-        })
-    };
-    let piece_edge_sharp: Vec<Vec<bool>> = net
-        .pieces
-        .iter()
-        .map(|p| {
-            let m = p.verts.len();
-            let segs = if p.closed { m } else { m - 1 };
-            (0..segs)
-                .map(|k| edge_sharp(p.verts[k], p.verts[(k + 1) % m]))
-                .collect()
-        })
-        .collect();
-    let sharp_piece: Vec<bool> = piece_edge_sharp.iter().map(|e| e.iter().all(|&s| s)).collect();
-    // The points each curve is fitted to. Along a feature (sharp edges of
-    // M) the polyline *is* the feature line and is kept as it is: the
-    // crease must follow it within `curve_tolerance`. Elsewhere a boundary
-    // separates two curvature classes across a smooth part of M and
-    // zigzags along triangle edges (amplitude up to an edge length, 14‰ on
-    // fandisk): fitting that within 0.5‰ costs one control point per
-    // vertex, and a cubic B-spline interpolating a zigzag oscillates far
-    // off M (control points 3 units away on fandisk). §4's boundary
-    // rectification is what removes the zigzag in the paper; here the
-    // vertices not on a sharp edge are smoothed along the piece (10 passes
-    // of the ¼-½-¼ filter, which cancels the period-2 zigzag outright) and
-    // projected back onto M, and the fit is also checked against M itself
-    // (curve samples within `curve_tolerance` of M).
-    let smoothed: Vec<Vec<DVec3>> = net
-        .pieces
-        .iter()
-        .zip(&piece_edge_sharp)
-        .map(|(p, es)| smooth_piece(&pts(p), p.closed, es, caster))
-        .collect();
-    let fit_all = |mins: &[usize]| -> Vec<curves::Curve> {
-        use rayon::prelude::*;
-        net.pieces
-            .par_iter()
-            .zip(mins)
-            .zip(&sharp_piece)
-            .zip(&smoothed)
-            .map(|(((p, &m), &sharp), pp)| {
-                if sharp {
-                    return curves::fit_curve(pp, p.closed, tol, m);
-                }
-                curves::fit_curve_until(pp, p.closed, m, &|c: &curves::Curve| {
-                    c.max_error <= tol && curve_to_mesh(c, caster) <= tol
-                })
-            })
-            .collect()
-    };
-    let mut fitted = fit_all(&mins);
-    for _ in 0..3 {
-        let mut seen: HashSet<(u32, u32)> = HashSet::new();
-        let mut again = false;
-        for (i, (p, c)) in net.pieces.iter().zip(&fitted).enumerate() {
-            if !p.closed && c.control.len() == 2 {
-                let (a, b) = (p.verts[0], *p.verts.last().unwrap_or(&p.verts[0]));
-                if !seen.insert((a.min(b), a.max(b))) {
-                    mins[i] = 3;
-                    again = true;
-                }
-            }
-        }
-        if !again {
+    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol);
+    let mut kink_corners = 0;
+    for _ in 0..KINK_PASSES {
+        let found = kinks(&net, &stage, caster, tol);
+        if found.is_empty() {
             break;
         }
-        fitted = fit_all(&mins);
+        kink_corners += found.len();
+        for v in found {
+            extra_corner[v as usize] = true;
+        }
+        net = network::build_network(
+            mesh,
+            &topo,
+            &seg.region,
+            seg.num_regions,
+            &sharp,
+            &extra_corner,
+        );
+        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol);
+    }
+    let PieceFits {
+        edge_sharp: _,
+        sharp_piece,
+        smoothed,
+        fitted,
+    } = stage;
+    if std::env::var_os("MECH_DUMP").is_some() {
+        for (i, (p, c)) in net.pieces.iter().zip(&fitted).enumerate() {
+            eprintln!("PIECE {i} closed {} n {} err {:.5}", p.closed, c.control.len(), c.max_error);
+            for (k, &v) in p.verts.iter().enumerate() {
+                let x = mesh.positions[v as usize];
+                let q = smoothed[i][k];
+                eprintln!("  V {v} {:.4} {:.4} {:.4}  s {:.4} {:.4} {:.4} t {:.3}", x.x, x.y, x.z, q.x, q.y, q.z, c.params[k]);
+            }
+            for x in &c.control {
+                eprintln!("  C {:.4} {:.4} {:.4}", x.x, x.y, x.z);
+            }
+        }
     }
     lap("curves", &mut t);
 
@@ -623,6 +787,7 @@ pub fn build_control(
             corners: corners.len(),
             curves: net.pieces.len(),
             curve_control_points: fixed,
+            kink_corners,
             curve_max_error_permille: 1000.0
                 * fitted
                     .iter()

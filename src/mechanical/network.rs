@@ -16,7 +16,9 @@ use crate::mesh::TriMesh;
 pub const CORNER_TURN_DEG: f64 = 40.0;
 
 /// Pieces, corner flags per vertex of M, and for each region its boundary
-/// loops as `(piece, forward)` sequences.
+/// loops as `(piece, forward)` sequences. `extra_corner` (indexed by
+/// vertex of M, may be shorter) adds corners on boundaries, where §5's fit
+/// found that a feature kinks.
 #[derive(Clone, Debug)]
 pub struct Network {
     pub pieces: Vec<Piece>,
@@ -34,6 +36,7 @@ pub fn build_network(
     region: &[u32],
     num_regions: usize,
     sharp: &[bool],
+    extra_corner: &[bool],
 ) -> Network {
     let nv = mesh.positions.len();
     let side = |f: u32| {
@@ -64,7 +67,7 @@ pub fn build_network(
         if deg[v] == 0 {
             continue;
         }
-        if deg[v] != 2 {
+        if deg[v] != 2 || extra_corner.get(v).copied().unwrap_or(false) {
             corner[v] = true;
             continue;
         }
