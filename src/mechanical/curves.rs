@@ -350,8 +350,8 @@ pub fn fit_curve_until(
     };
     loop {
         let mut params = chord_params(points, n, closed);
-        let mut control = solve(points, &params, n, closed, None)
-            .unwrap_or_else(|| linear(points, n, closed));
+        let mut control =
+            solve(points, &params, n, closed, None).unwrap_or_else(|| linear(points, n, closed));
         for _ in 0..4 {
             correct(points, &mut params, &control, closed);
             if let Some(c) = solve(points, &params, n, closed, None) {

@@ -251,7 +251,9 @@ fn fit_one(
     // on it; what must hold to `tol` is that the curve lies on M.
     let m = pts.len();
     let segs = if closed { m } else { m - 1 };
-    let len: f64 = (0..segs).map(|k| (pts[(k + 1) % m] - pts[k]).length()).sum();
+    let len: f64 = (0..segs)
+        .map(|k| (pts[(k + 1) % m] - pts[k]).length())
+        .sum();
     let loose = tol.max(0.5 * len / segs.max(1) as f64);
     curves::fit_curve_until(pts, closed, min_n, &|c: &curves::Curve| {
         c.max_error <= loose && curve_to_mesh(c, caster) <= tol
@@ -305,7 +307,11 @@ fn fit_pieces(
         .par_iter()
         .zip(&edge_sharp)
         .map(|(p, es)| {
-            let pts: Vec<DVec3> = p.verts.iter().map(|&v| mesh.positions[v as usize]).collect();
+            let pts: Vec<DVec3> = p
+                .verts
+                .iter()
+                .map(|&v| mesh.positions[v as usize])
+                .collect();
             smooth_piece(&pts, p.closed, es, caster)
         })
         .collect();
@@ -350,7 +356,7 @@ fn fit_pieces(
     PieceFits {
         edge_sharp,
         sharp_piece,
-        smoothed,
+        smoothed: _,
         fitted,
     }
 }
@@ -534,11 +540,17 @@ pub fn build_control(
     // feature gets a corner there when that saves control points (a cubic
     // B-spline needs many points to bend sharply, two straight halves need
     // none). Up to `KINK_PASSES` passes, each one corner per piece at most.
-    let tol = std::env::var("MECH_CURVE_TOL").ok().and_then(|x| x.parse::<f64>().ok()).unwrap_or(opts.curve_tolerance) * diag;
+    let tol = opts.curve_tolerance * diag;
     let nv = mesh.positions.len();
     let mut extra_corner = vec![false; nv];
-    let mut net =
-        network::build_network(mesh, &topo, &seg.region, seg.num_regions, &sharp, &extra_corner);
+    let mut net = network::build_network(
+        mesh,
+        &topo,
+        &seg.region,
+        seg.num_regions,
+        &sharp,
+        &extra_corner,
+    );
     lap("segmentation", &mut t);
     let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol);
     let mut kink_corners = 0;
@@ -564,22 +576,9 @@ pub fn build_control(
     let PieceFits {
         edge_sharp: _,
         sharp_piece,
-        smoothed,
+        smoothed: _,
         fitted,
     } = stage;
-    if std::env::var_os("MECH_DUMP").is_some() {
-        for (i, (p, c)) in net.pieces.iter().zip(&fitted).enumerate() {
-            eprintln!("PIECE {i} closed {} n {} err {:.5}", p.closed, c.control.len(), c.max_error);
-            for (k, &v) in p.verts.iter().enumerate() {
-                let x = mesh.positions[v as usize];
-                let q = smoothed[i][k];
-                eprintln!("  V {v} {:.4} {:.4} {:.4}  s {:.4} {:.4} {:.4} t {:.3}", x.x, x.y, x.z, q.x, q.y, q.z, c.params[k]);
-            }
-            for x in &c.control {
-                eprintln!("  C {:.4} {:.4} {:.4}", x.x, x.y, x.z);
-            }
-        }
-    }
     lap("curves", &mut t);
 
     // Control vertices: corners, then curve interior points.
@@ -685,17 +684,6 @@ pub fn build_control(
         }
         let fr = polyhedron::cut_region(&g, poly, &positions, &mut edges);
         region_initial_faces[r] = fr.len();
-        if std::env::var_os("MECH_DUMP").is_some() {
-            eprintln!("REGION {r} tris {} planar {}", region_tris[r].len(), g.planar.is_some());
-            for p in poly.iter() {
-                let x = positions[p.id as usize];
-                let a = mesh.positions[p.anchor as usize];
-                eprintln!("  P {} {:.3} {:.3} {:.3} anchor {} {:.3} {:.3} {:.3}", p.id, x.x, x.y, x.z, p.anchor, a.x, a.y, a.z);
-            }
-            for f in &fr {
-                eprintln!("  F {:?}", f);
-            }
-        }
         face_region.extend(std::iter::repeat(r as u32).take(fr.len()));
         faces.extend(fr);
     }

@@ -195,7 +195,12 @@ pub fn optimize(
         let frms: Vec<f64> = (0..nf)
             .map(|f| (fsum[f] / fcnt[f].max(1) as f64).sqrt())
             .collect();
-        let nreg = polys.face_region.iter().map(|&r| r as usize + 1).max().unwrap_or(0);
+        let nreg = polys
+            .face_region
+            .iter()
+            .map(|&r| r as usize + 1)
+            .max()
+            .unwrap_or(0);
         let mut rsum = vec![0.0; nreg];
         let mut rcnt = vec![0usize; nreg];
         for (l, d) in locs.iter().zip(&dists) {
