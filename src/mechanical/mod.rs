@@ -356,7 +356,7 @@ fn fit_pieces(
     PieceFits {
         edge_sharp,
         sharp_piece,
-        smoothed: _,
+        smoothed,
         fitted,
     }
 }
