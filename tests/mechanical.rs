@@ -231,10 +231,12 @@ fn point_segment(p: DVec3, a: DVec3, b: DVec3) -> f64 {
 /// curve of the output's limit surface. The crease curves are sampled with
 /// the limit evaluator along every crease edge of the control mesh (64
 /// points per edge, as a polyline), independently of §5's curve code.
-/// Known gap: the acceptance asks for *every* sharp edge; measured on
-/// fandisk, 4 of 722 are farther (worst 38‰: feature lines that fade out
-/// inside a region, or a region left out of the control mesh). The test
-/// asserts at most 1 % of them, so that this count cannot grow unnoticed.
+/// The curves are fitted to 0.8‰ at the polyline vertices; the 1‰ bar
+/// leaves 0.2‰ for the chord-to-arc gap at edge midpoints (fandisk's
+/// feature edges are ~14‰ long on arcs of radius ≥ 0.1 of the diagonal:
+/// sagitta ≤ 0.25‰, halved by the fit's two-sided error). No edge may
+/// fail, including the fading tail of a feature inside a face (the
+/// segmentation continues it to the region boundary).
 #[test]
 fn fandisk_features_kept() {
     use subdfit::subdiv::{make_evaluator, Backend, EvalOptions, SurfaceLocation};
@@ -322,7 +324,7 @@ fn fandisk_features_kept() {
         1000.0 * worst / diag
     );
     assert!(
-        total > 500 && far * 100 <= total,
+        total > 500 && far == 0,
         "{far} of {total} sharp edges are farther than 1‰ from a crease (worst {:.3}‰)",
         1000.0 * worst / diag
     );
@@ -330,12 +332,12 @@ fn fandisk_features_kept() {
 
 /// Fandisk end to end. The paper's bar (Lavoué et al. 2007, Table 2):
 /// ≤ 75 control vertices, ≤ 89 faces, mean ≤ 0.78‰, RMS ≤ 1.63‰,
-/// max ≤ 10.46‰ of the diagonal. This implementation does NOT reach it
-/// yet (see the report of `build_control`'s rounds: two regions' initial
-/// facets span curve control points only and stay far from M); the
-/// assertions are the level it meets, with margin, so a regression shows:
-/// measured: best round 418 vertices, 590 faces, mean 1.99‰, RMS 10.43‰,
-/// max 176‰ (1.1 s in release).
+/// max ≤ 10.46‰ of the diagonal. Measured: 120 vertices, 146 faces, mean
+/// 0.27‰, RMS 0.54‰, max 5.4‰ (the error bar is met with room, the size
+/// bar is not: the curve network alone has 112 control points at the
+/// 0.8‰ curve tolerance the features-kept bar needs, where the paper
+/// allows 2‰). The assertions are the error bar itself and the size
+/// measured with a small margin, so a regression shows.
 #[test]
 fn fandisk_figures() {
     let mesh = fandisk();
@@ -356,8 +358,10 @@ fn fandisk_figures() {
     assert!(r.len() >= 2 && r[1].geometry_iterations > 0);
     assert!(r[1].mean_permille < r[0].mean_permille);
     assert!(r[1].rms_permille < r[0].rms_permille);
-    assert!(best.mean_permille <= 2.5, "mean {}", best.mean_permille);
-    assert!(best.rms_permille <= 11.5, "rms {}", best.rms_permille);
-    assert!(best.faces <= 700, "{} faces", best.faces);
-    assert!(built.control.num_vertices() <= 500);
+    assert!(best.mean_permille <= 0.78, "mean {}", best.mean_permille);
+    assert!(best.rms_permille <= 1.63, "rms {}", best.rms_permille);
+    assert!(best.max_permille <= 10.46, "max {}", best.max_permille);
+    assert!(best.faces <= 160, "{} faces", best.faces);
+    assert!(built.control.num_vertices() <= 130);
+    assert!(built.stats.sharp_edges_inside_regions == 0);
 }
