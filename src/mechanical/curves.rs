@@ -377,7 +377,7 @@ pub fn fit_curve_until(
                 .map(|(p, &t)| (eval(&control, closed, t) - *p).length())
                 .collect();
             let rmax = res.iter().copied().fold(0.0, f64::max);
-            if !(rmax > 0.0) {
+            if rmax.is_nan() || rmax <= 0.0 {
                 break;
             }
             let mut sum = 0.0;

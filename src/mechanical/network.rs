@@ -16,9 +16,7 @@ use crate::mesh::TriMesh;
 pub const CORNER_TURN_DEG: f64 = 40.0;
 
 /// Pieces, corner flags per vertex of M, and for each region its boundary
-/// loops as `(piece, forward)` sequences. `extra_corner` (indexed by
-/// vertex of M, may be shorter) adds corners on boundaries, where §5's fit
-/// found that a feature kinks.
+/// loops as `(piece, forward)` sequences.
 #[derive(Clone, Debug)]
 pub struct Network {
     pub pieces: Vec<Piece>,
@@ -30,6 +28,9 @@ pub struct Network {
     pub on_boundary: Vec<bool>,
 }
 
+/// The network of `region`'s boundaries. `extra_corner` (indexed by vertex
+/// of M, may be shorter) adds corners on boundaries, where §5's fit found
+/// that a feature kinks.
 pub fn build_network(
     mesh: &TriMesh,
     topo: &Topology,
