@@ -17,8 +17,10 @@
 //! fewest control points (two for an open piece: the corners; four for a
 //! closed one), fit by linear least squares with chord-length parameters,
 //! correct the parameters by Newton projection of the polyline points on
-//! the curve, and while the largest distance exceeds the tolerance add
-//! control points (~20 % more, at least one) and refit. With uniform knots
+//! the curve, then push the fit towards the minimax one by Lawson's
+//! reweighting (the tolerance bounds the *largest* distance), and while
+//! the largest distance still exceeds the tolerance add control points
+//! (~20 % more, at least one) and refit. With uniform knots
 //! a new control point refines the curve everywhere; the parameter
 //! correction moves control points towards where the error was largest.
 

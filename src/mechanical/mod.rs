@@ -7,7 +7,9 @@
 //! 2. [`segment`] (§4): near-constant-curvature regions bounded by the
 //!    sharp edges.
 //! 3. [`network`] + [`curves`] (§5): boundary pieces between corners,
-//!    each fitted by a 1-6-1 subdivision curve with few control points.
+//!    each fitted by a 1-6-1 subdivision curve with few control points
+//!    (feature lines to their polyline; smooth boundaries, de-zigzagged,
+//!    to M), with corners added where a feature kinks.
 //! 4. [`polyhedron`] (§6): per region, the synchronised boundary control
 //!    polygon cut into facets along curvature-coherent chords.
 //! 5. [`optimize`] (§7): least-squares geometry with the curve control

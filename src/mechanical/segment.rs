@@ -22,7 +22,11 @@
 //!    the neighbour they share the longest non-sharp boundary with; a
 //!    region bounded by sharp edges only is kept whatever its size (merging
 //!    it would lose a feature).
-//! 4. *Discs.* §6.3.1 cuts a region with holes into a disc with its
+//! 4. *Dangling features continued.* A sharp chain that fades out inside
+//!    a region is continued from its free end to the region boundary along
+//!    the straightest path and the region cut there, so that every sharp
+//!    edge ends up on a boundary (a crease of the output).
+//! 5. *Discs.* §6.3.1 cuts a region with holes into a disc with its
 //!    Topological Contour; here a region that is not a topological disc
 //!    (one boundary loop, Euler characteristic 1) is split in two by a
 //!    geodesic Voronoi partition from its two mutually farthest triangles,
