@@ -237,14 +237,11 @@ fn point_segment(p: DVec3, a: DVec3, b: DVec3) -> f64 {
 /// sagitta ≤ 0.25‰, halved by the fit's two-sided error). No edge may
 /// fail, including the fading tail of a feature inside a face (the
 /// segmentation continues it to the region boundary).
-#[test]
-fn fandisk_features_kept() {
+/// Sharp edges of `mesh` (dihedral > 30°) and how many lie farther than
+/// 1‰ of the diagonal from a crease curve of `built`'s limit surface
+/// (5 points per edge), with the worst distance in ‰.
+fn features_far(mesh: &TriMesh, built: &mechanical::Built) -> (usize, usize, f64) {
     use subdfit::subdiv::{make_evaluator, Backend, EvalOptions, SurfaceLocation};
-    let mesh = fandisk();
-    let caster =
-        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
-    let opts = mechanical::MechanicalOptions::default().with_max_rounds(1);
-    let built = mechanical::build_control(&mesh, caster.as_ref(), &opts).unwrap();
     let c = &built.control;
     let eval = make_evaluator(Backend::Osd, c, &EvalOptions::default()).unwrap();
     const N: usize = 64;
@@ -292,7 +289,7 @@ fn fandisk_features_kept() {
         .flat_map(|ch| ch.windows(2).map(|w| (w[0], w[1])).collect::<Vec<_>>())
         .collect();
     let diag = mesh.bbox_diagonal();
-    let topo = Topology::new(&mesh);
+    let topo = Topology::new(mesh);
     let sharp = topo.sharp_edges();
     let mut worst = 0.0f64;
     let mut far = 0usize;
@@ -319,15 +316,56 @@ fn fandisk_features_kept() {
         }
         worst = worst.max(d);
     }
-    println!(
-        "{total} sharp edges, {far} farther than 1‰; worst {:.3}‰",
-        1000.0 * worst / diag
-    );
+    (total, far, 1000.0 * worst / diag)
+}
+
+#[test]
+fn fandisk_features_kept() {
+    let mesh = fandisk();
+    let caster =
+        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
+    let opts = mechanical::MechanicalOptions::default().with_max_rounds(1);
+    let built = mechanical::build_control(&mesh, caster.as_ref(), &opts).unwrap();
+    let (total, far, worst) = features_far(&mesh, &built);
+    println!("{total} sharp edges, {far} farther than 1‰; worst {worst:.3}‰");
     assert!(
         total > 500 && far == 0,
-        "{far} of {total} sharp edges are farther than 1‰ from a crease (worst {:.3}‰)",
-        1000.0 * worst / diag
+        "{far} of {total} sharp edges are farther than 1‰ from a crease (worst {worst:.3}‰)"
     );
+}
+
+/// Diagnostic on the shared CAD meshes (`cargo test --test mechanical
+/// shared_cad_figures -- --ignored --nocapture`; skipped without the data
+/// directory): size, error and features kept for block and joint.
+#[test]
+#[ignore]
+fn shared_cad_figures() {
+    let Some(dir) = common::data_dir() else {
+        eprintln!("skipping: no data directory");
+        return;
+    };
+    for name in ["block.ply", "joint.ply"] {
+        let path = dir.join(name);
+        if !path.exists() {
+            eprintln!("skipping {name}: not in {}", dir.display());
+            continue;
+        }
+        let mesh = common::load_ply(&path);
+        let caster =
+            subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
+        let built = mechanical::build_control(&mesh, caster.as_ref(), &Default::default()).unwrap();
+        let (total, far, worst) = features_far(&mesh, &built);
+        let last = built.stats.rounds.last().unwrap();
+        println!(
+            "{name}: {} vertices {} faces, rms {:.3}‰ mean {:.3}‰ max {:.3}‰; {total} sharp edges, {far} farther than 1‰ (worst {worst:.3}‰), {} inside regions",
+            built.control.num_vertices(),
+            built.control.num_faces(),
+            last.rms_permille,
+            last.mean_permille,
+            last.max_permille,
+            built.stats.sharp_edges_inside_regions
+        );
+    }
 }
 
 /// Fandisk end to end. The paper's bar (Lavoué et al. 2007, Table 2):
