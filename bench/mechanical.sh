@@ -9,11 +9,13 @@ out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 meshes=(data/fandisk.ply)
 data=${SUBDFIT_DATA:-/work/shared/data}
-if [[ -f $data/block.ply ]]; then
-    meshes+=("$data/block.ply")
-else
-    echo "skipping block.ply: $data/block.ply not found" >&2
-fi
+for extra in block joint; do
+    if [[ -f $data/$extra.ply ]]; then
+        meshes+=("$data/$extra.ply")
+    else
+        echo "skipping $extra.ply: $data/$extra.ply not found" >&2
+    fi
+done
 for m in "${meshes[@]}"; do
     name=$(basename "$m" .ply)
     hyperfine --warmup 1 --runs 5 \

@@ -231,18 +231,17 @@ fn point_segment(p: DVec3, a: DVec3, b: DVec3) -> f64 {
 /// curve of the output's limit surface. The crease curves are sampled with
 /// the limit evaluator along every crease edge of the control mesh (64
 /// points per edge, as a polyline), independently of §5's curve code.
-/// Known gap: the acceptance asks for *every* sharp edge; measured on
-/// fandisk, 4 of 722 are farther (worst 38‰: feature lines that fade out
-/// inside a region, or a region left out of the control mesh). The test
-/// asserts at most 1 % of them, so that this count cannot grow unnoticed.
-#[test]
-fn fandisk_features_kept() {
+/// The curves are fitted to 0.8‰ at the polyline vertices; the 1‰ bar
+/// leaves 0.2‰ for the chord-to-arc gap at edge midpoints (fandisk's
+/// feature edges are ~14‰ long on arcs of radius ≥ 0.1 of the diagonal:
+/// sagitta ≤ 0.25‰, halved by the fit's two-sided error). No edge may
+/// fail, including the fading tail of a feature inside a face (the
+/// segmentation continues it to the region boundary).
+/// Sharp edges of `mesh` (dihedral > 30°) and how many lie farther than
+/// 1‰ of the diagonal from a crease curve of `built`'s limit surface
+/// (5 points per edge), with the worst distance in ‰.
+fn features_far(mesh: &TriMesh, built: &mechanical::Built) -> (usize, usize, f64) {
     use subdfit::subdiv::{make_evaluator, Backend, EvalOptions, SurfaceLocation};
-    let mesh = fandisk();
-    let caster =
-        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
-    let opts = mechanical::MechanicalOptions::default().with_max_rounds(1);
-    let built = mechanical::build_control(&mesh, caster.as_ref(), &opts).unwrap();
     let c = &built.control;
     let eval = make_evaluator(Backend::Osd, c, &EvalOptions::default()).unwrap();
     const N: usize = 64;
@@ -290,7 +289,7 @@ fn fandisk_features_kept() {
         .flat_map(|ch| ch.windows(2).map(|w| (w[0], w[1])).collect::<Vec<_>>())
         .collect();
     let diag = mesh.bbox_diagonal();
-    let topo = Topology::new(&mesh);
+    let topo = Topology::new(mesh);
     let sharp = topo.sharp_edges();
     let mut worst = 0.0f64;
     let mut far = 0usize;
@@ -317,25 +316,66 @@ fn fandisk_features_kept() {
         }
         worst = worst.max(d);
     }
-    println!(
-        "{total} sharp edges, {far} farther than 1‰; worst {:.3}‰",
-        1000.0 * worst / diag
-    );
+    (total, far, 1000.0 * worst / diag)
+}
+
+#[test]
+fn fandisk_features_kept() {
+    let mesh = fandisk();
+    let caster =
+        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
+    let opts = mechanical::MechanicalOptions::default().with_max_rounds(1);
+    let built = mechanical::build_control(&mesh, caster.as_ref(), &opts).unwrap();
+    let (total, far, worst) = features_far(&mesh, &built);
+    println!("{total} sharp edges, {far} farther than 1‰; worst {worst:.3}‰");
     assert!(
-        total > 500 && far * 100 <= total,
-        "{far} of {total} sharp edges are farther than 1‰ from a crease (worst {:.3}‰)",
-        1000.0 * worst / diag
+        total > 500 && far == 0,
+        "{far} of {total} sharp edges are farther than 1‰ from a crease (worst {worst:.3}‰)"
     );
+}
+
+/// Diagnostic on the shared CAD meshes (`cargo test --test mechanical
+/// shared_cad_figures -- --ignored --nocapture`; skipped without the data
+/// directory): size, error and features kept for block and joint.
+#[test]
+#[ignore]
+fn shared_cad_figures() {
+    let Some(dir) = common::data_dir() else {
+        eprintln!("skipping: no data directory");
+        return;
+    };
+    for name in ["block.ply", "joint.ply"] {
+        let path = dir.join(name);
+        if !path.exists() {
+            eprintln!("skipping {name}: not in {}", dir.display());
+            continue;
+        }
+        let mesh = common::load_ply(&path);
+        let caster =
+            subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
+        let built = mechanical::build_control(&mesh, caster.as_ref(), &Default::default()).unwrap();
+        let (total, far, worst) = features_far(&mesh, &built);
+        let last = built.stats.rounds.last().unwrap();
+        println!(
+            "{name}: {} vertices {} faces, rms {:.3}‰ mean {:.3}‰ max {:.3}‰; {total} sharp edges, {far} farther than 1‰ (worst {worst:.3}‰), {} inside regions",
+            built.control.num_vertices(),
+            built.control.num_faces(),
+            last.rms_permille,
+            last.mean_permille,
+            last.max_permille,
+            built.stats.sharp_edges_inside_regions
+        );
+    }
 }
 
 /// Fandisk end to end. The paper's bar (Lavoué et al. 2007, Table 2):
 /// ≤ 75 control vertices, ≤ 89 faces, mean ≤ 0.78‰, RMS ≤ 1.63‰,
-/// max ≤ 10.46‰ of the diagonal. This implementation does NOT reach it
-/// yet (see the report of `build_control`'s rounds: two regions' initial
-/// facets span curve control points only and stay far from M); the
-/// assertions are the level it meets, with margin, so a regression shows:
-/// measured: best round 418 vertices, 590 faces, mean 1.99‰, RMS 10.43‰,
-/// max 176‰ (1.1 s in release).
+/// max ≤ 10.46‰ of the diagonal. Measured: 120 vertices, 146 faces, mean
+/// 0.27‰, RMS 0.54‰, max 5.4‰ (the error bar is met with room, the size
+/// bar is not: the curve network alone has 112 control points at the
+/// 0.8‰ curve tolerance the features-kept bar needs, where the paper
+/// allows 2‰). The assertions are the error bar itself and the size
+/// measured with a small margin, so a regression shows.
 #[test]
 fn fandisk_figures() {
     let mesh = fandisk();
@@ -356,8 +396,10 @@ fn fandisk_figures() {
     assert!(r.len() >= 2 && r[1].geometry_iterations > 0);
     assert!(r[1].mean_permille < r[0].mean_permille);
     assert!(r[1].rms_permille < r[0].rms_permille);
-    assert!(best.mean_permille <= 2.5, "mean {}", best.mean_permille);
-    assert!(best.rms_permille <= 11.5, "rms {}", best.rms_permille);
-    assert!(best.faces <= 700, "{} faces", best.faces);
-    assert!(built.control.num_vertices() <= 500);
+    assert!(best.mean_permille <= 0.78, "mean {}", best.mean_permille);
+    assert!(best.rms_permille <= 1.63, "rms {}", best.rms_permille);
+    assert!(best.max_permille <= 10.46, "max {}", best.max_permille);
+    assert!(best.faces <= 160, "{} faces", best.faces);
+    assert!(built.control.num_vertices() <= 130);
+    assert!(built.stats.sharp_edges_inside_regions == 0);
 }

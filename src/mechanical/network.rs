@@ -28,12 +28,16 @@ pub struct Network {
     pub on_boundary: Vec<bool>,
 }
 
+/// The network of `region`'s boundaries. `extra_corner` (indexed by vertex
+/// of M, may be shorter) adds corners on boundaries, where §5's fit found
+/// that a feature kinks.
 pub fn build_network(
     mesh: &TriMesh,
     topo: &Topology,
     region: &[u32],
     num_regions: usize,
     sharp: &[bool],
+    extra_corner: &[bool],
 ) -> Network {
     let nv = mesh.positions.len();
     let side = |f: u32| {
@@ -64,7 +68,7 @@ pub fn build_network(
         if deg[v] == 0 {
             continue;
         }
-        if deg[v] != 2 {
+        if deg[v] != 2 || extra_corner.get(v).copied().unwrap_or(false) {
             corner[v] = true;
             continue;
         }

@@ -73,6 +73,9 @@ pub struct Round {
     pub faces_over_limit: usize,
     pub local_fields: usize,
     pub diffuse_fields: usize,
+    /// RMS distance per region of the segmentation (to the region's own
+    /// part of M, the distance the fit minimises), ‰ of the diagonal.
+    pub region_rms_permille: Vec<f64>,
 }
 
 pub struct OptimizeOptions {
@@ -88,7 +91,7 @@ pub struct OptimizeOptions {
 pub fn optimize(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
-    tri_region: &[u32],
+    reach: &[Vec<u32>],
     polys: &mut Polys,
     o: &OptimizeOptions,
 ) -> Result<Vec<Round>> {
@@ -102,8 +105,12 @@ pub fn optimize(
     // region*. Along the limit normal (φ) or unrestricted, a sample near a
     // crease lands on the neighbouring face, and the update pulls the
     // surface across the feature: the error rises instead of falling.
-    // One BVH per region, built once.
-    let region_casters = region_casters(mesh, tri_region)?;
+    // The restriction is to the region's triangles and the two rings of
+    // its neighbours' triangles across *smooth* boundary edges (`reach`,
+    // see `super::build_control`): a crease on a smooth boundary is a
+    // smoothed zigzag, and the samples between it and the staircase
+    // belong to M all the same. One BVH per region, built once.
+    let region_casters = region_casters(mesh, reach)?;
     let whole = |pts: &[DVec3]| -> Result<Vec<f64>> {
         Ok(caster
             .closest_points(pts, f64::INFINITY)?
@@ -188,6 +195,24 @@ pub fn optimize(
         let frms: Vec<f64> = (0..nf)
             .map(|f| (fsum[f] / fcnt[f].max(1) as f64).sqrt())
             .collect();
+        let nreg = polys
+            .face_region
+            .iter()
+            .map(|&r| r as usize + 1)
+            .max()
+            .unwrap_or(0);
+        let mut rsum = vec![0.0; nreg];
+        let mut rcnt = vec![0usize; nreg];
+        for (l, d) in locs.iter().zip(&dists) {
+            if d.is_finite() {
+                let r = polys.face_region[l.face.idx()] as usize;
+                rsum[r] += d * d;
+                rcnt[r] += 1;
+            }
+        }
+        let region_rms_permille: Vec<f64> = (0..nreg)
+            .map(|r| 1000.0 * (rsum[r] / rcnt[r].max(1) as f64).sqrt() / diag)
+            .collect();
         let ok: Vec<f64> = report.iter().copied().filter(|d| d.is_finite()).collect();
         let cnt = ok.len().max(1) as f64;
         let over: Vec<usize> = (0..nf).filter(|&f| frms[f] > limit).collect();
@@ -201,6 +226,7 @@ pub fn optimize(
             faces_over_limit: over.len(),
             local_fields: 0,
             diffuse_fields: 0,
+            region_rms_permille,
         };
         if best.as_ref().map_or(true, |b| rec.rms_permille < b.0) {
             best = Some((rec.rms_permille, polys.clone()));
@@ -484,20 +510,13 @@ fn merge_loop(
 /// A region's ray caster and its triangles of M.
 type RegionCaster = Option<(Box<dyn RayCaster>, Vec<u32>)>;
 
-/// One ray caster per region over that region's triangles (`None` for a
-/// region without any).
-fn region_casters(mesh: &TriMesh, tri_region: &[u32]) -> Result<Vec<RegionCaster>> {
-    let nr = tri_region
-        .iter()
-        .map(|&r| r as usize + 1)
-        .max()
-        .unwrap_or(0);
-    let mut tris: Vec<Vec<u32>> = vec![Vec::new(); nr];
-    for (t, &r) in tri_region.iter().enumerate() {
-        tris[r as usize].push(t as u32);
-    }
+/// One ray caster per region over the triangles it may be fitted to
+/// (`None` for a region without any).
+fn region_casters(mesh: &TriMesh, reach: &[Vec<u32>]) -> Result<Vec<RegionCaster>> {
     use rayon::prelude::*;
-    tris.into_par_iter()
+    reach
+        .to_vec()
+        .into_par_iter()
         .map(|ts| {
             if ts.is_empty() {
                 return Ok(None);

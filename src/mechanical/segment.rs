@@ -22,7 +22,11 @@
 //!    the neighbour they share the longest non-sharp boundary with; a
 //!    region bounded by sharp edges only is kept whatever its size (merging
 //!    it would lose a feature).
-//! 4. *Discs.* §6.3.1 cuts a region with holes into a disc with its
+//! 4. *Dangling features continued.* A sharp chain that fades out inside
+//!    a region is continued from its free end to the region boundary along
+//!    the straightest path and the region cut there, so that every sharp
+//!    edge ends up on a boundary (a crease of the output).
+//! 5. *Discs.* §6.3.1 cuts a region with holes into a disc with its
 //!    Topological Contour; here a region that is not a topological disc
 //!    (one boundary loop, Euler characteristic 1) is split in two by a
 //!    geodesic Voronoi partition from its two mutually farthest triangles,
@@ -231,6 +235,14 @@ pub fn segment(
             break;
         }
     }
+    // 3b. Dangling features: a sharp chain that fades out inside a region
+    // (fandisk: 3 edges at 30.4°–32.6° continuing a feature arc) would be
+    // rounded off, since only region boundaries become creases. The chain
+    // is continued from each free end to the region's boundary along the
+    // straightest path (a smooth boundary, the "rectified" boundary of §4
+    // following the feature's direction), and the region is cut along
+    // chain + continuation: the feature then lies on a boundary.
+    extend_dangling(mesh, topo, &sharp, &mut region);
     // 4. Disc-making splits.
     let mut splits = 0;
     let mut queue: Vec<u32> = (0..renumber(&mut region)).collect();
@@ -263,6 +275,161 @@ pub fn segment(
         sharp_edges_inside,
         splits,
         merged,
+    }
+}
+
+/// See step 3b of [`segment`]. Each region with sharp edges inside is cut
+/// at most once per chain end; a cut that does not separate the region
+/// (the continuation could not reach the boundary) changes nothing.
+fn extend_dangling(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut [u32]) {
+    use std::collections::{BinaryHeap, HashMap, HashSet};
+    let nt = region.len();
+    let inside = |e: usize, region: &[u32]| {
+        let ed = &topo.edges[e];
+        sharp[e] && ed.is_interior() && region[ed.faces[0] as usize] == region[ed.faces[1] as usize]
+    };
+    let mut done_regions: HashSet<u32> = HashSet::new();
+    loop {
+        let Some(e0) = (0..topo.edges.len()).find(|&e| {
+            inside(e, region) && !done_regions.contains(&region[topo.edges[e].faces[0] as usize])
+        }) else {
+            return;
+        };
+        let r = region[topo.edges[e0].faces[0] as usize];
+        done_regions.insert(r);
+        let in_r = |f: u32| f != u32::MAX && region[f as usize] == r;
+        // Vertex on r's boundary: an edge of r with another region (or no
+        // face) on its other side.
+        let on_boundary = |v: u32| {
+            topo.vertex_edges(v).iter().any(|&e| {
+                let [f0, f1] = topo.edges[e as usize].faces;
+                (in_r(f0) || in_r(f1)) && !(in_r(f0) && in_r(f1))
+            })
+        };
+        // Inside-sharp edges of r and their vertex degrees.
+        let chain: Vec<usize> = (0..topo.edges.len())
+            .filter(|&e| inside(e, region) && in_r(topo.edges[e].faces[0]))
+            .collect();
+        let mut deg: HashMap<u32, Vec<usize>> = HashMap::new();
+        for &e in &chain {
+            for &v in &topo.edges[e].v {
+                deg.entry(v).or_default().push(e);
+            }
+        }
+        let mut cut: HashSet<usize> = chain.iter().copied().collect();
+        let chain_verts: HashSet<u32> = deg.keys().copied().collect();
+        let mut ends: Vec<u32> = deg
+            .iter()
+            .filter(|(&v, es)| es.len() == 1 && !on_boundary(v))
+            .map(|(&v, _)| v)
+            .collect();
+        ends.sort_unstable();
+        for end in ends {
+            let e = deg[&end][0];
+            let ed = &topo.edges[e];
+            let prev = if ed.v[0] == end { ed.v[1] } else { ed.v[0] };
+            let d =
+                (mesh.positions[end as usize] - mesh.positions[prev as usize]).normalize_or_zero();
+            // Dijkstra over r's edges; cost = length × (2 − cos)², so going
+            // straight on costs 1 per unit, sideways 4, backwards 9.
+            let mut dist: HashMap<u32, f64> = HashMap::new();
+            let mut pred: HashMap<u32, (u32, usize)> = HashMap::new();
+            let mut heap = BinaryHeap::new();
+            dist.insert(end, 0.0);
+            heap.push((std::cmp::Reverse(Ord64(0.0)), end));
+            let mut reached = None;
+            while let Some((std::cmp::Reverse(Ord64(du)), u)) = heap.pop() {
+                if du > dist.get(&u).copied().unwrap_or(f64::INFINITY) {
+                    continue;
+                }
+                if u != end && on_boundary(u) {
+                    reached = Some(u);
+                    break;
+                }
+                for &e in topo.vertex_edges(u) {
+                    let ed = &topo.edges[e as usize];
+                    if !(in_r(ed.faces[0]) || in_r(ed.faces[1])) || cut.contains(&(e as usize)) {
+                        continue;
+                    }
+                    let w = if ed.v[0] == u { ed.v[1] } else { ed.v[0] };
+                    if chain_verts.contains(&w) {
+                        continue;
+                    }
+                    let step = mesh.positions[w as usize] - mesh.positions[u as usize];
+                    let len = step.length();
+                    let c = step.normalize_or_zero().dot(d);
+                    let nd = du + len * (2.0 - c).powi(2);
+                    if nd < dist.get(&w).copied().unwrap_or(f64::INFINITY) {
+                        dist.insert(w, nd);
+                        pred.insert(w, (u, e as usize));
+                        heap.push((std::cmp::Reverse(Ord64(nd)), w));
+                    }
+                }
+            }
+            let Some(mut v) = reached else { continue };
+            while v != end {
+                let (u, e) = pred[&v];
+                cut.insert(e);
+                v = u;
+            }
+        }
+        // Split r along the cut.
+        let tris: Vec<usize> = (0..nt).filter(|&t| region[t] == r).collect();
+        let mut label: HashMap<usize, u32> = HashMap::new();
+        let mut ncomp = 0u32;
+        for &s in &tris {
+            if label.contains_key(&s) {
+                continue;
+            }
+            let mut q = vec![s];
+            label.insert(s, ncomp);
+            while let Some(f) = q.pop() {
+                for &e in &topo.tri_edges[f] {
+                    if cut.contains(&(e as usize)) {
+                        continue;
+                    }
+                    if let Some(g) = topo.edges[e as usize].other_face(f as u32) {
+                        let g = g as usize;
+                        if region[g] == r && !label.contains_key(&g) {
+                            label.insert(g, ncomp);
+                            q.push(g);
+                        }
+                    }
+                }
+            }
+            ncomp += 1;
+        }
+        if ncomp < 2 {
+            continue;
+        }
+        let base = region
+            .iter()
+            .filter(|&&x| x != u32::MAX)
+            .copied()
+            .max()
+            .unwrap_or(0)
+            + 1;
+        for &t in &tris {
+            let c = label[&t];
+            if c > 0 {
+                region[t] = base + c - 1;
+                done_regions.insert(base + c - 1);
+            }
+        }
+    }
+}
+
+#[derive(Copy, Clone, PartialEq)]
+struct Ord64(f64);
+impl Eq for Ord64 {}
+impl PartialOrd for Ord64 {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for Ord64 {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&o.0)
     }
 }
 
