@@ -38,7 +38,6 @@
 //! generator from [`FitmapOptions::seed`], and results are gathered in
 //! vertex order whatever the thread count.
 
-use std::collections::BinaryHeap;
 use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
@@ -47,11 +46,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::cubic::{fit_cubic, Cubic, CubicFit, Frame};
-use super::neighbourhood::{bfs_ball, nested_balls, Adjacency, Csr, Entry, ProxyLevel};
+use super::neighbourhood::{bfs_ball, layered_balls, Adjacency, Csr, ProxyLevel};
 use super::normals::{triangle_areas, vertex_normals};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
-use crate::raycast::{Hit, RayCaster};
+use crate::raycast::{Hit, Ray, RayCaster};
 use crate::DVec3;
 
 /// Number of radius steps `h`: radii `r_0..r_h` (Fitmaps §3.1.2, "h = 8").
@@ -290,8 +289,8 @@ struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
-    fn line_hits(&self, origins: &[DVec3], dirs: &[DVec3], max_t: f64) -> Option<Vec<Option<Hit>>> {
-        match self.caster.line_hits(origins, dirs, max_t) {
+    fn first_hits(&self, rays: &[Ray]) -> Option<Vec<Option<Hit>>> {
+        match self.caster.first_hits(rays) {
             Ok(h) => Some(h),
             Err(e) => {
                 let mut f = self.failure.lock().unwrap_or_else(|p| p.into_inner());
@@ -308,9 +307,10 @@ struct Scratch {
     tmark: Vec<u32>,
     stamp: u32,
     key_at: Vec<f64>,
-    key_of: Vec<f64>,
-    level_key_of: Vec<Vec<f64>>,
-    heap: BinaryHeap<Entry>,
+    pmark: Vec<u32>,
+    level_mark: Vec<Vec<u32>>,
+    level_pmark: Vec<Vec<u32>>,
+    pending: Vec<u32>,
     ball: Vec<u32>,
     sorted: Vec<(f64, u32)>,
     tris: Vec<(f64, u32)>,
@@ -327,13 +327,10 @@ impl Scratch {
             tmark: vec![0; nt],
             stamp: 0,
             key_at: vec![f64::INFINITY; n],
-            key_of: vec![f64::INFINITY; n],
-            level_key_of: ctx
-                .levels
-                .iter()
-                .map(|l| vec![f64::INFINITY; l.len()])
-                .collect(),
-            heap: BinaryHeap::new(),
+            pmark: vec![0; n],
+            level_mark: ctx.levels.iter().map(|l| vec![0; l.len()]).collect(),
+            level_pmark: ctx.levels.iter().map(|l| vec![0; l.len()]).collect(),
+            pending: Vec::new(),
             ball: Vec::new(),
             sorted: Vec::new(),
             tris: Vec::new(),
@@ -346,6 +343,10 @@ impl Scratch {
         if self.stamp == u32::MAX {
             self.mark.fill(0);
             self.tmark.fill(0);
+            self.pmark.fill(0);
+            for m in self.level_mark.iter_mut().chain(&mut self.level_pmark) {
+                m.fill(0);
+            }
             self.stamp = 0;
         }
         self.stamp += 1;
@@ -489,36 +490,50 @@ fn triangle_verdicts(
     reached: &mut Vec<bool>,
 ) -> Option<u64> {
     let eps = (0.01 * r).min(GRAZE_TOLERANCE_OF_R0 * ctx.radii[0]);
-    let mut origins = Vec::with_capacity(2 * tris.len());
-    let mut dirs = Vec::with_capacity(2 * tris.len());
-    let mut dist = Vec::with_capacity(2 * tris.len());
+    reached.clear();
+    reached.resize(tris.len(), false);
+    // Only "is there a sheet of M nearer to c than x less eps, either way
+    // along the line" matters, so each line is two rays clipped at that
+    // distance (not the nearest hit within the radius): short rays that
+    // stop early in the BVH. A sample within eps of the cubic cannot be
+    // blocked and needs no ray; at the small radii that is most of them.
+    let mut rays = Vec::with_capacity(4 * tris.len());
     let mut owner = Vec::with_capacity(2 * tris.len());
-    let mut max_t = r;
     for (k, &t) in tris.iter().enumerate() {
         for &x in ctx.samples.of(t) {
             let q = frame.to_local(x);
             let f = cubic.foot_point(q, 0.5 * r);
             let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
-            let d = (q - c).length();
-            origins.push(frame.to_world(c));
-            dirs.push(frame.dir_to_world(cubic.normal(f.x, f.y)));
-            dist.push(d);
+            let reach = (q - c).length() - eps;
+            if !(reach > 0.0) {
+                // Also a non-finite foot point: no line, as a missed line.
+                reached[k] = true;
+                continue;
+            }
+            let origin = frame.to_world(c);
+            let dir = frame.dir_to_world(cubic.normal(f.x, f.y));
+            for d in [dir, -dir] {
+                rays.push(Ray {
+                    origin,
+                    dir: d,
+                    tmin: 0.0,
+                    tmax: reach,
+                });
+            }
             owner.push(k as u32);
-            max_t = max_t.max(d + eps);
         }
     }
-    reached.clear();
-    reached.resize(tris.len(), false);
-    if origins.is_empty() {
+    let lines = owner.len() as u64;
+    if rays.is_empty() {
         return Some(0);
     }
-    let hits = ctx.line_hits(&origins, &dirs, max_t)?;
-    for ((h, &d), &k) in hits.iter().zip(&dist).zip(&owner) {
-        if !h.is_some_and(|h| h.t.abs() < d - eps) {
+    let hits = ctx.first_hits(&rays)?;
+    for (h, &k) in hits.chunks_exact(2).zip(&owner) {
+        if h[0].is_none() && h[1].is_none() {
             reached[k as usize] = true;
         }
     }
-    Some(origins.len() as u64)
+    Some(lines)
 }
 
 /// The literal M-test of §3.1.3 on the ball whose triangles are `tris`:
@@ -781,14 +796,17 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
     sc.tris.clear();
     if i0 > 0 {
         let mut sorted = std::mem::take(&mut sc.sorted);
-        nested_balls(
+        let stamp = sc.next_stamp();
+        layered_balls(
             &ctx.adj.vv,
             &ctx.mesh.positions,
             p,
             centre,
-            ctx.radii[i0 - 1],
-            &mut sc.key_of,
-            &mut sc.heap,
+            &ctx.radii[..i0],
+            &mut sc.mark,
+            &mut sc.pmark,
+            stamp,
+            &mut sc.pending,
             &mut sorted,
         );
         for &(k, v) in &sorted {
@@ -850,14 +868,17 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
         let level = &ctx.levels[li];
         let r = ctx.radii[i];
         let mut sorted = std::mem::take(&mut sc.sorted);
-        nested_balls(
+        let stamp = sc.next_stamp();
+        layered_balls(
             &level.adj,
             &level.rep,
             level.cluster_of[p as usize],
             centre,
-            r,
-            &mut sc.level_key_of[li],
-            &mut sc.heap,
+            &[r],
+            &mut sc.level_mark[li],
+            &mut sc.level_pmark[li],
+            stamp,
+            &mut sc.pending,
             &mut sorted,
         );
         sc.pts.clear();

@@ -175,6 +175,77 @@ pub fn nested_balls(
     }
 }
 
+/// The balls `B(p, r)` of several increasing radii at once, each *exactly*
+/// the literal [`bfs_ball`] of its radius (see the module docs), without
+/// the heap of [`nested_balls`]: the traversal of radius `radii[i]` goes on
+/// from the ball of `radii[i - 1]`, seeded by the vertices that the
+/// previous traversal reached but left outside (`pending`). A vertex is
+/// reachable within `r_i` iff it is reachable from `B(p, r_{i-1})` through
+/// vertices within `r_i`, and every such path leaves `B(p, r_{i-1})`
+/// through a pending vertex, so the union is the literal ball.
+///
+/// Fills `out` with `(radii[i], v)` for every vertex `v` of `B(p, radii[i])`
+/// not in the previous ball: sorted by key, so that the ball of `radii[i]`
+/// is the prefix with `key <= radii[i]`, as [`nested_balls`] gives it.
+/// `centre` is the point distances are measured from; `mark` and `pmark`
+/// are scratch of `positions.len()` entries, all different from `stamp` on
+/// entry.
+#[allow(clippy::too_many_arguments)] // scratch buffers kept by the caller
+pub fn layered_balls(
+    adj: &Csr,
+    positions: &[DVec3],
+    start: u32,
+    centre: DVec3,
+    radii: &[f64],
+    mark: &mut [u32],
+    pmark: &mut [u32],
+    stamp: u32,
+    pending: &mut Vec<u32>,
+    out: &mut Vec<(f64, u32)>,
+) {
+    out.clear();
+    pending.clear();
+    let Some(&first) = radii.first() else {
+        return;
+    };
+    // The start (p itself, or the cluster holding p) always belongs to its
+    // own ball.
+    mark[start as usize] = stamp;
+    out.push((first, start));
+    let mut head = 0;
+    let mut keep = Vec::new();
+    for &r in radii {
+        let r2 = r * r;
+        keep.clear();
+        for &v in pending.iter() {
+            if (positions[v as usize] - centre).length_squared() <= r2 {
+                mark[v as usize] = stamp;
+                out.push((r, v));
+            } else {
+                keep.push(v);
+            }
+        }
+        std::mem::swap(pending, &mut keep);
+        while head < out.len() {
+            let v = out[head].1 as usize;
+            head += 1;
+            for &w in adj.row(v) {
+                let wi = w as usize;
+                if mark[wi] == stamp {
+                    continue;
+                }
+                if (positions[wi] - centre).length_squared() <= r2 {
+                    mark[wi] = stamp;
+                    out.push((r, w));
+                } else if pmark[wi] != stamp {
+                    pmark[wi] = stamp;
+                    pending.push(w);
+                }
+            }
+        }
+    }
+}
+
 /// A coarse proxy of M used by the fast mode for large radii: vertices are
 /// clustered by a grid of cell size `cell`, split into the connected pieces
 /// of M inside each cell (so that two sheets crossing one cell stay apart),
