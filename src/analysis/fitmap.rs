@@ -502,13 +502,21 @@ fn triangle_verdicts(
     for (k, &t) in tris.iter().enumerate() {
         for &x in ctx.samples.of(t) {
             let q = frame.to_local(x);
+            // The vertical distance to the graph bounds the distance to it:
+            // within eps the sample cannot be blocked, and the triangle is
+            // reached without a foot point or a ray (the common case: a
+            // cubic fits M to far better than a tenth of an edge).
+            if (q.z - cubic.eval(q.x, q.y)).abs() <= eps {
+                reached[k] = true;
+                break;
+            }
             let f = cubic.foot_point(q, 0.5 * r);
             let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
             let reach = (q - c).length() - eps;
             if !(reach > 0.0) {
                 // Also a non-finite foot point: no line, as a missed line.
                 reached[k] = true;
-                continue;
+                break;
             }
             let origin = frame.to_world(c);
             let dir = frame.dir_to_world(cubic.normal(f.x, f.y));
