@@ -6,37 +6,40 @@
 //! Two modes compute the same quantities:
 //! - **exact** ([`FitmapOptions::exact`]) follows §3.1.2–3.1.3 literally: one
 //!   breadth-first traversal per radius, every vertex of the ball in the
-//!   fit, `4 n_M |B| / |M|` samples per radius, a triangle is flipped when no
-//!   ray hits it. Quadratic in the mesh size (the largest ball is a quarter
-//!   of the model); the reference.
+//!   fit, every M-test sample of the ball ([`MSamples`]: `4 n_M |B| / |M|`
+//!   of them) cast, a triangle is flipped when no line cast for it reaches
+//!   it ([`triangle_verdicts`]). Quadratic in the mesh size (the largest
+//!   ball is a quarter of the model); the reference.
 //! - **fast** (default) analyses only the seed vertices of
 //!   [`FAST_SEED_RULE`] (a maximal independent set, ~27 % of the vertices)
 //!   and interpolates the others from them where their seed neighbours
 //!   agree on F_M (else analyses them too); per analysed vertex it
-//!   gathers every ball of the small radii with one
-//!   traversal (the balls are *identical* to the literal ones, see
-//!   [`neighbourhood::nested_balls`]); bounds the fit to
-//!   [`FAST_MAX_FIT_POINTS`] uniformly drawn vertices; replaces M by a
-//!   clustered proxy ([`ProxyLevel`], cell = r / [`FAST_PROXY_CELLS_PER_RADIUS`])
-//!   for radii whose ball would hold more than [`FAST_LEVEL0_MAX_VERTICES`]
-//!   vertices; estimates the flipped area of balls of more than
-//!   [`FAST_LITERAL_M_MAX_TRIANGLES`] triangles by Monte Carlo over at most
-//!   [`FAST_M_SAMPLES`] area-drawn triangles with a sequential stopping rule
-//!   (see [`flip_test_sampled`]). Every estimate is of the same quantity as
-//!   the exact mode (a subsample of the same sum, an area fraction
-//!   estimated by sampling the same area), which [`crate::analysis::compare`]
-//!   measures (`bench/fitmap_compare.sh`; the F_M agreement still falls
-//!   short of issue 3's criterion, see `tests/fitmap_props.rs`).
+//!   gathers every ball of the small radii with one layered traversal (the
+//!   balls are *identical* to the literal ones, see
+//!   [`neighbourhood::layered_balls`]) and fits them with every vertex, as
+//!   the exact mode; replaces M by a clustered proxy ([`ProxyLevel`], cell =
+//!   r / [`FAST_PROXY_CELLS_PER_RADIUS`], fit bounded to
+//!   [`FAST_MAX_FIT_POINTS`] clusters) for radii whose ball would hold more
+//!   than [`FAST_LEVEL0_MAX_VERTICES`] vertices; estimates the flipped area
+//!   of balls of more than [`FAST_LITERAL_M_MAX_TRIANGLES`] triangles by
+//!   drawing triangles, whose verdicts are the exact mode's (same samples,
+//!   same rule), with a sequential stopping rule, and falls back to the
+//!   literal test where the estimate stays undecided near τ
+//!   ([`flip_test_sampled`]). Every estimate is of the same quantity as
+//!   the exact mode (a subsample of the same sum), which
+//!   [`crate::analysis::compare`] measures (`bench/fitmap_compare.sh`;
+//!   see `tests/fitmap_props.rs` for where the F_M agreement stands).
 //!
 //! Both modes test the radii from the largest down and stop at the first
 //! that passes: F_M is the largest passing radius (§3.1.3, see
 //! [`Fitmap::m`]), so this gives the value of testing them all. Both use
-//! the grazing tolerance [`GRAZE_TOLERANCE_OF_R0`] and cast each ray from
-//! the cubic's point closest to its sample (see [`flip_fraction_literal`]).
+//! the grazing tolerance [`GRAZE_TOLERANCE_OF_R0`] and the same M-test
+//! samples and verdict rule ([`MSamples`], [`triangle_verdicts`]).
 //!
-//! Both modes are deterministic: each vertex and radius seeds its own
-//! generator from [`FitmapOptions::seed`], and results are gathered in
-//! vertex order whatever the thread count.
+//! Both modes are deterministic: the M-test samples are hashes of
+//! ([`FitmapOptions::seed`], triangle), the fast mode's draws come from a
+//! generator per vertex and radius, and results are gathered in vertex
+//! order whatever the thread count.
 
 use std::time::Instant;
 
@@ -76,9 +79,10 @@ pub const MIN_FIT_POINTS: usize = 20;
 /// follows scanner noise; at 10 % visible folds pass.
 pub const DEFAULT_TOLERANCE: f64 = 0.05;
 
-/// Fast mode: the expected size of a fit, in vertices; bigger balls are
-/// subsampled uniformly (an unbiased subsample of the least-squares sum of
-/// §3.1.2, see `keep_vertex`).
+/// Fast mode: the expected size of a fit on a proxy level, in clusters;
+/// bigger balls are subsampled uniformly (an unbiased subsample of the
+/// least-squares sum of §3.1.2, see `keep_vertex`). Level-0 balls are fitted
+/// with every vertex.
 /// 256 points determine a cubic's RMS residual to a few percent.
 pub const FAST_MAX_FIT_POINTS: usize = 256;
 
@@ -128,7 +132,8 @@ pub struct FitmapOptions {
     pub tolerance: f64,
     /// Literal §3.1.2–3.1.3 computation (slow, the reference).
     pub exact: bool,
-    /// Seed of the random samples; each vertex and radius derives its own.
+    /// Seed of the random samples: the M-test samples of each triangle
+    /// ([`MSamples`]) and the fast mode's draws per vertex and radius.
     pub seed: u64,
 }
 
@@ -418,7 +423,7 @@ pub const GRAZE_TOLERANCE_OF_R0: f64 = 0.1;
 ///   triangle test it with the same points (neighbouring vertices see the
 ///   same geometry; F_M does not flicker from vertex to vertex).
 /// Points are barycentric, hence invariant under rigid motions and scaling.
-pub(crate) struct MSamples {
+pub struct MSamples {
     /// `offsets[t]..offsets[t + 1]` index `points` for triangle `t`.
     offsets: Vec<u32>,
     points: Vec<DVec3>,
@@ -438,7 +443,10 @@ impl MSamples {
                 let [p0, p1, p2] = mesh.triangle(t);
                 for k in 0..n {
                     let h = stream_seed(seed ^ 0x5a3b_1e5, t as u32, k);
-                    let (r1, r2) = (unit(h), unit(h.rotate_left(29).wrapping_mul(0x9E37_79B9_7F4A_7C15)));
+                    let (r1, r2) = (
+                        unit(h),
+                        unit(h.rotate_left(29).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
+                    );
                     let s = r1.sqrt();
                     points.push(p0 * (1.0 - s) + p1 * (s * (1.0 - r2)) + p2 * (s * r2));
                 }
@@ -945,15 +953,7 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
                 // same triangles (the exact mode's verdict for this cubic).
                 let all: Option<Vec<u32>> = (*nt <= FAST_LITERAL_FALLBACK_MAX_TRIANGLES)
                     .then(|| tris[..*nt].iter().map(|&(_, t)| t).collect());
-                flip_test_sampled(
-                    ctx,
-                    &frame,
-                    cubic,
-                    r,
-                    &mut sample,
-                    all.as_deref(),
-                    &mut rng,
-                )
+                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, all.as_deref(), &mut rng)
             }
             FastBall::Proxy(li, clusters) => {
                 let level = &ctx.levels[*li];

@@ -389,3 +389,92 @@ impl ProxyLevel {
         self.rep.is_empty()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A wavy, unevenly spaced grid folded over itself along x, so that a
+    /// Euclidean ball reaches vertices that the traversal cannot (the other
+    /// sheet) and radii cut through the middle of rows.
+    fn folded_grid(n: u32) -> TriMesh {
+        let mut positions = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                let (u, v) = (i as f64 / n as f64, j as f64 / n as f64);
+                let a = std::f64::consts::PI * 1.8 * u * u;
+                positions.push(DVec3::new(
+                    0.3 * a.sin(),
+                    v + 0.02 * (7.0 * u).sin(),
+                    0.3 * a.cos(),
+                ));
+            }
+        }
+        let mut triangles = Vec::new();
+        let id = |i: u32, j: u32| j * (n + 1) + i;
+        for j in 0..n {
+            for i in 0..n {
+                triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        TriMesh {
+            positions,
+            triangles,
+        }
+    }
+
+    #[test]
+    fn layered_balls_are_the_literal_balls() {
+        let m = folded_grid(24);
+        let adj = Adjacency::new(&m);
+        let n = m.positions.len();
+        let radii = [0.03, 0.07, 0.15, 0.22, 0.4, 0.9];
+        let (mut mark, mut pmark, mut mark2) = (vec![0u32; n], vec![0u32; n], vec![0u32; n]);
+        let (mut pending, mut out, mut ball) = (Vec::new(), Vec::new(), Vec::new());
+        let mut stamp = 0;
+        let mut strict_subset_seen = false;
+        for p in (0..n as u32).step_by(37) {
+            stamp += 1;
+            let c = m.positions[p as usize];
+            layered_balls(
+                &adj.vv,
+                &m.positions,
+                p,
+                c,
+                &radii,
+                &mut mark,
+                &mut pmark,
+                stamp,
+                &mut pending,
+                &mut out,
+            );
+            assert!(out.windows(2).all(|w| w[0].0 <= w[1].0), "sorted by key");
+            for (i, &r) in radii.iter().enumerate() {
+                bfs_ball(
+                    &adj.vv,
+                    &m.positions,
+                    p,
+                    r,
+                    &mut mark2,
+                    stamp * 8 + i as u32,
+                    &mut ball,
+                );
+                let mut a: Vec<u32> = out.iter().filter(|e| e.0 <= r).map(|e| e.1).collect();
+                a.sort_unstable();
+                ball.sort_unstable();
+                assert_eq!(a, ball, "p = {p}, r = {r}");
+                // The fold puts vertices within r that the traversal
+                // cannot reach: the test sees the difference from a plain
+                // Euclidean ball.
+                let euclid = m
+                    .positions
+                    .iter()
+                    .filter(|q| (**q - c).length() <= r)
+                    .count();
+                strict_subset_seen |= euclid > ball.len();
+            }
+        }
+        assert!(strict_subset_seen);
+    }
+}
