@@ -422,6 +422,7 @@ pub const GRAZE_TOLERANCE_OF_R0: f64 = 0.1;
 ///   estimate *the same sum* by drawing triangles, and two balls sharing a
 ///   triangle test it with the same points (neighbouring vertices see the
 ///   same geometry; F_M does not flicker from vertex to vertex).
+///
 /// Points are barycentric, hence invariant under rigid motions and scaling.
 pub struct MSamples {
     /// `offsets[t]..offsets[t + 1]` index `points` for triangle `t`.
@@ -438,11 +439,11 @@ impl MSamples {
         for (t, &a) in areas.iter().enumerate() {
             // Zero-area triangles carry no area in any sum: no samples.
             if a > 0.0 {
-                let u = unit(stream_seed(seed ^ 0x5a3b_1e5, t as u32, usize::MAX));
+                let u = unit(stream_seed(seed ^ 0x05a3_b1e5, t as u32, usize::MAX));
                 let n = ((density * a + u).floor() as usize).max(1);
                 let [p0, p1, p2] = mesh.triangle(t);
                 for k in 0..n {
-                    let h = stream_seed(seed ^ 0x5a3b_1e5, t as u32, k);
+                    let h = stream_seed(seed ^ 0x05a3_b1e5, t as u32, k);
                     let (r1, r2) = (
                         unit(h),
                         unit(h.rotate_left(29).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
@@ -521,7 +522,7 @@ fn triangle_verdicts(
             let f = cubic.foot_point(q, 0.5 * r);
             let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
             let reach = (q - c).length() - eps;
-            if !(reach > 0.0) {
+            if reach.is_nan() || reach <= 0.0 {
                 // Also a non-finite foot point: no line, as a missed line.
                 reached[k] = true;
                 break;
