@@ -207,9 +207,9 @@ pub struct Fitmap {
     /// it does not (a fold that fails the middle radii and is diluted below
     /// τ in the largest ball): on spot.ply two seeds of the exact mode put
     /// 2.8 % of the vertices on different steps, up to 5 apart. When every
-    /// tested radius fails, F_M = r_0: r_0 is the input's own edge length, below which no
-    /// patch of the simplifier can shrink anyway, so r_0 is the tightest
-    /// bound that means anything. Vertices with no tested radius get r_h.
+    /// tested radius fails, F_M = r_0: r_0 is the input's own edge length,
+    /// below which no patch of the simplifier can shrink anyway, so r_0 is
+    /// the tightest bound that means anything. Vertices with no tested radius get r_h.
     pub m: Vec<f64>,
     /// Index into `radii` of F_M.
     pub m_step: Vec<u8>,
