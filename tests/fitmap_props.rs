@@ -346,12 +346,26 @@ fn fast_agrees_with_exact() {
     println!("fast stats: {:?}", fast.stats);
     // The issue's criterion is ρ(F_S) >= 0.95, >= 90 % of F_M on the same
     // radius step, none more than one step apart (`a.passes()`). Measured
-    // on spot.ply: ρ = 0.986, 77.7 % same step, up to 7 steps apart — F_M
-    // still falls short (see `fast_agrees_with_exact_strict`, ignored, and
-    // the branch report). Asserted here at the measured level so that a
-    // regression shows: ρ >= 0.95, >= 75 % on the same step.
+    // on spot.ply: ρ = 0.986, 91.1 % on the same step, up to 6 steps apart.
+    // The exact mode itself, run with another seed, is 97.2 % on the same
+    // step and up to 5 steps apart: F_M is the *largest* passing radius,
+    // and where the flipped fraction hovers at τ over several radii one
+    // verdict moves it by several steps, so "never more than one step"
+    // cannot hold for any estimator that does not reproduce every literal
+    // verdict (see `fast_agrees_with_exact_strict`, ignored). Asserted here
+    // at the measured level so that a regression shows: ρ >= 0.95, >= 89 %
+    // on the same step (2 % under the measured value; before the shared
+    // per-triangle samples it was 77.7 %).
     assert!(a.s_spearman.unwrap_or(0.0) >= 0.95, "{a:?}");
-    assert!(a.m_same_step >= 0.75, "{a:?}");
+    assert!(a.m_same_step >= 0.89, "{a:?}");
+    // The exact mode's own seed noise: the M-test samples are a random set
+    // per triangle, so another seed moves F_M where the flipped fraction
+    // sits at τ; per-triangle jittered samples keep that below 5 %.
+    let exact2 = run(&m, &opts.clone().with_exact(true).with_seed(12345));
+    let b = compare_fitmaps(&exact, &exact2);
+    println!("exact vs exact (other seed): {b:?}");
+    assert_eq!(b.s_spearman, Some(1.0), "F_S does not depend on the seed");
+    assert!(b.m_same_step >= 0.95, "{b:?}");
     // Non-trivial: both see variation in F_S and in F_M.
     assert!(a.s_spearman.is_some());
     assert!(
@@ -497,7 +511,7 @@ fn awkward_input_gives_no_nan() {
 }
 
 #[test]
-#[ignore = "known gap: F_M of the fast mode is 77.7 % on the same step as the exact one on spot.ply, up to 7 steps off (issue 3 asks >= 90 %, <= 1)"]
+#[ignore = "known gap: on spot.ply F_M of the fast mode is 91.1 % on the same step as the exact one but up to 6 steps off (issue 3 asks <= 1); the exact mode under another seed is itself up to 5 steps off"]
 fn fast_agrees_with_exact_strict() {
     let path = std::path::Path::new("/work/shared/data/spot.ply");
     let m = subdfit::io::read_mesh(path).expect("spot.ply").mesh;

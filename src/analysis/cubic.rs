@@ -167,7 +167,9 @@ impl Cubic {
                 break;
             }
             p -= step;
-            if len <= 1e-12 * self.scale {
+            // 1e-9 of the radius: far below the grazing tolerance the
+            // M-test compares distances with (a tenth of an edge).
+            if len <= 1e-9 * self.scale {
                 break;
             }
         }

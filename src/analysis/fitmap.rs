@@ -6,39 +6,41 @@
 //! Two modes compute the same quantities:
 //! - **exact** ([`FitmapOptions::exact`]) follows §3.1.2–3.1.3 literally: one
 //!   breadth-first traversal per radius, every vertex of the ball in the
-//!   fit, `4 n_M |B| / |M|` samples per radius, a triangle is flipped when no
-//!   ray hits it. Quadratic in the mesh size (the largest ball is a quarter
-//!   of the model); the reference.
+//!   fit, every M-test sample of the ball ([`MSamples`]: `4 n_M |B| / |M|`
+//!   of them) cast, a triangle is flipped when no line cast for it reaches
+//!   it ([`triangle_verdicts`]). Quadratic in the mesh size (the largest
+//!   ball is a quarter of the model); the reference.
 //! - **fast** (default) analyses only the seed vertices of
 //!   [`FAST_SEED_RULE`] (a maximal independent set, ~27 % of the vertices)
 //!   and interpolates the others from them where their seed neighbours
 //!   agree on F_M (else analyses them too); per analysed vertex it
-//!   gathers every ball of the small radii with one
-//!   traversal (the balls are *identical* to the literal ones, see
-//!   [`neighbourhood::nested_balls`]); bounds the fit to
-//!   [`FAST_MAX_FIT_POINTS`] uniformly drawn vertices; replaces M by a
-//!   clustered proxy ([`ProxyLevel`], cell = r / [`FAST_PROXY_CELLS_PER_RADIUS`])
-//!   for radii whose ball would hold more than [`FAST_LEVEL0_MAX_VERTICES`]
-//!   vertices; estimates the flipped area of balls of more than
-//!   [`FAST_LITERAL_M_MAX_TRIANGLES`] triangles by Monte Carlo over at most
-//!   [`FAST_M_SAMPLES`] area-drawn triangles with a sequential stopping rule
-//!   (see [`flip_test_sampled`]). Every estimate is of the same quantity as
-//!   the exact mode (a subsample of the same sum, an area fraction
-//!   estimated by sampling the same area), which [`crate::analysis::compare`]
-//!   measures (`bench/fitmap_compare.sh`; the F_M agreement still falls
-//!   short of issue 3's criterion, see `tests/fitmap_props.rs`).
+//!   gathers every ball of the small radii with one layered traversal (the
+//!   balls are *identical* to the literal ones, see
+//!   [`neighbourhood::layered_balls`]) and fits them with every vertex, as
+//!   the exact mode; replaces M by a clustered proxy ([`ProxyLevel`], cell =
+//!   r / [`FAST_PROXY_CELLS_PER_RADIUS`], fit bounded to
+//!   [`FAST_MAX_FIT_POINTS`] clusters) for radii whose ball would hold more
+//!   than [`FAST_LEVEL0_MAX_VERTICES`] vertices; estimates the flipped area
+//!   of balls of more than [`FAST_LITERAL_M_MAX_TRIANGLES`] triangles by
+//!   drawing triangles, whose verdicts are the exact mode's (same samples,
+//!   same rule), with a sequential stopping rule, and falls back to the
+//!   literal test where the estimate stays undecided near τ
+//!   ([`flip_test_sampled`]). Every estimate is of the same quantity as
+//!   the exact mode (a subsample of the same sum), which
+//!   [`crate::analysis::compare`] measures (`bench/fitmap_compare.sh`;
+//!   see `tests/fitmap_props.rs` for where the F_M agreement stands).
 //!
 //! Both modes test the radii from the largest down and stop at the first
 //! that passes: F_M is the largest passing radius (§3.1.3, see
 //! [`Fitmap::m`]), so this gives the value of testing them all. Both use
-//! the grazing tolerance [`GRAZE_TOLERANCE_OF_R0`] and cast each ray from
-//! the cubic's point closest to its sample (see [`flip_fraction_literal`]).
+//! the grazing tolerance [`GRAZE_TOLERANCE_OF_R0`] and the same M-test
+//! samples and verdict rule ([`MSamples`], [`triangle_verdicts`]).
 //!
-//! Both modes are deterministic: each vertex and radius seeds its own
-//! generator from [`FitmapOptions::seed`], and results are gathered in
-//! vertex order whatever the thread count.
+//! Both modes are deterministic: the M-test samples are hashes of
+//! ([`FitmapOptions::seed`], triangle), the fast mode's draws come from a
+//! generator per vertex and radius, and results are gathered in vertex
+//! order whatever the thread count.
 
-use std::collections::BinaryHeap;
 use std::time::Instant;
 
 use rand::{Rng, SeedableRng};
@@ -47,11 +49,11 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::cubic::{fit_cubic, Cubic, CubicFit, Frame};
-use super::neighbourhood::{bfs_ball, nested_balls, Adjacency, Csr, Entry, ProxyLevel};
+use super::neighbourhood::{bfs_ball, layered_balls, Adjacency, Csr, ProxyLevel};
 use super::normals::{triangle_areas, vertex_normals};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
-use crate::raycast::{Hit, RayCaster};
+use crate::raycast::{Hit, Ray, RayCaster};
 use crate::DVec3;
 
 /// Number of radius steps `h`: radii `r_0..r_h` (Fitmaps §3.1.2, "h = 8").
@@ -77,9 +79,10 @@ pub const MIN_FIT_POINTS: usize = 20;
 /// follows scanner noise; at 10 % visible folds pass.
 pub const DEFAULT_TOLERANCE: f64 = 0.05;
 
-/// Fast mode: the expected size of a fit, in vertices; bigger balls are
-/// subsampled uniformly (an unbiased subsample of the least-squares sum of
-/// §3.1.2, see `keep_vertex`).
+/// Fast mode: the expected size of a fit on a proxy level, in clusters;
+/// bigger balls are subsampled uniformly (an unbiased subsample of the
+/// least-squares sum of §3.1.2, see `keep_vertex`). Level-0 balls are fitted
+/// with every vertex.
 /// 256 points determine a cubic's RMS residual to a few percent.
 pub const FAST_MAX_FIT_POINTS: usize = 256;
 
@@ -97,17 +100,19 @@ pub const FAST_PROXY_CELLS_PER_RADIUS: f64 = 6.0;
 pub const FAST_LITERAL_M_MAX_TRIANGLES: usize = 64;
 
 /// Fast mode: the most triangles drawn to estimate the flipped area of a
-/// large ball ([`flip_test_sampled`]). Where the sequential test has not decided by
-/// then the fraction is within ~±2 standard errors of τ, i.e.
-/// `sqrt(f (1 - f) / 384)` ≈ ±1.1 % at f = 5 %.
+/// large ball ([`flip_test_sampled`]). Where the sequential test has not
+/// decided by then the fraction is within ~±2 standard errors of τ, i.e.
+/// `sqrt(f (1 - f) / 384)` ≈ ±1.1 % at f = 5 %, and the literal test
+/// decides where affordable ([`FAST_LITERAL_FALLBACK_MAX_TRIANGLES`]).
 pub const FAST_M_SAMPLES: usize = 384;
 
-/// Fast mode: points per drawn triangle in the sampled M-test: the literal
-/// test's density, `4 n_M / |M|` samples per unit area (§3.1.3), is about
-/// two per triangle (a closed mesh has about twice as many triangles as
-/// vertices), so a triangle of the literal test is hit when one of about
-/// two lines reaches it.
-pub const FAST_M_POINTS_PER_TRIANGLE: usize = 2;
+/// Fast mode: a level-0 ball whose sampled M-test is still undecided
+/// after [`FAST_M_SAMPLES`] draws (its flipped fraction is within about
+/// ±2 standard errors of τ) gets the literal test when it has at most this
+/// many triangles: there the exact mode's verdict is one cast away, and a
+/// verdict taken from the estimate would differ from it about half the
+/// time.
+pub const FAST_LITERAL_FALLBACK_MAX_TRIANGLES: usize = 4096;
 
 /// Fast mode: triangles per batch of the sequential M-test (one batch of
 /// rays per Embree call).
@@ -127,7 +132,8 @@ pub struct FitmapOptions {
     pub tolerance: f64,
     /// Literal §3.1.2–3.1.3 computation (slow, the reference).
     pub exact: bool,
-    /// Seed of the random samples; each vertex and radius derives its own.
+    /// Seed of the random samples: the M-test samples of each triangle
+    /// ([`MSamples`]) and the fast mode's draws per vertex and radius.
     pub seed: u64,
 }
 
@@ -195,11 +201,15 @@ pub struct Fitmap {
     /// Unlike "stop at the first failing radius", this reading is not
     /// moved by a single noisy verdict at a small radius: a stray failure
     /// below the largest passing radius changes nothing, so F_M moves only
-    /// where the verdict of the largest passing radius itself flips, i.e. by
-    /// one step where the fraction sits at τ. When every tested radius
-    /// fails, F_M = r_0: r_0 is the input's own edge length, below which no
-    /// patch of the simplifier can shrink anyway, so r_0 is the tightest
-    /// bound that means anything. Vertices with no tested radius get r_h.
+    /// where the verdict of the largest passing radius itself flips. It
+    /// then falls to the next passing radius, which is one step down where
+    /// the flipped fraction grows with the radius, but can be several where
+    /// it does not (a fold that fails the middle radii and is diluted below
+    /// τ in the largest ball): on spot.ply two seeds of the exact mode put
+    /// 2.8 % of the vertices on different steps, up to 5 apart. When every
+    /// tested radius fails, F_M = r_0: r_0 is the input's own edge length,
+    /// below which no patch of the simplifier can shrink anyway, so r_0 is
+    /// the tightest bound that means anything. Vertices with no tested radius get r_h.
     pub m: Vec<f64>,
     /// Index into `radii` of F_M.
     pub m_step: Vec<u8>,
@@ -276,8 +286,8 @@ struct Ctx<'a> {
     normals: Vec<DVec3>,
     adj: Adjacency,
     radii: Vec<f64>,
-    /// `4 n_M / |M|`: samples per unit area (§3.1.3).
-    sample_density: f64,
+    /// The M-test's samples, shared by all balls ([`MSamples`]).
+    samples: MSamples,
     /// Fast mode: for each radius, `None` = gathered on M, `Some(k)` =
     /// gathered on `levels[k]`.
     level_of: Vec<Option<usize>>,
@@ -288,8 +298,8 @@ struct Ctx<'a> {
 }
 
 impl Ctx<'_> {
-    fn line_hits(&self, origins: &[DVec3], dirs: &[DVec3], max_t: f64) -> Option<Vec<Option<Hit>>> {
-        match self.caster.line_hits(origins, dirs, max_t) {
+    fn first_hits(&self, rays: &[Ray]) -> Option<Vec<Option<Hit>>> {
+        match self.caster.first_hits(rays) {
             Ok(h) => Some(h),
             Err(e) => {
                 let mut f = self.failure.lock().unwrap_or_else(|p| p.into_inner());
@@ -304,12 +314,12 @@ impl Ctx<'_> {
 struct Scratch {
     mark: Vec<u32>,
     tmark: Vec<u32>,
-    hitmark: Vec<u32>,
     stamp: u32,
     key_at: Vec<f64>,
-    key_of: Vec<f64>,
-    level_key_of: Vec<Vec<f64>>,
-    heap: BinaryHeap<Entry>,
+    pmark: Vec<u32>,
+    level_mark: Vec<Vec<u32>>,
+    level_pmark: Vec<Vec<u32>>,
+    pending: Vec<u32>,
     ball: Vec<u32>,
     sorted: Vec<(f64, u32)>,
     tris: Vec<(f64, u32)>,
@@ -324,16 +334,12 @@ impl Scratch {
         Scratch {
             mark: vec![0; n],
             tmark: vec![0; nt],
-            hitmark: vec![0; nt],
             stamp: 0,
             key_at: vec![f64::INFINITY; n],
-            key_of: vec![f64::INFINITY; n],
-            level_key_of: ctx
-                .levels
-                .iter()
-                .map(|l| vec![f64::INFINITY; l.len()])
-                .collect(),
-            heap: BinaryHeap::new(),
+            pmark: vec![0; n],
+            level_mark: ctx.levels.iter().map(|l| vec![0; l.len()]).collect(),
+            level_pmark: ctx.levels.iter().map(|l| vec![0; l.len()]).collect(),
+            pending: Vec::new(),
             ball: Vec::new(),
             sorted: Vec::new(),
             tris: Vec::new(),
@@ -346,7 +352,10 @@ impl Scratch {
         if self.stamp == u32::MAX {
             self.mark.fill(0);
             self.tmark.fill(0);
-            self.hitmark.fill(0);
+            self.pmark.fill(0);
+            for m in self.level_mark.iter_mut().chain(&mut self.level_pmark) {
+                m.fill(0);
+            }
             self.stamp = 0;
         }
         self.stamp += 1;
@@ -386,203 +395,248 @@ fn keep_vertex(seed: u64, p: u32, v: u32, keep: f64) -> bool {
     ((h >> 11) as f64) * (1.0 / (1u64 << 53) as f64) < keep
 }
 
-/// A uniform point of triangle `t`.
-fn sample_triangle(mesh: &TriMesh, t: u32, rng: &mut ChaCha8Rng) -> DVec3 {
-    let [a, b, c] = mesh.triangle(t as usize);
-    let (r1, r2): (f64, f64) = (rng.gen(), rng.gen());
-    let s = r1.sqrt();
-    a * (1.0 - s) + b * (s * (1.0 - r2)) + c * (s * r2)
-}
-
 /// Grazing tolerance of the M-test, as a fraction of `r_0` (not from the
-/// paper: a robustness measure, applied identically in both modes). A ray
-/// that lands within `GRAZE_TOLERANCE_OF_R0 · r_0` of a triangle counts as
-/// reaching it: in the literal test a hit near an edge also marks the
-/// triangle across that edge; in the sampled test a point whose normal line
-/// first meets M within that distance of the point counts as reached.
-/// Without it a single ray grazing a shared edge — the cubic's normal is
-/// not the triangle's — leaves a triangle "flipped" by round-off, and one
-/// such triangle in a ball of 40 already exceeds τ = 2.5 %. A tenth of the
-/// mean edge is far below the size of any fold the M-test is meant to see.
+/// paper: a robustness measure, applied identically in both modes; capped
+/// at 1 % of the radius for the smallest balls). A sample counts as reached
+/// when no sheet of M lies nearer to the cubic than the sample less this
+/// distance along its normal line ([`triangle_verdicts`]). Without it a
+/// line through a sample next to a shared edge — the cubic's normal is not
+/// the triangle's — finds the neighbouring triangle a hair nearer, and a
+/// triangle is "flipped" by round-off; one such triangle in a ball of 40
+/// already exceeds τ = 2.5 %. A tenth of the mean edge is far below the
+/// size of any fold the M-test is meant to see.
 pub const GRAZE_TOLERANCE_OF_R0: f64 = 0.1;
 
+/// The random samples of the M-test (§3.1.3: "random samples distributed
+/// on the neighbourhood", `4 n_M |B| / |M|` of them on a ball of area
+/// `|B|`), drawn once per mesh and shared by every ball, radius and mode.
+///
+/// Triangle `t` of area `A_t` gets `max(1, ⌊d A_t + u_t⌋)` uniform points,
+/// `d = 4 n_M / |M|` ([`SAMPLES_PER_VERTEX`]) and `u_t` uniform in [0, 1):
+/// a jittered allocation whose expected count on any ball is `d |B|`
+/// (plus the floor of one). Every point is a hash of `(seed, t, k)` alone.
+/// Why per triangle and shared:
+/// - with independent uniform samples at the paper's density (about two
+///   per triangle) a fraction e⁻² ≈ 13.5 % of a perfect plane would get no
+///   sample and count as flipped by luck alone, above both of the paper's
+///   τ; the floor of one sample removes that;
+/// - the flipped portion of a ball becomes a sum over its triangles of a
+///   per-triangle verdict that does not depend on which other triangles
+///   are in the ball (see [`triangle_verdicts`]), so the fast mode can
+///   estimate *the same sum* by drawing triangles, and two balls sharing a
+///   triangle test it with the same points (neighbouring vertices see the
+///   same geometry; F_M does not flicker from vertex to vertex).
+///
+/// Points are barycentric, hence invariant under rigid motions and scaling.
+pub struct MSamples {
+    /// `offsets[t]..offsets[t + 1]` index `points` for triangle `t`.
+    offsets: Vec<u32>,
+    points: Vec<DVec3>,
+}
+
+impl MSamples {
+    fn new(mesh: &TriMesh, areas: &[f64], density: f64, seed: u64) -> MSamples {
+        let mut offsets = Vec::with_capacity(mesh.triangles.len() + 1);
+        let mut points = Vec::with_capacity((density * areas.iter().sum::<f64>()) as usize + 16);
+        offsets.push(0u32);
+        let unit = |h: u64| ((h >> 11) as f64) * (1.0 / (1u64 << 53) as f64);
+        for (t, &a) in areas.iter().enumerate() {
+            // Zero-area triangles carry no area in any sum: no samples.
+            if a > 0.0 {
+                let u = unit(stream_seed(seed ^ 0x05a3_b1e5, t as u32, usize::MAX));
+                let n = ((density * a + u).floor() as usize).max(1);
+                let [p0, p1, p2] = mesh.triangle(t);
+                for k in 0..n {
+                    let h = stream_seed(seed ^ 0x05a3_b1e5, t as u32, k);
+                    let (r1, r2) = (
+                        unit(h),
+                        unit(h.rotate_left(29).wrapping_mul(0x9E37_79B9_7F4A_7C15)),
+                    );
+                    let s = r1.sqrt();
+                    points.push(p0 * (1.0 - s) + p1 * (s * (1.0 - r2)) + p2 * (s * r2));
+                }
+            }
+            offsets.push(points.len() as u32);
+        }
+        MSamples { offsets, points }
+    }
+
+    #[inline]
+    fn of(&self, t: u32) -> &[DVec3] {
+        &self.points[self.offsets[t as usize] as usize..self.offsets[t as usize + 1] as usize]
+    }
+}
+
+/// The per-triangle verdicts of the M-test for the ball of radius `r`
+/// whose cubic is `cubic` (§3.1.3), for the triangles `tris`; `reached[k]`
+/// is set for `tris[k]`. Returns the number of lines cast (`None` when ray
+/// casting failed; the error is kept in `ctx`).
+///
+/// Each sample x of a triangle ([`MSamples`]) is carried to the cubic's
+/// point c closest to it and a line is cast from c along the cubic's
+/// analytic normal (both ways, as a patch may lie on either side of M).
+/// §3.1.3 counts a triangle as flipped when no ray hits it; here the ray
+/// through x is the one that would hit x's triangle, and it does unless
+/// another sheet of M is nearer to the cubic than x along that line — a
+/// fold, which is what the test detects. So a triangle is *reached* when
+/// the nearest hit of at least one of its own lines is not nearer than
+/// its sample (less the grazing tolerance [`GRAZE_TOLERANCE_OF_R0`]); a
+/// line that hits nothing (slipping between two triangles) reaches. This
+/// is the literal "hit by a ray" with the ray attributed to the triangle it
+/// was cast for: a hit by a line cast for another triangle (a grazing ray
+/// crossing an edge) no longer saves a triangle whose own lines are
+/// blocked, which makes a triangle's verdict a property of the triangle and
+/// the cubic alone — the sum the fast mode estimates.
+///
+/// Samples of g̃ (§3.1.3 samples the cubic, at a density given by M's
+/// area) are the closest points of g̃ to samples x of M: lifting x
+/// vertically in the frame instead lands the ray away from x wherever g̃
+/// is steep in the frame or fits loosely (the large radii), and leaves
+/// triangles unhit by ray scatter alone (on spot.ply this made r_h fail
+/// everywhere).
+fn triangle_verdicts(
+    ctx: &Ctx,
+    frame: &Frame,
+    cubic: &Cubic,
+    r: f64,
+    tris: &[u32],
+    reached: &mut Vec<bool>,
+) -> Option<u64> {
+    let eps = (0.01 * r).min(GRAZE_TOLERANCE_OF_R0 * ctx.radii[0]);
+    reached.clear();
+    reached.resize(tris.len(), false);
+    // Only "is there a sheet of M nearer to c than x less eps, either way
+    // along the line" matters, so each line is two rays clipped at that
+    // distance (not the nearest hit within the radius): short rays that
+    // stop early in the BVH. A sample within eps of the cubic cannot be
+    // blocked and needs no ray; at the small radii that is most of them.
+    let mut rays = Vec::with_capacity(4 * tris.len());
+    let mut owner = Vec::with_capacity(2 * tris.len());
+    for (k, &t) in tris.iter().enumerate() {
+        for &x in ctx.samples.of(t) {
+            let q = frame.to_local(x);
+            // The vertical distance to the graph bounds the distance to it:
+            // within eps the sample cannot be blocked, and the triangle is
+            // reached without a foot point or a ray (the common case: a
+            // cubic fits M to far better than a tenth of an edge).
+            if (q.z - cubic.eval(q.x, q.y)).abs() <= eps {
+                reached[k] = true;
+                break;
+            }
+            let f = cubic.foot_point(q, 0.5 * r);
+            let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
+            let reach = (q - c).length() - eps;
+            if reach.is_nan() || reach <= 0.0 {
+                // Also a non-finite foot point: no line, as a missed line.
+                reached[k] = true;
+                break;
+            }
+            let origin = frame.to_world(c);
+            let dir = frame.dir_to_world(cubic.normal(f.x, f.y));
+            for d in [dir, -dir] {
+                rays.push(Ray {
+                    origin,
+                    dir: d,
+                    tmin: 0.0,
+                    tmax: reach,
+                });
+            }
+            owner.push(k as u32);
+        }
+    }
+    let lines = owner.len() as u64;
+    if rays.is_empty() {
+        return Some(0);
+    }
+    let hits = ctx.first_hits(&rays)?;
+    for (h, &k) in hits.chunks_exact(2).zip(&owner) {
+        if h[0].is_none() && h[1].is_none() {
+            reached[k as usize] = true;
+        }
+    }
+    Some(lines)
+}
+
 /// The literal M-test of §3.1.3 on the ball whose triangles are `tris`:
-/// `N = ⌈4 n_M |B| / |M|⌉` samples drawn on the ball, each carried to the
-/// point of the cubic g̃ closest to it, one line per sample along the
-/// cubic's analytic normal there (nearest hit either way, within the
-/// radius or the sample's distance), triangles of the ball never hit (within the grazing
-/// tolerance, [`GRAZE_TOLERANCE_OF_R0`]) are flipped. Returns the flipped
-/// fraction of the ball's area (`None`: the ball has no area) and the
-/// number of lines cast.
-///
-/// The samples are stratified by area (systematic sampling with one random
-/// offset, then uniform inside each triangle) and every triangle of
-/// positive area gets at least one: with independent uniform samples at
-/// the paper's density (2 per triangle on average) a fraction e⁻² ≈ 13.5 %
-/// of a perfect plane would never be hit, i.e. "flipped" by sampling luck
-/// alone, above both of the paper's τ. With stratification a triangle is
-/// flipped only because the rays above it land elsewhere.
-///
-/// Samples of g̃ (§3.1.3 samples the cubic, at a density given by M's area)
-/// are taken as the closest points of g̃ to uniform samples x of M's ball,
-/// so that the normal line from each passes through its x: x is hit unless
-/// another sheet of M is nearer to g̃ — a fold, which is what the test is
-/// for. Lifting x vertically in the frame instead lands the ray away from
-/// x wherever g̃ is steep in the frame or fits loosely (the large radii),
-/// and leaves triangles unhit by ray scatter alone (on spot.ply this made
-/// r_h fail everywhere).
-#[allow(clippy::too_many_arguments)]
+/// the flipped fraction of the ball's area (`None`: the ball has no area
+/// or ray casting failed), the triangles' verdicts from
+/// [`triangle_verdicts`], and the number of lines cast.
 fn flip_fraction_literal(
     ctx: &Ctx,
     frame: &Frame,
     cubic: &Cubic,
     r: f64,
     tris: &[u32],
-    hitmark: &mut [u32],
-    stamp: u32,
-    rng: &mut ChaCha8Rng,
 ) -> (Option<f64>, u64) {
     let area: f64 = tris.iter().map(|&t| ctx.areas[t as usize]).sum();
     if area.is_nan() || area <= 0.0 {
         return (None, 0);
     }
-    let n = (ctx.sample_density * area).ceil().max(1.0);
-    let spacing = area / n;
-    let mut next = rng.gen::<f64>() * spacing;
-    let mut cum = 0.0;
-    let (mut origins, mut dirs) = (Vec::new(), Vec::new());
-    let delta = GRAZE_TOLERANCE_OF_R0 * ctx.radii[0];
-    let mut max_t = r;
-    for &t in tris {
-        let a = ctx.areas[t as usize];
-        if a <= 0.0 {
-            continue;
-        }
-        cum += a;
-        let mut k = 0;
-        while next < cum {
-            k += 1;
-            next += spacing;
-        }
-        for _ in 0..k.max(1) {
-            // The sample of g̃ is the cubic's point closest to the sample x
-            // of the ball, so the normal line of g̃ through it passes
-            // through x (see the function docs).
-            let q = frame.to_local(sample_triangle(ctx.mesh, t, rng));
-            let f = cubic.foot_point(q, 0.5 * r);
-            let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
-            origins.push(frame.to_world(c));
-            dirs.push(frame.dir_to_world(cubic.normal(f.x, f.y)));
-            max_t = max_t.max((q - c).length() + delta);
-        }
-    }
-    let Some(hits) = ctx.line_hits(&origins, &dirs, max_t) else {
+    let mut reached = Vec::new();
+    let Some(rays) = triangle_verdicts(ctx, frame, cubic, r, tris, &mut reached) else {
         return (None, 0);
     };
-    for h in hits.iter().flatten() {
-        let t = h.triangle as usize;
-        let Some(m) = hitmark.get_mut(t) else {
-            continue;
-        };
-        *m = stamp;
-        // Grazing tolerance: the distance of the hit to the edge opposite
-        // corner k is w_k · 2A / |edge|.
-        let tri = ctx.mesh.triangles[t];
-        let w = [1.0 - h.u - h.v, h.u, h.v];
-        for k in 0..3 {
-            let (a, b) = (tri[(k + 1) % 3], tri[(k + 2) % 3]);
-            let len = (ctx.mesh.positions[a as usize] - ctx.mesh.positions[b as usize]).length();
-            if w[k] * 2.0 * ctx.areas[t] < delta * len {
-                for &u in ctx.adj.vt.row(a as usize) {
-                    if ctx.mesh.triangles[u as usize].contains(&b) {
-                        hitmark[u as usize] = stamp;
-                    }
-                }
-            }
-        }
-    }
     let flipped: f64 = tris
         .iter()
-        .filter(|&&t| hitmark[t as usize] != stamp)
-        .map(|&t| ctx.areas[t as usize])
+        .zip(&reached)
+        .filter(|(_, &ok)| !ok)
+        .map(|(&t, _)| ctx.areas[t as usize])
         .sum();
-    (Some(flipped / area), origins.len() as u64)
+    (Some(flipped / area), rays)
 }
 
-/// Fast-mode M-test of a large ball: the literal test's flipped area
-/// fraction, estimated by Monte Carlo over the ball's triangles. `draw`
-/// picks a triangle of the ball with probability proportional to its area;
-/// the triangle counts as hit — as in the literal test, where a triangle is
-/// hit when any ray lands on it — when at least one of
-/// [`FAST_M_POINTS_PER_TRIANGLE`] uniform points x in it is *reached*: let c
-/// be the point of the cubic closest to x; x lies on the cubic's normal
-/// line at c, and x is reached when the nearest hit of that line (either
-/// way, as in the literal test) is x itself, within the grazing tolerance
-/// [`GRAZE_TOLERANCE_OF_R0`]. A line that hits nothing (a ray slipping
-/// between triangles) counts as reaching x: a numerical miss, not a fold.
-/// The fraction of drawn triangles not hit estimates the literal fraction
-/// of the ball's area in unhit triangles.
+/// Fast-mode M-test of a large ball: the literal flipped fraction
+/// ([`flip_fraction_literal`]) estimated by Monte Carlo over the ball's
+/// triangles. `draw` picks a triangle of the ball with probability
+/// proportional to its area; its verdict is the literal one (the same
+/// samples, [`MSamples`], the same rule, [`triangle_verdicts`]), so the
+/// fraction of drawn triangles not reached is an unbiased estimate of the
+/// literal flipped fraction for the same cubic.
 ///
 /// Sequential test: triangles come in batches of [`FAST_M_BATCH`]; after
 /// each batch the test stops as soon as the Wilson score interval (z =
 /// [`FAST_M_Z`]) of the flipped fraction lies entirely below τ (pass) or
-/// above it (fail); after [`FAST_M_SAMPLES`] triangles the estimate decides.
-/// Typical balls are far from τ (no fold at all, or a fold filling much of
-/// the ball) and stop after one to three batches. Returns `Some(passes)`
-/// (`None`: nothing to test) and the number of lines cast.
+/// above it (fail). Typical balls are far from τ (no fold at all, or a fold
+/// filling much of the ball) and stop after one to three batches. After
+/// [`FAST_M_SAMPLES`] draws the fraction is within a few percent of τ:
+/// there the estimate cannot be trusted to give the literal verdict, and
+/// `literal` (the full test on the ball, when the caller can afford it)
+/// decides; else the estimate does. Returns `Some(passes)` (`None`:
+/// nothing to test) and the number of lines cast.
 ///
 /// The decision is monotone in τ for a given seed: the draws are a prefix
 /// of one stream, and if the test for τ₁ passes at n (upper bound < τ₁),
 /// every lower bound before n was <= τ₁ < τ₂, so the test for τ₂ cannot
-/// fail earlier and passes by n.
+/// fail earlier and passes by n (the literal fraction is one number, so the
+/// fallback is monotone too).
+#[allow(clippy::too_many_arguments)]
 fn flip_test_sampled(
     ctx: &Ctx,
     frame: &Frame,
     cubic: &Cubic,
     r: f64,
     draw: &mut dyn FnMut(&mut ChaCha8Rng) -> Option<u32>,
+    literal: Option<&[u32]>,
     rng: &mut ChaCha8Rng,
 ) -> (Option<bool>, u64) {
-    const J: usize = FAST_M_POINTS_PER_TRIANGLE;
     let tau = ctx.opts.tolerance;
-    let eps = (0.01 * r).min(GRAZE_TOLERANCE_OF_R0 * ctx.radii[0]);
     let (mut n, mut k, mut rays) = (0usize, 0usize, 0u64);
-    let mut origins = Vec::with_capacity(FAST_M_BATCH * J);
-    let mut dirs = Vec::with_capacity(FAST_M_BATCH * J);
-    let mut dist = Vec::with_capacity(FAST_M_BATCH * J);
+    let mut batch = Vec::with_capacity(FAST_M_BATCH);
+    let mut reached = Vec::with_capacity(FAST_M_BATCH);
     while n < FAST_M_SAMPLES {
-        origins.clear();
-        dirs.clear();
-        dist.clear();
+        batch.clear();
         for _ in 0..FAST_M_BATCH {
             let Some(t) = draw(rng) else {
                 return (None, rays);
             };
-            for _ in 0..J {
-                let q = frame.to_local(sample_triangle(ctx.mesh, t, rng));
-                let f = cubic.foot_point(q, 0.5 * r);
-                let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
-                let nrm = cubic.normal(f.x, f.y);
-                origins.push(frame.to_world(c));
-                dirs.push(frame.dir_to_world(nrm));
-                dist.push((q - c).length());
-            }
+            batch.push(t);
         }
-        let max_t = dist.iter().fold(r, |m, &d| m.max(d + eps));
-        let Some(hits) = ctx.line_hits(&origins, &dirs, max_t) else {
+        let Some(c) = triangle_verdicts(ctx, frame, cubic, r, &batch, &mut reached) else {
             return (None, rays);
         };
-        rays += origins.len() as u64;
-        n += FAST_M_BATCH;
-        let reached: Vec<bool> = hits
-            .iter()
-            .zip(&dist)
-            .map(|(h, &d)| !h.is_some_and(|h| h.t.abs() < d - eps))
-            .collect();
-        k += reached
-            .chunks_exact(J)
-            .filter(|c| !c.iter().any(|&x| x))
-            .count();
+        rays += c;
+        n += batch.len();
+        k += reached.iter().filter(|&&x| !x).count();
         let (lo, hi) = wilson(k, n, FAST_M_Z);
         if hi < tau {
             return (Some(true), rays);
@@ -590,6 +644,10 @@ fn flip_test_sampled(
         if lo > tau {
             return (Some(false), rays);
         }
+    }
+    if let Some(tris) = literal {
+        let (f, c) = flip_fraction_literal(ctx, frame, cubic, r, tris);
+        return (f.map(|f| f < tau), rays + c);
     }
     (Some((k as f64) < tau * n as f64), rays)
 }
@@ -603,7 +661,6 @@ fn wilson(k: usize, n: usize, z: f64) -> (f64, f64) {
     let h = z * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt() / d;
     (c - h, c + h)
 }
-
 /// Area-proportional draw from a cumulative table.
 fn draw(cum: &[f64], rng: &mut ChaCha8Rng) -> usize {
     let total = *cum.last().unwrap_or(&0.0);
@@ -720,18 +777,7 @@ fn analyse_vertex_exact(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
     let mut rays = 0;
     m_from_top_down(&mut res, &tested, |i| {
         let (cubic, tris) = balls[i].as_ref()?;
-        let stamp = sc.next_stamp();
-        let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(ctx.opts.seed, p, i));
-        let (flip, k) = flip_fraction_literal(
-            ctx,
-            &frame,
-            cubic,
-            ctx.radii[i],
-            tris,
-            &mut sc.hitmark,
-            stamp,
-            &mut rng,
-        );
+        let (flip, k) = flip_fraction_literal(ctx, &frame, cubic, ctx.radii[i], tris);
         rays += k;
         flip.map(|f| f < ctx.opts.tolerance)
     });
@@ -771,14 +817,17 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
     sc.tris.clear();
     if i0 > 0 {
         let mut sorted = std::mem::take(&mut sc.sorted);
-        nested_balls(
+        let stamp = sc.next_stamp();
+        layered_balls(
             &ctx.adj.vv,
             &ctx.mesh.positions,
             p,
             centre,
-            ctx.radii[i0 - 1],
-            &mut sc.key_of,
-            &mut sc.heap,
+            &ctx.radii[..i0],
+            &mut sc.mark,
+            &mut sc.pmark,
+            stamp,
+            &mut sc.pending,
             &mut sorted,
         );
         for &(k, v) in &sorted {
@@ -812,22 +861,16 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
             if nb < MIN_FIT_POINTS {
                 continue;
             }
+            // Every vertex of the ball, as in the exact mode: the fit costs
+            // O(|B|) and level-0 balls are small (at most about
+            // FAST_LEVEL0_MAX_VERTICES), while a subsampled cubic would move
+            // the M-test's lines and with them verdicts near τ.
             sc.pts.clear();
-            if nb <= FAST_MAX_FIT_POINTS {
-                sc.pts.extend(
-                    sorted[..nb]
-                        .iter()
-                        .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
-                );
-            } else {
-                let keep = FAST_MAX_FIT_POINTS as f64 / nb as f64;
-                sc.pts.extend(
-                    sorted[..nb]
-                        .iter()
-                        .filter(|&&(_, v)| keep_vertex(ctx.opts.seed, p, v, keep))
-                        .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
-                );
-            }
+            sc.pts.extend(
+                sorted[..nb]
+                    .iter()
+                    .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
+            );
             res.fits += 1;
             let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, None, r) else {
                 continue;
@@ -846,14 +889,17 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
         let level = &ctx.levels[li];
         let r = ctx.radii[i];
         let mut sorted = std::mem::take(&mut sc.sorted);
-        nested_balls(
+        let stamp = sc.next_stamp();
+        layered_balls(
             &level.adj,
             &level.rep,
             level.cluster_of[p as usize],
             centre,
-            r,
-            &mut sc.level_key_of[li],
-            &mut sc.heap,
+            &[r],
+            &mut sc.level_mark[li],
+            &mut sc.level_pmark[li],
+            stamp,
+            &mut sc.pending,
             &mut sorted,
         );
         sc.pts.clear();
@@ -896,17 +942,7 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
         let (pass, k) = match ball {
             FastBall::Level0(nt) if *nt <= FAST_LITERAL_M_MAX_TRIANGLES => {
                 let t: Vec<u32> = tris[..*nt].iter().map(|&(_, t)| t).collect();
-                let stamp = sc.next_stamp();
-                let (f, k) = flip_fraction_literal(
-                    ctx,
-                    &frame,
-                    cubic,
-                    r,
-                    &t,
-                    &mut sc.hitmark,
-                    stamp,
-                    &mut rng,
-                );
+                let (f, k) = flip_fraction_literal(ctx, &frame, cubic, r, &t);
                 (f.map(|f| f < ctx.opts.tolerance), k)
             }
             FastBall::Level0(nt) => {
@@ -918,7 +954,11 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
                 }
                 let mut sample =
                     |rng: &mut ChaCha8Rng| (acc > 0.0).then(|| tris[draw(&cum, rng)].1);
-                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, &mut rng)
+                // Undecided after the sampled test: the literal test on the
+                // same triangles (the exact mode's verdict for this cubic).
+                let all: Option<Vec<u32>> = (*nt <= FAST_LITERAL_FALLBACK_MAX_TRIANGLES)
+                    .then(|| tris[..*nt].iter().map(|&(_, t)| t).collect());
+                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, all.as_deref(), &mut rng)
             }
             FastBall::Proxy(li, clusters) => {
                 let level = &ctx.levels[*li];
@@ -935,7 +975,7 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
                     let c = clusters[draw(&cum, rng)] as usize;
                     Some(level.tris.row(c)[draw(level.tri_cum_row(c), rng)])
                 };
-                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, &mut rng)
+                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, None, &mut rng)
             }
         };
         rays += k;
@@ -1105,6 +1145,7 @@ pub fn compute_fitmap_cancellable(
             }
         }
     }
+    let samples = MSamples::new(mesh, &areas, sample_density, opts.seed);
     let ctx = Ctx {
         mesh,
         caster,
@@ -1113,7 +1154,7 @@ pub fn compute_fitmap_cancellable(
         normals,
         adj,
         radii: radii.clone(),
-        sample_density,
+        samples,
         level_of,
         levels,
         failure: std::sync::Mutex::new(None),

@@ -175,6 +175,77 @@ pub fn nested_balls(
     }
 }
 
+/// The balls `B(p, r)` of several increasing radii at once, each *exactly*
+/// the literal [`bfs_ball`] of its radius (see the module docs), without
+/// the heap of [`nested_balls`]: the traversal of radius `radii[i]` goes on
+/// from the ball of `radii[i - 1]`, seeded by the vertices that the
+/// previous traversal reached but left outside (`pending`). A vertex is
+/// reachable within `r_i` iff it is reachable from `B(p, r_{i-1})` through
+/// vertices within `r_i`, and every such path leaves `B(p, r_{i-1})`
+/// through a pending vertex, so the union is the literal ball.
+///
+/// Fills `out` with `(radii[i], v)` for every vertex `v` of `B(p, radii[i])`
+/// not in the previous ball: sorted by key, so that the ball of `radii[i]`
+/// is the prefix with `key <= radii[i]`, as [`nested_balls`] gives it.
+/// `centre` is the point distances are measured from; `mark` and `pmark`
+/// are scratch of `positions.len()` entries, all different from `stamp` on
+/// entry.
+#[allow(clippy::too_many_arguments)] // scratch buffers kept by the caller
+pub fn layered_balls(
+    adj: &Csr,
+    positions: &[DVec3],
+    start: u32,
+    centre: DVec3,
+    radii: &[f64],
+    mark: &mut [u32],
+    pmark: &mut [u32],
+    stamp: u32,
+    pending: &mut Vec<u32>,
+    out: &mut Vec<(f64, u32)>,
+) {
+    out.clear();
+    pending.clear();
+    let Some(&first) = radii.first() else {
+        return;
+    };
+    // The start (p itself, or the cluster holding p) always belongs to its
+    // own ball.
+    mark[start as usize] = stamp;
+    out.push((first, start));
+    let mut head = 0;
+    let mut keep = Vec::new();
+    for &r in radii {
+        let r2 = r * r;
+        keep.clear();
+        for &v in pending.iter() {
+            if (positions[v as usize] - centre).length_squared() <= r2 {
+                mark[v as usize] = stamp;
+                out.push((r, v));
+            } else {
+                keep.push(v);
+            }
+        }
+        std::mem::swap(pending, &mut keep);
+        while head < out.len() {
+            let v = out[head].1 as usize;
+            head += 1;
+            for &w in adj.row(v) {
+                let wi = w as usize;
+                if mark[wi] == stamp {
+                    continue;
+                }
+                if (positions[wi] - centre).length_squared() <= r2 {
+                    mark[wi] = stamp;
+                    out.push((r, w));
+                } else if pmark[wi] != stamp {
+                    pmark[wi] = stamp;
+                    pending.push(w);
+                }
+            }
+        }
+    }
+}
+
 /// A coarse proxy of M used by the fast mode for large radii: vertices are
 /// clustered by a grid of cell size `cell`, split into the connected pieces
 /// of M inside each cell (so that two sheets crossing one cell stay apart),
@@ -316,5 +387,94 @@ impl ProxyLevel {
 
     pub fn is_empty(&self) -> bool {
         self.rep.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A wavy, unevenly spaced grid folded over itself along x, so that a
+    /// Euclidean ball reaches vertices that the traversal cannot (the other
+    /// sheet) and radii cut through the middle of rows.
+    fn folded_grid(n: u32) -> TriMesh {
+        let mut positions = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                let (u, v) = (i as f64 / n as f64, j as f64 / n as f64);
+                let a = std::f64::consts::PI * 1.8 * u * u;
+                positions.push(DVec3::new(
+                    0.3 * a.sin(),
+                    v + 0.02 * (7.0 * u).sin(),
+                    0.3 * a.cos(),
+                ));
+            }
+        }
+        let mut triangles = Vec::new();
+        let id = |i: u32, j: u32| j * (n + 1) + i;
+        for j in 0..n {
+            for i in 0..n {
+                triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        TriMesh {
+            positions,
+            triangles,
+        }
+    }
+
+    #[test]
+    fn layered_balls_are_the_literal_balls() {
+        let m = folded_grid(24);
+        let adj = Adjacency::new(&m);
+        let n = m.positions.len();
+        let radii = [0.03, 0.07, 0.15, 0.22, 0.4, 0.9];
+        let (mut mark, mut pmark, mut mark2) = (vec![0u32; n], vec![0u32; n], vec![0u32; n]);
+        let (mut pending, mut out, mut ball) = (Vec::new(), Vec::new(), Vec::new());
+        let mut stamp = 0;
+        let mut strict_subset_seen = false;
+        for p in (0..n as u32).step_by(37) {
+            stamp += 1;
+            let c = m.positions[p as usize];
+            layered_balls(
+                &adj.vv,
+                &m.positions,
+                p,
+                c,
+                &radii,
+                &mut mark,
+                &mut pmark,
+                stamp,
+                &mut pending,
+                &mut out,
+            );
+            assert!(out.windows(2).all(|w| w[0].0 <= w[1].0), "sorted by key");
+            for (i, &r) in radii.iter().enumerate() {
+                bfs_ball(
+                    &adj.vv,
+                    &m.positions,
+                    p,
+                    r,
+                    &mut mark2,
+                    stamp * 8 + i as u32,
+                    &mut ball,
+                );
+                let mut a: Vec<u32> = out.iter().filter(|e| e.0 <= r).map(|e| e.1).collect();
+                a.sort_unstable();
+                ball.sort_unstable();
+                assert_eq!(a, ball, "p = {p}, r = {r}");
+                // The fold puts vertices within r that the traversal
+                // cannot reach: the test sees the difference from a plain
+                // Euclidean ball.
+                let euclid = m
+                    .positions
+                    .iter()
+                    .filter(|q| (**q - c).length() <= r)
+                    .count();
+                strict_subset_seen |= euclid > ball.len();
+            }
+        }
+        assert!(strict_subset_seen);
     }
 }
