@@ -78,6 +78,8 @@ pub struct MechanicalOptions {
     /// Umbrella fairness weight of the geometry step: 0.01 (see
     /// [`crate::fit`]).
     pub fairness: f64,
+    /// Objective of the geometry step: SDM, the paper's (§7.1).
+    pub objective: optimize::Objective,
 }
 
 impl Default for MechanicalOptions {
@@ -89,6 +91,7 @@ impl Default for MechanicalOptions {
             max_rounds: DEFAULT_MAX_ROUNDS,
             max_faces: 20_000,
             fairness: 0.01,
+            objective: optimize::Objective::Sdm,
         }
     }
 }
@@ -96,6 +99,10 @@ impl Default for MechanicalOptions {
 impl MechanicalOptions {
     pub fn with_max_error(mut self, e: f64) -> Self {
         self.max_error = e;
+        self
+    }
+    pub fn with_objective(mut self, o: optimize::Objective) -> Self {
+        self.objective = o;
         self
     }
     pub fn with_max_rounds(mut self, n: usize) -> Self {
@@ -759,12 +766,19 @@ pub fn build_control(
             v
         })
         .collect();
+    let on_sharp: Vec<bool> = (0..nv as u32)
+        .map(|v| topo.vertex_edges(v).iter().any(|&e| sharp[e as usize]))
+        .collect();
+    let frames = optimize::tri_frames(mesh, &curv, &on_sharp);
     let rounds = optimize::optimize(
         mesh,
         caster,
         &reach,
         &mut polys,
+        &frames,
         &optimize::OptimizeOptions {
+            objective: opts.objective,
+            sdm_tangent_floor: 0.05,
             max_error: opts.max_error,
             m0: opts.m0,
             max_rounds: opts.max_rounds,

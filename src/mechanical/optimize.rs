@@ -78,7 +78,92 @@ pub struct Round {
     pub region_rms_permille: Vec<f64>,
 }
 
+/// Objective of the geometry step (§7.1).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum Objective {
+    /// Point distance `|s − f|²`: x, y, z separate.
+    Point,
+    /// Squared-distance minimisation (Pottmann & Leopoldseder, the paper's
+    /// choice, §7.1 eq. 4): `x₃² + w₁x₁² + w₂x₂²` in the frame of the foot
+    /// triangle (see [`TriFrame`]).
+    Sdm,
+}
+
+/// Normal, principal directions and curvatures of one triangle of M, for
+/// the SDM objective.
+#[derive(Copy, Clone, Debug)]
+pub struct TriFrame {
+    pub normal: DVec3,
+    pub e1: DVec3,
+    pub k1: f64,
+    pub k2: f64,
+}
+
+/// Per-triangle SDM frames from the vertex tensors of §3.1: the face
+/// normal (a CAD tessellation's faces are exact within a region, where an
+/// interpolated vertex normal bends towards the neighbouring region at a
+/// feature) and the mean of the tensors `k_max d_max d_maxᵀ + k_min d_min
+/// d_minᵀ` of the triangle's vertices that touch no sharp edge, projected
+/// onto the face plane. A vertex on a sharp edge carries the feature's
+/// dihedral in its normal-cycle tensor, not the region's curvature; a
+/// triangle with only such vertices gets `k = ∞`, i.e. `w = 1`: point
+/// distance, the safe choice next to a crease.
+pub fn tri_frames(
+    mesh: &TriMesh,
+    curv: &[super::VertexCurvature],
+    on_sharp: &[bool],
+) -> Vec<TriFrame> {
+    mesh.triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|v| mesh.positions[v as usize]);
+            let n = (b - a).cross(c - a).normalize_or_zero();
+            let e = (b - a).normalize_or_zero();
+            let f = n.cross(e);
+            // 2×2 tensor in the (e, f) basis.
+            let (mut txx, mut txy, mut tyy, mut cnt) = (0.0, 0.0, 0.0, 0);
+            for &v in t {
+                let v = v as usize;
+                if on_sharp[v] {
+                    continue;
+                }
+                let k = &curv[v];
+                for (kk, d) in [(k.k_max, k.d_max), (k.k_min, k.d_min)] {
+                    let (x, y) = (d.dot(e), d.dot(f));
+                    txx += kk * x * x;
+                    txy += kk * x * y;
+                    tyy += kk * y * y;
+                }
+                cnt += 1;
+            }
+            if cnt == 0 || n == DVec3::ZERO {
+                return TriFrame {
+                    normal: n,
+                    e1: e,
+                    k1: f64::INFINITY,
+                    k2: f64::INFINITY,
+                };
+            }
+            let c = cnt as f64;
+            let (txx, txy, tyy) = (txx / c, txy / c, tyy / c);
+            let half = 0.5 * (txx + tyy);
+            let r = (0.25 * (txx - tyy).powi(2) + txy * txy).sqrt();
+            let (k1, k2) = (half + r, half - r);
+            let ang = 0.5 * (2.0 * txy).atan2(txx - tyy);
+            TriFrame {
+                normal: n,
+                e1: ang.cos() * e + ang.sin() * f,
+                k1,
+                k2,
+            }
+        })
+        .collect()
+}
+
 pub struct OptimizeOptions {
+    pub objective: Objective,
+    /// SDM's smallest tangential weight (as `crate::fit`'s): 0.05.
+    pub sdm_tangent_floor: f64,
     pub max_error: f64,
     pub m0: usize,
     pub max_rounds: usize,
@@ -93,6 +178,7 @@ pub fn optimize(
     caster: &dyn RayCaster,
     reach: &[Vec<u32>],
     polys: &mut Polys,
+    frames: &[TriFrame],
     o: &OptimizeOptions,
 ) -> Result<Vec<Round>> {
     let diag = mesh.bbox_diagonal();
@@ -140,19 +226,34 @@ pub fn optimize(
             .iter()
             .map(|s| s.position)
             .collect();
-        let mut feet = region_feet(&region_casters, &sample_region, &pts)?;
+        let (mut feet, mut foot_tri) = region_feet(&region_casters, &sample_region, &pts)?;
         let mut energy = sq_energy(&pts, &feet);
         for _ in 0..o.m0 {
             if nfree == 0 || energy.sqrt() <= 0.1 * limit * (pts.len() as f64).sqrt() {
                 break;
             }
-            let delta = solve_step(&st, &pts, &feet, polys.fixed, nfree, &lap, o.fairness)?;
+            let delta = match o.objective {
+                Objective::Point => {
+                    solve_step(&st, &pts, &feet, polys.fixed, nfree, &lap, o.fairness)?
+                }
+                Objective::Sdm => solve_step_sdm(
+                    &st,
+                    &pts,
+                    &feet,
+                    &foot_tri,
+                    frames,
+                    polys.fixed,
+                    nfree,
+                    &lap,
+                    o,
+                )?,
+            };
             let mut trial = polys.positions.clone();
             for (v, d) in delta.iter().enumerate() {
                 trial[polys.fixed + v] += *d;
             }
             let tpts: Vec<DVec3> = st.apply(&trial).iter().map(|s| s.position).collect();
-            let tfeet = region_feet(&region_casters, &sample_region, &tpts)?;
+            let (tfeet, ttri) = region_feet(&region_casters, &sample_region, &tpts)?;
             let e = sq_energy(&tpts, &tfeet);
             // Alternating minimisation: the solve lowers Σ|s − f|² for the
             // old feet (the fairness term only damps it) and the new closest
@@ -165,6 +266,7 @@ pub fn optimize(
             polys.positions = trial;
             pts = tpts;
             feet = tfeet;
+            foot_tri = ttri;
             energy = e;
             iters += 1;
             if gain < 0.01 {
@@ -530,12 +632,10 @@ fn region_casters(mesh: &TriMesh, reach: &[Vec<u32>]) -> Result<Vec<RegionCaster
         .collect()
 }
 
-/// Closest point of each sample's own region of M.
-fn region_feet(
-    casters: &[RegionCaster],
-    sample_region: &[u32],
-    pts: &[DVec3],
-) -> Result<Vec<Option<DVec3>>> {
+/// Closest point of each sample's own region of M, and its triangle.
+type Feet = (Vec<Option<DVec3>>, Vec<u32>);
+
+fn region_feet(casters: &[RegionCaster], sample_region: &[u32], pts: &[DVec3]) -> Result<Feet> {
     let mut by_region: Vec<Vec<usize>> = vec![Vec::new(); casters.len()];
     for (i, &r) in sample_region.iter().enumerate() {
         if let Some(b) = by_region.get_mut(r as usize) {
@@ -543,17 +643,21 @@ fn region_feet(
         }
     }
     let mut feet = vec![None; pts.len()];
+    let mut tri = vec![u32::MAX; pts.len()];
     for (r, idx) in by_region.iter().enumerate() {
-        let Some((c, _)) = &casters[r] else { continue };
+        let Some((c, ts)) = &casters[r] else { continue };
         if idx.is_empty() {
             continue;
         }
         let q: Vec<DVec3> = idx.iter().map(|&i| pts[i]).collect();
         for (&i, h) in idx.iter().zip(c.closest_points(&q, f64::INFINITY)?) {
             feet[i] = h.map(|h| h.point);
+            if let Some(h) = h {
+                tri[i] = ts.get(h.triangle as usize).copied().unwrap_or(u32::MAX);
+            }
         }
     }
-    Ok(feet)
+    Ok((feet, tri))
 }
 
 fn sq_energy(pts: &[DVec3], feet: &[Option<DVec3>]) -> f64 {
@@ -612,6 +716,109 @@ fn solve_step(
     (0..nfree)
         .map(|v| {
             let d = DVec3::new(x[0][v], x[1][v], x[2][v]);
+            if d.is_finite() {
+                Ok(d)
+            } else {
+                Err(Error::backend("Eigen", "non-finite control update"))
+            }
+        })
+        .collect()
+}
+
+/// One SDM update of the free control points (§7.1, eq. 4 of Lavoué et
+/// al., after Pottmann & Leopoldseder): per sample, three rows in the foot
+/// triangle's frame `(n, e1, e2)`, `√w` times the residual along each, with
+/// `w_i = dκ_i / (1 + dκ_i)` (d the signed distance along n) clamped to
+/// `[floor, 1]` and `floor` where `1 + dκ_i ≤ 0` (beyond the centre of
+/// curvature eq. 4 approximates nothing), as in [`crate::fit`]. The
+/// coordinates are coupled: 3·nfree unknowns, one right-hand side. Same
+/// regularisation as [`solve_step`], per coordinate.
+#[allow(clippy::too_many_arguments)]
+fn solve_step_sdm(
+    st: &crate::subdiv::LimitStencils,
+    pts: &[DVec3],
+    feet: &[Option<DVec3>],
+    foot_tri: &[u32],
+    frames: &[TriFrame],
+    fixed: usize,
+    nfree: usize,
+    lap: &[Vec<(u32, f64)>],
+    o: &OptimizeOptions,
+) -> Result<Vec<DVec3>> {
+    let floor = o.sdm_tangent_floor;
+    let mut rows: Vec<usize> = Vec::new();
+    for (i, f) in feet.iter().enumerate() {
+        if f.is_some() && st.row(i).any(|k| st.indices[k] as usize >= fixed) {
+            rows.push(i);
+        }
+    }
+    let samples = rows.len();
+    if samples == 0 {
+        return Ok(vec![DVec3::ZERO; nfree]);
+    }
+    let n3 = 3 * nfree;
+    let mut a = Triplets::new(3 * samples, n3);
+    let mut b = Vec::with_capacity(3 * samples);
+    let mut r = 0;
+    for &i in &rows {
+        let foot = feet[i].unwrap_or(pts[i]);
+        let res = pts[i] - foot;
+        let fr = frames.get(foot_tri[i] as usize);
+        let frame: [(DVec3, f64); 3] = match fr {
+            Some(fr) if fr.normal != DVec3::ZERO => {
+                let n = fr.normal;
+                let d = res.dot(n);
+                let weight = |k: f64| {
+                    if !k.is_finite() {
+                        return 1.0;
+                    }
+                    let q = 1.0 + d * k;
+                    if q > 0.0 {
+                        (d * k / q).clamp(floor, 1.0)
+                    } else {
+                        floor
+                    }
+                };
+                let e1 = (fr.e1 - fr.e1.dot(n) * n)
+                    .try_normalize()
+                    .unwrap_or_else(|| n.any_orthonormal_vector());
+                [(n, 1.0), (e1, weight(fr.k1)), (n.cross(e1), weight(fr.k2))]
+            }
+            _ => [(DVec3::X, 1.0), (DVec3::Y, 1.0), (DVec3::Z, 1.0)],
+        };
+        for (e, w) in frame {
+            let sw = w.sqrt();
+            for k in st.row(i) {
+                let v = st.indices[k] as usize;
+                if v < fixed {
+                    continue;
+                }
+                let col = 3 * (v - fixed);
+                let s = sw * st.weights[k];
+                a.push(r, col, s * e.x);
+                a.push(r, col + 1, s * e.y);
+                a.push(r, col + 2, s * e.z);
+            }
+            b.push(-sw * e.dot(res));
+            r += 1;
+        }
+    }
+    let mut reg = Triplets::new(2 * n3, n3);
+    for (v, row) in lap.iter().enumerate() {
+        for c in 0..3 {
+            for &(u, w) in row {
+                reg.push(3 * v + c, 3 * u as usize + c, w);
+            }
+            reg.push(n3 + 3 * v + c, 3 * v + c, 1e-2);
+        }
+    }
+    // λ as in the point step: `samples` data rows per coordinate.
+    let lambda = o.fairness * samples as f64 / nfree as f64;
+    let x = least_squares(&a, &[b], Some((&reg, lambda)), &LsqOptions::default())?;
+    let x = &x[0];
+    (0..nfree)
+        .map(|v| {
+            let d = DVec3::new(x[3 * v], x[3 * v + 1], x[3 * v + 2]);
             if d.is_finite() {
                 Ok(d)
             } else {
