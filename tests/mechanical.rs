@@ -403,3 +403,42 @@ fn fandisk_figures() {
     assert!(built.control.num_vertices() <= 130);
     assert!(built.stats.sharp_edges_inside_regions == 0);
 }
+
+/// §7.1's objective: the squared-distance minimisation (the default) fits
+/// at least as well as the point distance on the same topology. Round 1 is
+/// the first round both fit on the *same* control mesh (round 0's
+/// polyhedron has only curve control points, all fixed, so its enrichment
+/// does not depend on the objective). Measured on fandisk: RMS 0.738‰
+/// (SDM) against 0.775‰ (point), 5 % lower; the assertion allows no
+/// regression past the point objective.
+#[test]
+fn fandisk_sdm_beats_point_distance() {
+    use subdfit::mechanical::optimize::Objective;
+    let mesh = fandisk();
+    let caster =
+        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
+    let run = |o: Objective| {
+        let opts = mechanical::MechanicalOptions::default()
+            .with_objective(o)
+            .with_max_rounds(1);
+        mechanical::build_control(&mesh, caster.as_ref(), &opts)
+            .unwrap()
+            .stats
+            .rounds
+    };
+    let (sdm, point) = (run(Objective::Sdm), run(Objective::Point));
+    assert!(sdm.len() >= 2 && point.len() >= 2);
+    assert_eq!(sdm[1].faces, point[1].faces, "same topology in round 1");
+    assert!(sdm[1].geometry_iterations > 0);
+    println!(
+        "round 1 RMS: SDM {:.3}‰, point {:.3}‰",
+        sdm[1].rms_permille, point[1].rms_permille
+    );
+    assert!(
+        sdm[1].rms_permille <= point[1].rms_permille,
+        "SDM {} vs point {}",
+        sdm[1].rms_permille,
+        point[1].rms_permille
+    );
+    assert!(sdm[1].mean_permille <= 1.02 * point[1].mean_permille);
+}

@@ -5,10 +5,18 @@
 //!
 //! Geometry (§7.1): samples of the limit surface (the ptex grids of
 //! [`crate::fit::patch_samples`], about one per vertex of M), their feet
-//! φ(s) on M along the limit normal, and a linear least-squares update of
-//! the free control points minimising `Σ |s − φ(s)|²` plus a small umbrella
-//! fairness on the update (as in [`crate::fit`]): the point-distance
-//! objective; up to `m₀` rounds, stopping early when the RMS stops falling.
+//! on M (closest point within the sample's region, see [`optimize`]), and
+//! a linear least-squares update of the free control points plus a small
+//! umbrella fairness on the update (as in [`crate::fit`]). The objective is
+//! the paper's: the squared-distance minimisation of Pottmann and
+//! Leopoldseder ([`Objective::Sdm`], eq. 4: normal residual in full,
+//! tangential residuals weighted by `dκ/(1 + dκ)` in the foot triangle's
+//! principal frame, [`tri_frames`]); the point distance `Σ |s − f|²`
+//! ([`Objective::Point`]) is kept for comparison. On fandisk SDM lowers
+//! the RMS of the first fitted round from 0.775‰ to 0.738‰ and the final
+//! one from 0.596‰ to 0.581‰ (same faces). Up to `m₀` iterations per
+//! round, each accepted only if the squared distance to the (new) closest
+//! feet falls, stopping early when it falls by less than 1 %.
 //!
 //! Enrichment (§7.2): faces whose RMS sample distance exceeds the limit form
 //! error fields (connected over non-crease edges). A field whose samples
