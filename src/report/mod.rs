@@ -31,7 +31,8 @@
 //! vertices (at least the displacement resolution, at most 64): its chordal
 //! error is then well below M's own. D is the displacement grid itself: the
 //! limit point plus the measured offset at every `R × R` sample, linear in
-//! between — what `displaced.ply` holds. Unprojectable samples carry their
+//! between, each grid cell split along its shorter displaced diagonal —
+//! what `displaced.ply` holds. Unprojectable samples carry their
 //! inpainted offsets ([`crate::displace`]), so D is measured as written.
 //!
 //! Projectability (Table 1, "Unp."): the percentage of M's area not reached
@@ -234,9 +235,14 @@ pub fn evaluate_surfaces(
     )?;
     report_progress(progress, "displacement", 1.0)?;
     report_progress(progress, "metrics", 0.0)?;
+    // D: the displacement grid, each cell split along its shorter
+    // displaced diagonal (`PatchGrid::triangles_shorter_diagonal`).
+    let displaced_positions = displacement.displaced_positions();
     let displaced = TriMesh {
-        positions: displacement.displaced_positions(),
-        triangles: displacement.grid.triangles(),
+        triangles: displacement
+            .grid
+            .triangles_shorter_diagonal(&displaced_positions),
+        positions: displaced_positions,
     };
     report_progress(progress, "metrics", 0.2)?;
     let limit_acc = limit_accuracy(mesh, caster, &limit, limit_caster.as_ref(), diag)?;
@@ -250,7 +256,7 @@ pub fn evaluate_surfaces(
         stats_of(&dd, &dw, diag),
         distance_stats(&mp, &mw, displaced_caster.as_ref(), diag)?,
     );
-    let displaced_breakdown = breakdown(control, &displacement, &dd, &dw, diag);
+    let displaced_breakdown = breakdown(control, &displacement, &displaced, &dd, &dw, diag);
     report_progress(progress, "metrics", 0.7)?;
 
     // Projectability, see the module docs.
@@ -382,17 +388,19 @@ impl Accuracy {
 }
 
 /// [`DisplacedBreakdown`] from D's per-point S → M distances `dist`
-/// (weights `w`, three per triangle of `displacement.grid.triangles()` in
-/// order, as [`quadrature_points`] makes them).
+/// (weights `w`, three per triangle of `displaced`, D's tessellation, in
+/// order, as [`quadrature_points`] makes them; two triangles per grid cell,
+/// patch after patch).
 fn breakdown(
     control: &ControlMesh,
     displacement: &Displacement,
+    displaced: &TriMesh,
     dist: &[f64],
     w: &[f64],
     diag: f64,
 ) -> DisplacedBreakdown {
     let grid = &displacement.grid;
-    let tris = grid.triangles();
+    let tris = &displaced.triangles;
     let r1 = grid.res() - 1;
     let per_patch = 2 * r1 * r1;
     let boundary_patch: Vec<bool> = control
