@@ -7,7 +7,9 @@
 # and 10 %), runs `subdfit convert MESH -o OUT --tolerance τ` under
 # /usr/bin/time and prints the table in the paper's layout: patches □K,
 # irregular vertices, unprojectable area (%), RMS error of the limit (L) and
-# displaced (D) surfaces in ‰ of the bounding-box diagonal — plus wall
+# displaced (D) surfaces in ‰ of the bounding-box diagonal (D also split by
+# direction, and D → M over the part of D whose samples projected onto M,
+# which leaves out the surface beyond M's boundary or over its holes) — plus wall
 # seconds and peak memory, and the paper's figures where it has them.
 #
 # Until `convert` exists, each mesh is run through `subdfit fit` from the
@@ -61,7 +63,7 @@ paper = {
     ("gargoyle", "0.01"): (1096, 345, 0.0, 2.36, 0.07),
     ("gargoyle", "0.1"): (493, 182, 0.4, 4.50, 0.15),
 }
-hdr = f"{'Mesh (Δ)':<18} {'τ':>5} {'□K':>7} {'Irreg.':>7} {'Unp.%':>6} {'L ‰':>7} {'D ‰':>7} {'s':>7} {'MB':>7}  mode      paper (□K irr unp L D)"
+hdr = f"{'Mesh (Δ)':<18} {'τ':>5} {'□K':>7} {'Irreg.':>7} {'Unp.%':>6} {'L ‰':>7} {'D ‰':>7} {'D s→M':>7} {'D M→s':>7} {'D over M':>8} {'s':>7} {'MB':>7}  mode      paper (□K irr unp L D)"
 print(hdr)
 print("-" * len(hdr))
 for row in sys.argv[1:]:
@@ -70,11 +72,19 @@ for row in sys.argv[1:]:
     tris = r["input"].get("triangles", 0)
     name = f"{m} ({tris/1000:.0f}k)"
     p = paper.get((m, tau))
+    dis = r["accuracy"]["displaced"]
+    # D → M over the displaced triangles whose samples all projected (the
+    # part of D that lies over M; see report::DisplacedBreakdown).
+    bd = r["accuracy"].get("displaced_breakdown")
+    over_m = f"{bd['surface_to_mesh_projected']['rms_permille']:.3f}" if bd else "-"
     ptxt = " ".join("-" if x is None else str(x) for x in p) if p else ""
     print(f"{name:<18} {float(tau)*100:>4g}% {r['control']['faces']:>7} "
           f"{r['control']['irregular_vertices']:>7} "
           f"{r['projectability']['unprojectable_area_percent']:>6.2f} "
           f"{r['accuracy']['limit']['rms_permille']:>7.3f} "
           f"{r['accuracy']['displaced']['rms_permille']:>7.3f} "
+          f"{dis['surface_to_mesh']['rms_permille']:>7.3f} "
+          f"{dis['mesh_to_surface']['rms_permille']:>7.3f} "
+          f"{over_m:>8} "
           f"{float(secs):>7.2f} {int(kib)/1024:>7.0f}  {mode:<9} {ptxt}")
 PY

@@ -31,7 +31,8 @@
 //! vertices (at least the displacement resolution, at most 64): its chordal
 //! error is then well below M's own. D is the displacement grid itself: the
 //! limit point plus the measured offset at every `R × R` sample, linear in
-//! between — what `displaced.ply` holds. Unprojectable samples carry their
+//! between, each grid cell split along its shorter displaced diagonal —
+//! what `displaced.ply` holds. Unprojectable samples carry their
 //! inpainted offsets ([`crate::displace`]), so D is measured as written.
 //!
 //! Projectability (Table 1, "Unp."): the percentage of M's area not reached
@@ -118,7 +119,54 @@ pub struct Metrics {
     pub unprojectable_area_percent: f64,
     pub displacement: DisplacementStats,
     pub tessellation_res: usize,
+    /// Where D's surface→mesh error sits (see [`DisplacedBreakdown`]).
+    pub displaced_breakdown: DisplacedBreakdown,
 }
+
+/// Where the displaced surface's S → M error comes from. D's RMS is an
+/// area integral dominated by a few regions: the displaced triangles that
+/// touch an unprojectable sample (whose offset is inpainted: over a hole of
+/// M, or where the limit surface runs past M's boundary, no normal offset
+/// can bring the surface onto M), and the patches with the largest squared
+/// error. Diagnostic figures next to the honest totals of
+/// [`Metrics::displaced`], which include everything.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct DisplacedBreakdown {
+    /// Percentage of D's area in triangles with at least one unprojectable
+    /// corner sample.
+    pub unprojectable_area_percent: f64,
+    /// Percentage of D's area-weighted squared S → M distance in those
+    /// triangles.
+    pub unprojectable_error_share_percent: f64,
+    /// S → M over the triangles whose three corners projected.
+    pub surface_to_mesh_projected: DistanceStats,
+    /// Percentage of D's area in patches with a boundary control vertex
+    /// (where the limit surface may run past M's boundary), and their share
+    /// of the squared error.
+    pub boundary_patch_area_percent: f64,
+    pub boundary_patch_error_share_percent: f64,
+    /// The patches with the largest share of the squared error, largest
+    /// first (at most [`WORST_PATCHES`]).
+    pub worst_patches: Vec<PatchError>,
+}
+
+/// One patch's part of D's S → M error.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct PatchError {
+    /// Face index in the control mesh.
+    pub patch: usize,
+    /// Percentage of D's area-weighted squared S → M distance.
+    pub error_share_percent: f64,
+    /// Area-weighted RMS S → M over the patch, ‰ of M's diagonal.
+    pub rms_permille: f64,
+    /// Unprojectable samples among the patch's R² grid samples.
+    pub unprojectable_samples: usize,
+    /// Whether a corner of the patch is a boundary vertex of the control mesh.
+    pub boundary: bool,
+}
+
+/// How many patches [`DisplacedBreakdown::worst_patches`] lists.
+pub const WORST_PATCHES: usize = 8;
 
 /// The surfaces the metrics were measured on, for writing out.
 #[derive(Clone, Debug)]
@@ -187,22 +235,28 @@ pub fn evaluate_surfaces(
     )?;
     report_progress(progress, "displacement", 1.0)?;
     report_progress(progress, "metrics", 0.0)?;
+    // D: the displacement grid, each cell split along its shorter
+    // displaced diagonal (`PatchGrid::triangles_shorter_diagonal`).
+    let displaced_positions = displacement.displaced_positions();
     let displaced = TriMesh {
-        positions: displacement.displaced_positions(),
-        triangles: displacement.grid.triangles(),
+        triangles: displacement
+            .grid
+            .triangles_shorter_diagonal(&displaced_positions),
+        positions: displaced_positions,
     };
     report_progress(progress, "metrics", 0.2)?;
-    let limit_acc = accuracy(mesh, caster, &limit, limit_caster.as_ref(), diag, false)?;
+    let limit_acc = limit_accuracy(mesh, caster, &limit, limit_caster.as_ref(), diag)?;
     report_progress(progress, "metrics", 0.5)?;
     let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
-    let displaced_acc = accuracy(
-        mesh,
-        caster,
-        &displaced,
-        displaced_caster.as_ref(),
-        diag,
-        true,
-    )?;
+    // D's S → M by the 3-point rule, kept per point for the breakdown.
+    let (dp, dw) = quadrature_points(&displaced);
+    let dd = closest_distances(&dp, caster)?;
+    let (mp, mw) = quadrature_points(mesh);
+    let displaced_acc = Accuracy::from_directions(
+        stats_of(&dd, &dw, diag),
+        distance_stats(&mp, &mw, displaced_caster.as_ref(), diag)?,
+    );
+    let displaced_breakdown = breakdown(control, &displacement, &displaced, &dd, &dw, diag);
     report_progress(progress, "metrics", 0.7)?;
 
     // Projectability, see the module docs.
@@ -242,6 +296,7 @@ pub fn evaluate_surfaces(
         unprojectable_area_percent: 100.0 * unreached / total_area.max(f64::MIN_POSITIVE),
         displacement: displacement.stats.clone(),
         tessellation_res: t,
+        displaced_breakdown,
     };
     Ok(Surfaces {
         displacement,
@@ -284,15 +339,28 @@ pub fn distance_stats(
     to: &dyn RayCaster,
     diag: f64,
 ) -> Result<DistanceStats> {
-    let closest = to.closest_points(points, f64::INFINITY)?;
+    Ok(stats_of(&closest_distances(points, to)?, w, diag))
+}
+
+/// Distance from each point to the surface behind `to`.
+fn closest_distances(points: &[DVec3], to: &dyn RayCaster) -> Result<Vec<f64>> {
+    to.closest_points(points, f64::INFINITY)?
+        .iter()
+        .map(|c| {
+            c.map(|c| c.distance)
+                .ok_or_else(|| Error::backend("ray caster", "closest point query returned nothing"))
+        })
+        .collect()
+}
+
+/// Area-weighted statistics of distances `dist` (weights `w`, samples of
+/// weight 0 skipped), in ‰ of `diag`.
+fn stats_of(dist: &[f64], w: &[f64], diag: f64) -> DistanceStats {
     let (mut sw, mut s1, mut s2, mut max, mut count) = (0.0, 0.0, 0.0, 0.0f64, 0usize);
-    for (c, &wi) in closest.iter().zip(w) {
+    for (&d, &wi) in dist.iter().zip(w) {
         if wi <= 0.0 {
             continue;
         }
-        let d = c
-            .ok_or_else(|| Error::backend("ray caster", "closest point query returned nothing"))?
-            .distance;
         sw += wi;
         s1 += wi * d;
         s2 += wi * d * d;
@@ -301,35 +369,126 @@ pub fn distance_stats(
     }
     let k = 1000.0 / diag;
     let sw = sw.max(f64::MIN_POSITIVE);
-    Ok(DistanceStats {
+    DistanceStats {
         rms_permille: k * (s2 / sw).sqrt(),
         mean_permille: k * s1 / sw,
         max_permille: k * max,
         samples: count,
-    })
+    }
 }
 
-fn accuracy(
+impl Accuracy {
+    fn from_directions(s2m: DistanceStats, m2s: DistanceStats) -> Accuracy {
+        Accuracy {
+            rms_permille: s2m.rms_permille.max(m2s.rms_permille),
+            surface_to_mesh: s2m,
+            mesh_to_surface: m2s,
+        }
+    }
+}
+
+/// [`DisplacedBreakdown`] from D's per-point S → M distances `dist`
+/// (weights `w`, three per triangle of `displaced`, D's tessellation, in
+/// order, as [`quadrature_points`] makes them; two triangles per grid cell,
+/// patch after patch).
+fn breakdown(
+    control: &ControlMesh,
+    displacement: &Displacement,
+    displaced: &TriMesh,
+    dist: &[f64],
+    w: &[f64],
+    diag: f64,
+) -> DisplacedBreakdown {
+    let grid = &displacement.grid;
+    let tris = &displaced.triangles;
+    let r1 = grid.res() - 1;
+    let per_patch = 2 * r1 * r1;
+    let boundary_patch: Vec<bool> = control
+        .faces()
+        .map(|f| {
+            control
+                .face_vertices(f)
+                .any(|v| control.is_boundary_vertex(v))
+        })
+        .collect();
+    let (mut area, mut err) = (0.0, 0.0);
+    let (mut u_area, mut u_err, mut b_area, mut b_err) = (0.0, 0.0, 0.0, 0.0);
+    let mut patch_err = vec![0.0; grid.num_patches()];
+    let mut patch_area = vec![0.0; grid.num_patches()];
+    let mut proj_w = w.to_vec();
+    for (t, tri) in tris.iter().enumerate() {
+        let f = t / per_patch;
+        let (a, e): (f64, f64) = (3 * t..3 * t + 3)
+            .map(|k| (w[k], w[k] * dist[k] * dist[k]))
+            .fold((0.0, 0.0), |(sa, se), (a, e)| (sa + a, se + e));
+        area += a;
+        err += e;
+        patch_area[f] += a;
+        patch_err[f] += e;
+        if tri.iter().any(|&s| !displacement.projected[s as usize]) {
+            u_area += a;
+            u_err += e;
+            proj_w[3 * t..3 * t + 3].fill(0.0);
+        }
+        if boundary_patch[f] {
+            b_area += a;
+            b_err += e;
+        }
+    }
+    let pct = |x: f64, of: f64| 100.0 * x / of.max(f64::MIN_POSITIVE);
+    let mut order: Vec<usize> = (0..grid.num_patches()).collect();
+    // Largest share first; ties by index, so the list is deterministic.
+    order.sort_by(|&a, &b| patch_err[b].total_cmp(&patch_err[a]).then(a.cmp(&b)));
+    let worst_patches = order
+        .into_iter()
+        .take(WORST_PATCHES)
+        .map(|f| {
+            let mut unprojectable = 0;
+            for j in 0..grid.res() {
+                for i in 0..grid.res() {
+                    if !displacement.projected[grid.sample(f, i, j) as usize] {
+                        unprojectable += 1;
+                    }
+                }
+            }
+            PatchError {
+                patch: f,
+                error_share_percent: pct(patch_err[f], err),
+                rms_permille: 1000.0 / diag
+                    * (patch_err[f] / patch_area[f].max(f64::MIN_POSITIVE)).sqrt(),
+                unprojectable_samples: unprojectable,
+                boundary: boundary_patch[f],
+            }
+        })
+        .collect();
+    DisplacedBreakdown {
+        unprojectable_area_percent: pct(u_area, area),
+        unprojectable_error_share_percent: pct(u_err, err),
+        surface_to_mesh_projected: stats_of(dist, &proj_w, diag),
+        boundary_patch_area_percent: pct(b_area, area),
+        boundary_patch_error_share_percent: pct(b_err, err),
+        worst_patches,
+    }
+}
+
+/// L's accuracy: its vertices (weighted by a third of their triangles'
+/// areas) to M, M's quadrature points to its tessellation (module docs).
+fn limit_accuracy(
     mesh: &TriMesh,
     mesh_caster: &dyn RayCaster,
     surface: &TriMesh,
     surface_caster: &dyn RayCaster,
     diag: f64,
-    surface_quadrature: bool,
 ) -> Result<Accuracy> {
-    let (sp, sw) = if surface_quadrature {
-        quadrature_points(surface)
-    } else {
-        (surface.positions.clone(), vertex_areas(surface))
-    };
-    let s2m = distance_stats(&sp, &sw, mesh_caster, diag)?;
+    let s2m = distance_stats(
+        &surface.positions,
+        &vertex_areas(surface),
+        mesh_caster,
+        diag,
+    )?;
     let (mp, mw) = quadrature_points(mesh);
     let m2s = distance_stats(&mp, &mw, surface_caster, diag)?;
-    Ok(Accuracy {
-        rms_permille: s2m.rms_permille.max(m2s.rms_permille),
-        surface_to_mesh: s2m,
-        mesh_to_surface: m2s,
-    })
+    Ok(Accuracy::from_directions(s2m, m2s))
 }
 
 /// The sample points and weights of the 3-point rule (module docs), three
@@ -462,6 +621,8 @@ pub struct ReportAccuracy {
     pub unit: &'static str,
     pub limit: Accuracy,
     pub displaced: Accuracy,
+    /// Where D's S → M error sits (diagnostic; `displaced` is the total).
+    pub displaced_breakdown: DisplacedBreakdown,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -499,6 +660,7 @@ impl Report {
                 unit: "permille of the input's bounding-box diagonal",
                 limit: metrics.limit.clone(),
                 displaced: metrics.displaced.clone(),
+                displaced_breakdown: metrics.displaced_breakdown.clone(),
             },
             projectability: ReportProjectability {
                 unprojectable_area_percent: metrics.unprojectable_area_percent,
