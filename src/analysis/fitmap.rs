@@ -842,24 +842,26 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
             sc.key_at[v as usize] = k;
         }
         // Triangles with their key: the radius from which all three vertices
-        // are in the ball.
-        let stamp = sc.next_stamp();
-        for &(_, v) in &sorted {
-            for &t in ctx.adj.vt.row(v as usize) {
-                if sc.tmark[t as usize] != stamp {
-                    sc.tmark[t as usize] = stamp;
-                    let k = ctx.mesh.triangles[t as usize]
-                        .iter()
-                        .map(|&w| sc.key_at[w as usize])
-                        .fold(f64::NEG_INFINITY, f64::max);
-                    if k.is_finite() {
-                        sc.tris.push((k, t));
+        // are in the ball (only the M-test needs them).
+        if cap != NO_M_TEST as usize {
+            let stamp = sc.next_stamp();
+            for &(_, v) in &sorted {
+                for &t in ctx.adj.vt.row(v as usize) {
+                    if sc.tmark[t as usize] != stamp {
+                        sc.tmark[t as usize] = stamp;
+                        let k = ctx.mesh.triangles[t as usize]
+                            .iter()
+                            .map(|&w| sc.key_at[w as usize])
+                            .fold(f64::NEG_INFINITY, f64::max);
+                        if k.is_finite() {
+                            sc.tris.push((k, t));
+                        }
                     }
                 }
             }
+            sc.tris
+                .sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         }
-        sc.tris
-            .sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         for &(_, v) in &sorted {
             sc.key_at[v as usize] = f64::INFINITY;
         }
