@@ -2,7 +2,9 @@
 # Fast vs exact Fitmap on shared meshes (issue 3: Spearman ρ of F_S >= 0.95,
 # F_M on the same radius step for >= 90 % of vertices, never more than one
 # step apart). The exact mode is quadratic: these meshes take minutes each
-# on 2 cores. Usage: bench/fitmap_compare.sh [MESH...]
+# on 2 cores; set FITMAP_EXACT_CACHE=DIR to keep the exact results there
+# (per mesh, seed and τ) and compare variants of the fast mode against them.
+# Usage: bench/fitmap_compare.sh [MESH...]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${DATA:-/work/shared/data}
