@@ -56,7 +56,7 @@ use super::neighbourhood::{bfs_ball, layered_balls, Adjacency, Csr, ProxyLevel};
 use super::normals::{triangle_areas, vertex_normals};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
-use crate::raycast::{Hit, Ray, RayCaster};
+use crate::raycast::{Ray, RayCaster};
 use crate::DVec3;
 
 /// Number of radius steps `h`: radii `r_0..r_h` (Fitmaps §3.1.2, "h = 8").
@@ -300,10 +300,18 @@ struct Ctx<'a> {
     failure: std::sync::Mutex<Option<Error>>,
 }
 
+thread_local! {
+    /// [`triangle_verdicts`]'s per-thread buffers (rays, their triangle,
+    /// verdicts): it runs thousands of times per vertex inside rayon jobs.
+    #[allow(clippy::type_complexity)]
+    static VERDICT_SCRATCH: std::cell::RefCell<(Vec<Ray>, Vec<u32>, Vec<bool>)> =
+        const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
+}
+
 impl Ctx<'_> {
-    fn first_hits(&self, rays: &[Ray]) -> Option<Vec<Option<Hit>>> {
-        match self.caster.first_hits(rays) {
-            Ok(h) => Some(h),
+    fn lines_blocked(&self, rays: &[Ray], out: &mut Vec<bool>) -> Option<()> {
+        match self.caster.lines_blocked(rays, out) {
+            Ok(()) => Some(()),
             Err(e) => {
                 let mut f = self.failure.lock().unwrap_or_else(|p| p.into_inner());
                 f.get_or_insert(e);
@@ -513,51 +521,58 @@ fn triangle_verdicts(
     // distance (not the nearest hit within the radius): short rays that
     // stop early in the BVH. A sample within eps of the cubic cannot be
     // blocked and needs no ray; at the small radii that is most of them.
-    let mut rays = Vec::with_capacity(4 * tris.len());
-    let mut owner = Vec::with_capacity(2 * tris.len());
-    for (k, &t) in tris.iter().enumerate() {
-        for &x in ctx.samples.of(t) {
-            let q = frame.to_local(x);
-            // The vertical distance to the graph bounds the distance to it:
-            // within eps the sample cannot be blocked, and the triangle is
-            // reached without a foot point or a ray (the common case: a
-            // cubic fits M to far better than a tenth of an edge).
-            if (q.z - cubic.eval(q.x, q.y)).abs() <= eps {
-                reached[k] = true;
-                break;
-            }
-            let f = cubic.foot_point(q, 0.5 * r);
-            let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
-            let reach = (q - c).length() - eps;
-            if reach.is_nan() || reach <= 0.0 {
-                // Also a non-finite foot point: no line, as a missed line.
-                reached[k] = true;
-                break;
-            }
-            let origin = frame.to_world(c);
-            let dir = frame.dir_to_world(cubic.normal(f.x, f.y));
-            for d in [dir, -dir] {
+    // Taken out of the cell, not borrowed: the ray caster may run rayon
+    // inside, and a stolen job on this thread can re-enter here.
+    let mut scratch = VERDICT_SCRATCH.with(|c| c.take());
+    let out = (|| {
+        let (rays, owner, blocked) = &mut scratch;
+        rays.clear();
+        owner.clear();
+        for (k, &t) in tris.iter().enumerate() {
+            for &x in ctx.samples.of(t) {
+                let q = frame.to_local(x);
+                // The vertical distance to the graph bounds the distance to
+                // it: within eps the sample cannot be blocked, and the
+                // triangle is reached without a foot point or a ray (the
+                // common case: a cubic fits M to far better than a tenth of
+                // an edge).
+                if (q.z - cubic.eval(q.x, q.y)).abs() <= eps {
+                    reached[k] = true;
+                    break;
+                }
+                let f = cubic.foot_point(q, 0.5 * r);
+                let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
+                let reach = (q - c).length() - eps;
+                if reach.is_nan() || reach <= 0.0 {
+                    // Also a non-finite foot point: no line, as a missed line.
+                    reached[k] = true;
+                    break;
+                }
+                // One ray per line; `lines_blocked` also casts its reverse
+                // (the line is blocked if either direction hits).
                 rays.push(Ray {
-                    origin,
-                    dir: d,
+                    origin: frame.to_world(c),
+                    dir: frame.dir_to_world(cubic.normal(f.x, f.y)),
                     tmin: 0.0,
                     tmax: reach,
                 });
+                owner.push(k as u32);
             }
-            owner.push(k as u32);
         }
-    }
-    let lines = owner.len() as u64;
-    if rays.is_empty() {
-        return Some(0);
-    }
-    let hits = ctx.first_hits(&rays)?;
-    for (h, &k) in hits.chunks_exact(2).zip(&owner) {
-        if h[0].is_none() && h[1].is_none() {
-            reached[k as usize] = true;
+        let lines = owner.len() as u64;
+        if rays.is_empty() {
+            return Some(0);
         }
-    }
-    Some(lines)
+        ctx.lines_blocked(rays, blocked)?;
+        for (&b, &k) in blocked.iter().zip(owner.iter()) {
+            if !b {
+                reached[k as usize] = true;
+            }
+        }
+        Some(lines)
+    })();
+    VERDICT_SCRATCH.with(|c| c.replace(scratch));
+    out
 }
 
 /// The literal M-test of §3.1.3 on the ball whose triangles are `tris`:
