@@ -301,11 +301,18 @@ struct Ctx<'a> {
 }
 
 thread_local! {
-    /// [`triangle_verdicts`]'s per-thread buffers (rays, their triangle,
-    /// verdicts): it runs thousands of times per vertex inside rayon jobs.
+    /// [`triangle_verdicts`]'s per-thread buffers (rays, their (triangle,
+    /// sample), the (triangle, sample) pairs of the next round, verdicts):
+    /// it runs thousands of times per vertex inside rayon jobs.
     #[allow(clippy::type_complexity)]
-    static VERDICT_SCRATCH: std::cell::RefCell<(Vec<Ray>, Vec<u32>, Vec<bool>)> =
-        const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
+    static VERDICT_SCRATCH: std::cell::RefCell<(
+        Vec<Ray>,
+        Vec<(u32, u32)>,
+        Vec<(u32, u32)>,
+        Vec<bool>,
+    )> = const {
+        std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new(), Vec::new()))
+    };
 }
 
 impl Ctx<'_> {
@@ -525,28 +532,46 @@ fn triangle_verdicts(
     // inside, and a stolen job on this thread can re-enter here.
     let mut scratch = VERDICT_SCRATCH.with(|c| c.take());
     let out = (|| {
-        let (rays, owner, blocked) = &mut scratch;
-        rays.clear();
-        owner.clear();
+        let (rays, owner, pending, blocked) = &mut scratch;
+        // A triangle's verdict is an OR over its samples (reached when one
+        // of them is within eps of the cubic, has no usable line, or has a
+        // line that nothing blocks), so the order in which samples are
+        // examined does not change it; only the work does. Cheapest first:
+        // the vertical-distance check of every sample, then lines in
+        // rounds (a triangle's next sample only while all its lines so far
+        // were blocked). Most triangles are settled by their first line, so
+        // later samples need neither a foot point nor a ray.
+        pending.clear();
         for (k, &t) in tris.iter().enumerate() {
-            for &x in ctx.samples.of(t) {
+            let xs = ctx.samples.of(t);
+            // The vertical distance to the graph bounds the distance to it:
+            // within eps the sample cannot be blocked, and the triangle is
+            // reached without a foot point or a ray (the common case: a
+            // cubic fits M to far better than a tenth of an edge).
+            let near = xs.iter().any(|&x| {
                 let q = frame.to_local(x);
-                // The vertical distance to the graph bounds the distance to
-                // it: within eps the sample cannot be blocked, and the
-                // triangle is reached without a foot point or a ray (the
-                // common case: a cubic fits M to far better than a tenth of
-                // an edge).
-                if (q.z - cubic.eval(q.x, q.y)).abs() <= eps {
-                    reached[k] = true;
-                    break;
-                }
+                (q.z - cubic.eval(q.x, q.y)).abs() <= eps
+            });
+            if near {
+                reached[k] = true;
+            } else if !xs.is_empty() {
+                pending.push((k as u32, 0u32));
+            }
+        }
+        let mut lines = 0u64;
+        while !pending.is_empty() {
+            rays.clear();
+            owner.clear();
+            for &(k, i) in pending.iter() {
+                let x = ctx.samples.of(tris[k as usize])[i as usize];
+                let q = frame.to_local(x);
                 let f = cubic.foot_point(q, 0.5 * r);
                 let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
                 let reach = (q - c).length() - eps;
                 if reach.is_nan() || reach <= 0.0 {
                     // Also a non-finite foot point: no line, as a missed line.
-                    reached[k] = true;
-                    break;
+                    reached[k as usize] = true;
+                    continue;
                 }
                 // One ray per line; `lines_blocked` also casts its reverse
                 // (the line is blocked if either direction hits).
@@ -556,17 +581,20 @@ fn triangle_verdicts(
                     tmin: 0.0,
                     tmax: reach,
                 });
-                owner.push(k as u32);
+                owner.push((k, i));
             }
-        }
-        let lines = owner.len() as u64;
-        if rays.is_empty() {
-            return Some(0);
-        }
-        ctx.lines_blocked(rays, blocked)?;
-        for (&b, &k) in blocked.iter().zip(owner.iter()) {
-            if !b {
-                reached[k as usize] = true;
+            pending.clear();
+            if rays.is_empty() {
+                break;
+            }
+            lines += rays.len() as u64;
+            ctx.lines_blocked(rays, blocked)?;
+            for (&b, &(k, i)) in blocked.iter().zip(owner.iter()) {
+                if !b {
+                    reached[k as usize] = true;
+                } else if (i as usize + 1) < ctx.samples.of(tris[k as usize]).len() {
+                    pending.push((k, i + 1));
+                }
             }
         }
         Some(lines)
