@@ -257,6 +257,51 @@ void EmbreeScene::intersect(rust::Slice<const float> rays, rust::Slice<float> ou
   check(device_, "rtcIntersect1");
 }
 
+void EmbreeScene::occluded_lines(rust::Slice<const float> rays,
+                                 rust::Slice<uint8_t> out_blocked) const {
+  const size_t n = rays.size() / 8;
+  if (rays.size() != 8 * n || out_blocked.size() != n)
+    throw std::invalid_argument("embree occluded_lines: buffer sizes disagree");
+  FtzDazGuard ftz;
+  RTCIntersectContext ctx;
+  rtcInitIntersectContext(&ctx);
+  for (size_t i = 0; i < n; ++i) {
+    const float *r = &rays[8 * i];
+    out_blocked[i] = 0;
+    // Same validity rule as `intersect`: an invalid ray is a miss.
+    bool ok = r[3] <= r[7] && r[3] >= 0.0f;
+    for (int k = 0; k < 8; ++k)
+      ok = ok && (k == 7 || std::isfinite(r[k])) && !std::isnan(r[k]);
+    if (!ok)
+      continue;
+    // rtcOccluded1 reports a hit iff rtcIntersect1 on the same ray would
+    // (same robust triangle test over the same [tnear, tfar]; Embree 3
+    // sets tfar = -inf on a hit). Negating an f32 direction is exact, so
+    // the reversed ray equals the one the Rust side would encode for -dir.
+    for (float sign : {1.0f, -1.0f}) {
+      RTCRay ray;
+      ray.org_x = r[0];
+      ray.org_y = r[1];
+      ray.org_z = r[2];
+      ray.tnear = r[3];
+      ray.dir_x = sign * r[4];
+      ray.dir_y = sign * r[5];
+      ray.dir_z = sign * r[6];
+      ray.tfar = r[7];
+      ray.time = 0.0f;
+      ray.mask = 0xffffffffu;
+      ray.id = 0;
+      ray.flags = 0;
+      rtcOccluded1(scene_, &ctx, &ray);
+      if (ray.tfar < 0.0f) {
+        out_blocked[i] = 1;
+        break;
+      }
+    }
+  }
+  check(device_, "rtcOccluded1");
+}
+
 void EmbreeScene::closest_points(rust::Slice<const float> points_f32,
                                  rust::Slice<const double> points_f64, double max_dist,
                                  rust::Slice<uint32_t> out_prim) const {

@@ -56,7 +56,7 @@ use super::neighbourhood::{bfs_ball, layered_balls, Adjacency, Csr, ProxyLevel};
 use super::normals::{triangle_areas, vertex_normals};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
-use crate::raycast::{Hit, Ray, RayCaster};
+use crate::raycast::{Ray, RayCaster};
 use crate::DVec3;
 
 /// Number of radius steps `h`: radii `r_0..r_h` (Fitmaps §3.1.2, "h = 8").
@@ -300,10 +300,25 @@ struct Ctx<'a> {
     failure: std::sync::Mutex<Option<Error>>,
 }
 
+thread_local! {
+    /// [`triangle_verdicts`]'s per-thread buffers (rays, their (triangle,
+    /// sample), the (triangle, sample) pairs of the next round, verdicts):
+    /// it runs thousands of times per vertex inside rayon jobs.
+    #[allow(clippy::type_complexity)]
+    static VERDICT_SCRATCH: std::cell::RefCell<(
+        Vec<Ray>,
+        Vec<(u32, u32)>,
+        Vec<(u32, u32)>,
+        Vec<bool>,
+    )> = const {
+        std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new(), Vec::new()))
+    };
+}
+
 impl Ctx<'_> {
-    fn first_hits(&self, rays: &[Ray]) -> Option<Vec<Option<Hit>>> {
-        match self.caster.first_hits(rays) {
-            Ok(h) => Some(h),
+    fn lines_blocked(&self, rays: &[Ray], out: &mut Vec<bool>) -> Option<()> {
+        match self.caster.lines_blocked(rays, out) {
+            Ok(()) => Some(()),
             Err(e) => {
                 let mut f = self.failure.lock().unwrap_or_else(|p| p.into_inner());
                 f.get_or_insert(e);
@@ -325,7 +340,14 @@ struct Scratch {
     pending: Vec<u32>,
     ball: Vec<u32>,
     sorted: Vec<(f64, u32)>,
+    /// Fast mode: the level-0 layered ball of the current vertex (key,
+    /// vertex), kept for the M-test's triangle list, built only when a
+    /// level-0 ball is tested ([`level0_triangles`]).
+    sorted0: Vec<(f64, u32)>,
     tris: Vec<(f64, u32)>,
+    /// Running sums of the areas of `tris` in order (the area-proportional
+    /// draw of every level-0 ball: its table is a prefix of this one).
+    tri_cum: Vec<f64>,
     pts: Vec<DVec3>,
     w: Vec<f64>,
 }
@@ -345,7 +367,9 @@ impl Scratch {
             pending: Vec::new(),
             ball: Vec::new(),
             sorted: Vec::new(),
+            sorted0: Vec::new(),
             tris: Vec::new(),
+            tri_cum: Vec::new(),
             pts: Vec::new(),
             w: Vec::new(),
         }
@@ -513,51 +537,79 @@ fn triangle_verdicts(
     // distance (not the nearest hit within the radius): short rays that
     // stop early in the BVH. A sample within eps of the cubic cannot be
     // blocked and needs no ray; at the small radii that is most of them.
-    let mut rays = Vec::with_capacity(4 * tris.len());
-    let mut owner = Vec::with_capacity(2 * tris.len());
-    for (k, &t) in tris.iter().enumerate() {
-        for &x in ctx.samples.of(t) {
-            let q = frame.to_local(x);
+    // Taken out of the cell, not borrowed: the ray caster may run rayon
+    // inside, and a stolen job on this thread can re-enter here.
+    let mut scratch = VERDICT_SCRATCH.with(|c| c.take());
+    let out = (|| {
+        let (rays, owner, pending, blocked) = &mut scratch;
+        // A triangle's verdict is an OR over its samples (reached when one
+        // of them is within eps of the cubic, has no usable line, or has a
+        // line that nothing blocks), so the order in which samples are
+        // examined does not change it; only the work does. Cheapest first:
+        // the vertical-distance check of every sample, then lines in
+        // rounds (a triangle's next sample only while all its lines so far
+        // were blocked). Most triangles are settled by their first line, so
+        // later samples need neither a foot point nor a ray.
+        pending.clear();
+        for (k, &t) in tris.iter().enumerate() {
+            let xs = ctx.samples.of(t);
             // The vertical distance to the graph bounds the distance to it:
             // within eps the sample cannot be blocked, and the triangle is
             // reached without a foot point or a ray (the common case: a
             // cubic fits M to far better than a tenth of an edge).
-            if (q.z - cubic.eval(q.x, q.y)).abs() <= eps {
+            let near = xs.iter().any(|&x| {
+                let q = frame.to_local(x);
+                (q.z - cubic.eval(q.x, q.y)).abs() <= eps
+            });
+            if near {
                 reached[k] = true;
-                break;
+            } else if !xs.is_empty() {
+                pending.push((k as u32, 0u32));
             }
-            let f = cubic.foot_point(q, 0.5 * r);
-            let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
-            let reach = (q - c).length() - eps;
-            if reach.is_nan() || reach <= 0.0 {
-                // Also a non-finite foot point: no line, as a missed line.
-                reached[k] = true;
-                break;
-            }
-            let origin = frame.to_world(c);
-            let dir = frame.dir_to_world(cubic.normal(f.x, f.y));
-            for d in [dir, -dir] {
+        }
+        let mut lines = 0u64;
+        while !pending.is_empty() {
+            rays.clear();
+            owner.clear();
+            for &(k, i) in pending.iter() {
+                let x = ctx.samples.of(tris[k as usize])[i as usize];
+                let q = frame.to_local(x);
+                let f = cubic.foot_point(q, 0.5 * r);
+                let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
+                let reach = (q - c).length() - eps;
+                if reach.is_nan() || reach <= 0.0 {
+                    // Also a non-finite foot point: no line, as a missed line.
+                    reached[k as usize] = true;
+                    continue;
+                }
+                // One ray per line; `lines_blocked` also casts its reverse
+                // (the line is blocked if either direction hits).
                 rays.push(Ray {
-                    origin,
-                    dir: d,
+                    origin: frame.to_world(c),
+                    dir: frame.dir_to_world(cubic.normal(f.x, f.y)),
                     tmin: 0.0,
                     tmax: reach,
                 });
+                owner.push((k, i));
             }
-            owner.push(k as u32);
+            pending.clear();
+            if rays.is_empty() {
+                break;
+            }
+            lines += rays.len() as u64;
+            ctx.lines_blocked(rays, blocked)?;
+            for (&b, &(k, i)) in blocked.iter().zip(owner.iter()) {
+                if !b {
+                    reached[k as usize] = true;
+                } else if (i as usize + 1) < ctx.samples.of(tris[k as usize]).len() {
+                    pending.push((k, i + 1));
+                }
+            }
         }
-    }
-    let lines = owner.len() as u64;
-    if rays.is_empty() {
-        return Some(0);
-    }
-    let hits = ctx.first_hits(&rays)?;
-    for (h, &k) in hits.chunks_exact(2).zip(&owner) {
-        if h[0].is_none() && h[1].is_none() {
-            reached[k as usize] = true;
-        }
-    }
-    Some(lines)
+        Some(lines)
+    })();
+    VERDICT_SCRATCH.with(|c| c.replace(scratch));
+    out
 }
 
 /// The literal M-test of §3.1.3 on the ball whose triangles are `tris`:
@@ -619,7 +671,7 @@ fn flip_test_sampled(
     cubic: &Cubic,
     r: f64,
     draw: &mut dyn FnMut(&mut ChaCha8Rng) -> Option<u32>,
-    literal: Option<&[u32]>,
+    literal: Option<&dyn Fn() -> Vec<u32>>,
     rng: &mut ChaCha8Rng,
 ) -> (Option<bool>, u64) {
     let tau = ctx.opts.tolerance;
@@ -649,7 +701,7 @@ fn flip_test_sampled(
         }
     }
     if let Some(tris) = literal {
-        let (f, c) = flip_fraction_literal(ctx, frame, cubic, r, tris);
+        let (f, c) = flip_fraction_literal(ctx, frame, cubic, r, &tris());
         return (f.map(|f| f < tau), rays + c);
     }
     (Some((k as f64) < tau * n as f64), rays)
@@ -795,10 +847,48 @@ const NO_M_TEST: u8 = u8::MAX;
 
 /// What the fast mode keeps of a fitted radius for its M-test.
 enum FastBall {
-    /// The prefix `sc.tris[..n]` of the level-0 triangles sorted by key.
-    Level0(usize),
+    /// A level-0 ball: its triangles are the prefix of `sc.tris` (sorted by
+    /// key) with key <= its radius.
+    Level0,
     /// Clusters of proxy level `li` in the ball.
     Proxy(usize, Vec<u32>),
+}
+
+/// The triangles of the level-0 layered ball `sc.sorted0` with their key —
+/// the radius from which all three vertices are in the ball — sorted by
+/// (key, triangle) into `sc.tris`, and their running area sums into
+/// `sc.tri_cum` (only the M-test needs them).
+fn level0_triangles(ctx: &Ctx, sc: &mut Scratch) {
+    sc.tris.clear();
+    sc.tri_cum.clear();
+    for &(k, v) in &sc.sorted0 {
+        sc.key_at[v as usize] = k;
+    }
+    let stamp = sc.next_stamp();
+    for &(_, v) in &sc.sorted0 {
+        for &t in ctx.adj.vt.row(v as usize) {
+            if sc.tmark[t as usize] != stamp {
+                sc.tmark[t as usize] = stamp;
+                let k = ctx.mesh.triangles[t as usize]
+                    .iter()
+                    .map(|&w| sc.key_at[w as usize])
+                    .fold(f64::NEG_INFINITY, f64::max);
+                if k.is_finite() {
+                    sc.tris.push((k, t));
+                }
+            }
+        }
+    }
+    sc.tris
+        .sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    for &(_, v) in &sc.sorted0 {
+        sc.key_at[v as usize] = f64::INFINITY;
+    }
+    let mut acc = 0.0;
+    for &(_, t) in &sc.tris {
+        acc += ctx.areas[t as usize];
+        sc.tri_cum.push(acc);
+    }
 }
 
 #[allow(clippy::needless_range_loop)] // radius index shared by several per-radius arrays
@@ -822,7 +912,7 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
 
     // Radii gathered on M itself: one traversal for all of them.
     let i0 = ctx.level_of.iter().take_while(|l| l.is_none()).count();
-    sc.tris.clear();
+    sc.sorted0.clear();
     if i0 > 0 {
         let mut sorted = std::mem::take(&mut sc.sorted);
         let stamp = sc.next_stamp();
@@ -838,33 +928,6 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
             &mut sc.pending,
             &mut sorted,
         );
-        for &(k, v) in &sorted {
-            sc.key_at[v as usize] = k;
-        }
-        // Triangles with their key: the radius from which all three vertices
-        // are in the ball (only the M-test needs them).
-        if cap != NO_M_TEST as usize {
-            let stamp = sc.next_stamp();
-            for &(_, v) in &sorted {
-                for &t in ctx.adj.vt.row(v as usize) {
-                    if sc.tmark[t as usize] != stamp {
-                        sc.tmark[t as usize] = stamp;
-                        let k = ctx.mesh.triangles[t as usize]
-                            .iter()
-                            .map(|&w| sc.key_at[w as usize])
-                            .fold(f64::NEG_INFINITY, f64::max);
-                        if k.is_finite() {
-                            sc.tris.push((k, t));
-                        }
-                    }
-                }
-            }
-            sc.tris
-                .sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        }
-        for &(_, v) in &sorted {
-            sc.key_at[v as usize] = f64::INFINITY;
-        }
         for i in 0..i0 {
             let r = ctx.radii[i];
             let nb = sorted.partition_point(|&(k, _)| k <= r);
@@ -886,11 +949,12 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
                 continue;
             };
             errors.push((r, rms));
-            let nt = sc.tris.partition_point(|&(k, _)| k <= r);
-            balls[i] = Some((cubic, FastBall::Level0(nt)));
+            balls[i] = Some((cubic, FastBall::Level0));
             tested.push(i);
         }
-        sc.sorted = sorted;
+        // Keep the level-0 ball for the M-test; the proxies reuse the
+        // other buffer.
+        sc.sorted = std::mem::replace(&mut sc.sorted0, sorted);
     }
 
     // Large radii on the proxies.
@@ -944,7 +1008,9 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
     }
 
     let mut rays = 0;
-    let tris = std::mem::take(&mut sc.tris);
+    // Level-0 triangles are gathered on the first level-0 test only: the
+    // top-down M-test often stops on a proxy radius first.
+    let mut tris_ready = false;
     let tested: Vec<usize> = if cap == NO_M_TEST as usize {
         Vec::new()
     } else {
@@ -954,26 +1020,32 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
         let (cubic, ball) = balls[i].as_ref()?;
         let r = ctx.radii[i];
         let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(ctx.opts.seed, p, i));
+        if matches!(ball, FastBall::Level0) && !tris_ready {
+            level0_triangles(ctx, sc);
+            tris_ready = true;
+        }
+        let tris = &sc.tris;
         let (pass, k) = match ball {
-            FastBall::Level0(nt) if *nt <= FAST_LITERAL_M_MAX_TRIANGLES => {
-                let t: Vec<u32> = tris[..*nt].iter().map(|&(_, t)| t).collect();
-                let (f, k) = flip_fraction_literal(ctx, &frame, cubic, r, &t);
-                (f.map(|f| f < ctx.opts.tolerance), k)
-            }
-            FastBall::Level0(nt) => {
-                let mut cum = Vec::with_capacity(*nt);
-                let mut acc = 0.0;
-                for &(_, t) in &tris[..*nt] {
-                    acc += ctx.areas[t as usize];
-                    cum.push(acc);
+            FastBall::Level0 => {
+                // The triangles whose three vertices are in the ball.
+                let nt = tris.partition_point(|&(k, _)| k <= r);
+                if nt <= FAST_LITERAL_M_MAX_TRIANGLES {
+                    let t: Vec<u32> = tris[..nt].iter().map(|&(_, t)| t).collect();
+                    let (f, k) = flip_fraction_literal(ctx, &frame, cubic, r, &t);
+                    (f.map(|f| f < ctx.opts.tolerance), k)
+                } else {
+                    let cum = &sc.tri_cum[..nt];
+                    let acc = cum[nt - 1];
+                    let mut sample =
+                        |rng: &mut ChaCha8Rng| (acc > 0.0).then(|| tris[draw(cum, rng)].1);
+                    // Undecided after the sampled test: the literal test on
+                    // the same triangles (the exact mode's verdict for this
+                    // cubic), listed only then.
+                    let all = || tris[..nt].iter().map(|&(_, t)| t).collect::<Vec<u32>>();
+                    let literal: Option<&dyn Fn() -> Vec<u32>> =
+                        (nt <= FAST_LITERAL_FALLBACK_MAX_TRIANGLES).then_some(&all);
+                    flip_test_sampled(ctx, &frame, cubic, r, &mut sample, literal, &mut rng)
                 }
-                let mut sample =
-                    |rng: &mut ChaCha8Rng| (acc > 0.0).then(|| tris[draw(&cum, rng)].1);
-                // Undecided after the sampled test: the literal test on the
-                // same triangles (the exact mode's verdict for this cubic).
-                let all: Option<Vec<u32>> = (*nt <= FAST_LITERAL_FALLBACK_MAX_TRIANGLES)
-                    .then(|| tris[..*nt].iter().map(|&(_, t)| t).collect());
-                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, all.as_deref(), &mut rng)
             }
             FastBall::Proxy(li, clusters) => {
                 let level = &ctx.levels[*li];
@@ -996,7 +1068,6 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
         rays += k;
         pass
     });
-    sc.tris = tris;
     res.rays = rays;
     res.defined = !errors.is_empty();
     res.s = s_from_errors(&errors, ctx.radii[h]);

@@ -32,6 +32,10 @@ pub(crate) mod bridge {
             out_prim: &mut [u32],
         ) -> Result<()>;
 
+        /// `rays` as for `intersect`; `out_blocked[i]` = 1 when the ray or
+        /// its reverse (same `[tnear, tfar]`) hits anything (rtcOccluded1).
+        fn occluded_lines(self: &EmbreeScene, rays: &[f32], out_blocked: &mut [u8]) -> Result<()>;
+
         /// Closest triangle within `max_dist` of each point (`u32::MAX` if
         /// none); `points_f32` translated, `points_f64` untranslated.
         fn closest_points(

@@ -70,6 +70,50 @@ impl EmbreeCaster {
         self.triangles[t as usize].map(|i| self.positions[i as usize])
     }
 
+    /// Encodes `rays` as the bridge's 8 f32 per ray into `buf` (cleared);
+    /// an invalid ray becomes tnear > tfar, which the bridge reports as a
+    /// miss without tracing.
+    fn encode_rays(&self, rays: &[Ray], buf: &mut Vec<f32>) {
+        buf.clear();
+        buf.reserve(8 * rays.len());
+        for r in rays {
+            if r.is_valid() {
+                let o = (r.origin - self.center).as_vec3();
+                let d = r.dir.as_vec3();
+                buf.extend_from_slice(&[
+                    o.x,
+                    o.y,
+                    o.z,
+                    r.tmin as f32,
+                    d.x,
+                    d.y,
+                    d.z,
+                    r.tmax as f32,
+                ]);
+            } else {
+                buf.extend_from_slice(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0]);
+            }
+        }
+    }
+
+    fn blocked_chunk(&self, rays: &[Ray], out: &mut [bool]) -> Result<()> {
+        thread_local! {
+            static BUF: std::cell::RefCell<(Vec<f32>, Vec<u8>)> =
+                const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+        }
+        BUF.with(|b| {
+            let (buf, flags) = &mut *b.borrow_mut();
+            self.encode_rays(rays, buf);
+            flags.clear();
+            flags.resize(rays.len(), 0);
+            self.scene.occluded_lines(buf, flags).map_err(backend_err)?;
+            for (o, &f) in out.iter_mut().zip(flags.iter()) {
+                *o = f != 0;
+            }
+            Ok(())
+        })
+    }
+
     fn trace_chunk(&self, rays: &[Ray]) -> Result<Vec<Option<Hit>>> {
         let mut buf = Vec::with_capacity(8 * rays.len());
         for r in rays {
@@ -184,6 +228,20 @@ impl RayCaster for EmbreeCaster {
             .map(|c| self.trace_chunk(c))
             .collect::<Result<_>>()?;
         Ok(chunks.into_iter().flatten().collect())
+    }
+
+    fn lines_blocked(&self, rays: &[Ray], out: &mut Vec<bool>) -> Result<()> {
+        out.clear();
+        out.resize(rays.len(), false);
+        // Small batches (the M-test's, one ball at a time inside a rayon
+        // job) are traced on the calling thread: no nested fork/join and no
+        // per-chunk result vectors.
+        if rays.len() <= CHUNK {
+            return self.blocked_chunk(rays, out);
+        }
+        rays.par_chunks(CHUNK)
+            .zip(out.par_chunks_mut(CHUNK))
+            .try_for_each(|(r, o)| self.blocked_chunk(r, o))
     }
 
     fn closest_points(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>> {

@@ -137,6 +137,30 @@ pub trait RayCaster: Send + Sync {
             .collect())
     }
 
+    /// Whether anything lies on the segment of each line: `out[i]` is true
+    /// when `rays[i]` or the same ray with its direction negated (same
+    /// `[tmin, tmax]`) hits the mesh — exactly `first_hits` of both rays,
+    /// `is_some()` of either — without the closest hit's position. `out` is
+    /// cleared and refilled (a caller's reusable buffer).
+    ///
+    /// The default goes through [`RayCaster::first_hits`]; Embree overrides
+    /// it with any-hit queries (rtcOccluded1) that also skip the reversed
+    /// ray once the forward one is blocked.
+    fn lines_blocked(&self, rays: &[Ray], out: &mut Vec<bool>) -> Result<()> {
+        let mut both = Vec::with_capacity(2 * rays.len());
+        for r in rays {
+            both.push(*r);
+            both.push(Ray { dir: -r.dir, ..*r });
+        }
+        let hits = self.first_hits(&both)?;
+        out.clear();
+        out.extend(
+            hits.chunks_exact(2)
+                .map(|h| h[0].is_some() || h[1].is_some()),
+        );
+        Ok(())
+    }
+
     /// Closest point of the mesh to each point, within `max_dist`
     /// (inclusive; `f64::INFINITY` for no limit). Non-finite points get `None`.
     fn closest_points(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>>;
