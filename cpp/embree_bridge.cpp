@@ -213,6 +213,16 @@ EmbreeScene::~EmbreeScene() {
     rtcReleaseDevice(device_);
 }
 
+// A ray of the bridge's 8-float layout is traced only when 0 <= tnear <=
+// tfar and every component is finite (tfar may be +inf); anything else is a
+// miss (the Rust side filters these too).
+static bool valid_ray(const float *r) {
+  bool ok = r[3] <= r[7] && r[3] >= 0.0f;
+  for (int k = 0; k < 8; ++k)
+    ok = ok && (k == 7 || std::isfinite(r[k])) && !std::isnan(r[k]);
+  return ok;
+}
+
 void EmbreeScene::intersect(rust::Slice<const float> rays, rust::Slice<float> out_tuv,
                             rust::Slice<uint32_t> out_prim) const {
   const size_t n = rays.size() / 8;
@@ -225,10 +235,7 @@ void EmbreeScene::intersect(rust::Slice<const float> rays, rust::Slice<float> ou
     const float *r = &rays[8 * i];
     out_prim[i] = kInvalid;
     out_tuv[3 * i] = out_tuv[3 * i + 1] = out_tuv[3 * i + 2] = 0.0f;
-    bool ok = r[3] <= r[7] && r[3] >= 0.0f;
-    for (int k = 0; k < 8; ++k)
-      ok = ok && (k == 7 || std::isfinite(r[k])) && !std::isnan(r[k]);
-    if (!ok)
+    if (!valid_ray(r))
       continue; // invalid ray: a miss (the Rust side filters these too)
     RTCRayHit rh;
     rh.ray.org_x = r[0];
@@ -269,10 +276,7 @@ void EmbreeScene::occluded_lines(rust::Slice<const float> rays,
     const float *r = &rays[8 * i];
     out_blocked[i] = 0;
     // Same validity rule as `intersect`: an invalid ray is a miss.
-    bool ok = r[3] <= r[7] && r[3] >= 0.0f;
-    for (int k = 0; k < 8; ++k)
-      ok = ok && (k == 7 || std::isfinite(r[k])) && !std::isnan(r[k]);
-    if (!ok)
+    if (!valid_ray(r))
       continue;
     // rtcOccluded1 reports a hit iff rtcIntersect1 on the same ray would
     // (same robust triangle test over the same [tnear, tfar]; Embree 3

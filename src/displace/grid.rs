@@ -168,6 +168,13 @@ impl PatchGrid {
     /// side the face normal points to). Triangle `t` lies in patch
     /// `t / (2 (res-1)²)`.
     pub fn triangles(&self) -> Vec<[u32; 3]> {
+        self.split_cells(|_| true)
+    }
+
+    /// Two triangles per cell `[a, b, c, d]` (counter-clockwise), in patch
+    /// and cell order: along the diagonal `a–c` where `along_ac` says so,
+    /// else along `b–d`.
+    fn split_cells(&self, mut along_ac: impl FnMut([u32; 4]) -> bool) -> Vec<[u32; 3]> {
         let r1 = self.res - 1;
         let mut tris = Vec::with_capacity(self.num_patches() * r1 * r1 * 2);
         for f in 0..self.num_patches() {
@@ -177,8 +184,13 @@ impl PatchGrid {
                     let b = self.sample(f, i + 1, j);
                     let c = self.sample(f, i + 1, j + 1);
                     let d = self.sample(f, i, j + 1);
-                    tris.push([a, b, c]);
-                    tris.push([a, c, d]);
+                    if along_ac([a, b, c, d]) {
+                        tris.push([a, b, c]);
+                        tris.push([a, c, d]);
+                    } else {
+                        tris.push([a, b, d]);
+                        tris.push([b, c, d]);
+                    }
                 }
             }
         }
@@ -197,27 +209,8 @@ impl PatchGrid {
     /// welded by this grid stays watertight. Ties keep the
     /// [`Self::triangles`] diagonal, so the result is deterministic.
     pub fn triangles_shorter_diagonal(&self, positions: &[crate::DVec3]) -> Vec<[u32; 3]> {
-        let r1 = self.res - 1;
-        let mut tris = Vec::with_capacity(self.num_patches() * r1 * r1 * 2);
-        for f in 0..self.num_patches() {
-            for j in 0..r1 {
-                for i in 0..r1 {
-                    let a = self.sample(f, i, j);
-                    let b = self.sample(f, i + 1, j);
-                    let c = self.sample(f, i + 1, j + 1);
-                    let d = self.sample(f, i, j + 1);
-                    let p = |s: u32| positions[s as usize];
-                    if p(a).distance_squared(p(c)) <= p(b).distance_squared(p(d)) {
-                        tris.push([a, b, c]);
-                        tris.push([a, c, d]);
-                    } else {
-                        tris.push([a, b, d]);
-                        tris.push([b, c, d]);
-                    }
-                }
-            }
-        }
-        tris
+        let p = |s: u32| positions[s as usize];
+        self.split_cells(|[a, b, c, d]| p(a).distance_squared(p(c)) <= p(b).distance_squared(p(d)))
     }
 
     /// The patch location of a point of triangle `t` of [`Self::triangles`]

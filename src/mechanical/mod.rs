@@ -40,6 +40,22 @@ use crate::mesh::{ControlMesh, TriMesh};
 use crate::raycast::RayCaster;
 use crate::DVec3;
 
+/// An `f64` with a total order (`f64::total_cmp`), for the Dijkstra heaps
+/// of the segmentation and polyhedron steps.
+#[derive(Copy, Clone, PartialEq)]
+pub(crate) struct OrdF(pub(crate) f64);
+impl Eq for OrdF {}
+impl PartialOrd for OrdF {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for OrdF {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        self.0.total_cmp(&o.0)
+    }
+}
+
 pub use curvature::{vertex_curvatures, CurvatureOptions, VertexCurvature};
 pub use segment::{segment, SegmentOptions, Segmentation};
 pub use topology::{Topology, SHARP_DIHEDRAL_DEG};

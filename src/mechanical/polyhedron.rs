@@ -20,6 +20,7 @@
 use std::collections::{BinaryHeap, HashSet};
 
 use super::curvature::VertexCurvature;
+use super::OrdF;
 use crate::mesh::TriMesh;
 use crate::DVec3;
 
@@ -134,20 +135,6 @@ impl<'a> RegionGeom<'a> {
             }
         }
         pred
-    }
-}
-
-#[derive(Copy, Clone, PartialEq)]
-struct OrdF(f64);
-impl Eq for OrdF {}
-impl PartialOrd for OrdF {
-    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
-        Some(self.cmp(o))
-    }
-}
-impl Ord for OrdF {
-    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
-        self.0.total_cmp(&o.0)
     }
 }
 

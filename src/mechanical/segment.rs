@@ -38,6 +38,7 @@ use std::collections::VecDeque;
 
 use super::curvature::VertexCurvature;
 use super::topology::Topology;
+use super::OrdF;
 use crate::mesh::TriMesh;
 
 /// Options of [`segment`].
@@ -336,9 +337,9 @@ fn extend_dangling(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut
             let mut pred: HashMap<u32, (u32, usize)> = HashMap::new();
             let mut heap = BinaryHeap::new();
             dist.insert(end, 0.0);
-            heap.push((std::cmp::Reverse(Ord64(0.0)), end));
+            heap.push((std::cmp::Reverse(OrdF(0.0)), end));
             let mut reached = None;
-            while let Some((std::cmp::Reverse(Ord64(du)), u)) = heap.pop() {
+            while let Some((std::cmp::Reverse(OrdF(du)), u)) = heap.pop() {
                 if du > dist.get(&u).copied().unwrap_or(f64::INFINITY) {
                     continue;
                 }
@@ -362,7 +363,7 @@ fn extend_dangling(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut
                     if nd < dist.get(&w).copied().unwrap_or(f64::INFINITY) {
                         dist.insert(w, nd);
                         pred.insert(w, (u, e as usize));
-                        heap.push((std::cmp::Reverse(Ord64(nd)), w));
+                        heap.push((std::cmp::Reverse(OrdF(nd)), w));
                     }
                 }
             }
@@ -416,20 +417,6 @@ fn extend_dangling(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut
                 done_regions.insert(base + c - 1);
             }
         }
-    }
-}
-
-#[derive(Copy, Clone, PartialEq)]
-struct Ord64(f64);
-impl Eq for Ord64 {}
-impl PartialOrd for Ord64 {
-    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
-        Some(self.cmp(o))
-    }
-}
-impl Ord for Ord64 {
-    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
-        self.0.total_cmp(&o.0)
     }
 }
 

@@ -115,26 +115,8 @@ impl EmbreeCaster {
     }
 
     fn trace_chunk(&self, rays: &[Ray]) -> Result<Vec<Option<Hit>>> {
-        let mut buf = Vec::with_capacity(8 * rays.len());
-        for r in rays {
-            if r.is_valid() {
-                let o = (r.origin - self.center).as_vec3();
-                let d = r.dir.as_vec3();
-                buf.extend_from_slice(&[
-                    o.x,
-                    o.y,
-                    o.z,
-                    r.tmin as f32,
-                    d.x,
-                    d.y,
-                    d.z,
-                    r.tmax as f32,
-                ]);
-            } else {
-                // tnear > tfar: the bridge reports a miss without tracing.
-                buf.extend_from_slice(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0]);
-            }
-        }
+        let mut buf = Vec::new();
+        self.encode_rays(rays, &mut buf);
         let mut tuv = vec![0f32; 3 * rays.len()];
         let mut prim = vec![MISS; rays.len()];
         self.scene
