@@ -108,6 +108,16 @@ pub struct SimplifyOptions {
     pub guard_floor: f64,
     /// See `guard_scale`.
     pub guard_min_cos: f64,
+    /// The S-fitmap test (§3.1.1's first prescription, "the local radius of
+    /// each patch should be inversely proportional to F_S", made a bound
+    /// like the M-fitmap test makes the second one): a collapse is allowed
+    /// only if every patch it enlarges keeps `radius · F_S ≤ κ` at its
+    /// projected centre, so that at the natural end a patch is stopped
+    /// either by projectability (F_M) or by its predicted error (F_S·r)⁴
+    /// (§3.1.2: "two patches contribute approximately the same error if
+    /// r·F_S are equal"). κ = `s_fitmap_scale` · κ₀, κ₀ from the Fitmap
+    /// alone (see [`s_fitmap_kappa`]); 0 turns the test off.
+    pub s_fitmap_scale: f64,
 }
 
 impl Default for SimplifyOptions {
@@ -122,6 +132,7 @@ impl Default for SimplifyOptions {
             guard_scale: 8.0,
             guard_floor: 0.026,
             guard_min_cos: 0.3,
+            s_fitmap_scale: 0.0,
         }
     }
 }
@@ -137,6 +148,11 @@ impl SimplifyOptions {
     }
     pub fn with_check_every_step(mut self, on: bool) -> Self {
         self.check_every_step = on;
+        self
+    }
+    /// The S-fitmap test's κ in units of [`s_fitmap_kappa`] (0: off).
+    pub fn with_s_fitmap_scale(mut self, scale: f64) -> Self {
+        self.s_fitmap_scale = scale;
         self
     }
     /// The surface guard's bound (`scale = 0`: off) and normal test.
@@ -186,6 +202,18 @@ pub struct SimplifyStats {
     pub refused_topology_by_reason: BTreeMap<String, usize>,
     /// Heap entries refused by the M-fitmap test.
     pub refused_m_fitmap: usize,
+    /// Heap entries refused by the S-fitmap test
+    /// ([`SimplifyOptions::s_fitmap_scale`]).
+    pub refused_s_fitmap: usize,
+    /// κ of the S-fitmap test (0 when off).
+    pub s_fitmap_kappa: f64,
+    /// At the natural end, what stops the final patches: for each test,
+    /// the number of final faces one of whose diagonal collapses it refused
+    /// in the last sweep (a face can count under two tests, one per
+    /// diagonal). Measured (2026-11-22, S-fitmap test off): the M-fitmap
+    /// test refuses a collapse of nearly every final patch on bunny and
+    /// gargoyle at τ 1 and 10 %, the guard 5–15 %.
+    pub final_blockers: BTreeMap<String, usize>,
     /// Collapses undone because the refit left a patch centre too far from
     /// M ([`SimplifyOptions::guard_scale`]).
     pub refused_guard_distance: usize,
@@ -289,6 +317,43 @@ pub fn simplify_control(
     let mut s = Simplifier::new(mesh, fitmap, caster, opts, k)?;
     s.run(&mut stats, progress)?;
     s.finish(stats, t)
+}
+
+/// κ₀ of the S-fitmap test ([`SimplifyOptions::s_fitmap_scale`]): the
+/// proportionality constant of §3.1.1's first prescription, `r = κ/F_S`,
+/// chosen so that it asks for as many patches over M as the second one,
+/// `r = F_M`. A patch of radius r covers an area ∝ r², so the patch count
+/// of a radius field r(p) is ∝ ∫ r⁻² dA; equating ∫ F_S²/κ² dA with
+/// ∫ F_M⁻² dA gives
+///
+/// `κ₀² = ∫ F_S² dA / ∫ F_M⁻² dA`
+///
+/// (vertex areas a third of the incident triangles'; vertices with F_S or
+/// F_M ≤ 0, where the Fitmap has no value, left out). κ₀ comes from the
+/// Fitmap alone, with no constant: it follows τ through F_M, and it scales
+/// with the mesh as F_S·r does (F_S ∝ length^-¾, so both go as length^¼),
+/// which makes the test invariant under scaling. Returns 0 when no vertex
+/// has both values.
+pub fn s_fitmap_kappa(mesh: &TriMesh, fitmap: &Fitmap) -> f64 {
+    let areas = crate::analysis::normals::triangle_areas(mesh);
+    let mut va = vec![0.0; mesh.positions.len()];
+    for (t, a) in mesh.triangles.iter().zip(&areas) {
+        for &v in t {
+            va[v as usize] += a / 3.0;
+        }
+    }
+    let (mut num, mut den) = (0.0, 0.0);
+    for ((&a, &s), &m) in va.iter().zip(&fitmap.s).zip(&fitmap.m) {
+        if s > 0.0 && m > 0.0 && s.is_finite() && m.is_finite() {
+            num += a * s * s;
+            den += a / (m * m);
+        }
+    }
+    if den > 0.0 && num > 0.0 {
+        (num / den).sqrt()
+    } else {
+        0.0
+    }
 }
 
 // ---- closed-form limit quantities -------------------------------------------
@@ -426,7 +491,7 @@ struct Simplifier<'a> {
     /// Collapses the guard undid, by (smaller, larger) end id: not tried
     /// again until the next sweep (their heap entries come back with the
     /// restored faces).
-    refused: std::collections::HashSet<(u32, u32)>,
+    refused: std::collections::HashMap<(u32, u32), u8>,
     /// BFS stamps over vertices (region snapshots).
     stamp: Vec<u32>,
     stamp_now: u32,
@@ -434,6 +499,12 @@ struct Simplifier<'a> {
     /// undo.
     pos_log: Vec<(VertexId, DVec3)>,
     lim_log: Vec<(VertexId, DVec3)>,
+    /// Per face, the tests that refused its collapses since the last
+    /// sweep began ([`Blocked`] bits): at the natural end, what stops each
+    /// final patch ([`SimplifyStats::final_blockers`]).
+    blocked: std::collections::HashMap<u32, u8>,
+    /// κ of the S-fitmap test (0: off).
+    kappa: f64,
 }
 
 /// The result of φ at one patch centre, for the guard.
@@ -452,6 +523,24 @@ struct CentreCheck {
 struct Snapshot {
     vertices: Vec<VertexId>,
     faces: Vec<(FaceId, [VertexId; 4])>,
+}
+
+/// Bits naming the tests that refuse a collapse.
+struct Blocked;
+
+impl Blocked {
+    const TOPOLOGY: u8 = 1;
+    const M_FITMAP: u8 = 2;
+    const S_FITMAP: u8 = 4;
+    const GUARD_DISTANCE: u8 = 8;
+    const GUARD_NORMAL: u8 = 16;
+    const NAMES: [(u8, &'static str); 5] = [
+        (Self::TOPOLOGY, "topology"),
+        (Self::M_FITMAP, "m_fitmap"),
+        (Self::S_FITMAP, "s_fitmap"),
+        (Self::GUARD_DISTANCE, "guard_distance"),
+        (Self::GUARD_NORMAL, "guard_normal"),
+    ];
 }
 
 /// Rings around a collapsed quad that a step can change (see
@@ -557,6 +646,12 @@ impl<'a> Simplifier<'a> {
             stamp_now: 0,
             pos_log: Vec::new(),
             lim_log: Vec::new(),
+            blocked: Default::default(),
+            kappa: if opts.s_fitmap_scale > 0.0 {
+                opts.s_fitmap_scale * s_fitmap_kappa(m, fitmap)
+            } else {
+                0.0
+            },
         })
     }
 
@@ -688,7 +783,7 @@ impl<'a> Simplifier<'a> {
     /// normal; F_M is interpolated there, linearly over M's triangle
     /// ([`Fitmap::m_at`]). A centre φ cannot project keeps the face's
     /// cached F_M.
-    fn m_test(&mut self, f: FaceId, plan: &CollapsePlan) -> bool {
+    fn fitmap_test(&mut self, f: FaceId, plan: &CollapsePlan) -> Option<u8> {
         let (a, c) = (plan.keep, plan.remove);
         let boundary = self.k.is_boundary_vertex(a) || self.k.is_boundary_vertex(c);
         let merged = if let Some(s) = plan.corner {
@@ -725,15 +820,21 @@ impl<'a> Simplifier<'a> {
                 continue;
             }
             let n = (q[2] - q[0]).cross(q[3] - q[1]).normalize_or_zero();
-            let fm = match self.phi(ctr, n, 2.0 * r) {
-                Some(p) => self.fitmap.m_at(self.m, p.triangle, p.u, p.v),
-                None => self.fm[g.idx()],
+            let (fm, fs) = match self.phi(ctr, n, 2.0 * r) {
+                Some(p) => (
+                    self.fitmap.m_at(self.m, p.triangle, p.u, p.v),
+                    self.fitmap.s_at(self.m, p.triangle, p.u, p.v),
+                ),
+                None => (self.fm[g.idx()], self.fs[g.idx()]),
             };
             if r > fm {
-                return false;
+                return Some(Blocked::M_FITMAP);
+            }
+            if r * fs > self.kappa && self.kappa > 0.0 {
+                return Some(Blocked::S_FITMAP);
             }
         }
-        true
+        None
     }
 
     fn run(
@@ -766,6 +867,7 @@ impl<'a> Simplifier<'a> {
                 // patches), so it gets one more try per sweep. The loop
                 // still ends: a sweep with no collapse is the last.
                 self.refused.clear();
+                self.blocked.clear();
                 let all: Vec<FaceId> = self.k.live_faces().collect();
                 let _ = self.update_faces(&all)?;
                 continue;
@@ -782,6 +884,7 @@ impl<'a> Simplifier<'a> {
                 Ok(p) => p,
                 Err(why) => {
                     stats.refused_topology += 1;
+                    self.block(fi, Blocked::TOPOLOGY);
                     *stats
                         .refused_topology_by_reason
                         .entry(why.to_string())
@@ -793,12 +896,20 @@ impl<'a> Simplifier<'a> {
                 plan.keep.0.min(plan.remove.0),
                 plan.keep.0.max(plan.remove.0),
             );
-            if self.refused.contains(&pair) {
+            if let Some(&why) = self.refused.get(&pair) {
+                self.block(fi, why);
                 continue;
             }
-            if self.opts.m_fitmap && !self.m_test(f, &plan) {
-                stats.refused_m_fitmap += 1;
-                continue;
+            if self.opts.m_fitmap {
+                if let Some(why) = self.fitmap_test(f, &plan) {
+                    if why == Blocked::S_FITMAP {
+                        stats.refused_s_fitmap += 1;
+                    } else {
+                        stats.refused_m_fitmap += 1;
+                    }
+                    self.block(fi, why);
+                    continue;
+                }
             }
             let guard = self.opts.guard_scale > 0.0;
             let snap = if guard { Some(self.snapshot(f)) } else { None };
@@ -817,6 +928,12 @@ impl<'a> Simplifier<'a> {
             let checks = self.refit(&touched)?;
             if let Some(snap) = snap {
                 if let Some(normal) = self.guard(&checks) {
+                    let why = if normal {
+                        Blocked::GUARD_NORMAL
+                    } else {
+                        Blocked::GUARD_DISTANCE
+                    };
+                    self.block(fi, why);
                     if normal {
                         stats.refused_guard_normal += 1;
                     } else {
@@ -826,7 +943,7 @@ impl<'a> Simplifier<'a> {
                     stats.doublets -= done.doublets.len();
                     stats.rotations -= rotations;
                     self.undo(snap)?;
-                    self.refused.insert(pair);
+                    self.refused.insert(pair, why);
                     self.check_step("undo")?;
                     continue;
                 }
@@ -849,13 +966,26 @@ impl<'a> Simplifier<'a> {
             stop = StopReason::TargetFaces;
         }
         stats.stop = Some(stop);
+        stats.s_fitmap_kappa = self.kappa;
         stats.projections = self.projections;
         stats.unprojectable = self.unprojectable;
         Ok(())
     }
 
+    fn block(&mut self, fi: u32, why: u8) {
+        *self.blocked.entry(fi).or_default() |= why;
+    }
+
     /// Final counts and the adaptivity figures, then the compact mesh.
     fn finish(self, mut stats: SimplifyStats, t: Instant) -> Result<Simplified> {
+        for f in self.k.live_faces() {
+            let bits = self.blocked.get(&f.0).copied().unwrap_or(0);
+            for (bit, name) in Blocked::NAMES {
+                if bits & bit != 0 {
+                    *stats.final_blockers.entry(name.to_string()).or_default() += 1;
+                }
+            }
+        }
         let (mut radius, mut inv_fs, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
         let (mut radius_m, mut fms) = (Vec::new(), Vec::new());
         for f in self.k.live_faces() {

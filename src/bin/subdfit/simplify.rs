@@ -43,6 +43,10 @@ pub struct SimplifyArgs {
     /// `SimplifyOptions::guard_scale`).
     #[arg(long, hide = true, value_delimiter = ',')]
     guard: Option<Vec<f64>>,
+    /// Development aid: the S-fitmap test's κ in units of the Fitmap's
+    /// equal-count κ₀ (see `SimplifyOptions::s_fitmap_scale`; 0 = off).
+    #[arg(long, hide = true)]
+    s_fitmap: Option<f64>,
 }
 
 /// Raw little-endian cache of the Fitmap fields the simplification reads:
@@ -160,6 +164,10 @@ pub fn run(a: SimplifyArgs) -> Result<ExitCode> {
     if let Some(g) = &a.guard {
         anyhow::ensure!(g.len() == 3, "--guard takes scale,floor,min_cos");
         opts = opts.with_guard(g[0], g[1], g[2]);
+    }
+    if let Some(x) = a.s_fitmap {
+        anyhow::ensure!(x >= 0.0, "--s-fitmap takes a scale >= 0");
+        opts = opts.with_s_fitmap_scale(x);
     }
     let bar = if a.json {
         ProgressBar::hidden()
