@@ -19,6 +19,6 @@ pub use quadrangulate::{
     QuadrangulateOptions, Quadrangulation, QuadrangulationReport, QualityStats,
 };
 pub use simplify::{
-    face_centre_limit, simplify, simplify_control, simplify_with_progress, Progress, Simplified,
-    SimplifyOptions, SimplifyStats, StopReason,
+    face_centre_limit, s_fitmap_kappa, simplify, simplify_control, simplify_with_progress,
+    Progress, Simplified, SimplifyOptions, SimplifyStats, StopReason,
 };
