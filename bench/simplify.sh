@@ -14,7 +14,12 @@
 # and RMS L (‰ of the diagonal, Table 1's "L") are printed: the guard and
 # the M-fitmap test must keep the surface on M while the counts drop.
 # On a loaded machine read the "user" CPU seconds, not the wall time.
-# Usage: [FIT=1] bench/simplify.sh [DATA_DIR]
+# "final_blockers" counts, per test, the final patches one of whose
+# collapses that test refused in the last sweep (what stops each patch at
+# the natural end). S_FITMAP=x turns on the S-fitmap test with
+# κ = x·κ₀ (hidden option --s-fitmap; off by default, see
+# `SimplifyOptions::s_fitmap_scale` for the measured trade-off).
+# Usage: [FIT=1] [S_FITMAP=x] bench/simplify.sh [DATA_DIR]
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)
 data=${1:-$root/../shared/data}
@@ -26,8 +31,18 @@ for mesh in bunny gargoyle; do
     echo "== $mesh tau=$tau"
     /usr/bin/time -f "wall %e s, user %U s, peak %M KB" taskset -c 0,1 \
       "$root/target/release/subdfit" simplify "$data/$mesh.ply" -o "$out/$mesh-$tau.obj" \
-      --tolerance "$tau" --json --fitmap-cache "$root/target/fitmaps/$mesh-$tau.bin" |
-      grep -E '^  "(faces|irregular_vertices|collapses|stopped_at|seconds_fitmap|seconds_simplify|collapses_per_second)"|"(adaptivity_spearman|spearman_radius_fm|median_radius_over_fm|refused_m_fitmap|refused_guard_distance|refused_guard_normal|sweeps)"'
+      --tolerance "$tau" --json --fitmap-cache "$root/target/fitmaps/$mesh-$tau.bin" \
+      ${S_FITMAP:+--s-fitmap "$S_FITMAP"} |
+      python3 -c '
+import json, sys
+j = json.load(sys.stdin); s = j["stats"]
+for k in ("faces", "irregular_vertices", "collapses", "stopped_at", "seconds_fitmap",
+          "seconds_simplify", "collapses_per_second"):
+    print(f"  {k}: {j[k]}")
+for k in ("adaptivity_spearman", "spearman_radius_fm", "median_radius_over_fm",
+          "refused_m_fitmap", "refused_s_fitmap", "s_fitmap_kappa", "refused_guard_distance",
+          "refused_guard_normal", "sweeps", "final_blockers"):
+    print(f"    {k}: {s[k]}")'
     if [ "${FIT:-0}" = 1 ]; then
       "$root/target/release/subdfit" fit "$data/$mesh.ply" "$out/$mesh-$tau.obj" \
         -o "$out/fit-$mesh-$tau" 2>&1 | grep -E 'patches.*RMS L'
