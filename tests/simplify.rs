@@ -346,11 +346,10 @@ fn bunny_patch_size_follows_one_over_fs_and_fm() {
     );
     // The S-fitmap test (κ = κ₀) stops patches by r·F_S as well and raises
     // the correlation (measured −0.08 → 0.12 by this measure, −0.09 → 0.17
-    // by the loop's own; gargoyle 0.31 → 0.45), but not to 0.4
-    // and at the cost of patches (379 → 627, RMS L 3.97 → 1.35‰): F_S
-    // spans ±11 % on bunny (sd of log) while a collapse moves a radius by
-    // up to √2,
-    // so even the patches the S-fitmap test alone stops rank at only ≈ 0.4.
+    // by the loop's own; gargoyle 0.31 → 0.45), but not to 0.4, and at the
+    // cost of patches (379 → 627, RMS L 3.97 → 1.35‰): F_S spans ±11 % on
+    // bunny (sd of its log) while a collapse moves a radius by up to √2, so
+    // even the patches the S-fitmap test alone stops rank at only ≈ 0.4.
     let s_on = simplify(
         &m,
         &fitmap,

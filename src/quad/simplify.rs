@@ -116,7 +116,30 @@ pub struct SimplifyOptions {
     /// either by projectability (F_M) or by its predicted error (F_S·r)⁴
     /// (§3.1.2: "two patches contribute approximately the same error if
     /// r·F_S are equal"). κ = `s_fitmap_scale` · κ₀, κ₀ from the Fitmap
-    /// alone (see [`s_fitmap_kappa`]); 0 turns the test off.
+    /// alone (see [`s_fitmap_kappa`]); 0 (the default) turns the test off.
+    /// It runs with the M-fitmap test (off with it).
+    ///
+    /// Off by default because, on this crate's Fitmap, it buys adaptivity
+    /// only with patches beyond Table 1's counts. Measured 2026-11-22
+    /// (patches, RMS L ‰ after the global fit, Spearman(radius, 1/F_S) at
+    /// the natural end; Table 1: bunny 506 / 3.41 and 218 / 8.48, gargoyle
+    /// 1096 / 2.36 and 493 / 4.50):
+    ///
+    /// | scale | bunny 1 % | bunny 10 % | gargoyle 1 % | gargoyle 10 % |
+    /// |---|---|---|---|---|
+    /// | off | 379, 3.97, −0.09 | 214, 6.05, −0.15 | 1109, 1.99, 0.31 | 372, 4.25, −0.16 |
+    /// | 1 | 627, 1.35, 0.17 | 338, 2.37, 0.15 | 2437, 1.09, 0.45 | 712, 2.46, 0.15 |
+    /// | 1.4 | 472, 2.04, 0.10 | 260, 3.40, 0.00 | 1581, 1.42, 0.34 | 487, 3.38, 0.09 |
+    ///
+    /// Why: at the natural end the M-fitmap test stops nearly every patch
+    /// ([`SimplifyStats::final_blockers`]), at radius ≈ 0.75 F_M, and across
+    /// the final patches F_M is unrelated to F_S (Spearman 0.03 on bunny,
+    /// though 0.64 over M's vertices: the flat regions, where F_S is small
+    /// and F_M large, hold few patches). A bound on r·F_S can only shrink
+    /// patches below F_M, and F_S varies too little (sd of log F_S ≈ 0.11
+    /// over bunny's patches, 0.06 over gargoyle's) against the ≈ √2 step a
+    /// collapse makes in a radius for the rank correlation to pass ≈ 0.4
+    /// even where it alone stops the patches (0.39 / 0.40 there).
     pub s_fitmap_scale: f64,
 }
 
@@ -229,7 +252,9 @@ pub struct SimplifyStats {
     pub seconds_interpolate: f64,
     pub seconds_simplify: f64,
     pub stop: Option<StopReason>,
-    /// Adaptivity of the result (issue 4): Spearman rank correlation, over
+    /// Adaptivity of the result (issue 4; see
+    /// [`SimplifyOptions::s_fitmap_scale`] for why it is low at the natural
+    /// end): Spearman rank correlation, over
     /// the final patches, between the patch radius (largest centre-to-corner
     /// distance of the limit patch) and 1/F_S at its projected centre.
     /// `None` with fewer than two patches or constant values.
