@@ -87,6 +87,10 @@ pub struct MechanicalOptions {
     /// with its 3 × 10⁻³ E_limit; on fandisk that is 101 control vertices
     /// instead of 122, with RMS 0.77‰ instead of 0.53‰).
     pub curve_tolerance: f64,
+    /// Largest distance to M of a curve along a smooth region boundary
+    /// (no sharp edge on it: not a feature line), fraction of the
+    /// diagonal: the paper's curve threshold, 2 × 10⁻³ (§8).
+    pub smooth_curve_tolerance: f64,
     pub m0: usize,
     pub max_rounds: usize,
     /// Stop enriching beyond this many faces: 20 000.
@@ -103,6 +107,7 @@ impl Default for MechanicalOptions {
         MechanicalOptions {
             max_error: DEFAULT_MAX_ERROR,
             curve_tolerance: 0.8e-3,
+            smooth_curve_tolerance: 2e-3,
             m0: DEFAULT_M0,
             max_rounds: DEFAULT_MAX_ROUNDS,
             max_faces: 20_000,
@@ -127,7 +132,7 @@ impl MechanicalOptions {
     }
     fn check(&self) -> Result<()> {
         let ok = |x: f64| x.is_finite() && x > 0.0 && x < 1.0;
-        if !ok(self.max_error) || !ok(self.curve_tolerance) {
+        if !ok(self.max_error) || !ok(self.curve_tolerance) || !ok(self.smooth_curve_tolerance) {
             return Err(Error::InvalidArgument(format!(
                 "mechanical: max_error {} and curve_tolerance {} must be in (0, 1) (fractions of the diagonal)",
                 self.max_error, self.curve_tolerance
@@ -145,6 +150,8 @@ pub struct MechanicalStats {
     pub regions: usize,
     pub region_splits: usize,
     pub regions_merged: usize,
+    /// Region pairs merged across smooth boundaries (see [`segment`]).
+    pub regions_merged_smooth: usize,
     pub planar_regions: usize,
     /// Regions left out (not discs after the splits, or a degenerate
     /// boundary polygon): holes in the control mesh.
@@ -259,17 +266,27 @@ struct PieceFits {
 
 /// Fits one piece: against its polyline within `tol` when it is a feature
 /// line (`all_sharp`), and also within `tol` of M when it is not.
+///
+/// A piece without any sharp edge is no feature line (the features-kept
+/// bar does not apply to it) and only has to lie on M within
+/// `smooth_tol`, the paper's curve threshold (§8: 2 × 10⁻³, "coherent"
+/// with `E_limit`), so that the smooth region boundaries cost as few
+/// fixed control points as the fit allows.
+#[allow(clippy::too_many_arguments)]
 fn fit_one(
     pts: &[DVec3],
     closed: bool,
     min_n: usize,
     all_sharp: bool,
+    any_sharp: bool,
     tol: f64,
+    smooth_tol: f64,
     caster: &dyn RayCaster,
 ) -> curves::Curve {
     if all_sharp {
         return curves::fit_curve(pts, closed, tol, min_n);
     }
+    let tol = if any_sharp { tol } else { smooth_tol.max(tol) };
     // Off the features the (smoothed) polyline only says where the
     // boundary runs: within half its mean edge length (the zigzag's
     // amplitude, what the region reach of `optimize` covers) is as good as
@@ -294,6 +311,7 @@ fn fit_pieces(
     caster: &dyn RayCaster,
     net: &network::Network,
     tol: f64,
+    smooth_tol: f64,
 ) -> PieceFits {
     use rayon::prelude::*;
     let edge_sharp_of = |a: u32, b: u32| {
@@ -357,7 +375,11 @@ fn fit_pieces(
             .zip(mins)
             .zip(&sharp_piece)
             .zip(&smoothed)
-            .map(|(((p, &m), &s), pp)| fit_one(pp, p.closed, m, s, tol, caster))
+            .zip(&edge_sharp)
+            .map(|((((p, &m), &s), pp), es)| {
+                let any = es.iter().any(|&x| x);
+                fit_one(pp, p.closed, m, s, any, tol, smooth_tol, caster)
+            })
             .collect()
     };
     let mut fitted = fit_all(&mins);
@@ -440,10 +462,10 @@ fn kinks(net: &network::Network, f: &PieceFits, caster: &dyn RayCaster, tol: f64
                     let mut q: Vec<DVec3> = pp[k..].to_vec();
                     q.extend_from_slice(&pp[..=k]);
                     let s = all(k..k + m);
-                    fit_one(&q, false, 4, s, tol, caster).control.len() - 1
+                    fit_one(&q, false, 4, s, true, tol, tol, caster).control.len() - 1
                 } else {
-                    let l = fit_one(&pp[..=k], false, 2, all(0..k), tol, caster);
-                    let r = fit_one(&pp[k..], false, 2, all(k..m - 1), tol, caster);
+                    let l = fit_one(&pp[..=k], false, 2, all(0..k), true, tol, tol, caster);
+                    let r = fit_one(&pp[k..], false, 2, all(k..m - 1), true, tol, tol, caster);
                     l.control.len() + r.control.len() - 1
                 };
                 if cost < n && best.map_or(true, |b| cost < b.0) {
@@ -558,14 +580,17 @@ pub fn build_control(
     let topo = Topology::new(mesh);
     let curv = vertex_curvatures(mesh, &topo, &CurvatureOptions::default());
     lap("curvature", &mut t);
-    let seg = segment(mesh, &topo, &curv, &SegmentOptions::default());
+    let mut so = SegmentOptions::default();
+    if let Ok(v) = std::env::var("XM_CLASS") { so.min_class_share = v.parse().unwrap(); }
+    if std::env::var("XM_NOMERGE").is_ok() { so.merge_smooth = false; }
+    let seg = segment(mesh, &topo, &curv, &so);
     let sharp = topo.sharp_edges();
     // §5: curves. The paper's fit is "piecewise smooth ... including sharp
     // vertex processing" (LDB05b): a piece whose polyline kinks along a
     // feature gets a corner there when that saves control points (a cubic
     // B-spline needs many points to bend sharply, two straight halves need
     // none). Up to `KINK_PASSES` passes, each one corner per piece at most.
-    let tol = opts.curve_tolerance * diag;
+    let tol = std::env::var("XM_TOL").map_or(opts.curve_tolerance, |v| v.parse().unwrap()) * diag;
     let nv = mesh.positions.len();
     let mut extra_corner = vec![false; nv];
     let mut net = network::build_network(
@@ -577,7 +602,8 @@ pub fn build_control(
         &extra_corner,
     );
     lap("segmentation", &mut t);
-    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol);
+    let smooth_tol = std::env::var("XM_STOL").map_or(opts.smooth_curve_tolerance, |v| v.parse().unwrap()) * diag;
+    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol, smooth_tol);
     let mut kink_corners = 0;
     for _ in 0..KINK_PASSES {
         let found = kinks(&net, &stage, caster, tol);
@@ -596,7 +622,7 @@ pub fn build_control(
             &sharp,
             &extra_corner,
         );
-        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol);
+        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol, smooth_tol);
     }
     let PieceFits {
         edge_sharp: _,
@@ -813,6 +839,7 @@ pub fn build_control(
             regions: seg.num_regions,
             region_splits: seg.splits,
             regions_merged: seg.merged,
+            regions_merged_smooth: seg.merged_smooth,
             planar_regions,
             regions_skipped: skipped,
             corners: corners.len(),

@@ -345,7 +345,7 @@ pub fn optimize(
         // buy more next time (the remaining error sits where enrichment
         // cannot reach it, e.g. faces spanned by curve control points
         // only): stop rather than add faces for nothing.
-        let stalled = rounds
+        let stalled = std::env::var("XM_NOSTALL").is_err() && rounds
             .last()
             .is_some_and(|p: &Round| rec.rms_permille > 0.98 * p.rms_permille);
         if over.is_empty() || stalled || round == o.max_rounds || nf >= o.max_faces {
@@ -453,7 +453,7 @@ fn enrich(polys: &mut Polys, over: &[usize], sample_face: &[u32], dists: &[f64])
         let dmax = ds.iter().copied().fold(0.0, f64::max);
         let set: Vec<f64> = ds.iter().copied().filter(|&d| d >= 0.5 * dmax).collect();
         let high = set.iter().filter(|&&d| d >= 0.8 * dmax).count();
-        let local = comp.len() > 1 && (high as f64) < 0.5 * set.len() as f64;
+        let local = comp.len() > 1 && (high as f64) < 0.5 * set.len() as f64 && std::env::var("XM_NOCASE1").is_err();
         if local && merge_loop(&polys.faces, comp, &edge_faces).is_some() {
             merges.push(comp.clone());
             nlocal += 1;
