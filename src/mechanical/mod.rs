@@ -277,16 +277,30 @@ fn fit_one(
     pts: &[DVec3],
     closed: bool,
     min_n: usize,
-    all_sharp: bool,
-    any_sharp: bool,
+    edge_sharp: &[bool],
     tol: f64,
     smooth_tol: f64,
     caster: &dyn RayCaster,
 ) -> curves::Curve {
-    if all_sharp {
+    if edge_sharp.iter().all(|&s| s) {
         return curves::fit_curve(pts, closed, tol, min_n);
     }
-    let tol = if any_sharp { tol } else { smooth_tol.max(tol) };
+    // A piece mixing sharp and smooth edges (a feature line continued
+    // across a smooth part, see `segment`): its vertices on a sharp edge
+    // are feature points and keep `tol` to the polyline.
+    let m = pts.len();
+    let on_feature: Vec<usize> = (0..m)
+        .filter(|&k| {
+            let before = if k > 0 { edge_sharp.get(k - 1) } else if closed { edge_sharp.last() } else { None };
+            before.copied().unwrap_or(false) || edge_sharp.get(k).copied().unwrap_or(false)
+        })
+        .collect();
+    let feature_ok = |c: &curves::Curve| {
+        on_feature
+            .iter()
+            .all(|&k| (curves::eval(&c.control, c.closed, c.params[k]) - pts[k]).length() <= tol)
+    };
+    let smooth_tol = if on_feature.is_empty() { smooth_tol.max(tol) } else { tol };
     // Off the features the (smoothed) polyline only says where the
     // boundary runs: within half its mean edge length (the zigzag's
     // amplitude, what the region reach of `optimize` covers) is as good as
@@ -298,7 +312,7 @@ fn fit_one(
         .sum();
     let loose = tol.max(0.5 * len / segs.max(1) as f64);
     curves::fit_curve_until(pts, closed, min_n, &|c: &curves::Curve| {
-        c.max_error <= loose && curve_to_mesh(c, caster) <= tol
+        c.max_error <= loose && feature_ok(c) && curve_to_mesh(c, caster) <= smooth_tol
     })
 }
 
@@ -373,13 +387,9 @@ fn fit_pieces(
         net.pieces
             .par_iter()
             .zip(mins)
-            .zip(&sharp_piece)
             .zip(&smoothed)
             .zip(&edge_sharp)
-            .map(|((((p, &m), &s), pp), es)| {
-                let any = es.iter().any(|&x| x);
-                fit_one(pp, p.closed, m, s, any, tol, smooth_tol, caster)
-            })
+            .map(|(((p, &m), pp), es)| fit_one(pp, p.closed, m, es, tol, smooth_tol, caster))
             .collect()
     };
     let mut fitted = fit_all(&mins);
@@ -413,7 +423,13 @@ fn fit_pieces(
 /// control points, the (up to 3) vertices on a sharp edge that turn most
 /// (over 2 polyline steps where an edge is not sharp, to see past a
 /// zigzag), at least [`KINK_MIN_TURN_DEG`]; the best saving wins.
-fn kinks(net: &network::Network, f: &PieceFits, caster: &dyn RayCaster, tol: f64) -> Vec<u32> {
+fn kinks(
+    net: &network::Network,
+    f: &PieceFits,
+    caster: &dyn RayCaster,
+    tol: f64,
+    smooth_tol: f64,
+) -> Vec<u32> {
     use rayon::prelude::*;
     let cos_min = KINK_MIN_TURN_DEG.to_radians().cos();
     net.pieces
@@ -455,17 +471,17 @@ fn kinks(net: &network::Network, f: &PieceFits, caster: &dyn RayCaster, tol: f64
             }
             cands.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
             cands.truncate(3);
-            let all = |r: std::ops::Range<usize>| r.into_iter().all(|j| es[j % es.len()]);
             let mut best: Option<(usize, usize)> = None;
             for &(_, k) in &cands {
                 let cost = if p.closed {
                     let mut q: Vec<DVec3> = pp[k..].to_vec();
                     q.extend_from_slice(&pp[..=k]);
-                    let s = all(k..k + m);
-                    fit_one(&q, false, 4, s, true, tol, tol, caster).control.len() - 1
+                    let mut qs: Vec<bool> = es[k..].to_vec();
+                    qs.extend_from_slice(&es[..k]);
+                    fit_one(&q, false, 4, &qs, tol, smooth_tol, caster).control.len() - 1
                 } else {
-                    let l = fit_one(&pp[..=k], false, 2, all(0..k), true, tol, tol, caster);
-                    let r = fit_one(&pp[k..], false, 2, all(k..m - 1), true, tol, tol, caster);
+                    let l = fit_one(&pp[..=k], false, 2, &es[..k], tol, smooth_tol, caster);
+                    let r = fit_one(&pp[k..], false, 2, &es[k..m - 1], tol, smooth_tol, caster);
                     l.control.len() + r.control.len() - 1
                 };
                 if cost < n && best.map_or(true, |b| cost < b.0) {
@@ -606,7 +622,7 @@ pub fn build_control(
     let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol, smooth_tol);
     let mut kink_corners = 0;
     for _ in 0..KINK_PASSES {
-        let found = kinks(&net, &stage, caster, tol);
+        let found = kinks(&net, &stage, caster, tol, smooth_tol);
         if found.is_empty() {
             break;
         }
