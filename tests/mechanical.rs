@@ -430,7 +430,11 @@ fn fandisk_figures() {
     assert!(mean <= 0.78, "mean {mean}");
     assert!(rms <= 1.63, "rms {rms}");
     assert!(max <= 10.46, "max {max}");
-    assert!(built.control.num_faces() <= 155, "{} faces", built.control.num_faces());
+    assert!(
+        built.control.num_faces() <= 155,
+        "{} faces",
+        built.control.num_faces()
+    );
     assert!(built.control.num_vertices() <= 120);
     assert!(built.stats.sharp_edges_inside_regions == 0);
     // Smooth boundaries merged away (§4 step 3a): fandisk's class splits

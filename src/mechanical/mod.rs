@@ -291,7 +291,13 @@ fn fit_one(
     let m = pts.len();
     let on_feature: Vec<usize> = (0..m)
         .filter(|&k| {
-            let before = if k > 0 { edge_sharp.get(k - 1) } else if closed { edge_sharp.last() } else { None };
+            let before = if k > 0 {
+                edge_sharp.get(k - 1)
+            } else if closed {
+                edge_sharp.last()
+            } else {
+                None
+            };
             before.copied().unwrap_or(false) || edge_sharp.get(k).copied().unwrap_or(false)
         })
         .collect();
@@ -300,7 +306,11 @@ fn fit_one(
             .iter()
             .all(|&k| (curves::eval(&c.control, c.closed, c.params[k]) - pts[k]).length() <= tol)
     };
-    let smooth_tol = if on_feature.is_empty() { smooth_tol.max(tol) } else { tol };
+    let smooth_tol = if on_feature.is_empty() {
+        smooth_tol.max(tol)
+    } else {
+        tol
+    };
     // Off the features the (smoothed) polyline only says where the
     // boundary runs: within half its mean edge length (the zigzag's
     // amplitude, what the region reach of `optimize` covers) is as good as
@@ -478,7 +488,10 @@ fn kinks(
                     q.extend_from_slice(&pp[..=k]);
                     let mut qs: Vec<bool> = es[k..].to_vec();
                     qs.extend_from_slice(&es[..k]);
-                    fit_one(&q, false, 4, &qs, tol, smooth_tol, caster).control.len() - 1
+                    fit_one(&q, false, 4, &qs, tol, smooth_tol, caster)
+                        .control
+                        .len()
+                        - 1
                 } else {
                     let l = fit_one(&pp[..=k], false, 2, &es[..k], tol, smooth_tol, caster);
                     let r = fit_one(&pp[k..], false, 2, &es[k..m - 1], tol, smooth_tol, caster);
@@ -596,17 +609,14 @@ pub fn build_control(
     let topo = Topology::new(mesh);
     let curv = vertex_curvatures(mesh, &topo, &CurvatureOptions::default());
     lap("curvature", &mut t);
-    let mut so = SegmentOptions::default();
-    if let Ok(v) = std::env::var("XM_CLASS") { so.min_class_share = v.parse().unwrap(); }
-    if std::env::var("XM_NOMERGE").is_ok() { so.merge_smooth = false; }
-    let seg = segment(mesh, &topo, &curv, &so);
+    let seg = segment(mesh, &topo, &curv, &SegmentOptions::default());
     let sharp = topo.sharp_edges();
     // §5: curves. The paper's fit is "piecewise smooth ... including sharp
     // vertex processing" (LDB05b): a piece whose polyline kinks along a
     // feature gets a corner there when that saves control points (a cubic
     // B-spline needs many points to bend sharply, two straight halves need
     // none). Up to `KINK_PASSES` passes, each one corner per piece at most.
-    let tol = std::env::var("XM_TOL").map_or(opts.curve_tolerance, |v| v.parse().unwrap()) * diag;
+    let tol = opts.curve_tolerance * diag;
     let nv = mesh.positions.len();
     let mut extra_corner = vec![false; nv];
     let mut net = network::build_network(
@@ -618,7 +628,7 @@ pub fn build_control(
         &extra_corner,
     );
     lap("segmentation", &mut t);
-    let smooth_tol = std::env::var("XM_STOL").map_or(opts.smooth_curve_tolerance, |v| v.parse().unwrap()) * diag;
+    let smooth_tol = opts.smooth_curve_tolerance * diag;
     let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol, smooth_tol);
     let mut kink_corners = 0;
     for _ in 0..KINK_PASSES {

@@ -25,6 +25,17 @@
 //! polygon's corners (case 1); otherwise (a plateau, or a single face) every
 //! face of the field is split Catmull-Clark style, with the edges shared by
 //! two enriched faces cut (case 2). Crease edges are never cut.
+//!
+//! Regions are independent (their boundaries are creases of fixed curve
+//! points), which the loop uses twice: a geometry step is accepted per
+//! region (a region whose squared distance it raises keeps its points), and
+//! each region's best measured state is kept. A region whose RMS rose by
+//! more than 2 % after an enrichment (a case-1 fan folding over a curved
+//! region: fandisk's largest fillet went from 3.8‰ to 5.7‰) is put back
+//! and enriched by case 2 only from then on, while the others keep their
+//! progress; the output is the best state of every region. Before this,
+//! one bad region ended the whole loop (the stall test saw the total RMS
+//! rise) and block.ply stopped at RMS 3.5‰; it now reaches 0.55‰.
 
 use std::collections::{HashMap, HashSet};
 
@@ -420,17 +431,12 @@ pub fn optimize(
             && rounds
                 .last()
                 .is_some_and(|p: &Round| rec.rms_permille > 0.98 * p.rms_permille);
-        if over_all == 0
-            || stalled
-            || round == o.max_rounds
-            || nf >= o.max_faces
-        {
+        if over_all == 0 || stalled || round == o.max_rounds || nf >= o.max_faces {
             rounds.push(rec);
             break;
         }
         if !over.is_empty() {
-            let (local, diffuse) =
-                enrich(polys, &over, &locs_faces(&locs), &dists, &allow_local);
+            let (local, diffuse) = enrich(polys, &over, &locs_faces(&locs), &dists, &allow_local);
             rec.local_fields = local;
             rec.diffuse_fields = diffuse;
         }
@@ -632,8 +638,7 @@ fn enrich(
             && allow_local
                 .get(polys.face_region[comp[0]] as usize)
                 .copied()
-                .unwrap_or(true)
-            && std::env::var("XM_NOCASE1").is_err();
+                .unwrap_or(true);
         if local && merge_loop(&polys.faces, comp, &edge_faces).is_some() {
             merges.push(comp.clone());
             nlocal += 1;
