@@ -524,7 +524,23 @@ fn region_state(p: &Polys, r: u32, rms: f64) -> RegionState {
 /// their recorded states, the others as they are. Faces come out grouped
 /// by region (deterministic order); fixed vertices, creases and corners
 /// are untouched (they only involve vertices below `fixed`).
+///
+/// The regions must not share a free vertex (true of every layout built
+/// here: region boundaries are creases of fixed points, and enrichment
+/// never cuts a crease); if one is shared all the same, nothing is
+/// restored rather than crack the mesh.
 fn restore_regions(p: &mut Polys, states: &[Option<RegionState>], restore: &[bool]) {
+    let mut owner = vec![u32::MAX; p.positions.len().saturating_sub(p.fixed)];
+    for (f, poly) in p.faces.iter().enumerate() {
+        for &v in poly {
+            if let Some(o) = owner.get_mut((v as usize).wrapping_sub(p.fixed)) {
+                if *o != u32::MAX && *o != p.face_region[f] {
+                    return;
+                }
+                *o = p.face_region[f];
+            }
+        }
+    }
     let nreg = p
         .face_region
         .iter()
