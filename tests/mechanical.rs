@@ -368,14 +368,44 @@ fn shared_cad_figures() {
     }
 }
 
+/// Surface-to-mesh distance of `built`'s limit surface (patch samples as
+/// in the fit, closest points on M): (mean, RMS, max) in ‰ of the diagonal.
+fn output_error(mesh: &TriMesh, built: &mechanical::Built) -> (f64, f64, f64) {
+    use subdfit::subdiv::{make_evaluator, Backend, EvalOptions};
+    let c = &built.control;
+    let (locs, _) = subdfit::fit::patch_samples(c, mesh.positions.len(), 3);
+    let eval = make_evaluator(Backend::Osd, c, &EvalOptions::default()).unwrap();
+    let pts: Vec<DVec3> = eval
+        .evaluate(c.positions(), &locs)
+        .unwrap()
+        .iter()
+        .map(|p| p.position)
+        .collect();
+    let caster =
+        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, mesh).unwrap();
+    let d: Vec<f64> = caster
+        .closest_points(&pts, f64::INFINITY)
+        .unwrap()
+        .iter()
+        .map(|h| h.unwrap().distance)
+        .collect();
+    let k = 1000.0 / mesh.bbox_diagonal();
+    let n = d.len() as f64;
+    (
+        k * d.iter().sum::<f64>() / n,
+        k * (d.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+        k * d.iter().copied().fold(0.0, f64::max),
+    )
+}
+
 /// Fandisk end to end. The paper's bar (Lavoué et al. 2007, Table 2):
 /// ≤ 75 control vertices, ≤ 89 faces, mean ≤ 0.78‰, RMS ≤ 1.63‰,
-/// max ≤ 10.46‰ of the diagonal. Measured: 120 vertices, 146 faces, mean
-/// 0.27‰, RMS 0.54‰, max 5.4‰ (the error bar is met with room, the size
-/// bar is not: the curve network alone has 112 control points at the
+/// max ≤ 10.46‰ of the diagonal. Measured: 113 vertices, 146 faces, mean
+/// 0.33‰, RMS 0.63‰, max 4.2‰ (the error bar is met with room, the size
+/// bar is not: the curve network alone has 95 control points at the
 /// 0.8‰ curve tolerance the features-kept bar needs, where the paper
-/// allows 2‰). The assertions are the error bar itself and the size
-/// measured with a small margin, so a regression shows.
+/// allows 2‰). The assertions are the error bar itself on the output and
+/// the size measured with a small margin, so a regression shows.
 #[test]
 fn fandisk_figures() {
     let mesh = fandisk();
@@ -387,21 +417,51 @@ fn fandisk_figures() {
     for x in r {
         println!("{x:?}");
     }
-    let best = r
-        .iter()
-        .min_by(|a, b| a.rms_permille.total_cmp(&b.rms_permille))
-        .unwrap();
-    // The geometry step lowers the error: the first fitted round beats the
-    // initial polyhedron (round 0 has no free control point to fit).
+    let (mean, rms, max) = output_error(&mesh, &built);
+    println!(
+        "{} vertices {} faces: mean {mean:.3}‰ RMS {rms:.3}‰ max {max:.2}‰",
+        built.control.num_vertices(),
+        built.control.num_faces()
+    );
+    // The geometry step and the enrichment lower the error: the output
+    // beats the initial polyhedron (round 0 has no free control point).
     assert!(r.len() >= 2 && r[1].geometry_iterations > 0);
-    assert!(r[1].mean_permille < r[0].mean_permille);
-    assert!(r[1].rms_permille < r[0].rms_permille);
-    assert!(best.mean_permille <= 0.78, "mean {}", best.mean_permille);
-    assert!(best.rms_permille <= 1.63, "rms {}", best.rms_permille);
-    assert!(best.max_permille <= 10.46, "max {}", best.max_permille);
-    assert!(best.faces <= 160, "{} faces", best.faces);
-    assert!(built.control.num_vertices() <= 130);
+    assert!(rms < r[0].rms_permille && mean < r[0].mean_permille);
+    assert!(mean <= 0.78, "mean {mean}");
+    assert!(rms <= 1.63, "rms {rms}");
+    assert!(max <= 10.46, "max {max}");
+    assert!(
+        built.control.num_faces() <= 155,
+        "{} faces",
+        built.control.num_faces()
+    );
+    assert!(built.control.num_vertices() <= 120);
     assert!(built.stats.sharp_edges_inside_regions == 0);
+    // Smooth boundaries merged away (§4 step 3a): fandisk's class splits
+    // that are not needed for discs are gone.
+    assert!(built.stats.regions_merged_smooth > 0);
+}
+
+/// Per-region rollback of the enrichment (§7.2 with the "never worse than
+/// a measured state" rule): the output is no worse than any round
+/// measured, region by region, so more rounds never raise the error.
+/// With 1 round and with the default 8, on fandisk.
+#[test]
+fn fandisk_more_rounds_never_worse() {
+    let mesh = fandisk();
+    let caster =
+        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
+    let run = |n: usize| {
+        let o = mechanical::MechanicalOptions::default().with_max_rounds(n);
+        mechanical::build_control(&mesh, caster.as_ref(), &o).unwrap()
+    };
+    let (one, all) = (run(1), run(mechanical::DEFAULT_MAX_ROUNDS));
+    let (_, rms1, _) = output_error(&mesh, &one);
+    let (_, rms8, _) = output_error(&mesh, &all);
+    println!("RMS after 1 round {rms1:.3}‰, after all {rms8:.3}‰");
+    // 2 %: the stall margin of `optimize` (a region within it of its best
+    // is kept as measured).
+    assert!(rms8 <= 1.02 * rms1, "{rms8} vs {rms1}");
 }
 
 /// §7.1's objective: the squared-distance minimisation (the default) fits

@@ -87,6 +87,10 @@ pub struct MechanicalOptions {
     /// with its 3 × 10⁻³ E_limit; on fandisk that is 101 control vertices
     /// instead of 122, with RMS 0.77‰ instead of 0.53‰).
     pub curve_tolerance: f64,
+    /// Largest distance to M of a curve along a smooth region boundary
+    /// (no sharp edge on it: not a feature line), fraction of the
+    /// diagonal: the paper's curve threshold, 2 × 10⁻³ (§8).
+    pub smooth_curve_tolerance: f64,
     pub m0: usize,
     pub max_rounds: usize,
     /// Stop enriching beyond this many faces: 20 000.
@@ -103,6 +107,7 @@ impl Default for MechanicalOptions {
         MechanicalOptions {
             max_error: DEFAULT_MAX_ERROR,
             curve_tolerance: 0.8e-3,
+            smooth_curve_tolerance: 2e-3,
             m0: DEFAULT_M0,
             max_rounds: DEFAULT_MAX_ROUNDS,
             max_faces: 20_000,
@@ -127,7 +132,7 @@ impl MechanicalOptions {
     }
     fn check(&self) -> Result<()> {
         let ok = |x: f64| x.is_finite() && x > 0.0 && x < 1.0;
-        if !ok(self.max_error) || !ok(self.curve_tolerance) {
+        if !ok(self.max_error) || !ok(self.curve_tolerance) || !ok(self.smooth_curve_tolerance) {
             return Err(Error::InvalidArgument(format!(
                 "mechanical: max_error {} and curve_tolerance {} must be in (0, 1) (fractions of the diagonal)",
                 self.max_error, self.curve_tolerance
@@ -145,6 +150,8 @@ pub struct MechanicalStats {
     pub regions: usize,
     pub region_splits: usize,
     pub regions_merged: usize,
+    /// Region pairs merged across smooth boundaries (see [`segment`]).
+    pub regions_merged_smooth: usize,
     pub planar_regions: usize,
     /// Regions left out (not discs after the splits, or a degenerate
     /// boundary polygon): holes in the control mesh.
@@ -259,17 +266,51 @@ struct PieceFits {
 
 /// Fits one piece: against its polyline within `tol` when it is a feature
 /// line (`all_sharp`), and also within `tol` of M when it is not.
+///
+/// A piece without any sharp edge is no feature line (the features-kept
+/// bar does not apply to it) and only has to lie on M within
+/// `smooth_tol`, the paper's curve threshold (§8: 2 × 10⁻³, "coherent"
+/// with `E_limit`), so that the smooth region boundaries cost as few
+/// fixed control points as the fit allows.
+#[allow(clippy::too_many_arguments)]
 fn fit_one(
     pts: &[DVec3],
     closed: bool,
     min_n: usize,
-    all_sharp: bool,
+    edge_sharp: &[bool],
     tol: f64,
+    smooth_tol: f64,
     caster: &dyn RayCaster,
 ) -> curves::Curve {
-    if all_sharp {
+    if edge_sharp.iter().all(|&s| s) {
         return curves::fit_curve(pts, closed, tol, min_n);
     }
+    // A piece mixing sharp and smooth edges (a feature line continued
+    // across a smooth part, see `segment`): its vertices on a sharp edge
+    // are feature points and keep `tol` to the polyline.
+    let m = pts.len();
+    let on_feature: Vec<usize> = (0..m)
+        .filter(|&k| {
+            let before = if k > 0 {
+                edge_sharp.get(k - 1)
+            } else if closed {
+                edge_sharp.last()
+            } else {
+                None
+            };
+            before.copied().unwrap_or(false) || edge_sharp.get(k).copied().unwrap_or(false)
+        })
+        .collect();
+    let feature_ok = |c: &curves::Curve| {
+        on_feature
+            .iter()
+            .all(|&k| (curves::eval(&c.control, c.closed, c.params[k]) - pts[k]).length() <= tol)
+    };
+    let smooth_tol = if on_feature.is_empty() {
+        smooth_tol.max(tol)
+    } else {
+        tol
+    };
     // Off the features the (smoothed) polyline only says where the
     // boundary runs: within half its mean edge length (the zigzag's
     // amplitude, what the region reach of `optimize` covers) is as good as
@@ -281,7 +322,7 @@ fn fit_one(
         .sum();
     let loose = tol.max(0.5 * len / segs.max(1) as f64);
     curves::fit_curve_until(pts, closed, min_n, &|c: &curves::Curve| {
-        c.max_error <= loose && curve_to_mesh(c, caster) <= tol
+        c.max_error <= loose && feature_ok(c) && curve_to_mesh(c, caster) <= smooth_tol
     })
 }
 
@@ -294,6 +335,7 @@ fn fit_pieces(
     caster: &dyn RayCaster,
     net: &network::Network,
     tol: f64,
+    smooth_tol: f64,
 ) -> PieceFits {
     use rayon::prelude::*;
     let edge_sharp_of = |a: u32, b: u32| {
@@ -355,9 +397,9 @@ fn fit_pieces(
         net.pieces
             .par_iter()
             .zip(mins)
-            .zip(&sharp_piece)
             .zip(&smoothed)
-            .map(|(((p, &m), &s), pp)| fit_one(pp, p.closed, m, s, tol, caster))
+            .zip(&edge_sharp)
+            .map(|(((p, &m), pp), es)| fit_one(pp, p.closed, m, es, tol, smooth_tol, caster))
             .collect()
     };
     let mut fitted = fit_all(&mins);
@@ -391,7 +433,13 @@ fn fit_pieces(
 /// control points, the (up to 3) vertices on a sharp edge that turn most
 /// (over 2 polyline steps where an edge is not sharp, to see past a
 /// zigzag), at least [`KINK_MIN_TURN_DEG`]; the best saving wins.
-fn kinks(net: &network::Network, f: &PieceFits, caster: &dyn RayCaster, tol: f64) -> Vec<u32> {
+fn kinks(
+    net: &network::Network,
+    f: &PieceFits,
+    caster: &dyn RayCaster,
+    tol: f64,
+    smooth_tol: f64,
+) -> Vec<u32> {
     use rayon::prelude::*;
     let cos_min = KINK_MIN_TURN_DEG.to_radians().cos();
     net.pieces
@@ -433,17 +481,20 @@ fn kinks(net: &network::Network, f: &PieceFits, caster: &dyn RayCaster, tol: f64
             }
             cands.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
             cands.truncate(3);
-            let all = |r: std::ops::Range<usize>| r.into_iter().all(|j| es[j % es.len()]);
             let mut best: Option<(usize, usize)> = None;
             for &(_, k) in &cands {
                 let cost = if p.closed {
                     let mut q: Vec<DVec3> = pp[k..].to_vec();
                     q.extend_from_slice(&pp[..=k]);
-                    let s = all(k..k + m);
-                    fit_one(&q, false, 4, s, tol, caster).control.len() - 1
+                    let mut qs: Vec<bool> = es[k..].to_vec();
+                    qs.extend_from_slice(&es[..k]);
+                    fit_one(&q, false, 4, &qs, tol, smooth_tol, caster)
+                        .control
+                        .len()
+                        - 1
                 } else {
-                    let l = fit_one(&pp[..=k], false, 2, all(0..k), tol, caster);
-                    let r = fit_one(&pp[k..], false, 2, all(k..m - 1), tol, caster);
+                    let l = fit_one(&pp[..=k], false, 2, &es[..k], tol, smooth_tol, caster);
+                    let r = fit_one(&pp[k..], false, 2, &es[k..m - 1], tol, smooth_tol, caster);
                     l.control.len() + r.control.len() - 1
                 };
                 if cost < n && best.map_or(true, |b| cost < b.0) {
@@ -577,10 +628,11 @@ pub fn build_control(
         &extra_corner,
     );
     lap("segmentation", &mut t);
-    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol);
+    let smooth_tol = opts.smooth_curve_tolerance * diag;
+    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol, smooth_tol);
     let mut kink_corners = 0;
     for _ in 0..KINK_PASSES {
-        let found = kinks(&net, &stage, caster, tol);
+        let found = kinks(&net, &stage, caster, tol, smooth_tol);
         if found.is_empty() {
             break;
         }
@@ -596,7 +648,7 @@ pub fn build_control(
             &sharp,
             &extra_corner,
         );
-        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol);
+        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol, smooth_tol);
     }
     let PieceFits {
         edge_sharp: _,
@@ -813,6 +865,7 @@ pub fn build_control(
             regions: seg.num_regions,
             region_splits: seg.splits,
             regions_merged: seg.merged,
+            regions_merged_smooth: seg.merged_smooth,
             planar_regions,
             regions_skipped: skipped,
             corners: corners.len(),
