@@ -42,8 +42,11 @@
 //! exact limit normal; c counts as reached when φ lands within one mean edge
 //! length of M from c (a miss, or a hit on another sheet of M, is not).
 
+mod floor;
 mod output;
 mod pipeline;
+
+pub use floor::resampling_floor;
 
 pub use output::{write_outputs, OutputFiles, OUTPUT_NAMES};
 pub use pipeline::{fit_and_measure, fit_and_write, write_converted, Converted, PipelineOptions};
