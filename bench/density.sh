@@ -15,6 +15,26 @@
 # (`report::resampling_floor`: vertices slid within their half rings,
 # REACH 0.5, and within a quarter ring, 0.25), measured the same way — the
 # best an interpolating resampling with M's own well-shaped triangles does.
+#
+# Measured (2026-11-22, control meshes of `convert --tolerance 0.01`; RMS
+# D → M / M → D in ‰ of the diagonal; least squares with two rounds):
+#   gargoyle (25.0k vertices, 1109 patches)
+#     ×1  (R 6, 27.7k samples)  hit 0.480/0.571   lsq 0.367/0.427
+#     ×2  (R 8)                 hit 0.303/0.355   lsq 0.226/0.260
+#     ×4  (R 11)                hit 0.180/0.205   lsq 0.135/0.147
+#     ×9  (R 16)                hit 0.101/0.115   lsq 0.094/0.089
+#     ×16 (R 21, 444k samples)  hit 0.068/0.079   lsq 0.069/0.065
+#     floor at ×1: 0.204/0.199 (reach 0.5), 0.111/0.104 (reach 0.25)
+#   bunny (34.8k vertices, 379 patches, 5 holes)
+#     ×1  (R 11, 38.2k samples) hit 0.649/0.394   lsq 0.588/0.272
+#     ×4  (R 21)                hit 0.552/0.127   lsq 0.546/0.088
+#     ×16 (R 41, 608k samples)  hit 0.543/0.049   lsq 0.543/0.049
+#     floor at ×1: 0.126/0.117 (reach 0.5), 0.067/0.061 (reach 0.25)
+# So with a symmetric measure, D falls like 1/samples (a chordal error)
+# and reaches the paper's 0.07‰ on gargoyle only at ~16× its density; even
+# an ideal interpolating resampling at ×1 measures 0.11–0.20‰. On bunny
+# D → M stops at 0.54‰ whatever the density: it is the limit surface
+# overhanging M's holes, which no normal offset can remove.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${1:-../shared/data}
