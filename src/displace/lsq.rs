@@ -208,10 +208,10 @@ pub fn refine_offsets(
             break;
         }
         let mut ridge = Triplets::new(n, n);
-        for i in 0..n {
+        for (i, &f) in fixed.iter().enumerate() {
             // Unprojectable samples over a hole or past M's border keep
             // their inpainted offsets (module docs).
-            ridge.push(i, i, if fixed[i] { FIXED_RIDGE } else { 1.0 });
+            ridge.push(i, i, if f { FIXED_RIDGE } else { 1.0 });
         }
         let lambda = opts.ridge * total_m / n.max(1) as f64;
         let delta = least_squares(&a, &[rhs], Some((&ridge, lambda)), &LsqOptions::default())?;
