@@ -13,12 +13,19 @@
 //! surface stays continuous there instead of dropping back onto the limit
 //! surface (an offset of 0 leaves the limit surface's whole error at the
 //! sample, and a tent of it over the neighbouring triangles).
+//!
+//! φ's offsets make D interpolate M at the samples; [`refine_offsets`]
+//! then replaces them by the offsets that minimise the integrated squared
+//! distance between D and M in both directions (see its module), which
+//! the report's pipeline does by default ([`OffsetMode`]).
 
 mod atlas;
 mod grid;
+mod lsq;
 
 pub use atlas::{read_exr, Atlas, DEFAULT_GUTTER};
 pub use grid::PatchGrid;
+pub use lsq::{refine_offsets, LsqOffsetOptions, LsqOffsetStats};
 
 use serde::Serialize;
 
@@ -47,6 +54,17 @@ pub fn auto_resolution(mesh_vertices: usize, patches: usize) -> usize {
     r.clamp(2, 64)
 }
 
+/// How the displacement offsets are chosen.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OffsetMode {
+    /// φ's hit distances: D interpolates M at the samples (Fitmaps §1.2).
+    Hit,
+    /// φ's hits refined by least squares ([`refine_offsets`]).
+    #[default]
+    LeastSquares,
+}
+
 /// Counts of a displacement computation.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct DisplacementStats {
@@ -63,6 +81,9 @@ pub struct DisplacementStats {
     pub unprojectable_percent: f64,
     /// Largest |offset|, in ‰ of M's bounding-box diagonal.
     pub max_abs_offset_permille: f64,
+    /// Set when the offsets were refined by least squares
+    /// ([`refine_offsets`]) instead of kept at φ's hits.
+    pub least_squares: Option<LsqOffsetStats>,
 }
 
 /// Displacement samples on a welded grid: limit point, offset along the
@@ -156,6 +177,7 @@ pub fn compute_displacement(
         other_sheet,
         unprojectable_percent: 100.0 * pstats.unprojectable_fraction(),
         max_abs_offset_permille: 1000.0 * max_abs / diag.max(f64::MIN_POSITIVE),
+        least_squares: None,
     };
     Ok(Displacement {
         grid,

@@ -32,7 +32,9 @@
 //! error is then well below M's own. D is the displacement grid itself: the
 //! limit point plus the measured offset at every `R × R` sample, linear in
 //! between, each grid cell split along its shorter displaced diagonal —
-//! what `displaced.ply` holds. Unprojectable samples carry their
+//! what `displaced.ply` holds. By default the offsets are least-squares
+//! ones ([`crate::displace::refine_offsets`], fitted on M's edge midpoints
+//! and D's triangle centroids, not on the quadrature points measured here). Unprojectable samples carry their
 //! inpainted offsets ([`crate::displace`]), so D is measured as written.
 //!
 //! Projectability (Table 1, "Unp."): the percentage of M's area not reached
@@ -42,8 +44,11 @@
 //! exact limit normal; c counts as reached when φ lands within one mean edge
 //! length of M from c (a miss, or a hit on another sheet of M, is not).
 
+mod floor;
 mod output;
 mod pipeline;
+
+pub use floor::resampling_floor;
 
 pub use output::{write_outputs, OutputFiles, OUTPUT_NAMES};
 pub use pipeline::{fit_and_measure, fit_and_write, write_converted, Converted, PipelineOptions};
@@ -55,7 +60,8 @@ use serde::Serialize;
 
 use crate::analysis::normals::triangle_areas;
 use crate::displace::{
-    auto_resolution, compute_displacement, Displacement, DisplacementStats, PatchGrid,
+    auto_resolution, compute_displacement, refine_offsets, Displacement, DisplacementStats,
+    LsqOffsetOptions, OffsetMode, PatchGrid,
 };
 use crate::error::{Error, Result};
 use crate::fit::{report_progress, Progress};
@@ -76,6 +82,8 @@ pub struct MetricsOptions {
     pub tessellation_res: Option<usize>,
     /// φ's search distance; `None`: a quarter of M's diagonal.
     pub max_dist: Option<f64>,
+    /// φ's hits, or least-squares offsets (the default).
+    pub offsets: OffsetMode,
 }
 
 impl MetricsOptions {
@@ -85,6 +93,10 @@ impl MetricsOptions {
     }
     pub fn with_tessellation_res(mut self, r: Option<usize>) -> Self {
         self.tessellation_res = r;
+        self
+    }
+    pub fn with_offsets(mut self, m: OffsetMode) -> Self {
+        self.offsets = m;
         self
     }
 }
@@ -224,7 +236,7 @@ pub fn evaluate_surfaces(
         triangles: grid.triangles(),
     };
     let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
-    let displacement = compute_displacement(
+    let mut displacement = compute_displacement(
         control,
         evaluator.as_ref(),
         caster,
@@ -233,6 +245,21 @@ pub fn evaluate_surfaces(
         diag,
         0.5 * mean_edge_length(mesh),
     )?;
+    if opts.offsets == OffsetMode::LeastSquares {
+        let st = refine_offsets(
+            mesh,
+            caster,
+            &mut displacement,
+            diag,
+            &LsqOffsetOptions::default(),
+        )?;
+        let max_abs = displacement
+            .offsets
+            .iter()
+            .fold(0.0f64, |m, d| m.max(d.abs()));
+        displacement.stats.max_abs_offset_permille = 1000.0 * max_abs / diag;
+        displacement.stats.least_squares = Some(st);
+    }
     report_progress(progress, "displacement", 1.0)?;
     report_progress(progress, "metrics", 0.0)?;
     // D: the displacement grid, each cell split along its shorter
