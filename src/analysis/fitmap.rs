@@ -1618,3 +1618,72 @@ pub fn compute_fitmap_cancellable(
         stats,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raycast::{make_raycaster, RayBackend};
+
+    /// The verdict memo changes the work, never the result: the literal
+    /// fraction with verdicts partly known from earlier draws equals the
+    /// one computed from scratch, bit for bit, and so does the fraction
+    /// with a memo filled with *every* verdict (no line cast at all).
+    #[test]
+    fn verdict_memo_gives_the_literal_fraction() {
+        // The bundled spot.ply: its ears and horns fold over the head, so
+        // large balls are partly flipped.
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply");
+        let mesh = crate::io::read_mesh(std::path::Path::new(path))
+            .unwrap()
+            .mesh;
+        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+        let opts = FitmapOptions::default();
+        let areas = triangle_areas(&mesh);
+        let total: f64 = areas.iter().sum();
+        let nv = mesh.positions.len();
+        let ctx = Ctx {
+            mesh: &mesh,
+            caster: caster.as_ref(),
+            opts: &opts,
+            samples: MSamples::new(&mesh, &areas, SAMPLES_PER_VERTEX * nv as f64 / total, 7),
+            areas,
+            normals: vertex_normals(&mesh),
+            adj: Adjacency::new(&mesh),
+            radii: fitmap_radii(&mesh).unwrap(),
+            level_of: vec![None; RADIUS_STEPS + 1],
+            levels: Vec::new(),
+            failure: std::sync::Mutex::new(None),
+        };
+        let mut sc = Scratch::new(&ctx);
+        let mut seen_partial = false;
+        for p in (0..nv as u32).step_by(211) {
+            let frame = Frame::from_normal(mesh.positions[p as usize], ctx.normals[p as usize]);
+            for i in [5, 7, 8] {
+                let Some((cubic, _, tris)) = exact_ball(&ctx, &mut sc, p, &frame, i).1 else {
+                    continue;
+                };
+                let r = ctx.radii[i];
+                let (plain, _) = flip_fraction_literal(&ctx, &frame, &cubic, r, &tris, None);
+                // Every third triangle already known, as after a draw.
+                let mut memo = VerdictMemo::new(mesh.triangles.len());
+                memo.reset();
+                let known: Vec<u32> = tris.iter().copied().step_by(3).collect();
+                let mut reached = Vec::new();
+                triangle_verdicts(&ctx, &frame, &cubic, r, &known, &mut reached).unwrap();
+                for (&t, &ok) in known.iter().zip(&reached) {
+                    memo.set(t, ok);
+                }
+                let (partial, _) =
+                    flip_fraction_literal(&ctx, &frame, &cubic, r, &tris, Some(&mut memo));
+                assert_eq!(plain, partial, "p = {p}, radius {i}");
+                // Now every verdict is in the memo: no line is cast.
+                let (full, lines) =
+                    flip_fraction_literal(&ctx, &frame, &cubic, r, &tris, Some(&mut memo));
+                assert_eq!(plain, full);
+                assert_eq!(lines, 0);
+                seen_partial |= plain.is_some_and(|f| f > 0.0 && f < 1.0);
+            }
+        }
+        assert!(seen_partial, "spot.ply must give partly flipped balls");
+    }
+}
