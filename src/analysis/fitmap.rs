@@ -28,10 +28,34 @@
 //!   drawing triangles, whose verdicts are the exact mode's (same samples,
 //!   same rule), with a sequential stopping rule, and falls back to the
 //!   literal test where the estimate stays undecided near τ
-//!   ([`flip_test_sampled`]). Every estimate is of the same quantity as
+//!   ([`flip_test_sampled`]; verdicts already drawn are not cast again,
+//!   [`VerdictMemo`]). Every estimate is of the same quantity as
 //!   the exact mode (a subsample of the same sum), which
 //!   [`crate::analysis::compare`] measures (`bench/fitmap_compare.sh`;
 //!   see `tests/fitmap_props.rs` for where the F_M agreement stands).
+//!
+//! Where fast and exact F_M differ by more than one step (τ = 5 %, counted
+//! with `fitmap_bench diag`, which prints the exact mode's flipped
+//! fraction at every radius, [`exact_flip_fractions`]): 65 / 71 / 61
+//! vertices of spot / homer / fandisk (2.2 / 1.2 / 0.9 %). In every case
+//! one radius above F_M has a literal flipped fraction within about ±2 %
+//! of τ, or the vertex differs from its seeds. By cause: the Monte Carlo
+//! estimate of a proxy radius taken while still undecided near τ (20 / 33
+//! / 2 vertices; [`FitmapOptions::certify`] takes the exact decision
+//! there); interpolation from seeds that agree with each other but not
+//! with the vertex — on fandisk, vertices beside a crease whose exact F_M
+//! alternates 6 / 8 from vertex to vertex (20 / 24 / 55); the cap of
+//! [`FAST_M_STEPS_ABOVE_SEEDS`] and its seeds' own errors (23 / 11 / 3);
+//! the proxy cubic deciding confidently where the exact cubic is within
+//! 0.5 % of τ (2 / 3 / 1). Certifying the interpolations and the cap as
+//! well (analysing every vertex next to a seed with an undecided test, or
+//! whose normal differs from its seeds') moves the share on the same step
+//! to 95–98 % but still leaves vertices 5–8 steps apart, at 2× the CPU
+//! time: under "largest passing radius" a vertex whose fractions hover
+//! at τ over several radii moves by several steps on one verdict, which
+//! any estimate that is not the literal computation at every radius near
+//! τ gets wrong somewhere (the exact mode under another seed of the
+//! M-test samples is itself up to 5 steps off, see [`Fitmap::m`]).
 //!
 //! Both modes test the radii from the largest down and stop at the first
 //! that passes: F_M is the largest passing radius (§3.1.3, see
@@ -638,14 +662,14 @@ fn flip_fraction_literal(
     cubic: &Cubic,
     r: f64,
     tris: &[u32],
-    mut memo: Option<&mut VerdictMemo>,
+    memo: Option<&mut VerdictMemo>,
 ) -> (Option<f64>, u64) {
     let area: f64 = tris.iter().map(|&t| ctx.areas[t as usize]).sum();
     if area.is_nan() || area <= 0.0 {
         return (None, 0);
     }
     let mut reached = Vec::new();
-    let rays = match memo.as_deref_mut() {
+    let rays = match memo {
         None => triangle_verdicts(ctx, frame, cubic, r, tris, &mut reached),
         Some(memo) => {
             // Only the triangles whose verdict for this cubic is not known
@@ -1009,12 +1033,12 @@ fn analyse_vertex_exact(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
     // Per tested radius: its cubic and the triangles of its ball.
     let mut balls: Vec<Option<(Cubic, Vec<u32>)>> = vec![None; h + 1];
     let mut tested = Vec::with_capacity(h + 1);
-    for i in 0..=h {
+    for (i, slot) in balls.iter_mut().enumerate() {
         let (fitted, ball) = exact_ball(ctx, sc, p, &frame, i);
         res.fits += fitted as u64;
         if let Some((cubic, rms, tris)) = ball {
             errors.push((ctx.radii[i], rms));
-            balls[i] = Some((cubic, tris));
+            *slot = Some((cubic, tris));
             tested.push(i);
         }
     }
