@@ -411,7 +411,7 @@ impl Scratch {
             tri_cum: Vec::new(),
             pts: Vec::new(),
             w: Vec::new(),
-            memo: VerdictMemo::new(nt),
+            memo: VerdictMemo::new(),
         }
     }
 
@@ -673,18 +673,19 @@ fn flip_fraction_literal(
         None => triangle_verdicts(ctx, frame, cubic, r, tris, &mut reached),
         Some(memo) => {
             // Only the triangles whose verdict for this cubic is not known
-            // yet (a ball lists each triangle once).
+            // yet (a ball lists each triangle once), merged back in order.
             let todo: Vec<u32> = tris
                 .iter()
                 .copied()
                 .filter(|&t| memo.get(t).is_none())
                 .collect();
-            let rays = triangle_verdicts(ctx, frame, cubic, r, &todo, &mut reached);
-            for (&t, &ok) in todo.iter().zip(&reached) {
-                memo.set(t, ok);
-            }
-            reached.clear();
-            reached.extend(tris.iter().map(|&t| memo.get(t).unwrap_or(true)));
+            let mut fresh = Vec::new();
+            let rays = triangle_verdicts(ctx, frame, cubic, r, &todo, &mut fresh);
+            let mut fresh = fresh.into_iter();
+            reached.extend(
+                tris.iter()
+                    .map(|&t| memo.get(t).or_else(|| fresh.next()).unwrap_or(true)),
+            );
             rays
         }
     };
@@ -707,40 +708,73 @@ fn flip_fraction_literal(
 /// the literal test that may follow it on the same cubic casts only the
 /// triangles not drawn: the same verdicts, hence the same result, for
 /// fewer lines.
+///
+/// A small open-addressing table (keys `t + 1`, 0 = empty) rather than an
+/// array over all triangles: one test knows at most a few hundred
+/// verdicts, and the per-job scratch must stay cheap to create on meshes
+/// of millions of triangles.
 struct VerdictMemo {
-    /// `stamp` where the verdict of the triangle is known.
-    mark: Vec<u32>,
+    keys: Vec<u32>,
     reached: Vec<bool>,
-    stamp: u32,
+    len: usize,
 }
 
 impl VerdictMemo {
-    fn new(triangles: usize) -> VerdictMemo {
+    fn new() -> VerdictMemo {
         VerdictMemo {
-            mark: vec![0; triangles],
-            reached: vec![false; triangles],
-            stamp: 0,
+            keys: vec![0; 1024],
+            reached: vec![false; 1024],
+            len: 0,
         }
     }
 
     /// Forgets every verdict (a new cubic).
     fn reset(&mut self) {
-        if self.stamp == u32::MAX {
-            self.mark.fill(0);
-            self.stamp = 0;
+        if self.len > 0 {
+            self.keys.fill(0);
+            self.len = 0;
         }
-        self.stamp += 1;
+    }
+
+    #[inline]
+    fn slot(&self, t: u32) -> usize {
+        let mask = self.keys.len() - 1;
+        let mut i = (t.wrapping_mul(0x9E37_79B9) >> 7) as usize & mask;
+        while self.keys[i] != 0 && self.keys[i] != t + 1 {
+            i = (i + 1) & mask;
+        }
+        i
     }
 
     #[inline]
     fn get(&self, t: u32) -> Option<bool> {
-        (self.mark[t as usize] == self.stamp).then(|| self.reached[t as usize])
+        let i = self.slot(t);
+        (self.keys[i] != 0).then(|| self.reached[i])
     }
 
-    #[inline]
     fn set(&mut self, t: u32, reached: bool) {
-        self.mark[t as usize] = self.stamp;
-        self.reached[t as usize] = reached;
+        if 2 * (self.len + 1) > self.keys.len() {
+            let old: Vec<(u32, bool)> = self
+                .keys
+                .iter()
+                .zip(&self.reached)
+                .filter(|(&k, _)| k != 0)
+                .map(|(&k, &r)| (k - 1, r))
+                .collect();
+            let cap = 2 * self.keys.len();
+            self.keys = vec![0; cap];
+            self.reached = vec![false; cap];
+            self.len = 0;
+            for (k, r) in old {
+                self.set(k, r);
+            }
+        }
+        let i = self.slot(t);
+        if self.keys[i] == 0 {
+            self.len += 1;
+        }
+        self.keys[i] = t + 1;
+        self.reached[i] = reached;
     }
 }
 
@@ -1689,8 +1723,7 @@ mod tests {
                 let r = ctx.radii[i];
                 let (plain, _) = flip_fraction_literal(&ctx, &frame, &cubic, r, &tris, None);
                 // Every third triangle already known, as after a draw.
-                let mut memo = VerdictMemo::new(mesh.triangles.len());
-                memo.reset();
+                let mut memo = VerdictMemo::new();
                 let known: Vec<u32> = tris.iter().copied().step_by(3).collect();
                 let mut reached = Vec::new();
                 triangle_verdicts(&ctx, &frame, &cubic, r, &known, &mut reached).unwrap();
@@ -1701,6 +1734,13 @@ mod tests {
                     flip_fraction_literal(&ctx, &frame, &cubic, r, &tris, Some(&mut memo));
                 assert_eq!(plain, partial, "p = {p}, radius {i}");
                 // Now every verdict is in the memo: no line is cast.
+                for (k, &t) in tris.iter().enumerate() {
+                    if memo.get(t).is_none() {
+                        let mut one = Vec::new();
+                        triangle_verdicts(&ctx, &frame, &cubic, r, &tris[k..=k], &mut one);
+                        memo.set(t, one[0]);
+                    }
+                }
                 let (full, lines) =
                     flip_fraction_literal(&ctx, &frame, &cubic, r, &tris, Some(&mut memo));
                 assert_eq!(plain, full);
