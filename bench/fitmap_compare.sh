@@ -4,6 +4,9 @@
 # step apart). The exact mode is quadratic: these meshes take minutes each
 # on 2 cores; set FITMAP_EXACT_CACHE=DIR to keep the exact results there
 # (per mesh, seed and τ) and compare variants of the fast mode against them.
+# FITMAP_CERTIFY=1 compares the fast mode with FitmapOptions::certify.
+# `target/release/examples/fitmap_bench diag MESH...` lists the vertices
+# more than one step apart with the exact flipped fraction at every radius.
 # Usage: bench/fitmap_compare.sh [MESH...]
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -6,12 +6,16 @@
 //!   step, the largest step difference, and both times; exits 1 when a mesh
 //!   fails the issue's criterion (ρ >= 0.95, >= 90 % same step, never more
 //!   than one step apart).
+//! - `fitmap_bench diag MESH...`: the vertices where fast and exact F_M
+//!   are more than one step apart, with the exact mode's flipped fraction
+//!   at every radius (which radii sit near τ) and the neighbours' steps.
 //! - `fitmap_bench speed MESH [SPLITS]`: the fast mode on MESH after
 //!   `SPLITS` 1→4 midpoint subdivisions (the geometry is unchanged, the
 //!   sampling four times denser each time), printing wall time, CPU time
 //!   and the process's peak resident memory (VmHWM) as one JSON line.
 //!
-//! Both use the Embree caster and all threads of rayon's pool
+//! `FITMAP_CERTIFY=1` runs the fast mode with `FitmapOptions::certify`.
+//! All use the Embree caster and all threads of rayon's pool
 //! (`RAYON_NUM_THREADS` to pin it).
 
 use std::collections::HashMap;
@@ -20,6 +24,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
+use subdfit::analysis::fitmap::exact_flip_fractions;
 use subdfit::analysis::{compare_fitmaps, compute_fitmap, FitmapOptions};
 use subdfit::mesh::TriMesh;
 use subdfit::raycast::{make_raycaster, RayBackend};
@@ -118,7 +123,7 @@ fn compare(paths: &[String]) -> Result<bool> {
     for p in paths {
         let m = load(p)?;
         let caster = make_raycaster(RayBackend::Embree, &m)?;
-        let opts = FitmapOptions::default();
+        let opts = fast_options();
         let t = Instant::now();
         let exact = exact_cached(p, &m, caster.as_ref(), &opts)?;
         let te = t.elapsed().as_secs_f64();
@@ -145,6 +150,62 @@ fn compare(paths: &[String]) -> Result<bool> {
     Ok(all)
 }
 
+/// The fast mode's options: the default, or with
+/// [`FitmapOptions::certify`] when `FITMAP_CERTIFY=1`.
+fn fast_options() -> FitmapOptions {
+    let certify = std::env::var("FITMAP_CERTIFY").is_ok_and(|v| v == "1");
+    FitmapOptions::default().with_certify(certify)
+}
+
+/// Where fast and exact F_M differ by more than one step: the histogram of
+/// step differences, then per such vertex both steps, the exact mode's
+/// literal flipped fraction at every radius (F_M is the largest radius
+/// below τ, so this shows which radii sit near τ) and its neighbours'
+/// `exact/fast` steps (whether they agree with it).
+fn diag(paths: &[String]) -> Result<()> {
+    for p in paths {
+        let m = load(p)?;
+        let caster = make_raycaster(RayBackend::Embree, &m)?;
+        let opts = fast_options();
+        let exact = exact_cached(p, &m, caster.as_ref(), &opts)?;
+        let fast = compute_fitmap(&m, caster.as_ref(), &opts)?;
+        let adj = subdfit::analysis::neighbourhood::Adjacency::new(&m);
+        let mut hist = [0usize; 9];
+        for v in 0..m.positions.len() {
+            let d = exact.m_step[v].abs_diff(fast.m_step[v]) as usize;
+            hist[d.min(8)] += 1;
+            if d <= 1 {
+                continue;
+            }
+            let fr = exact_flip_fractions(&m, caster.as_ref(), &opts, v as u32)?;
+            let fr: Vec<String> = fr
+                .iter()
+                .map(|f| f.map_or("-".into(), |f| format!("{:.3}", f.max(0.0))))
+                .collect();
+            let nb: Vec<String> = adj
+                .vv
+                .row(v)
+                .iter()
+                .map(|&w| {
+                    format!(
+                        "{w}:{}/{}",
+                        exact.m_step[w as usize], fast.m_step[w as usize]
+                    )
+                })
+                .collect();
+            println!(
+                "v{v} exact {} fast {} fractions [{}] neighbours {}",
+                exact.m_step[v],
+                fast.m_step[v],
+                fr.join(" "),
+                nb.join(" ")
+            );
+        }
+        println!("{p}: vertices by |step difference| 0..8: {hist:?}");
+    }
+    Ok(())
+}
+
 fn speed(path: &str, splits: u32) -> Result<()> {
     let mut m = load(path)?;
     for _ in 0..splits {
@@ -153,7 +214,7 @@ fn speed(path: &str, splits: u32) -> Result<()> {
     let c0 = cpu_seconds().unwrap_or(0.0);
     let t = Instant::now();
     let caster = make_raycaster(RayBackend::Embree, &m)?;
-    let f = compute_fitmap(&m, caster.as_ref(), &FitmapOptions::default())?;
+    let f = compute_fitmap(&m, caster.as_ref(), &fast_options())?;
     let wall = t.elapsed().as_secs_f64();
     let cpu = cpu_seconds().unwrap_or(0.0) - c0;
     let name = Path::new(path)
@@ -185,11 +246,18 @@ fn main() -> Result<ExitCode> {
         } else {
             ExitCode::from(1)
         }),
+        Some("diag") => {
+            diag(&args[1..])?;
+            Ok(ExitCode::SUCCESS)
+        }
         Some("speed") if args.len() == 2 || args.len() == 3 => {
             let splits = args.get(2).map_or(Ok(0), |s| s.parse()).context("SPLITS")?;
             speed(&args[1], splits)?;
             Ok(ExitCode::SUCCESS)
         }
-        _ => bail!("usage: fitmap_bench compare MESH... | fitmap_bench speed MESH [SPLITS]"),
+        _ => bail!(
+            "usage: fitmap_bench compare MESH... | fitmap_bench diag MESH... | \
+             fitmap_bench speed MESH [SPLITS]"
+        ),
     }
 }

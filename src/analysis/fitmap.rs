@@ -28,10 +28,34 @@
 //!   drawing triangles, whose verdicts are the exact mode's (same samples,
 //!   same rule), with a sequential stopping rule, and falls back to the
 //!   literal test where the estimate stays undecided near τ
-//!   ([`flip_test_sampled`]). Every estimate is of the same quantity as
+//!   ([`flip_test_sampled`]; verdicts already drawn are not cast again,
+//!   [`VerdictMemo`]). Every estimate is of the same quantity as
 //!   the exact mode (a subsample of the same sum), which
 //!   [`crate::analysis::compare`] measures (`bench/fitmap_compare.sh`;
 //!   see `tests/fitmap_props.rs` for where the F_M agreement stands).
+//!
+//! Where fast and exact F_M differ by more than one step (τ = 5 %, counted
+//! with `fitmap_bench diag`, which prints the exact mode's flipped
+//! fraction at every radius, [`exact_flip_fractions`]): 65 / 71 / 61
+//! vertices of spot / homer / fandisk (2.2 / 1.2 / 0.9 %). In every case
+//! one radius above F_M has a literal flipped fraction within about ±2 %
+//! of τ, or the vertex differs from its seeds. By cause: the Monte Carlo
+//! estimate of a proxy radius taken while still undecided near τ (20 / 33
+//! / 2 vertices; [`FitmapOptions::certify`] takes the exact decision
+//! there); interpolation from seeds that agree with each other but not
+//! with the vertex — on fandisk, vertices beside a crease whose exact F_M
+//! alternates 6 / 8 from vertex to vertex (20 / 24 / 55); the cap of
+//! [`FAST_M_STEPS_ABOVE_SEEDS`] and its seeds' own errors (23 / 11 / 3);
+//! the proxy cubic deciding confidently where the exact cubic is within
+//! 0.5 % of τ (2 / 3 / 1). Certifying the interpolations and the cap as
+//! well (analysing every vertex next to a seed with an undecided test, or
+//! whose normal differs from its seeds') moves the share on the same step
+//! to 95–98 % but still leaves vertices 5–8 steps apart, at 2× the CPU
+//! time: under "largest passing radius" a vertex whose fractions hover
+//! at τ over several radii moves by several steps on one verdict, which
+//! any estimate that is not the literal computation at every radius near
+//! τ gets wrong somewhere (the exact mode under another seed of the
+//! M-test samples is itself up to 5 steps off, see [`Fitmap::m`]).
 //!
 //! Both modes test the radii from the largest down and stop at the first
 //! that passes: F_M is the largest passing radius (§3.1.3, see
@@ -135,6 +159,15 @@ pub struct FitmapOptions {
     pub tolerance: f64,
     /// Literal §3.1.2–3.1.3 computation (slow, the reference).
     pub exact: bool,
+    /// Fast mode: where the Monte Carlo M-test of a proxy radius (§3.1.3 on
+    /// the coarse proxy of the large radii) stays within its uncertainty of
+    /// τ, take the exact mode's decision instead (exact ball, exact cubic,
+    /// literal test). Off by default: measured (τ = 5 %) it puts 2–3 %
+    /// more vertices on the exact mode's F_M step (spot 90.7 → 93.7 %,
+    /// homer 94.7 → 96.2 %, fandisk 95.8 → 96.6 %) for 1.5–2× the CPU time
+    /// on gargoyle, and leaves the largest step difference where it is
+    /// (see [`Fitmap::m`] and the module docs).
+    pub certify: bool,
     /// Seed of the random samples: the M-test samples of each triangle
     /// ([`MSamples`]) and the fast mode's draws per vertex and radius.
     pub seed: u64,
@@ -145,6 +178,7 @@ impl Default for FitmapOptions {
         FitmapOptions {
             tolerance: DEFAULT_TOLERANCE,
             exact: false,
+            certify: false,
             seed: 0x005e_edf1_7aa9,
         }
     }
@@ -157,6 +191,10 @@ impl FitmapOptions {
     }
     pub fn with_exact(mut self, e: bool) -> Self {
         self.exact = e;
+        self
+    }
+    pub fn with_certify(mut self, c: bool) -> Self {
+        self.certify = c;
         self
     }
     pub fn with_seed(mut self, s: u64) -> Self {
@@ -350,6 +388,7 @@ struct Scratch {
     tri_cum: Vec<f64>,
     pts: Vec<DVec3>,
     w: Vec<f64>,
+    memo: VerdictMemo,
 }
 
 impl Scratch {
@@ -372,6 +411,7 @@ impl Scratch {
             tri_cum: Vec::new(),
             pts: Vec::new(),
             w: Vec::new(),
+            memo: VerdictMemo::new(),
         }
     }
 
@@ -622,13 +662,34 @@ fn flip_fraction_literal(
     cubic: &Cubic,
     r: f64,
     tris: &[u32],
+    memo: Option<&mut VerdictMemo>,
 ) -> (Option<f64>, u64) {
     let area: f64 = tris.iter().map(|&t| ctx.areas[t as usize]).sum();
     if area.is_nan() || area <= 0.0 {
         return (None, 0);
     }
     let mut reached = Vec::new();
-    let Some(rays) = triangle_verdicts(ctx, frame, cubic, r, tris, &mut reached) else {
+    let rays = match memo {
+        None => triangle_verdicts(ctx, frame, cubic, r, tris, &mut reached),
+        Some(memo) => {
+            // Only the triangles whose verdict for this cubic is not known
+            // yet (a ball lists each triangle once), merged back in order.
+            let todo: Vec<u32> = tris
+                .iter()
+                .copied()
+                .filter(|&t| memo.get(t).is_none())
+                .collect();
+            let mut fresh = Vec::new();
+            let rays = triangle_verdicts(ctx, frame, cubic, r, &todo, &mut fresh);
+            let mut fresh = fresh.into_iter();
+            reached.extend(
+                tris.iter()
+                    .map(|&t| memo.get(t).or_else(|| fresh.next()).unwrap_or(true)),
+            );
+            rays
+        }
+    };
+    let Some(rays) = rays else {
         return (None, 0);
     };
     let flipped: f64 = tris
@@ -640,71 +701,168 @@ fn flip_fraction_literal(
     (Some(flipped / area), rays)
 }
 
+/// The verdicts of [`triangle_verdicts`] already known for the cubic of
+/// the current (vertex, radius) test, per triangle. A verdict depends on
+/// the triangle and the cubic alone, so the Monte Carlo test
+/// ([`flip_test_sampled`]) need not cast a triangle drawn twice twice, and
+/// the literal test that may follow it on the same cubic casts only the
+/// triangles not drawn: the same verdicts, hence the same result, for
+/// fewer lines.
+///
+/// A small open-addressing table (keys `t + 1`, 0 = empty) rather than an
+/// array over all triangles: one test knows at most a few hundred
+/// verdicts, and the per-job scratch must stay cheap to create on meshes
+/// of millions of triangles.
+struct VerdictMemo {
+    keys: Vec<u32>,
+    reached: Vec<bool>,
+    len: usize,
+}
+
+impl VerdictMemo {
+    fn new() -> VerdictMemo {
+        VerdictMemo {
+            keys: vec![0; 1024],
+            reached: vec![false; 1024],
+            len: 0,
+        }
+    }
+
+    /// Forgets every verdict (a new cubic).
+    fn reset(&mut self) {
+        if self.len > 0 {
+            self.keys.fill(0);
+            self.len = 0;
+        }
+    }
+
+    #[inline]
+    fn slot(&self, t: u32) -> usize {
+        let mask = self.keys.len() - 1;
+        let mut i = (t.wrapping_mul(0x9E37_79B9) >> 7) as usize & mask;
+        while self.keys[i] != 0 && self.keys[i] != t + 1 {
+            i = (i + 1) & mask;
+        }
+        i
+    }
+
+    #[inline]
+    fn get(&self, t: u32) -> Option<bool> {
+        let i = self.slot(t);
+        (self.keys[i] != 0).then(|| self.reached[i])
+    }
+
+    fn set(&mut self, t: u32, reached: bool) {
+        if 2 * (self.len + 1) > self.keys.len() {
+            let old: Vec<(u32, bool)> = self
+                .keys
+                .iter()
+                .zip(&self.reached)
+                .filter(|(&k, _)| k != 0)
+                .map(|(&k, &r)| (k - 1, r))
+                .collect();
+            let cap = 2 * self.keys.len();
+            self.keys = vec![0; cap];
+            self.reached = vec![false; cap];
+            self.len = 0;
+            for (k, r) in old {
+                self.set(k, r);
+            }
+        }
+        let i = self.slot(t);
+        if self.keys[i] == 0 {
+            self.len += 1;
+        }
+        self.keys[i] = t + 1;
+        self.reached[i] = reached;
+    }
+}
+
+/// Outcome of [`flip_test_sampled`].
+#[derive(Copy, Clone, Debug, PartialEq)]
+enum Sampled {
+    /// The ball has no area (nothing to test), or ray casting failed.
+    Nothing,
+    /// The Wilson interval lies on one side of τ: `true` = passes.
+    Decided(bool),
+    /// Still straddling τ after [`FAST_M_SAMPLES`] draws: the flipped
+    /// fraction is within a few percent of τ, where the caller decides
+    /// literally if it can; `passes` is the point estimate's verdict.
+    Undecided { passes: bool },
+}
+
 /// Fast-mode M-test of a large ball: the literal flipped fraction
 /// ([`flip_fraction_literal`]) estimated by Monte Carlo over the ball's
 /// triangles. `draw` picks a triangle of the ball with probability
 /// proportional to its area; its verdict is the literal one (the same
 /// samples, [`MSamples`], the same rule, [`triangle_verdicts`]), so the
 /// fraction of drawn triangles not reached is an unbiased estimate of the
-/// literal flipped fraction for the same cubic.
+/// literal flipped fraction for the same cubic. The verdicts go to `memo`
+/// (reset by the caller for each cubic).
 ///
 /// Sequential test: triangles come in batches of [`FAST_M_BATCH`]; after
 /// each batch the test stops as soon as the Wilson score interval (z =
 /// [`FAST_M_Z`]) of the flipped fraction lies entirely below τ (pass) or
 /// above it (fail). Typical balls are far from τ (no fold at all, or a fold
 /// filling much of the ball) and stop after one to three batches. After
-/// [`FAST_M_SAMPLES`] draws the fraction is within a few percent of τ:
-/// there the estimate cannot be trusted to give the literal verdict, and
-/// `literal` (the full test on the ball, when the caller can afford it)
-/// decides; else the estimate does. Returns `Some(passes)` (`None`:
-/// nothing to test) and the number of lines cast.
+/// [`FAST_M_SAMPLES`] draws the fraction is within a few percent of τ and
+/// the test returns [`Sampled::Undecided`]: there the estimate cannot be
+/// trusted to give the literal verdict, and the caller takes the literal
+/// one where it can (see `decide_fast`).
 ///
 /// The decision is monotone in τ for a given seed: the draws are a prefix
 /// of one stream, and if the test for τ₁ passes at n (upper bound < τ₁),
 /// every lower bound before n was <= τ₁ < τ₂, so the test for τ₂ cannot
 /// fail earlier and passes by n (the literal fraction is one number, so the
 /// fallback is monotone too).
-#[allow(clippy::too_many_arguments)]
 fn flip_test_sampled(
     ctx: &Ctx,
     frame: &Frame,
     cubic: &Cubic,
     r: f64,
     draw: &mut dyn FnMut(&mut ChaCha8Rng) -> Option<u32>,
-    literal: Option<&dyn Fn() -> Vec<u32>>,
     rng: &mut ChaCha8Rng,
-) -> (Option<bool>, u64) {
+    memo: &mut VerdictMemo,
+) -> (Sampled, u64) {
     let tau = ctx.opts.tolerance;
     let (mut n, mut k, mut rays) = (0usize, 0usize, 0u64);
     let mut batch = Vec::with_capacity(FAST_M_BATCH);
+    let mut todo = Vec::with_capacity(FAST_M_BATCH);
     let mut reached = Vec::with_capacity(FAST_M_BATCH);
     while n < FAST_M_SAMPLES {
         batch.clear();
+        todo.clear();
         for _ in 0..FAST_M_BATCH {
             let Some(t) = draw(rng) else {
-                return (None, rays);
+                return (Sampled::Nothing, rays);
             };
             batch.push(t);
+            if memo.get(t).is_none() && !todo.contains(&t) {
+                todo.push(t);
+            }
         }
-        let Some(c) = triangle_verdicts(ctx, frame, cubic, r, &batch, &mut reached) else {
-            return (None, rays);
+        let Some(c) = triangle_verdicts(ctx, frame, cubic, r, &todo, &mut reached) else {
+            return (Sampled::Nothing, rays);
         };
+        for (&t, &ok) in todo.iter().zip(&reached) {
+            memo.set(t, ok);
+        }
         rays += c;
         n += batch.len();
-        k += reached.iter().filter(|&&x| !x).count();
+        k += batch
+            .iter()
+            .filter(|&&t| memo.get(t) == Some(false))
+            .count();
         let (lo, hi) = wilson(k, n, FAST_M_Z);
         if hi < tau {
-            return (Some(true), rays);
+            return (Sampled::Decided(true), rays);
         }
         if lo > tau {
-            return (Some(false), rays);
+            return (Sampled::Decided(false), rays);
         }
     }
-    if let Some(tris) = literal {
-        let (f, c) = flip_fraction_literal(ctx, frame, cubic, r, &tris());
-        return (f.map(|f| f < tau), rays + c);
-    }
-    (Some((k as f64) < tau * n as f64), rays)
+    let passes = (k as f64) < tau * n as f64;
+    (Sampled::Undecided { passes }, rays)
 }
 
 /// Wilson score interval of a binomial proportion `k / n`.
@@ -770,6 +928,130 @@ fn m_from_top_down(
     }
 }
 
+/// The ball of radius `radii[i]` around `p` exactly as §3.1.2–3.1.3 define
+/// it (the literal traversal [`bfs_ball`], every vertex in the fit, in
+/// traversal order): its cubic, RMS residual and triangles (all three
+/// vertices inside), or `None` when the exact mode does not test this
+/// radius (fewer than [`MIN_FIT_POINTS`] vertices or no well-posed cubic).
+/// The first value says whether a fit was attempted. The exact mode is
+/// built on it, and the fast mode's certification
+/// ([`FitmapOptions::certify`]) calls it to take one decision exactly as
+/// the exact mode takes it.
+#[allow(clippy::type_complexity)]
+fn exact_ball(
+    ctx: &Ctx,
+    sc: &mut Scratch,
+    p: u32,
+    frame: &Frame,
+    i: usize,
+) -> (bool, Option<(Cubic, f64, Vec<u32>)>) {
+    let r = ctx.radii[i];
+    let stamp = sc.next_stamp();
+    let mut ball = std::mem::take(&mut sc.ball);
+    bfs_ball(
+        &ctx.adj.vv,
+        &ctx.mesh.positions,
+        p,
+        r,
+        &mut sc.mark,
+        stamp,
+        &mut ball,
+    );
+    sc.pts.clear();
+    sc.pts.extend(
+        ball.iter()
+            .map(|&v| frame.to_local(ctx.mesh.positions[v as usize])),
+    );
+    let fitted = ball.len() >= MIN_FIT_POINTS;
+    let fit = if fitted {
+        fit_cubic(&sc.pts, None, r)
+    } else {
+        None
+    };
+    let out = fit.map(|CubicFit { cubic, rms }| {
+        let mut tris = Vec::new();
+        for &v in &ball {
+            for &t in ctx.adj.vt.row(v as usize) {
+                if sc.tmark[t as usize] != stamp
+                    && ctx.mesh.triangles[t as usize]
+                        .iter()
+                        .all(|&w| sc.mark[w as usize] == stamp)
+                {
+                    sc.tmark[t as usize] = stamp;
+                    tris.push(t);
+                }
+            }
+        }
+        (cubic, rms, tris)
+    });
+    sc.ball = ball;
+    (fitted, out)
+}
+
+/// The literal flipped fraction of §3.1.3 at every radius `r_0..r_h` for
+/// the ball around vertex `v`, exactly as the exact mode computes it
+/// (`None` where it tests no cubic). A diagnostic: F_M is the largest
+/// radius whose fraction is below τ, so this shows how close to τ the
+/// deciding radii of one vertex sit (`fitmap_bench diag` prints it for
+/// the vertices where the fast and exact F_M differ by more than a step).
+pub fn exact_flip_fractions(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    opts: &FitmapOptions,
+    v: u32,
+) -> Result<Vec<Option<f64>>> {
+    let nv = mesh.positions.len();
+    if v as usize >= nv {
+        return Err(Error::InvalidArgument(format!(
+            "fitmap: vertex {v} out of range ({nv} vertices)"
+        )));
+    }
+    let radii = fitmap_radii(mesh)?;
+    let areas = triangle_areas(mesh);
+    let total_area: f64 = areas.iter().sum();
+    if total_area.is_nan() || total_area <= 0.0 {
+        return Err(Error::InvalidArgument(
+            "fitmap: the mesh has zero area".into(),
+        ));
+    }
+    let samples = MSamples::new(
+        mesh,
+        &areas,
+        SAMPLES_PER_VERTEX * nv as f64 / total_area,
+        opts.seed,
+    );
+    let ctx = Ctx {
+        mesh,
+        caster,
+        opts,
+        areas,
+        normals: vertex_normals(mesh),
+        adj: Adjacency::new(mesh),
+        radii,
+        samples,
+        level_of: vec![None; RADIUS_STEPS + 1],
+        levels: Vec::new(),
+        failure: std::sync::Mutex::new(None),
+    };
+    let n = ctx.normals[v as usize];
+    if n == DVec3::ZERO {
+        return Ok(vec![None; RADIUS_STEPS + 1]);
+    }
+    let frame = Frame::from_normal(mesh.positions[v as usize], n);
+    let mut sc = Scratch::new(&ctx);
+    let mut out = Vec::with_capacity(RADIUS_STEPS + 1);
+    for i in 0..=RADIUS_STEPS {
+        let (_, ball) = exact_ball(&ctx, &mut sc, v, &frame, i);
+        out.push(ball.and_then(|(cubic, _, tris)| {
+            flip_fraction_literal(&ctx, &frame, &cubic, ctx.radii[i], &tris, None).0
+        }));
+    }
+    if let Some(e) = ctx.failure.lock().unwrap_or_else(|p| p.into_inner()).take() {
+        return Err(e);
+    }
+    Ok(out)
+}
+
 fn analyse_vertex_exact(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
     let h = RADIUS_STEPS;
     let mut res = VertexResult {
@@ -785,54 +1067,19 @@ fn analyse_vertex_exact(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
     // Per tested radius: its cubic and the triangles of its ball.
     let mut balls: Vec<Option<(Cubic, Vec<u32>)>> = vec![None; h + 1];
     let mut tested = Vec::with_capacity(h + 1);
-    for (i, &r) in ctx.radii.iter().enumerate() {
-        let stamp = sc.next_stamp();
-        let mut ball = std::mem::take(&mut sc.ball);
-        bfs_ball(
-            &ctx.adj.vv,
-            &ctx.mesh.positions,
-            p,
-            r,
-            &mut sc.mark,
-            stamp,
-            &mut ball,
-        );
-        sc.pts.clear();
-        sc.pts.extend(
-            ball.iter()
-                .map(|&v| frame.to_local(ctx.mesh.positions[v as usize])),
-        );
-        let fit = if ball.len() >= MIN_FIT_POINTS {
-            res.fits += 1;
-            fit_cubic(&sc.pts, None, r)
-        } else {
-            None
-        };
-        if let Some(CubicFit { cubic, rms }) = fit {
-            errors.push((r, rms));
-            // Triangles of the ball: all three vertices inside.
-            let mut tris = Vec::new();
-            for &v in &ball {
-                for &t in ctx.adj.vt.row(v as usize) {
-                    if sc.tmark[t as usize] != stamp
-                        && ctx.mesh.triangles[t as usize]
-                            .iter()
-                            .all(|&w| sc.mark[w as usize] == stamp)
-                    {
-                        sc.tmark[t as usize] = stamp;
-                        tris.push(t);
-                    }
-                }
-            }
-            balls[i] = Some((cubic, tris));
+    for (i, slot) in balls.iter_mut().enumerate() {
+        let (fitted, ball) = exact_ball(ctx, sc, p, &frame, i);
+        res.fits += fitted as u64;
+        if let Some((cubic, rms, tris)) = ball {
+            errors.push((ctx.radii[i], rms));
+            *slot = Some((cubic, tris));
             tested.push(i);
         }
-        sc.ball = ball;
     }
     let mut rays = 0;
     m_from_top_down(&mut res, &tested, |i| {
         let (cubic, tris) = balls[i].as_ref()?;
-        let (flip, k) = flip_fraction_literal(ctx, &frame, cubic, ctx.radii[i], tris);
+        let (flip, k) = flip_fraction_literal(ctx, &frame, cubic, ctx.radii[i], tris, None);
         rays += k;
         flip.map(|f| f < ctx.opts.tolerance)
     });
@@ -1016,7 +1263,9 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
     } else {
         tested.into_iter().filter(|&i| i <= cap).collect()
     };
-    m_from_top_down(&mut res, &tested, |i| {
+    // One radius's test, as the exact mode's decision where the estimate
+    // is too close to τ to give it (`decide_fast`).
+    let mut test = |i: usize, sc: &mut Scratch| -> Option<bool> {
         let (cubic, ball) = balls[i].as_ref()?;
         let r = ctx.radii[i];
         let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(ctx.opts.seed, p, i));
@@ -1024,28 +1273,25 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
             level0_triangles(ctx, sc);
             tris_ready = true;
         }
-        let tris = &sc.tris;
-        let (pass, k) = match ball {
+        sc.memo.reset();
+        // The triangles of a level-0 ball: all three vertices inside.
+        let nt = sc.tris.partition_point(|&(k, _)| k <= r);
+        let (sampled, k) = match ball {
+            FastBall::Level0 if nt <= FAST_LITERAL_M_MAX_TRIANGLES => {
+                let t: Vec<u32> = sc.tris[..nt].iter().map(|&(_, t)| t).collect();
+                let (f, k) = flip_fraction_literal(ctx, &frame, cubic, r, &t, None);
+                (
+                    f.map_or(Sampled::Nothing, |f| {
+                        Sampled::Decided(f < ctx.opts.tolerance)
+                    }),
+                    k,
+                )
+            }
             FastBall::Level0 => {
-                // The triangles whose three vertices are in the ball.
-                let nt = tris.partition_point(|&(k, _)| k <= r);
-                if nt <= FAST_LITERAL_M_MAX_TRIANGLES {
-                    let t: Vec<u32> = tris[..nt].iter().map(|&(_, t)| t).collect();
-                    let (f, k) = flip_fraction_literal(ctx, &frame, cubic, r, &t);
-                    (f.map(|f| f < ctx.opts.tolerance), k)
-                } else {
-                    let cum = &sc.tri_cum[..nt];
-                    let acc = cum[nt - 1];
-                    let mut sample =
-                        |rng: &mut ChaCha8Rng| (acc > 0.0).then(|| tris[draw(cum, rng)].1);
-                    // Undecided after the sampled test: the literal test on
-                    // the same triangles (the exact mode's verdict for this
-                    // cubic), listed only then.
-                    let all = || tris[..nt].iter().map(|&(_, t)| t).collect::<Vec<u32>>();
-                    let literal: Option<&dyn Fn() -> Vec<u32>> =
-                        (nt <= FAST_LITERAL_FALLBACK_MAX_TRIANGLES).then_some(&all);
-                    flip_test_sampled(ctx, &frame, cubic, r, &mut sample, literal, &mut rng)
-                }
+                let (tris, cum) = (&sc.tris, &sc.tri_cum[..nt]);
+                let acc = cum[nt - 1];
+                let mut sample = |rng: &mut ChaCha8Rng| (acc > 0.0).then(|| tris[draw(cum, rng)].1);
+                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, &mut rng, &mut sc.memo)
             }
             FastBall::Proxy(li, clusters) => {
                 let level = &ctx.levels[*li];
@@ -1062,12 +1308,38 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
                     let c = clusters[draw(&cum, rng)] as usize;
                     Some(level.tris.row(c)[draw(level.tri_cum_row(c), rng)])
                 };
-                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, None, &mut rng)
+                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, &mut rng, &mut sc.memo)
             }
         };
         rays += k;
-        pass
-    });
+        match sampled {
+            Sampled::Nothing => None,
+            Sampled::Decided(pass) => Some(pass),
+            // Within the estimate's uncertainty of τ. A level-0 ball has
+            // the exact mode's cubic: the literal test on its triangles
+            // (those drawn already known) is the exact mode's verdict.
+            Sampled::Undecided { passes } => match ball {
+                FastBall::Level0 if nt <= FAST_LITERAL_FALLBACK_MAX_TRIANGLES => {
+                    let t: Vec<u32> = sc.tris[..nt].iter().map(|&(_, t)| t).collect();
+                    let memo = Some(&mut sc.memo);
+                    let (f, k) = flip_fraction_literal(ctx, &frame, cubic, r, &t, memo);
+                    rays += k;
+                    f.map(|f| f < ctx.opts.tolerance)
+                }
+                // A proxy ball's cubic is not the exact mode's: the exact
+                // ball, cubic and literal test, when asked for.
+                FastBall::Proxy(..) if ctx.opts.certify => {
+                    let (_, exact) = exact_ball(ctx, sc, p, &frame, i);
+                    let (cubic, _, tris) = exact?;
+                    let (f, k) = flip_fraction_literal(ctx, &frame, &cubic, r, &tris, None);
+                    rays += k;
+                    f.map(|f| f < ctx.opts.tolerance)
+                }
+                _ => Some(passes),
+            },
+        }
+    };
+    m_from_top_down(&mut res, &tested, |i| test(i, sc));
     res.rays = rays;
     res.defined = !errors.is_empty();
     res.s = s_from_errors(&errors, ctx.radii[h]);
@@ -1403,4 +1675,79 @@ pub fn compute_fitmap_cancellable(
         tolerance: opts.tolerance,
         stats,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raycast::{make_raycaster, RayBackend};
+
+    /// The verdict memo changes the work, never the result: the literal
+    /// fraction with verdicts partly known from earlier draws equals the
+    /// one computed from scratch, bit for bit, and so does the fraction
+    /// with a memo filled with *every* verdict (no line cast at all).
+    #[test]
+    fn verdict_memo_gives_the_literal_fraction() {
+        // The bundled spot.ply: its ears and horns fold over the head, so
+        // large balls are partly flipped.
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply");
+        let mesh = crate::io::read_mesh(std::path::Path::new(path))
+            .unwrap()
+            .mesh;
+        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+        let opts = FitmapOptions::default();
+        let areas = triangle_areas(&mesh);
+        let total: f64 = areas.iter().sum();
+        let nv = mesh.positions.len();
+        let ctx = Ctx {
+            mesh: &mesh,
+            caster: caster.as_ref(),
+            opts: &opts,
+            samples: MSamples::new(&mesh, &areas, SAMPLES_PER_VERTEX * nv as f64 / total, 7),
+            areas,
+            normals: vertex_normals(&mesh),
+            adj: Adjacency::new(&mesh),
+            radii: fitmap_radii(&mesh).unwrap(),
+            level_of: vec![None; RADIUS_STEPS + 1],
+            levels: Vec::new(),
+            failure: std::sync::Mutex::new(None),
+        };
+        let mut sc = Scratch::new(&ctx);
+        let mut seen_partial = false;
+        for p in (0..nv as u32).step_by(211) {
+            let frame = Frame::from_normal(mesh.positions[p as usize], ctx.normals[p as usize]);
+            for i in [5, 7, 8] {
+                let Some((cubic, _, tris)) = exact_ball(&ctx, &mut sc, p, &frame, i).1 else {
+                    continue;
+                };
+                let r = ctx.radii[i];
+                let (plain, _) = flip_fraction_literal(&ctx, &frame, &cubic, r, &tris, None);
+                // Every third triangle already known, as after a draw.
+                let mut memo = VerdictMemo::new();
+                let known: Vec<u32> = tris.iter().copied().step_by(3).collect();
+                let mut reached = Vec::new();
+                triangle_verdicts(&ctx, &frame, &cubic, r, &known, &mut reached).unwrap();
+                for (&t, &ok) in known.iter().zip(&reached) {
+                    memo.set(t, ok);
+                }
+                let (partial, _) =
+                    flip_fraction_literal(&ctx, &frame, &cubic, r, &tris, Some(&mut memo));
+                assert_eq!(plain, partial, "p = {p}, radius {i}");
+                // Now every verdict is in the memo: no line is cast.
+                for (k, &t) in tris.iter().enumerate() {
+                    if memo.get(t).is_none() {
+                        let mut one = Vec::new();
+                        triangle_verdicts(&ctx, &frame, &cubic, r, &tris[k..=k], &mut one);
+                        memo.set(t, one[0]);
+                    }
+                }
+                let (full, lines) =
+                    flip_fraction_literal(&ctx, &frame, &cubic, r, &tris, Some(&mut memo));
+                assert_eq!(plain, full);
+                assert_eq!(lines, 0);
+                seen_partial |= plain.is_some_and(|f| f > 0.0 && f < 1.0);
+            }
+        }
+        assert!(seen_partial, "spot.ply must give partly flipped balls");
+    }
 }

@@ -15,6 +15,6 @@ pub mod normals;
 
 pub use compare::{compare_fitmaps, spearman, FitmapAgreement};
 pub use fitmap::{
-    compute_fitmap, compute_fitmap_cancellable, compute_fitmap_with_progress, fitmap_radii, Fitmap,
-    FitmapOptions, FitmapStats,
+    compute_fitmap, compute_fitmap_cancellable, compute_fitmap_with_progress, exact_flip_fractions,
+    fitmap_radii, Fitmap, FitmapOptions, FitmapStats,
 };
