@@ -11,7 +11,7 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::mesh::{ControlMesh, VertexId, INFINITELY_SHARP};
+use crate::mesh::{ControlMesh, TriMesh, VertexId, INFINITELY_SHARP};
 use crate::subdiv::refine::refine_uniform;
 use crate::DVec3;
 
@@ -101,6 +101,37 @@ pub fn flat_grid(nx: u32, ny: u32) -> ControlMesh {
         }
     }
     build("flat grid", p, &f)
+}
+
+/// A triangle mesh on an `n × n` grid of cells: vertex `j (n + 1) + i` at
+/// `pos(i, j)` for `0 ≤ i, j ≤ n`, two triangles per cell split along its
+/// `(i, j)`–`(i + 1, j + 1)` diagonal, counter-clockwise in (i, j). Cells
+/// where `keep(i, j)` is false are left out (holes; their vertices stay,
+/// unreferenced where no kept cell uses them).
+pub fn tri_grid(
+    n: u32,
+    pos: impl Fn(u32, u32) -> DVec3,
+    keep: impl Fn(u32, u32) -> bool,
+) -> TriMesh {
+    let positions = (0..=n)
+        .flat_map(|j| (0..=n).map(move |i| (i, j)))
+        .map(|(i, j)| pos(i, j))
+        .collect();
+    let mut triangles = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            if !keep(i, j) {
+                continue;
+            }
+            let a = j * (n + 1) + i;
+            triangles.push([a, a + 1, a + n + 2]);
+            triangles.push([a, a + n + 2, a + n + 1]);
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
 }
 
 /// An open `nx × ny` grid of quads in the xy plane with a bumpy z; its

@@ -189,25 +189,11 @@ fn fit_of_a_coarse_control_mesh_to_a_dense_mesh() {
 
 /// A square `[0, 4]²` at z = 0, cells of 0.25, triangulated: an open M.
 fn open_square() -> subdfit::mesh::TriMesh {
-    let n = 16u32;
-    let mut positions = Vec::new();
-    for j in 0..=n {
-        for i in 0..=n {
-            positions.push(subdfit::DVec3::new(0.25 * i as f64, 0.25 * j as f64, 0.0));
-        }
-    }
-    let mut triangles = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let a = j * (n + 1) + i;
-            triangles.push([a, a + 1, a + n + 2]);
-            triangles.push([a, a + n + 2, a + n + 1]);
-        }
-    }
-    subdfit::mesh::TriMesh {
-        positions,
-        triangles,
-    }
+    subdfit::fixtures::tri_grid(
+        16,
+        |i, j| subdfit::DVec3::new(0.25 * i as f64, 0.25 * j as f64, 0.0),
+        |_, _| true,
+    )
 }
 
 #[test]

@@ -988,6 +988,19 @@ fn exact_ball(
     (fitted, out)
 }
 
+/// Triangle areas of M and their sum; an error when M has no area (no
+/// radius, sample budget or flipped fraction is defined then).
+fn checked_areas(mesh: &TriMesh) -> Result<(Vec<f64>, f64)> {
+    let areas = triangle_areas(mesh);
+    let total_area: f64 = areas.iter().sum();
+    if total_area.is_nan() || total_area <= 0.0 {
+        return Err(Error::InvalidArgument(
+            "fitmap: the mesh has zero area".into(),
+        ));
+    }
+    Ok((areas, total_area))
+}
+
 /// The literal flipped fraction of §3.1.3 at every radius `r_0..r_h` for
 /// the ball around vertex `v`, exactly as the exact mode computes it
 /// (`None` where it tests no cubic). A diagnostic: F_M is the largest
@@ -1007,13 +1020,7 @@ pub fn exact_flip_fractions(
         )));
     }
     let radii = fitmap_radii(mesh)?;
-    let areas = triangle_areas(mesh);
-    let total_area: f64 = areas.iter().sum();
-    if total_area.is_nan() || total_area <= 0.0 {
-        return Err(Error::InvalidArgument(
-            "fitmap: the mesh has zero area".into(),
-        ));
-    }
+    let (areas, total_area) = checked_areas(mesh)?;
     let samples = MSamples::new(
         mesh,
         &areas,
@@ -1524,13 +1531,7 @@ pub fn compute_fitmap_cancellable(
         )));
     }
     let radii = fitmap_radii(mesh)?;
-    let areas = triangle_areas(mesh);
-    let total_area: f64 = areas.iter().sum();
-    if total_area.is_nan() || total_area <= 0.0 {
-        return Err(Error::InvalidArgument(
-            "fitmap: the mesh has zero area".into(),
-        ));
-    }
+    let (areas, total_area) = checked_areas(mesh)?;
     let normals = vertex_normals(mesh);
     let adj = Adjacency::new(mesh);
     let sample_density = SAMPLES_PER_VERTEX * nv as f64 / total_area;

@@ -374,28 +374,11 @@ mod tests {
         for p in control.positions_mut() {
             p.z = 0.1;
         }
-        let mut positions = Vec::new();
-        let mut triangles = Vec::new();
-        for j in 0..=12u32 {
-            for i in 0..=12u32 {
-                positions.push(DVec3::new(
-                    -1.0 + 0.5 * i as f64,
-                    -1.0 + 0.5 * j as f64,
-                    0.0,
-                ));
-            }
-        }
-        for j in 0..12 {
-            for i in 0..12 {
-                let a = j * 13 + i;
-                triangles.push([a, a + 1, a + 14]);
-                triangles.push([a, a + 14, a + 13]);
-            }
-        }
-        let mesh = TriMesh {
-            positions,
-            triangles,
-        };
+        let mesh = crate::fixtures::tri_grid(
+            12,
+            |i, j| DVec3::new(-1.0 + 0.5 * i as f64, -1.0 + 0.5 * j as f64, 0.0),
+            |_, _| true,
+        );
         let diag = mesh.bbox_diagonal();
         let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
         let ev = make_evaluator(Backend::Osd, &control, &EvalOptions::default()).unwrap();

@@ -273,34 +273,13 @@ mod tests {
     /// A triangulated square `[-1, 5]²` at z = 0 (cells of 0.5), without
     /// the cells whose centre lies in `hole`.
     fn plane_with_hole(hole: (f64, f64)) -> TriMesh {
-        let n = 12;
-        let mut positions = Vec::new();
-        for j in 0..=n {
-            for i in 0..=n {
-                positions.push(DVec3::new(
-                    -1.0 + 0.5 * i as f64,
-                    -1.0 + 0.5 * j as f64,
-                    0.0,
-                ));
-            }
-        }
-        let mut triangles = Vec::new();
-        for j in 0..n {
-            for i in 0..n {
-                let c = DVec3::new(-0.75 + 0.5 * i as f64, -0.75 + 0.5 * j as f64, 0.0);
-                let inside = |x: f64| x > hole.0 && x < hole.1;
-                if inside(c.x) && inside(c.y) {
-                    continue;
-                }
-                let a = j * (n + 1) + i;
-                triangles.push([a, a + 1, a + n + 2]);
-                triangles.push([a, a + n + 2, a + n + 1]);
-            }
-        }
-        TriMesh {
-            positions,
-            triangles,
-        }
+        let inside = |x: f64| x > hole.0 && x < hole.1;
+        crate::fixtures::tri_grid(
+            12,
+            |i, j| DVec3::new(-1.0 + 0.5 * i as f64, -1.0 + 0.5 * j as f64, 0.0),
+            // Cell (i, j) has its centre at -0.75 + 0.5 (i, j).
+            |i, j| !(inside(-0.75 + 0.5 * i as f64) && inside(-0.75 + 0.5 * j as f64)),
+        )
     }
 
     #[test]

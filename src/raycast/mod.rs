@@ -322,25 +322,11 @@ pub(crate) mod tests_support {
     /// An `n` x `n` grid of unit squares in the plane z = 0, split into
     /// triangles, with a deterministic bump in z (for build tests).
     pub(crate) fn noisy_grid(n: u32) -> TriMesh {
-        let mut positions = Vec::new();
-        for j in 0..=n {
-            for i in 0..=n {
-                let z = ((i * 7 + j * 13) % 11) as f64 * 0.01;
-                positions.push(DVec3::new(i as f64, j as f64, z));
-            }
-        }
-        let mut triangles = Vec::new();
-        for j in 0..n {
-            for i in 0..n {
-                let v = j * (n + 1) + i;
-                triangles.push([v, v + 1, v + n + 2]);
-                triangles.push([v, v + n + 2, v + n + 1]);
-            }
-        }
-        TriMesh {
-            positions,
-            triangles,
-        }
+        crate::fixtures::tri_grid(
+            n,
+            |i, j| DVec3::new(i as f64, j as f64, ((i * 7 + j * 13) % 11) as f64 * 0.01),
+            |_, _| true,
+        )
     }
 }
 

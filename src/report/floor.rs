@@ -98,28 +98,8 @@ mod tests {
 
     /// A `k × k` triangulated grid over `[-1, 1]²` with heights `z(x, y)`.
     fn height_field(k: u32, z: impl Fn(f64, f64) -> f64) -> TriMesh {
-        let mut positions = Vec::new();
-        let mut triangles = Vec::new();
-        for j in 0..=k {
-            for i in 0..=k {
-                let (x, y) = (
-                    -1.0 + 2.0 * i as f64 / k as f64,
-                    -1.0 + 2.0 * j as f64 / k as f64,
-                );
-                positions.push(DVec3::new(x, y, z(x, y)));
-            }
-        }
-        for j in 0..k {
-            for i in 0..k {
-                let a = j * (k + 1) + i;
-                triangles.push([a, a + 1, a + k + 2]);
-                triangles.push([a, a + k + 2, a + k + 1]);
-            }
-        }
-        TriMesh {
-            positions,
-            triangles,
-        }
+        let c = |i: u32| -1.0 + 2.0 * i as f64 / k as f64;
+        crate::fixtures::tri_grid(k, |i, j| DVec3::new(c(i), c(j), z(c(i), c(j))), |_, _| true)
     }
 
     #[test]

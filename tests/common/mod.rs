@@ -162,24 +162,7 @@ pub fn icosphere(level: u32, c: DVec3, r: f64) -> TriMesh {
 /// origin), two triangles per square; all coordinates are small integers, so
 /// vertices and edge midpoints are exactly representable (watertight tests).
 pub fn flat_grid(n: u32) -> TriMesh {
-    let mut positions = Vec::new();
-    for j in 0..=n {
-        for i in 0..=n {
-            positions.push(DVec3::new(i as f64, j as f64, 0.0));
-        }
-    }
-    let mut triangles = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let v = j * (n + 1) + i;
-            triangles.push([v, v + 1, v + n + 2]);
-            triangles.push([v, v + n + 2, v + n + 1]);
-        }
-    }
-    TriMesh {
-        positions,
-        triangles,
-    }
+    subdfit::fixtures::tri_grid(n, |i, j| DVec3::new(i as f64, j as f64, 0.0), |_, _| true)
 }
 
 pub fn seeded_rng(seed: u64) -> ChaCha8Rng {
