@@ -19,24 +19,9 @@ fn caster(m: &TriMesh) -> Box<dyn RayCaster> {
 // Procedural meshes.
 
 fn plane(k: usize) -> TriMesh {
-    let mut positions = Vec::new();
-    for j in 0..=k {
-        for i in 0..=k {
-            positions.push(DVec3::new(i as f64 / k as f64, j as f64 / k as f64, 0.0));
-        }
-    }
-    let id = |i: usize, j: usize| (j * (k + 1) + i) as u32;
-    let mut triangles = Vec::new();
-    for j in 0..k {
-        for i in 0..k {
-            triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-            triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-        }
-    }
-    TriMesh {
-        positions,
-        triangles,
-    }
+    let k = k as u32;
+    let c = |i: u32| i as f64 / k as f64;
+    subdfit::fixtures::tri_grid(k, |i, j| DVec3::new(c(i), c(j), 0.0), |_, _| true)
 }
 
 /// Unit icosphere after `level` 1-to-4 subdivisions (10·4^level + 2 vertices).

@@ -398,30 +398,12 @@ mod tests {
     /// Euclidean ball reaches vertices that the traversal cannot (the other
     /// sheet) and radii cut through the middle of rows.
     fn folded_grid(n: u32) -> TriMesh {
-        let mut positions = Vec::new();
-        for j in 0..=n {
-            for i in 0..=n {
-                let (u, v) = (i as f64 / n as f64, j as f64 / n as f64);
-                let a = std::f64::consts::PI * 1.8 * u * u;
-                positions.push(DVec3::new(
-                    0.3 * a.sin(),
-                    v + 0.02 * (7.0 * u).sin(),
-                    0.3 * a.cos(),
-                ));
-            }
-        }
-        let mut triangles = Vec::new();
-        let id = |i: u32, j: u32| j * (n + 1) + i;
-        for j in 0..n {
-            for i in 0..n {
-                triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-                triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-            }
-        }
-        TriMesh {
-            positions,
-            triangles,
-        }
+        let pos = |i: u32, j: u32| {
+            let (u, v) = (i as f64 / n as f64, j as f64 / n as f64);
+            let a = std::f64::consts::PI * 1.8 * u * u;
+            DVec3::new(0.3 * a.sin(), v + 0.02 * (7.0 * u).sin(), 0.3 * a.cos())
+        };
+        crate::fixtures::tri_grid(n, pos, |_, _| true)
     }
 
     #[test]

@@ -878,6 +878,53 @@ fn solve_point(
         .collect())
 }
 
+/// Weight of a principal-direction row of the squared-distance
+/// minimisation (Pottmann–Leopoldseder, as Lavoué et al. §7.1 use it): a
+/// point at signed distance `d` from M, where M's principal curvature in
+/// that direction is `k`, weighs `d·k / (1 + d·k)` (the osculating
+/// circle's second-order distance), clamped to `[floor, 1]` so the row
+/// neither vanishes nor outweighs the normal row; `floor` where the point
+/// lies beyond the centre of curvature (`1 + d·k ≤ 0`), and 1 (a point
+/// row) where the curvature is undefined.
+pub(crate) fn sdm_tangent_weight(d: f64, k: f64, floor: f64) -> f64 {
+    if !k.is_finite() {
+        return 1.0;
+    }
+    let q = 1.0 + d * k;
+    if q > 0.0 {
+        (d * k / q).clamp(floor, 1.0)
+    } else {
+        floor
+    }
+}
+
+/// Appends the rows of one sample to an SDM system: for each axis `e` of
+/// `frame` (with weight `w`), `√w · e · Σ s_j x_j = −√w · e · res`, where
+/// `entries` are the sample's limit-stencil pairs (unknown vertex `j`,
+/// weight `s_j`) and `res` is the sample's residual to its foot point
+/// (the unknowns are corrections, three columns per vertex).
+pub(crate) fn push_frame_rows(
+    a: &mut Triplets,
+    b: &mut Vec<f64>,
+    r: &mut usize,
+    frame: &[(DVec3, f64); 3],
+    entries: impl Iterator<Item = (usize, f64)> + Clone,
+    res: DVec3,
+) {
+    for &(e, w) in frame {
+        let sw = w.sqrt();
+        for (v, s) in entries.clone() {
+            let col = 3 * v;
+            let s = sw * s;
+            a.push(*r, col, s * e.x);
+            a.push(*r, col + 1, s * e.y);
+            a.push(*r, col + 2, s * e.z);
+        }
+        b.push(-sw * e.dot(res));
+        *r += 1;
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 fn solve_sdm(
     mesh: &TriMesh,
@@ -915,14 +962,7 @@ fn solve_sdm(
         let e2 = n.cross(e1);
         let res = limit[i].position - h.point;
         let d = res.dot(n);
-        let weight = |k: f64| {
-            let q = 1.0 + d * k;
-            if q > 0.0 {
-                (d * k / q).clamp(floor, 1.0)
-            } else {
-                floor
-            }
-        };
+        let weight = |k: f64| sdm_tangent_weight(d, k, floor);
         // Rim targets (see the boundary fit in `fit_with_progress`) are
         // point rows: the tangent plane at a rim extends past M's end.
         let frame = if point_rows[i] {
@@ -930,18 +970,10 @@ fn solve_sdm(
         } else {
             [(n, 1.0), (e1, weight(c.k1)), (e2, weight(c.k2))]
         };
-        for (e, w) in frame {
-            let sw = w.sqrt();
-            for k in stencils.row(i) {
-                let col = 3 * stencils.indices[k] as usize;
-                let s = sw * stencils.weights[k];
-                a.push(r, col, s * e.x);
-                a.push(r, col + 1, s * e.y);
-                a.push(r, col + 2, s * e.z);
-            }
-            b.push(-sw * e.dot(res));
-            r += 1;
-        }
+        let entries = stencils
+            .row(i)
+            .map(|k| (stencils.indices[k] as usize, stencils.weights[k]));
+        push_frame_rows(&mut a, &mut b, &mut r, &frame, entries, res);
     }
     let reg = regulariser(laplacian, nv, 3);
     // λ per unknown as in the point objective: `samples` data rows per

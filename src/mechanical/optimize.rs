@@ -40,6 +40,7 @@
 use std::collections::{HashMap, HashSet};
 
 use crate::error::{Error, Result};
+use crate::fit::{push_frame_rows, sdm_tangent_weight};
 use crate::mesh::{ControlMesh, TriMesh, INFINITELY_SHARP};
 use crate::raycast::{make_raycaster, RayBackend, RayCaster};
 use crate::solve::{least_squares, LsqOptions, Triplets};
@@ -993,17 +994,7 @@ fn solve_step_sdm(
             Some(fr) if fr.normal != DVec3::ZERO => {
                 let n = fr.normal;
                 let d = res.dot(n);
-                let weight = |k: f64| {
-                    if !k.is_finite() {
-                        return 1.0;
-                    }
-                    let q = 1.0 + d * k;
-                    if q > 0.0 {
-                        (d * k / q).clamp(floor, 1.0)
-                    } else {
-                        floor
-                    }
-                };
+                let weight = |k: f64| sdm_tangent_weight(d, k, floor);
                 let e1 = (fr.e1 - fr.e1.dot(n) * n)
                     .try_normalize()
                     .unwrap_or_else(|| n.any_orthonormal_vector());
@@ -1011,22 +1002,13 @@ fn solve_step_sdm(
             }
             _ => [(DVec3::X, 1.0), (DVec3::Y, 1.0), (DVec3::Z, 1.0)],
         };
-        for (e, w) in frame {
-            let sw = w.sqrt();
-            for k in st.row(i) {
-                let v = st.indices[k] as usize;
-                if v < fixed {
-                    continue;
-                }
-                let col = 3 * (v - fixed);
-                let s = sw * st.weights[k];
-                a.push(r, col, s * e.x);
-                a.push(r, col + 1, s * e.y);
-                a.push(r, col + 2, s * e.z);
-            }
-            b.push(-sw * e.dot(res));
-            r += 1;
-        }
+        // Fixed (curve) vertices are not unknowns: their stencil terms drop.
+        let entries = st
+            .row(i)
+            .map(|k| (st.indices[k] as usize, st.weights[k]))
+            .filter(|&(v, _)| v >= fixed)
+            .map(|(v, s)| (v - fixed, s));
+        push_frame_rows(&mut a, &mut b, &mut r, &frame, entries, res);
     }
     let mut reg = Triplets::new(2 * n3, n3);
     for (v, row) in lap.iter().enumerate() {
