@@ -39,7 +39,8 @@ j = json.load(sys.stdin); s = j["stats"]
 for k in ("faces", "irregular_vertices", "collapses", "stopped_at", "seconds_fitmap",
           "seconds_simplify", "collapses_per_second"):
     print(f"  {k}: {j[k]}")
-for k in ("adaptivity_spearman", "spearman_radius_fm", "median_radius_over_fm",
+for k in ("adaptivity_spearman", "radius_ratio_fs_quartiles", "sd_log_fs_patches",
+          "sd_log_fs_vertices", "spearman_radius_fm", "median_radius_over_fm",
           "refused_m_fitmap", "refused_s_fitmap", "s_fitmap_kappa", "refused_guard_distance",
           "refused_guard_normal", "sweeps", "final_blockers"):
     print(f"    {k}: {s[k]}")'

@@ -882,21 +882,45 @@ fn draw(cum: &[f64], rng: &mut ChaCha8Rng) -> usize {
         .min(cum.len().saturating_sub(1))
 }
 
-/// Least-squares `a` of `E(r) = a r⁴` (§3.1.2): `a = Σ E r⁴ / Σ r⁸`, in
-/// units of `r_h` to keep `r⁸` in range.
-fn s_from_errors(errors: &[(f64, f64)], rh: f64) -> f64 {
-    let (mut num, mut den) = (0.0, 0.0);
+/// Residuals below `S_FIT_EPSILON · r` are round-off of a fit in
+/// coordinates of size `r` (double precision, the scaled cubic system of
+/// [`fit_cubic`]), not geometry: [`s_from_errors`] floors them there so that
+/// their logarithm is finite, and gives `F_S = 0` when every radius is at
+/// the floor (a plane, or any surface one cubic reproduces).
+pub const S_FIT_EPSILON: f64 = 1e-12;
+
+/// Least-squares `a` of `E(r) = a r⁴` (§3.1.2), fitted in log space:
+/// `log E_i = log a + 4 log r_i`, i.e. `a` is the geometric mean of
+/// `E_i / r_i⁴` over the tested radii.
+///
+/// Why not the linear fit `a = Σ E r⁴ / Σ r⁸`: the radii are spaced
+/// exponentially from `r_0` (an edge) to `r_h` (a quarter of the
+/// diagonal), so the weights `r⁸` span ~10¹⁵ and that fit returns
+/// `E(r_h) / r_h⁴` — how well *one* cubic fits a quarter of the model, a
+/// near-global quantity that hardly varies over M. §3.1.2 defines F_S for
+/// what it predicts at *patch* size ("two patches centred in p_0, p_1 with
+/// radii r_0, r_1 contribute approximately the same error if r_0·F_S(p_0)
+/// and r_1·F_S(p_1) are equal"), and its Taylor argument (E ≤ a r⁴) holds
+/// at small r: a least-squares fit in which every radius counts the same
+/// in relative terms is still "a least-squares fit of E = a r⁴" and keeps
+/// the small radii, where patches live, in the estimate. Scaling is kept
+/// (E ∝ length, so a ∝ length⁻³ and F_S ∝ length^-¾); residuals are
+/// floored at [`S_FIT_EPSILON`]`· r`.
+fn s_from_errors(errors: &[(f64, f64)]) -> f64 {
+    let (mut sum, mut n, mut any_above) = (0.0, 0usize, false);
     for &(r, e) in errors {
-        let x = (r / rh).powi(4);
-        num += e * x;
-        den += x * x;
+        if !(r > 0.0 && e.is_finite()) {
+            continue;
+        }
+        let floor = S_FIT_EPSILON * r;
+        any_above |= e > floor;
+        sum += e.max(floor).ln() - 4.0 * r.ln();
+        n += 1;
     }
-    if den > 0.0 {
-        let a = (num / den) / rh.powi(4);
-        a.max(0.0).powf(0.25)
-    } else {
-        0.0
+    if n == 0 || !any_above {
+        return 0.0;
     }
+    (0.25 * sum / n as f64).exp()
 }
 
 /// The M-fitmap from the verdicts of the tested radii, in increasing radius
@@ -1092,7 +1116,7 @@ fn analyse_vertex_exact(ctx: &Ctx, sc: &mut Scratch, p: u32) -> VertexResult {
     });
     res.rays = rays;
     res.defined = !errors.is_empty();
-    res.s = s_from_errors(&errors, ctx.radii[h]);
+    res.s = s_from_errors(&errors);
     res
 }
 
@@ -1349,7 +1373,7 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
     m_from_top_down(&mut res, &tested, |i| test(i, sc));
     res.rays = rays;
     res.defined = !errors.is_empty();
-    res.s = s_from_errors(&errors, ctx.radii[h]);
+    res.s = s_from_errors(&errors);
     res
 }
 
@@ -1750,5 +1774,50 @@ mod tests {
             }
         }
         assert!(seen_partial, "spot.ply must give partly flipped balls");
+    }
+
+    /// The log-space fit of `E = a r⁴`: exact on the model, a geometric
+    /// mean of `E/r⁴` otherwise (so each radius counts the same in relative
+    /// terms, unlike `Σ E r⁴ / Σ r⁸`, which follows the largest radius
+    /// alone), invariant in the way §3.1.2 needs under scaling, and 0 only
+    /// where every residual is round-off.
+    #[test]
+    fn s_from_errors_is_the_log_space_fit() {
+        let radii: Vec<f64> = (0..=RADIUS_STEPS)
+            .map(|i| 0.01 * 1.6f64.powi(i as i32))
+            .collect();
+        // On the model: F_S = a^(1/4) whatever the radii.
+        let a: f64 = 3.0e5;
+        let e: Vec<(f64, f64)> = radii.iter().map(|&r| (r, a * r.powi(4))).collect();
+        let s = s_from_errors(&e);
+        assert!((s - a.powf(0.25)).abs() <= 1e-12 * s, "{s}");
+        // Off the model: small radii 16× above the model (F_S ×2 there),
+        // the largest on it. The linear fit would give ≈ a^(1/4) (the
+        // largest radius carries ~all the weight); the log fit takes every
+        // radius: 7 of 9 radii at 16a → a·16^(7/9) → F_S ·16^(7/36).
+        let e2: Vec<(f64, f64)> = e
+            .iter()
+            .enumerate()
+            .map(|(i, &(r, x))| (r, if i < 7 { 16.0 * x } else { x }))
+            .collect();
+        let s2 = s_from_errors(&e2);
+        let want = a.powf(0.25) * 16f64.powf(7.0 / 36.0);
+        assert!((s2 - want).abs() <= 1e-12 * want, "{s2} vs {want}");
+        // Scaling lengths by k: E ∝ k, r ∝ k, so F_S ∝ k^(-3/4).
+        let k: f64 = 3.7;
+        let e3: Vec<(f64, f64)> = e2.iter().map(|&(r, x)| (k * r, k * x)).collect();
+        let s3 = s_from_errors(&e3);
+        assert!((s3 - s2 * k.powf(-0.75)).abs() <= 1e-12 * s2, "{s3}");
+        // All round-off (or exactly 0): a plane, F_S = 0; no radius: 0.
+        let flat: Vec<(f64, f64)> = radii.iter().map(|&r| (r, 1e-16 * r)).collect();
+        assert_eq!(s_from_errors(&flat), 0.0);
+        let zero: Vec<(f64, f64)> = radii.iter().map(|&r| (r, 0.0)).collect();
+        assert_eq!(s_from_errors(&zero), 0.0);
+        assert_eq!(s_from_errors(&[]), 0.0);
+        // One zero residual among real ones is floored, not -∞.
+        let mut mixed = e.clone();
+        mixed[0].1 = 0.0;
+        let sm = s_from_errors(&mixed);
+        assert!(sm.is_finite() && sm > 0.0 && sm < s, "{sm}");
     }
 }

@@ -267,6 +267,53 @@ pub struct SimplifyStats {
     /// close the patches came to the M-fitmap bound; above 1 where the test
     /// was off or a doublet removal merged two patches).
     pub median_radius_over_fm: f64,
+    /// The second adaptivity figure: the mean patch radius over the final
+    /// patches in the top quartile of F_S divided by that in the bottom
+    /// quartile (patches ranked by F_S at their projected centres). Below 1
+    /// when patches are smaller where F_S is large (§3.1.1: "the local
+    /// radius of each patch should be inversely proportional to F_S"); 0
+    /// with fewer than four patches.
+    pub radius_ratio_fs_quartiles: f64,
+    /// Standard deviation of ln F_S over the final patches (at their
+    /// projected centres) and over M's vertices (F_S > 0): how much the
+    /// S-fitmap can order and bound the patches at all.
+    pub sd_log_fs_patches: f64,
+    /// See `sd_log_fs_patches`.
+    pub sd_log_fs_vertices: f64,
+}
+
+/// Standard deviation of `ln x` over the positive finite entries (0 with
+/// fewer than two).
+fn sd_log(x: impl Iterator<Item = f64>) -> f64 {
+    let l: Vec<f64> = x
+        .filter(|v| *v > 0.0 && v.is_finite())
+        .map(f64::ln)
+        .collect();
+    if l.len() < 2 {
+        return 0.0;
+    }
+    let m = l.iter().sum::<f64>() / l.len() as f64;
+    (l.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / l.len() as f64).sqrt()
+}
+
+/// Mean radius of the patches in the top quartile of F_S over that in the
+/// bottom quartile (`patches`: (F_S, radius); ties broken by radius, then
+/// order, for determinism). 0 with fewer than four patches.
+pub fn radius_ratio_fs_quartiles(patches: &[(f64, f64)]) -> f64 {
+    let n = patches.len();
+    if n < 4 {
+        return 0.0;
+    }
+    let mut p = patches.to_vec();
+    p.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+    let q = n / 4;
+    let mean = |s: &[(f64, f64)]| s.iter().map(|x| x.1).sum::<f64>() / s.len() as f64;
+    let (low, high) = (mean(&p[..q]), mean(&p[n - q..]));
+    if low > 0.0 {
+        high / low
+    } else {
+        0.0
+    }
 }
 
 /// The simplified control mesh (compact) and its statistics.
@@ -1013,6 +1060,7 @@ impl<'a> Simplifier<'a> {
         }
         let (mut radius, mut inv_fs, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
         let (mut radius_m, mut fms) = (Vec::new(), Vec::new());
+        let mut fs_r = Vec::new();
         for f in self.k.live_faces() {
             let q: Vec<DVec3> = self.k.face_vertices(f).map(|v| self.lim[v.idx()]).collect();
             let ctr = q.iter().sum::<DVec3>() / q.len() as f64;
@@ -1021,6 +1069,7 @@ impl<'a> Simplifier<'a> {
             if fs > 0.0 {
                 radius.push(r);
                 inv_fs.push(1.0 / fs);
+                fs_r.push((fs, r));
             }
             if fm > 0.0 {
                 ratio.push(r / fm);
@@ -1030,6 +1079,9 @@ impl<'a> Simplifier<'a> {
         }
         stats.adaptivity_spearman = crate::analysis::spearman(&radius, &inv_fs);
         stats.spearman_radius_fm = crate::analysis::spearman(&radius_m, &fms);
+        stats.radius_ratio_fs_quartiles = radius_ratio_fs_quartiles(&fs_r);
+        stats.sd_log_fs_patches = sd_log(fs_r.iter().map(|x| x.0));
+        stats.sd_log_fs_vertices = sd_log(self.fitmap.s.iter().copied());
         ratio.sort_unstable_by(f64::total_cmp);
         stats.median_radius_over_fm = ratio.get(ratio.len() / 2).copied().unwrap_or(0.0);
         let Simplifier {
