@@ -259,6 +259,10 @@ fn guard_undoes_collapses_and_keeps_the_surface_on_m() {
 /// correlation near 1 is not to be expected; on ~2000 patches the standard
 /// error of a null rank correlation is 1/√(n − 1) ≈ 0.022, so 0.3 is far
 /// beyond chance (measured: 0.47; 0.03 at the natural end, where F_M rules).
+/// Issue 4's acceptance: at the natural end on bunny (τ = 1 %), patches are
+/// visibly smaller where F_S is large, within Table 1's count. Measured by
+/// the test itself (patch radius against the Fitmap at M's point closest
+/// to the limit centre), independently of the loop's statistics.
 #[test]
 fn bunny_patch_size_follows_one_over_fs_and_fm() {
     let Some(m) = common::load_data_mesh("bunny.ply") else {
@@ -272,29 +276,37 @@ fn bunny_patch_size_follows_one_over_fs_and_fm() {
         &subdfit::analysis::FitmapOptions::default().with_tolerance(0.01),
     )
     .unwrap();
-    // Patch radius (largest distance from the limit centre to a control
-    // corner) against the Fitmap at M's point closest to the limit centre:
-    // computed here independently of the loop's own statistics.
+    // Per patch: radius (largest distance from the limit centre to a
+    // control corner), F_S and F_M at M's point closest to the limit centre.
+    // Returns Spearman(radius, 1/F_S), Spearman(radius, F_M) and the mean
+    // radius of the top F_S quartile over the bottom one.
     let measure = |k: &subdfit::mesh::ControlMesh| {
         let ctr: Vec<_> = k
             .faces()
             .map(|f| face_centre_limit(k, f).position)
             .collect();
         let near = caster.closest_points(&ctr, f64::INFINITY).unwrap();
-        let (mut r, mut inv_fs, mut fm) = (Vec::new(), Vec::new(), Vec::new());
+        let (mut r, mut inv_fs, mut fm, mut fs_r) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for (f, (c, p)) in k.faces().zip(ctr.iter().zip(near)) {
             let p = p.expect("a closest point on M");
             let rad = k
                 .face_vertices(f)
                 .map(|v| (k.position(v) - *c).length())
                 .fold(0.0, f64::max);
+            let s = fitmap.s_at(&m, p.triangle, p.u, p.v);
             r.push(rad);
-            inv_fs.push(1.0 / fitmap.s_at(&m, p.triangle, p.u, p.v));
+            inv_fs.push(1.0 / s);
             fm.push(fitmap.m_at(&m, p.triangle, p.u, p.v));
+            fs_r.push((s, rad));
         }
+        fs_r.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let q = fs_r.len() / 4;
+        let mean = |x: &[(f64, f64)]| x.iter().map(|p| p.1).sum::<f64>() / x.len() as f64;
         (
             subdfit::analysis::spearman(&r, &inv_fs).unwrap(),
             subdfit::analysis::spearman(&r, &fm).unwrap(),
+            mean(&fs_r[fs_r.len() - q..]) / mean(&fs_r[..q]),
         )
     };
     let mid = simplify(
@@ -304,69 +316,69 @@ fn bunny_patch_size_follows_one_over_fs_and_fm() {
         &SimplifyOptions::default().with_target_faces(Some(2000)),
     )
     .unwrap();
-    let (rho_s, _) = measure(&mid.mesh);
+    let (rho_s, ..) = measure(&mid.mesh);
     let end = simplify(&m, &fitmap, caster.as_ref(), &SimplifyOptions::default()).unwrap();
-    let (rho_s_end, rho_m_end) = measure(&end.mesh);
+    let (rho_s_end, rho_m_end, quart) = measure(&end.mesh);
     let nb =
         |k: &subdfit::mesh::ControlMesh| k.vertices().filter(|&v| k.is_boundary_vertex(v)).count();
     eprintln!(
         "bunny τ 1 %: at {} patches Spearman(radius, 1/F_S) = {rho_s:.3}; natural end {} \
-         patches: Spearman(radius, 1/F_S) = {rho_s_end:.3}, Spearman(radius, F_M) = \
-         {rho_m_end:.3}; boundary vertices {} -> {}",
+         patches (κ = {:.4}): Spearman(radius, 1/F_S) = {rho_s_end:.3}, Spearman(radius, F_M) \
+         = {rho_m_end:.3}, mean radius top / bottom F_S quartile = {quart:.3} (loop's own: \
+         {:.3}, {:.3}); final blockers {:?}; boundary vertices {} -> {}",
         mid.stats.faces,
         end.stats.faces,
+        end.stats.s_fitmap_kappa,
+        end.stats.adaptivity_spearman.unwrap_or(f64::NAN),
+        end.stats.radius_ratio_fs_quartiles,
+        end.stats.final_blockers,
         nb(&mid.mesh),
         nb(&end.mesh)
     );
     assert!(rho_s > 0.3, "patch size does not follow 1/F_S: {rho_s}");
-    // At the natural end the M-fitmap test halted every region, so the
-    // sizes follow F_M (measured 0.8; 0.5 leaves room for the rotations and
-    // doublet removals that reshape patches after the test).
+    // The acceptance figures ("patches visibly smaller where F_S is
+    // large"): a rank correlation of at least 0.4 (the null's standard
+    // error is 1/√(n−1) ≈ 0.05 at ~400 patches) and patches in the top F_S
+    // quartile at most 0.7× as large as in the bottom one. Measured with
+    // the log-space F_S (`analysis::fitmap`) and the default S-fitmap test:
+    // ≈ 0.7 and ≈ 0.25; with the former linear F_S fit (F_S ≈ E(r_h)/r_h⁴,
+    // a near-global quantity) −0.09 and 0.90, which fail both.
+    assert!(rho_s_end >= 0.4, "Spearman(radius, 1/F_S) = {rho_s_end}");
+    assert!(quart <= 0.7, "top / bottom F_S quartile radius = {quart}");
+    // Within Table 1's count (506) at τ = 1 %.
+    assert!(end.stats.faces <= 506, "{} patches", end.stats.faces);
+    // Both §3.1.1 prescriptions stop patches: the M-fitmap test most, the
+    // S-fitmap test (on by default) a sizeable share (measured 316 and 111
+    // of 415).
+    let blocked = |what: &str| end.stats.final_blockers.get(what).copied().unwrap_or(0);
     assert!(
-        rho_m_end > 0.5,
-        "patch size does not follow F_M: {rho_m_end}"
-    );
-    // Why the natural end does not follow 1/F_S: the M-fitmap test refuses
-    // a collapse of nearly every final patch (measured 341 of 379; the
-    // guard 66, topology 32), so F_M sets the sizes, and across the final
-    // patches F_M is unrelated to F_S (Spearman ≈ 0.03, although 0.64 over
-    // M's vertices: the flat, low-F_S regions where F_M is large hold few
-    // patches).
-    let by_m = end
-        .stats
-        .final_blockers
-        .get("m_fitmap")
-        .copied()
-        .unwrap_or(0);
-    assert!(
-        10 * by_m >= 7 * end.stats.faces,
+        2 * blocked("m_fitmap") >= end.stats.faces && 10 * blocked("s_fitmap") >= end.stats.faces,
         "{:?} of {} patches",
         end.stats.final_blockers,
         end.stats.faces
     );
-    // The S-fitmap test (κ = κ₀) stops patches by r·F_S as well and raises
-    // the correlation (measured −0.08 → 0.12 by this measure, −0.09 → 0.17
-    // by the loop's own; gargoyle 0.31 → 0.45), but not to 0.4, and at the
-    // cost of patches (379 → 627, RMS L 3.97 → 1.35‰): F_S spans ±11 % on
-    // bunny (sd of its log) while a collapse moves a radius by up to √2, so
-    // even the patches the S-fitmap test alone stops rank at only ≈ 0.4.
-    let s_on = simplify(
+    // F_M, the projectability bound, still shapes the sizes.
+    assert!(
+        rho_m_end > 0.3,
+        "patch size does not follow F_M: {rho_m_end}"
+    );
+    // The S-fitmap test only adds patches where r·F_S is large: without it
+    // there are fewer patches, and the correlation with 1/F_S is weaker.
+    let off = simplify(
         &m,
         &fitmap,
         caster.as_ref(),
-        &SimplifyOptions::default().with_s_fitmap_scale(1.0),
+        &SimplifyOptions::default().with_s_fitmap_scale(0.0),
     )
     .unwrap();
-    let (rho_s_on, _) = measure(&s_on.mesh);
+    let (rho_s_off, ..) = measure(&off.mesh);
     eprintln!(
-        "bunny τ 1 % with the S-fitmap test (κ = {:.4}): {} patches, Spearman(radius, 1/F_S) \
-         = {rho_s_on:.3}; final blockers {:?}",
-        s_on.stats.s_fitmap_kappa, s_on.stats.faces, s_on.stats.final_blockers
+        "bunny τ 1 % without the S-fitmap test: {} patches, Spearman(radius, 1/F_S) = \
+         {rho_s_off:.3}",
+        off.stats.faces
     );
-    assert!(
-        rho_s_on > rho_s_end + 0.1,
-        "the S-fitmap test should make sizes follow 1/F_S: {rho_s_end} -> {rho_s_on}"
-    );
+    assert!(off.stats.faces < end.stats.faces);
+    assert!(rho_s_off < rho_s_end, "{rho_s_off} vs {rho_s_end}");
     // Holes kept, boundary coarsened (the input's 5 loops; issue 4).
     assert_eq!(end.mesh.num_boundary_loops(), 5);
     end.mesh.validate().unwrap();
@@ -423,7 +435,13 @@ fn s_fitmap_test_makes_the_natural_end_follow_one_over_fs() {
         kappa0 > fm && kappa0 < 4.0 * fm,
         "κ₀ = {kappa0}, F_M = {fm}"
     );
-    let off = simplify(&m, &fitmap, caster.as_ref(), &SimplifyOptions::default()).unwrap();
+    let off = simplify(
+        &m,
+        &fitmap,
+        caster.as_ref(),
+        &SimplifyOptions::default().with_s_fitmap_scale(0.0),
+    )
+    .unwrap();
     let on = simplify(
         &m,
         &fitmap,

@@ -1392,13 +1392,17 @@ pub const FAST_M_STEPS_ABOVE_SEEDS: usize = 1;
 
 /// Fast mode: an interpolated vertex whose seed neighbours' F_S differ by
 /// more than this ratio (largest / smallest) gets its own F_S (the fits of
-/// its balls, no M-test; F_M stays interpolated). F_S is dominated by the
-/// largest radii and so varies slowly, but Spearman's ρ compares *ranks*,
+/// its balls, no M-test; F_M stays interpolated). F_S varies slowly at the
+/// scale of one edge (every ball of a vertex holds its neighbour's ball of
+/// one step smaller radius), but Spearman's ρ compares *ranks*,
 /// and on a CAD model with a narrow F_S range (fandisk) the mean of the
 /// neighbours reorders vertices: ρ was 0.9496 with every non-seed
 /// interpolated, 0.9917 with every vertex analysed. Measured ρ on fandisk:
 /// 0.9606 at 1.02, 0.9572 at 1.1 (spot/homer ≥ 0.987), for 11 % / 5 %
-/// more CPU time on gargoyle than interpolating all.
+/// more CPU time on gargoyle than interpolating all (measured with the
+/// linear fit of F_S; with the log-space fit, [`s_from_errors`], spot's ρ
+/// is 0.997 and the fitmap takes 3–12 % more CPU time, more vertices
+/// getting their own F_S).
 pub const FAST_S_DIRECT_SPREAD: f64 = 1.05;
 
 /// Fast mode: which vertices are analysed, and how the others get their

@@ -50,6 +50,11 @@ use crate::raycast::{nearer_on_line, Ray, RayCaster};
 use crate::subdiv::LimitPoint;
 use crate::DVec3;
 
+/// Default [`SimplifyOptions::s_fitmap_scale`]: κ = 1.55 κ₀ (the measured
+/// window in which bunny meets Table 1 at τ = 1 % and 10 %; see the
+/// option's documentation).
+pub const DEFAULT_S_FITMAP_SCALE: f64 = 1.55;
+
 /// Options of [`simplify`]. τ is not here: it is the Fitmap's.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[non_exhaustive]
@@ -116,30 +121,43 @@ pub struct SimplifyOptions {
     /// either by projectability (F_M) or by its predicted error (F_S·r)⁴
     /// (§3.1.2: "two patches contribute approximately the same error if
     /// r·F_S are equal"). κ = `s_fitmap_scale` · κ₀, κ₀ from the Fitmap
-    /// alone (see [`s_fitmap_kappa`]); 0 (the default) turns the test off.
-    /// It runs with the M-fitmap test (off with it).
+    /// alone (see [`s_fitmap_kappa`]); 0 turns the test off. It runs with
+    /// the M-fitmap test (off with it).
     ///
-    /// Off by default because, on this crate's Fitmap, it buys adaptivity
-    /// only with patches beyond Table 1's counts. Measured 2026-11-22
-    /// (patches, RMS L ‰ after the global fit, Spearman(radius, 1/F_S) at
-    /// the natural end; Table 1: bunny 506 / 3.41 and 218 / 8.48, gargoyle
-    /// 1096 / 2.36 and 493 / 4.50):
+    /// On by default at [`DEFAULT_S_FITMAP_SCALE`] since F_S is fitted in
+    /// log space (`analysis::fitmap`, `s_from_errors`): F_S now predicts the
+    /// error at patch-size radii and varies over M (sd of ln F_S ≈ 0.15 over
+    /// bunny's and gargoyle's vertices, 0.12 / 0.07 before), so the test
+    /// stops patches where (F_S·r)⁴ is large and the M-fitmap test stops
+    /// the rest. The scale is not from the paper (the paper has no κ: its
+    /// prescription is a proportionality, §3.1.1); κ₀ sets the order of
+    /// magnitude from the Fitmap, and the factor is the measured window
+    /// in which bunny meets Table 1 at both τ (count and RMS L). Measured
+    /// 2026-11-22 with the log-space F_S (patches / RMS L ‰ after the
+    /// global fit / Spearman(radius, 1/F_S) / mean radius of the top F_S
+    /// quartile over the bottom one, at the natural end; Table 1: bunny 506
+    /// / 3.41 and 218 / 8.48, gargoyle 1096 / 2.36 and 493 / 4.50):
     ///
     /// | scale | bunny 1 % | bunny 10 % | gargoyle 1 % | gargoyle 10 % |
     /// |---|---|---|---|---|
-    /// | off | 379, 3.97, −0.09 | 214, 6.05, −0.15 | 1109, 1.99, 0.31 | 372, 4.25, −0.16 |
-    /// | 1 | 627, 1.35, 0.17 | 338, 2.37, 0.15 | 2437, 1.09, 0.45 | 712, 2.46, 0.15 |
-    /// | 1.4 | 472, 2.04, 0.10 | 260, 3.40, 0.00 | 1581, 1.42, 0.34 | 487, 3.38, 0.09 |
+    /// | off | 345, 6.62, 0.67, 0.22 | 178, 10.98, 0.46, 0.31 | 1118, 2.40, 0.65, 0.44 | 302, 6.37, 0.42, 0.66 |
+    /// | 1 | 594, 1.57, 0.78, 0.38 | 309, 2.89, 0.65, 0.51 | 2289, 1.03, 0.70, 0.60 | 646, 2.62, 0.50, 0.72 |
+    /// | 1.4 | 468, 2.41, 0.74, 0.27 | 236, 4.59, 0.59, 0.37 | 1499, 1.47, 0.72, 0.49 | 442, 3.93, 0.48, 0.67 |
+    /// | 1.5 | 415, 3.41, 0.76, 0.24 | 217, 5.37, 0.60, 0.33 | 1414, 1.59, 0.71, 0.47 | 443, 3.79, 0.44, 0.68 |
+    /// | **1.55** | 428, 3.00, 0.76, 0.25 | 204, 6.03, 0.63, 0.33 | 1387, 1.65, 0.70, 0.48 | 422, —, 0.40, 0.70 |
+    /// | 1.6 | 402, 3.01, 0.73, 0.24 | 216, 5.29, 0.55, 0.34 | 1309, 1.73, 0.70, 0.47 | 388, 4.41, 0.44, 0.66 |
     ///
-    /// Why: at the natural end the M-fitmap test stops nearly every patch
-    /// ([`SimplifyStats::final_blockers`]), at radius ≈ 0.75 F_M, and across
-    /// the final patches F_M is unrelated to F_S (Spearman 0.03 on bunny,
-    /// though 0.64 over M's vertices: the flat regions, where F_S is small
-    /// and F_M large, hold few patches). A bound on r·F_S can only shrink
-    /// patches below F_M, and F_S varies too little (sd of log F_S ≈ 0.11
-    /// over bunny's patches, 0.06 over gargoyle's) against the ≈ √2 step a
-    /// collapse makes in a radius for the rank correlation to pass ≈ 0.4
-    /// even where it alone stops the patches (0.39 / 0.40 there).
+    /// Below 1.5 bunny τ 10 % exceeds 218 patches (and 72 irregular
+    /// vertices); off, RMS L exceeds Table 1 on every row (the M-fitmap test
+    /// alone ends with fewer, larger patches). The outcome moves by ±5 % in
+    /// the count and ±15 % in L between neighbouring scales (the order of
+    /// the collapses changes), so the default sits inside the window, not
+    /// at its edge. Gargoyle τ 1 % stays above Table 1's count at every
+    /// scale, off included (1118), with RMS L below Table 1 once the test
+    /// is on. With the former linear F_S fit (≈ E(r_h)/r_h⁴, a near-global
+    /// quantity) no scale gave adaptivity: Spearman −0.09 / −0.15 / 0.31 /
+    /// −0.16 and quartile ratios 0.90 / 0.86 / 0.65 / 1.07 with the test
+    /// off, ≤ 0.45 with it on at the cost of counts beyond Table 1.
     pub s_fitmap_scale: f64,
 }
 
@@ -155,7 +173,7 @@ impl Default for SimplifyOptions {
             guard_scale: 8.0,
             guard_floor: 0.026,
             guard_min_cos: 0.3,
-            s_fitmap_scale: 0.0,
+            s_fitmap_scale: DEFAULT_S_FITMAP_SCALE,
         }
     }
 }
@@ -233,9 +251,10 @@ pub struct SimplifyStats {
     /// At the natural end, what stops the final patches: for each test,
     /// the number of final faces one of whose diagonal collapses it refused
     /// in the last sweep (a face can count under two tests, one per
-    /// diagonal). Measured (2026-11-22, S-fitmap test off): the M-fitmap
-    /// test refuses a collapse of nearly every final patch on bunny and
-    /// gargoyle at τ 1 and 10 %, the guard 5–15 %.
+    /// diagonal). Measured (2026-11-22, defaults): the M-fitmap test
+    /// refuses a collapse of 75–85 % of the final patches on bunny and
+    /// gargoyle at τ 1 and 10 %, the S-fitmap test 25–35 %, the guard
+    /// under 10 %.
     pub final_blockers: BTreeMap<String, usize>,
     /// Collapses undone because the refit left a patch centre too far from
     /// M ([`SimplifyOptions::guard_scale`]).
@@ -253,8 +272,8 @@ pub struct SimplifyStats {
     pub seconds_simplify: f64,
     pub stop: Option<StopReason>,
     /// Adaptivity of the result (issue 4; see
-    /// [`SimplifyOptions::s_fitmap_scale`] for why it is low at the natural
-    /// end): Spearman rank correlation, over
+    /// [`SimplifyOptions::s_fitmap_scale`] for measured values): Spearman
+    /// rank correlation, over
     /// the final patches, between the patch radius (largest centre-to-corner
     /// distance of the limit patch) and 1/F_S at its projected centre.
     /// `None` with fewer than two patches or constant values.
