@@ -16,9 +16,16 @@
 # On a loaded machine read the "user" CPU seconds, not the wall time.
 # "final_blockers" counts, per test, the final patches one of whose
 # collapses that test refused in the last sweep (what stops each patch at
-# the natural end). S_FITMAP=x turns on the S-fitmap test with
-# κ = x·κ₀ (hidden option --s-fitmap; off by default, see
+# the natural end). S_FITMAP=x sets the S-fitmap test's κ = x·κ₀
+# (hidden option --s-fitmap; default 1.55, 0 turns it off; see
 # `SimplifyOptions::s_fitmap_scale` for the measured trade-off).
+# Adaptivity (issue 4: "patches visibly smaller where F_S is large"):
+# adaptivity_spearman = Spearman(patch radius, 1/F_S) over the final
+# patches, radius_ratio_fs_quartiles = mean radius of the top F_S quartile
+# over the bottom one (below 1: adapts), sd_log_fs_* = spread of ln F_S
+# over the patches and over M's vertices.
+# The cache is keyed by vertex count and tau only: delete target/fitmaps
+# after any change to the Fitmap code (F_S's fit changed 2026-11-22).
 # Usage: [FIT=1] [S_FITMAP=x] bench/simplify.sh [DATA_DIR]
 set -euo pipefail
 root=$(cd "$(dirname "$0")/.." && pwd)

@@ -234,7 +234,9 @@ pub struct Fitmap {
     /// exponential spacing in between (§3.1.2).
     pub radii: Vec<f64>,
     /// F_S = a^(1/4), `a` the least-squares fit of `E(r) = a r⁴` over the
-    /// radii with a well-posed cubic (§3.1.2). Units: 1 / length^(3/4).
+    /// radii with a well-posed cubic (§3.1.2), in log space so that it
+    /// predicts the error at patch-size radii (see `s_from_errors`).
+    /// Units: 1 / length^(3/4).
     pub s: Vec<f64>,
     /// F_M = `radii[m_step]`: literally §3.1.3, "the largest tested radius
     /// at which the portion of neighbourhood covered by flipping faces is
