@@ -96,7 +96,7 @@ fn compress(rows: Vec<Row>, nrhs: usize) -> Vec<Row> {
                 d -= g[k * c + i] * g[k * c + i];
             }
         }
-        if !(d > floor) {
+        if d.is_nan() || d <= floor {
             continue;
         }
         kept[i] = true;
@@ -173,10 +173,12 @@ mod tests {
             .map(|g| {
                 (0..per)
                     .map(|_| {
-                        let mut e: Vec<(u32, f64)> = (0..width)
-                            .filter(|_| rng(&mut s) > -0.6)
-                            .map(|k| ((g * width / 2 + k) as u32 + 2, rng(&mut s)))
-                            .collect();
+                        let mut e: Vec<(u32, f64)> = Vec::new();
+                        for k in 0..width {
+                            if rng(&mut s) > -0.6 {
+                                e.push(((g * width / 2 + k) as u32 + 2, rng(&mut s)));
+                            }
+                        }
                         if g == 0 {
                             let v = rng(&mut s);
                             e.push((0, v));
