@@ -10,7 +10,9 @@
 # displaced (D) surfaces in ‰ of the bounding-box diagonal (D also split by
 # direction, and D → M over the part of D whose samples projected onto M,
 # which leaves out the surface beyond M's boundary or over its holes) — plus wall
-# seconds and peak memory, and the paper's figures where it has them.
+# seconds, user CPU seconds (the figure to compare on a shared machine, where
+# wall time grows with the load) and peak memory, and the paper's figures
+# where it has them.
 #
 # Until `convert` exists, each mesh is run through `subdfit fit` from the
 # interpolating quad control mesh of §3.2 (examples/quad_control.rs): the
@@ -29,9 +31,9 @@ BIN=target/release/subdfit
 HAVE_CONVERT=0
 if "$BIN" convert --help >/dev/null 2>&1; then HAVE_CONVERT=1; fi
 
-timed() { # timed LOG cmd...: runs cmd, wall seconds and peak RSS (KiB) into LOG
+timed() { # timed LOG cmd...: runs cmd, wall seconds, peak RSS (KiB) and user CPU seconds into LOG
   local log=$1; shift
-  /usr/bin/time -f "%e %M" -o "$log" "$@"
+  /usr/bin/time -f "%e %M %U" -o "$log" "$@"
 }
 
 rows=()
@@ -63,11 +65,11 @@ paper = {
     ("gargoyle", "0.01"): (1096, 345, 0.0, 2.36, 0.07),
     ("gargoyle", "0.1"): (493, 182, 0.4, 4.50, 0.15),
 }
-hdr = f"{'Mesh (Δ)':<18} {'τ':>5} {'□K':>7} {'Irreg.':>7} {'Unp.%':>6} {'L ‰':>7} {'D ‰':>7} {'D s→M':>7} {'D M→s':>7} {'D over M':>8} {'s':>7} {'MB':>7}  mode      paper (□K irr unp L D)"
+hdr = f"{'Mesh (Δ)':<18} {'τ':>5} {'□K':>7} {'Irreg.':>7} {'Unp.%':>6} {'L ‰':>7} {'D ‰':>7} {'D s→M':>7} {'D M→s':>7} {'D over M':>8} {'s':>7} {'cpu s':>7} {'MB':>7}  mode      paper (□K irr unp L D)"
 print(hdr)
 print("-" * len(hdr))
 for row in sys.argv[1:]:
-    m, tau, mode, d, secs, kib = row.split()
+    m, tau, mode, d, secs, kib, cpu = row.split()
     r = json.load(open(f"{d}/report.json"))
     tris = r["input"].get("triangles", 0)
     name = f"{m} ({tris/1000:.0f}k)"
@@ -86,5 +88,5 @@ for row in sys.argv[1:]:
           f"{dis['surface_to_mesh']['rms_permille']:>7.3f} "
           f"{dis['mesh_to_surface']['rms_permille']:>7.3f} "
           f"{over_m:>8} "
-          f"{float(secs):>7.2f} {int(kib)/1024:>7.0f}  {mode:<9} {ptxt}")
+          f"{float(secs):>7.2f} {float(cpu):>7.2f} {int(kib)/1024:>7.0f}  {mode:<9} {ptxt}")
 PY

@@ -229,98 +229,99 @@ pub fn evaluate_surfaces(
         t.clamp(r.min(64), 64).max(r)
     });
     report_progress(progress, "displacement", 0.0)?;
-    let grid = PatchGrid::new(control, t)?;
-    let limit_pts = evaluator.evaluate(control.positions(), grid.locations())?;
-    let limit = TriMesh {
-        positions: limit_pts.iter().map(|p| p.position).collect(),
-        triangles: grid.triangles(),
-    };
-    let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
-    let mut displacement = compute_displacement(
-        control,
-        evaluator.as_ref(),
-        caster,
-        r,
-        max_dist,
-        diag,
-        0.5 * mean_edge_length(mesh),
-    )?;
-    if opts.offsets == OffsetMode::LeastSquares {
-        let st = refine_offsets(
-            mesh,
-            caster,
-            &mut displacement,
-            diag,
-            &LsqOffsetOptions::default(),
-        )?;
-        let max_abs = displacement
-            .offsets
-            .iter()
-            .fold(0.0f64, |m, d| m.max(d.abs()));
-        displacement.stats.max_abs_offset_permille = 1000.0 * max_abs / diag;
-        displacement.stats.least_squares = Some(st);
-    }
+    let edge = mean_edge_length(mesh);
+    // M's 3-point quadrature, the M → S samples of both L and D.
+    let (mp, mw) = quadrature_points(mesh);
+    // L (tessellation, accuracy, projectability) and D (displacement,
+    // least-squares offsets, accuracy) depend only on the control mesh and
+    // M, not on each other: they run side by side, which keeps both cores
+    // busy through the serial parts of each (OpenSubdiv's evaluation, the
+    // inpainting, Eigen's solve, the BVH builds). Each side is
+    // deterministic on its own, so the figures do not depend on the
+    // thread count.
+    let (limit_side, displaced_side) = rayon::join(
+        || -> Result<_> {
+            let grid = PatchGrid::new(control, t)?;
+            let limit_pts = evaluator.evaluate(control.positions(), grid.locations())?;
+            let limit = TriMesh {
+                positions: limit_pts.iter().map(|p| p.position).collect(),
+                triangles: grid.triangles(),
+            };
+            let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
+            let (acc, unreached) = rayon::join(
+                || limit_accuracy(caster, &limit, limit_caster.as_ref(), &mp, &mw, diag),
+                || {
+                    unprojectable_percent(
+                        mesh,
+                        caster,
+                        control,
+                        evaluator.as_ref(),
+                        &grid,
+                        limit_caster.as_ref(),
+                        max_dist,
+                        edge,
+                    )
+                },
+            );
+            Ok((limit, acc?, unreached?))
+        },
+        || -> Result<_> {
+            let mut displacement = compute_displacement(
+                control,
+                evaluator.as_ref(),
+                caster,
+                r,
+                max_dist,
+                diag,
+                0.5 * edge,
+            )?;
+            if opts.offsets == OffsetMode::LeastSquares {
+                let st = refine_offsets(
+                    mesh,
+                    caster,
+                    &mut displacement,
+                    diag,
+                    &LsqOffsetOptions::default(),
+                )?;
+                let max_abs = displacement
+                    .offsets
+                    .iter()
+                    .fold(0.0f64, |m, d| m.max(d.abs()));
+                displacement.stats.max_abs_offset_permille = 1000.0 * max_abs / diag;
+                displacement.stats.least_squares = Some(st);
+            }
+            // D: the displacement grid, each cell split along its shorter
+            // displaced diagonal (`PatchGrid::triangles_shorter_diagonal`).
+            let displaced_positions = displacement.displaced_positions();
+            let displaced = TriMesh {
+                triangles: displacement
+                    .grid
+                    .triangles_shorter_diagonal(&displaced_positions),
+                positions: displaced_positions,
+            };
+            let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
+            // D's S → M by the 3-point rule, kept per point for the breakdown.
+            let (dp, dw) = quadrature_points(&displaced);
+            let (dd, m2d) = rayon::join(
+                || closest_distances(&dp, caster),
+                || distance_stats(&mp, &mw, displaced_caster.as_ref(), diag),
+            );
+            let dd = dd?;
+            let acc = Accuracy::from_directions(stats_of(&dd, &dw, diag), m2d?);
+            let bd = breakdown(control, &displacement, &displaced, &dd, &dw, diag);
+            Ok((displacement, displaced, acc, bd))
+        },
+    );
+    let (limit, limit_acc, unprojectable_area_percent) = limit_side?;
+    let (displacement, displaced, displaced_acc, displaced_breakdown) = displaced_side?;
     report_progress(progress, "displacement", 1.0)?;
     report_progress(progress, "metrics", 0.0)?;
-    // D: the displacement grid, each cell split along its shorter
-    // displaced diagonal (`PatchGrid::triangles_shorter_diagonal`).
-    let displaced_positions = displacement.displaced_positions();
-    let displaced = TriMesh {
-        triangles: displacement
-            .grid
-            .triangles_shorter_diagonal(&displaced_positions),
-        positions: displaced_positions,
-    };
-    report_progress(progress, "metrics", 0.2)?;
-    let limit_acc = limit_accuracy(mesh, caster, &limit, limit_caster.as_ref(), diag)?;
-    report_progress(progress, "metrics", 0.5)?;
-    let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
-    // D's S → M by the 3-point rule, kept per point for the breakdown.
-    let (dp, dw) = quadrature_points(&displaced);
-    let dd = closest_distances(&dp, caster)?;
-    let (mp, mw) = quadrature_points(mesh);
-    let displaced_acc = Accuracy::from_directions(
-        stats_of(&dd, &dw, diag),
-        distance_stats(&mp, &mw, displaced_caster.as_ref(), diag)?,
-    );
-    let displaced_breakdown = breakdown(control, &displacement, &displaced, &dd, &dw, diag);
-    report_progress(progress, "metrics", 0.7)?;
-
-    // Projectability, see the module docs.
-    let areas = triangle_areas(mesh);
-    let centroids: Vec<DVec3> = (0..mesh.triangles.len())
-        .map(|t| {
-            let [a, b, c] = mesh.triangle(t);
-            (a + b + c) / 3.0
-        })
-        .collect();
-    let closest = limit_caster.closest_points(&centroids, f64::INFINITY)?;
-    let locations: Vec<_> = closest
-        .iter()
-        .map(|c| {
-            let c = c.ok_or_else(|| {
-                Error::backend("ray caster", "closest point query returned nothing")
-            })?;
-            Ok(grid.triangle_location(c.triangle as usize, c.u, c.v))
-        })
-        .collect::<Result<_>>()?;
-    let exact = evaluator.evaluate(control.positions(), &locations)?;
-    let (hits, _) = crate::project::project_along_normals(caster, &exact, max_dist)?;
-    let tol = mean_edge_length(mesh);
-    let total_area: f64 = areas.iter().sum();
-    let unreached: f64 = hits
-        .iter()
-        .zip(&centroids)
-        .zip(&areas)
-        .filter(|((h, c), _)| !matches!(h, Some(h) if (h.point - **c).length() <= tol))
-        // fold from +0.0: `Sum` of no f64 is -0.0.
-        .fold(0.0, |acc, (_, a)| acc + a);
     report_progress(progress, "metrics", 1.0)?;
     let metrics = Metrics {
         bbox_diagonal: diag,
         limit: limit_acc,
         displaced: displaced_acc,
-        unprojectable_area_percent: 100.0 * unreached / total_area.max(f64::MIN_POSITIVE),
+        unprojectable_area_percent,
         displacement: displacement.stats.clone(),
         tessellation_res: t,
         displaced_breakdown,
@@ -499,12 +500,14 @@ fn breakdown(
 }
 
 /// L's accuracy: its vertices (weighted by a third of their triangles'
-/// areas) to M, M's quadrature points to its tessellation (module docs).
+/// areas) to M (`mesh_caster`), M's quadrature points `mp` (weights `mw`,
+/// [`quadrature_points`]) to its tessellation (module docs).
 fn limit_accuracy(
-    mesh: &TriMesh,
     mesh_caster: &dyn RayCaster,
     surface: &TriMesh,
     surface_caster: &dyn RayCaster,
+    mp: &[DVec3],
+    mw: &[f64],
     diag: f64,
 ) -> Result<Accuracy> {
     let s2m = distance_stats(
@@ -513,9 +516,52 @@ fn limit_accuracy(
         mesh_caster,
         diag,
     )?;
-    let (mp, mw) = quadrature_points(mesh);
-    let m2s = distance_stats(&mp, &mw, surface_caster, diag)?;
+    let m2s = distance_stats(mp, mw, surface_caster, diag)?;
     Ok(Accuracy::from_directions(s2m, m2s))
+}
+
+/// Projectability (module docs): the percentage of M's area whose
+/// triangle centroids φ does not reach from L. `grid` is L's tessellation
+/// grid, `limit_caster` built over it; `tol` is M's mean edge length.
+#[allow(clippy::too_many_arguments)]
+fn unprojectable_percent(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    control: &ControlMesh,
+    evaluator: &dyn crate::subdiv::LimitEvaluator,
+    grid: &PatchGrid,
+    limit_caster: &dyn RayCaster,
+    max_dist: f64,
+    tol: f64,
+) -> Result<f64> {
+    let areas = triangle_areas(mesh);
+    let centroids: Vec<DVec3> = (0..mesh.triangles.len())
+        .map(|t| {
+            let [a, b, c] = mesh.triangle(t);
+            (a + b + c) / 3.0
+        })
+        .collect();
+    let closest = limit_caster.closest_points(&centroids, f64::INFINITY)?;
+    let locations: Vec<_> = closest
+        .iter()
+        .map(|c| {
+            let c = c.ok_or_else(|| {
+                Error::backend("ray caster", "closest point query returned nothing")
+            })?;
+            Ok(grid.triangle_location(c.triangle as usize, c.u, c.v))
+        })
+        .collect::<Result<_>>()?;
+    let exact = evaluator.evaluate(control.positions(), &locations)?;
+    let (hits, _) = crate::project::project_along_normals(caster, &exact, max_dist)?;
+    let total_area: f64 = areas.iter().sum();
+    let unreached: f64 = hits
+        .iter()
+        .zip(&centroids)
+        .zip(&areas)
+        .filter(|((h, c), _)| !matches!(h, Some(h) if (h.point - **c).length() <= tol))
+        // fold from +0.0: `Sum` of no f64 is -0.0.
+        .fold(0.0, |acc, (_, a)| acc + a);
+    Ok(100.0 * unreached / total_area.max(f64::MIN_POSITIVE))
 }
 
 /// The sample points and weights of the 3-point rule (module docs), three
@@ -598,13 +644,31 @@ pub fn peak_memory_mib() -> Option<f64> {
     Some(kb / 1024.0)
 }
 
-/// Wall time and peak memory of one stage. Peak memory is the process-wide
-/// high-water mark at the end of the stage (it never decreases: a stage's
-/// own peak is the first stage whose figure jumps).
+/// CPU time (user + system, all threads) this process has used so far, in
+/// seconds, from `/proc/self/stat` (fields 14 and 15, in clock ticks of
+/// 1/100 s, the Linux `USER_HZ` on every architecture it exports to user
+/// space); `None` where there is no procfs.
+pub fn process_cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // The command name (field 2) may hold spaces: count from its ')'.
+    let rest = &s[s.rfind(')')? + 1..];
+    let mut f = rest.split_whitespace().skip(11);
+    let utime: f64 = f.next()?.parse().ok()?;
+    let stime: f64 = f.next()?.parse().ok()?;
+    Some((utime + stime) / 100.0)
+}
+
+/// Wall time, CPU time and peak memory of one stage. Peak memory is the
+/// process-wide high-water mark at the end of the stage (it never
+/// decreases: a stage's own peak is the first stage whose figure jumps).
+/// CPU time is the whole process's (every thread) during the stage: on a
+/// machine shared with other work the wall time grows with the load, the
+/// CPU time much less, so it is the figure to compare runs by.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct StageStat {
     pub stage: String,
     pub seconds: f64,
+    pub cpu_seconds: Option<f64>,
     pub peak_memory_mib: Option<f64>,
 }
 
@@ -618,10 +682,12 @@ impl StageTimer {
     /// Runs `f` as stage `name`.
     pub fn run<T>(&mut self, name: &str, f: impl FnOnce() -> Result<T>) -> Result<T> {
         let t0 = Instant::now();
+        let c0 = process_cpu_seconds();
         let r = f()?;
         self.stages.push(StageStat {
             stage: name.to_string(),
             seconds: t0.elapsed().as_secs_f64(),
+            cpu_seconds: c0.zip(process_cpu_seconds()).map(|(a, b)| b - a),
             peak_memory_mib: peak_memory_mib(),
         });
         Ok(r)

@@ -93,74 +93,116 @@ pub fn write_outputs(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<PathBuf>> 
     result
 }
 
+/// One output file: its name and the code that writes it to a path.
+type Job<'a> = (
+    &'static str,
+    Box<dyn Fn(&Path) -> Result<()> + Send + Sync + 'a>,
+);
+
 fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<&'static str>> {
+    use rayon::prelude::*;
     let d = &out.surfaces.displacement;
     let atlas = Atlas::new(d.grid.num_patches(), d.grid.res(), DEFAULT_GUTTER)?;
     let uvs: Vec<_> = (0..d.grid.num_patches())
         .map(|f| atlas.corner_uvs(f))
         .collect();
-    let mut names = Vec::new();
-    let mut file = |name: &'static str| {
-        names.push(name);
-        dir.join(name)
-    };
+    let (atlas, uvs) = (&atlas, &uvs);
+    let mut jobs: Vec<Job<'_>> = Vec::new();
     match out.quad_control {
         None => {
-            write_control_obj_with_uvs(&file("control.obj"), out.control, &uvs)?;
-            write_usda(&file("control.usda"), out.control, Some(&uvs))?;
+            jobs.push((
+                "control.obj",
+                Box::new(move |p| write_control_obj_with_uvs(p, out.control, uvs)),
+            ));
+            jobs.push((
+                "control.usda",
+                Box::new(move |p| write_usda(p, out.control, Some(uvs))),
+            ));
         }
         Some(quads) => {
-            write_control_obj(&file("control.obj"), out.control)?;
-            write_usda(&file("control.usda"), out.control, None)?;
-            write_control_obj_with_uvs(&file("control_quads.obj"), quads, &uvs)?;
+            jobs.push((
+                "control.obj",
+                Box::new(move |p| write_control_obj(p, out.control)),
+            ));
+            jobs.push((
+                "control.usda",
+                Box::new(move |p| write_usda(p, out.control, None)),
+            ));
+            jobs.push((
+                "control_quads.obj",
+                Box::new(move |p| write_control_obj_with_uvs(p, quads, uvs)),
+            ));
         }
     }
-    let lim = &out.surfaces.limit;
-    write_ply(
-        &file("limit.ply"),
-        &lim.positions,
-        &lim.triangles,
-        &[],
-        None,
-    )?;
-    let dis = &out.surfaces.displaced;
-    let offsets: Vec<f32> = d.offsets.iter().map(|&x| x as f32).collect();
-    let projected: Vec<f32> = d
-        .projected
-        .iter()
-        .map(|&p| if p { 1.0 } else { 0.0 })
-        .collect();
-    write_ply(
-        &file("displaced.ply"),
-        &dis.positions,
-        &dis.triangles,
-        &[("displacement", &offsets), ("projected", &projected)],
-        None,
-    )?;
-    let texels = atlas.bake(d)?;
-    let exr = atlas.encode_exr(&texels)?;
-    let exr_path = file("displacement.exr");
-    write_atomically(&exr_path, |w| {
-        w.write_all(&exr).map_err(|e| Error::io(&exr_path, e))
-    })?;
+    jobs.push((
+        "limit.ply",
+        Box::new(move |p| {
+            let lim = &out.surfaces.limit;
+            write_ply(p, &lim.positions, &lim.triangles, &[], None)
+        }),
+    ));
+    jobs.push((
+        "displaced.ply",
+        Box::new(move |p| {
+            let dis = &out.surfaces.displaced;
+            let offsets: Vec<f32> = d.offsets.iter().map(|&x| x as f32).collect();
+            let projected: Vec<f32> = d
+                .projected
+                .iter()
+                .map(|&p| if p { 1.0 } else { 0.0 })
+                .collect();
+            write_ply(
+                p,
+                &dis.positions,
+                &dis.triangles,
+                &[("displacement", &offsets), ("projected", &projected)],
+                None,
+            )
+        }),
+    ));
+    jobs.push((
+        "displacement.exr",
+        Box::new(move |p| {
+            let exr = atlas.encode_exr(&atlas.bake(d)?)?;
+            write_atomically(p, |w| w.write_all(&exr).map_err(|e| Error::io(p, e)))
+        }),
+    ));
     if let Some(fm) = out.fitmap {
-        let s: Vec<f32> = fm.s.iter().map(|&x| x as f32).collect();
-        let m: Vec<f32> = fm.m.iter().map(|&x| x as f32).collect();
-        write_ply(
-            &file("fitmap.ply"),
-            &out.mesh.positions,
-            &out.mesh.triangles,
-            &[("s", &s), ("m", &m)],
-            None,
-        )?;
+        jobs.push((
+            "fitmap.ply",
+            Box::new(move |p| {
+                let s: Vec<f32> = fm.s.iter().map(|&x| x as f32).collect();
+                let m: Vec<f32> = fm.m.iter().map(|&x| x as f32).collect();
+                write_ply(
+                    p,
+                    &out.mesh.positions,
+                    &out.mesh.triangles,
+                    &[("s", &s), ("m", &m)],
+                    None,
+                )
+            }),
+        ));
     }
-    let json = serde_json::to_string_pretty(out.report)
-        .map_err(|e| Error::InvalidArgument(format!("report.json: {e}")))?;
-    let report_path = file("report.json");
-    write_atomically(&report_path, |w| {
-        w.write_all(json.as_bytes())
-            .and_then(|_| w.write_all(b"\n"))
-            .map_err(|e| Error::io(&report_path, e))
-    })?;
-    Ok(names)
+    jobs.push((
+        "report.json",
+        Box::new(move |p| {
+            let json = serde_json::to_string_pretty(out.report)
+                .map_err(|e| Error::InvalidArgument(format!("report.json: {e}")))?;
+            write_atomically(p, |w| {
+                w.write_all(json.as_bytes())
+                    .and_then(|_| w.write_all(b"\n"))
+                    .map_err(|e| Error::io(p, e))
+            })
+        }),
+    ));
+    // The files are independent: written side by side (encoding the EXR
+    // and formatting the PLYs is most of the time), each into its own
+    // staging path, so every file's bytes are the same as written one after
+    // the other. The first error in the list's order is the one reported.
+    jobs.par_iter()
+        .map(|(name, job)| job(&dir.join(name)))
+        .collect::<Vec<Result<()>>>()
+        .into_iter()
+        .collect::<Result<()>>()?;
+    Ok(jobs.iter().map(|(name, _)| *name).collect())
 }
