@@ -160,25 +160,39 @@ impl Cubic {
         out.reserve(qs.len());
         let mut chunks = qs.chunks_exact(L);
         for q in &mut chunks {
-            let mut p: [DVec2; L] = std::array::from_fn(|l| DVec2::new(q[l].x, q[l].y));
-            let mut live = [true; L];
-            for _ in 0..FOOT_POINT_ITERATIONS {
-                for l in 0..L {
-                    if live[l] {
-                        let (next, done) = self.foot_point_step(p[l], q[l], max_step);
-                        p[l] = next;
-                        live[l] = !done;
-                    }
-                }
-                if !live.iter().any(|&a| a) {
-                    break;
+            out.extend_from_slice(&self.foot_point_lanes(std::array::from_fn(|l| q[l]), max_step));
+        }
+        let rest = chunks.remainder();
+        if let Some(&last) = rest.last() {
+            // The last partial group, padded with copies of its last point
+            // (lanes are independent; the copies are dropped).
+            let q = std::array::from_fn(|l| rest.get(l).copied().unwrap_or(last));
+            out.extend_from_slice(&self.foot_point_lanes(q, max_step)[..rest.len()]);
+        }
+    }
+
+    /// [`Cubic::foot_point`] of [`FOOT_POINT_LANES`] points in lockstep.
+    #[inline(always)]
+    fn foot_point_lanes(
+        &self,
+        q: [DVec3; FOOT_POINT_LANES],
+        max_step: f64,
+    ) -> [DVec2; FOOT_POINT_LANES] {
+        let mut p = q.map(|q| DVec2::new(q.x, q.y));
+        let mut live = [true; FOOT_POINT_LANES];
+        for _ in 0..FOOT_POINT_ITERATIONS {
+            for l in 0..FOOT_POINT_LANES {
+                if live[l] {
+                    let (next, done) = self.foot_point_step(p[l], q[l], max_step);
+                    p[l] = next;
+                    live[l] = !done;
                 }
             }
-            out.extend_from_slice(&p);
+            if !live.iter().any(|&a| a) {
+                break;
+            }
         }
-        for &q in chunks.remainder() {
-            out.push(self.foot_point(q, max_step));
-        }
+        p
     }
 
     /// One Newton step of [`Cubic::foot_point`] from `p`: the new point and
