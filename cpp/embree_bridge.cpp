@@ -264,37 +264,44 @@ void EmbreeScene::intersect(rust::Slice<const float> rays, rust::Slice<float> ou
   check(device_, "rtcIntersect1");
 }
 
-void EmbreeScene::occluded(rust::Slice<const float> rays, rust::Slice<uint8_t> out_hit) const {
+void EmbreeScene::occluded_lines(rust::Slice<const float> rays,
+                                 rust::Slice<uint8_t> out_blocked) const {
   const size_t n = rays.size() / 8;
-  if (rays.size() != 8 * n || out_hit.size() != n)
-    throw std::invalid_argument("embree occluded: buffer sizes disagree");
+  if (rays.size() != 8 * n || out_blocked.size() != n)
+    throw std::invalid_argument("embree occluded_lines: buffer sizes disagree");
   FtzDazGuard ftz;
   RTCIntersectContext ctx;
   rtcInitIntersectContext(&ctx);
   for (size_t i = 0; i < n; ++i) {
     const float *r = &rays[8 * i];
-    out_hit[i] = 0;
+    out_blocked[i] = 0;
     // Same validity rule as `intersect`: an invalid ray is a miss.
     if (!valid_ray(r))
       continue;
     // rtcOccluded1 reports a hit iff rtcIntersect1 on the same ray would
     // (same robust triangle test over the same [tnear, tfar]; Embree 3
-    // sets tfar = -inf on a hit), without searching for the closest one.
-    RTCRay ray;
-    ray.org_x = r[0];
-    ray.org_y = r[1];
-    ray.org_z = r[2];
-    ray.tnear = r[3];
-    ray.dir_x = r[4];
-    ray.dir_y = r[5];
-    ray.dir_z = r[6];
-    ray.tfar = r[7];
-    ray.time = 0.0f;
-    ray.mask = 0xffffffffu;
-    ray.id = 0;
-    ray.flags = 0;
-    rtcOccluded1(scene_, &ctx, &ray);
-    out_hit[i] = ray.tfar < 0.0f ? 1 : 0;
+    // sets tfar = -inf on a hit). Negating an f32 direction is exact, so
+    // the reversed ray equals the one the Rust side would encode for -dir.
+    for (float sign : {1.0f, -1.0f}) {
+      RTCRay ray;
+      ray.org_x = r[0];
+      ray.org_y = r[1];
+      ray.org_z = r[2];
+      ray.tnear = r[3];
+      ray.dir_x = sign * r[4];
+      ray.dir_y = sign * r[5];
+      ray.dir_z = sign * r[6];
+      ray.tfar = r[7];
+      ray.time = 0.0f;
+      ray.mask = 0xffffffffu;
+      ray.id = 0;
+      ray.flags = 0;
+      rtcOccluded1(scene_, &ctx, &ray);
+      if (ray.tfar < 0.0f) {
+        out_blocked[i] = 1;
+        break;
+      }
+    }
   }
   check(device_, "rtcOccluded1");
 }

@@ -32,10 +32,12 @@ public:
   void intersect(rust::Slice<const float> rays, rust::Slice<float> out_tuv,
                  rust::Slice<uint32_t> out_prim) const;
 
-  /// rays: as for `intersect`. out_hit[i] = 1 when anything lies on ray i
-  /// within [tnear, tfar], else 0 (rtcOccluded1: any hit, no closest-hit
-  /// search).
-  void occluded(rust::Slice<const float> rays, rust::Slice<uint8_t> out_hit) const;
+  /// rays: as for `intersect`. out_blocked[i] = 1 when anything lies on the
+  /// *line* segment of ray i in either direction (the ray, or the ray with
+  /// its direction negated, over the same [tnear, tfar]), else 0. Uses
+  /// rtcOccluded1 (any hit, no closest-hit search) and skips the reversed
+  /// ray once the forward one is blocked.
+  void occluded_lines(rust::Slice<const float> rays, rust::Slice<uint8_t> out_blocked) const;
 
   /// points_f32: 3 floats per point in the translated frame (for Embree's
   /// BVH); points_f64: the same points untranslated, for the exact distance.

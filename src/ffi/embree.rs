@@ -32,9 +32,9 @@ pub(crate) mod bridge {
             out_prim: &mut [u32],
         ) -> Result<()>;
 
-        /// `rays` as for `intersect`; `out_hit[i]` = 1 when the ray hits
-        /// anything within `[tnear, tfar]` (rtcOccluded1, any hit).
-        fn occluded(self: &EmbreeScene, rays: &[f32], out_hit: &mut [u8]) -> Result<()>;
+        /// `rays` as for `intersect`; `out_blocked[i]` = 1 when the ray or
+        /// its reverse (same `[tnear, tfar]`) hits anything (rtcOccluded1).
+        fn occluded_lines(self: &EmbreeScene, rays: &[f32], out_blocked: &mut [u8]) -> Result<()>;
 
         /// Closest triangle within `max_dist` of each point (`u32::MAX` if
         /// none); `points_f32` translated, `points_f64` untranslated.

@@ -96,58 +96,19 @@ impl EmbreeCaster {
         }
     }
 
-    /// Appends one ray in the bridge's 8-f32 layout (translated frame).
-    #[inline]
-    fn push_ray(&self, buf: &mut Vec<f32>, origin: DVec3, tmin: f64, dir: DVec3, tmax: f64) {
-        let o = (origin - self.center).as_vec3();
-        let d = dir.as_vec3();
-        buf.extend_from_slice(&[o.x, o.y, o.z, tmin as f32, d.x, d.y, d.z, tmax as f32]);
-    }
-
-    /// [`RayCaster::lines_blocked`] for one chunk. A line whose segment
-    /// starts at its origin (`tmin = 0`, finite `tmax`: every M-test line
-    /// of the Fitmap) is the single segment `origin + t dir`, `t` in
-    /// `[-tmax, tmax]`, and is traced as *one* ray from `origin - tmax dir`
-    /// over `[0, 2 tmax]` (the start computed in f64): one any-hit query
-    /// instead of a forward and a reverse one, each of which would descend
-    /// the BVH from its root. Embree's robust triangle test reports a hit
-    /// anywhere on the segment either way; only the f32 rounding of the
-    /// ray's start differs (its ends move by an f32 ulp of the
-    /// coordinates), so a verdict can change only for a sheet of M within
-    /// about 1e-7 of the model's size of one end of the segment. Other
-    /// lines (`tmin > 0`, infinite `tmax`) are two rays, one each way.
     fn blocked_chunk(&self, rays: &[Ray], out: &mut [bool]) -> Result<()> {
         thread_local! {
-            #[allow(clippy::type_complexity)]
-            static BUF: std::cell::RefCell<(Vec<f32>, Vec<u8>, Vec<u32>)> =
-                const { std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new())) };
+            static BUF: std::cell::RefCell<(Vec<f32>, Vec<u8>)> =
+                const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
         }
         BUF.with(|b| {
-            let (buf, flags, owner) = &mut *b.borrow_mut();
-            buf.clear();
-            owner.clear();
-            for (i, r) in rays.iter().enumerate() {
-                if !r.is_valid() {
-                    continue; // a miss, as in `first_hits`
-                }
-                let start = r.origin - r.tmax * r.dir;
-                if r.tmin == 0.0 && start.is_finite() && (2.0 * r.tmax).is_finite() {
-                    self.push_ray(buf, start, 0.0, r.dir, 2.0 * r.tmax);
-                    owner.push(i as u32);
-                } else {
-                    self.push_ray(buf, r.origin, r.tmin, r.dir, r.tmax);
-                    self.push_ray(buf, r.origin, r.tmin, -r.dir, r.tmax);
-                    owner.extend([i as u32, i as u32]);
-                }
-            }
+            let (buf, flags) = &mut *b.borrow_mut();
+            self.encode_rays(rays, buf);
             flags.clear();
-            flags.resize(owner.len(), 0);
-            self.scene.occluded(buf, flags).map_err(backend_err)?;
-            out.fill(false);
-            for (&k, &f) in owner.iter().zip(flags.iter()) {
-                if f != 0 {
-                    out[k as usize] = true;
-                }
+            flags.resize(rays.len(), 0);
+            self.scene.occluded_lines(buf, flags).map_err(backend_err)?;
+            for (o, &f) in out.iter_mut().zip(flags.iter()) {
+                *o = f != 0;
             }
             Ok(())
         })

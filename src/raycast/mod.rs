@@ -144,8 +144,8 @@ pub trait RayCaster: Send + Sync {
     /// cleared and refilled (a caller's reusable buffer).
     ///
     /// The default goes through [`RayCaster::first_hits`]; Embree overrides
-    /// it with any-hit queries (rtcOccluded1), one ray over the whole
-    /// segment where `tmin = 0`.
+    /// it with any-hit queries (rtcOccluded1) that also skip the reversed
+    /// ray once the forward one is blocked.
     fn lines_blocked(&self, rays: &[Ray], out: &mut Vec<bool>) -> Result<()> {
         let mut both = Vec::with_capacity(2 * rays.len());
         for r in rays {
