@@ -172,6 +172,7 @@ impl Cubic {
     }
 
     /// [`Cubic::foot_point`] of [`FOOT_POINT_LANES`] points in lockstep.
+    #[allow(clippy::needless_range_loop)] // one lane index over three arrays
     #[inline(always)]
     fn foot_point_lanes(
         &self,
@@ -391,7 +392,10 @@ mod tests {
         assert_eq!(out.len(), qs.len());
         for (q, f) in qs.iter().zip(&out) {
             let g = c.foot_point(*q, 0.5);
-            assert_eq!((g.x.to_bits(), g.y.to_bits()), (f.x.to_bits(), f.y.to_bits()));
+            assert_eq!(
+                (g.x.to_bits(), g.y.to_bits()),
+                (f.x.to_bits(), f.y.to_bits())
+            );
         }
     }
 

@@ -628,9 +628,11 @@ fn triangle_verdicts(
             rays.clear();
             owner.clear();
             local.clear();
-            local.extend(pending.iter().map(|&(k, i)| {
-                frame.to_local(ctx.samples.of(tris[k as usize])[i as usize])
-            }));
+            local.extend(
+                pending
+                    .iter()
+                    .map(|&(k, i)| frame.to_local(ctx.samples.of(tris[k as usize])[i as usize])),
+            );
             // The round's foot points at once (independent Newton chains
             // overlap, `Cubic::foot_points`; the same values as one by one).
             cubic.foot_points(local, 0.5 * r, feet);
