@@ -137,45 +137,110 @@ impl Cubic {
     /// point good to a small fraction of the radius.
     pub fn foot_point(&self, q: DVec3, max_step: f64) -> DVec2 {
         let mut p = DVec2::new(q.x, q.y);
-        for _ in 0..8 {
-            let h = self.eval(p.x, p.y);
-            let g = self.grad(p.x, p.y);
-            let (huu, huv, hvv) = self.hessian(p.x, p.y);
-            let dz = h - q.z;
-            // Gradient and Hessian of 1/2 |(u, v, h) - q|^2.
-            let f = DVec2::new(p.x - q.x + dz * g.x, p.y - q.y + dz * g.y);
-            let a = 1.0 + g.x * g.x + dz * huu;
-            let b = g.x * g.y + dz * huv;
-            let d = 1.0 + g.y * g.y + dz * hvv;
-            let det = a * d - b * b;
-            let step = if det > 1e-12 && a > 0.0 {
-                DVec2::new((d * f.x - b * f.y) / det, (a * f.y - b * f.x) / det)
-            } else {
-                // Not locally convex: fall back to Gauss-Newton.
-                let (a, d) = (1.0 + g.x * g.x, 1.0 + g.y * g.y);
-                let b = g.x * g.y;
-                let det = a * d - b * b;
-                DVec2::new((d * f.x - b * f.y) / det, (a * f.y - b * f.x) / det)
-            };
-            let len = step.length();
-            let step = if len > max_step {
-                step * (max_step / len)
-            } else {
-                step
-            };
-            if !step.is_finite() {
-                break;
-            }
-            p -= step;
-            // 1e-9 of the radius: far below the grazing tolerance the
-            // M-test compares distances with (a tenth of an edge).
-            if len <= 1e-9 * self.scale {
+        for _ in 0..FOOT_POINT_ITERATIONS {
+            let (next, done) = self.foot_point_step(p, q, max_step);
+            p = next;
+            if done {
                 break;
             }
         }
         p
     }
+
+    /// [`Cubic::foot_point`] of every point of `qs` into `out` (cleared),
+    /// each the same value, bit for bit, as `foot_point(q, max_step)`.
+    /// Newton's iterations are a chain of dependent divisions and square
+    /// roots, so one foot point at a time leaves the CPU waiting on
+    /// latencies; here [`FOOT_POINT_LANES`] independent points advance in
+    /// lockstep (each lane runs the scalar step, stopping exactly where the
+    /// scalar loop would), and their chains overlap.
+    pub fn foot_points(&self, qs: &[DVec3], max_step: f64, out: &mut Vec<DVec2>) {
+        const L: usize = FOOT_POINT_LANES;
+        out.clear();
+        out.reserve(qs.len());
+        let mut chunks = qs.chunks_exact(L);
+        for q in &mut chunks {
+            out.extend_from_slice(&self.foot_point_lanes(std::array::from_fn(|l| q[l]), max_step));
+        }
+        let rest = chunks.remainder();
+        if let Some(&last) = rest.last() {
+            // The last partial group, padded with copies of its last point
+            // (lanes are independent; the copies are dropped).
+            let q = std::array::from_fn(|l| rest.get(l).copied().unwrap_or(last));
+            out.extend_from_slice(&self.foot_point_lanes(q, max_step)[..rest.len()]);
+        }
+    }
+
+    /// [`Cubic::foot_point`] of [`FOOT_POINT_LANES`] points in lockstep.
+    #[allow(clippy::needless_range_loop)] // one lane index over three arrays
+    #[inline(always)]
+    fn foot_point_lanes(
+        &self,
+        q: [DVec3; FOOT_POINT_LANES],
+        max_step: f64,
+    ) -> [DVec2; FOOT_POINT_LANES] {
+        let mut p = q.map(|q| DVec2::new(q.x, q.y));
+        let mut live = [true; FOOT_POINT_LANES];
+        for _ in 0..FOOT_POINT_ITERATIONS {
+            for l in 0..FOOT_POINT_LANES {
+                if live[l] {
+                    let (next, done) = self.foot_point_step(p[l], q[l], max_step);
+                    p[l] = next;
+                    live[l] = !done;
+                }
+            }
+            if !live.iter().any(|&a| a) {
+                break;
+            }
+        }
+        p
+    }
+
+    /// One Newton step of [`Cubic::foot_point`] from `p`: the new point and
+    /// whether the iteration stops there (converged, or a non-finite step,
+    /// which leaves `p` as it is).
+    #[inline(always)]
+    fn foot_point_step(&self, p: DVec2, q: DVec3, max_step: f64) -> (DVec2, bool) {
+        let h = self.eval(p.x, p.y);
+        let g = self.grad(p.x, p.y);
+        let (huu, huv, hvv) = self.hessian(p.x, p.y);
+        let dz = h - q.z;
+        // Gradient and Hessian of 1/2 |(u, v, h) - q|^2.
+        let f = DVec2::new(p.x - q.x + dz * g.x, p.y - q.y + dz * g.y);
+        let a = 1.0 + g.x * g.x + dz * huu;
+        let b = g.x * g.y + dz * huv;
+        let d = 1.0 + g.y * g.y + dz * hvv;
+        let det = a * d - b * b;
+        let step = if det > 1e-12 && a > 0.0 {
+            DVec2::new((d * f.x - b * f.y) / det, (a * f.y - b * f.x) / det)
+        } else {
+            // Not locally convex: fall back to Gauss-Newton.
+            let (a, d) = (1.0 + g.x * g.x, 1.0 + g.y * g.y);
+            let b = g.x * g.y;
+            let det = a * d - b * b;
+            DVec2::new((d * f.x - b * f.y) / det, (a * f.y - b * f.x) / det)
+        };
+        let len = step.length();
+        let step = if len > max_step {
+            step * (max_step / len)
+        } else {
+            step
+        };
+        if !step.is_finite() {
+            return (p, true);
+        }
+        // 1e-9 of the radius: far below the grazing tolerance the
+        // M-test compares distances with (a tenth of an edge).
+        (p - step, len <= 1e-9 * self.scale)
+    }
 }
+
+/// The most Newton steps of [`Cubic::foot_point`].
+const FOOT_POINT_ITERATIONS: usize = 8;
+
+/// Foot points computed in lockstep by [`Cubic::foot_points`]: enough
+/// independent chains to cover the latency of a division.
+pub const FOOT_POINT_LANES: usize = 4;
 
 /// Result of a least-squares cubic fit.
 #[derive(Copy, Clone, Debug, PartialEq)]
@@ -187,23 +252,33 @@ pub struct CubicFit {
     pub rms: f64,
 }
 
-#[allow(clippy::needless_range_loop)] // index loops mirror the Cholesky formulas
 /// Fits `h = g(u, v)` to local points `pts` (weights `w`, all 1 when
 /// `None`) by linear least squares (§3.1.2). `scale` > 0 is the
 /// neighbourhood radius. Returns `None` when the system is rank deficient
 /// (points on a line or a conic, too few points): such a neighbourhood has
 /// no well-posed cubic and the caller skips it.
 pub fn fit_cubic(pts: &[DVec3], w: Option<&[f64]>, scale: f64) -> Option<CubicFit> {
-    const N: usize = CUBIC_COEFFICIENTS;
-    if pts.len() < N || scale.is_nan() || scale <= 0.0 || !scale.is_finite() {
+    if pts.len() < CUBIC_COEFFICIENTS || scale.is_nan() || scale <= 0.0 || !scale.is_finite() {
         return None;
     }
+    // One copy per weighting: with unit weights the `1.0 *` products fold
+    // away (the same values: multiplying by 1 is exact).
+    match w {
+        None => fit_cubic_weighted(pts, |_| 1.0, scale),
+        Some(w) => fit_cubic_weighted(pts, |k| w[k], scale),
+    }
+}
+
+#[allow(clippy::needless_range_loop)] // index loops mirror the Cholesky formulas
+#[inline(always)]
+fn fit_cubic_weighted(pts: &[DVec3], w: impl Fn(usize) -> f64, scale: f64) -> Option<CubicFit> {
+    const N: usize = CUBIC_COEFFICIENTS;
     let inv = 1.0 / scale;
     // Normal equations in scaled coordinates (|x|, |y| <= ~1).
     let mut ata = [[0.0f64; N]; N];
     let mut atb = [0.0f64; N];
     for (k, p) in pts.iter().enumerate() {
-        let wk = w.map_or(1.0, |w| w[k]);
+        let wk = w(k);
         let m = monomials(p.x * inv, p.y * inv);
         let h = p.z * inv;
         for i in 0..N {
@@ -260,7 +335,7 @@ pub fn fit_cubic(pts: &[DVec3], w: Option<&[f64]>, scale: f64) -> Option<CubicFi
     // which would cancel catastrophically on near-exact fits).
     let (mut sr, mut sw) = (0.0, 0.0);
     for (k, p) in pts.iter().enumerate() {
-        let wk = w.map_or(1.0, |w| w[k]);
+        let wk = w(k);
         let r = cubic.eval(p.x, p.y) - p.z;
         sr += wk * r * r;
         sw += wk;
@@ -291,6 +366,37 @@ mod tests {
             .map(|k| DVec3::new(k as f64, 2.0 * k as f64, 0.0))
             .collect();
         assert!(fit_cubic(&line, None, 30.0).is_none());
+    }
+
+    /// The lockstep foot points are the scalar ones, bit for bit, whatever
+    /// the number of iterations each lane needs (points near and far from
+    /// the graph, a remainder after the last full group of lanes).
+    #[test]
+    fn foot_points_match_foot_point_bitwise() {
+        let c = Cubic {
+            coef: [0.01, 0.1, -0.05, 0.5, 0.2, -0.3, 0.1, -0.4, 0.2, 0.3],
+            scale: 2.0,
+        };
+        let qs: Vec<DVec3> = (0..4 * FOOT_POINT_LANES + 3)
+            .map(|k| {
+                let t = k as f64;
+                DVec3::new(
+                    (1.7 * t).sin() * 1.5,
+                    (0.9 * t).cos() * 1.2,
+                    (0.3 * t).sin() * 10f64.powi(k as i32 % 4 - 2),
+                )
+            })
+            .collect();
+        let mut out = Vec::new();
+        c.foot_points(&qs, 0.5, &mut out);
+        assert_eq!(out.len(), qs.len());
+        for (q, f) in qs.iter().zip(&out) {
+            let g = c.foot_point(*q, 0.5);
+            assert_eq!(
+                (g.x.to_bits(), g.y.to_bits()),
+                (f.x.to_bits(), f.y.to_bits())
+            );
+        }
     }
 
     #[test]

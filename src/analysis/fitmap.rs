@@ -81,7 +81,7 @@ use super::normals::{triangle_areas, vertex_normals};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
 use crate::raycast::{Ray, RayCaster};
-use crate::DVec3;
+use crate::{DVec2, DVec3};
 
 /// Number of radius steps `h`: radii `r_0..r_h` (Fitmaps §3.1.2, "h = 8").
 pub const RADIUS_STEPS: usize = 8;
@@ -340,19 +340,25 @@ struct Ctx<'a> {
     failure: std::sync::Mutex<Option<Error>>,
 }
 
+/// [`triangle_verdicts`]'s per-thread buffers: it runs thousands of times
+/// per vertex inside rayon jobs.
+#[derive(Default)]
+struct VerdictScratch {
+    /// The lines of one round.
+    rays: Vec<Ray>,
+    /// `(index into tris, sample)` of each line.
+    owner: Vec<(u32, u32)>,
+    /// The samples of the next round.
+    pending: Vec<(u32, u32)>,
+    blocked: Vec<bool>,
+    /// The pending samples in the frame, and their foot points.
+    local: Vec<DVec3>,
+    feet: Vec<DVec2>,
+}
+
 thread_local! {
-    /// [`triangle_verdicts`]'s per-thread buffers (rays, their (triangle,
-    /// sample), the (triangle, sample) pairs of the next round, verdicts):
-    /// it runs thousands of times per vertex inside rayon jobs.
-    #[allow(clippy::type_complexity)]
-    static VERDICT_SCRATCH: std::cell::RefCell<(
-        Vec<Ray>,
-        Vec<(u32, u32)>,
-        Vec<(u32, u32)>,
-        Vec<bool>,
-    )> = const {
-        std::cell::RefCell::new((Vec::new(), Vec::new(), Vec::new(), Vec::new()))
-    };
+    static VERDICT_SCRATCH: std::cell::RefCell<VerdictScratch> =
+        std::cell::RefCell::new(VerdictScratch::default());
 }
 
 impl Ctx<'_> {
@@ -385,6 +391,8 @@ struct Scratch {
     /// level-0 ball is tested ([`level0_triangles`]).
     sorted0: Vec<(f64, u32)>,
     tris: Vec<(f64, u32)>,
+    /// `(radius index << 32) | triangle` of `tris`, for sorting them.
+    tri_keys: Vec<u64>,
     /// Running sums of the areas of `tris` in order (the area-proportional
     /// draw of every level-0 ball: its table is a prefix of this one).
     tri_cum: Vec<f64>,
@@ -410,6 +418,7 @@ impl Scratch {
             sorted: Vec::new(),
             sorted0: Vec::new(),
             tris: Vec::new(),
+            tri_keys: Vec::new(),
             tri_cum: Vec::new(),
             pts: Vec::new(),
             w: Vec::new(),
@@ -583,7 +592,14 @@ fn triangle_verdicts(
     // inside, and a stolen job on this thread can re-enter here.
     let mut scratch = VERDICT_SCRATCH.with(|c| c.take());
     let out = (|| {
-        let (rays, owner, pending, blocked) = &mut scratch;
+        let VerdictScratch {
+            rays,
+            owner,
+            pending,
+            blocked,
+            local,
+            feet,
+        } = &mut scratch;
         // A triangle's verdict is an OR over its samples (reached when one
         // of them is within eps of the cubic, has no usable line, or has a
         // line that nothing blocks), so the order in which samples are
@@ -613,10 +629,16 @@ fn triangle_verdicts(
         while !pending.is_empty() {
             rays.clear();
             owner.clear();
-            for &(k, i) in pending.iter() {
-                let x = ctx.samples.of(tris[k as usize])[i as usize];
-                let q = frame.to_local(x);
-                let f = cubic.foot_point(q, 0.5 * r);
+            local.clear();
+            local.extend(
+                pending
+                    .iter()
+                    .map(|&(k, i)| frame.to_local(ctx.samples.of(tris[k as usize])[i as usize])),
+            );
+            // The round's foot points at once (independent Newton chains
+            // overlap, `Cubic::foot_points`; the same values as one by one).
+            cubic.foot_points(local, 0.5 * r, feet);
+            for ((&(k, i), &q), &f) in pending.iter().zip(local.iter()).zip(feet.iter()) {
                 let c = DVec3::new(f.x, f.y, cubic.eval(f.x, f.y));
                 let reach = (q - c).length() - eps;
                 if reach.is_nan() || reach <= 0.0 {
@@ -1141,6 +1163,13 @@ enum FastBall {
 fn level0_triangles(ctx: &Ctx, sc: &mut Scratch) {
     sc.tris.clear();
     sc.tri_cum.clear();
+    sc.tri_keys.clear();
+    // The keys of a layered ball are radii (`layered_balls`), and a
+    // triangle's key is the largest of its vertices' keys: the index of
+    // that radius orders the triangles as the key does. Sorting one integer
+    // `(radius index, triangle)` per triangle gives the (key, triangle)
+    // order without comparing floats.
+    let radii = &ctx.radii;
     for &(k, v) in &sc.sorted0 {
         sc.key_at[v as usize] = k;
     }
@@ -1154,13 +1183,19 @@ fn level0_triangles(ctx: &Ctx, sc: &mut Scratch) {
                     .map(|&w| sc.key_at[w as usize])
                     .fold(f64::NEG_INFINITY, f64::max);
                 if k.is_finite() {
-                    sc.tris.push((k, t));
+                    let layer = radii.partition_point(|&r| r < k);
+                    debug_assert_eq!(radii.get(layer), Some(&k), "layered keys are radii");
+                    sc.tri_keys.push(((layer as u64) << 32) | t as u64);
                 }
             }
         }
     }
-    sc.tris
-        .sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    sc.tri_keys.sort_unstable();
+    sc.tris.extend(
+        sc.tri_keys
+            .iter()
+            .map(|&key| (radii[(key >> 32) as usize], key as u32)),
+    );
     for &(_, v) in &sc.sorted0 {
         sc.key_at[v as usize] = f64::INFINITY;
     }

@@ -231,13 +231,18 @@ pub fn layered_balls(
             head += 1;
             for &w in adj.row(v) {
                 let wi = w as usize;
-                if mark[wi] == stamp {
+                // Visited, or pending: a pending vertex is outside the
+                // current radius (every pending vertex inside it was moved
+                // into the ball when this radius started, and the others
+                // were found outside it), so its distance need not be
+                // computed again.
+                if mark[wi] == stamp || pmark[wi] == stamp {
                     continue;
                 }
                 if (positions[wi] - centre).length_squared() <= r2 {
                     mark[wi] = stamp;
                     out.push((r, w));
-                } else if pmark[wi] != stamp {
+                } else {
                     pmark[wi] = stamp;
                     pending.push(w);
                 }
