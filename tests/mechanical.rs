@@ -502,3 +502,131 @@ fn fandisk_sdm_beats_point_distance() {
     );
     assert!(sdm[1].mean_permille <= 1.02 * point[1].mean_permille);
 }
+
+/// Diagnostic (`SUBDFIT_CT=1e-3 SUBDFIT_ST=2e-3 SUBDFIT_ME=3e-3 cargo test
+/// --release --test mechanical fandisk_sweep -- --ignored --nocapture`):
+/// fandisk's size, error, features and per-piece control points under the
+/// given curve tolerances and error limit.
+#[test]
+#[ignore]
+fn fandisk_sweep() {
+    let mesh = fandisk();
+    let caster =
+        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
+    let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f64>().ok());
+    let mut o = mechanical::MechanicalOptions::default();
+    if let Some(x) = env("SUBDFIT_CT") {
+        o.curve_tolerance = x;
+    }
+    if let Some(x) = env("SUBDFIT_ST") {
+        o.smooth_curve_tolerance = x;
+    }
+    if let Some(x) = env("SUBDFIT_ME") {
+        o.max_error = x;
+    }
+    let t = std::time::Instant::now();
+    let built = mechanical::build_control(&mesh, caster.as_ref(), &o).unwrap();
+    let secs = t.elapsed().as_secs_f64();
+    let s = &built.stats;
+    for p in &s.pieces {
+        println!(
+            "piece {:3} verts {:2} ctrl sharp {} err {:.3}",
+            p.polyline_vertices, p.control_points, p.sharp, p.max_error_permille
+        );
+    }
+    let (total, far, worst) = features_far(&mesh, &built);
+    let (mean, rms, max) = output_error(&mesh, &built);
+    println!(
+        "corners {} curves {} curve points {} initial {} F; {:?}",
+        s.corners, s.curves, s.curve_control_points, s.initial_faces, s.seconds
+    );
+    println!(
+        "RESULT {} V {} F mean {mean:.3} RMS {rms:.3} max {max:.2}; features {far}/{total} worst {worst:.3}; {secs:.2}s",
+        built.control.num_vertices(),
+        built.control.num_faces()
+    );
+}
+
+mod proto;
+
+/// Prototype comparison of curve fitters on fandisk's pieces.
+#[test]
+#[ignore]
+fn fandisk_curve_proto() {
+    let mesh = fandisk();
+    let topo = Topology::new(&mesh);
+    let curv = mechanical::vertex_curvatures(&mesh, &topo, &CurvatureOptions::default());
+    let seg = mechanical::segment(&mesh, &topo, &curv, &Default::default());
+    let sharp = topo.sharp_edges();
+    let net = mechanical::network::build_network(
+        &mesh,
+        &topo,
+        &seg.region,
+        seg.num_regions,
+        &sharp,
+        &[],
+    );
+    let diag = mesh.bbox_diagonal();
+    let env = |k: &str, d: f64| {
+        std::env::var(k)
+            .ok()
+            .and_then(|s| s.parse::<f64>().ok())
+            .unwrap_or(d)
+    };
+    let tol_old = env("OLD_TOL", 0.95e-3) * diag;
+    let tol_new = env("NEW_TOL", 0.97e-3) * diag;
+    let iters = env("ITERS", 30.0) as usize;
+    let (mut so, mut sn) = (0, 0);
+    let t0 = std::time::Instant::now();
+    let mut t_new = 0.0;
+    for p in &net.pieces {
+        let pts: Vec<DVec3> = p.verts.iter().map(|&v| mesh.positions[v as usize]).collect();
+        let is_sharp = p.verts.windows(2).all(|w| {
+            topo.vertex_edges(w[0]).iter().any(|&e| {
+                let ed = &topo.edges[e as usize];
+                (ed.v[0] == w[1] || ed.v[1] == w[1]) && sharp[e as usize]
+            })
+        });
+        if !is_sharp {
+            continue;
+        }
+        let lo = if p.closed || p.verts.first() == p.verts.last() { 4 } else { 2 };
+        let old = curves::fit_curve(&pts, p.closed, tol_old, lo);
+        let dense = proto::densify(&pts, p.closed, 4);
+        let od = proto::max_dist(&old.control, p.closed, &dense);
+        let t1 = std::time::Instant::now();
+        let (nn, nd) = proto::fit_min(&pts, p.closed, lo, tol_new, iters);
+        t_new += t1.elapsed().as_secs_f64();
+        so += old.control.len();
+        let mut nn = nn;
+        if nn >= 4 && !p.closed {
+            let m = pts.len();
+            let mut best = (nn, 0usize);
+            for k in 2..m - 2 {
+                let (a, _) = proto::fit_min(&pts[..=k], false, 2, tol_new, iters);
+                if a >= best.0 {
+                    continue;
+                }
+                let (b, _) = proto::fit_min(&pts[k..], false, 2, tol_new, iters);
+                if a + b - 1 < best.0 {
+                    best = (a + b - 1, k);
+                }
+            }
+            if best.0 < nn {
+                println!("  split at {} of {m}: {} -> {}", best.1, nn, best.0);
+                nn = best.0;
+            }
+        }
+        sn += nn;
+        println!(
+            "m {:3} closed {} old {:2} ({:.3}) new {:2} ({:.3})",
+            pts.len(),
+            p.closed,
+            old.control.len(),
+            1000.0 * od / diag,
+            nn,
+            1000.0 * nd / diag
+        );
+    }
+    println!("TOTAL old {so} new {sn}; {:.2}s (new {t_new:.2}s)", t0.elapsed().as_secs_f64());
+}

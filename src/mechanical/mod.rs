@@ -87,6 +87,13 @@ pub struct MechanicalOptions {
     /// with its 3 × 10⁻³ E_limit; on fandisk that is 101 control vertices
     /// instead of 122, with RMS 0.77‰ instead of 0.53‰).
     pub curve_tolerance: f64,
+    /// Largest distance from a feature line (a boundary piece made of sharp
+    /// edges of M: its vertices and points along its edges) to its fitted
+    /// curve, fraction of the diagonal: 0.97 × 10⁻³, the features-kept bar
+    /// (1‰) less a margin for the tessellation of the crease curve by which
+    /// it is checked (see [`curves::fit_feature`]). Measured as a true
+    /// point-to-curve distance, so no chord-to-arc room is needed.
+    pub feature_tolerance: f64,
     /// Largest distance to M of a curve along a smooth region boundary
     /// (no sharp edge on it: not a feature line), fraction of the
     /// diagonal: the paper's curve threshold, 2 × 10⁻³ (§8).
@@ -107,6 +114,7 @@ impl Default for MechanicalOptions {
         MechanicalOptions {
             max_error: DEFAULT_MAX_ERROR,
             curve_tolerance: 0.8e-3,
+            feature_tolerance: 0.97e-3,
             smooth_curve_tolerance: 2e-3,
             m0: DEFAULT_M0,
             max_rounds: DEFAULT_MAX_ROUNDS,
@@ -132,7 +140,11 @@ impl MechanicalOptions {
     }
     fn check(&self) -> Result<()> {
         let ok = |x: f64| x.is_finite() && x > 0.0 && x < 1.0;
-        if !ok(self.max_error) || !ok(self.curve_tolerance) || !ok(self.smooth_curve_tolerance) {
+        if !ok(self.max_error)
+            || !ok(self.curve_tolerance)
+            || !ok(self.feature_tolerance)
+            || !ok(self.smooth_curve_tolerance)
+        {
             return Err(Error::InvalidArgument(format!(
                 "mechanical: max_error {} and curve_tolerance {} must be in (0, 1) (fractions of the diagonal)",
                 self.max_error, self.curve_tolerance
@@ -264,6 +276,13 @@ struct PieceFits {
     fitted: Vec<curves::Curve>,
 }
 
+/// The curve tolerances of [`MechanicalOptions`] in units of M.
+struct Tols {
+    curve: f64,
+    feature: f64,
+    smooth: f64,
+}
+
 /// Fits one piece: against its polyline within `tol` when it is a feature
 /// line (`all_sharp`), and also within `tol` of M when it is not.
 ///
@@ -278,13 +297,13 @@ fn fit_one(
     closed: bool,
     min_n: usize,
     edge_sharp: &[bool],
-    tol: f64,
-    smooth_tol: f64,
+    tols: &Tols,
     caster: &dyn RayCaster,
 ) -> curves::Curve {
     if edge_sharp.iter().all(|&s| s) {
-        return curves::fit_curve(pts, closed, tol, min_n);
+        return curves::fit_feature(pts, closed, min_n, tols.feature);
     }
+    let (tol, smooth_tol) = (tols.curve, tols.smooth);
     // A piece mixing sharp and smooth edges (a feature line continued
     // across a smooth part, see `segment`): its vertices on a sharp edge
     // are feature points and keep `tol` to the polyline.
@@ -334,8 +353,7 @@ fn fit_pieces(
     sharp: &[bool],
     caster: &dyn RayCaster,
     net: &network::Network,
-    tol: f64,
-    smooth_tol: f64,
+    tols: &Tols,
 ) -> PieceFits {
     use rayon::prelude::*;
     let edge_sharp_of = |a: u32, b: u32| {
@@ -399,7 +417,7 @@ fn fit_pieces(
             .zip(mins)
             .zip(&smoothed)
             .zip(&edge_sharp)
-            .map(|(((p, &m), pp), es)| fit_one(pp, p.closed, m, es, tol, smooth_tol, caster))
+            .map(|(((p, &m), pp), es)| fit_one(pp, p.closed, m, es, tols, caster))
             .collect()
     };
     let mut fitted = fit_all(&mins);
@@ -437,8 +455,7 @@ fn kinks(
     net: &network::Network,
     f: &PieceFits,
     caster: &dyn RayCaster,
-    tol: f64,
-    smooth_tol: f64,
+    tols: &Tols,
 ) -> Vec<u32> {
     use rayon::prelude::*;
     let cos_min = KINK_MIN_TURN_DEG.to_radians().cos();
@@ -488,13 +505,13 @@ fn kinks(
                     q.extend_from_slice(&pp[..=k]);
                     let mut qs: Vec<bool> = es[k..].to_vec();
                     qs.extend_from_slice(&es[..k]);
-                    fit_one(&q, false, 4, &qs, tol, smooth_tol, caster)
+                    fit_one(&q, false, 4, &qs, tols, caster)
                         .control
                         .len()
                         - 1
                 } else {
-                    let l = fit_one(&pp[..=k], false, 2, &es[..k], tol, smooth_tol, caster);
-                    let r = fit_one(&pp[k..], false, 2, &es[k..m - 1], tol, smooth_tol, caster);
+                    let l = fit_one(&pp[..=k], false, 2, &es[..k], tols, caster);
+                    let r = fit_one(&pp[k..], false, 2, &es[k..m - 1], tols, caster);
                     l.control.len() + r.control.len() - 1
                 };
                 if cost < n && best.map_or(true, |b| cost < b.0) {
@@ -616,7 +633,11 @@ pub fn build_control(
     // feature gets a corner there when that saves control points (a cubic
     // B-spline needs many points to bend sharply, two straight halves need
     // none). Up to `KINK_PASSES` passes, each one corner per piece at most.
-    let tol = opts.curve_tolerance * diag;
+    let tols = Tols {
+        curve: opts.curve_tolerance * diag,
+        feature: opts.feature_tolerance * diag,
+        smooth: opts.smooth_curve_tolerance * diag,
+    };
     let nv = mesh.positions.len();
     let mut extra_corner = vec![false; nv];
     let mut net = network::build_network(
@@ -628,11 +649,10 @@ pub fn build_control(
         &extra_corner,
     );
     lap("segmentation", &mut t);
-    let smooth_tol = opts.smooth_curve_tolerance * diag;
-    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol, smooth_tol);
+    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols);
     let mut kink_corners = 0;
     for _ in 0..KINK_PASSES {
-        let found = kinks(&net, &stage, caster, tol, smooth_tol);
+        let found = kinks(&net, &stage, caster, &tols);
         if found.is_empty() {
             break;
         }
@@ -648,7 +668,7 @@ pub fn build_control(
             &sharp,
             &extra_corner,
         );
-        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol, smooth_tol);
+        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols);
     }
     let PieceFits {
         edge_sharp: _,
