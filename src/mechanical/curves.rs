@@ -635,12 +635,11 @@ fn fit_feature_n(
     let mut best = (c.clone(), t.clone(), f64::INFINITY);
     let mut last_gain = 0;
     for it in 0..FEATURE_ITERATIONS {
+        // Newton from the previous parameters (the chord-length ones the
+        // first fit was made with, at first): the curve moves little per
+        // step, and the global search is left to the final check.
         for (tj, &q) in t.iter_mut().zip(samples) {
-            if it == 0 {
-                *tj = foot_point(&c, closed, q).0;
-            } else {
-                newton_foot(&c, closed, q, tj);
-            }
+            newton_foot(&c, closed, q, tj);
         }
         let d: Vec<f64> = samples
             .iter()
@@ -677,8 +676,13 @@ fn fit_feature_n(
         }
     }
     // The largest distance measured from scratch (global foot points), so
-    // a Newton step caught on the wrong branch cannot understate it.
-    let (c, mut t, _) = best;
+    // a Newton step caught on the wrong branch cannot understate it; only
+    // for a curve that seems to pass (a global foot is never farther than a
+    // local one, so a rejection here at worst costs one control point).
+    let (c, mut t, local) = best;
+    if local > tol {
+        return (c, t, local);
+    }
     let mut dmax = 0.0f64;
     for (tj, &q) in t.iter_mut().zip(samples) {
         let (ft, fd) = foot_point(&c, closed, q);

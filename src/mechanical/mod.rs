@@ -276,6 +276,12 @@ struct PieceFits {
     fitted: Vec<curves::Curve>,
 }
 
+/// Curves already fitted, by piece (its vertices of M, closed, least
+/// control points): the kink passes of [`build_control`] rebuild the
+/// network and refit every piece, most of them unchanged. A fit depends
+/// only on its key, so the cache changes no result.
+type FitCache = std::sync::Mutex<HashMap<(Vec<u32>, bool, usize), curves::Curve>>;
+
 /// The curve tolerances of [`MechanicalOptions`] in units of M.
 struct Tols {
     curve: f64,
@@ -354,6 +360,7 @@ fn fit_pieces(
     caster: &dyn RayCaster,
     net: &network::Network,
     tols: &Tols,
+    cache: &FitCache,
 ) -> PieceFits {
     use rayon::prelude::*;
     let edge_sharp_of = |a: u32, b: u32| {
@@ -417,7 +424,17 @@ fn fit_pieces(
             .zip(mins)
             .zip(&smoothed)
             .zip(&edge_sharp)
-            .map(|(((p, &m), pp), es)| fit_one(pp, p.closed, m, es, tols, caster))
+            .map(|(((p, &m), pp), es)| {
+                let key = (p.verts.clone(), p.closed, m);
+                let hit = cache.lock().ok().and_then(|c| c.get(&key).cloned());
+                hit.unwrap_or_else(|| {
+                    let c = fit_one(pp, p.closed, m, es, tols, caster);
+                    if let Ok(mut cache) = cache.lock() {
+                        cache.insert(key, c.clone());
+                    }
+                    c
+                })
+            })
             .collect()
     };
     let mut fitted = fit_all(&mins);
@@ -640,6 +657,7 @@ pub fn build_control(
     };
     let nv = mesh.positions.len();
     let mut extra_corner = vec![false; nv];
+    let cache = FitCache::default();
     let mut net = network::build_network(
         mesh,
         &topo,
@@ -649,7 +667,7 @@ pub fn build_control(
         &extra_corner,
     );
     lap("segmentation", &mut t);
-    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols);
+    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols, &cache);
     let mut kink_corners = 0;
     for _ in 0..KINK_PASSES {
         let found = kinks(&net, &stage, caster, &tols);
@@ -668,7 +686,7 @@ pub fn build_control(
             &sharp,
             &extra_corner,
         );
-        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols);
+        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols, &cache);
     }
     let PieceFits {
         edge_sharp: _,
