@@ -609,19 +609,20 @@ fn cholesky_solve_scalar(mut a: Vec<f64>, n: usize, mut b: Vec<f64>) -> Option<V
     Some(b)
 }
 
-/// The curve with `n` control points whose largest distance to `samples`
-/// is smallest (as far as the iteration finds): `(control, params of the
-/// samples, largest distance)`. Starts from the point-distance fit with
-/// chord-length parameters, then alternates foot points (a global search
-/// first, Newton after) with the tangent-distance step under Lawson's
-/// minimax reweighting (weights times the distances, from the fourth
-/// iteration on); keeps the best iterate, and stops once it is within
-/// `0.9 · tol` or has not improved by 1 % in 5 iterations.
+/// The curve with `n` control points whose largest ratio of distance to
+/// tolerance over `samples` (`tol[j]` for sample `j`) is smallest, as far
+/// as the iteration finds: `(control, params of the samples, largest
+/// ratio)`. Starts from the point-distance fit with chord-length
+/// parameters, then alternates foot points (Newton from the previous
+/// parameters) with the tangent-distance step under Lawson's minimax
+/// reweighting (weights times the ratios, from the fourth iteration on);
+/// keeps the best iterate, and stops once every ratio is below 0.9 or the
+/// largest has not improved by 1 % in 5 iterations.
 fn fit_feature_n(
     samples: &[DVec3],
+    tol: &[f64],
     closed: bool,
     n: usize,
-    tol: f64,
 ) -> (Vec<DVec3>, Vec<f64>, f64) {
     let s = samples.len();
     let mut t = chord_params(samples, n, closed);
@@ -641,55 +642,59 @@ fn fit_feature_n(
         for (tj, &q) in t.iter_mut().zip(samples) {
             newton_foot(&c, closed, q, tj);
         }
-        let d: Vec<f64> = samples
+        let r: Vec<f64> = samples
             .iter()
             .zip(&t)
-            .map(|(&q, &tj)| (eval(&c, closed, tj) - q).length())
+            .zip(tol)
+            .map(|((&q, &tj), &e)| (eval(&c, closed, tj) - q).length() / e)
             .collect();
-        let dmax = d.iter().copied().fold(0.0, f64::max);
-        if dmax < best.2 {
-            if dmax < 0.99 * best.2 {
+        let rmax = r.iter().copied().fold(0.0, f64::max);
+        if rmax < best.2 {
+            if rmax < 0.99 * best.2 {
                 last_gain = it;
             }
-            best = (c.clone(), t.clone(), dmax);
+            best = (c.clone(), t.clone(), rmax);
         }
-        if !(dmax > 0.9 * tol) || it > last_gain + 4 {
+        if !(rmax > 0.9) || it > last_gain + 4 {
             break;
         }
         if it >= 3 {
             let mut sum = 0.0;
-            for (wj, dj) in w.iter_mut().zip(&d) {
-                *wj *= (dj / dmax).max(1e-3);
+            for (wj, rj) in w.iter_mut().zip(&r) {
+                *wj *= (rj / rmax).max(1e-3);
                 sum += *wj;
             }
             for wj in w.iter_mut() {
                 *wj *= s as f64 / sum;
             }
         }
+        // Tolerances scale the weights: a sample with twice the room
+        // counts a quarter as much.
+        let wt: Vec<f64> = w.iter().zip(tol).map(|(&wj, &e)| wj / (e * e)).collect();
         let tg: Vec<DVec3> = t
             .iter()
             .map(|&tj| eval_d(&c, closed, tj).normalize_or_zero())
             .collect();
-        match solve_tdm(samples, &t, &tg, &w, &c, closed, 0.1) {
+        match solve_tdm(samples, &t, &tg, &wt, &c, closed, 0.1) {
             Some(x) => c = x,
             None => break,
         }
     }
-    // The largest distance measured from scratch (global foot points), so
-    // a Newton step caught on the wrong branch cannot understate it; only
+    // The largest ratio measured from scratch (global foot points), so a
+    // Newton step caught on the wrong branch cannot understate it; only
     // for a curve that seems to pass (a global foot is never farther than a
     // local one, so a rejection here at worst costs one control point).
     let (c, mut t, local) = best;
-    if local > tol {
+    if local > 1.0 {
         return (c, t, local);
     }
-    let mut dmax = 0.0f64;
-    for (tj, &q) in t.iter_mut().zip(samples) {
+    let mut rmax = 0.0f64;
+    for ((tj, &q), &e) in t.iter_mut().zip(samples).zip(tol) {
         let (ft, fd) = foot_point(&c, closed, q);
         *tj = ft;
-        dmax = dmax.max(fd);
+        rmax = rmax.max(fd / e);
     }
-    (c, t, dmax)
+    (c, t, rmax)
 }
 
 /// Fits a feature line (§5): the fewest control points (from `min_n`,
@@ -700,35 +705,78 @@ fn fit_feature_n(
 ///
 /// Against [`fit_curve`] (least squares on the vertices with a
 /// parameter correspondence) this reaches the same tolerance with fewer
-/// points: fandisk's 31 feature lines need 122 control points instead of
-/// 140 at 0.95‰–0.97‰ (the tangent-distance step lets the curve slide
+/// points: fandisk's feature lines need 122 control points instead of
+/// 140 at 0.97‰ / 0.95‰ (the tangent-distance step lets the curve slide
 /// along the polyline, and the minimax weights spend the error budget
 /// evenly).
 pub fn fit_feature(points: &[DVec3], closed: bool, min_n: usize, tol: f64) -> Curve {
+    let edges = if closed {
+        points.len()
+    } else {
+        points.len().saturating_sub(1)
+    };
+    fit_samples_until(points, closed, min_n, &vec![tol; edges], &|_| true)
+}
+
+/// [`fit_feature`] with a tolerance per polyline edge (`edge_tol[k]` for
+/// edge `k → k+1`; a vertex takes the smaller of its edges') and a further
+/// condition `accept` on the curve (checked once the tolerances hold).
+/// `Curve::max_error` is the largest distance over the samples.
+pub fn fit_samples_until(
+    points: &[DVec3],
+    closed: bool,
+    min_n: usize,
+    edge_tol: &[f64],
+    accept: &dyn Fn(&Curve) -> bool,
+) -> Curve {
     let m = points.len();
     let k = FEATURE_SAMPLES_PER_EDGE;
     let samples = densify(points, closed, k);
+    let segs = edge_tol.len();
+    let tol: Vec<f64> = (0..samples.len())
+        .map(|j| {
+            let e = j / k;
+            let here = edge_tol.get(e.min(segs.saturating_sub(1))).copied();
+            let before = if j % k == 0 && (e > 0 || closed) {
+                edge_tol.get((e + segs - 1) % segs.max(1)).copied()
+            } else {
+                None
+            };
+            match (here, before) {
+                (Some(a), Some(b)) => a.min(b),
+                (Some(a), None) | (None, Some(a)) => a,
+                (None, None) => f64::INFINITY,
+            }
+            .max(f64::MIN_POSITIVE)
+        })
+        .collect();
     let lo = if closed { min_n.max(3) } else { min_n.max(2) };
     let cap = lo.max(m);
     let mut n = lo;
     loop {
-        let (control, sp, err) = fit_feature_n(&samples, closed, n, tol);
-        if err <= tol || n >= cap {
-            let mut params: Vec<f64> = (0..m).map(|j| sp[(j * k).min(sp.len() - 1)]).collect();
-            if closed {
-                for t in params.iter_mut() {
-                    *t = t.rem_euclid(n as f64);
-                }
-            } else {
-                params[0] = 0.0;
-                params[m - 1] = (n - 1) as f64;
+        let (control, sp, ratio) = fit_feature_n(&samples, &tol, closed, n);
+        let mut params: Vec<f64> = (0..m).map(|j| sp[(j * k).min(sp.len() - 1)]).collect();
+        if closed {
+            for t in params.iter_mut() {
+                *t = t.rem_euclid(n as f64);
             }
-            return Curve {
-                control,
-                closed,
-                params,
-                max_error: err,
-            };
+        } else {
+            params[0] = 0.0;
+            params[m - 1] = (n - 1) as f64;
+        }
+        let max_error = samples
+            .iter()
+            .zip(&sp)
+            .map(|(&q, &t)| (eval(&control, closed, t) - q).length())
+            .fold(0.0, f64::max);
+        let curve = Curve {
+            control,
+            closed,
+            params,
+            max_error,
+        };
+        if n >= cap || (ratio <= 1.0 && accept(&curve)) {
+            return curve;
         }
         n += 1;
     }

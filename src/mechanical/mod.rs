@@ -289,15 +289,20 @@ struct Tols {
     smooth: f64,
 }
 
-/// Fits one piece: against its polyline within `tol` when it is a feature
-/// line (`all_sharp`), and also within `tol` of M when it is not.
+/// Fits one piece (§5) with the fewest control points
+/// ([`curves::fit_samples_until`]).
 ///
-/// A piece without any sharp edge is no feature line (the features-kept
-/// bar does not apply to it) and only has to lie on M within
-/// `smooth_tol`, the paper's curve threshold (§8: 2 × 10⁻³, "coherent"
-/// with `E_limit`), so that the smooth region boundaries cost as few
-/// fixed control points as the fit allows.
-#[allow(clippy::too_many_arguments)]
+/// Along its sharp edges (a feature line) the curve passes within
+/// `tols.feature` of every point of the polyline, the features-kept bar.
+/// Elsewhere a boundary is no feature line: the (smoothed) polyline only
+/// says where the boundary runs, within half its mean edge length (the
+/// zigzag's amplitude, what the region reach of `optimize` covers) is as
+/// good as on it, and what must hold is that the curve lies on M within
+/// `tols.smooth`, the paper's curve threshold (§8: 2 × 10⁻³, "coherent"
+/// with `E_limit`), so that smooth region boundaries cost as few fixed
+/// control points as the fit allows. A piece mixing both (a feature line
+/// continued across a smooth part, see `segment`) gets each tolerance on
+/// its own edges.
 fn fit_one(
     pts: &[DVec3],
     closed: bool,
@@ -309,45 +314,18 @@ fn fit_one(
     if edge_sharp.iter().all(|&s| s) {
         return curves::fit_feature(pts, closed, min_n, tols.feature);
     }
-    let (tol, smooth_tol) = (tols.curve, tols.smooth);
-    // A piece mixing sharp and smooth edges (a feature line continued
-    // across a smooth part, see `segment`): its vertices on a sharp edge
-    // are feature points and keep `tol` to the polyline.
-    let m = pts.len();
-    let on_feature: Vec<usize> = (0..m)
-        .filter(|&k| {
-            let before = if k > 0 {
-                edge_sharp.get(k - 1)
-            } else if closed {
-                edge_sharp.last()
-            } else {
-                None
-            };
-            before.copied().unwrap_or(false) || edge_sharp.get(k).copied().unwrap_or(false)
-        })
-        .collect();
-    let feature_ok = |c: &curves::Curve| {
-        on_feature
-            .iter()
-            .all(|&k| (curves::eval(&c.control, c.closed, c.params[k]) - pts[k]).length() <= tol)
-    };
-    let smooth_tol = if on_feature.is_empty() {
-        smooth_tol.max(tol)
-    } else {
-        tol
-    };
-    // Off the features the (smoothed) polyline only says where the
-    // boundary runs: within half its mean edge length (the zigzag's
-    // amplitude, what the region reach of `optimize` covers) is as good as
-    // on it; what must hold to `tol` is that the curve lies on M.
     let m = pts.len();
     let segs = if closed { m } else { m - 1 };
     let len: f64 = (0..segs)
         .map(|k| (pts[(k + 1) % m] - pts[k]).length())
         .sum();
-    let loose = tol.max(0.5 * len / segs.max(1) as f64);
-    curves::fit_curve_until(pts, closed, min_n, &|c: &curves::Curve| {
-        c.max_error <= loose && feature_ok(c) && curve_to_mesh(c, caster) <= smooth_tol
+    let loose = tols.curve.max(0.5 * len / segs.max(1) as f64);
+    let edge_tol: Vec<f64> = edge_sharp
+        .iter()
+        .map(|&s| if s { tols.feature } else { loose })
+        .collect();
+    curves::fit_samples_until(pts, closed, min_n, &edge_tol, &|c: &curves::Curve| {
+        curve_to_mesh(c, caster) <= tols.smooth
     })
 }
 
