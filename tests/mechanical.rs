@@ -515,14 +515,17 @@ fn fandisk_sweep() {
         subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
     let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f64>().ok());
     let mut o = mechanical::MechanicalOptions::default();
+    if let Some(x) = env("SUBDFIT_ME") {
+        o = o.with_max_error(x);
+    }
     if let Some(x) = env("SUBDFIT_CT") {
         o.curve_tolerance = x;
     }
     if let Some(x) = env("SUBDFIT_ST") {
         o.smooth_curve_tolerance = x;
     }
-    if let Some(x) = env("SUBDFIT_ME") {
-        o.max_error = x;
+    if let Some(x) = env("SUBDFIT_FT") {
+        o.feature_tolerance = x;
     }
     let t = std::time::Instant::now();
     let built = mechanical::build_control(&mesh, caster.as_ref(), &o).unwrap();
@@ -532,6 +535,18 @@ fn fandisk_sweep() {
         println!(
             "piece {:3} verts {:2} ctrl sharp {} err {:.3}",
             p.polyline_vertices, p.control_points, p.sharp, p.max_error_permille
+        );
+    }
+    for r in &s.rounds {
+        println!(
+            "round {} F {} V rms {:.3} max {:.2} over {} local {} diffuse {}",
+            r.faces,
+            r.vertices,
+            r.rms_permille,
+            r.max_permille,
+            r.faces_over_limit,
+            r.local_fields,
+            r.diffuse_fields
         );
     }
     let (total, far, worst) = features_far(&mesh, &built);
@@ -598,25 +613,15 @@ fn fandisk_curve_proto() {
         let (nn, nd) = proto::fit_min(&pts, p.closed, lo, tol_new, iters);
         t_new += t1.elapsed().as_secs_f64();
         so += old.control.len();
-        let mut nn = nn;
-        if nn >= 4 && !p.closed {
-            let m = pts.len();
-            let mut best = (nn, 0usize);
-            for k in 2..m - 2 {
-                let (a, _) = proto::fit_min(&pts[..=k], false, 2, tol_new, iters);
-                if a >= best.0 {
-                    continue;
-                }
-                let (b, _) = proto::fit_min(&pts[k..], false, 2, tol_new, iters);
-                if a + b - 1 < best.0 {
-                    best = (a + b - 1, k);
-                }
+        let nn = {
+            let c = curves::fit_feature(&pts, p.closed, lo, tol_new);
+            let n = c.control.len();
+            if n > lo {
+                let (_, d1) = proto::fit_n(&pts, p.closed, n - 1, iters, 0.0);
+                println!("   n-1 = {}: {:.3}", n - 1, 1000.0 * d1 / diag);
             }
-            if best.0 < nn {
-                println!("  split at {} of {m}: {} -> {}", best.1, nn, best.0);
-                nn = best.0;
-            }
-        }
+            n
+        };
         sn += nn;
         println!(
             "m {:3} closed {} old {:2} ({:.3}) new {:2} ({:.3})",

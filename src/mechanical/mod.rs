@@ -126,8 +126,20 @@ impl Default for MechanicalOptions {
 }
 
 impl MechanicalOptions {
+    /// Sets `E_limit` and keeps the curve tolerances "coherent" with it
+    /// (§8: the paper's curve threshold is ⅔ of its `E_limit`): below the
+    /// default `E_limit` they shrink in proportion — features to `E/3`
+    /// (0.97‰ at most), smooth boundaries to `2E/3` (2‰ at most). A tight
+    /// `E_limit` with 1‰ crease curves cannot be met near the creases, and
+    /// the enrichment spends its faces there in vain: on fandisk
+    /// `E = 1.2 × 10⁻³` gives 174 faces at RMS 0.37‰ with scaled curves,
+    /// 174 faces at RMS 0.40‰ without.
     pub fn with_max_error(mut self, e: f64) -> Self {
         self.max_error = e;
+        let d = MechanicalOptions::default();
+        self.feature_tolerance = d.feature_tolerance.min(e / 3.0);
+        self.curve_tolerance = d.curve_tolerance.min(e / 3.0);
+        self.smooth_curve_tolerance = d.smooth_curve_tolerance.min(2.0 * e / 3.0);
         self
     }
     pub fn with_objective(mut self, o: optimize::Objective) -> Self {
