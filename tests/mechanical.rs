@@ -510,7 +510,10 @@ fn fandisk_sdm_beats_point_distance() {
 #[test]
 #[ignore]
 fn fandisk_sweep() {
-    let mesh = fandisk();
+    let mesh = match std::env::var("SUBDFIT_MESH") {
+        Ok(p) => common::load_ply(std::path::Path::new(&p)),
+        Err(_) => fandisk(),
+    };
     let caster =
         subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
     let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f64>().ok());
@@ -549,6 +552,16 @@ fn fandisk_sweep() {
             r.diffuse_fields
         );
     }
+    if let Some(r) = s.rounds.last() {
+        let mut v: Vec<(usize, f64)> = r.region_rms_permille.iter().copied().enumerate().collect();
+        v.sort_by(|a, b| b.1.total_cmp(&a.1));
+        println!("worst regions {:?}", &v[..v.len().min(5)]);
+        let init: Vec<usize> = v[..v.len().min(5)]
+            .iter()
+            .map(|x| s.region_initial_faces.get(x.0).copied().unwrap_or(0))
+            .collect();
+        println!("their initial faces {init:?}; planar regions {}, star {}, fitter {:?}", s.planar_regions, s.star_fallback, s.curve_fitter);
+    }
     let (total, far, worst) = features_far(&mesh, &built);
     let (mean, rms, max) = output_error(&mesh, &built);
     println!(
@@ -568,7 +581,10 @@ mod proto;
 #[test]
 #[ignore]
 fn fandisk_curve_proto() {
-    let mesh = fandisk();
+    let mesh = match std::env::var("SUBDFIT_MESH") {
+        Ok(p) => common::load_ply(std::path::Path::new(&p)),
+        Err(_) => fandisk(),
+    };
     let topo = Topology::new(&mesh);
     let curv = mechanical::vertex_curvatures(&mesh, &topo, &CurvatureOptions::default());
     let seg = mechanical::segment(&mesh, &topo, &curv, &Default::default());
@@ -616,6 +632,21 @@ fn fandisk_curve_proto() {
         let nn = {
             let c = curves::fit_feature(&pts, p.closed, lo, tol_new);
             let n = c.control.len();
+            let off = c
+                .control
+                .iter()
+                .map(|&q| pts.iter().map(|&v| (v - q).length()).fold(f64::INFINITY, f64::min))
+                .fold(0.0, f64::max);
+            let off_old = old
+                .control
+                .iter()
+                .map(|&q| pts.iter().map(|&v| (v - q).length()).fold(f64::INFINITY, f64::min))
+                .fold(0.0, f64::max);
+            println!(
+                "   ctrl offset {:.3} old {:.3}",
+                1000.0 * off / diag,
+                1000.0 * off_old / diag
+            );
             if n > lo {
                 let (_, d1) = proto::fit_n(&pts, p.closed, n - 1, iters, 0.0);
                 println!("   n-1 = {}: {:.3}", n - 1, 1000.0 * d1 / diag);

@@ -426,6 +426,10 @@ fn linear(points: &[DVec3], n: usize, closed: bool) -> Vec<DVec3> {
 /// line, not only near its vertices.
 pub const FEATURE_SAMPLES_PER_EDGE: usize = 4;
 
+/// Weight of the control polygon's fairness in [`fit_feature`], relative
+/// to the mean data term.
+const FEATURE_FAIRNESS: f64 = 1e-3;
+
 /// Geometry iterations per control-point count in [`fit_feature`] at most.
 const FEATURE_ITERATIONS: usize = 30;
 
@@ -561,6 +565,43 @@ fn solve_tdm(
     let trace = (0..dim).map(|i| a[i * dim + i]).sum::<f64>() / dim as f64;
     for i in 0..dim {
         a[i * dim + i] += 1e-9 * trace.max(1e-300);
+    }
+    // Fairness of the control polygon: second differences, weighted
+    // FEATURE_FAIRNESS of the mean data term. The tangent-distance step
+    // leaves the control points free to slide along the curve; a little
+    // fairness keeps them evenly spread (the polygon becomes facet edges
+    // of §6). On fandisk it also finds fits one point smaller (83 instead
+    // of 84 control vertices, worst feature 0.88‰ instead of 0.95‰).
+    let lam = FEATURE_FAIRNESS * trace.max(1e-300);
+    for k in 1..n.saturating_sub(1) + usize::from(closed) * 2 {
+        if lam <= 0.0 {
+            break;
+        }
+        let idx = [
+            ((k + n - 1) % n, 1.0),
+            (k % n, -2.0),
+            ((k + 1) % n, 1.0),
+        ];
+        let mut rhs = DVec3::ZERO;
+        for &(i, w) in &idx {
+            if col(i).is_none() {
+                rhs -= w * control[i];
+            }
+        }
+        let rv = rhs.to_array();
+        for &(i, wi) in &idx {
+            let Some(ci) = col(i) else { continue };
+            for r in 0..3 {
+                b[3 * ci + r] += lam * wi * rv[r];
+            }
+            for &(j, wj) in &idx {
+                if let Some(cj) = col(j) {
+                    for r in 0..3 {
+                        a[(3 * ci + r) * dim + 3 * cj + r] += lam * wi * wj;
+                    }
+                }
+            }
+        }
     }
     let x = cholesky_solve_scalar(a, dim, b)?;
     let mut out = control.to_vec();

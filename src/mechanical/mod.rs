@@ -169,6 +169,8 @@ impl MechanicalOptions {
 /// What [`build_control`] did, for `report.json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct MechanicalStats {
+    /// The §5 fit the output's curves come from (see [`build_control`]).
+    pub curve_fitter: CurveFitter,
     pub sharp_edges: usize,
     pub sharp_edges_inside_regions: usize,
     pub regions: usize,
@@ -294,11 +296,27 @@ struct PieceFits {
 /// only on its key, so the cache changes no result.
 type FitCache = std::sync::Mutex<HashMap<(Vec<u32>, bool, usize), curves::Curve>>;
 
-/// The curve tolerances of [`MechanicalOptions`] in units of M.
+/// The curve tolerances of [`MechanicalOptions`] in units of M, and the
+/// fitter.
 struct Tols {
     curve: f64,
     feature: f64,
     smooth: f64,
+    /// [`CurveFitter::Vertices`].
+    legacy: bool,
+}
+
+/// Which §5 fit a network was built with (see [`build_control`]).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
+pub enum CurveFitter {
+    /// [`curves::fit_feature`] / [`curves::fit_samples_until`]: the true
+    /// distance of points along the polyline to the curve, minimax; the
+    /// fewest control points.
+    Distance,
+    /// [`curves::fit_curve`]: least squares on the polyline vertices with a
+    /// parameter correspondence, at the tighter `curve_tolerance`; more
+    /// control points, so more boundary points for §6's facets.
+    Vertices,
 }
 
 /// Fits one piece (§5) with the fewest control points
@@ -323,6 +341,9 @@ fn fit_one(
     tols: &Tols,
     caster: &dyn RayCaster,
 ) -> curves::Curve {
+    if tols.legacy {
+        return legacy_fit_one(pts, closed, min_n, edge_sharp, tols, caster);
+    }
     if edge_sharp.iter().all(|&s| s) {
         return curves::fit_feature(pts, closed, min_n, tols.feature);
     }
@@ -336,8 +357,61 @@ fn fit_one(
         .iter()
         .map(|&s| if s { tols.feature } else { loose })
         .collect();
+    let to_mesh = if edge_sharp.iter().any(|&s| s) {
+        tols.curve
+    } else {
+        tols.smooth
+    };
     curves::fit_samples_until(pts, closed, min_n, &edge_tol, &|c: &curves::Curve| {
-        curve_to_mesh(c, caster) <= tols.smooth
+        curve_to_mesh(c, caster) <= to_mesh
+    })
+}
+
+/// The conservative fit of [`CurveFitter::Vertices`]: [`curves::fit_curve`]
+/// on the polyline vertices within `tols.curve` (0.8‰, room for the
+/// chord-to-arc gap to the 1‰ bar) along features; a piece mixing sharp
+/// and smooth edges keeps its feature vertices within `tols.curve` and the
+/// curve within `tols.curve` of M; a smooth piece within half its mean
+/// edge of the (smoothed) polyline and `tols.smooth` of M.
+fn legacy_fit_one(
+    pts: &[DVec3],
+    closed: bool,
+    min_n: usize,
+    edge_sharp: &[bool],
+    tols: &Tols,
+    caster: &dyn RayCaster,
+) -> curves::Curve {
+    let (tol, smooth_tol) = (tols.curve, tols.smooth);
+    let m = pts.len();
+    let on_feature: Vec<usize> = (0..m)
+        .filter(|&k| {
+            let before = if k > 0 {
+                edge_sharp.get(k - 1)
+            } else if closed {
+                edge_sharp.last()
+            } else {
+                None
+            };
+            before.copied().unwrap_or(false) || edge_sharp.get(k).copied().unwrap_or(false)
+        })
+        .collect();
+    let feature_ok = |c: &curves::Curve| {
+        on_feature
+            .iter()
+            .all(|&k| (curves::eval(&c.control, c.closed, c.params[k]) - pts[k]).length() <= tol)
+    };
+    let smooth_tol = if on_feature.is_empty() {
+        smooth_tol.max(tol)
+    } else {
+        tol
+    };
+    let segs = if closed { m } else { m - 1 };
+    let len: f64 = (0..segs)
+        .map(|k| (pts[(k + 1) % m] - pts[k]).length())
+        .sum();
+    let loose = tol.max(0.5 * len / segs.max(1) as f64);
+    curves::fit_curve_until(pts, closed, min_n, &|c: &curves::Curve| {
+        c.max_error <= loose && feature_ok(c) && curve_to_mesh(c, caster) <= smooth_tol
     })
 }
 
@@ -612,10 +686,37 @@ pub struct PieceStat {
 }
 
 /// Builds the mechanical control mesh of `mesh` (`caster` over it).
+///
+/// The curve network is fitted first with the fewest control points
+/// ([`CurveFitter::Distance`]). When the enrichment then ends with faces
+/// still above `max_error` (some region it could not bring down: on
+/// block.ply three regions whose few boundary points span facets that
+/// fold, RMS 12‰), the network is fitted again with the conservative
+/// fitter ([`CurveFitter::Vertices`], more boundary points) and the result
+/// with the lower RMS distance is kept; `stats.curve_fitter` says which.
 pub fn build_control(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
     opts: &MechanicalOptions,
+) -> Result<Built> {
+    let compact = build_with(mesh, caster, opts, CurveFitter::Distance)?;
+    if !compact.stats.error_limit_reached {
+        return Ok(compact);
+    }
+    let safe = build_with(mesh, caster, opts, CurveFitter::Vertices)?;
+    let rms = |b: &Built| b.stats.rounds.last().map_or(f64::INFINITY, |r| r.rms_permille);
+    Ok(if rms(&safe) < rms(&compact) {
+        safe
+    } else {
+        compact
+    })
+}
+
+fn build_with(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    opts: &MechanicalOptions,
+    fitter: CurveFitter,
 ) -> Result<Built> {
     opts.check()?;
     let diag = mesh.bbox_diagonal();
@@ -644,6 +745,7 @@ pub fn build_control(
         curve: opts.curve_tolerance * diag,
         feature: opts.feature_tolerance * diag,
         smooth: opts.smooth_curve_tolerance * diag,
+        legacy: fitter == CurveFitter::Vertices,
     };
     let nv = mesh.positions.len();
     let mut extra_corner = vec![false; nv];
@@ -888,6 +990,7 @@ pub fn build_control(
     Ok(Built {
         control,
         stats: MechanicalStats {
+            curve_fitter: fitter,
             sharp_edges: seg.sharp_edges,
             sharp_edges_inside_regions: seg.sharp_edges_inside,
             regions: seg.num_regions,
