@@ -577,11 +577,7 @@ fn solve_tdm(
         if lam <= 0.0 {
             break;
         }
-        let idx = [
-            ((k + n - 1) % n, 1.0),
-            (k % n, -2.0),
-            ((k + 1) % n, 1.0),
-        ];
+        let idx = [((k + n - 1) % n, 1.0), (k % n, -2.0), ((k + 1) % n, 1.0)];
         let mut rhs = DVec3::ZERO;
         for &(i, w) in &idx {
             if col(i).is_none() {

@@ -107,6 +107,9 @@ pub struct MechanicalOptions {
     pub fairness: f64,
     /// Objective of the geometry step: SDM, the paper's (§7.1).
     pub objective: optimize::Objective,
+    /// §5's curve fitter; `None` (the default): the compact one, with the
+    /// conservative one as a fallback (see [`build_control`]).
+    pub curve_fitter: Option<CurveFitter>,
 }
 
 impl Default for MechanicalOptions {
@@ -121,6 +124,7 @@ impl Default for MechanicalOptions {
             max_faces: 20_000,
             fairness: 0.01,
             objective: optimize::Objective::Sdm,
+            curve_fitter: None,
         }
     }
 }
@@ -140,6 +144,10 @@ impl MechanicalOptions {
         self.feature_tolerance = d.feature_tolerance.min(e / 3.0);
         self.curve_tolerance = d.curve_tolerance.min(e / 3.0);
         self.smooth_curve_tolerance = d.smooth_curve_tolerance.min(2.0 * e / 3.0);
+        self
+    }
+    pub fn with_curve_fitter(mut self, f: CurveFitter) -> Self {
+        self.curve_fitter = Some(f);
         self
     }
     pub fn with_objective(mut self, o: optimize::Objective) -> Self {
@@ -532,12 +540,7 @@ fn fit_pieces(
 /// control points, the (up to 3) vertices on a sharp edge that turn most
 /// (over 2 polyline steps where an edge is not sharp, to see past a
 /// zigzag), at least [`KINK_MIN_TURN_DEG`]; the best saving wins.
-fn kinks(
-    net: &network::Network,
-    f: &PieceFits,
-    caster: &dyn RayCaster,
-    tols: &Tols,
-) -> Vec<u32> {
+fn kinks(net: &network::Network, f: &PieceFits, caster: &dyn RayCaster, tols: &Tols) -> Vec<u32> {
     use rayon::prelude::*;
     let cos_min = KINK_MIN_TURN_DEG.to_radians().cos();
     net.pieces
@@ -586,10 +589,7 @@ fn kinks(
                     q.extend_from_slice(&pp[..=k]);
                     let mut qs: Vec<bool> = es[k..].to_vec();
                     qs.extend_from_slice(&es[..k]);
-                    fit_one(&q, false, 4, &qs, tols, caster)
-                        .control
-                        .len()
-                        - 1
+                    fit_one(&q, false, 4, &qs, tols, caster).control.len() - 1
                 } else {
                     let l = fit_one(&pp[..=k], false, 2, &es[..k], tols, caster);
                     let r = fit_one(&pp[k..], false, 2, &es[k..m - 1], tols, caster);
@@ -692,25 +692,39 @@ pub struct PieceStat {
 /// still above `max_error` (some region it could not bring down: on
 /// block.ply three regions whose few boundary points span facets that
 /// fold, RMS 12‰), the network is fitted again with the conservative
-/// fitter ([`CurveFitter::Vertices`], more boundary points) and the result
-/// with the lower RMS distance is kept; `stats.curve_fitter` says which.
+/// fitter ([`CurveFitter::Vertices`], more boundary points), which is
+/// kept if its RMS distance is lower by more than [`SAFE_FIT_GAIN`]
+/// (joint.ply: both end near 0.66‰, the compact one with 162 instead of
+/// 177 vertices); `stats.curve_fitter` says which.
 pub fn build_control(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
     opts: &MechanicalOptions,
 ) -> Result<Built> {
+    if let Some(f) = opts.curve_fitter {
+        return build_with(mesh, caster, opts, f);
+    }
     let compact = build_with(mesh, caster, opts, CurveFitter::Distance)?;
     if !compact.stats.error_limit_reached {
         return Ok(compact);
     }
     let safe = build_with(mesh, caster, opts, CurveFitter::Vertices)?;
-    let rms = |b: &Built| b.stats.rounds.last().map_or(f64::INFINITY, |r| r.rms_permille);
-    Ok(if rms(&safe) < rms(&compact) {
+    let rms = |b: &Built| {
+        b.stats
+            .rounds
+            .last()
+            .map_or(f64::INFINITY, |r| r.rms_permille)
+    };
+    Ok(if rms(&compact) > SAFE_FIT_GAIN * rms(&safe) {
         safe
     } else {
         compact
     })
 }
+
+/// See [`build_control`]: the conservative network must lower the RMS
+/// distance by this factor to replace the compact one.
+pub const SAFE_FIT_GAIN: f64 = 1.25;
 
 fn build_with(
     mesh: &TriMesh,
