@@ -692,7 +692,8 @@ fn fit_feature_n(
             }
             best = (c.clone(), t.clone(), rmax);
         }
-        if !(rmax > 0.9) || it > last_gain + 4 {
+        // (A NaN distance stops too.)
+        if rmax.is_nan() || rmax <= 0.9 || it > last_gain + 4 {
             break;
         }
         if it >= 3 {
