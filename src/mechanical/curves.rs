@@ -23,6 +23,15 @@
 //! (~20 % more, at least one) and refit. With uniform knots
 //! a new control point refines the curve everywhere; the parameter
 //! correction moves control points towards where the error was largest.
+//!
+//! [`fit_feature`] / [`fit_samples_until`] (the default in
+//! [`super::build_control`]) measure what the features-kept bar measures
+//! instead: the distance from points *along* the polyline (vertices and
+//! chord points) to the curve, through foot points, with the tangent-
+//! distance step (the curve may slide along the polyline) and minimax
+//! weights, adding one control point at a time. Same tolerance, fewer
+//! points: fandisk's curve network goes from 95 to 80 control points with
+//! the features kept within 0.88‰ instead of 0.97‰.
 
 use crate::DVec3;
 
@@ -743,10 +752,11 @@ fn fit_feature_n(
 ///
 /// Against [`fit_curve`] (least squares on the vertices with a
 /// parameter correspondence) this reaches the same tolerance with fewer
-/// points: fandisk's feature lines need 122 control points instead of
-/// 140 at 0.97‰ / 0.95‰ (the tangent-distance step lets the curve slide
-/// along the polyline, and the minimax weights spend the error budget
-/// evenly).
+/// points: fandisk's feature lines (before kink corners) need 122 control
+/// points instead of 140 at 0.97‰ / 0.95‰ (the tangent-distance step
+/// lets the curve slide along the polyline, and the minimax weights spend
+/// the error budget evenly). Near the floor: with one point fewer, most
+/// lines miss by 1–5 % under 200 iterations.
 pub fn fit_feature(points: &[DVec3], closed: bool, min_n: usize, tol: f64) -> Curve {
     let edges = if closed {
         points.len()

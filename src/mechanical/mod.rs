@@ -80,12 +80,12 @@ pub const AUTO_SHARP_SHARE: f64 = 0.005;
 pub struct MechanicalOptions {
     /// `E_limit`: RMS distance per control face, fraction of the diagonal.
     pub max_error: f64,
-    /// Largest distance of a feature polyline vertex to its fitted curve
-    /// (and of a smooth boundary's curve to M), fraction of the diagonal:
-    /// 0.8 × 10⁻³, inside the 1‰ features-kept bar with room for the
-    /// chord-to-arc gap between polyline vertices (the paper uses 2 × 10⁻³
-    /// with its 3 × 10⁻³ E_limit; on fandisk that is 101 control vertices
-    /// instead of 122, with RMS 0.77‰ instead of 0.53‰).
+    /// The conservative fitter's ([`CurveFitter::Vertices`]) largest
+    /// distance of a feature polyline vertex to its fitted curve (and of a
+    /// mixed piece's curve to M), fraction of the diagonal: 0.8 × 10⁻³,
+    /// inside the 1‰ features-kept bar with room for the chord-to-arc gap
+    /// between polyline vertices. Also the least room off the features
+    /// for the compact fitter (see `fit_one`).
     pub curve_tolerance: f64,
     /// Largest distance from a feature line (a boundary piece made of sharp
     /// edges of M: its vertices and points along its edges) to its fitted
