@@ -23,6 +23,15 @@
 //! (~20 % more, at least one) and refit. With uniform knots
 //! a new control point refines the curve everywhere; the parameter
 //! correction moves control points towards where the error was largest.
+//!
+//! [`fit_feature`] / [`fit_samples_until`] (the default in
+//! [`super::build_control`]) measure what the features-kept bar measures
+//! instead: the distance from points *along* the polyline (vertices and
+//! chord points) to the curve, through foot points, with the tangent-
+//! distance step (the curve may slide along the polyline) and minimax
+//! weights, adding one control point at a time. Same tolerance, fewer
+//! points: fandisk's curve network goes from 95 to 80 control points with
+//! the features kept within 0.88‰ instead of 0.97‰.
 
 use crate::DVec3;
 
@@ -418,4 +427,405 @@ fn linear(points: &[DVec3], n: usize, closed: bool) -> Vec<DVec3> {
             points[k.min(m - 1)]
         })
         .collect()
+}
+
+/// Samples per polyline edge for [`fit_feature`]: its vertices and the
+/// points at ¼, ½ and ¾ of each edge, which is where the features-kept
+/// measure (issue 6) looks — a crease must lie near the whole feature
+/// line, not only near its vertices.
+pub const FEATURE_SAMPLES_PER_EDGE: usize = 4;
+
+/// Weight of the control polygon's fairness in [`fit_feature`], relative
+/// to the mean data term.
+const FEATURE_FAIRNESS: f64 = 1e-3;
+
+/// Geometry iterations per control-point count in [`fit_feature`] at most.
+const FEATURE_ITERATIONS: usize = 30;
+
+/// Points at `k` even steps along every edge of the polyline (and its last
+/// vertex when open): sample `j·k` is vertex `j`.
+pub fn densify(points: &[DVec3], closed: bool, k: usize) -> Vec<DVec3> {
+    let m = points.len();
+    let segs = if closed { m } else { m.saturating_sub(1) };
+    let mut out = Vec::with_capacity(segs * k + 1);
+    for s in 0..segs {
+        let (a, b) = (points[s], points[(s + 1) % m]);
+        for i in 0..k {
+            out.push(a + (b - a) * (i as f64 / k as f64));
+        }
+    }
+    if !closed || segs == 0 {
+        out.push(points[m - 1]);
+    }
+    out
+}
+
+/// Newton steps for the foot point of `p` on the curve from parameter `t`.
+fn newton_foot(control: &[DVec3], closed: bool, p: DVec3, t: &mut f64) {
+    let n = control.len();
+    let (lo, hi) = if closed {
+        (f64::NEG_INFINITY, f64::INFINITY)
+    } else {
+        (0.0, (n - 1) as f64)
+    };
+    for _ in 0..6 {
+        let d = eval_d(control, closed, *t);
+        let dd = d.length_squared();
+        if dd <= 0.0 {
+            break;
+        }
+        let step = (eval(control, closed, *t) - p).dot(d) / dd;
+        *t = (*t - step.clamp(-0.5, 0.5)).clamp(lo, hi);
+        if step.abs() < 1e-12 {
+            break;
+        }
+    }
+}
+
+/// The foot point of `p` on the whole curve (a search over 16 points per
+/// control segment, then Newton): `(parameter, distance)`.
+pub fn foot_point(control: &[DVec3], closed: bool, p: DVec3) -> (f64, f64) {
+    let n = control.len();
+    let segs = if closed { n } else { n - 1 };
+    let mut best = (0.0, f64::INFINITY);
+    for i in 0..=16 * segs {
+        let t = i as f64 / 16.0;
+        let d = (eval(control, closed, t) - p).length_squared();
+        if d < best.1 {
+            best = (t, d);
+        }
+    }
+    let mut t = best.0;
+    newton_foot(control, closed, p, &mut t);
+    (t, (eval(control, closed, t) - p).length())
+}
+
+/// Control points minimising `Σ w_j |A_j (C(t_j) − p_j)|²` with
+/// `A_j = I − (1 − λ) T_j T_jᵀ`: the squared distance along the normal
+/// plane of the curve at the foot point in full and the tangential
+/// residual damped by `λ` (the tangent-distance minimisation of Wang,
+/// Pottmann & Liu 2006, "Fitting B-spline curves to point clouds by
+/// curvature-based squared distance minimization", §4, with a small
+/// tangential term for stability; `λ = 1` is the point distance). Ends of
+/// an open curve stay fixed. `None` if the system is singular.
+fn solve_tdm(
+    samples: &[DVec3],
+    params: &[f64],
+    tangents: &[DVec3],
+    wts: &[f64],
+    control: &[DVec3],
+    closed: bool,
+    lambda: f64,
+) -> Option<Vec<DVec3>> {
+    let n = control.len();
+    let col = |i: usize| -> Option<usize> {
+        if closed {
+            Some(i)
+        } else if i == 0 || i == n - 1 {
+            None
+        } else {
+            Some(i - 1)
+        }
+    };
+    let nf = if closed { n } else { n - 2 };
+    if nf == 0 {
+        return Some(control.to_vec());
+    }
+    let dim = 3 * nf;
+    let mut a = vec![0.0; dim * dim];
+    let mut b = vec![0.0; dim];
+    // AᵀA = I − (1 − λ²) T Tᵀ.
+    let f = 1.0 - lambda * lambda;
+    for (j, &p) in samples.iter().enumerate() {
+        let ws = weights(n, closed, params[j], false);
+        let tv = tangents[j].to_array();
+        let mut m = [[0.0; 3]; 3];
+        for (r, row) in m.iter_mut().enumerate() {
+            for (s, x) in row.iter_mut().enumerate() {
+                *x = f64::from(u8::from(r == s)) - f * tv[r] * tv[s];
+            }
+        }
+        let mut rhs = p;
+        for &(i, x) in &ws {
+            if col(i).is_none() {
+                rhs -= x * control[i];
+            }
+        }
+        let rv = rhs.to_array();
+        let mr: [f64; 3] = std::array::from_fn(|r| (0..3).map(|s| m[r][s] * rv[s]).sum());
+        for &(i, xi) in &ws {
+            let Some(ci) = col(i) else { continue };
+            for r in 0..3 {
+                b[3 * ci + r] += wts[j] * xi * mr[r];
+            }
+            for &(k, xk) in &ws {
+                let Some(ck) = col(k) else { continue };
+                let w = wts[j] * xi * xk;
+                for r in 0..3 {
+                    for s in 0..3 {
+                        a[(3 * ci + r) * dim + 3 * ck + s] += w * m[r][s];
+                    }
+                }
+            }
+        }
+    }
+    // The same tiny ridge as `solve`: a control point no sample reaches
+    // stays determined.
+    let trace = (0..dim).map(|i| a[i * dim + i]).sum::<f64>() / dim as f64;
+    for i in 0..dim {
+        a[i * dim + i] += 1e-9 * trace.max(1e-300);
+    }
+    // Fairness of the control polygon: second differences, weighted
+    // FEATURE_FAIRNESS of the mean data term. The tangent-distance step
+    // leaves the control points free to slide along the curve; a little
+    // fairness keeps them evenly spread (the polygon becomes facet edges
+    // of §6). On fandisk it also finds fits one point smaller (83 instead
+    // of 84 control vertices, worst feature 0.88‰ instead of 0.95‰).
+    let lam = FEATURE_FAIRNESS * trace.max(1e-300);
+    for k in 1..n.saturating_sub(1) + usize::from(closed) * 2 {
+        if lam <= 0.0 {
+            break;
+        }
+        let idx = [((k + n - 1) % n, 1.0), (k % n, -2.0), ((k + 1) % n, 1.0)];
+        let mut rhs = DVec3::ZERO;
+        for &(i, w) in &idx {
+            if col(i).is_none() {
+                rhs -= w * control[i];
+            }
+        }
+        let rv = rhs.to_array();
+        for &(i, wi) in &idx {
+            let Some(ci) = col(i) else { continue };
+            for r in 0..3 {
+                b[3 * ci + r] += lam * wi * rv[r];
+            }
+            for &(j, wj) in &idx {
+                if let Some(cj) = col(j) {
+                    for r in 0..3 {
+                        a[(3 * ci + r) * dim + 3 * cj + r] += lam * wi * wj;
+                    }
+                }
+            }
+        }
+    }
+    let x = cholesky_solve_scalar(a, dim, b)?;
+    let mut out = control.to_vec();
+    for (i, c) in out.iter_mut().enumerate() {
+        if let Some(ci) = col(i) {
+            *c = DVec3::new(x[3 * ci], x[3 * ci + 1], x[3 * ci + 2]);
+        }
+    }
+    Some(out)
+}
+
+/// [`cholesky_solve`] for one scalar right-hand side.
+fn cholesky_solve_scalar(mut a: Vec<f64>, n: usize, mut b: Vec<f64>) -> Option<Vec<f64>> {
+    for j in 0..n {
+        let mut d = a[j * n + j];
+        for k in 0..j {
+            d -= a[j * n + k] * a[j * n + k];
+        }
+        if d <= 0.0 || !d.is_finite() {
+            return None;
+        }
+        let d = d.sqrt();
+        a[j * n + j] = d;
+        for i in j + 1..n {
+            let mut s = a[i * n + j];
+            for k in 0..j {
+                s -= a[i * n + k] * a[j * n + k];
+            }
+            a[i * n + j] = s / d;
+        }
+    }
+    for i in 0..n {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= a[i * n + k] * b[k];
+        }
+        b[i] = s / a[i * n + i];
+    }
+    for i in (0..n).rev() {
+        let mut s = b[i];
+        for k in i + 1..n {
+            s -= a[k * n + i] * b[k];
+        }
+        b[i] = s / a[i * n + i];
+    }
+    Some(b)
+}
+
+/// The curve with `n` control points whose largest ratio of distance to
+/// tolerance over `samples` (`tol[j]` for sample `j`) is smallest, as far
+/// as the iteration finds: `(control, params of the samples, largest
+/// ratio)`. Starts from the point-distance fit with chord-length
+/// parameters, then alternates foot points (Newton from the previous
+/// parameters) with the tangent-distance step under Lawson's minimax
+/// reweighting (weights times the ratios, from the fourth iteration on);
+/// keeps the best iterate, and stops once every ratio is below 0.9 or the
+/// largest has not improved by 1 % in 5 iterations.
+fn fit_feature_n(
+    samples: &[DVec3],
+    tol: &[f64],
+    closed: bool,
+    n: usize,
+) -> (Vec<DVec3>, Vec<f64>, f64) {
+    let s = samples.len();
+    let mut t = chord_params(samples, n, closed);
+    let mut c = linear(samples, n, closed);
+    let ones = vec![1.0; s];
+    let no_tangent = vec![DVec3::ZERO; s];
+    if let Some(x) = solve_tdm(samples, &t, &no_tangent, &ones, &c, closed, 1.0) {
+        c = x;
+    }
+    let mut w = ones;
+    let mut best = (c.clone(), t.clone(), f64::INFINITY);
+    let mut last_gain = 0;
+    for it in 0..FEATURE_ITERATIONS {
+        // Newton from the previous parameters (the chord-length ones the
+        // first fit was made with, at first): the curve moves little per
+        // step, and the global search is left to the final check.
+        for (tj, &q) in t.iter_mut().zip(samples) {
+            newton_foot(&c, closed, q, tj);
+        }
+        let r: Vec<f64> = samples
+            .iter()
+            .zip(&t)
+            .zip(tol)
+            .map(|((&q, &tj), &e)| (eval(&c, closed, tj) - q).length() / e)
+            .collect();
+        let rmax = r.iter().copied().fold(0.0, f64::max);
+        if rmax < best.2 {
+            if rmax < 0.99 * best.2 {
+                last_gain = it;
+            }
+            best = (c.clone(), t.clone(), rmax);
+        }
+        // (A NaN distance stops too.)
+        if rmax.is_nan() || rmax <= 0.9 || it > last_gain + 4 {
+            break;
+        }
+        if it >= 3 {
+            let mut sum = 0.0;
+            for (wj, rj) in w.iter_mut().zip(&r) {
+                *wj *= (rj / rmax).max(1e-3);
+                sum += *wj;
+            }
+            for wj in w.iter_mut() {
+                *wj *= s as f64 / sum;
+            }
+        }
+        // Tolerances scale the weights: a sample with twice the room
+        // counts a quarter as much.
+        let wt: Vec<f64> = w.iter().zip(tol).map(|(&wj, &e)| wj / (e * e)).collect();
+        let tg: Vec<DVec3> = t
+            .iter()
+            .map(|&tj| eval_d(&c, closed, tj).normalize_or_zero())
+            .collect();
+        match solve_tdm(samples, &t, &tg, &wt, &c, closed, 0.1) {
+            Some(x) => c = x,
+            None => break,
+        }
+    }
+    // The largest ratio measured from scratch (global foot points), so a
+    // Newton step caught on the wrong branch cannot understate it; only
+    // for a curve that seems to pass (a global foot is never farther than a
+    // local one, so a rejection here at worst costs one control point).
+    let (c, mut t, local) = best;
+    if local > 1.0 {
+        return (c, t, local);
+    }
+    let mut rmax = 0.0f64;
+    for ((tj, &q), &e) in t.iter_mut().zip(samples).zip(tol) {
+        let (ft, fd) = foot_point(&c, closed, q);
+        *tj = ft;
+        rmax = rmax.max(fd / e);
+    }
+    (c, t, rmax)
+}
+
+/// Fits a feature line (§5): the fewest control points (from `min_n`,
+/// one at a time) whose curve passes within `tol` of every point of the
+/// polyline — its vertices and [`FEATURE_SAMPLES_PER_EDGE`] points per
+/// edge, measured as the distance to the curve (foot points), not to a
+/// parameter correspondence; falls back to one control point per vertex.
+///
+/// Against [`fit_curve`] (least squares on the vertices with a
+/// parameter correspondence) this reaches the same tolerance with fewer
+/// points: fandisk's feature lines (before kink corners) need 122 control
+/// points instead of 140 at 0.97‰ / 0.95‰ (the tangent-distance step
+/// lets the curve slide along the polyline, and the minimax weights spend
+/// the error budget evenly). Near the floor: with one point fewer, most
+/// lines miss by 1–5 % under 200 iterations.
+pub fn fit_feature(points: &[DVec3], closed: bool, min_n: usize, tol: f64) -> Curve {
+    let edges = if closed {
+        points.len()
+    } else {
+        points.len().saturating_sub(1)
+    };
+    fit_samples_until(points, closed, min_n, &vec![tol; edges], &|_| true)
+}
+
+/// [`fit_feature`] with a tolerance per polyline edge (`edge_tol[k]` for
+/// edge `k → k+1`; a vertex takes the smaller of its edges') and a further
+/// condition `accept` on the curve (checked once the tolerances hold).
+/// `Curve::max_error` is the largest distance over the samples.
+pub fn fit_samples_until(
+    points: &[DVec3],
+    closed: bool,
+    min_n: usize,
+    edge_tol: &[f64],
+    accept: &dyn Fn(&Curve) -> bool,
+) -> Curve {
+    let m = points.len();
+    let k = FEATURE_SAMPLES_PER_EDGE;
+    let samples = densify(points, closed, k);
+    let segs = edge_tol.len();
+    let tol: Vec<f64> = (0..samples.len())
+        .map(|j| {
+            let e = j / k;
+            let here = edge_tol.get(e.min(segs.saturating_sub(1))).copied();
+            let before = if j % k == 0 && (e > 0 || closed) {
+                edge_tol.get((e + segs - 1) % segs.max(1)).copied()
+            } else {
+                None
+            };
+            match (here, before) {
+                (Some(a), Some(b)) => a.min(b),
+                (Some(a), None) | (None, Some(a)) => a,
+                (None, None) => f64::INFINITY,
+            }
+            .max(f64::MIN_POSITIVE)
+        })
+        .collect();
+    let lo = if closed { min_n.max(3) } else { min_n.max(2) };
+    let cap = lo.max(m);
+    let mut n = lo;
+    loop {
+        let (control, sp, ratio) = fit_feature_n(&samples, &tol, closed, n);
+        let mut params: Vec<f64> = (0..m).map(|j| sp[(j * k).min(sp.len() - 1)]).collect();
+        if closed {
+            for t in params.iter_mut() {
+                *t = t.rem_euclid(n as f64);
+            }
+        } else {
+            params[0] = 0.0;
+            params[m - 1] = (n - 1) as f64;
+        }
+        let max_error = samples
+            .iter()
+            .zip(&sp)
+            .map(|(&q, &t)| (eval(&control, closed, t) - q).length())
+            .fold(0.0, f64::max);
+        let curve = Curve {
+            control,
+            closed,
+            params,
+            max_error,
+        };
+        if n >= cap || (ratio <= 1.0 && accept(&curve)) {
+            return curve;
+        }
+        n += 1;
+    }
 }

@@ -80,13 +80,20 @@ pub const AUTO_SHARP_SHARE: f64 = 0.005;
 pub struct MechanicalOptions {
     /// `E_limit`: RMS distance per control face, fraction of the diagonal.
     pub max_error: f64,
-    /// Largest distance of a feature polyline vertex to its fitted curve
-    /// (and of a smooth boundary's curve to M), fraction of the diagonal:
-    /// 0.8 × 10⁻³, inside the 1‰ features-kept bar with room for the
-    /// chord-to-arc gap between polyline vertices (the paper uses 2 × 10⁻³
-    /// with its 3 × 10⁻³ E_limit; on fandisk that is 101 control vertices
-    /// instead of 122, with RMS 0.77‰ instead of 0.53‰).
+    /// The conservative fitter's ([`CurveFitter::Vertices`]) largest
+    /// distance of a feature polyline vertex to its fitted curve (and of a
+    /// mixed piece's curve to M), fraction of the diagonal: 0.8 × 10⁻³,
+    /// inside the 1‰ features-kept bar with room for the chord-to-arc gap
+    /// between polyline vertices. Also the least room off the features
+    /// for the compact fitter (see `fit_one`).
     pub curve_tolerance: f64,
+    /// Largest distance from a feature line (a boundary piece made of sharp
+    /// edges of M: its vertices and points along its edges) to its fitted
+    /// curve, fraction of the diagonal: 0.97 × 10⁻³, the features-kept bar
+    /// (1‰) less a margin for the tessellation of the crease curve by which
+    /// it is checked (see [`curves::fit_feature`]). Measured as a true
+    /// point-to-curve distance, so no chord-to-arc room is needed.
+    pub feature_tolerance: f64,
     /// Largest distance to M of a curve along a smooth region boundary
     /// (no sharp edge on it: not a feature line), fraction of the
     /// diagonal: the paper's curve threshold, 2 × 10⁻³ (§8).
@@ -100,6 +107,9 @@ pub struct MechanicalOptions {
     pub fairness: f64,
     /// Objective of the geometry step: SDM, the paper's (§7.1).
     pub objective: optimize::Objective,
+    /// §5's curve fitter; `None` (the default): the compact one, with the
+    /// conservative one as a fallback (see [`build_control`]).
+    pub curve_fitter: Option<CurveFitter>,
 }
 
 impl Default for MechanicalOptions {
@@ -107,19 +117,37 @@ impl Default for MechanicalOptions {
         MechanicalOptions {
             max_error: DEFAULT_MAX_ERROR,
             curve_tolerance: 0.8e-3,
+            feature_tolerance: 0.97e-3,
             smooth_curve_tolerance: 2e-3,
             m0: DEFAULT_M0,
             max_rounds: DEFAULT_MAX_ROUNDS,
             max_faces: 20_000,
             fairness: 0.01,
             objective: optimize::Objective::Sdm,
+            curve_fitter: None,
         }
     }
 }
 
 impl MechanicalOptions {
+    /// Sets `E_limit` and keeps the curve tolerances "coherent" with it
+    /// (§8: the paper's curve threshold is ⅔ of its `E_limit`): below the
+    /// default `E_limit` they shrink in proportion — features to `E/3`
+    /// (0.97‰ at most), smooth boundaries to `2E/3` (2‰ at most). A tight
+    /// `E_limit` with 1‰ crease curves cannot be met near the creases, and
+    /// the enrichment spends its faces there in vain: on fandisk
+    /// `E = 1.2 × 10⁻³` gives 174 faces at RMS 0.37‰ with scaled curves,
+    /// 174 faces at RMS 0.40‰ without.
     pub fn with_max_error(mut self, e: f64) -> Self {
         self.max_error = e;
+        let d = MechanicalOptions::default();
+        self.feature_tolerance = d.feature_tolerance.min(e / 3.0);
+        self.curve_tolerance = d.curve_tolerance.min(e / 3.0);
+        self.smooth_curve_tolerance = d.smooth_curve_tolerance.min(2.0 * e / 3.0);
+        self
+    }
+    pub fn with_curve_fitter(mut self, f: CurveFitter) -> Self {
+        self.curve_fitter = Some(f);
         self
     }
     pub fn with_objective(mut self, o: optimize::Objective) -> Self {
@@ -132,7 +160,11 @@ impl MechanicalOptions {
     }
     fn check(&self) -> Result<()> {
         let ok = |x: f64| x.is_finite() && x > 0.0 && x < 1.0;
-        if !ok(self.max_error) || !ok(self.curve_tolerance) || !ok(self.smooth_curve_tolerance) {
+        if !ok(self.max_error)
+            || !ok(self.curve_tolerance)
+            || !ok(self.feature_tolerance)
+            || !ok(self.smooth_curve_tolerance)
+        {
             return Err(Error::InvalidArgument(format!(
                 "mechanical: max_error {} and curve_tolerance {} must be in (0, 1) (fractions of the diagonal)",
                 self.max_error, self.curve_tolerance
@@ -145,6 +177,8 @@ impl MechanicalOptions {
 /// What [`build_control`] did, for `report.json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct MechanicalStats {
+    /// The §5 fit the output's curves come from (see [`build_control`]).
+    pub curve_fitter: CurveFitter,
     pub sharp_edges: usize,
     pub sharp_edges_inside_regions: usize,
     pub regions: usize,
@@ -264,30 +298,98 @@ struct PieceFits {
     fitted: Vec<curves::Curve>,
 }
 
-/// Fits one piece: against its polyline within `tol` when it is a feature
-/// line (`all_sharp`), and also within `tol` of M when it is not.
+/// Curves already fitted, by piece (its vertices of M, closed, least
+/// control points): the kink passes of [`build_control`] rebuild the
+/// network and refit every piece, most of them unchanged. A fit depends
+/// only on its key, so the cache changes no result.
+type FitCache = std::sync::Mutex<HashMap<(Vec<u32>, bool, usize), curves::Curve>>;
+
+/// The curve tolerances of [`MechanicalOptions`] in units of M, and the
+/// fitter.
+struct Tols {
+    curve: f64,
+    feature: f64,
+    smooth: f64,
+    /// [`CurveFitter::Vertices`].
+    legacy: bool,
+}
+
+/// Which §5 fit a network was built with (see [`build_control`]).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
+pub enum CurveFitter {
+    /// [`curves::fit_feature`] / [`curves::fit_samples_until`]: the true
+    /// distance of points along the polyline to the curve, minimax; the
+    /// fewest control points.
+    Distance,
+    /// [`curves::fit_curve`]: least squares on the polyline vertices with a
+    /// parameter correspondence, at the tighter `curve_tolerance`; more
+    /// control points, so more boundary points for §6's facets.
+    Vertices,
+}
+
+/// Fits one piece (§5) with the fewest control points
+/// ([`curves::fit_samples_until`]).
 ///
-/// A piece without any sharp edge is no feature line (the features-kept
-/// bar does not apply to it) and only has to lie on M within
-/// `smooth_tol`, the paper's curve threshold (§8: 2 × 10⁻³, "coherent"
-/// with `E_limit`), so that the smooth region boundaries cost as few
-/// fixed control points as the fit allows.
-#[allow(clippy::too_many_arguments)]
+/// Along its sharp edges (a feature line) the curve passes within
+/// `tols.feature` of every point of the polyline, the features-kept bar.
+/// Elsewhere a boundary is no feature line: the (smoothed) polyline only
+/// says where the boundary runs, within half its mean edge length (the
+/// zigzag's amplitude, what the region reach of `optimize` covers) is as
+/// good as on it, and what must hold is that the curve lies on M within
+/// `tols.smooth`, the paper's curve threshold (§8: 2 × 10⁻³, "coherent"
+/// with `E_limit`), so that smooth region boundaries cost as few fixed
+/// control points as the fit allows. A piece mixing both (a feature line
+/// continued across a smooth part, see `segment`) gets each tolerance on
+/// its own edges.
 fn fit_one(
     pts: &[DVec3],
     closed: bool,
     min_n: usize,
     edge_sharp: &[bool],
-    tol: f64,
-    smooth_tol: f64,
+    tols: &Tols,
     caster: &dyn RayCaster,
 ) -> curves::Curve {
-    if edge_sharp.iter().all(|&s| s) {
-        return curves::fit_curve(pts, closed, tol, min_n);
+    if tols.legacy {
+        return legacy_fit_one(pts, closed, min_n, edge_sharp, tols, caster);
     }
-    // A piece mixing sharp and smooth edges (a feature line continued
-    // across a smooth part, see `segment`): its vertices on a sharp edge
-    // are feature points and keep `tol` to the polyline.
+    if edge_sharp.iter().all(|&s| s) {
+        return curves::fit_feature(pts, closed, min_n, tols.feature);
+    }
+    let m = pts.len();
+    let segs = if closed { m } else { m - 1 };
+    let len: f64 = (0..segs)
+        .map(|k| (pts[(k + 1) % m] - pts[k]).length())
+        .sum();
+    let loose = tols.curve.max(0.5 * len / segs.max(1) as f64);
+    let edge_tol: Vec<f64> = edge_sharp
+        .iter()
+        .map(|&s| if s { tols.feature } else { loose })
+        .collect();
+    let to_mesh = if edge_sharp.iter().any(|&s| s) {
+        tols.curve
+    } else {
+        tols.smooth
+    };
+    curves::fit_samples_until(pts, closed, min_n, &edge_tol, &|c: &curves::Curve| {
+        curve_to_mesh(c, caster) <= to_mesh
+    })
+}
+
+/// The conservative fit of [`CurveFitter::Vertices`]: [`curves::fit_curve`]
+/// on the polyline vertices within `tols.curve` (0.8‰, room for the
+/// chord-to-arc gap to the 1‰ bar) along features; a piece mixing sharp
+/// and smooth edges keeps its feature vertices within `tols.curve` and the
+/// curve within `tols.curve` of M; a smooth piece within half its mean
+/// edge of the (smoothed) polyline and `tols.smooth` of M.
+fn legacy_fit_one(
+    pts: &[DVec3],
+    closed: bool,
+    min_n: usize,
+    edge_sharp: &[bool],
+    tols: &Tols,
+    caster: &dyn RayCaster,
+) -> curves::Curve {
+    let (tol, smooth_tol) = (tols.curve, tols.smooth);
     let m = pts.len();
     let on_feature: Vec<usize> = (0..m)
         .filter(|&k| {
@@ -311,11 +413,6 @@ fn fit_one(
     } else {
         tol
     };
-    // Off the features the (smoothed) polyline only says where the
-    // boundary runs: within half its mean edge length (the zigzag's
-    // amplitude, what the region reach of `optimize` covers) is as good as
-    // on it; what must hold to `tol` is that the curve lies on M.
-    let m = pts.len();
     let segs = if closed { m } else { m - 1 };
     let len: f64 = (0..segs)
         .map(|k| (pts[(k + 1) % m] - pts[k]).length())
@@ -334,8 +431,8 @@ fn fit_pieces(
     sharp: &[bool],
     caster: &dyn RayCaster,
     net: &network::Network,
-    tol: f64,
-    smooth_tol: f64,
+    tols: &Tols,
+    cache: &FitCache,
 ) -> PieceFits {
     use rayon::prelude::*;
     let edge_sharp_of = |a: u32, b: u32| {
@@ -399,7 +496,17 @@ fn fit_pieces(
             .zip(mins)
             .zip(&smoothed)
             .zip(&edge_sharp)
-            .map(|(((p, &m), pp), es)| fit_one(pp, p.closed, m, es, tol, smooth_tol, caster))
+            .map(|(((p, &m), pp), es)| {
+                let key = (p.verts.clone(), p.closed, m);
+                let hit = cache.lock().ok().and_then(|c| c.get(&key).cloned());
+                hit.unwrap_or_else(|| {
+                    let c = fit_one(pp, p.closed, m, es, tols, caster);
+                    if let Ok(mut cache) = cache.lock() {
+                        cache.insert(key, c.clone());
+                    }
+                    c
+                })
+            })
             .collect()
     };
     let mut fitted = fit_all(&mins);
@@ -433,13 +540,7 @@ fn fit_pieces(
 /// control points, the (up to 3) vertices on a sharp edge that turn most
 /// (over 2 polyline steps where an edge is not sharp, to see past a
 /// zigzag), at least [`KINK_MIN_TURN_DEG`]; the best saving wins.
-fn kinks(
-    net: &network::Network,
-    f: &PieceFits,
-    caster: &dyn RayCaster,
-    tol: f64,
-    smooth_tol: f64,
-) -> Vec<u32> {
+fn kinks(net: &network::Network, f: &PieceFits, caster: &dyn RayCaster, tols: &Tols) -> Vec<u32> {
     use rayon::prelude::*;
     let cos_min = KINK_MIN_TURN_DEG.to_radians().cos();
     net.pieces
@@ -488,13 +589,10 @@ fn kinks(
                     q.extend_from_slice(&pp[..=k]);
                     let mut qs: Vec<bool> = es[k..].to_vec();
                     qs.extend_from_slice(&es[..k]);
-                    fit_one(&q, false, 4, &qs, tol, smooth_tol, caster)
-                        .control
-                        .len()
-                        - 1
+                    fit_one(&q, false, 4, &qs, tols, caster).control.len() - 1
                 } else {
-                    let l = fit_one(&pp[..=k], false, 2, &es[..k], tol, smooth_tol, caster);
-                    let r = fit_one(&pp[k..], false, 2, &es[k..m - 1], tol, smooth_tol, caster);
+                    let l = fit_one(&pp[..=k], false, 2, &es[..k], tols, caster);
+                    let r = fit_one(&pp[k..], false, 2, &es[k..m - 1], tols, caster);
                     l.control.len() + r.control.len() - 1
                 };
                 if cost < n && best.map_or(true, |b| cost < b.0) {
@@ -588,10 +686,51 @@ pub struct PieceStat {
 }
 
 /// Builds the mechanical control mesh of `mesh` (`caster` over it).
+///
+/// The curve network is fitted first with the fewest control points
+/// ([`CurveFitter::Distance`]). When the enrichment then ends with faces
+/// still above `max_error` (some region it could not bring down: on
+/// block.ply three regions whose few boundary points span facets that
+/// fold, RMS 12‰), the network is fitted again with the conservative
+/// fitter ([`CurveFitter::Vertices`], more boundary points), which is
+/// kept if its RMS distance is lower by more than [`SAFE_FIT_GAIN`]
+/// (joint.ply: both end near 0.66‰, the compact one with 162 instead of
+/// 177 vertices); `stats.curve_fitter` says which.
 pub fn build_control(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
     opts: &MechanicalOptions,
+) -> Result<Built> {
+    if let Some(f) = opts.curve_fitter {
+        return build_with(mesh, caster, opts, f);
+    }
+    let compact = build_with(mesh, caster, opts, CurveFitter::Distance)?;
+    if !compact.stats.error_limit_reached {
+        return Ok(compact);
+    }
+    let safe = build_with(mesh, caster, opts, CurveFitter::Vertices)?;
+    let rms = |b: &Built| {
+        b.stats
+            .rounds
+            .last()
+            .map_or(f64::INFINITY, |r| r.rms_permille)
+    };
+    Ok(if rms(&compact) > SAFE_FIT_GAIN * rms(&safe) {
+        safe
+    } else {
+        compact
+    })
+}
+
+/// See [`build_control`]: the conservative network must lower the RMS
+/// distance by this factor to replace the compact one.
+pub const SAFE_FIT_GAIN: f64 = 1.25;
+
+fn build_with(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    opts: &MechanicalOptions,
+    fitter: CurveFitter,
 ) -> Result<Built> {
     opts.check()?;
     let diag = mesh.bbox_diagonal();
@@ -616,9 +755,15 @@ pub fn build_control(
     // feature gets a corner there when that saves control points (a cubic
     // B-spline needs many points to bend sharply, two straight halves need
     // none). Up to `KINK_PASSES` passes, each one corner per piece at most.
-    let tol = opts.curve_tolerance * diag;
+    let tols = Tols {
+        curve: opts.curve_tolerance * diag,
+        feature: opts.feature_tolerance * diag,
+        smooth: opts.smooth_curve_tolerance * diag,
+        legacy: fitter == CurveFitter::Vertices,
+    };
     let nv = mesh.positions.len();
     let mut extra_corner = vec![false; nv];
+    let cache = FitCache::default();
     let mut net = network::build_network(
         mesh,
         &topo,
@@ -628,11 +773,10 @@ pub fn build_control(
         &extra_corner,
     );
     lap("segmentation", &mut t);
-    let smooth_tol = opts.smooth_curve_tolerance * diag;
-    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol, smooth_tol);
+    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols, &cache);
     let mut kink_corners = 0;
     for _ in 0..KINK_PASSES {
-        let found = kinks(&net, &stage, caster, tol, smooth_tol);
+        let found = kinks(&net, &stage, caster, &tols);
         if found.is_empty() {
             break;
         }
@@ -648,7 +792,7 @@ pub fn build_control(
             &sharp,
             &extra_corner,
         );
-        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, tol, smooth_tol);
+        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols, &cache);
     }
     let PieceFits {
         edge_sharp: _,
@@ -860,6 +1004,7 @@ pub fn build_control(
     Ok(Built {
         control,
         stats: MechanicalStats {
+            curve_fitter: fitter,
             sharp_edges: seg.sharp_edges,
             sharp_edges_inside_regions: seg.sharp_edges_inside,
             regions: seg.num_regions,
