@@ -1,0 +1,421 @@
+//! Boundary-curve fit: each boundary loop of the control mesh fitted to
+//! the rim (boundary polyline) of M it follows, before the surface fit.
+//!
+//! Why: under Catmull-Clark with the "edge and corner" boundary rule
+//! (OpenSubdiv's `VTX_BOUNDARY_EDGE_AND_CORNER`, the evaluator's setting),
+//! the limit surface's border over a boundary loop without corners is the
+//! closed uniform cubic B-spline of the loop's control points, and depends
+//! on nothing else. The surface fit's border rows target the *closest*
+//! point of the rim, a one-sided measure: a border curve lying along part
+//! of the rim satisfies them as well as one covering all of it. Measured on
+//! the bunny at τ = 1 % (five holes), the border curves were within 2–5‰
+//! (mean) of the rim while the rim was 17–27‰ (mean) from them: each curve
+//! hugged one side of its hole and the limit surface capped the rest of
+//! it, where the displaced samples have nothing of M below them (98 % of
+//! the RMS D error on 2 % of the area).
+//!
+//! So each loop is fitted to its rim as a curve least-squares problem in
+//! the other direction — rim points to the curve — with foot-point
+//! parameter correction (Hoschek's "intrinsic parametrisation"): the data
+//! are the rim resampled evenly by arc length, each with a parameter on
+//! the curve; the control points solve the (tiny, dense) normal equations;
+//! the parameters are then re-projected onto the new curve, a few times.
+//! The initial parameters are arc-length proportional, with the phase and
+//! orientation that fit best, so a curve that collapsed onto part of its
+//! rim does not trap the fit. The fitted boundary control points are then
+//! held (see [`super::fit_with_progress`]), so the surface fit cannot let
+//! the border drift back.
+
+use crate::mesh::{ControlMesh, TriMesh, VertexId};
+use crate::DVec3;
+
+/// Boundary vertices of the control mesh moved by the curve fit, with
+/// their new positions (in vertex order), and the measured two-sided RMS
+/// distance (rim → curve) of each fitted loop before and after.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct RimFit {
+    pub moved: Vec<(VertexId, DVec3)>,
+    /// (rim → curve RMS before, after), per fitted loop, in mesh units.
+    pub loops: Vec<(f64, f64)>,
+}
+
+/// Closed boundary polylines of M, each as its vertex positions in order
+/// (`None` when the boundary is not a set of simple closed loops, e.g. a
+/// non-manifold vertex with two outgoing boundary edges: the curve fit is
+/// then skipped and the surface fit keeps its closest-point rim rows).
+fn rim_loops(mesh: &TriMesh) -> Option<Vec<Vec<DVec3>>> {
+    use std::collections::HashMap;
+    let mut count: HashMap<(u32, u32), u32> = HashMap::new();
+    for t in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *count.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+        }
+    }
+    // The outer half-edge of a boundary edge (a, b) runs b → a, as the
+    // control mesh's boundary half-edges run against their face.
+    let mut next: HashMap<u32, u32> = HashMap::new();
+    let mut starts: Vec<u32> = Vec::new();
+    for t in &mesh.triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            if count[&(a.min(b), a.max(b))] == 1 {
+                if next.insert(b, a).is_some() {
+                    return None;
+                }
+                starts.push(b);
+            }
+        }
+    }
+    let mut seen = std::collections::HashSet::new();
+    let mut loops = Vec::new();
+    for s in starts {
+        if seen.contains(&s) {
+            continue;
+        }
+        let mut l = Vec::new();
+        let mut c = s;
+        loop {
+            if !seen.insert(c) {
+                return None;
+            }
+            l.push(mesh.positions[c as usize]);
+            c = *next.get(&c)?;
+            if c == s {
+                break;
+            }
+        }
+        loops.push(l);
+    }
+    Some(loops)
+}
+
+/// Boundary loops of the control mesh as vertex lists (in the direction of
+/// the boundary half-edges).
+fn control_loops(control: &ControlMesh) -> Vec<Vec<VertexId>> {
+    let mut seen = vec![false; control.num_halfedges()];
+    let mut loops = Vec::new();
+    for h in 0..control.num_halfedges() {
+        let hid = crate::mesh::HalfedgeId(h as u32);
+        if seen[h] || control.is_halfedge_deleted(hid) || !control.is_boundary_halfedge(hid) {
+            continue;
+        }
+        let mut l = Vec::new();
+        let mut c = hid;
+        while !seen[c.idx()] {
+            seen[c.idx()] = true;
+            l.push(control.tail(c));
+            c = control.next(c);
+        }
+        loops.push(l);
+    }
+    loops
+}
+
+/// Uniform cubic B-spline basis at `t ∈ [0, 1)` of a segment.
+fn basis(t: f64) -> [f64; 4] {
+    let s = 1.0 - t;
+    [
+        s * s * s / 6.0,
+        (3.0 * t * t * t - 6.0 * t * t + 4.0) / 6.0,
+        (-3.0 * t * t * t + 3.0 * t * t + 3.0 * t + 1.0) / 6.0,
+        t * t * t / 6.0,
+    ]
+}
+
+/// Control-point indices and weights of the closed curve at parameter
+/// `u ∈ [0, m)`: segment `i = ⌊u⌋` spans control points `i − 1 … i + 2`
+/// (its ends are the limit points of vertices `i` and `i + 1`).
+fn weights(u: f64, m: usize) -> [(usize, f64); 4] {
+    let i = (u.floor() as isize).rem_euclid(m as isize) as usize;
+    let b = basis(u - u.floor());
+    [
+        ((i + m - 1) % m, b[0]),
+        (i, b[1]),
+        ((i + 1) % m, b[2]),
+        ((i + 2) % m, b[3]),
+    ]
+}
+
+fn eval(p: &[DVec3], u: f64) -> DVec3 {
+    weights(u, p.len())
+        .iter()
+        .fold(DVec3::ZERO, |a, &(j, w)| a + w * p[j])
+}
+
+/// The rim resampled at `n` points evenly spaced by arc length, with each
+/// point's arc-length fraction.
+fn resample(rim: &[DVec3], n: usize) -> Vec<(DVec3, f64)> {
+    let k = rim.len();
+    let seg: Vec<f64> = (0..k)
+        .map(|i| (rim[(i + 1) % k] - rim[i]).length())
+        .collect();
+    let total: f64 = seg.iter().sum();
+    let mut out = Vec::with_capacity(n);
+    let (mut i, mut acc) = (0usize, 0.0);
+    for j in 0..n {
+        let s = total * j as f64 / n as f64;
+        while i + 1 < k && acc + seg[i] < s {
+            acc += seg[i];
+            i += 1;
+        }
+        let t = if seg[i] > 0.0 {
+            ((s - acc) / seg[i]).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        out.push((rim[i] + t * (rim[(i + 1) % k] - rim[i]), j as f64 / n as f64));
+    }
+    out
+}
+
+/// Least-squares control points for data points with given parameters,
+/// plus a small second-difference fairness (keeps the normal equations
+/// definite on segments no data point reaches). Dense Cholesky: loops have
+/// at most a few hundred control points.
+fn solve(m: usize, data: &[(DVec3, f64)], fair: f64) -> Option<Vec<DVec3>> {
+    let mut a = vec![0.0; m * m];
+    let mut b = vec![DVec3::ZERO; m];
+    for &(q, u) in data {
+        let w = weights(u, m);
+        for &(i, wi) in &w {
+            b[i] += wi * q;
+            for &(j, wj) in &w {
+                a[i * m + j] += wi * wj;
+            }
+        }
+    }
+    for i in 0..m {
+        let r = [((i + m - 1) % m, 1.0), (i, -2.0), ((i + 1) % m, 1.0)];
+        for &(p, wp) in &r {
+            for &(q, wq) in &r {
+                a[p * m + q] += fair * wp * wq;
+            }
+        }
+    }
+    // Cholesky A = L Lᵀ in place (lower triangle).
+    for j in 0..m {
+        let mut d = a[j * m + j];
+        for k in 0..j {
+            d -= a[j * m + k] * a[j * m + k];
+        }
+        if !(d > 0.0) {
+            return None;
+        }
+        let d = d.sqrt();
+        a[j * m + j] = d;
+        for i in j + 1..m {
+            let mut s = a[i * m + j];
+            for k in 0..j {
+                s -= a[i * m + k] * a[j * m + k];
+            }
+            a[i * m + j] = s / d;
+        }
+    }
+    for i in 0..m {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= a[i * m + k] * b[k];
+        }
+        b[i] = s / a[i * m + i];
+    }
+    for i in (0..m).rev() {
+        let mut s = b[i];
+        for k in i + 1..m {
+            s -= a[k * m + i] * b[k];
+        }
+        b[i] = s / a[i * m + i];
+    }
+    Some(b)
+}
+
+/// Parameter of the point of the curve closest to `q`: the best of 16
+/// samples per segment, refined by golden-section search in its bracket.
+fn foot(p: &[DVec3], q: DVec3) -> f64 {
+    let m = p.len();
+    const S: usize = 16;
+    let h = 1.0 / S as f64;
+    let d2 = |u: f64| (eval(p, u) - q).length_squared();
+    let mut best = (f64::INFINITY, 0.0);
+    for k in 0..m * S {
+        let u = k as f64 * h;
+        let d = d2(u);
+        if d < best.0 {
+            best = (d, u);
+        }
+    }
+    let (mut lo, mut hi) = (best.1 - h, best.1 + h);
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    for _ in 0..30 {
+        let (x1, x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
+        if d2(x1) < d2(x2) {
+            hi = x2;
+        } else {
+            lo = x1;
+        }
+    }
+    (0.5 * (lo + hi)).rem_euclid(m as f64)
+}
+
+fn rms_to_curve(p: &[DVec3], data: &[(DVec3, f64)]) -> f64 {
+    let s: f64 = data
+        .iter()
+        .map(|&(q, _)| (eval(p, foot(p, q)) - q).length_squared())
+        .sum();
+    (s / data.len().max(1) as f64).sqrt()
+}
+
+/// Second-difference fairness weight, relative to one data point's.
+const FAIR: f64 = 1e-3;
+/// Foot-point parameter-correction rounds (the curve RMS settles in 5–8).
+const ROUNDS: usize = 10;
+/// Largest loop fitted (dense normal equations: m² memory, m³/3 flops).
+const MAX_LOOP: usize = 1500;
+
+/// Fits one closed control loop (positions `p`) to one rim polyline;
+/// returns the new control points and the (before, after) rim → curve RMS,
+/// or `None` when the fit does not improve on the current curve.
+fn fit_loop(p: &[DVec3], rim: &[DVec3]) -> Option<(Vec<DVec3>, f64, f64)> {
+    let m = p.len();
+    if m < 3 || m > MAX_LOOP || rim.len() < 3 {
+        return None;
+    }
+    let n = (8 * m).max(2 * rim.len());
+    let data = resample(rim, n);
+    let before = rms_to_curve(p, &data);
+    // Initial parameters: arc length, both orientations, phases in quarter
+    // segments. On a roundish rim every phase fits about equally well, and
+    // the phase decides where along the rim each control point goes: a
+    // wrong one turns the loop against its inner neighbours and twists
+    // the border strip of patches over the hole. So among the fits within
+    // 1.5× of the best residual (plus a hair for exact ties), the one that
+    // moves the control points least wins.
+    let mut cands: Vec<(f64, f64, Vec<DVec3>, Vec<(DVec3, f64)>)> = Vec::new();
+    for dir in [1.0, -1.0] {
+        for phase in 0..4 * m {
+            let off = phase as f64 / 4.0;
+            let d: Vec<(DVec3, f64)> = data
+                .iter()
+                .map(|&(q, s)| (q, (off + dir * s * m as f64).rem_euclid(m as f64)))
+                .collect();
+            let Some(c) = solve(m, &d, FAIR) else { continue };
+            let r: f64 = d.iter().map(|&(q, u)| (eval(&c, u) - q).length_squared()).sum();
+            let moved: f64 = c.iter().zip(p).map(|(a, b)| (*a - *b).length_squared()).sum();
+            cands.push((r, moved, c, d));
+        }
+    }
+    let rmin = cands.iter().map(|c| c.0).fold(f64::INFINITY, f64::min);
+    let (_, _, mut c, mut d) = cands
+        .into_iter()
+        .filter(|c| c.0 <= 2.25 * rmin + 1e-12 * (1.0 + rmin))
+        .min_by(|a, b| a.1.total_cmp(&b.1))?;
+    for _ in 0..ROUNDS {
+        for x in d.iter_mut() {
+            x.1 = foot(&c, x.0);
+        }
+        c = solve(m, &d, FAIR)?;
+    }
+    let after = rms_to_curve(&c, &data);
+    (after < before && c.iter().all(|x| x.is_finite())).then_some((c, before, after))
+}
+
+/// Fits every boundary loop of `control` that follows one rim loop of
+/// `mesh` (matched by the rim nearest to most of its control points, one
+/// control loop per rim) and has no corner vertex (a corner, tagged or a
+/// boundary vertex of one face, makes the limit border interpolate it:
+/// such loops keep the surface fit's closest-point rim rows only).
+pub(crate) fn fit_rims(mesh: &TriMesh, control: &ControlMesh) -> RimFit {
+    let mut out = RimFit::default();
+    let Some(rims) = rim_loops(mesh) else {
+        return out;
+    };
+    if rims.is_empty() {
+        return out;
+    }
+    let loops = control_loops(control);
+    let pos = control.positions();
+    // Which rim each control loop follows (majority of its vertices'
+    // nearest rim points).
+    let nearest_rim = |q: DVec3| -> usize {
+        let mut best = (f64::INFINITY, 0);
+        for (r, rim) in rims.iter().enumerate() {
+            for &x in rim {
+                let d = (x - q).length_squared();
+                if d < best.0 {
+                    best = (d, r);
+                }
+            }
+        }
+        best.1
+    };
+    let matched: Vec<Option<usize>> = loops
+        .iter()
+        .map(|l| {
+            let mut votes = vec![0usize; rims.len()];
+            for &v in l {
+                votes[nearest_rim(pos[v.idx()])] += 1;
+            }
+            let (r, &c) = votes.iter().enumerate().max_by_key(|&(i, c)| (*c, usize::MAX - i))?;
+            (2 * c > l.len()).then_some(r)
+        })
+        .collect();
+    for (li, l) in loops.iter().enumerate() {
+        let Some(r) = matched[li] else { continue };
+        if matched.iter().filter(|&&x| x == Some(r)).count() != 1 {
+            continue;
+        }
+        let corner = l
+            .iter()
+            .any(|&v| control.vertex_sharpness(v) > 0.0 || control.vertex_faces(v).count() < 2);
+        if corner {
+            continue;
+        }
+        let p: Vec<DVec3> = l.iter().map(|v| pos[v.idx()]).collect();
+        if let Some((c, before, after)) = fit_loop(&p, &rims[r]) {
+            out.moved.extend(l.iter().copied().zip(c));
+            out.loops.push((before, after));
+        }
+    }
+    out.moved.sort_by_key(|(v, _)| v.0);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A circle of radius 1 sampled at `n` points.
+    fn circle(n: usize, r: f64) -> Vec<DVec3> {
+        (0..n)
+            .map(|i| {
+                let a = std::f64::consts::TAU * i as f64 / n as f64;
+                DVec3::new(r * a.cos(), r * a.sin(), 0.0)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn collapsed_loop_is_spread_over_its_rim() {
+        // Twelve control points bunched on a quarter of the unit circle:
+        // their curve covers a quarter of the rim. The fit must cover all
+        // of it: a 12-point closed cubic B-spline approximates a circle to
+        // well under 1 % of its radius (the chord error of a 30° span is
+        // 3.4 %, the B-spline's far less after least squares).
+        let rim = circle(120, 1.0);
+        let p: Vec<DVec3> = (0..12)
+            .map(|i| {
+                let a = std::f64::consts::FRAC_PI_2 * i as f64 / 12.0;
+                DVec3::new(a.cos(), a.sin(), 0.0)
+            })
+            .collect();
+        let (c, before, after) = fit_loop(&p, &rim).expect("the fit improves");
+        assert!(before > 0.3, "before {before}");
+        assert!(after < 5e-3, "after {after}");
+        // Coverage both ways: every rim point is near the curve and every
+        // curve point is near the unit circle.
+        for k in 0..12 * 16 {
+            let q = eval(&c, k as f64 / 16.0);
+            assert!((q.length() - 1.0).abs() < 1e-2, "curve point off the rim: {q}");
+        }
+    }
+}
