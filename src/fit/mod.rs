@@ -86,8 +86,8 @@
 //! solve runs beside the score's back-distance queries (see the loop).
 
 mod compress;
-mod rim;
 pub mod curvature;
+mod rim;
 
 use std::time::Instant;
 
@@ -369,9 +369,6 @@ pub fn fit_with_progress(
     let mut held = vec![false; control.num_vertices()];
     if !rim_segments.is_empty() {
         let fitted = rim::fit_rims(mesh, &control);
-        if std::env::var_os("SUBDFIT_DEBUG_RIM").is_some() {
-            eprintln!("rim fit: {:?}", fitted.loops.iter().map(|(a, b)| (a * 1000.0 / diag, b * 1000.0 / diag)).collect::<Vec<_>>());
-        }
         let pos = control.positions_mut();
         for &(v, p) in &fitted.moved {
             pos[v.idx()] = p;
@@ -532,9 +529,9 @@ pub fn fit_with_progress(
                 let use_sdm = opts.objective == Objective::Sdm
                     || round + opts.final_sdm_rounds >= opts.max_iterations;
                 match &sdm.as_ref().filter(|_| use_sdm) {
-                    None => solve_point(
-                        &stencils, &limit, &hits, &face, &laplacian, &held, nv, opts,
-                    ),
+                    None => {
+                        solve_point(&stencils, &limit, &hits, &face, &laplacian, &held, nv, opts)
+                    }
                     Some((normals, curv)) => solve_sdm(
                         mesh, normals, curv, &stencils, &limit, &hits, &on_rim, &face, &laplacian,
                         &held, nv, opts,
@@ -908,12 +905,7 @@ const HOLD: f64 = 1e2;
 
 /// `L` (per coordinate block of size `stride`) stacked on `ε I` (`HOLD I`
 /// on the `held` vertices).
-fn regulariser(
-    laplacian: &[Vec<(u32, f64)>],
-    held: &[bool],
-    nv: usize,
-    stride: usize,
-) -> Triplets {
+fn regulariser(laplacian: &[Vec<(u32, f64)>], held: &[bool], nv: usize, stride: usize) -> Triplets {
     let n = nv * stride;
     let mut r = Triplets::new(2 * n, n);
     for (v, row) in laplacian.iter().enumerate() {

@@ -164,7 +164,10 @@ fn resample(rim: &[DVec3], n: usize) -> Vec<(DVec3, f64)> {
         } else {
             0.0
         };
-        out.push((rim[i] + t * (rim[(i + 1) % k] - rim[i]), j as f64 / n as f64));
+        out.push((
+            rim[i] + t * (rim[(i + 1) % k] - rim[i]),
+            j as f64 / n as f64,
+        ));
     }
     out
 }
@@ -193,6 +196,11 @@ fn solve(m: usize, data: &[(DVec3, f64)], fair: f64) -> Option<Vec<DVec3>> {
             }
         }
     }
+    cholesky_solve(a, b, m)
+}
+
+/// Solves `A x = b` (A dense symmetric positive definite, `m × m`).
+fn cholesky_solve(mut a: Vec<f64>, mut b: Vec<DVec3>, m: usize) -> Option<Vec<DVec3>> {
     // Cholesky A = L Lᵀ in place (lower triangle).
     for j in 0..m {
         let mut d = a[j * m + j];
@@ -298,9 +306,18 @@ fn fit_loop(p: &[DVec3], rim: &[DVec3]) -> Option<(Vec<DVec3>, f64, f64)> {
                 .iter()
                 .map(|&(q, s)| (q, (off + dir * s * m as f64).rem_euclid(m as f64)))
                 .collect();
-            let Some(c) = solve(m, &d, FAIR) else { continue };
-            let r: f64 = d.iter().map(|&(q, u)| (eval(&c, u) - q).length_squared()).sum();
-            let moved: f64 = c.iter().zip(p).map(|(a, b)| (*a - *b).length_squared()).sum();
+            let Some(c) = solve(m, &d, FAIR) else {
+                continue;
+            };
+            let r: f64 = d
+                .iter()
+                .map(|&(q, u)| (eval(&c, u) - q).length_squared())
+                .sum();
+            let moved: f64 = c
+                .iter()
+                .zip(p)
+                .map(|(a, b)| (*a - *b).length_squared())
+                .sum();
             cands.push((r, moved, c, d));
         }
     }
@@ -319,11 +336,286 @@ fn fit_loop(p: &[DVec3], rim: &[DVec3]) -> Option<(Vec<DVec3>, f64, f64)> {
     (after < before && c.iter().all(|x| x.is_finite())).then_some((c, before, after))
 }
 
+/// Control-point weights of an open chain `P_0 … P_q` whose ends are
+/// corners, at `u ∈ [0, q]`: the boundary rule with a corner is the cubic
+/// B-spline with the phantom points `P_{−1} = 2P_0 − P_1` and `P_{q+1} =
+/// 2P_q − P_{q−1}` (the corner is interpolated).
+fn chain_weights(u: f64, q: usize) -> Vec<(usize, f64)> {
+    let i = (u.floor().max(0.0) as usize).min(q - 1);
+    let b = basis((u - i as f64).clamp(0.0, 1.0));
+    let mut out = Vec::with_capacity(6);
+    for (k, &w) in b.iter().enumerate() {
+        let j = i as isize - 1 + k as isize;
+        if j < 0 {
+            out.push((0, 2.0 * w));
+            out.push((1, -w));
+        } else if j as usize > q {
+            out.push((q, 2.0 * w));
+            out.push((q - 1, -w));
+        } else {
+            out.push((j as usize, w));
+        }
+    }
+    out
+}
+
+fn eval_chain(p: &[DVec3], u: f64) -> DVec3 {
+    chain_weights(u, p.len() - 1)
+        .iter()
+        .fold(DVec3::ZERO, |a, &(j, w)| a + w * p[j])
+}
+
+/// Parameter of the point of the chain closest to `q` (as [`foot`]).
+fn foot_chain(p: &[DVec3], q: DVec3) -> f64 {
+    let n = p.len() - 1;
+    const S: usize = 16;
+    let h = 1.0 / S as f64;
+    let d2 = |u: f64| (eval_chain(p, u) - q).length_squared();
+    let mut best = (f64::INFINITY, 0.0);
+    for k in 0..=n * S {
+        let u = k as f64 * h;
+        let d = d2(u);
+        if d < best.0 {
+            best = (d, u);
+        }
+    }
+    let (mut lo, mut hi) = ((best.1 - h).max(0.0), (best.1 + h).min(n as f64));
+    let g = 0.5 * (5f64.sqrt() - 1.0);
+    for _ in 0..30 {
+        let (x1, x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
+        if d2(x1) < d2(x2) {
+            hi = x2;
+        } else {
+            lo = x1;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Least-squares interior points `P_1 … P_{q−1}` of a chain with fixed
+/// corner ends, for data points with parameters (second-difference
+/// fairness `FAIR` on the chain, phantom-free).
+fn solve_chain(p: &[DVec3], data: &[(DVec3, f64)]) -> Option<Vec<DVec3>> {
+    let q = p.len() - 1;
+    let n = q - 1; // unknowns: P_1 … P_{q−1} at 0 … n−1
+    let mut a = vec![0.0; n * n];
+    let mut b = vec![DVec3::ZERO; n];
+    let mut add = |row: &[(usize, f64)], target: DVec3, scale: f64| {
+        let mut rhs = target;
+        for &(j, w) in row {
+            if j == 0 || j == q {
+                rhs -= w * p[j];
+            }
+        }
+        for &(i, wi) in row {
+            if i == 0 || i == q {
+                continue;
+            }
+            b[i - 1] += scale * wi * rhs;
+            for &(j, wj) in row {
+                if j != 0 && j != q {
+                    a[(i - 1) * n + (j - 1)] += scale * wi * wj;
+                }
+            }
+        }
+    };
+    for &(x, u) in data {
+        add(&chain_weights(u, q), x, 1.0);
+    }
+    for i in 1..q {
+        add(&[(i - 1, 1.0), (i, -2.0), (i + 1, 1.0)], DVec3::ZERO, FAIR);
+    }
+    cholesky_solve(a, b, n)
+}
+
+/// Arc-length parametrisation of a closed polyline.
+struct ArcLength<'a> {
+    pts: &'a [DVec3],
+    cum: Vec<f64>,
+    total: f64,
+}
+
+impl<'a> ArcLength<'a> {
+    fn new(pts: &'a [DVec3]) -> Self {
+        let k = pts.len();
+        let mut cum = Vec::with_capacity(k + 1);
+        let mut acc = 0.0;
+        for i in 0..k {
+            cum.push(acc);
+            acc += (pts[(i + 1) % k] - pts[i]).length();
+        }
+        cum.push(acc);
+        ArcLength {
+            pts,
+            cum,
+            total: acc,
+        }
+    }
+    fn at(&self, s: f64) -> DVec3 {
+        let k = self.pts.len();
+        let s = s.rem_euclid(self.total.max(f64::MIN_POSITIVE));
+        let i = self
+            .cum
+            .partition_point(|&c| c <= s)
+            .saturating_sub(1)
+            .min(k - 1);
+        let len = self.cum[i + 1] - self.cum[i];
+        let t = if len > 0.0 {
+            (s - self.cum[i]) / len
+        } else {
+            0.0
+        };
+        self.pts[i] + t * (self.pts[(i + 1) % k] - self.pts[i])
+    }
+    /// Closest point and its arc-length position.
+    fn closest(&self, q: DVec3) -> (DVec3, f64) {
+        let k = self.pts.len();
+        let mut best = (f64::INFINITY, DVec3::ZERO, 0.0);
+        for i in 0..k {
+            let (a, b) = (self.pts[i], self.pts[(i + 1) % k]);
+            let ab = b - a;
+            let l2 = ab.length_squared();
+            let t = if l2 > 0.0 {
+                ((q - a).dot(ab) / l2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let x = a + t * ab;
+            let d = (x - q).length_squared();
+            if d < best.0 {
+                best = (d, x, self.cum[i] + t * (self.cum[i + 1] - self.cum[i]));
+            }
+        }
+        (best.1, best.2)
+    }
+}
+
+/// Fits a loop with corner vertices (`corners`: their indices in `p`, in
+/// loop order): each corner goes to its closest rim point (the limit
+/// border interpolates it), and each chain between consecutive corners is
+/// fitted to the stretch of rim between their positions, with fixed ends.
+fn fit_loop_with_corners(
+    p: &[DVec3],
+    corners: &[usize],
+    rim: &[DVec3],
+) -> Option<(Vec<DVec3>, f64, f64)> {
+    let m = p.len();
+    if m < 3 || m > MAX_LOOP || rim.len() < 3 || corners.is_empty() {
+        return None;
+    }
+    let arc = ArcLength::new(rim);
+    if !(arc.total > 0.0) {
+        return None;
+    }
+    let proj: Vec<(DVec3, f64)> = corners.iter().map(|&c| arc.closest(p[c])).collect();
+    let k = corners.len();
+    // Orientation: the corners' rim positions must go once around the rim
+    // in loop order, one way or the other.
+    let gaps = |dir: f64| -> Vec<f64> {
+        (0..k)
+            .map(|i| {
+                let g = (dir * (proj[(i + 1) % k].1 - proj[i].1)).rem_euclid(arc.total);
+                if k == 1 || g == 0.0 {
+                    arc.total
+                } else {
+                    g
+                }
+            })
+            .collect()
+    };
+    let winds = |g: &[f64]| (g.iter().sum::<f64>() - arc.total).abs() < 1e-9 * arc.total;
+    let dirs: Vec<f64> = [1.0, -1.0]
+        .into_iter()
+        .filter(|&d| winds(&gaps(d)))
+        .collect();
+    let mut best: Option<(f64, Vec<DVec3>, Vec<(DVec3, f64)>)> = None;
+    for dir in dirs {
+        let g = gaps(dir);
+        let mut c = p.to_vec();
+        for (i, &ci) in corners.iter().enumerate() {
+            c[ci] = proj[i].0;
+        }
+        let mut samples = Vec::new();
+        let mut ok = true;
+        for i in 0..k {
+            let (ca, cb) = (corners[i], corners[(i + 1) % k]);
+            let q = if cb > ca { cb - ca } else { cb + m - ca };
+            let idx: Vec<usize> = (0..=q).map(|j| (ca + j) % m).collect();
+            let n = ((2.0 * rim.len() as f64 * g[i] / arc.total).ceil() as usize).max(8 * q);
+            let data: Vec<(DVec3, f64)> = (0..n)
+                .map(|j| {
+                    let f = (j as f64 + 0.5) / n as f64;
+                    (arc.at(proj[i].1 + dir * f * g[i]), f * q as f64)
+                })
+                .collect();
+            samples.extend(data.iter().map(|x| x.0));
+            if q < 2 {
+                continue;
+            }
+            let mut chain: Vec<DVec3> = idx.iter().map(|&j| c[j]).collect();
+            let mut d = data;
+            let Some(x) = solve_chain(&chain, &d) else {
+                ok = false;
+                break;
+            };
+            chain[1..q].copy_from_slice(&x);
+            for _ in 0..ROUNDS {
+                for y in d.iter_mut() {
+                    y.1 = foot_chain(&chain, y.0);
+                }
+                let Some(x) = solve_chain(&chain, &d) else {
+                    ok = false;
+                    break;
+                };
+                chain[1..q].copy_from_slice(&x);
+            }
+            for (j, &v) in idx.iter().enumerate() {
+                c[v] = chain[j];
+            }
+        }
+        if !ok {
+            continue;
+        }
+        let moved: f64 = c
+            .iter()
+            .zip(p)
+            .map(|(a, b)| (*a - *b).length_squared())
+            .sum();
+        let data: Vec<(DVec3, f64)> = samples.into_iter().map(|x| (x, 0.0)).collect();
+        if best.as_ref().map_or(true, |b| moved < b.0) {
+            best = Some((moved, c, data));
+        }
+    }
+    let (_, c, data) = best?;
+    let rms = |pts: &[DVec3]| -> f64 {
+        // Distance to the union of the chains' curves.
+        let mut chains = Vec::new();
+        for i in 0..k {
+            let (ca, cb) = (corners[i], corners[(i + 1) % k]);
+            let q = if cb > ca { cb - ca } else { cb + m - ca };
+            chains.push((0..=q).map(|j| pts[(ca + j) % m]).collect::<Vec<_>>());
+        }
+        let s: f64 = data
+            .iter()
+            .map(|&(x, _)| {
+                chains
+                    .iter()
+                    .map(|ch| (eval_chain(ch, foot_chain(ch, x)) - x).length_squared())
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .sum();
+        (s / data.len().max(1) as f64).sqrt()
+    };
+    let (before, after) = (rms(p), rms(&c));
+    (after < before && c.iter().all(|x| x.is_finite())).then_some((c, before, after))
+}
+
 /// Fits every boundary loop of `control` that follows one rim loop of
 /// `mesh` (matched by the rim nearest to most of its control points, one
-/// control loop per rim) and has no corner vertex (a corner, tagged or a
-/// boundary vertex of one face, makes the limit border interpolate it:
-/// such loops keep the surface fit's closest-point rim rows only).
+/// control loop per rim). A corner (tagged, or a boundary vertex of one
+/// face, which the "edge and corner" rule sharpens) makes the limit border
+/// interpolate it: loops with corners are fitted chain by chain
+/// ([`fit_loop_with_corners`]), the others as closed curves ([`fit_loop`]).
 pub(crate) fn fit_rims(mesh: &TriMesh, control: &ControlMesh) -> RimFit {
     let mut out = RimFit::default();
     let Some(rims) = rim_loops(mesh) else {
@@ -355,7 +647,10 @@ pub(crate) fn fit_rims(mesh: &TriMesh, control: &ControlMesh) -> RimFit {
             for &v in l {
                 votes[nearest_rim(pos[v.idx()])] += 1;
             }
-            let (r, &c) = votes.iter().enumerate().max_by_key(|&(i, c)| (*c, usize::MAX - i))?;
+            let (r, &c) = votes
+                .iter()
+                .enumerate()
+                .max_by_key(|&(i, c)| (*c, usize::MAX - i))?;
             (2 * c > l.len()).then_some(r)
         })
         .collect();
@@ -364,14 +659,19 @@ pub(crate) fn fit_rims(mesh: &TriMesh, control: &ControlMesh) -> RimFit {
         if matched.iter().filter(|&&x| x == Some(r)).count() != 1 {
             continue;
         }
-        let corner = l
-            .iter()
-            .any(|&v| control.vertex_sharpness(v) > 0.0 || control.vertex_faces(v).count() < 2);
-        if corner {
-            continue;
-        }
+        let corners: Vec<usize> = (0..l.len())
+            .filter(|&i| {
+                let v = l[i];
+                control.vertex_sharpness(v) > 0.0 || control.vertex_faces(v).count() < 2
+            })
+            .collect();
         let p: Vec<DVec3> = l.iter().map(|v| pos[v.idx()]).collect();
-        if let Some((c, before, after)) = fit_loop(&p, &rims[r]) {
+        let fitted = if corners.is_empty() {
+            fit_loop(&p, &rims[r])
+        } else {
+            fit_loop_with_corners(&p, &corners, &rims[r])
+        };
+        if let Some((c, before, after)) = fitted {
             out.moved.extend(l.iter().copied().zip(c));
             out.loops.push((before, after));
         }
@@ -415,7 +715,10 @@ mod tests {
         // curve point is near the unit circle.
         for k in 0..12 * 16 {
             let q = eval(&c, k as f64 / 16.0);
-            assert!((q.length() - 1.0).abs() < 1e-2, "curve point off the rim: {q}");
+            assert!(
+                (q.length() - 1.0).abs() < 1e-2,
+                "curve point off the rim: {q}"
+            );
         }
     }
 }
