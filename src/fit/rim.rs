@@ -207,7 +207,8 @@ fn cholesky_solve(mut a: Vec<f64>, mut b: Vec<DVec3>, m: usize) -> Option<Vec<DV
         for k in 0..j {
             d -= a[j * m + k] * a[j * m + k];
         }
-        if !(d > 0.0) {
+        // `d > 0` is false for NaN too: not positive definite.
+        if d.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
             return None;
         }
         let d = d.sqrt();
@@ -280,12 +281,15 @@ const ROUNDS: usize = 10;
 /// Largest loop fitted (dense normal equations: m² memory, m³/3 flops).
 const MAX_LOOP: usize = 1500;
 
+/// Data points on the rim with their curve parameters.
+type Samples = Vec<(DVec3, f64)>;
+
 /// Fits one closed control loop (positions `p`) to one rim polyline;
 /// returns the new control points and the (before, after) rim → curve RMS,
 /// or `None` when the fit does not improve on the current curve.
 fn fit_loop(p: &[DVec3], rim: &[DVec3]) -> Option<(Vec<DVec3>, f64, f64)> {
     let m = p.len();
-    if m < 3 || m > MAX_LOOP || rim.len() < 3 {
+    if !(3..=MAX_LOOP).contains(&m) || rim.len() < 3 {
         return None;
     }
     let n = (8 * m).max(2 * rim.len());
@@ -298,7 +302,7 @@ fn fit_loop(p: &[DVec3], rim: &[DVec3]) -> Option<(Vec<DVec3>, f64, f64)> {
     // the border strip of patches over the hole. So among the fits within
     // 1.5× of the best residual (plus a hair for exact ties), the one that
     // moves the control points least wins.
-    let mut cands: Vec<(f64, f64, Vec<DVec3>, Vec<(DVec3, f64)>)> = Vec::new();
+    let mut cands: Vec<(f64, f64, Vec<DVec3>, Samples)> = Vec::new();
     for dir in [1.0, -1.0] {
         for phase in 0..4 * m {
             let off = phase as f64 / 4.0;
@@ -500,11 +504,11 @@ fn fit_loop_with_corners(
     rim: &[DVec3],
 ) -> Option<(Vec<DVec3>, f64, f64)> {
     let m = p.len();
-    if m < 3 || m > MAX_LOOP || rim.len() < 3 || corners.is_empty() {
+    if !(3..=MAX_LOOP).contains(&m) || rim.len() < 3 || corners.is_empty() {
         return None;
     }
     let arc = ArcLength::new(rim);
-    if !(arc.total > 0.0) {
+    if arc.total.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return None;
     }
     let proj: Vec<(DVec3, f64)> = corners.iter().map(|&c| arc.closest(p[c])).collect();
@@ -528,7 +532,7 @@ fn fit_loop_with_corners(
         .into_iter()
         .filter(|&d| winds(&gaps(d)))
         .collect();
-    let mut best: Option<(f64, Vec<DVec3>, Vec<(DVec3, f64)>)> = None;
+    let mut best: Option<(f64, Vec<DVec3>, Samples)> = None;
     for dir in dirs {
         let g = gaps(dir);
         let mut c = p.to_vec();
