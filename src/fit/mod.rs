@@ -87,6 +87,7 @@
 
 mod compress;
 pub mod curvature;
+mod rim;
 
 use std::time::Instant;
 
@@ -361,6 +362,19 @@ pub fn fit_with_progress(
     let rim_segments = rim_segments(mesh, &rim);
     let mut rim_sample = vec![false; locations.len()];
     if !rim_segments.is_empty() {
+        // Boundary-curve fit (see [`rim`]): each boundary loop of the
+        // control mesh is first fitted to its rim as a curve (rim → curve,
+        // so the border covers the whole rim instead of hugging part of
+        // it); the surface fit then starts from there, its border rows
+        // keeping the border on the rim. Holding the fitted loops fixed
+        // instead was measured worse (bunny τ = 1 %: RMS D 0.48‰ held vs
+        // 0.28‰ free; τ = 10 %: 1.54‰ both): the border patches need the
+        // loop to follow the interior's parameter correction.
+        let fitted = rim::fit_rims(mesh, &control);
+        let pos = control.positions_mut();
+        for &(v, p) in &fitted.moved {
+            pos[v.idx()] = p;
+        }
         for (v, flag) in control.vertices().zip(&mut rim_sample[data_samples..]) {
             *flag = control.is_boundary_vertex(v);
         }
