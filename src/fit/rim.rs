@@ -201,46 +201,7 @@ fn solve(m: usize, data: &[(DVec3, f64)], fair: f64) -> Option<Vec<DVec3>> {
             }
         }
     }
-    cholesky_solve(a, b, m)
-}
-
-/// Solves `A x = b` (A dense symmetric positive definite, `m × m`).
-fn cholesky_solve(mut a: Vec<f64>, mut b: Vec<DVec3>, m: usize) -> Option<Vec<DVec3>> {
-    // Cholesky A = L Lᵀ in place (lower triangle).
-    for j in 0..m {
-        let mut d = a[j * m + j];
-        for k in 0..j {
-            d -= a[j * m + k] * a[j * m + k];
-        }
-        // `d > 0` is false for NaN too: not positive definite.
-        if d.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-            return None;
-        }
-        let d = d.sqrt();
-        a[j * m + j] = d;
-        for i in j + 1..m {
-            let mut s = a[i * m + j];
-            for k in 0..j {
-                s -= a[i * m + k] * a[j * m + k];
-            }
-            a[i * m + j] = s / d;
-        }
-    }
-    for i in 0..m {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= a[i * m + k] * b[k];
-        }
-        b[i] = s / a[i * m + i];
-    }
-    for i in (0..m).rev() {
-        let mut s = b[i];
-        for k in i + 1..m {
-            s -= a[k * m + i] * b[k];
-        }
-        b[i] = s / a[i * m + i];
-    }
-    Some(b)
+    crate::solve::dense_cholesky_solve(a, m, b)
 }
 
 /// Parameter of the point of the curve closest to `q`: the best of 16
@@ -442,7 +403,7 @@ fn solve_chain(p: &[DVec3], data: &[(DVec3, f64)]) -> Option<Vec<DVec3>> {
     for i in 1..q {
         add(&[(i - 1, 1.0), (i, -2.0), (i + 1, 1.0)], DVec3::ZERO, FAIR);
     }
-    cholesky_solve(a, b, n)
+    crate::solve::dense_cholesky_solve(a, n, b)
 }
 
 /// Arc-length parametrisation of a closed polyline.

@@ -128,44 +128,6 @@ fn eval_d(control: &[DVec3], closed: bool, t: f64) -> DVec3 {
         .sum()
 }
 
-/// Solves the SPD system `a x = b` (dense, row-major, `n × n`) for three
-/// right-hand sides by Cholesky; `None` if not positive definite.
-fn cholesky_solve(mut a: Vec<f64>, n: usize, mut b: Vec<DVec3>) -> Option<Vec<DVec3>> {
-    for j in 0..n {
-        let mut d = a[j * n + j];
-        for k in 0..j {
-            d -= a[j * n + k] * a[j * n + k];
-        }
-        if d <= 0.0 || !d.is_finite() {
-            return None;
-        }
-        let d = d.sqrt();
-        a[j * n + j] = d;
-        for i in j + 1..n {
-            let mut s = a[i * n + j];
-            for k in 0..j {
-                s -= a[i * n + k] * a[j * n + k];
-            }
-            a[i * n + j] = s / d;
-        }
-    }
-    for i in 0..n {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= a[i * n + k] * b[k];
-        }
-        b[i] = s / a[i * n + i];
-    }
-    for i in (0..n).rev() {
-        let mut s = b[i];
-        for k in i + 1..n {
-            s -= a[k * n + i] * b[k];
-        }
-        b[i] = s / a[i * n + i];
-    }
-    Some(b)
-}
-
 /// Least-squares control points for fixed parameters (ends fixed on open
 /// curves).
 fn solve(
@@ -252,7 +214,7 @@ fn solve(
             }
         }
     }
-    let x = cholesky_solve(a, nf, b)?;
+    let x = crate::solve::dense_cholesky_solve(a, nf, b)?;
     for (k, &i) in free.iter().enumerate() {
         control[i] = x[k];
     }
@@ -608,7 +570,7 @@ fn solve_tdm(
             }
         }
     }
-    let x = cholesky_solve_scalar(a, dim, b)?;
+    let x = crate::solve::dense_cholesky_solve(a, dim, b)?;
     let mut out = control.to_vec();
     for (i, c) in out.iter_mut().enumerate() {
         if let Some(ci) = col(i) {
@@ -616,43 +578,6 @@ fn solve_tdm(
         }
     }
     Some(out)
-}
-
-/// [`cholesky_solve`] for one scalar right-hand side.
-fn cholesky_solve_scalar(mut a: Vec<f64>, n: usize, mut b: Vec<f64>) -> Option<Vec<f64>> {
-    for j in 0..n {
-        let mut d = a[j * n + j];
-        for k in 0..j {
-            d -= a[j * n + k] * a[j * n + k];
-        }
-        if d <= 0.0 || !d.is_finite() {
-            return None;
-        }
-        let d = d.sqrt();
-        a[j * n + j] = d;
-        for i in j + 1..n {
-            let mut s = a[i * n + j];
-            for k in 0..j {
-                s -= a[i * n + k] * a[j * n + k];
-            }
-            a[i * n + j] = s / d;
-        }
-    }
-    for i in 0..n {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= a[i * n + k] * b[k];
-        }
-        b[i] = s / a[i * n + i];
-    }
-    for i in (0..n).rev() {
-        let mut s = b[i];
-        for k in i + 1..n {
-            s -= a[k * n + i] * b[k];
-        }
-        b[i] = s / a[i * n + i];
-    }
-    Some(b)
 }
 
 /// The curve with `n` control points whose largest ratio of distance to

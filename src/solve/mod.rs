@@ -139,9 +139,88 @@ pub fn least_squares(
     Ok(x.chunks(a.cols).map(|c| c.to_vec()).collect())
 }
 
+/// `x * y` for two `f64`: inside [`dense_cholesky_solve`] the bound
+/// `f64: Mul<T>` hides `f64: Mul<f64>` from type inference.
+#[inline]
+fn scalar_mul(x: f64, y: f64) -> f64 {
+    x * y
+}
+
+/// Solves the small dense SPD system `a x = b` (`a` row-major `n × n`) by
+/// Cholesky, for right-hand sides of any vector type (`f64`, `DVec3`). The
+/// curve fits (rim loops of the global fit, mechanical boundary curves,
+/// Lavoué §5) have a few dozen unknowns: Eigen's sparse path would cost more
+/// than it saves. `None` when `a` is not positive definite (a pivot that is
+/// not a finite positive number, NaN included).
+pub(crate) fn dense_cholesky_solve<T>(mut a: Vec<f64>, n: usize, mut b: Vec<T>) -> Option<Vec<T>>
+where
+    T: Copy + std::ops::Sub<Output = T> + std::ops::Div<f64, Output = T>,
+    f64: std::ops::Mul<T, Output = T>,
+{
+    debug_assert!(a.len() == n * n && b.len() == n);
+    for j in 0..n {
+        let mut d = a[j * n + j];
+        for k in 0..j {
+            d -= scalar_mul(a[j * n + k], a[j * n + k]);
+        }
+        if d <= 0.0 || !d.is_finite() {
+            return None;
+        }
+        let d = d.sqrt();
+        a[j * n + j] = d;
+        for i in j + 1..n {
+            let mut s = a[i * n + j];
+            for k in 0..j {
+                s -= scalar_mul(a[i * n + k], a[j * n + k]);
+            }
+            a[i * n + j] = s / d;
+        }
+    }
+    for i in 0..n {
+        let mut s = b[i];
+        for k in 0..i {
+            s = s - a[i * n + k] * b[k];
+        }
+        b[i] = s / a[i * n + i];
+    }
+    for i in (0..n).rev() {
+        let mut s = b[i];
+        for k in i + 1..n {
+            s = s - a[k * n + i] * b[k];
+        }
+        b[i] = s / a[i * n + i];
+    }
+    Some(b)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn dense_cholesky_solves_spd_systems_and_refuses_the_rest() {
+        // A = M Mᵀ + I is SPD; check A x = b for f64 and vector right-hand sides.
+        let a = vec![4.0, 2.0, 0.5, 2.0, 5.0, 1.0, 0.5, 1.0, 3.0];
+        let x = [1.0, -2.0, 0.25];
+        let b: Vec<f64> = (0..3)
+            .map(|i| (0..3).map(|k| a[i * 3 + k] * x[k]).sum())
+            .collect();
+        let got = dense_cholesky_solve(a.clone(), 3, b.clone()).unwrap();
+        for (g, w) in got.iter().zip(x) {
+            assert!((g - w).abs() < 1e-12, "{g} vs {w}");
+        }
+        let bv: Vec<glam::DVec3> = b
+            .iter()
+            .map(|&v| glam::DVec3::new(v, 2.0 * v, -v))
+            .collect();
+        let gv = dense_cholesky_solve(a, 3, bv).unwrap();
+        for (g, w) in gv.iter().zip(x) {
+            assert!((*g - glam::DVec3::new(w, 2.0 * w, -w)).length() < 1e-12);
+        }
+        // Indefinite (eigenvalues 3 and -1) and NaN matrices are refused.
+        assert!(dense_cholesky_solve(vec![1.0, 2.0, 2.0, 1.0], 2, vec![1.0, 1.0]).is_none());
+        assert!(dense_cholesky_solve(vec![f64::NAN, 0.0, 0.0, 1.0], 2, vec![1.0, 1.0]).is_none());
+    }
 
     /// Line fit y = c0 + c1 t through noisy-free points: exact recovery.
     #[test]
