@@ -166,19 +166,13 @@ pub fn refine_offsets(
         let d_caster = make_raycaster(RayBackend::Embree, &dmesh)?;
         let mut a = Triplets::new(0, n);
         let mut rhs = Vec::new();
-        let (mut obj, mut obj_w) = (0.0, 0.0);
-        let (mut sub, mut sub_w) = (0.0, 0.0);
+        let mut score = Score::default();
         // M → D rows.
         let mq: Vec<DVec3> = mp.iter().step_by(stride).copied().collect();
         let m_hits = d_caster.closest_points(&mq, f64::INFINITY)?;
         for (k, (c, &w)) in m_hits.iter().zip(mw.iter().step_by(stride)).enumerate() {
             let Some(c) = c else { continue };
-            obj += w * c.distance * c.distance;
-            obj_w += w;
-            if (k * stride) % CHECK_STRIDE == 0 {
-                sub += w * c.distance * c.distance;
-                sub_w += w;
-            }
+            score.add(w, c.distance, (k * stride) % CHECK_STRIDE == 0);
             if check_only {
                 continue;
             }
@@ -200,12 +194,7 @@ pub fn refine_offsets(
         for (k, (c, &w)) in d_hits.iter().zip(dw.iter().step_by(stride)).enumerate() {
             let Some(c) = c else { continue };
             let w = w * scale_d;
-            obj += w * c.distance * c.distance;
-            obj_w += w;
-            if (k * stride) % CHECK_STRIDE == 0 {
-                sub += w * c.distance * c.distance;
-                sub_w += w;
-            }
+            score.add(w, c.distance, (k * stride) % CHECK_STRIDE == 0);
             if check_only {
                 continue;
             }
@@ -226,8 +215,7 @@ pub fn refine_offsets(
                 e,
             );
         }
-        let obj = (obj / obj_w.max(f64::MIN_POSITIVE)).sqrt();
-        let sub = (sub / sub_w.max(f64::MIN_POSITIVE)).sqrt();
+        let (obj, sub) = score.rms();
         // The stats are the subsample's, the one figure every round has.
         if round == 0 {
             stats.rms_before_permille = 1000.0 * sub / diag;
@@ -333,6 +321,36 @@ fn push_row(
     }
     a.rows += 1;
     rhs.push(sw * e);
+}
+
+/// Weighted mean squared distance over every measured point (`obj`) and
+/// over the check subsample (`sub`, every `CHECK_STRIDE`-th point), the
+/// two figures each round of [`refine`]-style rounds compares.
+#[derive(Default)]
+struct Score {
+    obj: f64,
+    obj_w: f64,
+    sub: f64,
+    sub_w: f64,
+}
+
+impl Score {
+    fn add(&mut self, w: f64, d: f64, in_subsample: bool) {
+        self.obj += w * d * d;
+        self.obj_w += w;
+        if in_subsample {
+            self.sub += w * d * d;
+            self.sub_w += w;
+        }
+    }
+
+    /// (RMS over all points, RMS over the subsample).
+    fn rms(&self) -> (f64, f64) {
+        (
+            (self.obj / self.obj_w.max(f64::MIN_POSITIVE)).sqrt(),
+            (self.sub / self.sub_w.max(f64::MIN_POSITIVE)).sqrt(),
+        )
+    }
 }
 
 #[cfg(test)]

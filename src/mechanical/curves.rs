@@ -152,15 +152,7 @@ fn solve(
         return Some(control);
     }
     let nf = free.len();
-    let col = |i: usize| {
-        if closed {
-            Some(i)
-        } else if i == 0 || i == n - 1 {
-            None
-        } else {
-            Some(i - 1)
-        }
-    };
+    let col = |i: usize| free_column(i, n, closed);
     let mut a = vec![0.0; nf * nf];
     let mut b = vec![DVec3::ZERO; nf];
     for (j, (p, &t)) in points.iter().zip(params).enumerate() {
@@ -480,15 +472,7 @@ fn solve_tdm(
     lambda: f64,
 ) -> Option<Vec<DVec3>> {
     let n = control.len();
-    let col = |i: usize| -> Option<usize> {
-        if closed {
-            Some(i)
-        } else if i == 0 || i == n - 1 {
-            None
-        } else {
-            Some(i - 1)
-        }
-    };
+    let col = |i: usize| free_column(i, n, closed);
     let nf = if closed { n } else { n - 2 };
     if nf == 0 {
         return Some(control.to_vec());
@@ -752,5 +736,18 @@ pub fn fit_samples_until(
             return curve;
         }
         n += 1;
+    }
+}
+
+/// Column of control point `i` among the unknowns of a curve solve: every
+/// point of a closed curve, the inner points of an open one (its ends are
+/// fixed on the corners, the 1-6-1 rule's end condition).
+fn free_column(i: usize, n: usize, closed: bool) -> Option<usize> {
+    if closed {
+        Some(i)
+    } else if i == 0 || i == n - 1 {
+        None
+    } else {
+        Some(i - 1)
     }
 }
