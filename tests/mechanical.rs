@@ -655,3 +655,61 @@ fn fandisk_sweep() {
         built.control.num_faces()
     );
 }
+
+// ---------------------------------------------------------------------
+// Enrichment (Lavoué §7.2–7.3): the RMS-vs-faces curve and Hoppe's line.
+// ---------------------------------------------------------------------
+
+/// Diagnostic (`HOP_ME=1.2e-3 cargo test --release --test mechanical
+/// hoppe_rounds -- --ignored --nocapture`): fandisk's rounds under one
+/// `--max-error`, with the faces and RMS of every region.
+#[test]
+#[ignore]
+fn hoppe_rounds() {
+    let mesh = match std::env::var("SUBDFIT_MESH") {
+        Ok(p) => common::load_ply(std::path::Path::new(&p)),
+        Err(_) => fandisk(),
+    };
+    let caster =
+        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
+    let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f64>().ok());
+    let mut o = mechanical::MechanicalOptions::default()
+        .with_max_error(env("HOP_ME").unwrap_or(mechanical::DEFAULT_MAX_ERROR));
+    if let Some(n) = env("HOP_ROUNDS") {
+        o = o.with_max_rounds(n as usize);
+    }
+    let t = std::time::Instant::now();
+    let built = mechanical::build_control(&mesh, caster.as_ref(), &o).unwrap();
+    let secs = t.elapsed().as_secs_f64();
+    let s = &built.stats;
+    for r in &s.rounds {
+        println!(
+            "F {:3} V {:3} rms {:.3} max {:.2} it {} over {:2} local {} diffuse {}",
+            r.faces,
+            r.vertices,
+            r.rms_permille,
+            r.max_permille,
+            r.geometry_iterations,
+            r.faces_over_limit,
+            r.local_fields,
+            r.diffuse_fields
+        );
+        if env("HOP_VERBOSE").is_some() {
+            let v: Vec<String> = r
+                .region_rms_permille
+                .iter()
+                .zip(&r.region_faces)
+                .map(|(e, f)| format!("{f}:{e:.2}"))
+                .collect();
+            println!("   {}", v.join(" "));
+        }
+    }
+    let (total, far, worst) = features_far(&mesh, &built);
+    let (mean, rms, max) = output_error(&mesh, &built);
+    println!(
+        "RESULT {} V {} F mean {mean:.3} RMS {rms:.3} max {max:.2}; features {far}/{total} worst {worst:.3}; {secs:.2}s opt {:.2}s",
+        built.control.num_vertices(),
+        built.control.num_faces(),
+        s.seconds.iter().find(|x| x.0 == "optimize").map_or(0.0, |x| x.1)
+    );
+}
