@@ -678,6 +678,12 @@ fn hoppe_rounds() {
     if let Some(n) = env("HOP_ROUNDS") {
         o = o.with_max_rounds(n as usize);
     }
+    if let Some(n) = env("HOP_M0") {
+        o.m0 = n as usize;
+    }
+    if let Some(x) = env("HOP_FAIR") {
+        o.fairness = x;
+    }
     let t = std::time::Instant::now();
     let built = mechanical::build_control(&mesh, caster.as_ref(), &o).unwrap();
     let secs = t.elapsed().as_secs_f64();

@@ -227,6 +227,9 @@ pub fn optimize(
     // which only adds points) — the other regions keep their progress.
     let mut region_best: Vec<Option<RegionState>> = Vec::new();
     let mut allow_local: Vec<bool> = Vec::new();
+    // Regions that regressed after a case-2 enrichment: left at their
+    // best state, never enriched again.
+    let mut frozen: Vec<bool> = Vec::new();
     // §7.1's foot points: the closest point of M *within the sample's own
     // region*. Along the limit normal (φ) or unrestricted, a sample near a
     // crease lands on the neighbouring face, and the update pulls the
@@ -393,7 +396,9 @@ pub fn optimize(
         if region_best.len() < nreg {
             region_best.resize(nreg, None);
             allow_local.resize(nreg, true);
+            frozen.resize(nreg, false);
         }
+        let face_over: Vec<bool> = frms.iter().map(|&e| e > limit).collect();
         let mut regressed = vec![false; nreg];
         for r in 0..nreg {
             if rcnt[r] == 0 {
@@ -406,10 +411,14 @@ pub fn optimize(
             match &region_best[r] {
                 Some(b) if e > 1.02 * b.rms => {
                     regressed[r] = true;
+                    // A second regression: case 2 failed too (after the
+                    // first one the region is enriched by case 2 only).
+                    // More faces will not help; keep its best state.
+                    frozen[r] = !allow_local[r];
                     allow_local[r] = false;
                 }
                 Some(b) if e >= b.rms => {}
-                _ => region_best[r] = Some(region_state(polys, r as u32, e)),
+                _ => region_best[r] = Some(region_state(polys, r as u32, e, &face_over)),
             }
         }
         let any_regressed = regressed.iter().any(|&x| x);
@@ -420,7 +429,7 @@ pub fn optimize(
         let cnt = ok.len().max(1) as f64;
         let over_all = (0..nf).filter(|&f| frms[f] > limit).count();
         let over: Vec<usize> = (0..nf)
-            .filter(|&f| frms[f] > limit && !regressed[polys.face_region[f] as usize])
+            .filter(|&f| face_over[f] && !regressed[polys.face_region[f] as usize])
             .collect();
         let mut rec = Round {
             faces: nf,
@@ -451,7 +460,11 @@ pub fn optimize(
             && rounds
                 .last()
                 .is_some_and(|p: &Round| rec.rms_permille > 0.98 * p.rms_permille);
-        if over_all == 0 || stalled || round == o.max_rounds || nf >= o.max_faces {
+        // Nothing left to enrich: every face over the limit lies in a
+        // frozen region.
+        let idle = over.is_empty()
+            && (0..nreg).all(|r| !regressed[r] || frozen[r] || region_best[r].is_none());
+        if over_all == 0 || stalled || idle || round == o.max_rounds || nf >= o.max_faces {
             rounds.push(rec);
             break;
         }
@@ -462,15 +475,31 @@ pub fn optimize(
         }
         if any_regressed {
             restore_regions(polys, &region_best, &regressed);
-            // The restored state is measured afresh next round, on that
-            // round's samples (their density follows the whole control
-            // mesh), and that measurement becomes its reference: without
-            // it a region measured slightly worse than its record would be
-            // restored again and again and never enriched.
-            for (b, &r) in region_best.iter_mut().zip(&regressed) {
-                if let (Some(b), true) = (b.as_mut(), r) {
-                    b.rms = f64::INFINITY;
+            // A restored region is enriched at once, by case 2, where its
+            // best state had faces over the limit (recorded with it).
+            // Waiting a round to re-measure it left it idle while the
+            // others moved on, and the round after could read as a stall
+            // (the total RMS barely moves when only the restored regions
+            // change) and end the loop with faces still over the limit
+            // and nothing refined ("over 25, local 0, diffuse 0" on
+            // fandisk at 1.1 × 10⁻³).
+            let mut again = Vec::new();
+            let mut k = vec![0usize; nreg];
+            for (f, &r) in polys.face_region.iter().enumerate() {
+                let r = r as usize;
+                if regressed[r] && !frozen[r] {
+                    if let Some(Some(b)) = region_best.get(r) {
+                        if b.over.get(k[r]).copied().unwrap_or(false) {
+                            again.push(f);
+                        }
+                    }
+                    k[r] += 1;
                 }
+            }
+            if !again.is_empty() {
+                let no_local = vec![false; nreg];
+                let (_, diffuse) = enrich(polys, &again, &[], &[], &no_local);
+                rec.diffuse_fields += diffuse;
             }
         }
         rounds.push(rec);
@@ -510,18 +539,22 @@ fn umbrella(control: &ControlMesh, fixed: usize) -> Vec<Vec<(u32, f64)>> {
 #[derive(Clone, Debug)]
 struct RegionState {
     rms: f64,
+    /// Per face (in `faces` order): its RMS was over the limit.
+    over: Vec<bool>,
     faces: Vec<Vec<u32>>,
     free: Vec<DVec3>,
 }
 
-fn region_state(p: &Polys, r: u32, rms: f64) -> RegionState {
+fn region_state(p: &Polys, r: u32, rms: f64, face_over: &[bool]) -> RegionState {
     let mut map: HashMap<u32, u32> = HashMap::new();
     let mut free = Vec::new();
     let mut faces = Vec::new();
+    let mut over = Vec::new();
     for (f, poly) in p.faces.iter().enumerate() {
         if p.face_region[f] != r {
             continue;
         }
+        over.push(face_over.get(f).copied().unwrap_or(false));
         faces.push(
             poly.iter()
                 .map(|&v| {
@@ -537,7 +570,12 @@ fn region_state(p: &Polys, r: u32, rms: f64) -> RegionState {
                 .collect(),
         );
     }
-    RegionState { rms, faces, free }
+    RegionState {
+        rms,
+        over,
+        faces,
+        free,
+    }
 }
 
 /// Rebuilds `p` region by region: the regions flagged in `restore` from
@@ -574,7 +612,7 @@ fn restore_regions(p: &mut Polys, states: &[Option<RegionState>], restore: &[boo
     for r in 0..nreg {
         let s = match states.get(r) {
             Some(Some(s)) if restore.get(r).copied().unwrap_or(false) => s.clone(),
-            _ => region_state(p, r as u32, 0.0),
+            _ => region_state(p, r as u32, 0.0, &[]),
         };
         let base = positions.len() as u32;
         positions.extend_from_slice(&s.free);
