@@ -31,10 +31,11 @@
 //! crease curves, e.g. a fillet spanned by its boundary curves alone) is
 //! cut along the chord between their midpoints instead, with no centre:
 //! the strip gains the row of points across it that its profile lacks, at
-//! one face per face (a face with one cut edge just gains its midpoint). Fanning such a quad into triangles around a centre,
-//! as before, gave six faces per quad for the same row: on fandisk with
-//! `--max-error 1.2e-3` the largest fillet went from 15 to 67 faces (199 in
-//! all, RMS 0.335‰) where the chords give 29 (157 in all, RMS 0.319‰).
+//! one face per face (a face with one cut edge just gains its midpoint).
+//! Fanning such a quad into triangles around a centre, as before, gave six
+//! faces per quad for the same row: on fandisk with `--max-error 1.2e-3`
+//! the largest fillet went from 15 to 67 faces (199 in all, RMS 0.335‰)
+//! where the chords alone gave 29 (157 in all, RMS 0.319‰).
 //!
 //! Regions are independent (their boundaries are creases of fixed curve
 //! points), which the loop uses twice: a geometry step is accepted per
@@ -398,8 +399,7 @@ pub fn optimize(
             rec.local_fields = local;
             rec.diffuse_fields = diffuse;
         }
-        if any_regressed {
-            restore_regions(polys, &region_best, &regressed);
+        if any_regressed && restore_regions(polys, &region_best, &regressed) {
             // A restored region is enriched at once, by case 2, where its
             // best state had faces over the limit (recorded with it).
             // Waiting a round to re-measure it left it idle while the
@@ -430,7 +430,8 @@ pub fn optimize(
         rounds.push(rec);
     }
     let all: Vec<bool> = region_best.iter().map(|b| b.is_some()).collect();
-    restore_regions(polys, &region_best, &all);
+    // (A shared free vertex, which no layout here has, leaves it as is.)
+    let _ = restore_regions(polys, &region_best, &all);
     // A last geometry pass on the output, run to convergence: the
     // umbrella damping of each step (λ|Lδ|², on the update, so it does not
     // move the minimum) makes the alternating foot-point iteration converge
@@ -666,14 +667,14 @@ fn region_state(p: &Polys, r: u32, rms: f64, face_over: &[bool]) -> RegionState 
 /// The regions must not share a free vertex (true of every layout built
 /// here: region boundaries are creases of fixed points, and enrichment
 /// never cuts a crease); if one is shared all the same, nothing is
-/// restored rather than crack the mesh.
-fn restore_regions(p: &mut Polys, states: &[Option<RegionState>], restore: &[bool]) {
+/// restored rather than crack the mesh. Returns whether it restored.
+fn restore_regions(p: &mut Polys, states: &[Option<RegionState>], restore: &[bool]) -> bool {
     let mut owner = vec![u32::MAX; p.positions.len().saturating_sub(p.fixed)];
     for (f, poly) in p.faces.iter().enumerate() {
         for &v in poly {
             if let Some(o) = owner.get_mut((v as usize).wrapping_sub(p.fixed)) {
                 if *o != u32::MAX && *o != p.face_region[f] {
-                    return;
+                    return false;
                 }
                 *o = p.face_region[f];
             }
@@ -714,6 +715,7 @@ fn restore_regions(p: &mut Polys, states: &[Option<RegionState>], restore: &[boo
     p.positions = positions;
     p.faces = faces;
     p.face_region = face_region;
+    true
 }
 
 fn enrich(
