@@ -50,8 +50,9 @@ pub struct ConvertArgs {
     /// sharp features as creases, compact quad/triangle control mesh), or
     /// `auto`: mechanical when at least 0.5 % of the edges are sharp
     /// (dihedral > 30°) and at least 30 % flat (< 1°); report.json says which and why. Mechanical mode
-    /// enriches in at most 8 rounds (5 geometry iterations each) and stops
-    /// at 20 000 faces, so it always terminates.
+    /// enriches in at most 8 rounds (5 geometry iterations each), then runs
+    /// at most 10 more geometry iterations while they still lower the
+    /// error, and stops at 20 000 faces, so it always terminates.
     #[arg(long, value_enum, default_value_t = ModeArg::Auto)]
     mode: ModeArg,
     /// Mechanical mode's E_limit: the RMS distance allowed per control
