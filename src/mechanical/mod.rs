@@ -945,6 +945,9 @@ fn build_with(
         polys.face_region = face_region;
         polys.to_control()?;
     }
+    if std::env::var_os("SUBDFIT_MECH_DEBUG").is_some() {
+        debug_dump(mesh, &topo, &seg, &net, &fitted, &sharp_piece, &polygons, &region_initial_faces, &region_tris, &curv, diag);
+    }
     let initial_faces = polys.faces.len();
     let initial_vertices = polys.positions.len();
     lap("polyhedron", &mut t);
@@ -1047,4 +1050,57 @@ fn build_with(
             seconds,
         },
     })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn debug_dump(
+    mesh: &TriMesh,
+    topo: &Topology,
+    seg: &Segmentation,
+    net: &network::Network,
+    fitted: &[curves::Curve],
+    sharp_piece: &[bool],
+    polygons: &[Option<Vec<polyhedron::PolyVertex>>],
+    rif: &[usize],
+    region_tris: &[Vec<u32>],
+    curv: &[VertexCurvature],
+    diag: f64,
+) {
+    let total: f64 = topo.face_areas.iter().sum();
+    if let Ok(path) = std::env::var("SUBDFIT_MECH_REGIONS") {
+        let txt: Vec<String> = seg.region.iter().map(|r| r.to_string()).collect();
+        let _ = std::fs::write(path, txt.join("\n"));
+    }
+    for r in 0..seg.num_regions {
+        let a: f64 = region_tris[r].iter().map(|&t| topo.face_areas[t as usize]).sum();
+        let mut kk = (0.0, 0.0);
+        let mut n = 0.0;
+        for &t in &region_tris[r] { for &v in &mesh.triangles[t as usize] { let c=&curv[v as usize]; kk.0 += c.k_max*diag; kk.1 += c.k_min*diag; n+=1.0; } }
+        let c = region_tris[r].iter().map(|&t| { let [a,b,c]=mesh.triangle(t as usize); (a+b+c)/3.0 }).sum::<DVec3>() / region_tris[r].len() as f64;
+        eprintln!("R{r}: tris {} area {:.1}% kmax {:.1} kmin {:.1} c ({:.2},{:.2},{:.2}) poly {:?} faces {} loops {:?}",
+            region_tris[r].len(), 100.0*a/total, kk.0/n, kk.1/n, c.x,c.y,c.z,
+            polygons[r].as_ref().map(|p| p.len()), rif[r],
+            net.loops[r].iter().map(|l| l.iter().map(|&(p,_)| format!("{}{}:{}", if sharp_piece[p] {"s"} else {"~"}, p, fitted[p].control.len())).collect::<Vec<_>>()).collect::<Vec<_>>());
+    }
+    for (pi, p) in net.pieces.iter().enumerate() {
+        let a = mesh.positions[p.verts[0] as usize];
+        let b = mesh.positions[*p.verts.last().unwrap() as usize];
+        eprintln!("P{pi}: regions {:?} sharp {} cp {} verts {} from v{} ({:.2},{:.2},{:.2}) to v{} ({:.2},{:.2},{:.2})",
+            p.regions, sharp_piece[pi], fitted[pi].control.len(), p.verts.len(), p.verts[0], a.x,a.y,a.z, p.verts.last().unwrap(), b.x,b.y,b.z);
+    }
+    // Corners: incident pieces with tangent directions.
+    for v in 0..mesh.positions.len() {
+        if !(net.corner[v] && net.on_boundary[v]) { continue; }
+        let mut dirs = Vec::new();
+        for (pi, p) in net.pieces.iter().enumerate() {
+            if p.closed { continue; }
+            let m = p.verts.len();
+            if p.verts[0] as usize == v { let d = (mesh.positions[p.verts[(m-1).min(2)] as usize]-mesh.positions[v]).normalize_or_zero(); dirs.push((pi, d)); }
+            if p.verts[m-1] as usize == v { let d = (mesh.positions[p.verts[m.saturating_sub(3)] as usize]-mesh.positions[v]).normalize_or_zero(); dirs.push((pi, d)); }
+        }
+        let mut s = String::new();
+        for i in 0..dirs.len() { for j in i+1..dirs.len() { s += &format!(" {}-{}:{:.0}", dirs[i].0, dirs[j].0, dirs[i].1.dot(dirs[j].1).clamp(-1.0,1.0).acos().to_degrees()); } }
+        let p = mesh.positions[v];
+        eprintln!("C v{v} ({:.2},{:.2},{:.2}) pieces {:?} angles{}", p.x,p.y,p.z, dirs.iter().map(|d| d.0).collect::<Vec<_>>(), s);
+    }
 }
