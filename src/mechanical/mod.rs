@@ -762,7 +762,22 @@ fn build_with(
         legacy: fitter == CurveFitter::Vertices,
     };
     let nv = mesh.positions.len();
-    let mut extra_corner = vec![false; nv];
+    // A feature that fades out (a vertex with one sharp edge of M) ends
+    // where its boundary piece stops being a feature line and goes on as a
+    // smooth continuation (see `segment` step 3b): a corner there lets the
+    // feature part be fitted as a feature line and the continuation as a
+    // smooth boundary (§5's piecewise smooth curves), where one curve for
+    // both needs the feature tolerance along a boundary that has no
+    // feature (fandisk: 78 → 77 curve control points; block 230 → 225).
+    let mut extra_corner: Vec<bool> = (0..nv as u32)
+        .map(|v| {
+            topo.vertex_edges(v)
+                .iter()
+                .filter(|&&e| sharp[e as usize])
+                .count()
+                == 1
+        })
+        .collect();
     let cache = FitCache::default();
     let mut net = network::build_network(
         mesh,
