@@ -262,9 +262,9 @@ pub fn cut_region(
 /// fan triangle's area), so the first step's quads do not fold.
 fn star_shaped(pts: &[(f64, f64)], sign: f64, scale: f64) -> bool {
     let k = pts.len();
-    let c = pts
-        .iter()
-        .fold((0.0, 0.0), |a, p| (a.0 + p.0 / k as f64, a.1 + p.1 / k as f64));
+    let c = pts.iter().fold((0.0, 0.0), |a, p| {
+        (a.0 + p.0 / k as f64, a.1 + p.1 / k as f64)
+    });
     let margin = STAR_MARGIN * scale / k as f64;
     (0..k).all(|i| {
         let (a, b) = (pts[i], pts[(i + 1) % k]);
