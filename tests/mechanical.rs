@@ -682,7 +682,10 @@ fn fandisk_table2_faces_at_default() {
     );
     assert!(f <= 89, "{f} faces");
     assert!(v <= 80, "{v} vertices");
-    assert!(mean <= 0.78 && rms <= 1.63 && max <= 10.46, "{mean} {rms} {max}");
+    assert!(
+        mean <= 0.78 && rms <= 1.63 && max <= 10.46,
+        "{mean} {rms} {max}"
+    );
     assert!(total > 500 && far == 0, "{far} of {total} (worst {worst})");
     assert_eq!(built.stats.sharp_edges_inside_regions, 0);
 }

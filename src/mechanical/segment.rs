@@ -374,8 +374,7 @@ fn merge_smooth(
             let mut union = tris[a as usize].clone();
             union.extend_from_slice(&tris[b as usize]);
             union.sort_unstable();
-            let ok = is_disc(mesh, topo, &trial, a, &union);
-            if ok {
+            if is_disc(mesh, topo, &trial, a, &union) {
                 region.copy_from_slice(&trial);
                 merges += 1;
                 done = false;
@@ -497,14 +496,6 @@ fn extend_dangling(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut
             .map(|(&v, _)| v)
             .collect();
         ends.sort_unstable();
-        // Dijkstra over r's edges from `start`, through no chain vertex but
-        // the free ends. With a direction `d` (the straightest
-        // continuation): cost = length × (2 − cos)², so going straight on
-        // costs 1 per unit, sideways 4, backwards 9, and the search stops at
-        // the first boundary vertex. Without (joins): plain length, never
-        // through the boundary. Returns the vertex reached (`None`: all of
-        // them), distances (as path lengths) and predecessors.
-        type Search = (Option<u32>, HashMap<u32, f64>, HashMap<u32, (u32, usize)>);
         // Chains: connected components of the inside-sharp edges, and
         // whether each is anchored on the region boundary (a cut that
         // reaches an anchored chain, a T-junction or a join of two anchored
@@ -537,6 +528,15 @@ fn extend_dangling(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut
         }
         let ends_set: HashSet<u32> = ends.iter().copied().collect();
         let anchored = |v: u32| chain_of.get(&v).is_some_and(|&c| anchored_chain[c]);
+        // Dijkstra over r's edges from `start`, through no chain vertex but
+        // the free ends. With a direction `d` (the straightest
+        // continuation): cost = length × (2 − cos)², so going straight on
+        // costs 1 per unit, sideways 4, backwards 9, and the search stops at
+        // the first vertex on the boundary or on another anchored chain.
+        // Without (joins): plain length, never
+        // through the boundary. Returns the vertex reached (`None`: all of
+        // them, or past `bound`), path lengths and predecessors.
+        type Search = (Option<u32>, HashMap<u32, f64>, HashMap<u32, (u32, usize)>);
         let search = |start: u32, d: Option<DVec3>, bound: f64, cut: &HashSet<usize>| -> Search {
             let own = chain_of.get(&start).copied();
             let is_target_chain = |w: u32| {
