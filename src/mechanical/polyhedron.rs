@@ -19,8 +19,8 @@
 //! in the plane whatever the face's shape, and what must not happen is a
 //! fold of the first step's quads (face point, edge midpoints, vertex),
 //! which star-shapedness from the face point rules out. On fandisk the
-//! planar regions' facets fall from 37 to 26 (83 → 72 initial faces, same
-//! error); joint.ply 205 → 182 faces.
+//! initial faces fall from 83 to 72 (same error); joint.ply's output from
+//! 205 to 182 faces.
 //!
 //! Chords never duplicate an edge that already exists (a curve segment or
 //! another region's chord), so the assembled mesh stays manifold.
