@@ -713,3 +713,90 @@ fn shared_cad_compact_network_keeps_features() {
         );
     }
 }
+
+/// §6's cut on a half-pipe (radius 1 around z, normals turning 180°, 32
+/// steps around and 16 along), with block's configuration: two feature
+/// arcs (4 and 5 control points) and one control point in the middle of
+/// each straight side. Every control edge of the facets must span at most
+/// a quarter turn (`polyhedron::MAX_CHORD_BEND`): one edge cannot carry
+/// more of a circle, and a facet spanning the pipe cuts through the air
+/// (block's three such regions ended at RMS 6–12‰). Without the rule the
+/// cut joins the two side points straight across the pipe (checked: an
+/// edge spanning 180°).
+/// Runs without the shared data.
+#[test]
+fn half_pipe_chords_span_at_most_a_quarter_turn() {
+    use mechanical::polyhedron::{cut_region, PolyVertex, RegionGeom};
+    let (n, m) = (32u32, 16u32);
+    let angle = |i: u32| std::f64::consts::PI * i as f64 / n as f64;
+    let mut positions = Vec::new();
+    for j in 0..=m {
+        for i in 0..=n {
+            let a = angle(i);
+            positions.push(DVec3::new(a.cos(), -a.sin(), 2.0 * j as f64 / m as f64));
+        }
+    }
+    let id = |i: u32, j: u32| j * (n + 1) + i;
+    let mut triangles = Vec::new();
+    for j in 0..m {
+        for i in 0..n {
+            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i, j + 1), id(i + 1, j + 1));
+            triangles.push([a, b, d]);
+            triangles.push([a, d, c]);
+        }
+    }
+    let mesh = TriMesh {
+        positions,
+        triangles,
+    };
+    let topo = Topology::new(&mesh);
+    let curv = mechanical::vertex_curvatures(&mesh, &topo, &CurvatureOptions::default());
+    let on_boundary: Vec<bool> = (0..=m)
+        .flat_map(|j| (0..=n).map(move |i| i == 0 || i == n || j == 0 || j == m))
+        .collect();
+    // Polygon in boundary order: bottom arc 0°..180° (3 spans), the left
+    // side's middle, top arc 180°..0° (4 spans: on block the two ends of a
+    // pipe have different counts too), the right side's middle. Anchors are grid
+    // vertices; the control points sit on them (only the planar cut reads
+    // positions).
+    let mut anchors: Vec<u32> = (0..=3).map(|k| id(k * n / 3, 0)).collect();
+    anchors.push(id(n, m / 2));
+    anchors.extend((0..=4).map(|k| id(n - k * n / 4, m)));
+    anchors.push(id(0, m / 2));
+    let poly: Vec<PolyVertex> = anchors
+        .iter()
+        .enumerate()
+        .map(|(k, &a)| PolyVertex {
+            id: k as u32,
+            anchor: a,
+        })
+        .collect();
+    let pos: Vec<DVec3> = anchors
+        .iter()
+        .map(|&a| mesh.positions[a as usize])
+        .collect();
+    let tris: Vec<u32> = (0..mesh.triangles.len() as u32).collect();
+    let g = RegionGeom::new(&mesh, &curv, &tris, &on_boundary, mesh.bbox_diagonal());
+    assert!(g.planar.is_none());
+    let mut edges = std::collections::HashSet::new();
+    for k in 0..poly.len() as u32 {
+        let b = (k + 1) % poly.len() as u32;
+        edges.insert((k.min(b), k.max(b)));
+    }
+    let faces = cut_region(&g, &poly, &pos, &mut edges);
+    println!("facets {faces:?}");
+    let turn = |v: u32| {
+        let p = pos[v as usize];
+        (-p.y).atan2(p.x).to_degrees()
+    };
+    for f in &faces {
+        for k in 0..f.len() {
+            let (a, b) = (f[k], f[(k + 1) % f.len()]);
+            let span = (turn(a) - turn(b)).abs();
+            assert!(
+                span <= 90.0 + 1e-6,
+                "facet {f:?}: edge {a}-{b} spans {span:.0}°"
+            );
+        }
+    }
+}
