@@ -6,17 +6,7 @@
 # for the issue's two Table 2 lines (numbers from report.json, measured on
 # the 2-core machine; features = sharp input edges within 1 permille of a
 # crease curve):
-#   --max-error 6e-3    Table 2 (<= 75 V, <= 89 F, mean <= 0.78, RMS <= 1.63,
-#                       max <= 10.46 permille): 81 V / 90 F, mean 0.62,
-#                       RMS 1.42, max 7.9, features 0/722 (size not met)
-#   --max-error 1.1e-3  Hoppe's line (<= 170 F at RMS <= 0.32 permille):
-#                       148 V / 158 F, mean 0.148, RMS 0.277, max 1.83,
-#                       features 0/722; the curve tolerances scale with
-#                       --max-error below 3e-3. RMS vs faces (--max-error:
-#                       F / RMS): 1e-3: 181 / 0.245, 1.2e-3: 151 / 0.331,
-#                       1.3e-3: 156 / 0.318, 1.5e-3: 124 / 0.374,
-#                       2e-3: 119 / 0.467
-# The default gives 83 V / 97 F, mean 0.35, RMS 0.72, max 4.5.
+#   FIGURES
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --bin subdfit

@@ -696,13 +696,18 @@ pub struct PieceStat {
 ///
 /// The curve network is fitted first with the fewest control points
 /// ([`CurveFitter::Distance`]). When the enrichment then ends with faces
-/// still above `max_error` (some region it could not bring down: on
-/// block.ply three regions whose few boundary points span facets that
-/// fold, RMS 12‰), the network is fitted again with the conservative
-/// fitter ([`CurveFitter::Vertices`], more boundary points), which is
-/// kept if its RMS distance is lower by more than [`SAFE_FIT_GAIN`]
-/// (joint.ply: both end near 0.66‰, the compact one with 162 instead of
-/// 177 vertices); `stats.curve_fitter` says which.
+/// still above `max_error`, the network is fitted again with the
+/// conservative fitter ([`CurveFitter::Vertices`], more boundary points),
+/// which is kept if its RMS distance is lower by more than
+/// [`SAFE_FIT_GAIN`]; `stats.curve_fitter` says which. A safety net, not
+/// the rule: fandisk, block and joint all end under `max_error` with the
+/// compact network and build once. (Block and joint used to fall back:
+/// three block regions and one joint region ended at RMS 6–15‰. Their
+/// curves were within tolerance; the cause was §6's cut, which spanned
+/// half-pipe regions with single chords from the middle control point of
+/// a smooth side, see `polyhedron::MAX_CHORD_BEND`. The conservative
+/// network got the same fans and only escaped them by a lucky round of
+/// enrichment.) Spot forced through this mode still builds twice.
 pub fn build_control(
     mesh: &TriMesh,
     caster: &dyn RayCaster,

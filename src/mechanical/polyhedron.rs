@@ -163,11 +163,13 @@ fn scores(g: &RegionGeom<'_>, poly: &[PolyVertex]) -> Vec<Vec<f64>> {
             let pb = g.mesh.positions[poly[j].anchor as usize];
             let seg = pb - pa;
             let (mut smin, mut smax, mut n) = (0.0, 0.0, 0usize);
+            let mut sag = 0.0f64;
             let mut u = pred[b];
             let mut guard = 0;
             while u != usize::MAX && u != a && guard < g.verts.len() {
                 let v = g.verts[u] as usize;
                 let c = &g.curv[v];
+                sag = sag.max(normal_sag(g.mesh.positions[v], c.normal, pa, pb));
                 let (tmin, tmax) = if g.on_boundary[v] {
                     (90.0, 90.0)
                 } else if c.isotropic {
@@ -189,7 +191,7 @@ fn scores(g: &RegionGeom<'_>, poly: &[PolyVertex]) -> Vec<Vec<f64>> {
                 45.0
             } else {
                 f64::min(smin, smax) / n as f64
-            };
+            } + bend_penalty(sag, seg.length());
         }
     }
     sc
@@ -388,5 +390,48 @@ fn convex_parts(
             }
             None => out.push(p),
         }
+    }
+}
+
+// ---- Chord bend (a chord may not span more than a quarter turn) ----------
+//
+// Diagnosed on block.ply (issue 6): a half-pipe region (normals turning
+// 180° from −x through −y to +x, bounded by two feature arcs and two smooth
+// sides) was cut into fans from the middle control points of its smooth
+// sides. The coherency score SC only compares the *straight* chord's
+// direction with the curvature lines along the Dijkstra path, and a chord
+// straight across the pipe follows a line of curvature (the circle)
+// perfectly, so SC rated it 0°. But one control edge cannot carry half a
+// circle: the initial facets cut through the air inside the pipe (region
+// RMS 47‰ before, 11.9‰ after the geometry step), and the enrichment never
+// recovered (block ended at RMS 3.6‰ with three such regions, joint at
+// 3.5‰ with one, which is why both used to fall back to a second build).
+
+/// Largest bend of a chord, as the ratio of its path's deviation from the
+/// straight chord (along the surface normal) to the chord's length:
+/// `tan(22.5°)/2 ≈ 0.207`, the ratio of a circular arc of a quarter turn.
+/// A Catmull-Clark control edge spans about one B-spline span, and a circle
+/// takes at least four of them; a chord over a longer arc is scored as a
+/// boundary (90°), so it is cut only when nothing else can be.
+pub const MAX_CHORD_BEND: f64 = 0.207_106_781_186_547_5;
+
+/// Distance of `p` (normal `n`) from the segment `a b`, along `n`: how far
+/// the surface at `p` lies off the straight chord, in the direction the
+/// chord would leave the surface. A path that curves *within* the surface
+/// (around a concave part of a flat region's outline) has no normal
+/// deviation and is not penalised.
+fn normal_sag(p: DVec3, n: DVec3, a: DVec3, b: DVec3) -> f64 {
+    let ab = b - a;
+    let t = ((p - a).dot(ab) / ab.length_squared().max(1e-300)).clamp(0.0, 1.0);
+    (p - (a + t * ab)).dot(n).abs()
+}
+
+/// SC's penalty (degrees) for a chord of length `len` whose path deviates
+/// by `sag` (see [`MAX_CHORD_BEND`]).
+fn bend_penalty(sag: f64, len: f64) -> f64 {
+    if sag > MAX_CHORD_BEND * len {
+        90.0
+    } else {
+        0.0
     }
 }

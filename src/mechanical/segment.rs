@@ -299,6 +299,19 @@ pub fn segment(
             queue.push(new);
         }
     }
+    // 4b. Dangling features again, now that every region is a disc. Step
+    // 3b's cut of a region that is not yet a disc need not separate it
+    // along every chain: on block.ply a two-edge chain (30.5°) dangling
+    // inside an annular region had both ends continued, one to each
+    // boundary loop, so its cut did not separate (another chain's did) and
+    // the chain stayed inside, rounded off 26‰ away from any crease. In a
+    // disc a cut from boundary to boundary always separates, and every
+    // part stays a disc (the cut graph touches the boundary). A no-op
+    // when no sharp edge is left inside a region (fandisk, joint). A region
+    // whose parts would not all be discs (two continuations meeting the
+    // boundary at one vertex pinch it: spot forced through this mode) is
+    // left as it is.
+    extend_dangling_in_discs(mesh, topo, &sharp, &mut region);
     let num_regions = renumber(&mut region) as usize;
     let sharp_edges = sharp.iter().filter(|&&s| s).count();
     let sharp_edges_inside = topo
@@ -699,6 +712,38 @@ fn extend_dangling(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut
             if c > 0 {
                 region[t] = base + c - 1;
                 done_regions.insert(base + c - 1);
+            }
+        }
+    }
+}
+
+/// Step 4b of [`segment`]: [`extend_dangling`] on the (disc) regions, each
+/// region's cut kept only if every part it makes is a disc.
+fn extend_dangling_in_discs(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut [u32]) {
+    let mut trial = region.to_vec();
+    extend_dangling(mesh, topo, sharp, &mut trial);
+    if trial == region {
+        return;
+    }
+    // Parts of each old region (the labels a cut gives are new, so parts
+    // of different regions never share one).
+    let mut parts: std::collections::BTreeMap<u32, std::collections::BTreeMap<u32, Vec<u32>>> =
+        Default::default();
+    for (t, (&old, &new)) in region.iter().zip(&trial).enumerate() {
+        parts
+            .entry(old)
+            .or_default()
+            .entry(new)
+            .or_default()
+            .push(t as u32);
+    }
+    for (_, ps) in parts {
+        if ps.len() < 2 || !ps.iter().all(|(&l, ts)| is_disc(mesh, topo, &trial, l, ts)) {
+            continue;
+        }
+        for (&l, ts) in &ps {
+            for &t in ts {
+                region[t as usize] = l;
             }
         }
     }
