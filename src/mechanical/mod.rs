@@ -871,10 +871,24 @@ fn build_with(
         let n = c.control.len();
         let mut list = Vec::with_capacity(n);
         for (i, &x) in c.control.iter().enumerate() {
-            let id = if !p.closed && i == 0 {
-                corner_id[&p.verts[0]]
-            } else if !p.closed && i == n - 1 {
-                corner_id[p.verts.last().unwrap_or(&p.verts[0])]
+            let end = if p.closed {
+                None
+            } else if i == 0 {
+                p.verts.first()
+            } else if i == n - 1 {
+                p.verts.last()
+            } else {
+                None
+            };
+            let id = if let Some(v) = end {
+                // An open piece ends at corners by construction (network.rs);
+                // a miss is a network defect, reported instead of a panic.
+                *corner_id.get(v).ok_or_else(|| Error::Topology {
+                    element: format!("vertex {v}"),
+                    msg:
+                        "a boundary curve of the segmentation ends at a vertex that is not a corner"
+                            .into(),
+                })?
             } else {
                 positions.push(x);
                 positions.len() as u32 - 1

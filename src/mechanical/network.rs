@@ -120,7 +120,14 @@ pub fn build_network(
                 let ed = &topo.edges[e as usize];
                 let w = if ed.v[0] == v { ed.v[1] } else { ed.v[0] };
                 if w == start_v {
-                    return (verts, !corner[w as usize]);
+                    if corner[w as usize] {
+                        // A loop through one corner is stored as an open
+                        // piece from the corner back to it, so both ends
+                        // resolve to the corner's control vertex.
+                        verts.push(w);
+                        return (verts, false);
+                    }
+                    return (verts, true);
                 }
                 verts.push(w);
                 if corner[w as usize] {
