@@ -752,14 +752,18 @@ fn build_fitted(
     opts: &MechanicalOptions,
     fitter: CurveFitter,
 ) -> Result<Built> {
-    let slit = build_with(mesh, caster, opts, fitter, true)?;
-    if slit.stats.slit_edges == 0 {
-        return Ok(slit);
+    // An error of the slit build (a slit polygon the facets could not
+    // cover, then no star layout either) is answered by the other build,
+    // which repeats it if it was not the slits' doing.
+    match build_with(mesh, caster, opts, fitter, true) {
+        Ok(slit)
+            if slit.stats.slit_edges == 0
+                || (slit.stats.regions_skipped == 0 && !slit.stats.star_fallback) =>
+        {
+            Ok(slit)
+        }
+        _ => build_with(mesh, caster, opts, fitter, false),
     }
-    if slit.stats.regions_skipped == 0 && !slit.stats.star_fallback {
-        return Ok(slit);
-    }
-    build_with(mesh, caster, opts, fitter, false)
 }
 
 fn build_with(
