@@ -278,7 +278,19 @@ pub fn cut_region(
                 // is preferred among equal scores.
                 let tri_pen = if s1 == 3 || s2 == 3 { 10.0 } else { 0.0 };
                 let bal = 5.0 * (1.0 - s1.min(s2) as f64 / s1.max(s2) as f64);
-                let score = 0.5 * (sc[ia][ib] + sc[ib][ia]) + tri_pen + bal;
+                // From a tip, the straightest continuation of the feature
+                // (as step 3b of `segment` continues it): the turn from the
+                // slit's last chord, in degrees, is added.
+                let turn = tip.map_or(0.0, |t| {
+                    let other = if a == t { ib } else { ia };
+                    let pt = g.mesh.positions[poly[p[t]].anchor as usize];
+                    let prev = g.mesh.positions[poly[p[(t + 1) % k]].anchor as usize];
+                    let dir = (pt - prev).normalize_or_zero();
+                    let to =
+                        (g.mesh.positions[poly[other].anchor as usize] - pt).normalize_or_zero();
+                    dir.dot(to).clamp(-1.0, 1.0).acos().to_degrees()
+                });
+                let score = 0.5 * (sc[ia][ib] + sc[ib][ia]) + tri_pen + bal + turn;
                 if best.map_or(true, |x| score < x.0) {
                     best = Some((score, a, b));
                 }
