@@ -757,10 +757,14 @@ fn fandisk_hoppe_line() {
 /// Fandisk at the default `E_limit` against Table 2's face bar: fading
 /// features merged and re-cut with the least new boundary (§4), corners at
 /// fading tips (§5), planar facets kept whole while star-shaped (§6.3.2).
-/// Measured (this test's samples): 80 vertices, 83 faces, mean 0.38‰,
-/// RMS 0.70‰, max 4.4‰, every sharp edge within 0.88‰ of a crease. Asserted: the paper's face
-/// bar (≤ 89) and error bars, the features bar, and the vertex count with
-/// its measured value as a regression guard (Table 2's ≤ 75 is not met).
+/// Fading features that hang from their region's boundary are slits of it
+/// (see `fandisk_table2_vertices_with_slits`). Measured (this test's
+/// samples): 77 vertices, 80 faces, mean 0.36‰, RMS 0.69‰, max 5.8‰,
+/// every sharp edge within 0.88‰ of a crease (80 V / 83 F before the
+/// slits). Asserted: the paper's face bar (≤ 89) and error bars, the
+/// features bar, and the vertex count with its measured value as a
+/// regression guard (Table 2's ≤ 75 is met at `--max-error 6e-3`, not at
+/// the default).
 #[test]
 fn fandisk_table2_faces_at_default() {
     let mesh = fandisk();
@@ -775,7 +779,7 @@ fn fandisk_table2_faces_at_default() {
         "{v} vertices {f} faces: mean {mean:.3}‰ RMS {rms:.3}‰ max {max:.2}‰; {far} of {total} sharp edges beyond 1‰ (worst {worst:.3}‰)"
     );
     assert!(f <= 89, "{f} faces");
-    assert!(v <= 80, "{v} vertices");
+    assert!(v <= 77, "{v} vertices");
     assert!(
         mean <= 0.78 && rms <= 1.63 && max <= 10.46,
         "{mean} {rms} {max}"
@@ -927,4 +931,48 @@ fn half_pipe_chords_span_at_most_a_quarter_turn() {
             );
         }
     }
+}
+
+// ===========================================================================
+// Table 2's vertex bar (issue 6): fading features as slits of their region.
+// ===========================================================================
+
+/// Fandisk at `--max-error 6e-3` against Table 2's full line: ≤ 75
+/// control vertices and ≤ 89 faces with mean ≤ 0.78‰, RMS ≤ 1.63‰, max
+/// ≤ 10.46‰, and every sharp input edge within 1‰ of a crease. The two
+/// features that fade out inside fandisk's top region (the top crease and
+/// the cone's side crease) stay slits of that region
+/// (`SegmentOptions::slits`): their creases end at their tips, as on M.
+/// Continued to the far side of their regions instead (the network before),
+/// they cost 5 curve control points (77 against 72: the continuations'
+/// interior points, the two corners where they landed and the splits of
+/// the lines they landed on) and the line was 78 V / 76 F.
+/// Measured (this test's samples): 73 V / 72 F, mean 0.72‰, RMS 1.52‰,
+/// max 7.9‰, worst feature edge 0.88‰.
+#[test]
+fn fandisk_table2_vertices_with_slits() {
+    let mesh = fandisk();
+    let caster =
+        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
+    let o = mechanical::MechanicalOptions::default().with_max_error(6e-3);
+    let built = mechanical::build_control(&mesh, caster.as_ref(), &o).unwrap();
+    built.control.validate().unwrap();
+    let (mean, rms, max) = output_error(&mesh, &built);
+    let (total, far, worst) = features_far(&mesh, &built);
+    let (v, f) = (built.control.num_vertices(), built.control.num_faces());
+    println!(
+        "{v} vertices {f} faces: mean {mean:.3}‰ RMS {rms:.3}‰ max {max:.2}‰; {far} of {total} sharp edges beyond 1‰ (worst {worst:.3}‰); {} slit edges",
+        built.stats.slit_edges
+    );
+    assert!(
+        built.stats.slit_edges > 0,
+        "no slit: the test measures nothing new"
+    );
+    assert!(v <= 75 && f <= 89, "{v} vertices {f} faces");
+    assert!(
+        mean <= 0.78 && rms <= 1.63 && max <= 10.46,
+        "{mean} {rms} {max}"
+    );
+    assert!(total > 500 && far == 0, "{far} of {total} (worst {worst})");
+    assert_eq!(built.stats.sharp_edges_inside_regions, 0);
 }

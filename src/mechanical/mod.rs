@@ -181,6 +181,9 @@ pub struct MechanicalStats {
     pub curve_fitter: CurveFitter,
     pub sharp_edges: usize,
     pub sharp_edges_inside_regions: usize,
+    /// Sharp edges inside regions kept as creases on slits of their
+    /// region's boundary ([`SegmentOptions::slits`]).
+    pub slit_edges: usize,
     pub regions: usize,
     pub region_splits: usize,
     pub regions_merged: usize,
@@ -714,13 +717,13 @@ pub fn build_control(
     opts: &MechanicalOptions,
 ) -> Result<Built> {
     if let Some(f) = opts.curve_fitter {
-        return build_with(mesh, caster, opts, f);
+        return build_fitted(mesh, caster, opts, f);
     }
-    let compact = build_with(mesh, caster, opts, CurveFitter::Distance)?;
+    let compact = build_fitted(mesh, caster, opts, CurveFitter::Distance)?;
     if !compact.stats.error_limit_reached {
         return Ok(compact);
     }
-    let safe = build_with(mesh, caster, opts, CurveFitter::Vertices)?;
+    let safe = build_fitted(mesh, caster, opts, CurveFitter::Vertices)?;
     let rms = |b: &Built| {
         b.stats
             .rounds
@@ -738,11 +741,37 @@ pub fn build_control(
 /// distance by this factor to replace the compact one.
 pub const SAFE_FIT_GAIN: f64 = 1.25;
 
+/// [`build_with`] with fading features left as slits
+/// ([`SegmentOptions::slits`]) when every one hangs from its region's
+/// boundary, else (or when a slit region's polyhedron could not be built:
+/// a region skipped, the star fallback) with the features continued to the
+/// far side of their regions.
+fn build_fitted(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    opts: &MechanicalOptions,
+    fitter: CurveFitter,
+) -> Result<Built> {
+    // An error of the slit build (a slit polygon the facets could not
+    // cover, then no star layout either) is answered by the other build,
+    // which repeats it if it was not the slits' doing.
+    match build_with(mesh, caster, opts, fitter, true) {
+        Ok(slit)
+            if slit.stats.slit_edges == 0
+                || (slit.stats.regions_skipped == 0 && !slit.stats.star_fallback) =>
+        {
+            Ok(slit)
+        }
+        _ => build_with(mesh, caster, opts, fitter, false),
+    }
+}
+
 fn build_with(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
     opts: &MechanicalOptions,
     fitter: CurveFitter,
+    slits: bool,
 ) -> Result<Built> {
     opts.check()?;
     let diag = mesh.bbox_diagonal();
@@ -760,7 +789,19 @@ fn build_with(
     let topo = Topology::new(mesh);
     let curv = vertex_curvatures(mesh, &topo, &CurvatureOptions::default());
     lap("curvature", &mut t);
-    let seg = segment(mesh, &topo, &curv, &SegmentOptions::default());
+    let seg = segment(
+        mesh,
+        &topo,
+        &curv,
+        &SegmentOptions {
+            slits,
+            ..SegmentOptions::default()
+        },
+    );
+    // Sharp edges left inside regions are slits of their region's boundary
+    // loop (only with `slits`; without, they are rounded off).
+    let slits = seg.slits;
+    let slit_edges = if slits { seg.sharp_edges_inside } else { 0 };
     let sharp = topo.sharp_edges();
     // §5: curves. The paper's fit is "piecewise smooth ... including sharp
     // vertex processing" (LDB05b): a piece whose polyline kinks along a
@@ -823,6 +864,7 @@ fn build_with(
         seg.num_regions,
         &sharp,
         &extra_corner,
+        slits,
     );
     lap("segmentation", &mut t);
     let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols, &cache);
@@ -843,6 +885,7 @@ fn build_with(
             seg.num_regions,
             &sharp,
             &extra_corner,
+            slits,
         );
         stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols, &cache);
     }
@@ -946,7 +989,12 @@ fn build_with(
                 let mut ids: Vec<u32> = p.iter().map(|x| x.id).collect();
                 ids.sort_unstable();
                 ids.dedup();
-                p.len() >= 3 && ids.len() == p.len()
+                // A slit visits its points twice, once per side, never
+                // twice in a row.
+                let n = p.len();
+                p.len() >= 3
+                    && (ids.len() == n
+                        || (slit_edges > 0 && (0..n).all(|k| p[k].id != p[(k + 1) % n].id)))
             });
         if poly.is_none() {
             skipped += 1;
@@ -1072,7 +1120,8 @@ fn build_with(
         stats: MechanicalStats {
             curve_fitter: fitter,
             sharp_edges: seg.sharp_edges,
-            sharp_edges_inside_regions: seg.sharp_edges_inside,
+            sharp_edges_inside_regions: seg.sharp_edges_inside - slit_edges,
+            slit_edges,
             regions: seg.num_regions,
             region_splits: seg.splits,
             regions_merged: seg.merged,

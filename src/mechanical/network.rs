@@ -30,7 +30,10 @@ pub struct Network {
 
 /// The network of `region`'s boundaries. `extra_corner` (indexed by vertex
 /// of M, may be shorter) adds corners on boundaries, where §5's fit found
-/// that a feature kinks.
+/// that a feature kinks. With `slits`, a sharp edge with one region on
+/// both sides is a boundary edge too (a slit: a feature that fades out
+/// inside its region, see `SegmentOptions::slits`); the region's loop then
+/// runs along it on both sides.
 pub fn build_network(
     mesh: &TriMesh,
     topo: &Topology,
@@ -38,6 +41,7 @@ pub fn build_network(
     num_regions: usize,
     sharp: &[bool],
     extra_corner: &[bool],
+    slits: bool,
 ) -> Network {
     let nv = mesh.positions.len();
     let side = |f: u32| {
@@ -50,7 +54,10 @@ pub fn build_network(
     let is_b: Vec<bool> = topo
         .edges
         .iter()
-        .map(|e| !e.is_interior() || side(e.faces[0]) != side(e.faces[1]))
+        .enumerate()
+        .map(|(i, e)| {
+            !e.is_interior() || side(e.faces[0]) != side(e.faces[1]) || (slits && sharp[i])
+        })
         .collect();
     let mut deg = vec![0u32; nv];
     let mut on_boundary = vec![false; nv];
@@ -212,6 +219,39 @@ pub fn build_network(
             }
         }
     }
+    // The triangle holding each directed boundary half-edge, to take at a
+    // vertex with several outgoing boundary half-edges (a slit's root) the
+    // one that follows in rotation through the region's triangles: the
+    // next boundary half-edge of the same loop.
+    let mut half_tri: HashMap<(u32, u32), u32> = HashMap::new();
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        for k in 0..3 {
+            if is_b[topo.tri_edges[t][k] as usize] {
+                half_tri.insert((tri[k], tri[(k + 1) % 3]), t as u32);
+            }
+        }
+    }
+    let next_half = |a: u32, b: u32| -> Option<u32> {
+        let mut t = *half_tri.get(&(a, b))?;
+        for _ in 0..64 {
+            let tri = mesh.triangles[t as usize];
+            let k = (0..3).find(|&k| tri[k] == b)?;
+            let e = topo.tri_edges[t as usize][k];
+            if is_b[e as usize] {
+                return Some(tri[(k + 1) % 3]);
+            }
+            let ed = &topo.edges[e as usize];
+            t = if ed.faces[0] == t {
+                ed.faces[1]
+            } else {
+                ed.faces[0]
+            };
+            if t == u32::MAX {
+                return None;
+            }
+        }
+        None
+    };
     for (r, outr) in out.iter_mut().enumerate() {
         let mut starts: Vec<u32> = outr.keys().copied().collect();
         starts.sort_unstable();
@@ -224,17 +264,22 @@ pub fn build_network(
                 let mut guard = 0;
                 loop {
                     if let Some(&(pi, fwd)) = piece_pos.get(&(a, b)) {
-                        if (seq.last().map(|l| l.0) != Some(pi) || pieces[pi].closed)
-                            && seq.last() != Some(&(pi, fwd))
-                        {
+                        // Each piece once per traversal; a slit's piece
+                        // comes back at once the other way round.
+                        if seq.last() != Some(&(pi, fwd)) {
                             seq.push((pi, fwd));
                         }
                     }
                     if b == s {
                         break;
                     }
+                    let rotated = slits.then(|| next_half(a, b)).flatten().and_then(|n| {
+                        let l = outr.get_mut(&b)?;
+                        let i = l.iter().position(|&x| x == n)?;
+                        Some(l.swap_remove(i))
+                    });
                     a = b;
-                    match outr.get_mut(&a).and_then(|l| l.pop()) {
+                    match rotated.or_else(|| outr.get_mut(&a).and_then(|l| l.pop())) {
                         Some(n) => b = n,
                         None => break,
                     }

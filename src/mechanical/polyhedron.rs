@@ -207,25 +207,66 @@ pub fn cut_region(
 ) -> Vec<Vec<u32>> {
     let key = |a: u32, b: u32| (a.min(b), a.max(b));
     let mut out = Vec::new();
-    if let Some((_, n)) = g.planar {
+    // A slit (a feature fading out inside the region, see
+    // `SegmentOptions::slits`) visits its points twice; every facet must
+    // hold a point once, so such a polygon is cut until none repeats
+    // (the planar decomposition below assumes a simple polygon).
+    let repeats = |p: &[usize]| {
+        let mut ids: Vec<u32> = p.iter().map(|&i| poly[i].id).collect();
+        ids.sort_unstable();
+        ids.windows(2).any(|w| w[0] == w[1])
+    };
+    let all: Vec<usize> = (0..poly.len()).collect();
+    let slit = repeats(&all);
+    if let (Some((_, n)), false) = (g.planar, slit) {
         let ids: Vec<u32> = poly.iter().map(|p| p.id).collect();
         convex_parts(&ids, positions, n, edges, &mut out);
         return out;
     }
     let sc = scores(g, poly);
     // Work on index lists into `poly`.
-    let mut stack: Vec<Vec<usize>> = vec![(0..poly.len()).collect()];
+    let mut stack: Vec<Vec<usize>> = vec![all];
     while let Some(p) = stack.pop() {
         let k = p.len();
-        if k <= 4 {
+        if k <= 4 && !repeats(&p) {
             out.push(p.iter().map(|&i| poly[i].id).collect());
             continue;
         }
+        // A slit's tip (both neighbours the same point) is cut first, to a
+        // point off that slit: the two sides of the slit then lie in two
+        // different parts, each visiting the slit's points once, and no
+        // facet joins the slit's sides (which would fold it over the
+        // feature). `slit_run`: the tip's slit, as offsets either side.
+        let id_at = |j: usize| poly[p[j % k]].id;
+        let tip = (0..k).find(|&t| k > 3 && id_at(t + k - 1) == id_at(t + 1));
+        let slit_run = tip.map_or(0, |t| {
+            (1..k / 2)
+                .take_while(|&j| id_at(t + k - j) == id_at(t + j))
+                .count()
+        });
+        let on_tip_slit = |b: usize| {
+            tip.is_some_and(|t| {
+                let d = (b + k - t) % k;
+                d <= slit_run || k - d <= slit_run
+            })
+        };
         let mut best: Option<(f64, usize, usize)> = None;
         for a in 0..k {
             for b in a + 2..k {
                 if a == 0 && b == k - 1 {
                     continue;
+                }
+                if let Some(t) = tip {
+                    let other = if a == t {
+                        b
+                    } else if b == t {
+                        a
+                    } else {
+                        continue;
+                    };
+                    if on_tip_slit(other) {
+                        continue;
+                    }
                 }
                 let (ia, ib) = (p[a], p[b]);
                 if poly[ia].id == poly[ib].id || edges.contains(&key(poly[ia].id, poly[ib].id)) {
@@ -237,7 +278,19 @@ pub fn cut_region(
                 // is preferred among equal scores.
                 let tri_pen = if s1 == 3 || s2 == 3 { 10.0 } else { 0.0 };
                 let bal = 5.0 * (1.0 - s1.min(s2) as f64 / s1.max(s2) as f64);
-                let score = 0.5 * (sc[ia][ib] + sc[ib][ia]) + tri_pen + bal;
+                // From a tip, the straightest continuation of the feature
+                // (as step 3b of `segment` continues it): the turn from the
+                // slit's last chord, in degrees, is added.
+                let turn = tip.map_or(0.0, |t| {
+                    let other = if a == t { ib } else { ia };
+                    let pt = g.mesh.positions[poly[p[t]].anchor as usize];
+                    let prev = g.mesh.positions[poly[p[(t + 1) % k]].anchor as usize];
+                    let dir = (pt - prev).normalize_or_zero();
+                    let to =
+                        (g.mesh.positions[poly[other].anchor as usize] - pt).normalize_or_zero();
+                    dir.dot(to).clamp(-1.0, 1.0).acos().to_degrees()
+                });
+                let score = 0.5 * (sc[ia][ib] + sc[ib][ia]) + tri_pen + bal + turn;
                 if best.map_or(true, |x| score < x.0) {
                     best = Some((score, a, b));
                 }

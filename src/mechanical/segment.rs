@@ -74,6 +74,14 @@ pub struct SegmentOptions {
     /// Merge regions across smooth boundaries while the union stays a
     /// disc (step 3a of [`segment`]): true.
     pub merge_smooth: bool,
+    /// Leave a sharp chain that fades out inside a region as a slit of
+    /// that region when the chain hangs from the region's boundary (steps
+    /// 3b/4b then skip it): false. The crease then ends at the chain's
+    /// tip, as on M, instead of going on as a smooth boundary to the far
+    /// side of the region, which costs that continuation's control points
+    /// and a corner where it lands (see `build_with`, which falls back to
+    /// the continuation when a slit region's polyhedron cannot be built).
+    pub slits: bool,
 }
 
 impl Default for SegmentOptions {
@@ -83,6 +91,7 @@ impl Default for SegmentOptions {
             min_class_share: 0.1,
             max_splits: 256,
             merge_smooth: true,
+            slits: false,
         }
     }
 }
@@ -96,6 +105,10 @@ pub struct Segmentation {
     /// Sharp edges with the same region on both sides (a feature line that
     /// fades out inside a face; kept smooth).
     pub sharp_edges_inside: usize,
+    /// Whether the sharp edges left inside regions are slits (see
+    /// [`SegmentOptions::slits`]): every chain of them hangs from its
+    /// region's boundary.
+    pub slits: bool,
     pub splits: usize,
     pub merged: usize,
     /// Pairs of regions merged across a smooth boundary (step 3a).
@@ -281,7 +294,10 @@ pub fn segment(
     // anchored on it, or two tips are joined (see `extend_dangling`), and
     // the region is cut along chain + continuation: the feature then lies
     // on a boundary.
-    extend_dangling(mesh, topo, &sharp, &mut region);
+    let slits = opts.slits && inside_chains_hang(topo, &sharp, &region);
+    if !slits {
+        extend_dangling(mesh, topo, &sharp, &mut region);
+    }
     // 4. Disc-making splits.
     let mut splits = 0;
     let mut queue: Vec<u32> = (0..renumber(&mut region)).collect();
@@ -311,7 +327,9 @@ pub fn segment(
     // whose parts would not all be discs (two continuations meeting the
     // boundary at one vertex pinch it: spot forced through this mode) is
     // left as it is.
-    extend_dangling_in_discs(mesh, topo, &sharp, &mut region);
+    if !slits {
+        extend_dangling_in_discs(mesh, topo, &sharp, &mut region);
+    }
     let num_regions = renumber(&mut region) as usize;
     let sharp_edges = sharp.iter().filter(|&&s| s).count();
     let sharp_edges_inside = topo
@@ -325,6 +343,7 @@ pub fn segment(
         num_regions,
         sharp_edges,
         sharp_edges_inside,
+        slits: slits && sharp_edges_inside > 0,
         splits,
         merged,
         merged_smooth,
@@ -715,6 +734,55 @@ fn extend_dangling(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut
             }
         }
     }
+}
+
+/// Whether every connected chain of sharp edges inside a region touches
+/// that region's boundary ([`SegmentOptions::slits`]): such a chain is a
+/// slit of its region's boundary loop, where a chain floating inside would
+/// be a second loop (a hole), which the polyhedron stage does not build.
+fn inside_chains_hang(topo: &Topology, sharp: &[bool], region: &[u32]) -> bool {
+    let side = |f: u32| {
+        if f == u32::MAX {
+            u32::MAX
+        } else {
+            region[f as usize]
+        }
+    };
+    let inside = |e: usize| {
+        let ed = &topo.edges[e];
+        sharp[e] && ed.is_interior() && side(ed.faces[0]) == side(ed.faces[1])
+    };
+    let on_boundary = |v: u32| {
+        topo.vertex_edges(v).iter().any(|&e| {
+            let [f0, f1] = topo.edges[e as usize].faces;
+            side(f0) != side(f1)
+        })
+    };
+    let mut seen = vec![false; topo.edges.len()];
+    for e0 in 0..topo.edges.len() {
+        if seen[e0] || !inside(e0) {
+            continue;
+        }
+        seen[e0] = true;
+        let mut stack = vec![e0];
+        let mut anchored = false;
+        while let Some(e) = stack.pop() {
+            for &v in &topo.edges[e].v {
+                anchored |= on_boundary(v);
+                for &f in topo.vertex_edges(v) {
+                    let f = f as usize;
+                    if !seen[f] && inside(f) {
+                        seen[f] = true;
+                        stack.push(f);
+                    }
+                }
+            }
+        }
+        if !anchored {
+            return false;
+        }
+    }
+    true
 }
 
 /// Step 4b of [`segment`]: [`extend_dangling`] on the (disc) regions, each
