@@ -300,6 +300,26 @@ fn point_segment(p: DVec3, a: DVec3, b: DVec3) -> f64 {
     (p - (a + t * ab)).length()
 }
 
+/// Fandisk through [`mechanical::build_control`] with Embree, the output
+/// checked for a valid control mesh.
+fn build_fandisk(o: &mechanical::MechanicalOptions) -> (TriMesh, mechanical::Built) {
+    let mesh = fandisk();
+    let caster =
+        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
+    let built = mechanical::build_control(&mesh, caster.as_ref(), o).unwrap();
+    built.control.validate().unwrap();
+    (mesh, built)
+}
+
+/// The mesh of the ignored diagnostics: `SUBDFIT_MESH` (a PLY path) or
+/// fandisk.
+fn diagnostic_mesh() -> TriMesh {
+    match std::env::var("SUBDFIT_MESH") {
+        Ok(p) => common::load_ply(std::path::Path::new(&p)),
+        Err(_) => fandisk(),
+    }
+}
+
 /// Features kept (issue 6's acceptance): points on every input edge with a
 /// dihedral angle above 30° lie within 1‰ of the diagonal from a crease
 /// curve of the output's limit surface. The crease curves are sampled with
@@ -408,40 +428,6 @@ fn fandisk_features_kept() {
     );
 }
 
-/// Diagnostic on the shared CAD meshes (`cargo test --test mechanical
-/// shared_cad_figures -- --ignored --nocapture`; skipped without the data
-/// directory): size, error and features kept for block and joint.
-#[test]
-#[ignore]
-fn shared_cad_figures() {
-    let Some(dir) = common::data_dir() else {
-        eprintln!("skipping: no data directory");
-        return;
-    };
-    for name in ["block.ply", "joint.ply"] {
-        let path = dir.join(name);
-        if !path.exists() {
-            eprintln!("skipping {name}: not in {}", dir.display());
-            continue;
-        }
-        let mesh = common::load_ply(&path);
-        let caster =
-            subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
-        let built = mechanical::build_control(&mesh, caster.as_ref(), &Default::default()).unwrap();
-        let (total, far, worst) = features_far(&mesh, &built);
-        let last = built.stats.rounds.last().unwrap();
-        println!(
-            "{name}: {} vertices {} faces, rms {:.3}‰ mean {:.3}‰ max {:.3}‰; {total} sharp edges, {far} farther than 1‰ (worst {worst:.3}‰), {} inside regions",
-            built.control.num_vertices(),
-            built.control.num_faces(),
-            last.rms_permille,
-            last.mean_permille,
-            last.max_permille,
-            built.stats.sharp_edges_inside_regions
-        );
-    }
-}
-
 /// Surface-to-mesh distance of `built`'s limit surface (patch samples as
 /// in the fit, closest points on M): (mean, RMS, max) in ‰ of the diagonal.
 fn output_error(mesh: &TriMesh, built: &mechanical::Built) -> (f64, f64, f64) {
@@ -483,11 +469,7 @@ fn output_error(mesh: &TriMesh, built: &mechanical::Built) -> (f64, f64, f64) {
 /// and a loose size guard; the tests below hold the tight bars.
 #[test]
 fn fandisk_figures() {
-    let mesh = fandisk();
-    let caster =
-        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
-    let built = mechanical::build_control(&mesh, caster.as_ref(), &Default::default()).unwrap();
-    built.control.validate().unwrap();
+    let (mesh, built) = build_fandisk(&mechanical::MechanicalOptions::default());
     let r = &built.stats.rounds;
     for x in r {
         println!("{x:?}");
@@ -588,10 +570,7 @@ fn fandisk_sdm_beats_point_distance() {
 #[test]
 #[ignore]
 fn fandisk_sweep() {
-    let mesh = match std::env::var("SUBDFIT_MESH") {
-        Ok(p) => common::load_ply(std::path::Path::new(&p)),
-        Err(_) => fandisk(),
-    };
+    let mesh = diagnostic_mesh();
     let caster =
         subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
     let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f64>().ok());
@@ -666,10 +645,7 @@ fn fandisk_sweep() {
 #[test]
 #[ignore]
 fn hoppe_rounds() {
-    let mesh = match std::env::var("SUBDFIT_MESH") {
-        Ok(p) => common::load_ply(std::path::Path::new(&p)),
-        Err(_) => fandisk(),
-    };
+    let mesh = diagnostic_mesh();
     let caster =
         subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
     let env = |k: &str| std::env::var(k).ok().and_then(|s| s.parse::<f64>().ok());
@@ -728,12 +704,8 @@ fn hoppe_rounds() {
 /// features kept and every face under the limit at the end.
 #[test]
 fn fandisk_hoppe_line() {
-    let mesh = fandisk();
-    let caster =
-        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
-    let o = mechanical::MechanicalOptions::default().with_max_error(1e-3);
-    let built = mechanical::build_control(&mesh, caster.as_ref(), &o).unwrap();
-    built.control.validate().unwrap();
+    let (mesh, built) =
+        build_fandisk(&mechanical::MechanicalOptions::default().with_max_error(1e-3));
     let (mean, rms, max) = output_error(&mesh, &built);
     let faces = built.control.num_faces();
     println!(
@@ -767,11 +739,7 @@ fn fandisk_hoppe_line() {
 /// the default).
 #[test]
 fn fandisk_table2_faces_at_default() {
-    let mesh = fandisk();
-    let caster =
-        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
-    let built = mechanical::build_control(&mesh, caster.as_ref(), &Default::default()).unwrap();
-    built.control.validate().unwrap();
+    let (mesh, built) = build_fandisk(&mechanical::MechanicalOptions::default());
     let (mean, rms, max) = output_error(&mesh, &built);
     let (total, far, worst) = features_far(&mesh, &built);
     let (v, f) = (built.control.num_vertices(), built.control.num_faces());
@@ -803,8 +771,9 @@ fn fandisk_table2_faces_at_default() {
 /// `E_limit` (3‰, RMS per face) and Table 2's max bar (10.46‰); every
 /// sharp input edge must lie within 1‰ of a crease curve, as on fandisk
 /// (block had 2 edges off before step 4b of `segment`, worst 26.4‰).
-/// Measured: block 194 V / 248 F, RMS 0.86‰, worst feature 0.92‰; joint
-/// 160 V / 188 F, RMS 0.78‰, worst 0.96‰.
+/// Measured: block 188 V / 236 F, RMS 0.86‰, worst feature 0.92‰; joint
+/// 165 V / 168 F, RMS 0.77‰, worst 0.96‰. (`--nocapture` prints the
+/// figures.)
 #[test]
 fn shared_cad_compact_network_keeps_features() {
     let Some(dir) = common::data_dir() else {
@@ -951,12 +920,8 @@ fn half_pipe_chords_span_at_most_a_quarter_turn() {
 /// max 7.9‰, worst feature edge 0.88‰.
 #[test]
 fn fandisk_table2_vertices_with_slits() {
-    let mesh = fandisk();
-    let caster =
-        subdfit::raycast::make_raycaster(subdfit::raycast::RayBackend::Embree, &mesh).unwrap();
-    let o = mechanical::MechanicalOptions::default().with_max_error(6e-3);
-    let built = mechanical::build_control(&mesh, caster.as_ref(), &o).unwrap();
-    built.control.validate().unwrap();
+    let (mesh, built) =
+        build_fandisk(&mechanical::MechanicalOptions::default().with_max_error(6e-3));
     let (mean, rms, max) = output_error(&mesh, &built);
     let (total, far, worst) = features_far(&mesh, &built);
     let (v, f) = (built.control.num_vertices(), built.control.num_faces());

@@ -826,14 +826,7 @@ fn build_with(
     // edges: a short chain (noise on a scan, spot.ply: hundreds of them)
     // is a feature line of two control points at most, and a corner at its
     // tip only cuts the boundary into more pieces.
-    let sharp_deg: Vec<usize> = (0..nv as u32)
-        .map(|v| {
-            topo.vertex_edges(v)
-                .iter()
-                .filter(|&&e| sharp[e as usize])
-                .count()
-        })
-        .collect();
+    let sharp_deg = topo.sharp_degree(&sharp);
     let chain_edges = |tip: u32| {
         let (mut v, mut prev, mut n) = (tip, u32::MAX, 0usize);
         loop {

@@ -89,6 +89,15 @@ pub struct Polys {
 }
 
 impl Polys {
+    /// Number of regions the faces refer to (one past the largest index).
+    pub fn region_count(&self) -> usize {
+        self.face_region
+            .iter()
+            .map(|&r| r as usize + 1)
+            .max()
+            .unwrap_or(0)
+    }
+
     pub fn to_control(&self) -> Result<ControlMesh> {
         let mut c = ControlMesh::from_polygons(self.positions.clone(), &self.faces)?;
         let mut cr: Vec<&(u32, u32)> = self.creases.iter().collect();
@@ -304,12 +313,7 @@ pub fn optimize(
         let frms: Vec<f64> = (0..nf)
             .map(|f| (fsum[f] / fcnt[f].max(1) as f64).sqrt())
             .collect();
-        let nreg = polys
-            .face_region
-            .iter()
-            .map(|&r| r as usize + 1)
-            .max()
-            .unwrap_or(0);
+        let nreg = polys.region_count();
         let mut rsum = vec![0.0; nreg];
         let mut rcnt = vec![0usize; nreg];
         for (l, d) in locs.iter().zip(&dists) {
@@ -501,12 +505,7 @@ fn geometry(
         .collect();
     let (mut feet, mut foot_tri) = region_feet(region_casters, &sample_region, &pts)?;
     let mut energy = sq_energy(&pts, &feet);
-    let nreg_now = polys
-        .face_region
-        .iter()
-        .map(|&r| r as usize + 1)
-        .max()
-        .unwrap_or(0);
+    let nreg_now = polys.region_count();
     // Region of each free vertex (the faces using it all lie in one
     // region: region boundaries are creases of fixed points).
     let mut vert_region = vec![u32::MAX; nfree];
@@ -680,13 +679,7 @@ fn restore_regions(p: &mut Polys, states: &[Option<RegionState>], restore: &[boo
             }
         }
     }
-    let nreg = p
-        .face_region
-        .iter()
-        .map(|&r| r as usize + 1)
-        .max()
-        .unwrap_or(0)
-        .max(restore.len());
+    let nreg = p.region_count().max(restore.len());
     let mut positions = p.positions[..p.fixed].to_vec();
     let mut faces = Vec::with_capacity(p.faces.len());
     let mut face_region = Vec::with_capacity(p.faces.len());

@@ -426,15 +426,7 @@ fn merge_smooth(
 /// 3b then cuts the union again along the features and their continuation,
 /// which joins two fading tips when that is the shorter cut.
 fn fading_edges(topo: &Topology, sharp: &[bool]) -> Vec<bool> {
-    let nv = topo.vert_edge_off.len().saturating_sub(1);
-    let sdeg: Vec<usize> = (0..nv as u32)
-        .map(|v| {
-            topo.vertex_edges(v)
-                .iter()
-                .filter(|&&e| sharp[e as usize])
-                .count()
-        })
-        .collect();
+    let sdeg = topo.sharp_degree(sharp);
     let mut out = vec![false; topo.edges.len()];
     let mut seen = vec![false; topo.edges.len()];
     for e0 in 0..topo.edges.len() {

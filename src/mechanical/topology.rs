@@ -146,6 +146,20 @@ impl Topology {
         &self.vert_edges[self.vert_edge_off[v] as usize..self.vert_edge_off[v + 1] as usize]
     }
 
+    /// Per vertex, how many of its edges are flagged in `sharp`: 1 at the
+    /// tip of a feature chain, 2 along it, more where chains branch.
+    pub fn sharp_degree(&self, sharp: &[bool]) -> Vec<usize> {
+        let nv = self.vert_edge_off.len().saturating_sub(1);
+        (0..nv as u32)
+            .map(|v| {
+                self.vertex_edges(v)
+                    .iter()
+                    .filter(|&&e| sharp[e as usize])
+                    .count()
+            })
+            .collect()
+    }
+
     /// Sharp per edge: interior with |dihedral| above [`SHARP_DIHEDRAL_DEG`].
     pub fn sharp_edges(&self) -> Vec<bool> {
         let t = SHARP_DIHEDRAL_DEG.to_radians();
