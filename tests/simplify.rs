@@ -25,6 +25,23 @@ fn synthetic(m: &TriMesh, s: impl Fn(subdfit::DVec3) -> f64, fm: f64) -> Fitmap 
     }
 }
 
+/// `simplify` with default options but the S-fitmap scale (0 turns the
+/// S-fitmap test off).
+fn simplify_at_scale(
+    m: &TriMesh,
+    fitmap: &Fitmap,
+    caster: &dyn subdfit::raycast::RayCaster,
+    scale: f64,
+) -> subdfit::quad::Simplified {
+    simplify(
+        m,
+        fitmap,
+        caster,
+        &SimplifyOptions::default().with_s_fitmap_scale(scale),
+    )
+    .unwrap()
+}
+
 /// Fraction of faces whose limit normal at the centre agrees (positive dot
 /// product) with the normal of the M triangle φ reaches.
 fn normal_agreement(m: &TriMesh, k: &subdfit::mesh::ControlMesh) -> (f64, usize) {
@@ -364,13 +381,7 @@ fn bunny_patch_size_follows_one_over_fs_and_fm() {
     );
     // The S-fitmap test only adds patches where r·F_S is large: without it
     // there are fewer patches, and the correlation with 1/F_S is weaker.
-    let off = simplify(
-        &m,
-        &fitmap,
-        caster.as_ref(),
-        &SimplifyOptions::default().with_s_fitmap_scale(0.0),
-    )
-    .unwrap();
+    let off = simplify_at_scale(&m, &fitmap, caster.as_ref(), 0.0);
     let (rho_s_off, ..) = measure(&off.mesh);
     eprintln!(
         "bunny τ 1 % without the S-fitmap test: {} patches, Spearman(radius, 1/F_S) = \
@@ -435,20 +446,8 @@ fn s_fitmap_test_makes_the_natural_end_follow_one_over_fs() {
         kappa0 > fm && kappa0 < 4.0 * fm,
         "κ₀ = {kappa0}, F_M = {fm}"
     );
-    let off = simplify(
-        &m,
-        &fitmap,
-        caster.as_ref(),
-        &SimplifyOptions::default().with_s_fitmap_scale(0.0),
-    )
-    .unwrap();
-    let on = simplify(
-        &m,
-        &fitmap,
-        caster.as_ref(),
-        &SimplifyOptions::default().with_s_fitmap_scale(0.3),
-    )
-    .unwrap();
+    let off = simplify_at_scale(&m, &fitmap, caster.as_ref(), 0.0);
+    let on = simplify_at_scale(&m, &fitmap, caster.as_ref(), 0.3);
     let (lo_off, hi_off, ..) = mean_radius_by_side(&off.mesh);
     let (lo_on, hi_on, nlo, nhi) = mean_radius_by_side(&on.mesh);
     let rho = on.stats.adaptivity_spearman.unwrap_or(f64::NAN);

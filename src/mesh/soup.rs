@@ -75,6 +75,16 @@ impl TriMesh {
         (hi - lo).length()
     }
 
+    /// Centroid of every triangle, in triangle order.
+    pub fn centroids(&self) -> Vec<DVec3> {
+        (0..self.triangles.len())
+            .map(|t| {
+                let [a, b, c] = self.triangle(t);
+                (a + b + c) / 3.0
+            })
+            .collect()
+    }
+
     pub fn triangle(&self, t: usize) -> [DVec3; 3] {
         let [a, b, c] = self.triangles[t];
         [

@@ -264,22 +264,11 @@ pub fn error_field(
     if let Some(control) = control {
         let tess = tessellate_limit(control, auto_patch_res(control, 200_000), Backend::Osd)?;
         let tess_caster = make_raycaster(rays, &tess.mesh)?;
-        let centroids: Vec<DVec3> = (0..input.triangles.len())
-            .map(|t| {
-                let [a, b, c] = input.triangle(t);
-                (a + b + c) / 3.0
-            })
-            .collect();
-        let near = tess_caster.closest_points(&centroids, f64::INFINITY)?;
-        let locations: Vec<SurfaceLocation> = near
-            .iter()
-            .map(|c| {
-                let c = c.ok_or_else(|| {
-                    Error::backend("ray caster", "closest point query returned nothing")
-                })?;
-                Ok(tess.location(c.triangle as usize, c.u, c.v))
-            })
-            .collect::<Result<_>>()?;
+        let centroids = input.centroids();
+        let locations =
+            crate::report::nearest_limit_locations(tess_caster.as_ref(), &centroids, |t, u, v| {
+                tess.location(t, u, v)
+            })?;
         let eval = make_evaluator(Backend::Osd, control, &EvalOptions::default())?;
         let exact = eval.evaluate(control.positions(), &locations)?;
         let input_caster = make_raycaster(rays, input)?;

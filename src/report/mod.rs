@@ -535,22 +535,10 @@ fn unprojectable_percent(
     tol: f64,
 ) -> Result<f64> {
     let areas = triangle_areas(mesh);
-    let centroids: Vec<DVec3> = (0..mesh.triangles.len())
-        .map(|t| {
-            let [a, b, c] = mesh.triangle(t);
-            (a + b + c) / 3.0
-        })
-        .collect();
-    let closest = limit_caster.closest_points(&centroids, f64::INFINITY)?;
-    let locations: Vec<_> = closest
-        .iter()
-        .map(|c| {
-            let c = c.ok_or_else(|| {
-                Error::backend("ray caster", "closest point query returned nothing")
-            })?;
-            Ok(grid.triangle_location(c.triangle as usize, c.u, c.v))
-        })
-        .collect::<Result<_>>()?;
+    let centroids = mesh.centroids();
+    let locations = nearest_limit_locations(limit_caster, &centroids, |t, u, v| {
+        grid.triangle_location(t, u, v)
+    })?;
     let exact = evaluator.evaluate(control.positions(), &locations)?;
     let (hits, _) = crate::project::project_along_normals(caster, &exact, max_dist)?;
     let total_area: f64 = areas.iter().sum();
@@ -562,6 +550,28 @@ fn unprojectable_percent(
         // fold from +0.0: `Sum` of no f64 is -0.0.
         .fold(0.0, |acc, (_, a)| acc + a);
     Ok(100.0 * unreached / total_area.max(f64::MIN_POSITIVE))
+}
+
+/// The limit-surface locations nearest to `points`, found on a tessellated
+/// limit surface: `limit_caster` casts against the tessellation and
+/// `location` maps one of its triangles and barycentrics back to the patch
+/// parameter (the exact surface is then evaluated there, not the
+/// tessellation).
+pub(crate) fn nearest_limit_locations(
+    limit_caster: &dyn RayCaster,
+    points: &[DVec3],
+    location: impl Fn(usize, f64, f64) -> crate::subdiv::SurfaceLocation,
+) -> Result<Vec<crate::subdiv::SurfaceLocation>> {
+    limit_caster
+        .closest_points(points, f64::INFINITY)?
+        .iter()
+        .map(|c| {
+            let c = c.ok_or_else(|| {
+                Error::backend("ray caster", "closest point query returned nothing")
+            })?;
+            Ok(location(c.triangle as usize, c.u, c.v))
+        })
+        .collect()
 }
 
 /// The sample points and weights of the 3-point rule (module docs), three
