@@ -11,7 +11,7 @@ const BRIDGES: &[&str] = &[
     "src/ffi/embree.rs",
     "src/ffi/eigen.rs",
     "src/ffi/openmesh.rs",
-    "src/ffi/embed.rs",
+    "src/embed/bridge.rs",
 ];
 
 fn main() {

@@ -1,29 +1,58 @@
 //! subdfit: dense triangle meshes to adaptive Catmull-Clark subdivision surfaces.
 //!
-//! Layers, data flowing one way: [`io`] → [`mesh`] → (later: analysis, quad,
-//! fit, displace, report). [`subdiv`] (limit evaluation) and [`raycast`] are
-//! services behind traits, each with a pure-Rust and a C++ implementation so
-//! that tests can cross-check them. [`solve`] wraps Eigen's sparse solvers.
+//! Two published systems define it: *Fitmaps* (Panozzo et al., TVCG 2011) for
+//! organic shapes — [`analysis`] (§3.1), [`quad`] (§3.2–3.3), [`fit`] (§3.4),
+//! [`displace`] (§3.5) — and Lavoué et al. (CGF 2007) for mechanical parts,
+//! [`mechanical`]. [`pipeline`] runs either end to end, [`report`] measures
+//! and writes the result, [`render`] draws it, [`embed`] is the API of the
+//! C++ package.
+//!
+//! # Layers
+//!
+//! Data flows one way; a module imports only modules on a lower floor, or
+//! earlier on its own floor (`tests/house.rs` checks every `crate::` path
+//! outside test code against this list):
+//!
+//! | floor | modules | what |
+//! |---|---|---|
+//! | 0 | [`error`], `ffi` | the error type; cxx bridges *to* C++ |
+//! | 1 | [`mesh`], [`io`], [`solve`] | meshes and their validation; readers and writers; Eigen's sparse solvers |
+//! | 2 | [`subdiv`], [`raycast`], [`fixtures`] | services behind traits (limit evaluation, ray casting), each in pure Rust and in C++; procedural meshes |
+//! | 3 | [`project`], [`analysis`] | projecting a limit surface onto M; the Fitmaps |
+//! | 4 | [`quad`], [`fit`], [`displace`] | layout, fitting, displacement |
+//! | 5 | [`mechanical`], [`report`] | Lavoué et al.'s pipeline; metrics and outputs |
+//! | 6 | [`pipeline`], [`render`] | conversion end to end; pictures and `report.html` |
+//! | 7 | [`embed`] | the library API of the C++ package, with its `extern "Rust"` bridge |
+//!
+//! The binary (`src/bin/subdfit`) sits on top. [`subdiv`] and [`raycast`]
+//! each have a pure-Rust and a C++ implementation so that tests can
+//! cross-check them.
 
-pub mod analysis;
-pub mod displace;
-pub mod embed;
 pub mod error;
-pub mod fit;
-pub mod fixtures;
+pub(crate) mod ffi;
+
 pub mod io;
-pub mod mechanical;
 pub mod mesh;
-pub mod pipeline;
-pub mod project;
-pub mod quad;
-pub mod raycast;
-pub mod render;
-pub mod report;
 pub mod solve;
+
+pub mod fixtures;
+pub mod raycast;
 pub mod subdiv;
 
-pub(crate) mod ffi;
+pub mod analysis;
+pub mod project;
+
+pub mod displace;
+pub mod fit;
+pub mod quad;
+
+pub mod mechanical;
+pub mod report;
+
+pub mod pipeline;
+pub mod render;
+
+pub mod embed;
 
 pub use error::{Error, Result};
 
@@ -31,15 +60,4 @@ pub use error::{Error, Result};
 /// Embree's copy of the triangles is `f32`; hits are recomputed in `f64`).
 pub use glam::{DVec2, DVec3};
 
-/// Versions of the C++ libraries linked in, as `(name, version)`.
-pub fn linked_library_versions() -> Vec<(&'static str, String)> {
-    let v = |r: std::result::Result<String, cxx::Exception>| {
-        r.unwrap_or_else(|e| format!("error: {e}"))
-    };
-    vec![
-        ("OpenSubdiv", v(ffi::osd::bridge::library_version())),
-        ("Embree", v(ffi::embree::bridge::library_version())),
-        ("Eigen", v(ffi::eigen::bridge::library_version())),
-        ("OpenMesh", v(ffi::openmesh::bridge::library_version())),
-    ]
-}
+pub use ffi::linked_library_versions;

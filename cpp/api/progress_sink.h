@@ -1,5 +1,5 @@
 #pragma once
-// The C++ object behind `ProgressSink` in the bridge `src/ffi/embed.rs`: it
+// The C++ object behind `ProgressSink` in the bridge `src/embed/bridge.rs`: it
 // lends the host's progress callback to Rust for the duration of one call.
 // Included by the cxx-generated code, so it must not include the public
 // header (whose `Progress` is the same `std::function` type).

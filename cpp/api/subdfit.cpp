@@ -1,5 +1,5 @@
 // The C++ API (include/subdfit/subdfit.hpp) over the cxx bridge
-// src/ffi/embed.rs. This file is the only place where the public types meet
+// src/embed/bridge.rs. This file is the only place where the public types meet
 // cxx's: views become rust::Slice (no copy), rust::Vec results are moved
 // into std::vector (one copy), and rust::Error becomes subdfit::Error.
 
@@ -10,7 +10,7 @@
 #include <utility>
 
 #include "subdfit/cpp/api/progress_sink.h"
-#include "subdfit/src/ffi/embed.rs.h"
+#include "subdfit/src/embed/bridge.rs.h"
 
 namespace subdfit {
 namespace ffi {

@@ -1,7 +1,7 @@
 //! The library API behind the C++ embedding (`include/subdfit/subdfit.hpp`).
 //!
 //! Everything a C++ host can call goes through this module: the cxx bridge in
-//! `src/ffi/embed.rs` only turns flat slices into the borrowed views below,
+//! `bridge` (`src/embed/bridge.rs`) only turns flat slices into the borrowed views below,
 //! catches panics and formats errors. Keeping the logic here means the C++
 //! API and the Rust API cannot drift apart, and everything is testable from
 //! Rust.
@@ -44,6 +44,11 @@ use crate::raycast::{make_raycaster, RayBackend};
 use crate::report::{fit_and_measure, Converted, MetricsOptions, PipelineOptions, StageTimer};
 use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
 use crate::{DVec2, DVec3};
+
+/// The cxx `extern "Rust"` bridge of `cpp/api/subdfit.cpp`: it lives here,
+/// beside the API it exposes, so that `crate::ffi` (bridges *to* C++, used by
+/// the lowest layers) never imports the top of the crate.
+mod bridge;
 
 // ---- options ------------------------------------------------------------------
 

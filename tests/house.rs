@@ -1,0 +1,372 @@
+//! The house rules of `src/`, checked on the source text (no build of the
+//! code under test is involved, so a rule broken anywhere fails here):
+//!
+//! 1. **One-way layers.** Every `crate::` path outside test code names a
+//!    module on a lower floor of the list in `src/lib.rs`'s module doc, or
+//!    one earlier on the same floor ([`ORDER`] is that list, floor by
+//!    floor). Test modules (`#[cfg(test)]` items) may use fixtures and
+//!    metrics from anywhere: they are not part of the layered library.
+//! 2. **Functions a reader can hold.** No function body in `src/` spans
+//!    more than [`MAX_FN_LINES`] lines unless a comment starting
+//!    `Kept whole:` directly above it (among its doc comment and
+//!    attributes) says why.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+/// `src/lib.rs`'s layers, lowest first; the numbers are the floors of its
+/// table. Root items (`crate::Error`, `crate::DVec3`, …) are re-exports of
+/// floor 0 and of glam.
+const ORDER: &[(&str, u32)] = &[
+    ("error", 0),
+    ("ffi", 0),
+    ("mesh", 1),
+    ("io", 1),
+    ("solve", 1),
+    ("subdiv", 2),
+    ("raycast", 2),
+    ("fixtures", 2),
+    ("project", 3),
+    ("analysis", 3),
+    ("quad", 4),
+    ("fit", 4),
+    ("displace", 4),
+    ("mechanical", 5),
+    ("report", 5),
+    ("pipeline", 6),
+    ("render", 6),
+    ("embed", 7),
+];
+
+/// Root re-exports any module may name.
+const ROOT_ITEMS: &[&str] = &["Error", "Result", "DVec2", "DVec3"];
+
+const MAX_FN_LINES: usize = 150;
+
+fn rank(module: &str) -> Option<usize> {
+    ORDER.iter().position(|(m, _)| *m == module)
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    let mut entries: Vec<_> = std::fs::read_dir(dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .map(|e| e.unwrap().path())
+        .collect();
+    entries.sort();
+    for p in entries {
+        if p.is_dir() {
+            rust_files(&p, out);
+        } else if p.extension().is_some_and(|x| x == "rs") {
+            out.push(p);
+        }
+    }
+}
+
+/// The source with comments and the contents of string and char literals
+/// blanked (newlines kept, so line numbers hold), and a parallel list of
+/// the comment text per line (for `Kept whole:`).
+fn strip(src: &str) -> (String, Vec<String>) {
+    let b = src.as_bytes();
+    let mut out = String::with_capacity(src.len());
+    let nlines = src.lines().count() + 1;
+    let mut comments = vec![String::new(); nlines];
+    let mut line = 0usize;
+    let mut i = 0;
+    let push_blank = |out: &mut String, s: &str, line: &mut usize| {
+        for c in s.chars() {
+            if c == '\n' {
+                out.push('\n');
+                *line += 1;
+            } else {
+                out.push(' ');
+            }
+        }
+    };
+    while i < b.len() {
+        let rest = &src[i..];
+        if rest.starts_with("//") {
+            let end = rest.find('\n').unwrap_or(rest.len());
+            comments[line].push_str(&rest[..end]);
+            push_blank(&mut out, &rest[..end], &mut line);
+            i += end;
+        } else if rest.starts_with("/*") {
+            let end = rest.find("*/").map_or(rest.len(), |e| e + 2);
+            push_blank(&mut out, &rest[..end], &mut line);
+            i += end;
+        } else if rest.starts_with("r#\"") || rest.starts_with("r\"") {
+            let hashes = rest[1..].bytes().take_while(|&c| c == b'#').count();
+            let close = format!("\"{}", "#".repeat(hashes));
+            let body = 2 + hashes;
+            let end = rest[body..]
+                .find(&close)
+                .map_or(rest.len(), |e| body + e + close.len());
+            out.push_str("\"\"");
+            push_blank(&mut out, &rest[2..end], &mut line);
+            i += end;
+        } else if b[i] == b'"' {
+            let mut j = i + 1;
+            while j < b.len() && b[j] != b'"' {
+                j += if b[j] == b'\\' { 2 } else { 1 };
+            }
+            out.push_str("\"\"");
+            push_blank(&mut out, &src[i + 1..j.min(b.len())], &mut line);
+            i = (j + 1).min(b.len());
+        } else if b[i] == b'\'' && char_literal_len(rest).is_some() {
+            let n = char_literal_len(rest).unwrap();
+            out.push_str("' '");
+            i += n;
+        } else {
+            let c = rest.chars().next().unwrap();
+            if c == '\n' {
+                line += 1;
+            }
+            out.push(c);
+            i += c.len_utf8();
+        }
+    }
+    (out, comments)
+}
+
+/// Length of a char literal at the start of `s` (`'a'`, `'\n'`,
+/// `'\u{..}'`), or `None` for a lifetime.
+fn char_literal_len(s: &str) -> Option<usize> {
+    let mut it = s.char_indices().skip(1);
+    let (_, c) = it.next()?;
+    if c == '\\' {
+        let end = s[2..].find('\'')?;
+        return Some(2 + end + 1);
+    }
+    let (j, close) = it.next()?;
+    (close == '\'').then_some(j + 1)
+}
+
+/// Byte index of the `}` closing the `{` at `open`.
+fn matching_brace(s: &[u8], open: usize) -> usize {
+    let mut depth = 0usize;
+    for (k, &c) in s.iter().enumerate().skip(open) {
+        match c {
+            b'{' => depth += 1,
+            b'}' => {
+                depth -= 1;
+                if depth == 0 {
+                    return k;
+                }
+            }
+            _ => {}
+        }
+    }
+    s.len() - 1
+}
+
+/// `s` with every `#[cfg(test)]` item blanked.
+fn without_test_items(s: &str) -> String {
+    let mut b = s.as_bytes().to_vec();
+    let mut from = 0;
+    while let Some(k) = s[from..].find("#[cfg(test)]").map(|k| k + from) {
+        let after = k + "#[cfg(test)]".len();
+        // The item ends at its body's closing brace or at a `;` before any body.
+        let semi = s[after..].find(';').map(|x| x + after);
+        let brace = s[after..].find('{').map(|x| x + after);
+        let end = match (brace, semi) {
+            (Some(o), Some(sc)) if sc < o => sc,
+            (Some(o), _) => matching_brace(s.as_bytes(), o),
+            (None, Some(sc)) => sc,
+            (None, None) => s.len() - 1,
+        };
+        for c in &mut b[k..=end] {
+            if *c != b'\n' {
+                *c = b' ';
+            }
+        }
+        from = end + 1;
+    }
+    String::from_utf8(b).unwrap()
+}
+
+fn top_module(src_dir: &Path, file: &Path) -> Option<String> {
+    let rel = file.strip_prefix(src_dir).unwrap();
+    let first = rel.components().next()?.as_os_str().to_str()?.to_string();
+    let m = first.trim_end_matches(".rs").to_string();
+    (m != "lib" && m != "bin").then_some(m)
+}
+
+/// Every `crate::NAME` in `code` with its line number (1-based).
+fn crate_paths(code: &str) -> Vec<(usize, String)> {
+    let mut out = Vec::new();
+    for (ln, line) in code.lines().enumerate() {
+        let mut rest = line;
+        while let Some(k) = rest.find("crate::") {
+            let before = rest[..k].chars().last();
+            let tail = &rest[k + "crate::".len()..];
+            let name: String = tail
+                .chars()
+                .take_while(|c| c.is_alphanumeric() || *c == '_')
+                .collect();
+            if !before.is_some_and(|c| c.is_alphanumeric() || c == '_') && !name.is_empty() {
+                out.push((ln + 1, name));
+            }
+            rest = tail;
+        }
+    }
+    out
+}
+
+fn src_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("src")
+}
+
+#[test]
+fn no_module_imports_a_higher_layer() {
+    let src = src_dir();
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let declared: BTreeSet<String> = std::fs::read_to_string(src.join("lib.rs"))
+        .unwrap()
+        .lines()
+        .filter_map(|l| {
+            let l = l.trim();
+            let l = l
+                .strip_prefix("pub mod ")
+                .or_else(|| l.strip_prefix("pub(crate) mod "))?;
+            Some(l.trim_end_matches(';').to_string())
+        })
+        .collect();
+    let listed: BTreeSet<String> = ORDER.iter().map(|(m, _)| m.to_string()).collect();
+    assert_eq!(declared, listed, "src/lib.rs's modules and ORDER differ");
+    let mut bad = Vec::new();
+    for f in &files {
+        let Some(module) = top_module(&src, f) else {
+            continue;
+        };
+        let me = rank(&module)
+            .unwrap_or_else(|| panic!("{}: module {module} not in ORDER", f.display()));
+        let text = std::fs::read_to_string(f).unwrap();
+        let code = without_test_items(&strip(&text).0);
+        for (ln, name) in crate_paths(&code) {
+            if name == module || ROOT_ITEMS.contains(&name.as_str()) {
+                continue;
+            }
+            match rank(&name) {
+                Some(r) if r < me => {}
+                _ => bad.push(format!(
+                    "{}:{ln}: {module} imports crate::{name}",
+                    f.display()
+                )),
+            }
+        }
+    }
+    assert!(
+        bad.is_empty(),
+        "imports against the layers of src/lib.rs:\n{}",
+        bad.join("\n")
+    );
+}
+
+/// `(name, first line, lines)` of every function with a body in `code`.
+fn functions(code: &str) -> Vec<(String, usize, usize)> {
+    let b = code.as_bytes();
+    let mut out = Vec::new();
+    let mut from = 0;
+    while let Some(k) = code[from..].find("fn ").map(|k| k + from) {
+        from = k + 3;
+        let word_start = k == 0 || !(b[k - 1].is_ascii_alphanumeric() || b[k - 1] == b'_');
+        if !word_start {
+            continue;
+        }
+        let name: String = code[k + 3..]
+            .chars()
+            .take_while(|c| c.is_alphanumeric() || *c == '_')
+            .collect();
+        if name.is_empty() {
+            continue;
+        }
+        // The body opens at the first `{` outside brackets; a `;` first is
+        // a declaration without one.
+        let mut depth = 0i32;
+        let mut open = None;
+        for (j, &c) in b.iter().enumerate().skip(k + 3) {
+            match c {
+                b'(' | b'[' => depth += 1,
+                b')' | b']' => depth -= 1,
+                b';' if depth <= 0 => break,
+                b'{' if depth <= 0 => {
+                    open = Some(j);
+                    break;
+                }
+                _ => {}
+            }
+        }
+        let Some(open) = open else { continue };
+        let close = matching_brace(b, open);
+        let first = code[..k].matches('\n').count() + 1;
+        let last = code[..close].matches('\n').count() + 1;
+        out.push((name, first, last - first + 1));
+    }
+    out
+}
+
+/// Whether a `Kept whole:` comment sits among the comment and attribute
+/// lines directly above line `first` (1-based).
+fn kept_whole(text_lines: &[&str], comments: &[String], first: usize) -> bool {
+    let mut l = first.saturating_sub(1);
+    while l > 0 {
+        l -= 1;
+        let t = text_lines[l].trim();
+        if !(t.starts_with("//") || t.starts_with("#[")) {
+            return false;
+        }
+        if comments[l].contains("Kept whole:") {
+            return true;
+        }
+    }
+    false
+}
+
+#[test]
+fn no_function_over_the_limit_without_a_reason() {
+    let src = src_dir();
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut long = Vec::new();
+    for f in &files {
+        let text = std::fs::read_to_string(f).unwrap();
+        let (code, comments) = strip(&text);
+        let lines: Vec<&str> = text.lines().collect();
+        for (name, first, n) in functions(&code) {
+            if n > MAX_FN_LINES && !kept_whole(&lines, &comments, first) {
+                long.push(format!("{}:{first}: fn {name}: {n} lines", f.display()));
+            }
+        }
+    }
+    assert!(
+        long.is_empty(),
+        "functions over {MAX_FN_LINES} lines without a `Kept whole:` comment:\n{}",
+        long.join("\n")
+    );
+}
+
+/// The checks themselves: each rule must catch what it is for.
+#[test]
+fn the_checks_catch_what_they_are_for() {
+    let code = "use crate::mesh::X;\n// crate::report in a comment\nfn f() { let s = \"crate::embed\"; }\n";
+    let stripped = strip(code).0;
+    let found: Vec<String> = crate_paths(&stripped).into_iter().map(|(_, n)| n).collect();
+    assert_eq!(found, ["mesh"]);
+    let t = "fn a() {}\n#[cfg(test)]\nmod tests {\n use crate::embed::Y;\n}\n";
+    assert!(crate_paths(&without_test_items(&strip(t).0)).is_empty());
+    let body: String = (0..200).map(|i| format!("    let x{i} = {i};\n")).collect();
+    let long = format!("/// doc\nfn big() {{\n{body}}}\nfn small(a: [u8; 2]) -> u8 {{ a[0] }}\n");
+    let fns = functions(&strip(&long).0);
+    assert_eq!(fns.len(), 2);
+    assert_eq!((fns[0].0.as_str(), fns[0].1, fns[0].2), ("big", 2, 202));
+    assert_eq!(fns[1].2, 1);
+    let kept = format!("// Kept whole: one hot loop.\n#[inline]\n{long}");
+    let (code, comments) = strip(&kept);
+    let lines: Vec<&str> = kept.lines().collect();
+    let big = &functions(&code)[0];
+    assert!(kept_whole(&lines, &comments, big.1));
+    assert!(!kept_whole(&lines, &comments, functions(&code)[1].1));
+    assert_eq!(char_literal_len("'a' x"), Some(3));
+    assert_eq!(char_literal_len("'\\n' x"), Some(4));
+    assert_eq!(char_literal_len("'static"), None);
+}
