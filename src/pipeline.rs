@@ -15,7 +15,7 @@ use crate::quad::{simplify_with_progress, SimplifyOptions};
 use crate::raycast::{make_raycaster, RayBackend};
 use crate::report::{
     fit_and_measure, write_converted, Converted, MetricsOptions, PipelineOptions, Report,
-    StageTimer,
+    StageTimer, TargetCheck,
 };
 
 /// Options of [`convert`], mirroring `subdfit convert`.
@@ -108,7 +108,7 @@ pub fn convert(
     progress: &mut dyn FnMut(&str, f64) -> bool,
 ) -> Result<(Report, Vec<PathBuf>)> {
     let c = convert_in_memory(input, opts, extra_options, progress)?;
-    let written = write_converted(input, &c, dir, progress)?;
+    let written = write_converted(input, &c, dir, None, progress)?;
     Ok((c.report, written))
 }
 
@@ -122,13 +122,6 @@ pub fn convert_in_memory(
     progress: &mut dyn FnMut(&str, f64) -> bool,
 ) -> Result<Converted> {
     let mut timer = StageTimer::default();
-    let stage = |progress: &mut dyn FnMut(&str, f64) -> bool, name: &str, f: f64| {
-        if progress(name, f) {
-            Ok(())
-        } else {
-            Err(Error::Cancelled { stage: name.into() })
-        }
-    };
     let mesh = &input.mesh;
     let choice = match opts.mode {
         Mode::Auto => crate::mechanical::choose_mode(mesh),
@@ -145,8 +138,8 @@ pub fn convert_in_memory(
         }
     };
     let caster = timer.run("raycaster", || make_raycaster(RayBackend::Embree, mesh))?;
-    if choice.mode == "mechanical" {
-        return convert_mechanical(
+    if choice.mode == "organic" {
+        return convert_organic(
             input,
             opts,
             choice,
@@ -156,6 +149,108 @@ pub fn convert_in_memory(
             progress,
         );
     }
+    let auto = choice.how == "auto";
+    let mechanical = convert_mechanical(
+        input,
+        opts,
+        choice.clone(),
+        caster.as_ref(),
+        timer,
+        extra_options.clone(),
+        progress,
+    )?;
+    let doubt = second_opinion_reason(&mechanical.report);
+    let Some(why) = doubt.filter(|_| auto) else {
+        return Ok(mechanical);
+    };
+    // `--mode auto` ends with the pipeline that fits: a CAD-looking mesh
+    // whose mechanical result misses its own target (an isotropically
+    // remeshed statue with flat parts and a few sharp edges) is converted
+    // by the organic pipeline too, and the lower RMS distance is kept.
+    let mut organic_choice = choice.clone();
+    organic_choice.mode = "organic";
+    organic_choice.reason = format!("{}; {why}", choice.reason);
+    let organic = convert_organic(
+        input,
+        opts,
+        organic_choice,
+        caster.as_ref(),
+        StageTimer::default(),
+        extra_options,
+        progress,
+    )?;
+    Ok(keep_better(mechanical, organic, &why))
+}
+
+/// Why `--mode auto`'s mechanical result needs the organic one beside it,
+/// or `None`: its own target missed, or more than 1 % of M unprojectable
+/// (a surface that does not follow M, whatever the per-face figures).
+fn second_opinion_reason(r: &Report) -> Option<String> {
+    let missed: Vec<&str> = r
+        .targets
+        .iter()
+        .filter(|t| !t.met)
+        .map(|t| t.outcome.as_str())
+        .collect();
+    let unproj = r.projectability.unprojectable_area_percent;
+    if !missed.is_empty() {
+        Some(format!(
+            "the mechanical result missed its target ({})",
+            missed.join("; ")
+        ))
+    } else if unproj > 1.0 {
+        Some(format!(
+            "the mechanical result leaves {unproj:.2} % of the input unprojectable"
+        ))
+    } else {
+        None
+    }
+}
+
+/// The one of two conversions of the same mesh with the lower RMS distance
+/// from its limit surface to M (ties: mechanical, the smaller control
+/// mesh); its report says what was compared and why.
+fn keep_better(mechanical: Converted, organic: Converted, why: &str) -> Converted {
+    let rms = |c: &Converted| c.report.accuracy.limit.rms_permille;
+    let summary = |c: &Converted| {
+        serde_json::json!({
+            "rms_limit_permille": rms(c),
+            "unprojectable_area_percent": c.report.projectability.unprojectable_area_percent,
+            "faces": c.report.control.faces,
+            "seconds": c.report.stages.iter().map(|s| s.seconds).sum::<f64>(),
+        })
+    };
+    let organic_wins = rms(&organic) < rms(&mechanical);
+    let note = serde_json::json!({
+        "why": why,
+        "mechanical": summary(&mechanical),
+        "organic": summary(&organic),
+        "kept": if organic_wins { "organic" } else { "mechanical" },
+    });
+    let mut kept = if organic_wins { organic } else { mechanical };
+    kept.report.options["mode"]["second_opinion"] = note;
+    kept
+}
+
+/// The organic branch of [`convert`]: the Fitmaps pipeline, §3.1–3.5.
+#[allow(clippy::too_many_arguments)]
+fn convert_organic(
+    input: &ValidatedMesh,
+    opts: &ConvertOptions,
+    choice: crate::mechanical::ModeChoice,
+    caster: &dyn crate::raycast::RayCaster,
+    mut timer: StageTimer,
+    extra_options: serde_json::Value,
+    progress: &mut dyn FnMut(&str, f64) -> bool,
+) -> Result<Converted> {
+    let stage = |progress: &mut dyn FnMut(&str, f64) -> bool, name: &str, f: f64| {
+        if progress(name, f) {
+            Ok(())
+        } else {
+            Err(Error::Cancelled { stage: name.into() })
+        }
+    };
+    let mesh = &input.mesh;
     let extra_options = serde_json::json!({ "mode": choice, "options": extra_options });
     let mut fo = FitmapOptions::default();
     if let Some(t) = opts.tolerance {
@@ -163,7 +258,7 @@ pub fn convert_in_memory(
     }
     stage(progress, "fitmap", 0.0)?;
     let fitmap = timer.run("fitmap", || {
-        fitmap_reporting(mesh, caster.as_ref(), &fo, &mut *progress)
+        fitmap_reporting(mesh, caster, &fo, &mut *progress)
     })?;
     stage(progress, "fitmap", 1.0)?;
     let so = SimplifyOptions::default()
@@ -171,7 +266,7 @@ pub fn convert_in_memory(
         .with_m_fitmap(!opts.no_m_fitmap);
     stage(progress, "simplify", 0.0)?;
     let simplified = timer.run("simplify", || {
-        simplify_with_progress(mesh, &fitmap, caster.as_ref(), &so, &mut |p| {
+        simplify_with_progress(mesh, &fitmap, caster, &so, &mut |p| {
             let goal = p
                 .initial_faces
                 .saturating_sub(opts.target_faces.unwrap_or(0))
@@ -194,7 +289,7 @@ pub fn convert_in_memory(
     fit_and_measure(
         input,
         simplified.mesh,
-        caster.as_ref(),
+        caster,
         &po,
         timer,
         extra,
@@ -310,7 +405,7 @@ fn convert_mechanical(
         "mechanical": { "options": mo, "stats": built.stats },
         "run": extra_options,
     });
-    let report = Report::new(
+    let mut report = Report::new(
         input.report.clone(),
         &control,
         None,
@@ -318,6 +413,7 @@ fn convert_mechanical(
         timer.stages,
         extra,
     );
+    report.add_target(max_error_target(&mo, &built.stats));
     Ok(Converted {
         quad_control: (!control.is_all_quads()).then_some(quads),
         control,
@@ -325,4 +421,28 @@ fn convert_mechanical(
         report,
         fitmap: None,
     })
+}
+
+/// Mechanical mode's stated target (Lavoué et al. §7.2's `E_limit`): every
+/// control face within RMS `max_error` of M at the end of enrichment.
+fn max_error_target(
+    mo: &crate::mechanical::MechanicalOptions,
+    stats: &crate::mechanical::MechanicalStats,
+) -> TargetCheck {
+    let e = 1e3 * mo.max_error;
+    let (over, faces, rms) = stats.rounds.last().map_or((0, 0, f64::NAN), |r| {
+        (r.faces_over_limit, r.faces, r.rms_permille)
+    });
+    TargetCheck {
+        option: "max_error",
+        target: format!(
+            "every control face within RMS {e:.3}‰ of the input (--max-error {})",
+            mo.max_error
+        ),
+        met: over == 0 && rms.is_finite(),
+        outcome: format!(
+            "{over} of {faces} faces above it; RMS over all faces {rms:.3}‰ ({:.1}× the limit)",
+            rms / e
+        ),
+    }
 }

@@ -50,7 +50,10 @@ mod pipeline;
 
 pub use floor::resampling_floor;
 
-pub use output::{write_outputs, OutputFiles, OUTPUT_NAMES};
+pub use output::{
+    remove_staging_folders, write_outputs, write_outputs_with, ExtraFiles, OutputFiles,
+    KNOWN_NAMES, OUTPUT_NAMES,
+};
 pub use pipeline::{fit_and_measure, fit_and_write, write_converted, Converted, PipelineOptions};
 
 use std::collections::BTreeMap;
@@ -717,6 +720,25 @@ pub struct Report {
     pub stages: Vec<StageStat>,
     /// The options of the run, as given.
     pub options: serde_json::Value,
+    /// Whether every target the run was given (see [`Report::targets`])
+    /// was met; `true` when it had none. `subdfit convert` warns when not,
+    /// and exits 1 with `--strict`.
+    pub targets_met: bool,
+    /// The run's own stated targets and how they ended (mechanical
+    /// `--max-error`).
+    pub targets: Vec<TargetCheck>,
+}
+
+/// One stated target of a run and its outcome, for `report.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct TargetCheck {
+    /// The option that set it, e.g. `"max_error"`.
+    pub option: &'static str,
+    /// What it promises, in words with the figures.
+    pub target: String,
+    pub met: bool,
+    /// What the result gave, in words with the figures.
+    pub outcome: String,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -739,13 +761,20 @@ pub struct ReportProjectability {
 pub fn versions() -> BTreeMap<String, String> {
     let mut v = BTreeMap::new();
     v.insert("subdfit".to_string(), env!("CARGO_PKG_VERSION").to_string());
-    for (name, ver) in crate::linked_library_versions() {
+    for (name, ver) in crate::ffi::linked_library_versions() {
         v.insert(name.to_string(), ver);
     }
     v
 }
 
 impl Report {
+    /// Records a target's outcome (and clears [`Report::targets_met`] when
+    /// it was missed).
+    pub fn add_target(&mut self, t: TargetCheck) {
+        self.targets_met &= t.met;
+        self.targets.push(t);
+    }
+
     pub fn new(
         input: crate::mesh::MeshReport,
         control: &ControlMesh,
@@ -771,6 +800,8 @@ impl Report {
             },
             stages,
             options,
+            targets_met: true,
+            targets: Vec::new(),
         }
     }
 }

@@ -1,13 +1,30 @@
-//! Writing the outputs of `subdfit fit` / `convert` as one unit: every file
-//! is written into a staging folder inside the output folder, and only when
-//! all of them are complete are they renamed into place. A failure (or a
-//! crash) before that point leaves the output folder as it was — at worst a
-//! hidden `.subdfit-staging-*` folder after a crash, never a half-written or
-//! mismatched set of results.
+//! Writing the outputs of `subdfit fit` / `convert` as one set.
+//!
+//! An output folder always holds one run's complete set, never half old and
+//! half new, and nothing left from a run in another mode or with other
+//! options (a stale `fitmap.ply` beside a mechanical result, a stale
+//! `report.html`):
+//!
+//! 1. the whole set (and any extra file, e.g. `report.html`) is written into
+//!    a staging folder beside the output folder,
+//!    `PARENT/.NAME.subdfit-staging-PID-N`, on the same file system;
+//! 2. files in the output folder that subdfit did not write are hard-linked
+//!    into it, so they survive (a sub-folder there is an error before
+//!    anything is written: it cannot be carried over atomically);
+//! 3. one `renameat2(RENAME_EXCHANGE)` swaps the two folders atomically (a
+//!    plain rename when there was no output folder), and the staging path,
+//!    which now holds the old set, is removed.
+//!
+//! A crash before step 3 leaves the output folder as it was, plus at worst
+//! a staging folder beside it; the next run removes staging folders of
+//! processes that are gone (and the `OUTDIR/.subdfit-staging-*` folders
+//! older versions left inside). A signal handler (the binary's) calls
+//! [`remove_staging_folders`] so that SIGINT/SIGTERM leave nothing behind.
 
 use std::fs;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Mutex;
 
 use crate::analysis::Fitmap;
 use crate::displace::{Atlas, DEFAULT_GUTTER};
@@ -18,6 +35,11 @@ use crate::io::{
 use crate::mesh::{ControlMesh, TriMesh};
 
 use super::{Report, Surfaces};
+
+/// Writes more files into a staging folder (its argument) before the set is
+/// put in place, returning their names: e.g. `report.html`, drawn from the
+/// staged files themselves.
+pub type ExtraFiles<'a> = &'a mut dyn FnMut(&Path) -> Result<Vec<String>>;
 
 /// What [`write_outputs`] writes.
 pub struct OutputFiles<'a> {
@@ -46,51 +68,234 @@ pub const OUTPUT_NAMES: [&str; 7] = [
     "report.json",
 ];
 
+/// Every name subdfit may write into an output folder: a file of these
+/// names is part of an earlier set and is replaced (or dropped), never
+/// carried over.
+pub const KNOWN_NAMES: [&str; 9] = [
+    "control.obj",
+    "control.usda",
+    "control_quads.obj",
+    "limit.ply",
+    "displaced.ply",
+    "displacement.exr",
+    "fitmap.ply",
+    "report.json",
+    "report.html",
+];
+
+/// Staging folders of this process that are not in place yet (for
+/// [`remove_staging_folders`]). Held while a set is swapped in, so a signal
+/// handler never removes a folder half-way through the swap.
+static STAGING: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+/// Removes the staging folders of every write in progress in this process;
+/// for signal handlers, which exit right after (the lock stays held, so no
+/// write of this process can put a set in place after it).
+pub fn remove_staging_folders() {
+    let guard = STAGING.lock().unwrap_or_else(|e| e.into_inner());
+    for p in guard.iter() {
+        let _ = fs::remove_dir_all(p);
+    }
+    std::mem::forget(guard);
+}
+
 /// Writes `control.obj` (with `vt` into the atlas), `control.usda`,
 /// `limit.ply`, `displaced.ply`, `displacement.exr`, `fitmap.ply` (when a
-/// Fitmap is given) and `report.json` into `dir` (created if missing), all
-/// or nothing (module docs). Returns the paths written.
+/// Fitmap is given) and `report.json` into `dir` (created if missing) as
+/// one set, all or nothing (module docs). Returns the paths written.
 pub fn write_outputs(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<PathBuf>> {
+    write_outputs_with(dir, out, None)
+}
+
+/// [`write_outputs`] with `extra`'s files in the same set.
+pub fn write_outputs_with(
+    dir: &Path,
+    out: &OutputFiles<'_>,
+    mut extra: Option<ExtraFiles<'_>>,
+) -> Result<Vec<PathBuf>> {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let created = !dir.exists();
-    fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let staging = dir.join(format!(
-        ".subdfit-staging-{}-{}",
+    let (parent, name) = split_dir(dir)?;
+    remove_stale_staging(&parent, &name, dir);
+    let foreign = foreign_files(dir)?;
+    let staging = parent.join(format!(
+        ".{name}.subdfit-staging-{}-{}",
         std::process::id(),
         COUNTER.fetch_add(1, Ordering::Relaxed)
     ));
+    fs::create_dir_all(&parent).map_err(|e| Error::io(&parent, e))?;
+    STAGING
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .push(staging.clone());
     let result = fs::create_dir(&staging)
         .map_err(|e| Error::io(&staging, e))
         .and_then(|_| write_all(&staging, out))
         .and_then(|names| {
-            // Everything that can make a rename fail short of a crash is
-            // checked before the first rename, so renaming is all or nothing.
-            for name in &names {
-                let to = dir.join(name);
-                if to.is_dir() {
-                    return Err(Error::io(
-                        &to,
-                        std::io::Error::new(
-                            std::io::ErrorKind::AlreadyExists,
-                            "a folder is in the way of an output file; move it away",
-                        ),
-                    ));
-                }
+            let mut names: Vec<String> = names.iter().map(|n| n.to_string()).collect();
+            if let Some(extra) = extra.as_mut() {
+                names.extend(extra(&staging)?);
             }
-            let mut done = Vec::new();
-            for name in names {
-                let to = dir.join(name);
-                fs::rename(staging.join(name), &to).map_err(|e| Error::io(&to, e))?;
-                done.push(to);
+            for f in &foreign {
+                let to = staging.join(f);
+                fs::hard_link(dir.join(f), &to).map_err(|e| Error::io(&to, e))?;
             }
-            Ok(done)
+            pause_for_tests();
+            swap_in(&staging, dir)?;
+            Ok(names.iter().map(|n| dir.join(n)).collect())
         });
+    let mut registry = STAGING.lock().unwrap_or_else(|e| e.into_inner());
+    // After the swap this is the old set; after a failure, the partial one.
     let _ = fs::remove_dir_all(&staging);
-    if result.is_err() && created {
-        // Only removes the folder if it is still empty.
-        let _ = fs::remove_dir(dir);
-    }
+    registry.retain(|p| p != &staging);
     result
+}
+
+/// `dir`'s parent folder and its own name (the staging folder's is derived
+/// from it).
+fn split_dir(dir: &Path) -> Result<(PathBuf, String)> {
+    let abs = if dir.is_absolute() {
+        dir.to_path_buf()
+    } else {
+        std::env::current_dir()
+            .map_err(|e| Error::io(dir, e))?
+            .join(dir)
+    };
+    let bad = || {
+        Error::io(
+            dir,
+            std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "an output folder needs a name and a parent folder",
+            ),
+        )
+    };
+    let name = abs
+        .file_name()
+        .ok_or_else(bad)?
+        .to_string_lossy()
+        .into_owned();
+    if name == "." || name == ".." {
+        return Err(bad());
+    }
+    Ok((abs.parent().ok_or_else(bad)?.to_path_buf(), name))
+}
+
+/// Files in `dir` that subdfit did not write (to be carried over into the
+/// new set). A sub-folder, or an entry of a known name that is not a file,
+/// is an error: it cannot be carried over with the set.
+fn foreign_files(dir: &Path) -> Result<Vec<String>> {
+    let entries = match fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Vec::new()),
+        Err(e) => return Err(Error::io(dir, e)),
+    };
+    let mut out = Vec::new();
+    for e in entries {
+        let e = e.map_err(|e| Error::io(dir, e))?;
+        let name = e.file_name().to_string_lossy().into_owned();
+        let ty = e.file_type().map_err(|err| Error::io(e.path(), err))?;
+        if name.starts_with(".subdfit-staging-") {
+            continue;
+        }
+        if ty.is_dir() {
+            return Err(Error::io(
+                e.path(),
+                std::io::Error::new(
+                    std::io::ErrorKind::AlreadyExists,
+                    "a folder inside the output folder; subdfit replaces the output folder as \
+                     a whole, so move it away (or choose another output folder)",
+                ),
+            ));
+        }
+        if !KNOWN_NAMES.contains(&name.as_str()) {
+            out.push(name);
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Removes staging folders left by killed runs: beside `dir` (this
+/// version's, `.NAME.subdfit-staging-PID-N`) and inside it (older
+/// versions', `.subdfit-staging-PID-N`), when process PID is gone.
+fn remove_stale_staging(parent: &Path, name: &str, dir: &Path) {
+    let beside = format!(".{name}.subdfit-staging-");
+    for (folder, prefix) in [(parent, beside.as_str()), (dir, ".subdfit-staging-")] {
+        let Ok(entries) = fs::read_dir(folder) else {
+            continue;
+        };
+        for e in entries.flatten() {
+            let n = e.file_name().to_string_lossy().into_owned();
+            let Some(rest) = n.strip_prefix(prefix) else {
+                continue;
+            };
+            let pid = rest.split('-').next().and_then(|p| p.parse::<u32>().ok());
+            let alive = pid.is_some_and(|p| Path::new(&format!("/proc/{p}")).exists());
+            if !alive {
+                let _ = fs::remove_dir_all(e.path());
+            }
+        }
+    }
+}
+
+/// Puts the staged set in place: atomically exchanged with the old folder
+/// (Linux `renameat2(RENAME_EXCHANGE)`), or renamed when there is none.
+/// The registry lock is held so that a signal handler does not remove the
+/// staging folder half-way.
+fn swap_in(staging: &Path, dir: &Path) -> Result<()> {
+    let _held = STAGING.lock().unwrap_or_else(|e| e.into_inner());
+    if !dir.exists() {
+        return fs::rename(staging, dir).map_err(|e| Error::io(dir, e));
+    }
+    exchange(staging, dir).map_err(|e| Error::io(dir, e))
+}
+
+#[cfg(target_os = "linux")]
+fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
+    use std::ffi::CString;
+    use std::os::unix::ffi::OsStrExt;
+    let c = |p: &Path| {
+        CString::new(p.as_os_str().as_bytes())
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))
+    };
+    let (ca, cb) = (c(a)?, c(b)?);
+    // SAFETY: two valid NUL-terminated paths; renameat2 only reads them.
+    let r = unsafe {
+        libc::renameat2(
+            libc::AT_FDCWD,
+            ca.as_ptr(),
+            libc::AT_FDCWD,
+            cb.as_ptr(),
+            libc::RENAME_EXCHANGE,
+        )
+    };
+    if r == 0 {
+        Ok(())
+    } else {
+        Err(std::io::Error::last_os_error())
+    }
+}
+
+/// Elsewhere no atomic exchange exists: the old folder is moved aside
+/// first (a crash between the two renames leaves no output folder and the
+/// old set in the staging path, never a mixed one).
+#[cfg(not(target_os = "linux"))]
+fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
+    let aside = a.with_extension("old");
+    fs::rename(b, &aside)?;
+    fs::rename(a, b)?;
+    fs::rename(&aside, a)
+}
+
+/// Hidden test hook: `SUBDFIT_TEST_PAUSE_BEFORE_SWAP_MS` holds a staged set
+/// that long before the swap, so that tests can kill a run mid-write.
+fn pause_for_tests() {
+    if let Some(ms) = std::env::var("SUBDFIT_TEST_PAUSE_BEFORE_SWAP_MS")
+        .ok()
+        .and_then(|v| v.parse::<u64>().ok())
+    {
+        std::thread::sleep(std::time::Duration::from_millis(ms));
+    }
 }
 
 /// One output file: its name and the code that writes it to a path.

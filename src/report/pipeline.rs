@@ -13,7 +13,8 @@ use crate::mesh::{ControlMesh, ValidatedMesh};
 use crate::raycast::RayCaster;
 
 use super::{
-    evaluate_surfaces, write_outputs, MetricsOptions, OutputFiles, Report, StageTimer, Surfaces,
+    evaluate_surfaces, write_outputs_with, ExtraFiles, MetricsOptions, OutputFiles, Report,
+    StageTimer, Surfaces,
 };
 
 /// Options of [`fit_and_write`].
@@ -109,16 +110,17 @@ pub fn fit_and_measure(
     })
 }
 
-/// Writes a conversion into `dir` (all or nothing, see [`write_outputs`]).
-/// Stage for `progress`: `"write"`.
+/// Writes a conversion into `dir` as one set with `extra`'s files (all or
+/// nothing, see [`super::write_outputs`]). Stage for `progress`: `"write"`.
 pub fn write_converted(
     input: &ValidatedMesh,
     c: &Converted,
     dir: &Path,
+    extra: Option<ExtraFiles<'_>>,
     progress: &mut Progress<'_>,
 ) -> Result<Vec<PathBuf>> {
     crate::fit::report_progress(progress, "write", 0.0)?;
-    let written = write_outputs(
+    let written = write_outputs_with(
         dir,
         &OutputFiles {
             mesh: &input.mesh,
@@ -128,6 +130,7 @@ pub fn write_converted(
             fitmap: c.fitmap.as_ref(),
             report: &c.report,
         },
+        extra,
     )?;
     crate::fit::report_progress(progress, "write", 1.0)?;
     Ok(written)
@@ -156,6 +159,6 @@ pub fn fit_and_write(
         precomputed_fitmap,
         progress,
     )?;
-    let written = write_converted(input, &c, dir, progress)?;
+    let written = write_converted(input, &c, dir, None, progress)?;
     Ok((c.report, written))
 }

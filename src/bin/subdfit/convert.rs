@@ -7,7 +7,8 @@ use anyhow::Result;
 use clap::Args;
 use subdfit::analysis::fitmap::DEFAULT_TOLERANCE;
 use subdfit::fit::Objective;
-use subdfit::pipeline::{convert as run_convert, ConvertOptions, Mode};
+use subdfit::pipeline::{convert_in_memory, ConvertOptions, Mode};
+use subdfit::report::write_converted;
 
 #[derive(Copy, Clone, Debug, clap::ValueEnum)]
 pub enum ModeArg {
@@ -24,7 +25,10 @@ pub struct ConvertArgs {
     /// manifold surface.
     mesh: PathBuf,
     /// Output folder: control.obj, control.usda, limit.ply, displaced.ply,
-    /// displacement.exr, fitmap.ply, report.json (all or nothing).
+    /// displacement.exr, fitmap.ply, report.json (and report.html) as one
+    /// set: built beside the folder and swapped in whole, so the folder
+    /// never mixes two runs; other files in it are kept, a sub-folder in it
+    /// is an error.
     #[arg(short, long)]
     output: PathBuf,
     /// τ, the only parameter of the method (Fitmaps §3.1.3): the share of a
@@ -70,6 +74,11 @@ pub struct ConvertArgs {
     /// self-contained page.
     #[arg(long)]
     report: bool,
+    /// Exit with status 1 when the result misses a target it was given
+    /// (mechanical `--max-error`; report.json's `targets`). Without it a
+    /// miss is a warning on stderr and `"targets_met": false`.
+    #[arg(long)]
+    strict: bool,
 }
 
 pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
@@ -94,20 +103,30 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
         "mesh": a.mesh.display().to_string(),
     });
     let mut progress = progress_bars(a.quiet || a.json);
-    let (report, written) = run_convert(&input, &opts, extra, &a.output, &mut progress)
+    let converted = convert_in_memory(&input, &opts, extra, &mut progress)
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.mesh.display()))?;
-    if a.report {
-        let html = subdfit::render::report_html::write_report_html(
-            &a.output,
+    // report.html is drawn from the staged files, so it belongs to the set.
+    let mut html = |staging: &std::path::Path| -> subdfit::Result<Vec<String>> {
+        if !a.report {
+            return Ok(Vec::new());
+        }
+        subdfit::render::report_html::write_report_html(
+            staging,
             Some(&a.mesh),
             &Default::default(),
             &mut |f| progress("report", f),
-        )
-        .map_err(|e| anyhow::anyhow!("{}: report.html: {e}", a.output.display()))?;
-        if !(a.quiet || a.json) {
-            crate::emit(&format!("wrote {}", html.display()))?;
-        }
-    }
+        )?;
+        Ok(vec!["report.html".to_string()])
+    };
+    let written = write_converted(
+        &input,
+        &converted,
+        &a.output,
+        Some(&mut html),
+        &mut |_, _| true,
+    )
+    .map_err(|e| anyhow::anyhow!("{}: {e}", a.output.display()))?;
+    let report = converted.report;
     if a.json {
         crate::emit(&serde_json::to_string_pretty(&report)?)?;
     } else if !a.quiet {
@@ -121,5 +140,33 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
             }
         }
     }
-    Ok(ExitCode::SUCCESS)
+    for t in report.targets.iter().filter(|t| !t.met) {
+        eprintln!(
+            "subdfit: warning: {}: target missed: {}: {}",
+            a.mesh.display(),
+            t.target,
+            t.outcome
+        );
+    }
+    if let Some(second) = report.options["mode"].get("second_opinion") {
+        if !a.quiet {
+            eprintln!(
+                "subdfit: note: {}: {}; organic RMS {:.3}‰, mechanical {:.3}‰: kept {}",
+                a.mesh.display(),
+                second["why"].as_str().unwrap_or(""),
+                second["organic"]["rms_limit_permille"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN),
+                second["mechanical"]["rms_limit_permille"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN),
+                second["kept"].as_str().unwrap_or("")
+            );
+        }
+    }
+    Ok(if a.strict && !report.targets_met {
+        ExitCode::from(1)
+    } else {
+        ExitCode::SUCCESS
+    })
 }

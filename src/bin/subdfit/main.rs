@@ -120,8 +120,25 @@ fn error_chain(e: &anyhow::Error) -> String {
     out
 }
 
+/// SIGINT and SIGTERM: the staging folders of a write in progress are
+/// removed (see `subdfit::report::remove_staging_folders`), then the process
+/// exits with 128 + the signal (130, 143), as a shell reports it.
+fn handle_signals() {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]) else {
+        return; // Default handling then: no cleanup, but no crash either.
+    };
+    std::thread::spawn(move || {
+        if let Some(sig) = signals.forever().next() {
+            subdfit::report::remove_staging_folders();
+            std::process::exit(128 + sig);
+        }
+    });
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    handle_signals();
     match run(cli) {
         Ok(code) => code,
         Err(e) => {
