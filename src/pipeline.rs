@@ -251,6 +251,18 @@ fn convert_organic(
         }
     };
     let mesh = &input.mesh;
+    if let Err(why) = crate::analysis::fitmap::fitmap_radii(mesh) {
+        return convert_coarse(
+            input,
+            opts,
+            choice,
+            caster,
+            timer,
+            extra_options,
+            why,
+            progress,
+        );
+    }
     let extra_options = serde_json::json!({ "mode": choice, "options": extra_options });
     let mut fo = FitmapOptions::default();
     if let Some(t) = opts.tolerance {
@@ -296,6 +308,80 @@ fn convert_organic(
         Some(fitmap),
         progress,
     )
+}
+
+/// The organic branch for a mesh coarser than the Fitmap's radii (its mean
+/// edge is longer than a quarter of its diagonal: a tetrahedron, a box of
+/// a few triangles), where §3.1's analysis is undefined and there is
+/// nothing to simplify: its own faces, refined once so that every face is
+/// a quad (the same limit surface's domain, §3.2's all-quad requirement),
+/// are the control mesh, fitted as any other (§3.4).
+#[allow(clippy::too_many_arguments)]
+fn convert_coarse(
+    input: &ValidatedMesh,
+    opts: &ConvertOptions,
+    choice: crate::mechanical::ModeChoice,
+    caster: &dyn crate::raycast::RayCaster,
+    mut timer: StageTimer,
+    extra_options: serde_json::Value,
+    why: Error,
+    progress: &mut dyn FnMut(&str, f64) -> bool,
+) -> Result<Converted> {
+    let mesh = &input.mesh;
+    if !(mesh.bbox_diagonal().is_finite() && mesh.bbox_diagonal() > 0.0) {
+        return Err(why);
+    }
+    let control = timer.run("control", || coarse_control(mesh))?;
+    let po = PipelineOptions::default()
+        .with_fit(FitOptions::default().with_objective(opts.objective))
+        .with_metrics(MetricsOptions::default().with_displacement_res(opts.displacement_res));
+    let extra = serde_json::json!({
+        "mode": choice,
+        "convert": opts,
+        "coarse_input": format!(
+            "no Fitmap ({why}): the input's own faces, refined once into quads, are the control mesh, its sharp edges (dihedral > {}°) infinitely sharp creases",
+            crate::mechanical::SHARP_DIHEDRAL_DEG
+        ),
+        "run": extra_options,
+    });
+    fit_and_measure(input, control, caster, &po, timer, extra, None, progress)
+}
+
+/// [`convert_coarse`]'s control mesh: M's triangles with its sharp edges
+/// as infinitely sharp creases and the vertices where three or more meet
+/// as corners (so a tetrahedron or a box is reproduced exactly: each face's
+/// limit patch is the planar face), refined once into quads.
+fn coarse_control(mesh: &crate::mesh::TriMesh) -> Result<crate::mesh::ControlMesh> {
+    use crate::mesh::{ControlMesh, VertexId, INFINITELY_SHARP};
+    let mut base = ControlMesh::from_polygons(mesh.positions.clone(), &mesh.triangles)?;
+    let topo = crate::mechanical::Topology::new(mesh);
+    let mut sharp_degree = vec![0u32; mesh.positions.len()];
+    for (e, sharp) in topo.edges.iter().zip(topo.sharp_edges()) {
+        if sharp {
+            base.set_crease(VertexId(e.v[0]), VertexId(e.v[1]), INFINITELY_SHARP)?;
+            for v in e.v {
+                sharp_degree[v as usize] += 1;
+            }
+        }
+    }
+    for (v, &d) in sharp_degree.iter().enumerate() {
+        if d >= 3 {
+            base.set_corner(VertexId(v as u32), INFINITELY_SHARP)?;
+        }
+    }
+    let mut r = crate::subdiv::refine::refine_uniform(&base, 1)?;
+    // refine_uniform decrements sharpness per level; infinite stays infinite.
+    for (a, b, s) in r.creases() {
+        if s >= INFINITELY_SHARP - 1.0 {
+            r.set_crease(a, b, INFINITELY_SHARP)?;
+        }
+    }
+    for (v, s) in r.corners() {
+        if s >= INFINITELY_SHARP - 1.0 {
+            r.set_corner(v, INFINITELY_SHARP)?;
+        }
+    }
+    Ok(r)
 }
 
 /// The Fitmap (§3.1) with progress and cancellation: the analysis runs as

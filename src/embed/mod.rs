@@ -501,7 +501,9 @@ pub fn convert(input: &MeshArrays, options: &Options, progress: &Progress) -> Re
     options.check()?;
     with_threads(options.threads, || {
         progress.report("read", 0.0)?;
-        let mesh = input.to_validated(&options.source_name)?;
+        let mesh = input
+            .to_validated(&options.source_name)?
+            .into_manifold(Path::new(&options.source_name))?;
         progress.report("read", 1.0)?;
         let opts = ConvertOptions::default()
             .with_mode(match options.mode {
@@ -553,7 +555,9 @@ pub fn fit(
     options.check()?;
     with_threads(options.threads, || {
         progress.report("read", 0.0)?;
-        let mesh = input.to_validated(&options.source_name)?;
+        let mesh = input
+            .to_validated(&options.source_name)?
+            .into_manifold(Path::new(&options.source_name))?;
         let control = control.to_control_mesh()?;
         progress.report("read", 1.0)?;
         let mut timer = StageTimer::default();

@@ -4,11 +4,13 @@
 //! ([`ControlMesh`]).
 
 mod control;
+mod manifold;
 mod report;
 mod soup;
 
 pub use control::{
     Compaction, ControlMesh, EdgeId, FaceId, HalfedgeId, VertexId, INFINITELY_SHARP,
 };
+pub use manifold::{split_non_manifold, SplitStats};
 pub use report::{validate_soup, MeshReport, ValidatedMesh};
 pub use soup::{PolySoup, TriMesh};

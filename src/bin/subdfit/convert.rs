@@ -82,7 +82,9 @@ pub struct ConvertArgs {
 }
 
 pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
-    let input = subdfit::io::read_mesh(&a.mesh)?;
+    // Non-manifold vertices and edges are split into manifold pieces (and
+    // said so in report.json), as every later stage needs one fan per vertex.
+    let input = subdfit::io::read_mesh(&a.mesh)?.into_manifold(&a.mesh)?;
     let opts = ConvertOptions::default()
         .with_tolerance(Some(a.tolerance))
         .with_target_faces(a.faces)

@@ -97,7 +97,9 @@ pub fn progress_bars(quiet: bool) -> impl FnMut(&str, f64) -> bool {
 
 pub fn fit(a: FitArgs) -> Result<ExitCode> {
     let mut timer = StageTimer::default();
-    let input = timer.run("read", || subdfit::io::read_mesh(&a.mesh))?;
+    let input = timer.run("read", || {
+        subdfit::io::read_mesh(&a.mesh).and_then(|m| m.into_manifold(&a.mesh))
+    })?;
     let control = subdfit::io::read_control_mesh(&a.control)
         .with_context(|| format!("reading the control mesh {}", a.control.display()))?;
     let caster = timer.run("raycaster", || {

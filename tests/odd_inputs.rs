@@ -1,0 +1,173 @@
+//! Inputs as people have them (issue 22): a "scan" with several parts, a
+//! bow-tie vertex, an open boundary and zero-area faces converts; so does a
+//! mesh coarser than the Fitmap's radii (a tetrahedron, reproduced exactly
+//! with creases), with the result stated in `report.json`.
+
+use std::f64::consts::PI;
+use std::fmt::Write as _;
+use std::path::Path;
+use std::process::Command;
+
+struct Obj {
+    v: Vec<[f64; 3]>,
+    f: Vec<[usize; 3]>,
+}
+
+impl Obj {
+    /// A UV sphere (`n` rings, `m` segments) centred at `c`; returns the
+    /// indices of its north and south poles.
+    fn sphere(&mut self, c: [f64; 3], r: f64, n: usize, m: usize) -> (usize, usize) {
+        let o = self.v.len();
+        self.v.push([c[0], c[1], c[2] + r]);
+        for i in 1..n {
+            let th = PI * i as f64 / n as f64;
+            for j in 0..m {
+                let ph = 2.0 * PI * j as f64 / m as f64;
+                self.v.push([
+                    c[0] + r * th.sin() * ph.cos(),
+                    c[1] + r * th.sin() * ph.sin(),
+                    c[2] + r * th.cos(),
+                ]);
+            }
+        }
+        self.v.push([c[0], c[1], c[2] - r]);
+        let s = self.v.len() - 1;
+        let idx = |i: usize, j: usize| o + 1 + (i - 1) * m + j % m;
+        for j in 0..m {
+            self.f.push([o, idx(1, j), idx(1, j + 1)]);
+            self.f.push([s, idx(n - 1, j + 1), idx(n - 1, j)]);
+        }
+        for i in 1..n - 1 {
+            for j in 0..m {
+                let (a, b, c2, d) = (idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1));
+                self.f.push([a, b, c2]);
+                self.f.push([a, c2, d]);
+            }
+        }
+        (o, s)
+    }
+
+    fn text(&self) -> String {
+        let mut s = String::new();
+        for p in &self.v {
+            writeln!(s, "v {} {} {}", p[0], p[1], p[2]).unwrap();
+        }
+        for t in &self.f {
+            writeln!(s, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1).unwrap();
+        }
+        s
+    }
+}
+
+fn convert(input: &Path, out: &Path) -> (bool, String, serde_json::Value) {
+    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .arg("convert")
+        .arg(input)
+        .arg("-o")
+        .arg(out)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    let report = std::fs::read_to_string(out.join("report.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok())
+        .unwrap_or(serde_json::Value::Null);
+    (o.status.success(), err, report)
+}
+
+#[test]
+fn a_scan_with_several_parts_a_bow_tie_holes_and_slivers_converts() {
+    let mut m = Obj {
+        v: Vec::new(),
+        f: Vec::new(),
+    };
+    let (_, south) = m.sphere([0.0, 0.0, 0.0], 1.0, 16, 32);
+    // A second part touching the first at one vertex: its north pole is
+    // the first sphere's south pole (a bow-tie vertex).
+    let (north2, _) = m.sphere([0.0, 0.0, -2.0], 1.0, 16, 32);
+    for t in m.f.iter_mut() {
+        for x in t.iter_mut() {
+            if *x == north2 {
+                *x = south;
+            }
+        }
+    }
+    // A third part, open: a sphere with a cap of faces removed (a hole).
+    let first = m.f.len();
+    m.sphere([4.0, 0.0, 0.0], 1.0, 16, 32);
+    m.f.drain(first..first + 12);
+    // A zero-area sliver inside the open part: edge a–b of a triangle
+    // (a, b, c) split at its midpoint p into (a, p, c), (p, b, c), plus
+    // the flat (a, b, p) between the edge and its midpoint.
+    let [a, b, c] = m.f[first + 40];
+    let p = m.v.len();
+    let (va, vb) = (m.v[a], m.v[b]);
+    m.v.push([
+        0.5 * (va[0] + vb[0]),
+        0.5 * (va[1] + vb[1]),
+        0.5 * (va[2] + vb[2]),
+    ]);
+    m.f[first + 40] = [a, p, c];
+    m.f.push([p, b, c]);
+    m.f.push([a, b, p]);
+    // A small fourth part far off.
+    m.sphere([0.0, 5.0, 0.0], 0.3, 8, 16);
+
+    let tmp = tempfile::tempdir().unwrap();
+    let input = tmp.path().join("scan.obj");
+    std::fs::write(&input, m.text()).unwrap();
+    let out = tmp.path().join("out");
+    let (ok, err, report) = convert(&input, &out);
+    assert!(ok, "the scan was refused: {err}");
+    let notes = report["input"]["notes"].to_string();
+    assert!(notes.contains("split 1 non-manifold vertex"), "{notes}");
+    assert!(
+        report["input"]["manifold"].as_bool().unwrap(),
+        "{}",
+        report["input"]
+    );
+    assert_eq!(report["input"]["components"].as_u64(), Some(4));
+    assert!(report["input"]["zero_area_faces"].as_u64().unwrap() >= 1);
+    // Every part is fitted: the surface is near the whole input, and the
+    // input is reached from the surface (holes and parts kept).
+    let rms = report["accuracy"]["limit"]["rms_permille"]
+        .as_f64()
+        .unwrap();
+    let unproj = report["projectability"]["unprojectable_area_percent"]
+        .as_f64()
+        .unwrap();
+    assert!(rms < 5.0, "RMS L {rms}‰");
+    assert!(unproj < 1.0, "unprojectable {unproj} %");
+}
+
+#[test]
+fn a_tetrahedron_becomes_its_own_creased_control_mesh() {
+    let tmp = tempfile::tempdir().unwrap();
+    let input = tmp.path().join("tet.obj");
+    std::fs::write(
+        &input,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 2 3 4\nf 1 4 3\n",
+    )
+    .unwrap();
+    let out = tmp.path().join("out");
+    let (ok, err, report) = convert(&input, &out);
+    assert!(ok, "the tetrahedron was refused: {err}");
+    assert_eq!(
+        report["control"]["faces"].as_u64(),
+        Some(12),
+        "one level of refinement"
+    );
+    assert_eq!(report["control"]["corners"].as_u64(), Some(4));
+    // Planar faces with creased borders: the limit surface is the
+    // tetrahedron itself, to round-off.
+    let rms = report["accuracy"]["limit"]["rms_permille"]
+        .as_f64()
+        .unwrap();
+    assert!(rms < 1e-9, "RMS L {rms}‰");
+    assert!(
+        report["options"]["run"]["coarse_input"].is_string(),
+        "{}",
+        report["options"]
+    );
+}
