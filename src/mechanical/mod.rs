@@ -80,12 +80,11 @@ pub const AUTO_SHARP_SHARE: f64 = 0.005;
 pub struct MechanicalOptions {
     /// `E_limit`: RMS distance per control face, fraction of the diagonal.
     pub max_error: f64,
-    /// The conservative fitter's ([`CurveFitter::Vertices`]) largest
-    /// distance of a feature polyline vertex to its fitted curve (and of a
-    /// mixed piece's curve to M), fraction of the diagonal: 0.8 × 10⁻³,
-    /// inside the 1‰ features-kept bar with room for the chord-to-arc gap
-    /// between polyline vertices. Also the least room off the features
-    /// for the compact fitter (see `fit_one`).
+    /// Largest distance to M of the curve of a piece mixing sharp and
+    /// smooth edges (a feature line continued across a smooth part, see
+    /// `segment`), and the least room its smooth edges get from their
+    /// (smoothed) polyline, fraction of the diagonal: 0.8 × 10⁻³, inside
+    /// the 1‰ features-kept bar (see `fit_one`).
     pub curve_tolerance: f64,
     /// Largest distance from a feature line (a boundary piece made of sharp
     /// edges of M: its vertices and points along its edges) to its fitted
@@ -107,9 +106,6 @@ pub struct MechanicalOptions {
     pub fairness: f64,
     /// Objective of the geometry step: SDM, the paper's (§7.1).
     pub objective: optimize::Objective,
-    /// §5's curve fitter; `None` (the default): the compact one, with the
-    /// conservative one as a fallback (see [`build_control`]).
-    pub curve_fitter: Option<CurveFitter>,
 }
 
 impl Default for MechanicalOptions {
@@ -124,7 +120,6 @@ impl Default for MechanicalOptions {
             max_faces: 20_000,
             fairness: 0.01,
             objective: optimize::Objective::Sdm,
-            curve_fitter: None,
         }
     }
 }
@@ -144,10 +139,6 @@ impl MechanicalOptions {
         self.feature_tolerance = d.feature_tolerance.min(e / 3.0);
         self.curve_tolerance = d.curve_tolerance.min(e / 3.0);
         self.smooth_curve_tolerance = d.smooth_curve_tolerance.min(2.0 * e / 3.0);
-        self
-    }
-    pub fn with_curve_fitter(mut self, f: CurveFitter) -> Self {
-        self.curve_fitter = Some(f);
         self
     }
     pub fn with_objective(mut self, o: optimize::Objective) -> Self {
@@ -177,8 +168,6 @@ impl MechanicalOptions {
 /// What [`build_control`] did, for `report.json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct MechanicalStats {
-    /// The §5 fit the output's curves come from (see [`build_control`]).
-    pub curve_fitter: CurveFitter,
     pub sharp_edges: usize,
     pub sharp_edges_inside_regions: usize,
     /// Sharp edges inside regions kept as creases on slits of their
@@ -314,27 +303,11 @@ struct PieceFits {
 /// only on its key, so the cache changes no result.
 type FitCache = std::sync::Mutex<HashMap<(Vec<u32>, bool, usize), curves::Curve>>;
 
-/// The curve tolerances of [`MechanicalOptions`] in units of M, and the
-/// fitter.
+/// The curve tolerances of [`MechanicalOptions`] in units of M.
 struct Tols {
     curve: f64,
     feature: f64,
     smooth: f64,
-    /// [`CurveFitter::Vertices`].
-    legacy: bool,
-}
-
-/// Which §5 fit a network was built with (see [`build_control`]).
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
-pub enum CurveFitter {
-    /// [`curves::fit_feature`] / [`curves::fit_samples_until`]: the true
-    /// distance of points along the polyline to the curve, minimax; the
-    /// fewest control points.
-    Distance,
-    /// [`curves::fit_curve`]: least squares on the polyline vertices with a
-    /// parameter correspondence, at the tighter `curve_tolerance`; more
-    /// control points, so more boundary points for §6's facets.
-    Vertices,
 }
 
 /// Fits one piece (§5) with the fewest control points
@@ -350,7 +323,7 @@ pub enum CurveFitter {
 /// with `E_limit`), so that smooth region boundaries cost as few fixed
 /// control points as the fit allows. A piece mixing both (a feature line
 /// continued across a smooth part, see `segment`) gets each tolerance on
-/// its own edges.
+/// its own edges, and its curve must lie within `tols.curve` of M.
 fn fit_one(
     pts: &[DVec3],
     closed: bool,
@@ -359,9 +332,6 @@ fn fit_one(
     tols: &Tols,
     caster: &dyn RayCaster,
 ) -> curves::Curve {
-    if tols.legacy {
-        return legacy_fit_one(pts, closed, min_n, edge_sharp, tols, caster);
-    }
     if edge_sharp.iter().all(|&s| s) {
         return curves::fit_feature(pts, closed, min_n, tols.feature);
     }
@@ -382,54 +352,6 @@ fn fit_one(
     };
     curves::fit_samples_until(pts, closed, min_n, &edge_tol, &|c: &curves::Curve| {
         curve_to_mesh(c, caster) <= to_mesh
-    })
-}
-
-/// The conservative fit of [`CurveFitter::Vertices`]: [`curves::fit_curve`]
-/// on the polyline vertices within `tols.curve` (0.8‰, room for the
-/// chord-to-arc gap to the 1‰ bar) along features; a piece mixing sharp
-/// and smooth edges keeps its feature vertices within `tols.curve` and the
-/// curve within `tols.curve` of M; a smooth piece within half its mean
-/// edge of the (smoothed) polyline and `tols.smooth` of M.
-fn legacy_fit_one(
-    pts: &[DVec3],
-    closed: bool,
-    min_n: usize,
-    edge_sharp: &[bool],
-    tols: &Tols,
-    caster: &dyn RayCaster,
-) -> curves::Curve {
-    let (tol, smooth_tol) = (tols.curve, tols.smooth);
-    let m = pts.len();
-    let on_feature: Vec<usize> = (0..m)
-        .filter(|&k| {
-            let before = if k > 0 {
-                edge_sharp.get(k - 1)
-            } else if closed {
-                edge_sharp.last()
-            } else {
-                None
-            };
-            before.copied().unwrap_or(false) || edge_sharp.get(k).copied().unwrap_or(false)
-        })
-        .collect();
-    let feature_ok = |c: &curves::Curve| {
-        on_feature
-            .iter()
-            .all(|&k| (curves::eval(&c.control, c.closed, c.params[k]) - pts[k]).length() <= tol)
-    };
-    let smooth_tol = if on_feature.is_empty() {
-        smooth_tol.max(tol)
-    } else {
-        tol
-    };
-    let segs = if closed { m } else { m - 1 };
-    let len: f64 = (0..segs)
-        .map(|k| (pts[(k + 1) % m] - pts[k]).length())
-        .sum();
-    let loose = tol.max(0.5 * len / segs.max(1) as f64);
-    curves::fit_curve_until(pts, closed, min_n, &|c: &curves::Curve| {
-        c.max_error <= loose && feature_ok(c) && curve_to_mesh(c, caster) <= smooth_tol
     })
 }
 
@@ -465,7 +387,7 @@ fn fit_pieces(
     let sharp_piece: Vec<bool> = edge_sharp.iter().map(|e| e.iter().all(|&s| s)).collect();
     // The points each curve is fitted to. Along a feature (sharp edges of
     // M) the polyline *is* the feature line and is kept as it is: the
-    // crease must follow it within `curve_tolerance`. Elsewhere a boundary
+    // crease must follow it within `feature_tolerance`. Elsewhere a boundary
     // separates two curvature classes across a smooth part of M and
     // zigzags along triangle edges (amplitude up to an edge length, 14‰ on
     // fandisk): fitting that within 0.5‰ costs one control point per
@@ -475,7 +397,8 @@ fn fit_pieces(
     // vertices not on a sharp edge are smoothed along the piece (10 passes
     // of the ¼-½-¼ filter, which cancels the period-2 zigzag outright) and
     // projected back onto M, and the fit is also checked against M itself
-    // (curve samples within `curve_tolerance` of M).
+    // (curve samples within `smooth_curve_tolerance` of M,
+    // `curve_tolerance` on a piece mixing sharp and smooth edges).
     let smoothed: Vec<Vec<DVec3>> = net
         .pieces
         .par_iter()
@@ -697,72 +620,37 @@ pub struct PieceStat {
 
 /// Builds the mechanical control mesh of `mesh` (`caster` over it).
 ///
-/// The curve network is fitted first with the fewest control points
-/// ([`CurveFitter::Distance`]). When the enrichment then ends with faces
-/// still above `max_error`, the network is fitted again with the
-/// conservative fitter ([`CurveFitter::Vertices`], more boundary points),
-/// which is kept if its RMS distance is lower by more than
-/// [`SAFE_FIT_GAIN`]; `stats.curve_fitter` says which. A safety net, not
-/// the rule: fandisk, block and joint all end under `max_error` with the
-/// compact network and build once. (Block and joint used to fall back:
-/// three block regions and one joint region ended at RMS 6–15‰. Their
-/// curves were within tolerance; the cause was §6's cut, which spanned
-/// half-pipe regions with single chords from the middle control point of
-/// a smooth side, see `polyhedron::MAX_CHORD_BEND`. The conservative
-/// network got the same fans and only escaped them by a lucky round of
-/// enrichment.) Spot forced through this mode still builds twice.
+/// One curve network (§5), fitted with the fewest control points
+/// ([`curves::fit_feature`] along feature lines, [`curves::fit_samples_until`]
+/// elsewhere, see `fit_one`), then §6's polyhedra and §7's fitting and
+/// enrichment on it. (Block and joint once ended with three and one
+/// regions at RMS 6–15‰ and were built again with a second, conservative
+/// curve fitter. Their curves were within tolerance; the cause was §6's
+/// cut, which spanned half-pipe regions with single chords from the middle
+/// control point of a smooth side, see `polyhedron::MAX_CHORD_BEND`. With
+/// that rule fandisk, block and joint all end under `max_error` with the
+/// compact network, and the second fitter is gone.)
+///
+/// Fading features are left as slits ([`SegmentOptions::slits`]) when
+/// every one hangs from its region's boundary, else (or when a slit
+/// region's polyhedron could not be built: a region skipped, the star
+/// fallback) continued to the far side of their regions.
 pub fn build_control(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
     opts: &MechanicalOptions,
 ) -> Result<Built> {
-    if let Some(f) = opts.curve_fitter {
-        return build_fitted(mesh, caster, opts, f);
-    }
-    let compact = build_fitted(mesh, caster, opts, CurveFitter::Distance)?;
-    if !compact.stats.error_limit_reached {
-        return Ok(compact);
-    }
-    let safe = build_fitted(mesh, caster, opts, CurveFitter::Vertices)?;
-    let rms = |b: &Built| {
-        b.stats
-            .rounds
-            .last()
-            .map_or(f64::INFINITY, |r| r.rms_permille)
-    };
-    Ok(if rms(&compact) > SAFE_FIT_GAIN * rms(&safe) {
-        safe
-    } else {
-        compact
-    })
-}
-
-/// See [`build_control`]: the conservative network must lower the RMS
-/// distance by this factor to replace the compact one.
-pub const SAFE_FIT_GAIN: f64 = 1.25;
-
-/// [`build_with`] with fading features left as slits
-/// ([`SegmentOptions::slits`]) when every one hangs from its region's
-/// boundary, else (or when a slit region's polyhedron could not be built:
-/// a region skipped, the star fallback) with the features continued to the
-/// far side of their regions.
-fn build_fitted(
-    mesh: &TriMesh,
-    caster: &dyn RayCaster,
-    opts: &MechanicalOptions,
-    fitter: CurveFitter,
-) -> Result<Built> {
     // An error of the slit build (a slit polygon the facets could not
     // cover, then no star layout either) is answered by the other build,
     // which repeats it if it was not the slits' doing.
-    match build_with(mesh, caster, opts, fitter, true) {
+    match build_with(mesh, caster, opts, true) {
         Ok(slit)
             if slit.stats.slit_edges == 0
                 || (slit.stats.regions_skipped == 0 && !slit.stats.star_fallback) =>
         {
             Ok(slit)
         }
-        _ => build_with(mesh, caster, opts, fitter, false),
+        _ => build_with(mesh, caster, opts, false),
     }
 }
 
@@ -770,7 +658,6 @@ fn build_with(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
     opts: &MechanicalOptions,
-    fitter: CurveFitter,
     slits: bool,
 ) -> Result<Built> {
     opts.check()?;
@@ -812,7 +699,6 @@ fn build_with(
         curve: opts.curve_tolerance * diag,
         feature: opts.feature_tolerance * diag,
         smooth: opts.smooth_curve_tolerance * diag,
-        legacy: fitter == CurveFitter::Vertices,
     };
     let nv = mesh.positions.len();
     // A feature that fades out (a vertex with one sharp edge of M) ends
@@ -1111,7 +997,6 @@ fn build_with(
     Ok(Built {
         control,
         stats: MechanicalStats {
-            curve_fitter: fitter,
             sharp_edges: seg.sharp_edges,
             sharp_edges_inside_regions: seg.sharp_edges_inside - slit_edges,
             slit_edges,
