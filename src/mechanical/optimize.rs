@@ -431,7 +431,7 @@ impl RegionBook {
     fn record(&mut self, polys: &Polys, err: &SampleErrors, face_over: &[bool]) -> Vec<bool> {
         let nreg = err.rsum.len();
         let mut regressed = vec![false; nreg];
-        for r in 0..nreg {
+        for (r, worse) in regressed.iter_mut().enumerate() {
             let Some(e) = err.region_rms(r) else {
                 continue;
             };
@@ -440,7 +440,7 @@ impl RegionBook {
             // noise), and keeps its best state on record.
             match &self.best[r] {
                 Some(b) if e > 1.02 * b.rms => {
-                    regressed[r] = true;
+                    *worse = true;
                     // A second regression: case 2 failed too (after the
                     // first one the region is enriched by case 2 only).
                     // More faces will not help; keep its best state.
