@@ -695,6 +695,7 @@ fn build_with(
     let topo = Topology::new(mesh);
     let curv = vertex_curvatures(mesh, &topo, &CurvatureOptions::default());
     laps.lap("curvature");
+    // §4: regions of near-constant curvature, sharp edges on boundaries.
     let seg = segment(
         mesh,
         &topo,
@@ -714,6 +715,8 @@ fn build_with(
         feature: opts.feature_tolerance * diag,
         smooth: opts.smooth_curve_tolerance * diag,
     };
+    // §5: the boundary network between corners (feature tips first) and
+    // its curves, with corners added where a feature kinks.
     let network_with = |extra_corner: &[bool]| {
         network::build_network(
             mesh,
@@ -738,6 +741,8 @@ fn build_with(
     let (net, stage, kink_corners) = fit.with_kink_corners(net, extra_corner, &network_with);
     laps.lap("curves");
 
+    // §6: the curves' control points, each region's boundary polygon and
+    // its facets (a star per region when they make no valid mesh).
     let ctl = curve_controls(mesh, &net, &stage.fitted)?;
     let region_tris = region_triangles(&seg);
     let (polygons, skipped) = region_polygons(&net, &ctl.piece_ctrl, slit_edges);
@@ -759,6 +764,7 @@ fn build_with(
     let initial_vertices = polys.positions.len();
     laps.lap("polyhedron");
 
+    // §7: fitting and enrichment with the curve points fixed.
     let rounds = fit_and_enrich(
         mesh,
         caster,
