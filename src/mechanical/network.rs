@@ -35,9 +35,9 @@ pub struct Network {
 /// inside its region, see `SegmentOptions::slits`); the region's loop then
 /// runs along it on both sides.
 ///
-/// Three steps, as in Fig. 7.b: the corners ([`find_corners`]), the pieces
-/// between them ([`walk_pieces`]), and each region's boundary loop as a
-/// sequence of pieces ([`region_loops`]).
+/// Three steps, as in Fig. 7.b: the corners (`find_corners`), the pieces
+/// between them (`walk_pieces`), and each region's boundary loop as a
+/// sequence of pieces (`region_loops`).
 pub fn build_network(
     mesh: &TriMesh,
     topo: &Topology,

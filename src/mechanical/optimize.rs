@@ -232,11 +232,11 @@ pub struct OptimizeOptions {
 /// best measured state, then one converged geometry pass on it (the
 /// rounds' figures are from before that pass).
 ///
-/// Each round: the geometry step (§7.1, [`geometry`]), the errors per face
-/// and region ([`SampleErrors`]), each region's best state kept
-/// ([`RegionBook::record`]), the stop rules, then enrichment (§7.2,
-/// [`enrich`]) of the faces over the limit and the restore of the regions
-/// that regressed ([`RegionBook::enrich_restored`]).
+/// Each round: the geometry step (§7.1, `geometry`), the errors per face
+/// and region (`SampleErrors`), each region's best state kept
+/// (`RegionBook::record`), the stop rules, then enrichment (§7.2,
+/// `enrich`) of the faces over the limit and the restore of the regions
+/// that regressed (`RegionBook::enrich_restored`).
 pub fn optimize(
     mesh: &TriMesh,
     caster: &dyn RayCaster,

@@ -545,7 +545,7 @@ fn inside_sharp(topo: &Topology, sharp: &[bool], region: &[u32], e: usize) -> bo
     sharp[e] && ed.is_interior() && region[ed.faces[0] as usize] == region[ed.faces[1] as usize]
 }
 
-/// What [`Search`] returns: the vertex reached (`None`: all of them, or
+/// The result of [`Dangling::search`]: the vertex reached (`None`: all of them, or
 /// past the bound), path lengths and predecessors (vertex, edge).
 type Search = (Option<u32>, HashMap<u32, f64>, HashMap<u32, (u32, usize)>);
 
