@@ -80,12 +80,11 @@ pub const AUTO_SHARP_SHARE: f64 = 0.005;
 pub struct MechanicalOptions {
     /// `E_limit`: RMS distance per control face, fraction of the diagonal.
     pub max_error: f64,
-    /// The conservative fitter's ([`CurveFitter::Vertices`]) largest
-    /// distance of a feature polyline vertex to its fitted curve (and of a
-    /// mixed piece's curve to M), fraction of the diagonal: 0.8 × 10⁻³,
-    /// inside the 1‰ features-kept bar with room for the chord-to-arc gap
-    /// between polyline vertices. Also the least room off the features
-    /// for the compact fitter (see `fit_one`).
+    /// Largest distance to M of the curve of a piece mixing sharp and
+    /// smooth edges (a feature line continued across a smooth part, see
+    /// `segment`), and the least room its smooth edges get from their
+    /// (smoothed) polyline, fraction of the diagonal: 0.8 × 10⁻³, inside
+    /// the 1‰ features-kept bar (see `fit_one`).
     pub curve_tolerance: f64,
     /// Largest distance from a feature line (a boundary piece made of sharp
     /// edges of M: its vertices and points along its edges) to its fitted
@@ -107,9 +106,6 @@ pub struct MechanicalOptions {
     pub fairness: f64,
     /// Objective of the geometry step: SDM, the paper's (§7.1).
     pub objective: optimize::Objective,
-    /// §5's curve fitter; `None` (the default): the compact one, with the
-    /// conservative one as a fallback (see [`build_control`]).
-    pub curve_fitter: Option<CurveFitter>,
 }
 
 impl Default for MechanicalOptions {
@@ -124,7 +120,6 @@ impl Default for MechanicalOptions {
             max_faces: 20_000,
             fairness: 0.01,
             objective: optimize::Objective::Sdm,
-            curve_fitter: None,
         }
     }
 }
@@ -144,10 +139,6 @@ impl MechanicalOptions {
         self.feature_tolerance = d.feature_tolerance.min(e / 3.0);
         self.curve_tolerance = d.curve_tolerance.min(e / 3.0);
         self.smooth_curve_tolerance = d.smooth_curve_tolerance.min(2.0 * e / 3.0);
-        self
-    }
-    pub fn with_curve_fitter(mut self, f: CurveFitter) -> Self {
-        self.curve_fitter = Some(f);
         self
     }
     pub fn with_objective(mut self, o: optimize::Objective) -> Self {
@@ -177,8 +168,6 @@ impl MechanicalOptions {
 /// What [`build_control`] did, for `report.json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct MechanicalStats {
-    /// The §5 fit the output's curves come from (see [`build_control`]).
-    pub curve_fitter: CurveFitter,
     pub sharp_edges: usize,
     pub sharp_edges_inside_regions: usize,
     /// Sharp edges inside regions kept as creases on slits of their
@@ -281,7 +270,7 @@ pub fn choose_mode(mesh: &TriMesh) -> ModeChoice {
     }
 }
 
-/// Passes of kink detection in §5 (see [`build_control`]).
+/// Passes of kink detection in §5 (see [`CurveFit::with_kink_corners`]).
 const KINK_PASSES: usize = 4;
 /// A boundary vertex turning by less than this (degrees) is not tried as a
 /// kink corner: 10°, below any CAD feature's bend and above the turn of a
@@ -290,11 +279,12 @@ const KINK_PASSES: usize = 4;
 /// there saves nothing).
 const KINK_MIN_TURN_DEG: f64 = 10.0;
 
-/// See [`build_control`]'s tip corners: a fading feature chain of at least
+/// See [`tip_corners`]: a fading feature chain of at least
 /// this many sharp edges gets a corner at its tip: 8. Fandisk's fading
 /// features run over 20–45 edges; spot.ply's noise chains (organic input
 /// forced through mechanical mode) mostly over fewer, and corners at all
-/// their tips took its RMS distance from 2.8‰ to 12‰.
+/// their tips took its RMS distance from 2.8‰ to 12‰ (measured with the
+/// conservative curve fitter since removed, see [`build_control`]).
 const TIP_CHAIN_EDGES: usize = 8;
 
 /// §5's curves for a network.
@@ -309,32 +299,16 @@ struct PieceFits {
 }
 
 /// Curves already fitted, by piece (its vertices of M, closed, least
-/// control points): the kink passes of [`build_control`] rebuild the
+/// control points): the kink passes of [`CurveFit::with_kink_corners`] rebuild the
 /// network and refit every piece, most of them unchanged. A fit depends
 /// only on its key, so the cache changes no result.
 type FitCache = std::sync::Mutex<HashMap<(Vec<u32>, bool, usize), curves::Curve>>;
 
-/// The curve tolerances of [`MechanicalOptions`] in units of M, and the
-/// fitter.
+/// The curve tolerances of [`MechanicalOptions`] in units of M.
 struct Tols {
     curve: f64,
     feature: f64,
     smooth: f64,
-    /// [`CurveFitter::Vertices`].
-    legacy: bool,
-}
-
-/// Which §5 fit a network was built with (see [`build_control`]).
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
-pub enum CurveFitter {
-    /// [`curves::fit_feature`] / [`curves::fit_samples_until`]: the true
-    /// distance of points along the polyline to the curve, minimax; the
-    /// fewest control points.
-    Distance,
-    /// [`curves::fit_curve`]: least squares on the polyline vertices with a
-    /// parameter correspondence, at the tighter `curve_tolerance`; more
-    /// control points, so more boundary points for §6's facets.
-    Vertices,
 }
 
 /// Fits one piece (§5) with the fewest control points
@@ -350,7 +324,7 @@ pub enum CurveFitter {
 /// with `E_limit`), so that smooth region boundaries cost as few fixed
 /// control points as the fit allows. A piece mixing both (a feature line
 /// continued across a smooth part, see `segment`) gets each tolerance on
-/// its own edges.
+/// its own edges, and its curve must lie within `tols.curve` of M.
 fn fit_one(
     pts: &[DVec3],
     closed: bool,
@@ -359,9 +333,6 @@ fn fit_one(
     tols: &Tols,
     caster: &dyn RayCaster,
 ) -> curves::Curve {
-    if tols.legacy {
-        return legacy_fit_one(pts, closed, min_n, edge_sharp, tols, caster);
-    }
     if edge_sharp.iter().all(|&s| s) {
         return curves::fit_feature(pts, closed, min_n, tols.feature);
     }
@@ -382,54 +353,6 @@ fn fit_one(
     };
     curves::fit_samples_until(pts, closed, min_n, &edge_tol, &|c: &curves::Curve| {
         curve_to_mesh(c, caster) <= to_mesh
-    })
-}
-
-/// The conservative fit of [`CurveFitter::Vertices`]: [`curves::fit_curve`]
-/// on the polyline vertices within `tols.curve` (0.8‰, room for the
-/// chord-to-arc gap to the 1‰ bar) along features; a piece mixing sharp
-/// and smooth edges keeps its feature vertices within `tols.curve` and the
-/// curve within `tols.curve` of M; a smooth piece within half its mean
-/// edge of the (smoothed) polyline and `tols.smooth` of M.
-fn legacy_fit_one(
-    pts: &[DVec3],
-    closed: bool,
-    min_n: usize,
-    edge_sharp: &[bool],
-    tols: &Tols,
-    caster: &dyn RayCaster,
-) -> curves::Curve {
-    let (tol, smooth_tol) = (tols.curve, tols.smooth);
-    let m = pts.len();
-    let on_feature: Vec<usize> = (0..m)
-        .filter(|&k| {
-            let before = if k > 0 {
-                edge_sharp.get(k - 1)
-            } else if closed {
-                edge_sharp.last()
-            } else {
-                None
-            };
-            before.copied().unwrap_or(false) || edge_sharp.get(k).copied().unwrap_or(false)
-        })
-        .collect();
-    let feature_ok = |c: &curves::Curve| {
-        on_feature
-            .iter()
-            .all(|&k| (curves::eval(&c.control, c.closed, c.params[k]) - pts[k]).length() <= tol)
-    };
-    let smooth_tol = if on_feature.is_empty() {
-        smooth_tol.max(tol)
-    } else {
-        tol
-    };
-    let segs = if closed { m } else { m - 1 };
-    let len: f64 = (0..segs)
-        .map(|k| (pts[(k + 1) % m] - pts[k]).length())
-        .sum();
-    let loose = tol.max(0.5 * len / segs.max(1) as f64);
-    curves::fit_curve_until(pts, closed, min_n, &|c: &curves::Curve| {
-        c.max_error <= loose && feature_ok(c) && curve_to_mesh(c, caster) <= smooth_tol
     })
 }
 
@@ -465,7 +388,7 @@ fn fit_pieces(
     let sharp_piece: Vec<bool> = edge_sharp.iter().map(|e| e.iter().all(|&s| s)).collect();
     // The points each curve is fitted to. Along a feature (sharp edges of
     // M) the polyline *is* the feature line and is kept as it is: the
-    // crease must follow it within `curve_tolerance`. Elsewhere a boundary
+    // crease must follow it within `feature_tolerance`. Elsewhere a boundary
     // separates two curvature classes across a smooth part of M and
     // zigzags along triangle edges (amplitude up to an edge length, 14‰ on
     // fandisk): fitting that within 0.5‰ costs one control point per
@@ -475,7 +398,8 @@ fn fit_pieces(
     // vertices not on a sharp edge are smoothed along the piece (10 passes
     // of the ¼-½-¼ filter, which cancels the period-2 zigzag outright) and
     // projected back onto M, and the fit is also checked against M itself
-    // (curve samples within `curve_tolerance` of M).
+    // (curve samples within `smooth_curve_tolerance` of M,
+    // `curve_tolerance` on a piece mixing sharp and smooth edges).
     let smoothed: Vec<Vec<DVec3>> = net
         .pieces
         .par_iter()
@@ -546,7 +470,7 @@ fn fit_pieces(
 }
 
 /// Vertices of M where splitting a piece into two curves with a corner
-/// saves control points (see [`build_control`]): per piece of 4 or more
+/// saves control points (see [`CurveFit::with_kink_corners`]): per piece of 4 or more
 /// control points, the (up to 3) vertices on a sharp edge that turn most
 /// (over 2 polyline steps where an edge is not sharp, to see past a
 /// zigzag), at least [`KINK_MIN_TURN_DEG`]; the best saving wins.
@@ -616,7 +540,7 @@ fn kinks(net: &network::Network, f: &PieceFits, caster: &dyn RayCaster, tols: &T
 
 /// `points` (a boundary piece) with the vertices that touch no sharp edge
 /// (`edge_sharp[k]`: edge `k → k+1`) smoothed and projected onto M (see
-/// [`build_control`]); open pieces keep their ends.
+/// [`fit_pieces`]); open pieces keep their ends.
 fn smooth_piece(
     points: &[DVec3],
     closed: bool,
@@ -697,98 +621,81 @@ pub struct PieceStat {
 
 /// Builds the mechanical control mesh of `mesh` (`caster` over it).
 ///
-/// The curve network is fitted first with the fewest control points
-/// ([`CurveFitter::Distance`]). When the enrichment then ends with faces
-/// still above `max_error`, the network is fitted again with the
-/// conservative fitter ([`CurveFitter::Vertices`], more boundary points),
-/// which is kept if its RMS distance is lower by more than
-/// [`SAFE_FIT_GAIN`]; `stats.curve_fitter` says which. A safety net, not
-/// the rule: fandisk, block and joint all end under `max_error` with the
-/// compact network and build once. (Block and joint used to fall back:
-/// three block regions and one joint region ended at RMS 6–15‰. Their
-/// curves were within tolerance; the cause was §6's cut, which spanned
-/// half-pipe regions with single chords from the middle control point of
-/// a smooth side, see `polyhedron::MAX_CHORD_BEND`. The conservative
-/// network got the same fans and only escaped them by a lucky round of
-/// enrichment.) Spot forced through this mode still builds twice.
+/// One curve network (§5), fitted with the fewest control points
+/// ([`curves::fit_feature`] along feature lines, [`curves::fit_samples_until`]
+/// elsewhere, see `fit_one`), then §6's polyhedra and §7's fitting and
+/// enrichment on it. (Block and joint once ended with three and one
+/// regions at RMS 6–15‰ and were built again with a second, conservative
+/// curve fitter. Their curves were within tolerance; the cause was §6's
+/// cut, which spanned half-pipe regions with single chords from the middle
+/// control point of a smooth side, see `polyhedron::MAX_CHORD_BEND`. With
+/// that rule fandisk, block and joint all end under `max_error` with the
+/// compact network, and the second fitter is gone. Spot, an organic mesh
+/// forced through this mode, was the one input still built twice and kept
+/// the conservative network: 864 V / 1033 F at RMS 2.8‰ then, 826 V /
+/// 990 F at RMS 11.6‰ with the compact one; `--mode auto` sends it to
+/// the organic pipeline.)
+///
+/// Fading features are left as slits ([`SegmentOptions::slits`]) when
+/// every one hangs from its region's boundary, else (or when a slit
+/// region's polyhedron could not be built: a region skipped, the star
+/// fallback) continued to the far side of their regions.
 pub fn build_control(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
     opts: &MechanicalOptions,
 ) -> Result<Built> {
-    if let Some(f) = opts.curve_fitter {
-        return build_fitted(mesh, caster, opts, f);
-    }
-    let compact = build_fitted(mesh, caster, opts, CurveFitter::Distance)?;
-    if !compact.stats.error_limit_reached {
-        return Ok(compact);
-    }
-    let safe = build_fitted(mesh, caster, opts, CurveFitter::Vertices)?;
-    let rms = |b: &Built| {
-        b.stats
-            .rounds
-            .last()
-            .map_or(f64::INFINITY, |r| r.rms_permille)
-    };
-    Ok(if rms(&compact) > SAFE_FIT_GAIN * rms(&safe) {
-        safe
-    } else {
-        compact
-    })
-}
-
-/// See [`build_control`]: the conservative network must lower the RMS
-/// distance by this factor to replace the compact one.
-pub const SAFE_FIT_GAIN: f64 = 1.25;
-
-/// [`build_with`] with fading features left as slits
-/// ([`SegmentOptions::slits`]) when every one hangs from its region's
-/// boundary, else (or when a slit region's polyhedron could not be built:
-/// a region skipped, the star fallback) with the features continued to the
-/// far side of their regions.
-fn build_fitted(
-    mesh: &TriMesh,
-    caster: &dyn RayCaster,
-    opts: &MechanicalOptions,
-    fitter: CurveFitter,
-) -> Result<Built> {
     // An error of the slit build (a slit polygon the facets could not
     // cover, then no star layout either) is answered by the other build,
     // which repeats it if it was not the slits' doing.
-    match build_with(mesh, caster, opts, fitter, true) {
+    match build_with(mesh, caster, opts, true) {
         Ok(slit)
             if slit.stats.slit_edges == 0
                 || (slit.stats.regions_skipped == 0 && !slit.stats.star_fallback) =>
         {
             Ok(slit)
         }
-        _ => build_with(mesh, caster, opts, fitter, false),
+        _ => build_with(mesh, caster, opts, false),
     }
 }
 
+/// Wall-clock seconds per stage, for `report.json`.
+struct Laps {
+    seconds: Vec<(String, f64)>,
+    t: Instant,
+}
+
+impl Laps {
+    fn start() -> Self {
+        Laps {
+            seconds: Vec::new(),
+            t: Instant::now(),
+        }
+    }
+    /// Records the time since the last lap as stage `name`.
+    fn lap(&mut self, name: &str) {
+        self.seconds
+            .push((name.to_string(), self.t.elapsed().as_secs_f64()));
+        self.t = Instant::now();
+    }
+}
+
+/// The pipeline of [`build_control`] with or without slits, one named
+/// step per stage of Lavoué et al.: curvature (§3.1), segmentation (§4),
+/// boundary curves (§5), polyhedra (§6), fitting and enrichment (§7), and
+/// the assembly of the stats.
 fn build_with(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
     opts: &MechanicalOptions,
-    fitter: CurveFitter,
     slits: bool,
 ) -> Result<Built> {
-    opts.check()?;
-    let diag = mesh.bbox_diagonal();
-    if mesh.triangles.is_empty() || !(diag.is_finite() && diag > 0.0) {
-        return Err(Error::InvalidArgument(
-            "mechanical: the input mesh is empty or has a degenerate bounding box".into(),
-        ));
-    }
-    let mut seconds = Vec::new();
-    let mut t = Instant::now();
-    let mut lap = |name: &str, t: &mut Instant| {
-        seconds.push((name.to_string(), t.elapsed().as_secs_f64()));
-        *t = Instant::now();
-    };
+    let diag = checked_diagonal(mesh, opts)?;
+    let mut laps = Laps::start();
     let topo = Topology::new(mesh);
     let curv = vertex_curvatures(mesh, &topo, &CurvatureOptions::default());
-    lap("curvature", &mut t);
+    laps.lap("curvature");
+    // §4: regions of near-constant curvature, sharp edges on boundaries.
     let seg = segment(
         mesh,
         &topo,
@@ -803,94 +710,242 @@ fn build_with(
     let slits = seg.slits;
     let slit_edges = if slits { seg.sharp_edges_inside } else { 0 };
     let sharp = topo.sharp_edges();
-    // §5: curves. The paper's fit is "piecewise smooth ... including sharp
-    // vertex processing" (LDB05b): a piece whose polyline kinks along a
-    // feature gets a corner there when that saves control points (a cubic
-    // B-spline needs many points to bend sharply, two straight halves need
-    // none). Up to `KINK_PASSES` passes, each one corner per piece at most.
     let tols = Tols {
         curve: opts.curve_tolerance * diag,
         feature: opts.feature_tolerance * diag,
         smooth: opts.smooth_curve_tolerance * diag,
-        legacy: fitter == CurveFitter::Vertices,
     };
-    let nv = mesh.positions.len();
-    // A feature that fades out (a vertex with one sharp edge of M) ends
-    // where its boundary piece stops being a feature line and goes on as a
-    // smooth continuation (see `segment` step 3b): a corner there lets the
-    // feature part be fitted as a feature line and the continuation as a
-    // smooth boundary (§5's piecewise smooth curves), where one curve for
-    // both needs the feature tolerance along a boundary that has no
-    // feature (fandisk: 78 → 77 curve control points; block 230 → 225).
-    // Only at the tip of a chain of at least [`TIP_CHAIN_EDGES`] sharp
-    // edges: a short chain (noise on a scan, spot.ply: hundreds of them)
-    // is a feature line of two control points at most, and a corner at its
-    // tip only cuts the boundary into more pieces.
-    let sharp_deg = topo.sharp_degree(&sharp);
-    let chain_edges = |tip: u32| {
-        let (mut v, mut prev, mut n) = (tip, u32::MAX, 0usize);
-        loop {
-            let Some(&e) = topo
-                .vertex_edges(v)
-                .iter()
-                .find(|&&e| sharp[e as usize] && e != prev)
-            else {
-                return n;
-            };
-            n += 1;
-            let ed = &topo.edges[e as usize];
-            v = if ed.v[0] == v { ed.v[1] } else { ed.v[0] };
-            prev = e;
-            if sharp_deg[v as usize] != 2 || n >= TIP_CHAIN_EDGES {
-                return n;
-            }
-        }
-    };
-    let mut extra_corner: Vec<bool> = (0..nv as u32)
-        .map(|v| sharp_deg[v as usize] == 1 && chain_edges(v) >= TIP_CHAIN_EDGES)
-        .collect();
-    let cache = FitCache::default();
-    let mut net = network::build_network(
-        mesh,
-        &topo,
-        &seg.region,
-        seg.num_regions,
-        &sharp,
-        &extra_corner,
-        slits,
-    );
-    lap("segmentation", &mut t);
-    let mut stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols, &cache);
-    let mut kink_corners = 0;
-    for _ in 0..KINK_PASSES {
-        let found = kinks(&net, &stage, caster, &tols);
-        if found.is_empty() {
-            break;
-        }
-        kink_corners += found.len();
-        for v in found {
-            extra_corner[v as usize] = true;
-        }
-        net = network::build_network(
+    // §5: the boundary network between corners (feature tips first) and
+    // its curves, with corners added where a feature kinks.
+    let network_with = |extra_corner: &[bool]| {
+        network::build_network(
             mesh,
             &topo,
             &seg.region,
             seg.num_regions,
             &sharp,
-            &extra_corner,
+            extra_corner,
             slits,
-        );
-        stage = fit_pieces(mesh, &topo, &sharp, caster, &net, &tols, &cache);
-    }
-    let PieceFits {
-        edge_sharp: _,
-        sharp_piece,
-        smoothed: _,
-        fitted,
-    } = stage;
-    lap("curves", &mut t);
+        )
+    };
+    let extra_corner = tip_corners(&topo, &sharp, mesh.positions.len());
+    let net = network_with(&extra_corner);
+    laps.lap("segmentation");
+    let fit = CurveFit {
+        mesh,
+        topo: &topo,
+        sharp: &sharp,
+        caster,
+        tols: &tols,
+    };
+    let (net, stage, kink_corners) = fit.with_kink_corners(net, extra_corner, &network_with);
+    laps.lap("curves");
 
-    // Control vertices: corners, then curve interior points.
+    // §6: the curves' control points, each region's boundary polygon and
+    // its facets (a star per region when they make no valid mesh).
+    let ctl = curve_controls(mesh, &net, &stage.fitted)?;
+    let region_tris = region_triangles(&seg);
+    let (polygons, skipped) = region_polygons(&net, &ctl.piece_ctrl, slit_edges);
+    let facets = cut_facets(mesh, &curv, &region_tris, &net, &polygons, &ctl, diag);
+    let mut polys = optimize::Polys {
+        positions: ctl.positions.clone(),
+        faces: facets.faces,
+        fixed: ctl.fixed,
+        creases: ctl.creases.clone(),
+        corners: ctl.corners.clone(),
+        face_region: facets.face_region,
+    };
+    let star_fallback = polys.to_control().is_err();
+    if star_fallback {
+        star_layout(mesh, &region_tris, &polygons, &ctl.positions, &mut polys);
+        polys.to_control()?;
+    }
+    let initial_faces = polys.faces.len();
+    let initial_vertices = polys.positions.len();
+    laps.lap("polyhedron");
+
+    // §7: fitting and enrichment with the curve points fixed.
+    let rounds = fit_and_enrich(
+        mesh,
+        caster,
+        &topo,
+        &sharp,
+        &curv,
+        &region_tris,
+        &mut polys,
+        opts,
+    )?;
+    laps.lap("optimize");
+    let control = polys.to_control()?;
+    let error_limit_reached = rounds.last().is_some_and(|r| r.faces_over_limit > 0);
+    let (curve_max_error_permille, pieces) = piece_stats(&net, &stage, diag);
+    Ok(Built {
+        control,
+        stats: MechanicalStats {
+            sharp_edges: seg.sharp_edges,
+            sharp_edges_inside_regions: seg.sharp_edges_inside - slit_edges,
+            slit_edges,
+            regions: seg.num_regions,
+            region_splits: seg.splits,
+            regions_merged: seg.merged,
+            regions_merged_smooth: seg.merged_smooth,
+            planar_regions: facets.planar_regions,
+            regions_skipped: skipped,
+            corners: ctl.corners.len(),
+            curves: net.pieces.len(),
+            curve_control_points: ctl.fixed,
+            kink_corners,
+            curve_max_error_permille,
+            pieces,
+            region_initial_faces: facets.region_initial_faces,
+            initial_faces,
+            initial_vertices,
+            star_fallback,
+            rounds,
+            error_limit_reached,
+            seconds: laps.seconds,
+        },
+    })
+}
+
+/// Checks the options and that `mesh` has triangles and a proper
+/// bounding box; returns its diagonal, the unit of every tolerance
+/// (§8: fractions of the diagonal).
+fn checked_diagonal(mesh: &TriMesh, opts: &MechanicalOptions) -> Result<f64> {
+    opts.check()?;
+    let diag = mesh.bbox_diagonal();
+    if mesh.triangles.is_empty() || !(diag.is_finite() && diag > 0.0) {
+        return Err(Error::InvalidArgument(
+            "mechanical: the input mesh is empty or has a degenerate bounding box".into(),
+        ));
+    }
+    Ok(diag)
+}
+
+/// The tip corners of §5's network, per vertex of M.
+///
+/// A feature that fades out (a vertex with one sharp edge of M) ends
+/// where its boundary piece stops being a feature line and goes on as a
+/// smooth continuation (see `segment` step 3b): a corner there lets the
+/// feature part be fitted as a feature line and the continuation as a
+/// smooth boundary (§5's piecewise smooth curves), where one curve for
+/// both needs the feature tolerance along a boundary that has no
+/// feature (fandisk: 78 → 77 curve control points; block 230 → 225).
+/// Only at the tip of a chain of at least [`TIP_CHAIN_EDGES`] sharp
+/// edges: a short chain (noise on a scan, spot.ply: hundreds of them)
+/// is a feature line of two control points at most, and a corner at its
+/// tip only cuts the boundary into more pieces.
+fn tip_corners(topo: &Topology, sharp: &[bool], nv: usize) -> Vec<bool> {
+    let sharp_deg = topo.sharp_degree(sharp);
+    (0..nv as u32)
+        .map(|v| {
+            sharp_deg[v as usize] == 1
+                && sharp_chain_edges(topo, sharp, &sharp_deg, v) >= TIP_CHAIN_EDGES
+        })
+        .collect()
+}
+
+/// Sharp edges of the chain from `tip` (a vertex with one sharp edge)
+/// through vertices with two, counted up to [`TIP_CHAIN_EDGES`] (see
+/// [`tip_corners`]).
+fn sharp_chain_edges(topo: &Topology, sharp: &[bool], sharp_deg: &[usize], tip: u32) -> usize {
+    let (mut v, mut prev, mut n) = (tip, u32::MAX, 0usize);
+    loop {
+        let Some(&e) = topo
+            .vertex_edges(v)
+            .iter()
+            .find(|&&e| sharp[e as usize] && e != prev)
+        else {
+            return n;
+        };
+        n += 1;
+        let ed = &topo.edges[e as usize];
+        v = if ed.v[0] == v { ed.v[1] } else { ed.v[0] };
+        prev = e;
+        if sharp_deg[v as usize] != 2 || n >= TIP_CHAIN_EDGES {
+            return n;
+        }
+    }
+}
+
+/// What §5's fit of a network reads: M, its sharp edges, the caster over
+/// it and the tolerances.
+struct CurveFit<'a> {
+    mesh: &'a TriMesh,
+    topo: &'a Topology,
+    sharp: &'a [bool],
+    caster: &'a dyn RayCaster,
+    tols: &'a Tols,
+}
+
+impl CurveFit<'_> {
+    /// §5's curves for `net`, with kink corners. The paper's fit is
+    /// "piecewise smooth ... including sharp vertex processing" (LDB05b):
+    /// a piece whose polyline kinks along a feature gets a corner there
+    /// when that saves control points (a cubic B-spline needs many points
+    /// to bend sharply, two straight halves need none). Up to
+    /// [`KINK_PASSES`] passes, each one corner per piece at most, each
+    /// rebuilding the network (`network_with` the corners so far) and
+    /// refitting it. Returns the final network, its fits and the number of
+    /// kink corners.
+    fn with_kink_corners(
+        &self,
+        mut net: network::Network,
+        mut extra_corner: Vec<bool>,
+        network_with: &dyn Fn(&[bool]) -> network::Network,
+    ) -> (network::Network, PieceFits, usize) {
+        let cache = FitCache::default();
+        let (mesh, topo, sharp, caster, tols) =
+            (self.mesh, self.topo, self.sharp, self.caster, self.tols);
+        let mut stage = fit_pieces(mesh, topo, sharp, caster, &net, tols, &cache);
+        let mut kink_corners = 0;
+        for _ in 0..KINK_PASSES {
+            let found = kinks(&net, &stage, caster, tols);
+            if found.is_empty() {
+                break;
+            }
+            kink_corners += found.len();
+            for v in found {
+                extra_corner[v as usize] = true;
+            }
+            net = network_with(&extra_corner);
+            stage = fit_pieces(mesh, topo, sharp, caster, &net, tols, &cache);
+        }
+        (net, stage, kink_corners)
+    }
+}
+
+/// The control points of §5's curves, the fixed vertices of the control
+/// mesh (§7.3: "boundary control points are fixed").
+struct CurveControls {
+    /// Corners first, then every curve's inner control points.
+    positions: Vec<DVec3>,
+    /// Control ids of the corners, sorted.
+    corners: Vec<u32>,
+    /// Control edges of the curves between two regions: infinitely sharp
+    /// creases of the output (a curve along M's open boundary is its
+    /// boundary already).
+    creases: HashSet<(u32, u32)>,
+    /// Per piece: control ids and their anchors (vertices of M).
+    piece_ctrl: Vec<Vec<polyhedron::PolyVertex>>,
+    /// `positions.len()`: vertices `0..fixed` are never moved.
+    fixed: usize,
+}
+
+fn edge_key(a: u32, b: u32) -> (u32, u32) {
+    (a.min(b), a.max(b))
+}
+
+/// Numbers the control points of `fitted` (one curve per piece of `net`):
+/// the corners once, shared by the curves ending there (eq. 2's corner
+/// rule), then each curve's inner points; each control point is anchored
+/// at the polyline vertex whose curve parameter is nearest to its index,
+/// which §6 uses to place it on M.
+fn curve_controls(
+    mesh: &TriMesh,
+    net: &network::Network,
+    fitted: &[curves::Curve],
+) -> Result<CurveControls> {
     let mut positions: Vec<DVec3> = Vec::new();
     let mut corner_id: HashMap<u32, u32> = HashMap::new();
     for (v, &c) in net.corner.iter().enumerate() {
@@ -900,10 +955,8 @@ fn build_with(
         }
     }
     let mut creases: HashSet<(u32, u32)> = HashSet::new();
-    let key = |a: u32, b: u32| (a.min(b), a.max(b));
-    // Per piece: control ids and anchors (vertex of M).
     let mut piece_ctrl: Vec<Vec<polyhedron::PolyVertex>> = Vec::new();
-    for (p, c) in net.pieces.iter().zip(&fitted) {
+    for (p, c) in net.pieces.iter().zip(fitted) {
         let n = c.control.len();
         let mut list = Vec::with_capacity(n);
         for (i, &x) in c.control.iter().enumerate() {
@@ -941,32 +994,51 @@ fn build_with(
         if p.regions[1] != u32::MAX {
             let segs = if p.closed { n } else { n - 1 };
             for k in 0..segs {
-                creases.insert(key(list[k].id, list[(k + 1) % n].id));
+                creases.insert(edge_key(list[k].id, list[(k + 1) % n].id));
             }
         }
         piece_ctrl.push(list);
     }
     let fixed = positions.len();
-    let corners: Vec<u32> = {
-        let mut v: Vec<u32> = corner_id.values().copied().collect();
-        v.sort_unstable();
-        v
-    };
+    let mut corners: Vec<u32> = corner_id.values().copied().collect();
+    corners.sort_unstable();
+    Ok(CurveControls {
+        positions,
+        corners,
+        creases,
+        piece_ctrl,
+        fixed,
+    })
+}
 
-    // §6: region polygons and facets.
-    let nt = mesh.triangles.len();
+/// Triangles of M per region of the segmentation, in index order.
+fn region_triangles(seg: &Segmentation) -> Vec<Vec<u32>> {
     let mut region_tris: Vec<Vec<u32>> = vec![Vec::new(); seg.num_regions];
-    for tr in 0..nt {
-        region_tris[seg.region[tr] as usize].push(tr as u32);
+    for (tr, &r) in seg.region.iter().enumerate() {
+        region_tris[r as usize].push(tr as u32);
     }
+    region_tris
+}
+
+/// §6's synchronised boundary control polygon of each region: its loop's
+/// curves' control points in order (each piece's last point is the next
+/// one's first). `None` for a region §6 cannot build here, a hole in the
+/// control mesh: one with several boundary loops (not a disc), fewer than
+/// three points, or a point visited twice — except along a slit, whose
+/// points the loop visits once per side, never twice in a row. Returns
+/// the polygons and the number of regions skipped.
+fn region_polygons(
+    net: &network::Network,
+    piece_ctrl: &[Vec<polyhedron::PolyVertex>],
+    slit_edges: usize,
+) -> (Vec<Option<Vec<polyhedron::PolyVertex>>>, usize) {
     let mut polygons: Vec<Option<Vec<polyhedron::PolyVertex>>> = Vec::new();
     let mut skipped = 0;
-    for r in 0..seg.num_regions {
-        let poly = (net.loops[r].len() == 1)
+    for loops in &net.loops {
+        let poly = (loops.len() == 1)
             .then(|| {
-                let seq = &net.loops[r][0];
                 let mut poly: Vec<polyhedron::PolyVertex> = Vec::new();
-                for &(pi, fwd) in seq {
+                for &(pi, fwd) in &loops[0] {
                     let mut l = piece_ctrl[pi].clone();
                     if !fwd {
                         l.reverse();
@@ -982,8 +1054,6 @@ fn build_with(
                 let mut ids: Vec<u32> = p.iter().map(|x| x.id).collect();
                 ids.sort_unstable();
                 ids.dedup();
-                // A slit visits its points twice, once per side, never
-                // twice in a row.
                 let n = p.len();
                 p.len() >= 3
                     && (ids.len() == n
@@ -994,72 +1064,98 @@ fn build_with(
         }
         polygons.push(poly);
     }
-    let mut planar_regions = 0;
-    let mut edges: HashSet<(u32, u32)> = creases.clone();
-    for pc in &piece_ctrl {
-        for w in pc.windows(2) {
-            edges.insert(key(w[0].id, w[1].id));
-        }
-    }
-    let mut faces: Vec<Vec<u32>> = Vec::new();
-    let mut face_region: Vec<u32> = Vec::new();
-    let mut region_initial_faces = vec![0usize; seg.num_regions];
-    for r in 0..seg.num_regions {
-        let Some(poly) = &polygons[r] else { continue };
-        let g = polyhedron::RegionGeom::new(mesh, &curv, &region_tris[r], &net.on_boundary, diag);
-        if g.planar.is_some() {
-            planar_regions += 1;
-        }
-        let fr = polyhedron::cut_region(&g, poly, &positions, &mut edges);
-        region_initial_faces[r] = fr.len();
-        face_region.extend(std::iter::repeat(r as u32).take(fr.len()));
-        faces.extend(fr);
-    }
-    let mut polys = optimize::Polys {
-        positions: positions.clone(),
-        faces,
-        fixed,
-        creases: creases.clone(),
-        corners: corners.clone(),
-        face_region,
-    };
-    let mut star_fallback = false;
-    if polys.to_control().is_err() {
-        // Stars: one free centre per region, triangles to the polygon.
-        star_fallback = true;
-        let mut pos = positions.clone();
-        let mut faces = Vec::new();
-        let mut face_region = Vec::new();
-        for (r, poly) in polygons.iter().enumerate() {
-            let Some(poly) = poly else { continue };
-            let c = region_tris[r]
-                .iter()
-                .map(|&tr| {
-                    let [a, b, c] = mesh.triangle(tr as usize);
-                    (a + b + c) / 3.0
-                })
-                .sum::<DVec3>()
-                / region_tris[r].len().max(1) as f64;
-            pos.push(c);
-            let ci = pos.len() as u32 - 1;
-            for k in 0..poly.len() {
-                faces.push(vec![poly[k].id, poly[(k + 1) % poly.len()].id, ci]);
-                face_region.push(r as u32);
-            }
-        }
-        polys.positions = pos;
-        polys.faces = faces;
-        polys.face_region = face_region;
-        polys.to_control()?;
-    }
-    let initial_faces = polys.faces.len();
-    let initial_vertices = polys.positions.len();
-    lap("polyhedron", &mut t);
+    (polygons, skipped)
+}
 
-    // Each region's reach for the foot points of §7.1: its triangles and
-    // two rings beyond its smooth (non-sharp) boundary edges, never across
-    // a feature (see `optimize`).
-    let reach: Vec<Vec<u32>> = region_tris
+/// §6's initial facets, all regions.
+struct Facets {
+    faces: Vec<Vec<u32>>,
+    face_region: Vec<u32>,
+    region_initial_faces: Vec<usize>,
+    planar_regions: usize,
+}
+
+/// Cuts each region's polygon into facets along curvature-coherent chords
+/// (§6, [`polyhedron::cut_region`]); the regions share the control edges
+/// cut so far (`edges`, starting with every curve's), so no chord doubles
+/// a control edge of another region.
+fn cut_facets(
+    mesh: &TriMesh,
+    curv: &[VertexCurvature],
+    region_tris: &[Vec<u32>],
+    net: &network::Network,
+    polygons: &[Option<Vec<polyhedron::PolyVertex>>],
+    ctl: &CurveControls,
+    diag: f64,
+) -> Facets {
+    let mut edges: HashSet<(u32, u32)> = ctl.creases.clone();
+    for pc in &ctl.piece_ctrl {
+        for w in pc.windows(2) {
+            edges.insert(edge_key(w[0].id, w[1].id));
+        }
+    }
+    let mut out = Facets {
+        faces: Vec::new(),
+        face_region: Vec::new(),
+        region_initial_faces: vec![0usize; polygons.len()],
+        planar_regions: 0,
+    };
+    for (r, poly) in polygons.iter().enumerate() {
+        let Some(poly) = poly else { continue };
+        let g = polyhedron::RegionGeom::new(mesh, curv, &region_tris[r], &net.on_boundary, diag);
+        if g.planar.is_some() {
+            out.planar_regions += 1;
+        }
+        let fr = polyhedron::cut_region(&g, poly, &ctl.positions, &mut edges);
+        out.region_initial_faces[r] = fr.len();
+        out.face_region
+            .extend(std::iter::repeat(r as u32).take(fr.len()));
+        out.faces.extend(fr);
+    }
+    out
+}
+
+/// The fallback of §6 when the facets do not make a valid control mesh:
+/// every region a star, one free centre (its triangles' mean centroid)
+/// joined to each edge of its polygon. Crude, but always valid, and §7's
+/// enrichment refines it where the error asks.
+fn star_layout(
+    mesh: &TriMesh,
+    region_tris: &[Vec<u32>],
+    polygons: &[Option<Vec<polyhedron::PolyVertex>>],
+    positions: &[DVec3],
+    polys: &mut optimize::Polys,
+) {
+    let mut pos = positions.to_vec();
+    let mut faces = Vec::new();
+    let mut face_region = Vec::new();
+    for (r, poly) in polygons.iter().enumerate() {
+        let Some(poly) = poly else { continue };
+        let c = region_tris[r]
+            .iter()
+            .map(|&tr| {
+                let [a, b, c] = mesh.triangle(tr as usize);
+                (a + b + c) / 3.0
+            })
+            .sum::<DVec3>()
+            / region_tris[r].len().max(1) as f64;
+        pos.push(c);
+        let ci = pos.len() as u32 - 1;
+        for k in 0..poly.len() {
+            faces.push(vec![poly[k].id, poly[(k + 1) % poly.len()].id, ci]);
+            face_region.push(r as u32);
+        }
+    }
+    polys.positions = pos;
+    polys.faces = faces;
+    polys.face_region = face_region;
+}
+
+/// Each region's reach for the foot points of §7.1: its triangles and
+/// two rings beyond its smooth (non-sharp) boundary edges, never across
+/// a feature (see `optimize`).
+fn region_reach(topo: &Topology, sharp: &[bool], region_tris: &[Vec<u32>]) -> Vec<Vec<u32>> {
+    region_tris
         .iter()
         .map(|ts| {
             let mut seen: HashSet<u32> = ts.iter().copied().collect();
@@ -1084,16 +1180,35 @@ fn build_with(
             v.sort_unstable();
             v
         })
-        .collect();
-    let on_sharp: Vec<bool> = (0..nv as u32)
+        .collect()
+}
+
+/// §7: least-squares geometry with the curve control points fixed and
+/// error-driven enrichment, in bounded rounds ([`optimize::optimize`]),
+/// each sample's foot restricted to its region's reach
+/// ([`region_reach`]) and SDM's frames from the curvature tensors of the
+/// vertices off the features ([`optimize::tri_frames`]).
+#[allow(clippy::too_many_arguments)]
+fn fit_and_enrich(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    topo: &Topology,
+    sharp: &[bool],
+    curv: &[VertexCurvature],
+    region_tris: &[Vec<u32>],
+    polys: &mut optimize::Polys,
+    opts: &MechanicalOptions,
+) -> Result<Vec<optimize::Round>> {
+    let reach = region_reach(topo, sharp, region_tris);
+    let on_sharp: Vec<bool> = (0..mesh.positions.len() as u32)
         .map(|v| topo.vertex_edges(v).iter().any(|&e| sharp[e as usize]))
         .collect();
-    let frames = optimize::tri_frames(mesh, &curv, &on_sharp);
-    let rounds = optimize::optimize(
+    let frames = optimize::tri_frames(mesh, curv, &on_sharp);
+    optimize::optimize(
         mesh,
         caster,
         &reach,
-        &mut polys,
+        polys,
         &frames,
         &optimize::OptimizeOptions {
             objective: opts.objective,
@@ -1104,55 +1219,33 @@ fn build_with(
             max_faces: opts.max_faces,
             fairness: opts.fairness,
         },
-    )?;
-    lap("optimize", &mut t);
-    let control = polys.to_control()?;
-    let error_limit_reached = rounds.last().is_some_and(|r| r.faces_over_limit > 0);
-    Ok(Built {
-        control,
-        stats: MechanicalStats {
-            curve_fitter: fitter,
-            sharp_edges: seg.sharp_edges,
-            sharp_edges_inside_regions: seg.sharp_edges_inside - slit_edges,
-            slit_edges,
-            regions: seg.num_regions,
-            region_splits: seg.splits,
-            regions_merged: seg.merged,
-            regions_merged_smooth: seg.merged_smooth,
-            planar_regions,
-            regions_skipped: skipped,
-            corners: corners.len(),
-            curves: net.pieces.len(),
-            curve_control_points: fixed,
-            kink_corners,
-            curve_max_error_permille: 1000.0
-                * fitted
-                    .iter()
-                    .zip(&sharp_piece)
-                    .filter(|(_, &s)| s)
-                    .map(|(c, _)| c.max_error)
-                    .fold(0.0, f64::max)
-                / diag,
-            pieces: net
-                .pieces
-                .iter()
-                .zip(&fitted)
-                .zip(&sharp_piece)
-                .map(|((p, c), &sharp)| PieceStat {
-                    polyline_vertices: p.verts.len(),
-                    control_points: c.control.len(),
-                    sharp,
-                    closed: p.closed,
-                    max_error_permille: 1000.0 * c.max_error / diag,
-                })
-                .collect(),
-            region_initial_faces,
-            initial_faces,
-            initial_vertices,
-            star_fallback,
-            rounds,
-            error_limit_reached,
-            seconds,
-        },
-    })
+    )
+}
+
+/// The curves' figures for `report.json`: the largest distance over the
+/// feature pieces (‰ of the diagonal), and one [`PieceStat`] per piece.
+fn piece_stats(net: &network::Network, stage: &PieceFits, diag: f64) -> (f64, Vec<PieceStat>) {
+    let fitted = &stage.fitted;
+    let worst = 1000.0
+        * fitted
+            .iter()
+            .zip(&stage.sharp_piece)
+            .filter(|(_, &s)| s)
+            .map(|(c, _)| c.max_error)
+            .fold(0.0, f64::max)
+        / diag;
+    let pieces = net
+        .pieces
+        .iter()
+        .zip(fitted)
+        .zip(&stage.sharp_piece)
+        .map(|((p, c), &sharp)| PieceStat {
+            polyline_vertices: p.verts.len(),
+            control_points: c.control.len(),
+            sharp,
+            closed: p.closed,
+            max_error_permille: 1000.0 * c.max_error / diag,
+        })
+        .collect();
+    (worst, pieces)
 }

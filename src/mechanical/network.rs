@@ -34,6 +34,10 @@ pub struct Network {
 /// both sides is a boundary edge too (a slit: a feature that fades out
 /// inside its region, see `SegmentOptions::slits`); the region's loop then
 /// runs along it on both sides.
+///
+/// Three steps, as in Fig. 7.b: the corners (`find_corners`), the pieces
+/// between them (`walk_pieces`), and each region's boundary loop as a
+/// sequence of pieces (`region_loops`).
 pub fn build_network(
     mesh: &TriMesh,
     topo: &Topology,
@@ -43,22 +47,62 @@ pub fn build_network(
     extra_corner: &[bool],
     slits: bool,
 ) -> Network {
-    let nv = mesh.positions.len();
-    let side = |f: u32| {
-        if f == u32::MAX {
-            u32::MAX
-        } else {
-            region[f as usize]
-        }
-    };
     let is_b: Vec<bool> = topo
         .edges
         .iter()
         .enumerate()
         .map(|(i, e)| {
-            !e.is_interior() || side(e.faces[0]) != side(e.faces[1]) || (slits && sharp[i])
+            !e.is_interior()
+                || side(region, e.faces[0]) != side(region, e.faces[1])
+                || (slits && sharp[i])
         })
         .collect();
+    let (corner, on_boundary) = find_corners(mesh, topo, region, sharp, &is_b, extra_corner);
+    let pieces = walk_pieces(topo, region, &is_b, &corner);
+    let loops = region_loops(
+        mesh,
+        topo,
+        region,
+        num_regions,
+        &is_b,
+        &corner,
+        &pieces,
+        slits,
+    );
+    Network {
+        pieces,
+        corner,
+        loops,
+        on_boundary,
+    }
+}
+
+/// The region on one side of an edge (`u32::MAX`: no face, outside M).
+fn side(region: &[u32], f: u32) -> u32 {
+    if f == u32::MAX {
+        u32::MAX
+    } else {
+        region[f as usize]
+    }
+}
+
+/// The corners of the network, and which vertices lie on a boundary
+/// (`is_b`: per edge of M, whether it is a boundary edge). §5's pieces
+/// run between corners, and eq. 2's corner rule keeps a curve end fixed
+/// there: a vertex where the boundary branches (not two boundary edges),
+/// where three or more regions (M's outside counting as one) meet, an
+/// `extra_corner` (feature tips and kinks, see `super::tip_corners` and
+/// `super::CurveFit::with_kink_corners`), or a turn of more
+/// than [`CORNER_TURN_DEG`] between two sharp edges (a feature's kink).
+fn find_corners(
+    mesh: &TriMesh,
+    topo: &Topology,
+    region: &[u32],
+    sharp: &[bool],
+    is_b: &[bool],
+    extra_corner: &[bool],
+) -> (Vec<bool>, Vec<bool>) {
+    let nv = mesh.positions.len();
     let mut deg = vec![0u32; nv];
     let mut on_boundary = vec![false; nv];
     for (e, ed) in topo.edges.iter().enumerate() {
@@ -84,7 +128,7 @@ pub fn build_network(
         for &e in topo.vertex_edges(v as u32) {
             let ed = &topo.edges[e as usize];
             for &f in &ed.faces {
-                let s = side(f);
+                let s = side(region, f);
                 if !sides.contains(&s) {
                     sides.push(s);
                 }
@@ -114,60 +158,30 @@ pub fn build_network(
             }
         }
     }
-    // Walk pieces.
+    (corner, on_boundary)
+}
+
+/// The boundary pieces: from every corner along each of its boundary
+/// edges not walked yet, to the next corner (open pieces; a loop through
+/// one corner comes back to it), then the loops left with no corner on
+/// them (closed pieces).
+fn walk_pieces(topo: &Topology, region: &[u32], is_b: &[bool], corner: &[bool]) -> Vec<Piece> {
     let mut edge_piece: Vec<u32> = vec![u32::MAX; topo.edges.len()];
     let mut pieces: Vec<Piece> = Vec::new();
-    let walk =
-        |start_v: u32, start_e: u32, edge_piece: &mut Vec<u32>, pid: u32| -> (Vec<u32>, bool) {
-            let mut verts = vec![start_v];
-            let mut v = start_v;
-            let mut e = start_e;
-            loop {
-                edge_piece[e as usize] = pid;
-                let ed = &topo.edges[e as usize];
-                let w = if ed.v[0] == v { ed.v[1] } else { ed.v[0] };
-                if w == start_v {
-                    if corner[w as usize] {
-                        // A loop through one corner is stored as an open
-                        // piece from the corner back to it, so both ends
-                        // resolve to the corner's control vertex.
-                        verts.push(w);
-                        return (verts, false);
-                    }
-                    return (verts, true);
-                }
-                verts.push(w);
-                if corner[w as usize] {
-                    return (verts, false);
-                }
-                let next = topo
-                    .vertex_edges(w)
-                    .iter()
-                    .copied()
-                    .find(|&f| is_b[f as usize] && edge_piece[f as usize] == u32::MAX);
-                match next {
-                    Some(f) => {
-                        v = w;
-                        e = f;
-                    }
-                    None => return (verts, false),
-                }
-            }
-        };
     let regions_of = |e: u32| {
         let ed = &topo.edges[e as usize];
-        let mut r = [side(ed.faces[0]), side(ed.faces[1])];
+        let mut r = [side(region, ed.faces[0]), side(region, ed.faces[1])];
         r.sort_unstable();
         r
     };
-    for v in 0..nv as u32 {
+    for v in 0..corner.len() as u32 {
         if !corner[v as usize] {
             continue;
         }
         for &e in topo.vertex_edges(v) {
             if is_b[e as usize] && edge_piece[e as usize] == u32::MAX {
                 let pid = pieces.len() as u32;
-                let (mut verts, closed) = walk(v, e, &mut edge_piece, pid);
+                let (mut verts, closed) = walk(topo, is_b, corner, v, e, &mut edge_piece, pid);
                 if !closed && verts.first() == verts.last() && verts.len() > 1 {
                     // A loop through one corner: the last vertex repeats
                     // the corner, which is how an open piece is stored.
@@ -186,7 +200,7 @@ pub fn build_network(
         if is_b[e as usize] && edge_piece[e as usize] == u32::MAX {
             let pid = pieces.len() as u32;
             let v = topo.edges[e as usize].v[0];
-            let (verts, _) = walk(v, e, &mut edge_piece, pid);
+            let (verts, _) = walk(topo, is_b, corner, v, e, &mut edge_piece, pid);
             pieces.push(Piece {
                 verts,
                 closed: true,
@@ -194,20 +208,71 @@ pub fn build_network(
             });
         }
     }
-    // Directed region boundary edges → loops of pieces.
-    let mut piece_pos: HashMap<(u32, u32), (usize, bool)> = HashMap::new();
-    for (pi, p) in pieces.iter().enumerate() {
-        let m = p.verts.len();
-        let segs = if p.closed { m } else { m - 1 };
-        for k in 0..segs {
-            let (a, b) = (p.verts[k], p.verts[(k + 1) % m]);
-            piece_pos.insert((a, b), (pi, true));
-            piece_pos.insert((b, a), (pi, false));
+    pieces
+}
+
+/// Walks one piece from `start_v` along boundary edge `start_e` until a
+/// corner, a dead end or back at the start, marking its edges with `pid`
+/// in `edge_piece`: its vertices, and whether it closed without a corner.
+fn walk(
+    topo: &Topology,
+    is_b: &[bool],
+    corner: &[bool],
+    start_v: u32,
+    start_e: u32,
+    edge_piece: &mut [u32],
+    pid: u32,
+) -> (Vec<u32>, bool) {
+    let mut verts = vec![start_v];
+    let mut v = start_v;
+    let mut e = start_e;
+    loop {
+        edge_piece[e as usize] = pid;
+        let ed = &topo.edges[e as usize];
+        let w = if ed.v[0] == v { ed.v[1] } else { ed.v[0] };
+        if w == start_v {
+            if corner[w as usize] {
+                // A loop through one corner is stored as an open
+                // piece from the corner back to it, so both ends
+                // resolve to the corner's control vertex.
+                verts.push(w);
+                return (verts, false);
+            }
+            return (verts, true);
+        }
+        verts.push(w);
+        if corner[w as usize] {
+            return (verts, false);
+        }
+        let next = topo
+            .vertex_edges(w)
+            .iter()
+            .copied()
+            .find(|&f| is_b[f as usize] && edge_piece[f as usize] == u32::MAX);
+        match next {
+            Some(f) => {
+                v = w;
+                e = f;
+            }
+            None => return (verts, false),
         }
     }
-    let mut loops: Vec<Vec<Vec<(usize, bool)>>> = vec![Vec::new(); num_regions];
-    // Per region, its directed boundary half-edges (a → b as in a triangle).
-    let mut out: Vec<HashMap<u32, Vec<u32>>> = vec![HashMap::new(); num_regions];
+}
+
+/// Directed boundary half-edges per region (a → b as in its triangle, so
+/// loops follow M's orientation): heads by tail vertex.
+type OutHalves = Vec<HashMap<u32, Vec<u32>>>;
+
+/// Each region's directed boundary half-edges ([`OutHalves`]), and the
+/// triangle holding each half-edge.
+fn boundary_halves(
+    mesh: &TriMesh,
+    topo: &Topology,
+    region: &[u32],
+    num_regions: usize,
+    is_b: &[bool],
+) -> (OutHalves, HashMap<(u32, u32), u32>) {
+    let mut out: OutHalves = vec![HashMap::new(); num_regions];
     for (t, tri) in mesh.triangles.iter().enumerate() {
         for k in 0..3 {
             let e = topo.tri_edges[t][k];
@@ -219,10 +284,6 @@ pub fn build_network(
             }
         }
     }
-    // The triangle holding each directed boundary half-edge, to take at a
-    // vertex with several outgoing boundary half-edges (a slit's root) the
-    // one that follows in rotation through the region's triangles: the
-    // next boundary half-edge of the same loop.
     let mut half_tri: HashMap<(u32, u32), u32> = HashMap::new();
     for (t, tri) in mesh.triangles.iter().enumerate() {
         for k in 0..3 {
@@ -231,27 +292,72 @@ pub fn build_network(
             }
         }
     }
-    let next_half = |a: u32, b: u32| -> Option<u32> {
-        let mut t = *half_tri.get(&(a, b))?;
-        for _ in 0..64 {
-            let tri = mesh.triangles[t as usize];
-            let k = (0..3).find(|&k| tri[k] == b)?;
-            let e = topo.tri_edges[t as usize][k];
-            if is_b[e as usize] {
-                return Some(tri[(k + 1) % 3]);
-            }
-            let ed = &topo.edges[e as usize];
-            t = if ed.faces[0] == t {
-                ed.faces[1]
-            } else {
-                ed.faces[0]
-            };
-            if t == u32::MAX {
-                return None;
-            }
+    (out, half_tri)
+}
+
+/// The head of the boundary half-edge after `a → b` in rotation about `b`
+/// through the region's triangles (`half_tri`: the triangle of each
+/// boundary half-edge): the next one of the same loop, to take at a vertex
+/// with several outgoing boundary half-edges (a slit's root).
+fn next_in_rotation(
+    mesh: &TriMesh,
+    topo: &Topology,
+    is_b: &[bool],
+    half_tri: &HashMap<(u32, u32), u32>,
+    a: u32,
+    b: u32,
+) -> Option<u32> {
+    let mut t = *half_tri.get(&(a, b))?;
+    for _ in 0..64 {
+        let tri = mesh.triangles[t as usize];
+        let k = (0..3).find(|&k| tri[k] == b)?;
+        let e = topo.tri_edges[t as usize][k];
+        if is_b[e as usize] {
+            return Some(tri[(k + 1) % 3]);
         }
-        None
-    };
+        let ed = &topo.edges[e as usize];
+        t = if ed.faces[0] == t {
+            ed.faces[1]
+        } else {
+            ed.faces[0]
+        };
+        if t == u32::MAX {
+            return None;
+        }
+    }
+    None
+}
+
+/// Per region, its boundary loops as `(piece, forward)` sequences:
+/// directed boundary half-edges chained head to tail, each mapped to the
+/// piece it lies on. Loops start at corners where they have one, so that
+/// a loop's first piece begins there; with `slits`, a vertex with several
+/// outgoing half-edges continues with the next one in rotation
+/// ([`next_in_rotation`]), so a loop runs down one side of a
+/// slit and back up the other.
+#[allow(clippy::too_many_arguments)]
+fn region_loops(
+    mesh: &TriMesh,
+    topo: &Topology,
+    region: &[u32],
+    num_regions: usize,
+    is_b: &[bool],
+    corner: &[bool],
+    pieces: &[Piece],
+    slits: bool,
+) -> Vec<Vec<Vec<(usize, bool)>>> {
+    let mut piece_pos: HashMap<(u32, u32), (usize, bool)> = HashMap::new();
+    for (pi, p) in pieces.iter().enumerate() {
+        let m = p.verts.len();
+        let segs = if p.closed { m } else { m - 1 };
+        for k in 0..segs {
+            let (a, b) = (p.verts[k], p.verts[(k + 1) % m]);
+            piece_pos.insert((a, b), (pi, true));
+            piece_pos.insert((b, a), (pi, false));
+        }
+    }
+    let mut loops: Vec<Vec<Vec<(usize, bool)>>> = vec![Vec::new(); num_regions];
+    let (mut out, half_tri) = boundary_halves(mesh, topo, region, num_regions, is_b);
     for (r, outr) in out.iter_mut().enumerate() {
         let mut starts: Vec<u32> = outr.keys().copied().collect();
         starts.sort_unstable();
@@ -273,11 +379,14 @@ pub fn build_network(
                     if b == s {
                         break;
                     }
-                    let rotated = slits.then(|| next_half(a, b)).flatten().and_then(|n| {
-                        let l = outr.get_mut(&b)?;
-                        let i = l.iter().position(|&x| x == n)?;
-                        Some(l.swap_remove(i))
-                    });
+                    let rotated = slits
+                        .then(|| next_in_rotation(mesh, topo, is_b, &half_tri, a, b))
+                        .flatten()
+                        .and_then(|n| {
+                            let l = outr.get_mut(&b)?;
+                            let i = l.iter().position(|&x| x == n)?;
+                            Some(l.swap_remove(i))
+                        });
                     a = b;
                     match rotated.or_else(|| outr.get_mut(&a).and_then(|l| l.pop())) {
                         Some(n) => b = n,
@@ -297,10 +406,5 @@ pub fn build_network(
             }
         }
     }
-    Network {
-        pieces,
-        corner,
-        loops,
-        on_boundary,
-    }
+    loops
 }

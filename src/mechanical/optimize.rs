@@ -231,6 +231,12 @@ pub struct OptimizeOptions {
 /// Runs §7.3's loop; returns the rounds. `polys` ends with every region's
 /// best measured state, then one converged geometry pass on it (the
 /// rounds' figures are from before that pass).
+///
+/// Each round: the geometry step (§7.1, `geometry`), the errors per face
+/// and region (`SampleErrors`), each region's best state kept
+/// (`RegionBook::record`), the stop rules, then enrichment (§7.2,
+/// `enrich`) of the faces over the limit and the restore of the regions
+/// that regressed (`RegionBook::enrich_restored`).
 pub fn optimize(
     mesh: &TriMesh,
     caster: &dyn RayCaster,
@@ -242,37 +248,17 @@ pub fn optimize(
     let diag = mesh.bbox_diagonal();
     let limit = o.max_error * diag;
     let mut rounds = Vec::new();
-    // The best state met per region (by the region's RMS): enrichment is
-    // not guaranteed to lower the error (a case-1 fan over a curved
-    // region can fold), and the result must never be worse than a state
-    // measured. Regions are independent once their boundary control
-    // points are fixed (§7.3: "boundary control points are fixed"; every
-    // region boundary is a crease, which no enrichment splits), so a
-    // region whose error rose is put back as it was, and from then on
-    // enriched by case 2 only (§7.2's "lack of degrees of freedom" answer,
-    // which only adds points) — the other regions keep their progress.
-    let mut region_best: Vec<Option<RegionState>> = Vec::new();
-    let mut allow_local: Vec<bool> = Vec::new();
-    // Regions that regressed after a case-2 enrichment: left at their
-    // best state, never enriched again.
-    let mut frozen: Vec<bool> = Vec::new();
+    let mut book = RegionBook::default();
     // §7.1's foot points: the closest point of M *within the sample's own
     // region*. Along the limit normal (φ) or unrestricted, a sample near a
     // crease lands on the neighbouring face, and the update pulls the
     // surface across the feature: the error rises instead of falling.
     // The restriction is to the region's triangles and the two rings of
     // its neighbours' triangles across *smooth* boundary edges (`reach`,
-    // see `super::build_control`): a crease on a smooth boundary is a
+    // see `super::region_reach`): a crease on a smooth boundary is a
     // smoothed zigzag, and the samples between it and the staircase
     // belong to M all the same. One BVH per region, built once.
     let region_casters = region_casters(mesh, reach)?;
-    let whole = |pts: &[DVec3]| -> Result<Vec<f64>> {
-        Ok(caster
-            .closest_points(pts, f64::INFINITY)?
-            .iter()
-            .map(|c| c.map_or(f64::NAN, |c| c.distance))
-            .collect())
-    };
     for round in 0..=o.max_rounds {
         let Geometry {
             locs,
@@ -296,90 +282,23 @@ pub fn optimize(
             .zip(&feet)
             .map(|(p, f)| f.map_or(f64::NAN, |f| (*p - f).length()))
             .collect();
-        let report = whole(&pts)?;
-        // Per-face error.
+        let report: Vec<f64> = caster
+            .closest_points(&pts, f64::INFINITY)?
+            .iter()
+            .map(|c| c.map_or(f64::NAN, |c| c.distance))
+            .collect();
+        let err = SampleErrors::new(polys, &locs, &dists);
         let nf = polys.faces.len();
-        let mut fsum = vec![0.0; nf];
-        let mut fcnt = vec![0usize; nf];
-        let mut fmax = vec![0.0f64; nf];
-        for (l, d) in locs.iter().zip(&dists) {
-            if d.is_finite() {
-                let f = l.face.idx();
-                fsum[f] += d * d;
-                fcnt[f] += 1;
-                fmax[f] = fmax[f].max(*d);
-            }
-        }
-        let frms: Vec<f64> = (0..nf)
-            .map(|f| (fsum[f] / fcnt[f].max(1) as f64).sqrt())
-            .collect();
-        let nreg = polys.region_count();
-        let mut rsum = vec![0.0; nreg];
-        let mut rcnt = vec![0usize; nreg];
-        for (l, d) in locs.iter().zip(&dists) {
-            if d.is_finite() {
-                let r = polys.face_region[l.face.idx()] as usize;
-                rsum[r] += d * d;
-                rcnt[r] += 1;
-            }
-        }
-        if region_best.len() < nreg {
-            region_best.resize(nreg, None);
-            allow_local.resize(nreg, true);
-            frozen.resize(nreg, false);
-        }
-        let face_over: Vec<bool> = frms.iter().map(|&e| e > limit).collect();
-        let mut regressed = vec![false; nreg];
-        for r in 0..nreg {
-            if rcnt[r] == 0 {
-                continue;
-            }
-            let e = (rsum[r] / rcnt[r] as f64).sqrt();
-            // 2 %: the stall margin below; a region within it of its best
-            // is not worse (the SDM steps move it by rounding noise), and
-            // keeps its best state on record.
-            match &region_best[r] {
-                Some(b) if e > 1.02 * b.rms => {
-                    regressed[r] = true;
-                    // A second regression: case 2 failed too (after the
-                    // first one the region is enriched by case 2 only).
-                    // More faces will not help; keep its best state.
-                    frozen[r] = !allow_local[r];
-                    allow_local[r] = false;
-                }
-                Some(b) if e >= b.rms => {}
-                _ => region_best[r] = Some(region_state(polys, r as u32, e, &face_over)),
-            }
-        }
+        let nreg = err.rsum.len();
+        book.grow(nreg);
+        let face_over: Vec<bool> = err.frms.iter().map(|&e| e > limit).collect();
+        let regressed = book.record(polys, &err, &face_over);
         let any_regressed = regressed.iter().any(|&x| x);
-        let region_rms_permille: Vec<f64> = (0..nreg)
-            .map(|r| 1000.0 * (rsum[r] / rcnt[r].max(1) as f64).sqrt() / diag)
-            .collect();
-        let ok: Vec<f64> = report.iter().copied().filter(|d| d.is_finite()).collect();
-        let cnt = ok.len().max(1) as f64;
-        let over_all = (0..nf).filter(|&f| frms[f] > limit).count();
+        let over_all = (0..nf).filter(|&f| err.frms[f] > limit).count();
         let over: Vec<usize> = (0..nf)
             .filter(|&f| face_over[f] && !regressed[polys.face_region[f] as usize])
             .collect();
-        let mut rec = Round {
-            faces: nf,
-            vertices: polys.positions.len(),
-            mean_permille: 1000.0 * ok.iter().sum::<f64>() / cnt / diag,
-            rms_permille: 1000.0 * (ok.iter().map(|d| d * d).sum::<f64>() / cnt).sqrt() / diag,
-            max_permille: 1000.0 * ok.iter().copied().fold(0.0, f64::max) / diag,
-            geometry_iterations: iters,
-            faces_over_limit: over_all,
-            local_fields: 0,
-            diffuse_fields: 0,
-            region_rms_permille,
-            region_faces: {
-                let mut v = vec![0usize; nreg];
-                for &r in &polys.face_region {
-                    v[r as usize] += 1;
-                }
-                v
-            },
-        };
+        let mut rec = round_record(polys, &report, &err, iters, over_all, diag);
         // A round of enrichment that bought less than 2 % of RMS will not
         // buy more next time (the remaining error sits where enrichment
         // cannot reach it, e.g. faces spanned by curve control points
@@ -393,49 +312,25 @@ pub fn optimize(
         // Nothing left to enrich: every face over the limit lies in a
         // frozen region.
         let idle = over.is_empty()
-            && (0..nreg).all(|r| !regressed[r] || frozen[r] || region_best[r].is_none());
+            && (0..nreg).all(|r| !regressed[r] || book.frozen[r] || book.best[r].is_none());
         if over_all == 0 || stalled || idle || round == o.max_rounds || nf >= o.max_faces {
             rounds.push(rec);
             break;
         }
         if !over.is_empty() {
-            let (local, diffuse) = enrich(polys, &over, &locs_faces(&locs), &dists, &allow_local);
+            let (local, diffuse) =
+                enrich(polys, &over, &locs_faces(&locs), &dists, &book.allow_local);
             rec.local_fields = local;
             rec.diffuse_fields = diffuse;
         }
-        if any_regressed && restore_regions(polys, &region_best, &regressed) {
-            // A restored region is enriched at once, by case 2, where its
-            // best state had faces over the limit (recorded with it).
-            // Waiting a round to re-measure it left it idle while the
-            // others moved on, and the round after could read as a stall
-            // (the total RMS barely moves when only the restored regions
-            // change) and end the loop with faces still over the limit
-            // and nothing refined ("over 25, local 0, diffuse 0" on
-            // fandisk at 1.1 × 10⁻³).
-            let mut again = Vec::new();
-            let mut k = vec![0usize; nreg];
-            for (f, &r) in polys.face_region.iter().enumerate() {
-                let r = r as usize;
-                if regressed[r] && !frozen[r] {
-                    if let Some(Some(b)) = region_best.get(r) {
-                        if b.over.get(k[r]).copied().unwrap_or(false) {
-                            again.push(f);
-                        }
-                    }
-                    k[r] += 1;
-                }
-            }
-            if !again.is_empty() {
-                let no_local = vec![false; nreg];
-                let (_, diffuse) = enrich(polys, &again, &[], &[], &no_local);
-                rec.diffuse_fields += diffuse;
-            }
+        if any_regressed && restore_regions(polys, &book.best, &regressed) {
+            rec.diffuse_fields += book.enrich_restored(polys, &regressed);
         }
         rounds.push(rec);
     }
-    let all: Vec<bool> = region_best.iter().map(|b| b.is_some()).collect();
+    let all: Vec<bool> = book.best.iter().map(|b| b.is_some()).collect();
     // (A shared free vertex, which no layout here has, leaves it as is.)
-    let _ = restore_regions(polys, &region_best, &all);
+    let _ = restore_regions(polys, &book.best, &all);
     // A last geometry pass on the output, run to convergence: the
     // umbrella damping of each step (λ|Lδ|², on the update, so it does not
     // move the minimum) makes the alternating foot-point iteration converge
@@ -455,6 +350,173 @@ pub fn optimize(
         1e-3,
     )?;
     Ok(rounds)
+}
+
+/// Squared restricted sample distances summed per face and per region
+/// (§7.2's error per face is its samples' RMS distance).
+struct SampleErrors {
+    /// RMS distance per face.
+    frms: Vec<f64>,
+    /// Sum of squared distances and sample count per region.
+    rsum: Vec<f64>,
+    rcnt: Vec<usize>,
+}
+
+impl SampleErrors {
+    fn new(polys: &Polys, locs: &[crate::subdiv::SurfaceLocation], dists: &[f64]) -> Self {
+        let nf = polys.faces.len();
+        let mut fsum = vec![0.0; nf];
+        let mut fcnt = vec![0usize; nf];
+        for (l, d) in locs.iter().zip(dists) {
+            if d.is_finite() {
+                let f = l.face.idx();
+                fsum[f] += d * d;
+                fcnt[f] += 1;
+            }
+        }
+        let frms: Vec<f64> = (0..nf)
+            .map(|f| (fsum[f] / fcnt[f].max(1) as f64).sqrt())
+            .collect();
+        let nreg = polys.region_count();
+        let mut rsum = vec![0.0; nreg];
+        let mut rcnt = vec![0usize; nreg];
+        for (l, d) in locs.iter().zip(dists) {
+            if d.is_finite() {
+                let r = polys.face_region[l.face.idx()] as usize;
+                rsum[r] += d * d;
+                rcnt[r] += 1;
+            }
+        }
+        SampleErrors { frms, rsum, rcnt }
+    }
+
+    /// RMS distance of region `r` (`None` without samples).
+    fn region_rms(&self, r: usize) -> Option<f64> {
+        (self.rcnt[r] > 0).then(|| (self.rsum[r] / self.rcnt[r] as f64).sqrt())
+    }
+}
+
+/// The best state met per region (by the region's RMS): enrichment is
+/// not guaranteed to lower the error (a case-1 fan over a curved region
+/// can fold), and the result must never be worse than a state measured.
+/// Regions are independent once their boundary control points are fixed
+/// (§7.3: "boundary control points are fixed"; every region boundary is
+/// a crease, which no enrichment splits), so a region whose error rose is
+/// put back as it was, and from then on enriched by case 2 only (§7.2's
+/// "lack of degrees of freedom" answer, which only adds points) — the
+/// other regions keep their progress.
+#[derive(Default)]
+struct RegionBook {
+    best: Vec<Option<RegionState>>,
+    /// Case 1 (merge and insert) still allowed.
+    allow_local: Vec<bool>,
+    /// Regions that regressed after a case-2 enrichment: left at their
+    /// best state, never enriched again.
+    frozen: Vec<bool>,
+}
+
+impl RegionBook {
+    fn grow(&mut self, nreg: usize) {
+        if self.best.len() < nreg {
+            self.best.resize(nreg, None);
+            self.allow_local.resize(nreg, true);
+            self.frozen.resize(nreg, false);
+        }
+    }
+
+    /// Compares each region's RMS with its best: a better one is recorded
+    /// (with its faces over the limit), a worse one by more than 2 % marks
+    /// the region regressed (returned per region), which bars case 1 for
+    /// it and, the second time, freezes it.
+    fn record(&mut self, polys: &Polys, err: &SampleErrors, face_over: &[bool]) -> Vec<bool> {
+        let nreg = err.rsum.len();
+        let mut regressed = vec![false; nreg];
+        for (r, worse) in regressed.iter_mut().enumerate() {
+            let Some(e) = err.region_rms(r) else {
+                continue;
+            };
+            // 2 %: the stall margin of `optimize`; a region within it of
+            // its best is not worse (the SDM steps move it by rounding
+            // noise), and keeps its best state on record.
+            match &self.best[r] {
+                Some(b) if e > 1.02 * b.rms => {
+                    *worse = true;
+                    // A second regression: case 2 failed too (after the
+                    // first one the region is enriched by case 2 only).
+                    // More faces will not help; keep its best state.
+                    self.frozen[r] = !self.allow_local[r];
+                    self.allow_local[r] = false;
+                }
+                Some(b) if e >= b.rms => {}
+                _ => self.best[r] = Some(region_state(polys, r as u32, e, face_over)),
+            }
+        }
+        regressed
+    }
+
+    /// A restored region is enriched at once, by case 2, where its best
+    /// state had faces over the limit (recorded with it). Waiting a round
+    /// to re-measure it left it idle while the others moved on, and the
+    /// round after could read as a stall (the total RMS barely moves when
+    /// only the restored regions change) and end the loop with faces still
+    /// over the limit and nothing refined ("over 25, local 0, diffuse 0"
+    /// on fandisk at 1.1 × 10⁻³). Returns the diffuse fields enriched.
+    fn enrich_restored(&self, polys: &mut Polys, regressed: &[bool]) -> usize {
+        let nreg = regressed.len();
+        let mut again = Vec::new();
+        let mut k = vec![0usize; nreg];
+        for (f, &r) in polys.face_region.iter().enumerate() {
+            let r = r as usize;
+            if regressed[r] && !self.frozen[r] {
+                if let Some(Some(b)) = self.best.get(r) {
+                    if b.over.get(k[r]).copied().unwrap_or(false) {
+                        again.push(f);
+                    }
+                }
+                k[r] += 1;
+            }
+        }
+        if again.is_empty() {
+            return 0;
+        }
+        let no_local = vec![false; nreg];
+        enrich(polys, &again, &[], &[], &no_local).1
+    }
+}
+
+/// The round's figures for `report.json`: mean, RMS and max of the
+/// unrestricted distances `report`, and the RMS and faces per region.
+fn round_record(
+    polys: &Polys,
+    report: &[f64],
+    err: &SampleErrors,
+    iters: usize,
+    over_all: usize,
+    diag: f64,
+) -> Round {
+    let nreg = err.rsum.len();
+    let region_rms_permille: Vec<f64> = (0..nreg)
+        .map(|r| 1000.0 * (err.rsum[r] / err.rcnt[r].max(1) as f64).sqrt() / diag)
+        .collect();
+    let ok: Vec<f64> = report.iter().copied().filter(|d| d.is_finite()).collect();
+    let cnt = ok.len().max(1) as f64;
+    let mut region_faces = vec![0usize; nreg];
+    for &r in &polys.face_region {
+        region_faces[r as usize] += 1;
+    }
+    Round {
+        faces: polys.faces.len(),
+        vertices: polys.positions.len(),
+        mean_permille: 1000.0 * ok.iter().sum::<f64>() / cnt / diag,
+        rms_permille: 1000.0 * (ok.iter().map(|d| d * d).sum::<f64>() / cnt).sqrt() / diag,
+        max_permille: 1000.0 * ok.iter().copied().fold(0.0, f64::max) / diag,
+        geometry_iterations: iters,
+        faces_over_limit: over_all,
+        local_fields: 0,
+        diffuse_fields: 0,
+        region_rms_permille,
+        region_faces,
+    }
 }
 
 /// The fitted samples of one topology: sample locations, limit points,
@@ -612,8 +674,6 @@ fn umbrella(control: &ControlMesh, fixed: usize) -> Vec<Vec<(u32, f64)>> {
         .collect()
 }
 
-/// Enriches the faces in `over` (see the module docs); returns the number
-/// of local and diffuse fields.
 /// One region's faces and free vertices (free ids renumbered from
 /// `fixed`), with its RMS distance when recorded.
 #[derive(Clone, Debug)]
@@ -711,6 +771,14 @@ fn restore_regions(p: &mut Polys, states: &[Option<RegionState>], restore: &[boo
     true
 }
 
+/// Enriches the faces in `over` (§7.2, see the module docs); returns the
+/// number of local and diffuse fields. The steps: error fields
+/// ([`error_fields`]), each classed local or diffuse ([`classify_fields`]),
+/// case 2's midpoints and splits ([`edge_midpoints`], [`split_faces`]),
+/// case 1's merged fans ([`fan_merges`]), and the vertices the merges left
+/// unused dropped ([`drop_unused`]). `sample_face` and `dists` give each
+/// sample's face and distance, `allow_local` per region whether case 1 is
+/// allowed.
 fn enrich(
     polys: &mut Polys,
     over: &[usize],
@@ -718,26 +786,66 @@ fn enrich(
     dists: &[f64],
     allow_local: &[bool],
 ) -> (usize, usize) {
-    let key = |a: u32, b: u32| (a.min(b), a.max(b));
-    let nf = polys.faces.len();
-    let is_over: Vec<bool> = {
-        let mut v = vec![false; nf];
-        for &f in over {
-            v[f] = true;
-        }
-        v
-    };
-    // Edge → faces.
+    let edge_faces = edge_faces(&polys.faces);
+    let (field, fields) = error_fields(polys, over, &edge_faces);
+    let kinds = classify_fields(
+        polys,
+        &field,
+        &fields,
+        sample_face,
+        dists,
+        allow_local,
+        &edge_faces,
+    );
+    let mut positions = polys.positions.clone();
+    let mid = edge_midpoints(polys, &kinds.split, &mut positions);
+    let merged_faces: HashSet<usize> = kinds.merges.iter().flatten().copied().collect();
+    let (mut faces, mut regions) =
+        split_faces(polys, &kinds.split, &merged_faces, &mid, &mut positions);
+    fan_merges(
+        polys,
+        &kinds.merges,
+        &edge_faces,
+        &mid,
+        &mut positions,
+        &mut faces,
+        &mut regions,
+    );
+    drop_unused(polys, positions, faces, regions);
+    (kinds.local, kinds.diffuse)
+}
+
+fn edge_key(a: u32, b: u32) -> (u32, u32) {
+    (a.min(b), a.max(b))
+}
+
+/// Faces of each (undirected) control edge.
+fn edge_faces(faces: &[Vec<u32>]) -> HashMap<(u32, u32), Vec<usize>> {
     let mut edge_faces: HashMap<(u32, u32), Vec<usize>> = HashMap::new();
-    for (f, poly) in polys.faces.iter().enumerate() {
+    for (f, poly) in faces.iter().enumerate() {
         for k in 0..poly.len() {
             edge_faces
-                .entry(key(poly[k], poly[(k + 1) % poly.len()]))
+                .entry(edge_key(poly[k], poly[(k + 1) % poly.len()]))
                 .or_default()
                 .push(f);
         }
     }
-    // Fields: connected components of over-limit faces across non-crease edges.
+    edge_faces
+}
+
+/// §7.2's error fields: connected components of the over-limit faces
+/// across non-crease edges (so a field lies in one region). Returns each
+/// face's field (`usize::MAX`: none) and the fields' faces.
+fn error_fields(
+    polys: &Polys,
+    over: &[usize],
+    edge_faces: &HashMap<(u32, u32), Vec<usize>>,
+) -> (Vec<usize>, Vec<Vec<usize>>) {
+    let nf = polys.faces.len();
+    let mut is_over = vec![false; nf];
+    for &f in over {
+        is_over[f] = true;
+    }
     let mut field = vec![usize::MAX; nf];
     let mut fields: Vec<Vec<usize>> = Vec::new();
     for &s in over {
@@ -753,7 +861,7 @@ fn enrich(
             i += 1;
             let poly = &polys.faces[f];
             for k in 0..poly.len() {
-                let e = key(poly[k], poly[(k + 1) % poly.len()]);
+                let e = edge_key(poly[k], poly[(k + 1) % poly.len()]);
                 if polys.creases.contains(&e) {
                     continue;
                 }
@@ -767,10 +875,40 @@ fn enrich(
         }
         fields.push(comp);
     }
-    let mut split: Vec<bool> = vec![false; nf];
-    let mut merges: Vec<Vec<usize>> = Vec::new();
-    let (mut nlocal, mut ndiff) = (0, 0);
-    for comp in &fields {
+    (field, fields)
+}
+
+/// What [`classify_fields`] decided.
+struct FieldKinds {
+    /// Faces split by case 2.
+    split: Vec<bool>,
+    /// Fields merged into one polygon with one new point (case 1).
+    merges: Vec<Vec<usize>>,
+    local: usize,
+    diffuse: usize,
+}
+
+/// §7.2's test per field: *local* (case 1) when its samples above
+/// `D_max/2` are mostly below `0.8 D_max` (one peak, which one new point
+/// answers), the field has several faces, its region still allows case 1
+/// and its faces merge into one disc ([`merge_loop`]); else *diffuse*
+/// (case 2: every face split).
+fn classify_fields(
+    polys: &Polys,
+    field: &[usize],
+    fields: &[Vec<usize>],
+    sample_face: &[u32],
+    dists: &[f64],
+    allow_local: &[bool],
+    edge_faces: &HashMap<(u32, u32), Vec<usize>>,
+) -> FieldKinds {
+    let mut out = FieldKinds {
+        split: vec![false; polys.faces.len()],
+        merges: Vec::new(),
+        local: 0,
+        diffuse: 0,
+    };
+    for comp in fields {
         let ds: Vec<f64> = sample_face
             .iter()
             .zip(dists)
@@ -788,26 +926,35 @@ fn enrich(
                 .get(polys.face_region[comp[0]] as usize)
                 .copied()
                 .unwrap_or(true);
-        if local && merge_loop(&polys.faces, comp, &edge_faces).is_some() {
-            merges.push(comp.clone());
-            nlocal += 1;
+        if local && merge_loop(&polys.faces, comp, edge_faces).is_some() {
+            out.merges.push(comp.clone());
+            out.local += 1;
         } else {
             for &f in comp {
-                split[f] = true;
+                out.split[f] = true;
             }
-            ndiff += 1;
+            out.diffuse += 1;
         }
     }
-    // Case 2: split faces; cut non-crease edges of split faces.
+    out
+}
+
+/// Case 2's new points: the midpoint of every non-crease edge of a split
+/// face (crease edges are never cut: they carry §5's curves), appended to
+/// `positions`. Returns the midpoint of each cut edge.
+fn edge_midpoints(
+    polys: &Polys,
+    split: &[bool],
+    positions: &mut Vec<DVec3>,
+) -> HashMap<(u32, u32), u32> {
     let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-    let mut positions = polys.positions.clone();
     for (f, poly) in polys.faces.iter().enumerate() {
         if !split[f] {
             continue;
         }
         for k in 0..poly.len() {
             let (a, b) = (poly[k], poly[(k + 1) % poly.len()]);
-            let e = key(a, b);
+            let e = edge_key(a, b);
             if polys.creases.contains(&e) || mid.contains_key(&e) {
                 continue;
             }
@@ -815,9 +962,23 @@ fn enrich(
             mid.insert(e, positions.len() as u32 - 1);
         }
     }
+    mid
+}
+
+/// Every face not merged by case 1, with the midpoints of its cut edges
+/// inserted; the split ones (case 2) cut by the number of cut edges (see
+/// the module docs): two, along the chord between them; one, unchanged
+/// but for the midpoint; three or more, one face per sector around a new
+/// centre; none, a fan of triangles around it. Returns faces and regions.
+fn split_faces(
+    polys: &Polys,
+    split: &[bool],
+    merged_faces: &HashSet<usize>,
+    mid: &HashMap<(u32, u32), u32>,
+    positions: &mut Vec<DVec3>,
+) -> (Vec<Vec<u32>>, Vec<u32>) {
     let mut faces: Vec<Vec<u32>> = Vec::new();
     let mut regions: Vec<u32> = Vec::new();
-    let merged_faces: HashSet<usize> = merges.iter().flatten().copied().collect();
     for (f, poly) in polys.faces.iter().enumerate() {
         if merged_faces.contains(&f) {
             continue;
@@ -827,7 +988,7 @@ fn enrich(
         let mut seq: Vec<(u32, bool)> = Vec::new();
         for k in 0..n {
             seq.push((poly[k], true));
-            if let Some(&m) = mid.get(&key(poly[k], poly[(k + 1) % n])) {
+            if let Some(&m) = mid.get(&edge_key(poly[k], poly[(k + 1) % n])) {
                 seq.push((m, false));
             }
         }
@@ -883,16 +1044,30 @@ fn enrich(
             regions.push(reg);
         }
     }
-    // Case 1: merged polygon + one point, fan.
-    for comp in &merges {
-        let Some(lp) = merge_loop(&polys.faces, comp, &edge_faces) else {
+    (faces, regions)
+}
+
+/// Case 1: each merged field's polygon (with the midpoints its
+/// neighbours' splits put on its edges) fanned around one new point, its
+/// vertices' mean; appended to `faces` / `regions`.
+fn fan_merges(
+    polys: &Polys,
+    merges: &[Vec<usize>],
+    edge_faces: &HashMap<(u32, u32), Vec<usize>>,
+    mid: &HashMap<(u32, u32), u32>,
+    positions: &mut Vec<DVec3>,
+    faces: &mut Vec<Vec<u32>>,
+    regions: &mut Vec<u32>,
+) {
+    for comp in merges {
+        let Some(lp) = merge_loop(&polys.faces, comp, edge_faces) else {
             continue;
         };
         // The merge loop may gain midpoints of neighbours' split edges.
         let mut seq: Vec<u32> = Vec::new();
         for k in 0..lp.len() {
             seq.push(lp[k]);
-            if let Some(&m) = mid.get(&key(lp[k], lp[(k + 1) % lp.len()])) {
+            if let Some(&m) = mid.get(&edge_key(lp[k], lp[(k + 1) % lp.len()])) {
                 seq.push(m);
             }
         }
@@ -906,9 +1081,18 @@ fn enrich(
             regions.push(reg);
         }
     }
-    // Merging leaves the merged faces' inner vertices unused: drop them
-    // (free vertices only; curve control points lie on creases, which no
-    // field crosses) and renumber.
+}
+
+/// Stores the enriched layout in `polys`. Merging leaves the merged
+/// faces' inner vertices unused: they are dropped (free vertices only;
+/// curve control points lie on creases, which no field crosses) and the
+/// rest renumbered.
+fn drop_unused(
+    polys: &mut Polys,
+    positions: Vec<DVec3>,
+    mut faces: Vec<Vec<u32>>,
+    regions: Vec<u32>,
+) {
     let mut used = vec![false; positions.len()];
     for f in &faces {
         for &v in f {
@@ -931,7 +1115,6 @@ fn enrich(
     polys.positions = kept;
     polys.faces = faces;
     polys.face_region = regions;
-    (nlocal, ndiff)
 }
 
 /// The single boundary loop of the union of `comp`'s faces, if it is a

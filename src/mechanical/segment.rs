@@ -49,7 +49,8 @@
 //!    region boundary (a crease), which is the price of this simplification:
 //!    on fandisk no region needs it.
 
-use std::collections::VecDeque;
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, HashMap, HashSet, VecDeque};
 
 use super::curvature::VertexCurvature;
 use super::topology::Topology;
@@ -79,7 +80,7 @@ pub struct SegmentOptions {
     /// 3b/4b then skip it): false. The crease then ends at the chain's
     /// tip, as on M, instead of going on as a smooth boundary to the far
     /// side of the region, which costs that continuation's control points
-    /// and a corner where it lands (see `build_with`, which falls back to
+    /// and a corner where it lands (see `build_control`, which falls back to
     /// the continuation when a slit region's polyhedron cannot be built).
     pub slits: bool,
 }
@@ -130,17 +131,101 @@ fn class_of(c: &VertexCurvature, diag: f64) -> u8 {
     }
 }
 
-/// Segments `mesh` (see the module docs).
+/// Segments `mesh` (see the module docs): one named step per stage of
+/// §4 as this module implements it, in order.
 pub fn segment(
     mesh: &TriMesh,
     topo: &Topology,
     curv: &[VertexCurvature],
     opts: &SegmentOptions,
 ) -> Segmentation {
-    let nt = mesh.triangles.len();
-    let diag = mesh.bbox_diagonal().max(f64::MIN_POSITIVE);
     let sharp = topo.sharp_edges();
     let blocked = |e: usize| sharp[e] || !topo.edges[e].is_interior();
+    // 1–2. Sharp-bounded components cut into curvature classes.
+    let mut region = class_regions(mesh, topo, curv, opts, &blocked);
+    // 3. Merge small regions, smallest first; one without a non-sharp
+    // neighbour is kept (skipped).
+    let merged = merge_small(mesh, topo, &blocked, opts.min_region_share, &mut region);
+    // 3a. Smooth merges: two regions of one sharp-bounded component meet
+    // along a tangent-continuous (non-sharp) boundary, and every region
+    // boundary becomes an infinitely sharp crease of the output (§8 step
+    // 3): such a boundary would put a crease where M has none, and costs
+    // a curve, its control points and the corners at its ends. A
+    // Catmull-Clark patch group represents the blend across it (the
+    // enrichment of §7.2 adds points where the fit asks), so the two are
+    // merged whenever the union is still a topological disc, the one shape
+    // §6's Topological Contour is built for here (step 4). Class splits
+    // survive only where they make discs (a fillet band around a hole).
+    let merged_smooth = if opts.merge_smooth {
+        merge_smooth(mesh, topo, &blocked, &sharp, &mut region)
+    } else {
+        0
+    };
+    // 3b. Dangling features: a sharp chain that fades out inside a region
+    // (fandisk: the cone's side crease and the top crease) would be
+    // rounded off, since only region boundaries become creases. The chain
+    // is continued from each free end along the straightest path (a
+    // smooth boundary, the "rectified" boundary of §4 following the
+    // feature's direction) to the region's boundary or to another chain
+    // anchored on it, or two tips are joined (see `extend_dangling`), and
+    // the region is cut along chain + continuation: the feature then lies
+    // on a boundary. With slits (every such chain hanging from its
+    // region's boundary) the chains stay where they are instead.
+    let slits = opts.slits && inside_chains_hang(topo, &sharp, &region);
+    if !slits {
+        extend_dangling(mesh, topo, &sharp, &mut region);
+    }
+    // 4. Disc-making splits.
+    let splits = disc_splits(mesh, topo, opts.max_splits, &mut region);
+    // 4b. Dangling features again, now that every region is a disc. Step
+    // 3b's cut of a region that is not yet a disc need not separate it
+    // along every chain: on block.ply a two-edge chain (30.5°) dangling
+    // inside an annular region had both ends continued, one to each
+    // boundary loop, so its cut did not separate (another chain's did) and
+    // the chain stayed inside, rounded off 26‰ away from any crease. In a
+    // disc a cut from boundary to boundary always separates, and every
+    // part stays a disc (the cut graph touches the boundary). A no-op
+    // when no sharp edge is left inside a region (fandisk, joint). A region
+    // whose parts would not all be discs (two continuations meeting the
+    // boundary at one vertex pinch it: spot forced through this mode) is
+    // left as it is.
+    if !slits {
+        extend_dangling_in_discs(mesh, topo, &sharp, &mut region);
+    }
+    let num_regions = renumber(&mut region) as usize;
+    let sharp_edges = sharp.iter().filter(|&&s| s).count();
+    let sharp_edges_inside = topo
+        .edges
+        .iter()
+        .enumerate()
+        .filter(|(e, ed)| sharp[*e] && region[ed.faces[0] as usize] == region[ed.faces[1] as usize])
+        .count();
+    Segmentation {
+        region,
+        num_regions,
+        sharp_edges,
+        sharp_edges_inside,
+        slits: slits && sharp_edges_inside > 0,
+        splits,
+        merged,
+        merged_smooth,
+    }
+}
+
+/// Steps 1–2 of [`segment`]: components over non-sharp edges (a region
+/// never crosses a feature), cut where two curvature classes meet when
+/// both class pieces are large ([`SegmentOptions::min_class_share`]):
+/// §4's near-constant curvature, by class. Smaller pieces grow back into
+/// their neighbours; a component without a large piece is one region.
+fn class_regions(
+    mesh: &TriMesh,
+    topo: &Topology,
+    curv: &[VertexCurvature],
+    opts: &SegmentOptions,
+    blocked: &dyn Fn(usize) -> bool,
+) -> Vec<u32> {
+    let nt = mesh.triangles.len();
+    let diag = mesh.bbox_diagonal().max(f64::MIN_POSITIVE);
     // 1. Components over non-sharp edges.
     let comp = flood(nt, topo, |e| !blocked(e), None);
     let ncomp = comp.iter().copied().max().map_or(0, |m| m + 1) as usize;
@@ -193,7 +278,7 @@ pub fn segment(
     // Unassigned triangles: nearest assigned piece of the same component
     // (BFS over non-blocked edges); whole components without a large piece
     // become one region.
-    grow_unassigned(&mut region, topo, &blocked);
+    grow_unassigned(&mut region, topo, blocked);
     let mut next = renumber(&mut region);
     for t in 0..nt {
         if region[t] == u32::MAX {
@@ -214,21 +299,32 @@ pub fn segment(
             next += 1;
         }
     }
-    // 3. Merge small regions, smallest first; one without a non-sharp
-    // neighbour is kept (skipped).
+    region
+}
+
+/// Step 3 of [`segment`]: a region smaller than `min_share` of M's area
+/// merges into the neighbour it shares the longest non-blocked boundary
+/// with, smallest first, one merge per pass; a region with no non-blocked
+/// boundary (bounded by features only) is kept whatever its size, since
+/// merging it would lose a feature. Returns the number of merges.
+fn merge_small(
+    mesh: &TriMesh,
+    topo: &Topology,
+    blocked: &dyn Fn(usize) -> bool,
+    min_share: f64,
+    region: &mut [u32],
+) -> usize {
+    let nt = region.len();
     let total_area: f64 = topo.face_areas.iter().sum();
     let mut merged = 0;
-    let mut merged_smooth = 0;
-    let mut skip: Vec<u32> = Vec::new();
     loop {
-        let nr = renumber(&mut region) as usize;
-        skip.clear();
+        let nr = renumber(region) as usize;
         let mut area = vec![0.0; nr];
         for t in 0..nt {
             area[region[t] as usize] += topo.face_areas[t];
         }
         let mut order: Vec<usize> = (0..nr)
-            .filter(|&r| area[r] < opts.min_region_share * total_area)
+            .filter(|&r| area[r] < min_share * total_area)
             .collect();
         order.sort_by(|&a, &b| area[a].total_cmp(&area[b]).then(a.cmp(&b)));
         let mut done = true;
@@ -269,85 +365,34 @@ pub fn segment(
             }
         }
         if done {
-            break;
+            return merged;
         }
     }
-    // 3a. Smooth merges: two regions of one sharp-bounded component meet
-    // along a tangent-continuous (non-sharp) boundary, and every region
-    // boundary becomes an infinitely sharp crease of the output (§8 step
-    // 3): such a boundary would put a crease where M has none, and costs
-    // a curve, its control points and the corners at its ends. A
-    // Catmull-Clark patch group represents the blend across it (the
-    // enrichment of §7.2 adds points where the fit asks), so the two are
-    // merged whenever the union is still a topological disc, the one shape
-    // §6's Topological Contour is built for here (step 4). Class splits
-    // survive only where they make discs (a fillet band around a hole).
-    if opts.merge_smooth {
-        merged_smooth = merge_smooth(mesh, topo, &blocked, &sharp, &mut region);
-    }
-    // 3b. Dangling features: a sharp chain that fades out inside a region
-    // (fandisk: the cone's side crease and the top crease) would be
-    // rounded off, since only region boundaries become creases. The chain
-    // is continued from each free end along the straightest path (a
-    // smooth boundary, the "rectified" boundary of §4 following the
-    // feature's direction) to the region's boundary or to another chain
-    // anchored on it, or two tips are joined (see `extend_dangling`), and
-    // the region is cut along chain + continuation: the feature then lies
-    // on a boundary.
-    let slits = opts.slits && inside_chains_hang(topo, &sharp, &region);
-    if !slits {
-        extend_dangling(mesh, topo, &sharp, &mut region);
-    }
-    // 4. Disc-making splits.
+}
+
+/// Step 4 of [`segment`]: splits every region that is not a topological
+/// disc in two ([`split_region`]) and tries the halves again, up to
+/// `max_splits` splits over the whole mesh (§6.3.1 cuts a region with
+/// holes into a disc; see the module docs). Returns the number of splits.
+fn disc_splits(mesh: &TriMesh, topo: &Topology, max_splits: usize, region: &mut [u32]) -> usize {
+    let nt = region.len();
     let mut splits = 0;
-    let mut queue: Vec<u32> = (0..renumber(&mut region)).collect();
+    let mut queue: Vec<u32> = (0..renumber(region)).collect();
     while let Some(r) = queue.pop() {
         let tris: Vec<u32> = (0..nt as u32)
             .filter(|&t| region[t as usize] == r)
             .collect();
-        if tris.len() < 2 || is_disc(mesh, topo, &region, r, &tris) || splits >= opts.max_splits {
+        if tris.len() < 2 || is_disc(mesh, topo, region, r, &tris) || splits >= max_splits {
             continue;
         }
         let new = region.iter().copied().max().unwrap_or(0) + 1;
-        if split_region(topo, &mut region, r, new, &tris) {
+        if split_region(topo, region, r, new, &tris) {
             splits += 1;
             queue.push(r);
             queue.push(new);
         }
     }
-    // 4b. Dangling features again, now that every region is a disc. Step
-    // 3b's cut of a region that is not yet a disc need not separate it
-    // along every chain: on block.ply a two-edge chain (30.5°) dangling
-    // inside an annular region had both ends continued, one to each
-    // boundary loop, so its cut did not separate (another chain's did) and
-    // the chain stayed inside, rounded off 26‰ away from any crease. In a
-    // disc a cut from boundary to boundary always separates, and every
-    // part stays a disc (the cut graph touches the boundary). A no-op
-    // when no sharp edge is left inside a region (fandisk, joint). A region
-    // whose parts would not all be discs (two continuations meeting the
-    // boundary at one vertex pinch it: spot forced through this mode) is
-    // left as it is.
-    if !slits {
-        extend_dangling_in_discs(mesh, topo, &sharp, &mut region);
-    }
-    let num_regions = renumber(&mut region) as usize;
-    let sharp_edges = sharp.iter().filter(|&&s| s).count();
-    let sharp_edges_inside = topo
-        .edges
-        .iter()
-        .enumerate()
-        .filter(|(e, ed)| sharp[*e] && region[ed.faces[0] as usize] == region[ed.faces[1] as usize])
-        .count();
-    Segmentation {
-        region,
-        num_regions,
-        sharp_edges,
-        sharp_edges_inside,
-        slits: slits && sharp_edges_inside > 0,
-        splits,
-        merged,
-        merged_smooth,
-    }
+    splits
 }
 
 /// Step 3a of [`segment`]: repeatedly merges the pair of regions with the
@@ -478,199 +523,157 @@ fn fading_edges(topo: &Topology, sharp: &[bool]) -> Vec<bool> {
 /// at most once per chain end; a cut that does not separate the region
 /// (the continuation could not reach the boundary) changes nothing.
 fn extend_dangling(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut [u32]) {
-    use std::collections::{BinaryHeap, HashMap, HashSet};
-    let nt = region.len();
-    let inside = |e: usize, region: &[u32]| {
-        let ed = &topo.edges[e];
-        sharp[e] && ed.is_interior() && region[ed.faces[0] as usize] == region[ed.faces[1] as usize]
-    };
     let mut done_regions: HashSet<u32> = HashSet::new();
     loop {
         let Some(e0) = (0..topo.edges.len()).find(|&e| {
-            inside(e, region) && !done_regions.contains(&region[topo.edges[e].faces[0] as usize])
+            inside_sharp(topo, sharp, region, e)
+                && !done_regions.contains(&region[topo.edges[e].faces[0] as usize])
         }) else {
             return;
         };
         let r = region[topo.edges[e0].faces[0] as usize];
         done_regions.insert(r);
-        let in_r = |f: u32| f != u32::MAX && region[f as usize] == r;
-        // Vertex on r's boundary: an edge of r with another region (or no
-        // face) on its other side.
-        let on_boundary = |v: u32| {
-            topo.vertex_edges(v).iter().any(|&e| {
-                let [f0, f1] = topo.edges[e as usize].faces;
-                (in_r(f0) || in_r(f1)) && !(in_r(f0) && in_r(f1))
-            })
+        let cut = Dangling::new(mesh, topo, sharp, region, r).cut();
+        split_along(topo, region, r, &cut, &mut done_regions);
+    }
+}
+
+/// A sharp edge of M with the same region on both sides: a feature that
+/// the segmentation left inside a region, which would be rounded off.
+fn inside_sharp(topo: &Topology, sharp: &[bool], region: &[u32], e: usize) -> bool {
+    let ed = &topo.edges[e];
+    sharp[e] && ed.is_interior() && region[ed.faces[0] as usize] == region[ed.faces[1] as usize]
+}
+
+/// The result of [`Dangling::search`]: the vertex reached (`None`: all of them, or
+/// past the bound), path lengths and predecessors (vertex, edge).
+type Search = (Option<u32>, HashMap<u32, f64>, HashMap<u32, (u32, usize)>);
+
+/// The sharp chains inside one region `r` (step 3b of [`segment`]) and
+/// the searches that cut `r` along them and their continuations.
+struct Dangling<'a> {
+    mesh: &'a TriMesh,
+    topo: &'a Topology,
+    region: &'a [u32],
+    r: u32,
+    /// The sharp edges inside `r`.
+    chain: Vec<usize>,
+    /// Those edges by vertex.
+    deg: HashMap<u32, Vec<usize>>,
+    chain_verts: HashSet<u32>,
+    /// Free ends: chain vertices with one chain edge, not on `r`'s
+    /// boundary, sorted.
+    ends: Vec<u32>,
+    ends_set: HashSet<u32>,
+    /// Chain (connected component of the chain edges) of each chain vertex.
+    chain_of: HashMap<u32, usize>,
+    /// Per chain, whether it touches `r`'s boundary.
+    anchored_chain: Vec<bool>,
+}
+
+impl<'a> Dangling<'a> {
+    fn new(
+        mesh: &'a TriMesh,
+        topo: &'a Topology,
+        sharp: &[bool],
+        region: &'a [u32],
+        r: u32,
+    ) -> Self {
+        let mut d = Dangling {
+            mesh,
+            topo,
+            region,
+            r,
+            chain: Vec::new(),
+            deg: HashMap::new(),
+            chain_verts: HashSet::new(),
+            ends: Vec::new(),
+            ends_set: HashSet::new(),
+            chain_of: HashMap::new(),
+            anchored_chain: Vec::new(),
         };
-        // Inside-sharp edges of r and their vertex degrees.
-        let chain: Vec<usize> = (0..topo.edges.len())
-            .filter(|&e| inside(e, region) && in_r(topo.edges[e].faces[0]))
+        d.chain = (0..topo.edges.len())
+            .filter(|&e| inside_sharp(topo, sharp, region, e) && d.in_r(topo.edges[e].faces[0]))
             .collect();
-        let mut deg: HashMap<u32, Vec<usize>> = HashMap::new();
-        for &e in &chain {
+        for &e in &d.chain {
             for &v in &topo.edges[e].v {
-                deg.entry(v).or_default().push(e);
+                d.deg.entry(v).or_default().push(e);
             }
         }
-        let mut cut: HashSet<usize> = chain.iter().copied().collect();
-        let chain_verts: HashSet<u32> = deg.keys().copied().collect();
-        let mut ends: Vec<u32> = deg
+        d.chain_verts = d.deg.keys().copied().collect();
+        let mut ends: Vec<u32> = d
+            .deg
             .iter()
-            .filter(|(&v, es)| es.len() == 1 && !on_boundary(v))
+            .filter(|(&v, es)| es.len() == 1 && !d.on_boundary(v))
             .map(|(&v, _)| v)
             .collect();
         ends.sort_unstable();
-        // Chains: connected components of the inside-sharp edges, and
-        // whether each is anchored on the region boundary (a cut that
-        // reaches an anchored chain, a T-junction or a join of two anchored
-        // tips, reaches the boundary through it, so the region still falls
-        // apart).
-        let mut chain_of: HashMap<u32, usize> = HashMap::new();
-        let mut anchored_chain: Vec<bool> = Vec::new();
-        let mut starts: Vec<u32> = deg.keys().copied().collect();
+        d.ends_set = ends.iter().copied().collect();
+        d.ends = ends;
+        d.label_chains();
+        d
+    }
+
+    fn in_r(&self, f: u32) -> bool {
+        f != u32::MAX && self.region[f as usize] == self.r
+    }
+
+    /// Vertex on `r`'s boundary: an edge of `r` with another region (or no
+    /// face) on its other side.
+    fn on_boundary(&self, v: u32) -> bool {
+        self.topo.vertex_edges(v).iter().any(|&e| {
+            let [f0, f1] = self.topo.edges[e as usize].faces;
+            (self.in_r(f0) || self.in_r(f1)) && !(self.in_r(f0) && self.in_r(f1))
+        })
+    }
+
+    /// Chains: connected components of the inside-sharp edges, and
+    /// whether each is anchored on the region boundary (a cut that
+    /// reaches an anchored chain, a T-junction or a join of two anchored
+    /// tips, reaches the boundary through it, so the region still falls
+    /// apart).
+    fn label_chains(&mut self) {
+        let mut starts: Vec<u32> = self.deg.keys().copied().collect();
         starts.sort_unstable();
         for s0 in starts {
-            if chain_of.contains_key(&s0) {
+            if self.chain_of.contains_key(&s0) {
                 continue;
             }
-            let c = anchored_chain.len();
+            let c = self.anchored_chain.len();
             let mut anchored = false;
-            chain_of.insert(s0, c);
+            self.chain_of.insert(s0, c);
             let mut stack = vec![s0];
             while let Some(v) = stack.pop() {
-                anchored |= on_boundary(v);
-                for &e in &deg[&v] {
-                    for &w in &topo.edges[e].v {
-                        if let std::collections::hash_map::Entry::Vacant(x) = chain_of.entry(w) {
+                anchored |= self.on_boundary(v);
+                for &e in &self.deg[&v] {
+                    for &w in &self.topo.edges[e].v {
+                        if let std::collections::hash_map::Entry::Vacant(x) = self.chain_of.entry(w)
+                        {
                             x.insert(c);
                             stack.push(w);
                         }
                     }
                 }
             }
-            anchored_chain.push(anchored);
+            self.anchored_chain.push(anchored);
         }
-        let ends_set: HashSet<u32> = ends.iter().copied().collect();
-        let anchored = |v: u32| chain_of.get(&v).is_some_and(|&c| anchored_chain[c]);
-        // Dijkstra over r's edges from `start`, through no chain vertex but
-        // the free ends. With a direction `d` (the straightest
-        // continuation): cost = length × (2 − cos)², so going straight on
-        // costs 1 per unit, sideways 4, backwards 9, and the search stops at
-        // the first vertex on the boundary or on another anchored chain.
-        // Without (joins): plain length, never
-        // through the boundary. Returns the vertex reached (`None`: all of
-        // them, or past `bound`), path lengths and predecessors.
-        type Search = (Option<u32>, HashMap<u32, f64>, HashMap<u32, (u32, usize)>);
-        let search = |start: u32, d: Option<DVec3>, bound: f64, cut: &HashSet<usize>| -> Search {
-            let own = chain_of.get(&start).copied();
-            let is_target_chain = |w: u32| {
-                chain_of
-                    .get(&w)
-                    .is_some_and(|&c| Some(c) != own && anchored_chain[c])
-                    && !ends_set.contains(&w)
-            };
-            let mut cost: HashMap<u32, f64> = HashMap::new();
-            let mut length: HashMap<u32, f64> = HashMap::new();
-            let mut pred: HashMap<u32, (u32, usize)> = HashMap::new();
-            let mut heap = BinaryHeap::new();
-            cost.insert(start, 0.0);
-            length.insert(start, 0.0);
-            heap.push((std::cmp::Reverse(OrdF(0.0)), start));
-            while let Some((std::cmp::Reverse(OrdF(du)), u)) = heap.pop() {
-                if du > cost.get(&u).copied().unwrap_or(f64::INFINITY) {
-                    continue;
-                }
-                if du > bound {
-                    break;
-                }
-                // A continuation ends on the region boundary or on another
-                // feature chain (a T-junction: the cut closes there).
-                if u != start && (on_boundary(u) || (d.is_some() && is_target_chain(u))) {
-                    if d.is_some() {
-                        return (Some(u), length, pred);
-                    }
-                    continue;
-                }
-                if u != start && ends_set.contains(&u) {
-                    continue;
-                }
-                for &e in topo.vertex_edges(u) {
-                    let ed = &topo.edges[e as usize];
-                    if !(in_r(ed.faces[0]) || in_r(ed.faces[1])) || cut.contains(&(e as usize)) {
-                        continue;
-                    }
-                    let w = if ed.v[0] == u { ed.v[1] } else { ed.v[0] };
-                    if chain_verts.contains(&w)
-                        && !(d.is_none() && ends_set.contains(&w))
-                        && !(d.is_some() && is_target_chain(w))
-                    {
-                        continue;
-                    }
-                    let step = mesh.positions[w as usize] - mesh.positions[u as usize];
-                    let len = step.length();
-                    let nd = du
-                        + match d {
-                            Some(d) => len * (2.0 - step.normalize_or_zero().dot(d)).powi(2),
-                            None => len,
-                        };
-                    if nd < cost.get(&w).copied().unwrap_or(f64::INFINITY) {
-                        cost.insert(w, nd);
-                        length.insert(w, length[&u] + len);
-                        pred.insert(w, (u, e as usize));
-                        heap.push((std::cmp::Reverse(OrdF(nd)), w));
-                    }
-                }
-            }
-            (None, length, pred)
-        };
-        let path = |pred: &HashMap<u32, (u32, usize)>, from: u32, mut v: u32| {
-            let mut edges = Vec::new();
-            while v != from {
-                let (u, e) = pred[&v];
-                edges.push(e);
-                v = u;
-            }
-            edges
-        };
-        // Each free end's straightest continuation to the boundary.
-        let exts: Vec<Option<(f64, Vec<usize>)>> = ends
-            .iter()
-            .map(|&end| {
-                let e = deg[&end][0];
-                let ed = &topo.edges[e];
-                let prev = if ed.v[0] == end { ed.v[1] } else { ed.v[0] };
-                let d = (mesh.positions[end as usize] - mesh.positions[prev as usize])
-                    .normalize_or_zero();
-                let (reached, length, pred) = search(end, Some(d), f64::INFINITY, &cut);
-                reached.map(|v| (length[&v], path(&pred, end, v)))
-            })
-            .collect();
-        // Two anchored features fading out towards each other are joined by
-        // their shortest path when it is shorter than the two continuations
-        // together: one cut closes the region the features bound, with the
-        // least new boundary (a curve and its control points) instead of
-        // two cuts running on to the boundary. The search stops past the
-        // longest join that could still win.
+    }
+
+    fn anchored(&self, v: u32) -> bool {
+        self.chain_of
+            .get(&v)
+            .is_some_and(|&c| self.anchored_chain[c])
+    }
+
+    /// The cut of `r`: its chains, joins of two anchored tips where they
+    /// are shorter, and the straightest continuation of every other free
+    /// end.
+    fn cut(&self) -> HashSet<usize> {
+        let mut cut: HashSet<usize> = self.chain.iter().copied().collect();
+        let exts = self.continuations(&cut);
         let ext_len = |i: usize| exts[i].as_ref().map_or(f64::INFINITY, |x| x.0);
-        let longest = (0..ends.len()).map(ext_len).fold(0.0, f64::max);
-        let mut joins: Vec<(f64, usize, usize, Vec<usize>)> = Vec::new();
-        for (i, &a) in ends.iter().enumerate() {
-            if !anchored(a) {
-                continue;
-            }
-            let (_, length, pred) = search(a, None, ext_len(i) + longest, &cut);
-            for (j, &b) in ends.iter().enumerate().skip(i + 1) {
-                if chain_of.get(&a) == chain_of.get(&b) || !anchored(b) {
-                    continue;
-                }
-                if let Some(&l) = length.get(&b) {
-                    joins.push((l, i, j, path(&pred, a, b)));
-                }
-            }
-        }
-        joins.sort_by(|x, y| x.0.total_cmp(&y.0).then((x.1, x.2).cmp(&(y.1, y.2))));
-        let mut open = vec![true; ends.len()];
-        for (l, i, j, p) in joins {
+        let mut open = vec![true; self.ends.len()];
+        for (l, i, j, p) in self.joins(&exts, &cut) {
             if open[i] && open[j] && l < ext_len(i) + ext_len(j) {
                 cut.extend(p);
                 open[i] = false;
@@ -682,48 +685,197 @@ fn extend_dangling(mesh: &TriMesh, topo: &Topology, sharp: &[bool], region: &mut
                 cut.extend(p.iter().copied());
             }
         }
-        // Split r along the cut.
-        let tris: Vec<usize> = (0..nt).filter(|&t| region[t] == r).collect();
-        let mut label: HashMap<usize, u32> = HashMap::new();
-        let mut ncomp = 0u32;
-        for &s in &tris {
-            if label.contains_key(&s) {
+        cut
+    }
+
+    /// Each free end's straightest continuation to the boundary (or to
+    /// another anchored chain): its length and edges, `None` if the search
+    /// reaches neither.
+    fn continuations(&self, cut: &HashSet<usize>) -> Vec<Option<(f64, Vec<usize>)>> {
+        self.ends
+            .iter()
+            .map(|&end| {
+                let e = self.deg[&end][0];
+                let ed = &self.topo.edges[e];
+                let prev = if ed.v[0] == end { ed.v[1] } else { ed.v[0] };
+                let p = &self.mesh.positions;
+                let d = (p[end as usize] - p[prev as usize]).normalize_or_zero();
+                let (reached, length, pred) = self.search(end, Some(d), f64::INFINITY, cut);
+                reached.map(|v| (length[&v], path(&pred, end, v)))
+            })
+            .collect()
+    }
+
+    /// Two anchored features fading out towards each other are joined by
+    /// their shortest path when it is shorter than the two continuations
+    /// together: one cut closes the region the features bound, with the
+    /// least new boundary (a curve and its control points) instead of
+    /// two cuts running on to the boundary. The candidates, shortest
+    /// first: `(length, end i, end j, edges)`. The search stops past the
+    /// longest join that could still win.
+    fn joins(
+        &self,
+        exts: &[Option<(f64, Vec<usize>)>],
+        cut: &HashSet<usize>,
+    ) -> Vec<(f64, usize, usize, Vec<usize>)> {
+        let ext_len = |i: usize| exts[i].as_ref().map_or(f64::INFINITY, |x| x.0);
+        let longest = (0..self.ends.len()).map(ext_len).fold(0.0, f64::max);
+        let mut joins: Vec<(f64, usize, usize, Vec<usize>)> = Vec::new();
+        for (i, &a) in self.ends.iter().enumerate() {
+            if !self.anchored(a) {
                 continue;
             }
-            let mut q = vec![s];
-            label.insert(s, ncomp);
-            while let Some(f) = q.pop() {
-                for &e in &topo.tri_edges[f] {
-                    if cut.contains(&(e as usize)) {
-                        continue;
-                    }
-                    if let Some(g) = topo.edges[e as usize].other_face(f as u32) {
-                        let g = g as usize;
-                        if region[g] == r && !label.contains_key(&g) {
-                            label.insert(g, ncomp);
-                            q.push(g);
-                        }
+            let (_, length, pred) = self.search(a, None, ext_len(i) + longest, cut);
+            for (j, &b) in self.ends.iter().enumerate().skip(i + 1) {
+                if self.chain_of.get(&a) == self.chain_of.get(&b) || !self.anchored(b) {
+                    continue;
+                }
+                if let Some(&l) = length.get(&b) {
+                    joins.push((l, i, j, path(&pred, a, b)));
+                }
+            }
+        }
+        joins.sort_by(|x, y| x.0.total_cmp(&y.0).then((x.1, x.2).cmp(&(y.1, y.2))));
+        joins
+    }
+
+    /// Dijkstra over r's edges from `start`, through no chain vertex but
+    /// the free ends. With a direction `d` (the straightest
+    /// continuation): cost = length × (2 − cos)², so going straight on
+    /// costs 1 per unit, sideways 4, backwards 9, and the search stops at
+    /// the first vertex on the boundary or on another anchored chain.
+    /// Without (joins): plain length, never through the boundary.
+    fn search(&self, start: u32, d: Option<DVec3>, bound: f64, cut: &HashSet<usize>) -> Search {
+        let (topo, mesh) = (self.topo, self.mesh);
+        let own = self.chain_of.get(&start).copied();
+        let is_target_chain = |w: u32| {
+            self.chain_of
+                .get(&w)
+                .is_some_and(|&c| Some(c) != own && self.anchored_chain[c])
+                && !self.ends_set.contains(&w)
+        };
+        let mut cost: HashMap<u32, f64> = HashMap::new();
+        let mut length: HashMap<u32, f64> = HashMap::new();
+        let mut pred: HashMap<u32, (u32, usize)> = HashMap::new();
+        let mut heap = BinaryHeap::new();
+        cost.insert(start, 0.0);
+        length.insert(start, 0.0);
+        heap.push((Reverse(OrdF(0.0)), start));
+        while let Some((Reverse(OrdF(du)), u)) = heap.pop() {
+            if du > cost.get(&u).copied().unwrap_or(f64::INFINITY) {
+                continue;
+            }
+            if du > bound {
+                break;
+            }
+            // A continuation ends on the region boundary or on another
+            // feature chain (a T-junction: the cut closes there).
+            if u != start && (self.on_boundary(u) || (d.is_some() && is_target_chain(u))) {
+                if d.is_some() {
+                    return (Some(u), length, pred);
+                }
+                continue;
+            }
+            if u != start && self.ends_set.contains(&u) {
+                continue;
+            }
+            for &e in topo.vertex_edges(u) {
+                let ed = &topo.edges[e as usize];
+                if !(self.in_r(ed.faces[0]) || self.in_r(ed.faces[1]))
+                    || cut.contains(&(e as usize))
+                {
+                    continue;
+                }
+                let w = if ed.v[0] == u { ed.v[1] } else { ed.v[0] };
+                if self.chain_verts.contains(&w)
+                    && !(d.is_none() && self.ends_set.contains(&w))
+                    && !(d.is_some() && is_target_chain(w))
+                {
+                    continue;
+                }
+                let step = mesh.positions[w as usize] - mesh.positions[u as usize];
+                let len = step.length();
+                let nd = du
+                    + match d {
+                        Some(d) => len * (2.0 - step.normalize_or_zero().dot(d)).powi(2),
+                        None => len,
+                    };
+                if nd < cost.get(&w).copied().unwrap_or(f64::INFINITY) {
+                    cost.insert(w, nd);
+                    length.insert(w, length[&u] + len);
+                    pred.insert(w, (u, e as usize));
+                    heap.push((Reverse(OrdF(nd)), w));
+                }
+            }
+        }
+        (None, length, pred)
+    }
+}
+
+/// The edges of the search path from `from` to `v` (`pred`: predecessor
+/// vertex and edge of each vertex reached).
+fn path(pred: &HashMap<u32, (u32, usize)>, from: u32, mut v: u32) -> Vec<usize> {
+    let mut edges = Vec::new();
+    while v != from {
+        let (u, e) = pred[&v];
+        edges.push(e);
+        v = u;
+    }
+    edges
+}
+
+/// Splits region `r` along `cut` (step 3b): its triangles connected
+/// across no cut edge; the first part keeps `r`, the others get new
+/// labels, marked done (each was cut already). Nothing changes if the cut
+/// does not separate `r`.
+fn split_along(
+    topo: &Topology,
+    region: &mut [u32],
+    r: u32,
+    cut: &HashSet<usize>,
+    done_regions: &mut HashSet<u32>,
+) {
+    let nt = region.len();
+    let tris: Vec<usize> = (0..nt).filter(|&t| region[t] == r).collect();
+    let mut label: HashMap<usize, u32> = HashMap::new();
+    let mut ncomp = 0u32;
+    for &s in &tris {
+        if label.contains_key(&s) {
+            continue;
+        }
+        let mut q = vec![s];
+        label.insert(s, ncomp);
+        while let Some(f) = q.pop() {
+            for &e in &topo.tri_edges[f] {
+                if cut.contains(&(e as usize)) {
+                    continue;
+                }
+                if let Some(g) = topo.edges[e as usize].other_face(f as u32) {
+                    let g = g as usize;
+                    if region[g] == r && !label.contains_key(&g) {
+                        label.insert(g, ncomp);
+                        q.push(g);
                     }
                 }
             }
-            ncomp += 1;
         }
-        if ncomp < 2 {
-            continue;
-        }
-        let base = region
-            .iter()
-            .filter(|&&x| x != u32::MAX)
-            .copied()
-            .max()
-            .unwrap_or(0)
-            + 1;
-        for &t in &tris {
-            let c = label[&t];
-            if c > 0 {
-                region[t] = base + c - 1;
-                done_regions.insert(base + c - 1);
-            }
+        ncomp += 1;
+    }
+    if ncomp < 2 {
+        return;
+    }
+    let base = region
+        .iter()
+        .filter(|&&x| x != u32::MAX)
+        .copied()
+        .max()
+        .unwrap_or(0)
+        + 1;
+    for &t in &tris {
+        let c = label[&t];
+        if c > 0 {
+            region[t] = base + c - 1;
+            done_regions.insert(base + c - 1);
         }
     }
 }
