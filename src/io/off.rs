@@ -63,7 +63,18 @@ pub fn parse_off(bytes: &[u8], path: &Path) -> Result<PolySoup> {
     }
     for f in 0..h.nf {
         let (lineno, line) = lines.next().ok_or_else(|| short(&h, &lines, path, f, "faces"))?;
-        face(&h, f, lineno, line, path, &mut soup)?;
+        face(&h, f, lineno, line, path, &mut soup).map_err(|e| match f {
+            // The first "face" line not being one is the usual sign of a
+            // vertex count that is too small.
+            0 => with_hint(
+                e,
+                &format!(
+                    "; if this line is a vertex, the vertex count on line {} is too small",
+                    h.counts_line
+                ),
+            ),
+            _ => e,
+        })?;
     }
     if let Some((lineno, line)) = lines.next() {
         return Err(Error::parse(
@@ -330,6 +341,27 @@ fn face(h: &Header, f: usize, lineno: usize, line: &[u8], path: &Path, soup: &mu
         .map_err(|_| Error::parse(path, at(), "more than 2^32 face corners"))?;
     soup.face_offsets.push(end);
     Ok(())
+}
+
+/// `e` with `hint` appended to its message.
+fn with_hint(e: Error, hint: &str) -> Error {
+    match e {
+        Error::Parse {
+            path,
+            location,
+            msg,
+        } => Error::Parse {
+            path,
+            location,
+            msg: msg + hint,
+        },
+        Error::InvalidMesh { path, element, msg } => Error::InvalidMesh {
+            path,
+            element,
+            msg: msg + hint,
+        },
+        e => e,
+    }
 }
 
 /// At most 40 bytes of `t`, trimmed, for messages.

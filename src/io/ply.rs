@@ -329,6 +329,45 @@ fn push_face_end(soup: &mut PolySoup, path: &Path, at: impl Fn() -> String) -> R
     Ok(())
 }
 
+/// Positions from vertex records of `size` bytes each; `records` starts at
+/// byte `at` of the file.
+#[allow(clippy::too_many_arguments)]
+fn fixed_vertices(
+    records: &[u8],
+    at: usize,
+    size: usize,
+    big: bool,
+    el: &Element,
+    lay: &Layout,
+    path: &Path,
+    soup: &mut PolySoup,
+) -> Result<()> {
+    let mut offs = [0usize; 3];
+    let mut tys = [Scalar::F32; 3];
+    for (k, &pi) in lay.xyz.iter().enumerate() {
+        offs[k] = el.props[..pi]
+            .iter()
+            .map(|p| match p {
+                Property::Scalar { ty, .. } => ty.size(),
+                Property::List { .. } => 0,
+            })
+            .sum();
+        if let Property::Scalar { ty, .. } = el.props[pi] {
+            tys[k] = ty;
+        }
+    }
+    for (k, rec) in records.chunks_exact(size.max(1)).enumerate() {
+        let p = DVec3::new(
+            tys[0].decode(&rec[offs[0]..], big),
+            tys[1].decode(&rec[offs[1]..], big),
+            tys[2].decode(&rec[offs[2]..], big),
+        );
+        check_finite(p, path, || format!("vertex {k} (byte {})", at + k * size))?;
+        soup.positions.push(p);
+    }
+    Ok(())
+}
+
 #[allow(clippy::too_many_arguments)]
 fn read_binary(
     body: &[u8],
@@ -378,32 +417,9 @@ fn read_binary(
         }
         if let (Some(size), true) = (fixed, ei == lay.vertex) {
             // Fast path: fixed-size vertex records.
-            let mut offs = [0usize; 3];
-            let mut tys = [Scalar::F32; 3];
-            for (k, &pi) in lay.xyz.iter().enumerate() {
-                offs[k] = el.props[..pi]
-                    .iter()
-                    .map(|p| match p {
-                        Property::Scalar { ty, .. } => ty.size(),
-                        Property::List { .. } => 0,
-                    })
-                    .sum();
-                if let Property::Scalar { ty, .. } = el.props[pi] {
-                    tys[k] = ty;
-                }
-            }
             let n = el.count * size; // checked against the body length above
-            for (k, rec) in body[pos..pos + n].chunks_exact(size.max(1)).enumerate() {
-                let p = DVec3::new(
-                    tys[0].decode(&rec[offs[0]..], big),
-                    tys[1].decode(&rec[offs[1]..], big),
-                    tys[2].decode(&rec[offs[2]..], big),
-                );
-                check_finite(p, path, || {
-                    format!("vertex {k} (byte {})", body_offset + pos + k * size)
-                })?;
-                soup.positions.push(p);
-            }
+            let at = body_offset + pos;
+            fixed_vertices(&body[pos..pos + n], at, size, big, el, lay, path, soup)?;
             pos += n;
             continue;
         }

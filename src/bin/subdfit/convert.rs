@@ -73,7 +73,7 @@ pub struct ConvertArgs {
 }
 
 pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
-    let input = subdfit::io::read_mesh(&a.mesh)?;
+    let input = crate::read_input(&a.mesh)?;
     let opts = ConvertOptions::default()
         .with_tolerance(Some(a.tolerance))
         .with_target_faces(a.faces)
