@@ -253,7 +253,7 @@ fn vertex(h: &Header, i: usize, lineno: usize, line: &[u8], path: &Path) -> Resu
         let v = parse_f64(t).ok_or_else(|| Error::parse(path, at(), bad_token("number", t)))?;
         if n < h.coords {
             c[n] = to_f32(v).ok_or_else(|| {
-                Error::invalid_mesh(path, at(), format!("coordinate {v} overflows single precision"))
+                Error::invalid_mesh(path, at(), format!("coordinate {v:e} overflows single precision"))
             })?;
         }
         n += 1;

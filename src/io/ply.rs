@@ -474,7 +474,8 @@ fn read_binary(
                             for j in 0..c {
                                 let v = item.decode(&body[pos + j * is..], big);
                                 let i = to_index(v).map_err(|m| {
-                                    Error::invalid_mesh(path, format!("face {k}"), m)
+                                    let at = body_offset + pos + j * is;
+                                    Error::invalid_mesh(path, format!("face {k} (byte {at})"), m)
                                 })?;
                                 soup.face_indices.push(i);
                             }
@@ -501,7 +502,7 @@ fn read_binary(
             path,
             format!("byte {}", body_offset + pos),
             format!(
-                "{} bytes of trailing data after the last element the header announces",
+                "{} bytes of trailing data after the last element the header announces: the counts in the header are wrong, or the file has extra data",
                 body.len() - pos
             ),
         ));
@@ -610,7 +611,7 @@ fn read_ascii(
             path,
             format!("line {}", toks.line),
             format!(
-                "trailing data after the last element the header announces ('{}')",
+                "trailing data after the last element the header announces ('{}'): the counts in the header are wrong, or the file has extra data",
                 String::from_utf8_lossy(&t[..t.len().min(40)])
             ),
         ));

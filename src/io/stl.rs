@@ -25,7 +25,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::io::text::{bad_token, bom_len, non_finite, parse_f64, to_f32, SpanTokens};
+use crate::io::text::{bom_len, non_finite, parse_f64, to_f32, SpanTokens};
 use crate::mesh::PolySoup;
 use crate::DVec3;
 
@@ -155,7 +155,8 @@ fn read_ascii(bytes: &[u8], path: &Path, w: &mut Welder) -> Result<()> {
         },
         path,
         facets: 0,
-        last_line: 1 + bytes.iter().filter(|&&b| b == b'\n').count(),
+        // A final newline ends the last line rather than starting one.
+        last_line: bytes.iter().filter(|&&b| b == b'\n').count() + !bytes.ends_with(b"\n") as usize,
     };
     while s.toks.next().is_some() {
         // `solid` was checked for the first solid; its name is the rest of
@@ -189,6 +190,11 @@ fn read_ascii(bytes: &[u8], path: &Path, w: &mut Welder) -> Result<()> {
     Ok(())
 }
 
+/// At most 40 bytes of `t`, for messages.
+fn shown(t: &[u8]) -> String {
+    String::from_utf8_lossy(&t[..t.len().min(40)]).into_owned()
+}
+
 struct Ascii<'a> {
     toks: SpanTokens<'a>,
     path: &'a Path,
@@ -220,7 +226,7 @@ impl Ascii<'_> {
         Error::parse(
             self.path,
             format!("facet {} (line {})", self.facets, self.toks.line),
-            bad_token(expected, t),
+            format!("expected {expected}, found '{}'", shown(t)),
         )
     }
 
@@ -237,7 +243,7 @@ impl Ascii<'_> {
             .toks
             .next()
             .ok_or_else(|| self.eof(&format!("the {what} of facet {}", self.facets)))?;
-        parse_f64(t).ok_or_else(|| self.unexpected(t, what))
+        parse_f64(t).ok_or_else(|| self.unexpected(t, &format!("a {what}")))
     }
 
     /// One facet after its `facet` keyword.
@@ -259,7 +265,7 @@ impl Ascii<'_> {
                     Error::invalid_mesh(
                         self.path,
                         format!("facet {}, vertex {j} (line {})", self.facets, self.toks.line),
-                        format!("coordinate {v} overflows single precision"),
+                        format!("coordinate {v:e} overflows single precision"),
                     )
                 })?;
             }

@@ -143,7 +143,7 @@ case("ply_binary_ok.ply", ply_binary(), TETRA_OK, "reference: the tetrahedron, b
 case(
     "ply_nan_ascii.ply",
     ply_ascii(points=[P[0], (1, "nan", 0), P[2], P[3]]),
-    "err vertex 1 (line 12);NaN",
+    "err vertex 1 (line 11);NaN",
     "NaN in an ascii vertex",
 )
 case(
@@ -155,13 +155,13 @@ case(
 case(
     "ply_nan_binary_be.ply",
     ply_binary(points=[P[0], P[1], P[2], (0, 0, float("nan"))], big=True),
-    f"err vertex 3 (byte {PLY_HEADER_LEN + 36});NaN",
+    f"err vertex 3 (byte {PLY_HEADER_LEN - 3 + 36});NaN",
     "NaN in a big-endian vertex",
 )
 case(
     "ply_trailing_face_ascii.ply",
     ply_ascii() + "3 0 1 2\n",
-    "err line 19;trailing data",
+    "err line 18;trailing data",
     "one face more than the header announces (ascii)",
 )
 case(
@@ -173,7 +173,7 @@ case(
 case(
     "ply_truncated_ascii_vertex.ply",
     ply_ascii().split("0 1 0\n")[0] + "0 1",
-    "err vertex 2 (line 13);end of file",
+    "err vertex 2 (line 12);end of file",
     "ascii file cut inside a vertex",
 )
 case(
@@ -185,13 +185,13 @@ case(
 case(
     "ply_more_vertices_declared.ply",
     ply_ascii(nv=5),
-    "err face;end of file",
+    "err line 17;trailing data;counts in the header",
     "header announces 5 vertices, the file has 4 (the first face is read as a vertex)",
 )
 case(
     "ply_fewer_faces_declared.ply",
     ply_ascii(nf=3),
-    "err line 18;trailing data",
+    "err line 17;trailing data",
     "header announces 3 faces, the file has 4",
 )
 case(
@@ -392,8 +392,8 @@ case(
 )
 case(
     "stl_ascii_cut_mid_facet.stl",
-    stl_ascii().split("   vertex 0 0 1\n")[0] + "   vertex 0 0 1\n   vertex 0 1 0\n",
-    "err line 17 (end of file);after 1 complete facets",
+    stl_ascii().split("   vertex 0 0 1\n")[0],
+    "err line 12 (end of file);after 1 complete facets",
     "cut inside facet 1 (after two of its vertices)",
 )
 case(
@@ -405,7 +405,7 @@ case(
 case(
     "stl_ascii_nan.stl",
     stl_ascii(points=[P[0], P[1], P[2], (0, 0, "nan")]),
-    "err facet 1, vertex 2 (line 12);NaN",
+    "err facet 1, vertex 2 (line 13);NaN",
     "NaN coordinate",
 )
 case(
