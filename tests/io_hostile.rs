@@ -57,12 +57,22 @@ fn check_ok(name: &str, path: &Path, spec: &str) {
 #[test]
 fn every_hostile_file_has_its_expected_outcome() {
     let rows = manifest();
-    assert!(rows.len() >= 40, "only {} files in the manifest", rows.len());
+    assert!(
+        rows.len() >= 40,
+        "only {} files in the manifest",
+        rows.len()
+    );
     // Every mesh file of the folder is in the manifest.
     for e in std::fs::read_dir(corpus()).unwrap() {
         let name = e.unwrap().file_name().into_string().unwrap();
-        if [".obj", ".ply", ".off", ".stl"].iter().any(|x| name.ends_with(x)) {
-            assert!(rows.iter().any(|(n, _)| *n == name), "{name} not in EXPECTED.md");
+        if [".obj", ".ply", ".off", ".stl"]
+            .iter()
+            .any(|x| name.ends_with(x))
+        {
+            assert!(
+                rows.iter().any(|(n, _)| *n == name),
+                "{name} not in EXPECTED.md"
+            );
         }
     }
     // All failures at once: one run shows every file that misbehaves.
@@ -72,7 +82,9 @@ fn every_hostile_file_has_its_expected_outcome() {
         if spec.starts_with("ok") {
             let r = std::panic::catch_unwind(|| check_ok(name, &path, spec));
             if r.is_err() {
-                failures.push(format!("{name}: not the expected mesh (see the panic above)"));
+                failures.push(format!(
+                    "{name}: not the expected mesh (see the panic above)"
+                ));
             }
             continue;
         }

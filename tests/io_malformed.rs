@@ -85,7 +85,10 @@ fn missing_files_and_unknown_extensions() {
     assert!(e.to_string().contains("mesh.xyz"), "{e}");
     // Every format has a pure-Rust reader now: a missing OFF is an I/O error.
     let e = io::read_soup_with(Path::new("x.off"), Reader::Rust).unwrap_err();
-    assert!(matches!(e, Error::Io { .. }) && e.to_string().contains("x.off"), "{e}");
+    assert!(
+        matches!(e, Error::Io { .. }) && e.to_string().contains("x.off"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -97,7 +100,11 @@ fn openmesh_failures_name_the_file() {
     // file or reads nothing, which ends as an error naming the file once
     // validated.
     let e = io::read_mesh(&path).unwrap_err();
-    assert!(e.to_string().contains("garbage.off: line 1: not an OFF file"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("garbage.off: line 1: not an OFF file"),
+        "{e}"
+    );
     let s = io::read_soup_with(&path, Reader::OpenMesh);
     let e = s.and_then(|s| validate_soup(s, &path)).unwrap_err();
     assert!(e.to_string().contains("garbage.off"), "{e}");

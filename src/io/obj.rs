@@ -131,9 +131,9 @@ impl ObjState<'_> {
     fn vertex(&mut self, lineno: usize, mut toks: Tokens) -> Result<()> {
         let mut p = [0.0f64; 3];
         for (k, c) in p.iter_mut().enumerate() {
-            let t = toks.next().ok_or_else(|| {
-                self.err(lineno, format!("vertex has {k} coordinates, needs 3"))
-            })?;
+            let t = toks
+                .next()
+                .ok_or_else(|| self.err(lineno, format!("vertex has {k} coordinates, needs 3")))?;
             *c = parse_f64(t).ok_or_else(|| self.err(lineno, bad_token("coordinate", t)))?;
         }
         // An optional w or r g b may follow; they are not used, but must
@@ -159,8 +159,13 @@ impl ObjState<'_> {
         let nv = soup.positions.len() as i64;
         let start = soup.face_indices.len();
         for t in toks {
-            let i = face_vertex(t)
-                .ok_or_else(|| Error::parse(self.path, format!("line {lineno}"), bad_token("vertex index (v, v/vt, v//vn or v/vt/vn)", t)))?;
+            let i = face_vertex(t).ok_or_else(|| {
+                Error::parse(
+                    self.path,
+                    format!("line {lineno}"),
+                    bad_token("vertex index (v, v/vt, v//vn or v/vt/vn)", t),
+                )
+            })?;
             let idx = if i > 0 {
                 i - 1
             } else if i < 0 {
@@ -185,8 +190,13 @@ impl ObjState<'_> {
         if soup.face_indices.len() == start {
             return Err(self.err(lineno, "face without vertices"));
         }
-        let end = u32::try_from(soup.face_indices.len())
-            .map_err(|_| Error::parse(self.path, format!("line {lineno}"), "more than 2^32 face corners"))?;
+        let end = u32::try_from(soup.face_indices.len()).map_err(|_| {
+            Error::parse(
+                self.path,
+                format!("line {lineno}"),
+                "more than 2^32 face corners",
+            )
+        })?;
         soup.face_offsets.push(end);
         self.face_lines.push(lineno as u32);
         Ok(())
@@ -197,11 +207,14 @@ impl ObjState<'_> {
         let name = toks
             .next()
             .ok_or_else(|| self.err(lineno, "tag without a name"))?;
-        let counts = toks.next().ok_or_else(|| {
-            self.err(lineno, "tag without its nints/nfloats/nstrings counts")
-        })?;
+        let counts = toks
+            .next()
+            .ok_or_else(|| self.err(lineno, "tag without its nints/nfloats/nstrings counts"))?;
         let (ni, nf, ns) = parse_tag_counts(counts).ok_or_else(|| {
-            self.err(lineno, bad_token("tag counts nints/nfloats/nstrings", counts))
+            self.err(
+                lineno,
+                bad_token("tag counts nints/nfloats/nstrings", counts),
+            )
         })?;
         self.tag_ints.clear();
         self.tag_floats.clear();
@@ -234,7 +247,10 @@ impl ObjState<'_> {
 
     fn tag_vertex(&self, lineno: usize, i: i64) -> Result<u32> {
         u32::try_from(i).map_err(|_| {
-            self.err(lineno, format!("tag vertex index {i} is negative or too large"))
+            self.err(
+                lineno,
+                format!("tag vertex index {i} is negative or too large"),
+            )
         })
     }
 
@@ -265,7 +281,9 @@ impl ObjState<'_> {
         if ni < 1 || !(nf == 1 || nf == ni) {
             return Err(self.err(
                 lineno,
-                format!("corner tag needs >= 1 vertex and 1 or {ni} sharpness values, has {ni}/{nf}"),
+                format!(
+                    "corner tag needs >= 1 vertex and 1 or {ni} sharpness values, has {ni}/{nf}"
+                ),
             ));
         }
         for k in 0..ni {
@@ -307,7 +325,9 @@ impl ObjState<'_> {
                 return Err(Error::invalid_mesh(
                     path,
                     format!("corner tag (line {})", self.corner_lines[k]),
-                    format!("vertex {v} out of range (the file has {nv} vertices; tags are 0-based)"),
+                    format!(
+                        "vertex {v} out of range (the file has {nv} vertices; tags are 0-based)"
+                    ),
                 ));
             }
         }

@@ -58,11 +58,15 @@ pub fn parse_off(bytes: &[u8], path: &Path) -> Result<PolySoup> {
     soup.positions.reserve(h.nv.min(bytes.len() / 2));
     soup.face_offsets.reserve(h.nf.min(bytes.len() / 2));
     for i in 0..h.nv {
-        let (lineno, line) = lines.next().ok_or_else(|| short(&h, &lines, path, i, "vertices"))?;
+        let (lineno, line) = lines
+            .next()
+            .ok_or_else(|| short(&h, &lines, path, i, "vertices"))?;
         soup.positions.push(vertex(&h, i, lineno, line, path)?);
     }
     for f in 0..h.nf {
-        let (lineno, line) = lines.next().ok_or_else(|| short(&h, &lines, path, f, "faces"))?;
+        let (lineno, line) = lines
+            .next()
+            .ok_or_else(|| short(&h, &lines, path, f, "faces"))?;
         face(&h, f, lineno, line, path, &mut soup).map_err(|e| match f {
             // The first "face" line not being one is the usual sign of a
             // vertex count that is too small.
@@ -194,7 +198,10 @@ fn header(lines: &mut Lines, path: &Path) -> Result<Header> {
     let needed = dim_line as usize + 2;
     while nums.len() < needed {
         let (l, line) = lines.next().ok_or_else(|| {
-            err(lines.line, "the file ends before the vertex and face counts".into())
+            err(
+                lines.line,
+                "the file ends before the vertex and face counts".into(),
+            )
         })?;
         nums.extend(Tokens(line).map(|t| (l, t)));
     }
@@ -202,7 +209,10 @@ fn header(lines: &mut Lines, path: &Path) -> Result<Header> {
         let (l, t) = nums[needed + 1];
         return Err(err(
             l,
-            format!("expected the counts 'vertices faces [edges]', found an extra '{}'", shown(t)),
+            format!(
+                "expected the counts 'vertices faces [edges]', found an extra '{}'",
+                shown(t)
+            ),
         ));
     }
     let count = |k: usize, what: &str| -> Result<usize> {
@@ -253,7 +263,11 @@ fn vertex(h: &Header, i: usize, lineno: usize, line: &[u8], path: &Path) -> Resu
         let v = parse_f64(t).ok_or_else(|| Error::parse(path, at(), bad_token("number", t)))?;
         if n < h.coords {
             c[n] = to_f32(v).ok_or_else(|| {
-                Error::invalid_mesh(path, at(), format!("coordinate {v:e} overflows single precision"))
+                Error::invalid_mesh(
+                    path,
+                    at(),
+                    format!("coordinate {v:e} overflows single precision"),
+                )
             })?;
         }
         n += 1;
@@ -277,15 +291,27 @@ fn vertex(h: &Header, i: usize, lineno: usize, line: &[u8], path: &Path) -> Resu
                 "has {n} numbers; the header asks for {}{}{}{}",
                 if h.homogeneous { "x y z w" } else { "x y z" },
                 if h.normals { ", a normal" } else { "" },
-                if h.colours { ", a colour (1, 3 or 4 numbers)" } else { "" },
-                if h.texcoords { ", texture coordinates s t" } else { "" },
+                if h.colours {
+                    ", a colour (1, 3 or 4 numbers)"
+                } else {
+                    ""
+                },
+                if h.texcoords {
+                    ", texture coordinates s t"
+                } else {
+                    ""
+                },
             ),
         ));
     }
     let mut p = DVec3::new(c[0], c[1], c[2]);
     if h.homogeneous {
         if c[3] == 0.0 {
-            return Err(Error::invalid_mesh(path, at(), "homogeneous coordinate w = 0"));
+            return Err(Error::invalid_mesh(
+                path,
+                at(),
+                "homogeneous coordinate w = 0",
+            ));
         }
         p /= c[3];
     }
@@ -295,27 +321,49 @@ fn vertex(h: &Header, i: usize, lineno: usize, line: &[u8], path: &Path) -> Resu
     Ok(p)
 }
 
-fn face(h: &Header, f: usize, lineno: usize, line: &[u8], path: &Path, soup: &mut PolySoup) -> Result<()> {
+fn face(
+    h: &Header,
+    f: usize,
+    lineno: usize,
+    line: &[u8],
+    path: &Path,
+    soup: &mut PolySoup,
+) -> Result<()> {
     let at = || format!("face {f} (line {lineno})");
     let mut toks = Tokens(line);
     let t = toks.next().unwrap_or_default();
-    let int = |t: &[u8]| std::str::from_utf8(t).ok().and_then(|s| s.parse::<u64>().ok());
+    let int = |t: &[u8]| {
+        std::str::from_utf8(t)
+            .ok()
+            .and_then(|s| s.parse::<u64>().ok())
+    };
     let n = int(t).ok_or_else(|| {
-        Error::parse(path, at(), bad_token("vertex count (a face line is 'n i1 ... in')", t))
+        Error::parse(
+            path,
+            at(),
+            bad_token("vertex count (a face line is 'n i1 ... in')", t),
+        )
     })?;
     if n < 3 {
-        return Err(Error::invalid_mesh(path, at(), format!("has {n} vertices, needs at least 3")));
+        return Err(Error::invalid_mesh(
+            path,
+            at(),
+            format!("has {n} vertices, needs at least 3"),
+        ));
     }
     for k in 0..n {
-        let t = toks.next().ok_or_else(|| {
-            Error::parse(path, at(), format!("announces {n} vertices, has {k}"))
-        })?;
+        let t = toks
+            .next()
+            .ok_or_else(|| Error::parse(path, at(), format!("announces {n} vertices, has {k}")))?;
         let i = int(t).ok_or_else(|| Error::parse(path, at(), bad_token("vertex index", t)))?;
         if i >= h.nv as u64 {
             return Err(Error::invalid_mesh(
                 path,
                 at(),
-                format!("vertex index {i} out of range (the file has {} vertices)", h.nv),
+                format!(
+                    "vertex index {i} out of range (the file has {} vertices)",
+                    h.nv
+                ),
             ));
         }
         soup.face_indices.push(i as u32);

@@ -101,7 +101,8 @@ impl Welder {
         let next = self.soup.positions.len() as u32;
         let soup = &mut self.soup;
         *self.index.entry(key).or_insert_with(|| {
-            soup.positions.push(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
+            soup.positions
+                .push(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
             next
         })
     }
@@ -114,7 +115,9 @@ impl Welder {
             let i = self.corner(p);
             self.soup.face_indices.push(i);
         }
-        self.soup.face_offsets.push(self.soup.face_indices.len() as u32);
+        self.soup
+            .face_offsets
+            .push(self.soup.face_indices.len() as u32);
     }
 }
 
@@ -264,7 +267,10 @@ impl Ascii<'_> {
                 *x = to_f32(v).ok_or_else(|| {
                     Error::invalid_mesh(
                         self.path,
-                        format!("facet {}, vertex {j} (line {})", self.facets, self.toks.line),
+                        format!(
+                            "facet {}, vertex {j} (line {})",
+                            self.facets, self.toks.line
+                        ),
                         format!("coordinate {v:e} overflows single precision"),
                     )
                 })?;
@@ -272,7 +278,10 @@ impl Ascii<'_> {
             if let Some(msg) = non_finite(DVec3::from_array(p)) {
                 return Err(Error::invalid_mesh(
                     self.path,
-                    format!("facet {}, vertex {j} (line {})", self.facets, self.toks.line),
+                    format!(
+                        "facet {}, vertex {j} (line {})",
+                        self.facets, self.toks.line
+                    ),
                     msg,
                 ));
             }

@@ -97,7 +97,8 @@ pub fn progress_bars(quiet: bool) -> impl FnMut(&str, f64) -> bool {
 
 pub fn fit(a: FitArgs) -> Result<ExitCode> {
     let mut timer = StageTimer::default();
-    let input = timer.run("read", || subdfit::io::read_mesh(&a.mesh))
+    let input = timer
+        .run("read", || subdfit::io::read_mesh(&a.mesh))
         .context("input mesh")?;
     let control = crate::read_control(&a.control)?;
     let caster = timer.run("raycaster", || {

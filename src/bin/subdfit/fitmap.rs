@@ -153,8 +153,7 @@ pub fn colours(f: &Fitmap, by: ColourBy) -> Vec<[u8; 3]> {
 
 pub fn fitmap(a: FitmapArgs) -> Result<ExitCode> {
     let t0 = Instant::now();
-    let vm =
-        crate::read_input(&a.mesh)?;
+    let vm = crate::read_input(&a.mesh)?;
     let mesh = vm.mesh;
     let seconds_read = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
