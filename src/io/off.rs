@@ -7,8 +7,7 @@
 //! different messages from run to run; it takes a `#` comment line for the
 //! counts, refuses counts on the `OFF` line and per-face colours, and invents
 //! copies of the last face when the file has fewer faces than it declares.
-//! The format is small and no maintained Rust crate reads it with line-exact
-//! errors, so it is parsed here.
+//! The format is small; parsing it here gives errors that name the line.
 //!
 //! Supported:
 //! - header keyword `[ST][C][N][4][n]OFF` (texture coordinates, colours,

@@ -5,9 +5,10 @@
 //! ascii file is cut (a file cut mid-facet read as 79 of its 1,280 faces
 //! without a word), does not look at NaN coordinates, and reports every
 //! failure as a mesh without faces. The format is two pages long; parsing it
-//! here gives errors that name the facet, the line or the byte. The crates
-//! that read STL (`stl_io`, `nom_stl`) either lack positions in errors or
-//! accept truncated binary files, so they would not help with that.
+//! here gives errors that name the facet, the line or the byte. The Rust
+//! crate for it, `stl_io`, returns `std::io::Error`s that name neither; its
+//! vertex welding would also have to match OpenMesh's for outputs to stay
+//! unchanged, which is simpler to guarantee here (see below).
 //!
 //! Binary or ascii: a file whose size is exactly `84 + 50 n` for the `n` at
 //! byte 80 is binary; a NUL-free file starting with `solid` is ascii (many
@@ -19,7 +20,9 @@
 //! of first appearance; `-0` and `0` are the same point. Unlike OpenMesh,
 //! facets that collapse by that (two equal corners) are kept, so that
 //! validation counts and reports them instead of them vanishing here.
-//! Coordinates are single precision, as stored in binary STL.
+//! Coordinates are single precision, as stored in binary STL; ascii ones are
+//! rounded to it, as OpenMesh did, so that meshes read before keep
+//! byte-identical outputs.
 
 use std::collections::HashMap;
 use std::path::Path;
