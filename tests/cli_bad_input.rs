@@ -138,3 +138,42 @@ fn limit_of_the_cube_corners_through_the_cli() {
         }
     }
 }
+
+/// A command reading two meshes says which one is bad: "input mesh" for M,
+/// "control mesh" for the given control mesh, each with its file.
+#[test]
+fn fit_names_the_role_of_the_bad_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = write(dir.path(), "quad.obj", &format!("{QUAD_HEADER}f 1 2 3 4\n"));
+    let bad = write(
+        dir.path(),
+        "bom_nan.off",
+        "\u{feff}OFF\n3 1 0\n0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n",
+    );
+    let out = dir.path().join("out");
+    let run = |mesh: &Path, control: &Path| {
+        subdfit(&[
+            "fit",
+            mesh.to_str().unwrap(),
+            control.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--quiet",
+        ])
+    };
+    let (code, _, err) = run(&bad, &good);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("input mesh: ")
+            && err.contains("bom_nan.off: vertex 1 (line 4)")
+            && err.contains("NaN"),
+        "{err}"
+    );
+    let (code, _, err) = run(&good, &bad);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("control mesh: ") && err.contains("bom_nan.off: vertex 1 (line 4)"),
+        "{err}"
+    );
+    assert!(!out.exists(), "partial output left behind");
+}

@@ -237,12 +237,12 @@ fn ply_ascii_binary_le_be_with_any_types_agree() {
 }
 
 #[test]
-fn off_and_stl_through_openmesh() {
+fn off_and_stl_read_like_openmesh() {
     let dir = tempfile::tempdir().unwrap();
     let cube = subdfit::fixtures::cube();
     // OFF: the quad cube.
     // No comment line: OpenMesh's OFF reader takes "# ..." for the counts and
-    // silently reads nothing.
+    // silently reads nothing (it is compared with the Rust reader below).
     let mut off = String::from("OFF\n8 6 0\n");
     for p in cube.positions() {
         off += &format!("{} {} {}\n", p.x, p.y, p.z);
@@ -255,9 +255,11 @@ fn off_and_stl_through_openmesh() {
     let s = io::read_soup(&off_path).unwrap();
     assert_eq!(s.positions, cube.positions());
     assert_eq!(polygons(&s), cube.to_polygons());
+    let om = io::read_soup_with(&off_path, Reader::OpenMesh).unwrap();
+    assert_same_soup(&s, &om, "cube.off");
 
-    // STL: the tetrahedron as 4 unconnected facets; OpenMesh merges the
-    // 12 corners back into 4 vertices.
+    // STL: the tetrahedron as 4 unconnected facets; the reader merges the
+    // 12 corners back into 4 vertices, in the order OpenMesh did.
     let p = [DVec3::ZERO, DVec3::X, DVec3::Y, DVec3::Z];
     let tris = [[0usize, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
     let mut ascii = String::from("solid tetra\n");
@@ -282,10 +284,15 @@ fn off_and_stl_through_openmesh() {
         let path = dir.path().join(name);
         std::fs::write(&path, bytes).unwrap();
         let v = io::read_mesh(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let (a, b) = (
+            io::read_soup(&path).unwrap(),
+            io::read_soup_with(&path, Reader::OpenMesh).unwrap(),
+        );
+        assert_same_soup(&a, &b, name);
         let r = &v.report;
         assert_eq!((r.vertices, r.triangles, r.edges), (4, 4, 6), "{name}");
         assert!(r.closed && r.manifold, "{name}: {r}");
-        // Same triangles as drawn, up to the vertex numbering OpenMesh chose.
+        // Same triangles as drawn, up to the vertex numbering.
         for (t, tri) in v.mesh.triangles.iter().enumerate() {
             let got: Vec<DVec3> = tri.iter().map(|&i| v.mesh.positions[i as usize]).collect();
             let want: Vec<DVec3> = tris[t].iter().map(|&i| p[i]).collect();

@@ -1,5 +1,11 @@
-//! Mesh input and output. Pure-Rust readers for OBJ and PLY, OpenMesh (C++)
-//! for OBJ, PLY, OFF and STL; writers for OBJ and binary PLY.
+//! Mesh input and output. Pure-Rust readers for OBJ, PLY, OFF and STL (the
+//! default), OpenMesh's (C++) for the same formats as a cross-check; writers
+//! for OBJ and binary PLY.
+//!
+//! The readers never return a mesh that is not what the file says: a BOM is
+//! skipped, and truncation, counts that disagree with the data, trailing
+//! data, out-of-range indices and NaN/infinite coordinates are errors naming
+//! the file and the line, byte, vertex or face.
 //!
 //! Readers return the raw [`PolySoup`]; [`read_mesh`] adds validation
 //! ([`crate::mesh::validate_soup`]) and [`read_control_mesh`] builds a
@@ -7,8 +13,11 @@
 
 mod obj;
 mod obj_uv;
+mod off;
 mod openmesh;
 mod ply;
+mod stl;
+mod text;
 pub mod usd;
 mod write;
 
@@ -19,17 +28,22 @@ use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId}
 
 pub use obj::{parse_obj, read_obj, ObjMesh};
 pub use obj_uv::{control_obj_with_uvs, write_control_obj_with_uvs};
+pub use off::{parse_off, read_off};
 pub use openmesh::read_openmesh;
 pub use ply::{parse_ply, read_ply};
+pub use stl::{parse_stl, read_stl};
+pub(crate) use text::non_finite;
 pub use usd::write_usda;
 pub use write::{write_atomically, write_control_obj, write_obj, write_ply};
 
 /// Which implementation parses a file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Reader {
-    /// Pure-Rust readers: OBJ and PLY.
+    /// Pure-Rust readers: OBJ, PLY, OFF, STL.
     Rust,
-    /// OpenMesh's readers: OBJ, PLY, OFF, STL.
+    /// OpenMesh's readers: OBJ, PLY, OFF, STL. Kept for cross-checks only:
+    /// its OFF reader reads uninitialised memory and its STL reader accepts
+    /// truncated files (see the `off` and `stl` module docs).
     OpenMesh,
 }
 
@@ -60,17 +74,13 @@ impl Format {
         }
     }
 
-    /// The reader used by default: pure Rust where there is one.
+    /// The reader used by default: pure Rust for every format.
     pub fn default_reader(self) -> Reader {
-        match self {
-            Format::Obj | Format::Ply => Reader::Rust,
-            Format::Off | Format::Stl => Reader::OpenMesh,
-        }
+        Reader::Rust
     }
 }
 
-/// Reads a polygon soup from `path`, picking the reader from the extension:
-/// OBJ and PLY in pure Rust, OFF and STL through OpenMesh.
+/// Reads a polygon soup from `path`, picking the format from the extension.
 pub fn read_soup(path: &Path) -> Result<PolySoup> {
     read_soup_with(path, Format::from_path(path)?.default_reader())
 }
@@ -81,10 +91,8 @@ pub fn read_soup_with(path: &Path, reader: Reader) -> Result<PolySoup> {
     match (reader, format) {
         (Reader::Rust, Format::Obj) => Ok(read_obj(path)?.soup),
         (Reader::Rust, Format::Ply) => read_ply(path),
-        (Reader::Rust, f) => Err(Error::InvalidArgument(format!(
-            "{}: the pure-Rust readers do not handle {f:?}; use the OpenMesh reader",
-            path.display()
-        ))),
+        (Reader::Rust, Format::Off) => read_off(path),
+        (Reader::Rust, Format::Stl) => read_stl(path),
         (Reader::OpenMesh, _) => read_openmesh(path),
     }
 }

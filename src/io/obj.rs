@@ -2,12 +2,18 @@
 //!
 //! Supported: `v x y z [w | r g b]`, `f` with any number of corners in the
 //! forms `v`, `v/vt`, `v//vn`, `v/vt/vn`, negative (relative) indices, `#`
-//! comments, CRLF line ends. Ignored: `vt vn vp g o s usemtl mtllib l p` and
+//! comments, CRLF line ends, `\` line continuation, a leading UTF-8 byte
+//! order mark. Non-finite coordinates are errors naming the vertex and the
+//! line. Ignored: `vt vn vp g o s usemtl mtllib l p` and
 //! unknown statements. OpenSubdiv's shape files (`regression/shapes/*.h`,
 //! parsed by `regression/common/shape_utils.cpp`) add tags
 //! `t <name> <nints>/<nfloats>/<nstrings> ints... floats... strings...` with
 //! **0-based** vertex indices; `crease` (an edge chain with one sharpness for
 //! the chain or one per edge) and `corner` are kept, other tags ignored.
+//!
+//! OBJ declares no counts, so a file cut between two statements cannot be
+//! told from a shorter file; a statement cut short (`v 1 2`, `f 1/1 2/`) is
+//! an error naming its line.
 //!
 //! The whole file is read into memory and scanned in place: no allocation per
 //! line (the 1.3 MB bunny as OBJ parses in a few milliseconds).
@@ -15,6 +21,9 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
+use crate::io::text::{
+    bad_token, bom_len, non_finite, parse_f64, parse_i64, strip_comment, Tokens,
+};
 use crate::mesh::PolySoup;
 use crate::DVec3;
 
@@ -37,234 +46,313 @@ pub fn read_obj(path: &Path) -> Result<ObjMesh> {
 
 /// Parses OBJ text already in memory; `path` only names the file in errors.
 pub fn parse_obj(bytes: &[u8], path: &Path) -> Result<ObjMesh> {
-    let mut out = ObjMesh {
-        soup: PolySoup::new(),
-        ..ObjMesh::default()
+    let mut st = ObjState {
+        path,
+        out: ObjMesh {
+            soup: PolySoup::new(),
+            ..ObjMesh::default()
+        },
+        face_lines: Vec::new(),
+        crease_lines: Vec::new(),
+        corner_lines: Vec::new(),
+        tag_ints: Vec::new(),
+        tag_floats: Vec::new(),
     };
     // A rough guess that avoids most reallocations: ~30 bytes per `v` line.
-    out.soup.positions.reserve(bytes.len() / 64);
-    // Line of each face and of each tag, for errors raised after the scan
-    // (positive indices may refer to vertices defined later in the file).
-    let mut face_lines: Vec<u32> = Vec::new();
-    let mut crease_lines: Vec<u32> = Vec::new();
-    let mut corner_lines: Vec<u32> = Vec::new();
-    let mut tag_ints: Vec<i64> = Vec::new();
-    let mut tag_floats: Vec<f64> = Vec::new();
+    st.out.soup.positions.reserve(bytes.len() / 64);
+    for_each_line(&bytes[bom_len(bytes)..], |lineno, line| {
+        st.statement(lineno, line)
+    })?;
+    st.finish()
+}
 
-    for (lineno0, raw_line) in bytes.split(|&b| b == b'\n').enumerate() {
-        let lineno = lineno0 + 1;
-        let line = match raw_line.iter().position(|&b| b == b'#') {
-            Some(k) => &raw_line[..k],
-            None => raw_line,
+/// Calls `f(line number, logical line)` for every line of `text`, comments
+/// removed. A `\` ending a line joins the next one to it (OBJ spec, "line
+/// continuation"); the joined line is reported at its first physical line.
+/// The backslash is looked for after the comment is removed, so that a
+/// comment ending in one (`# saved in C:\models\`) does not swallow the next
+/// statement: losing a `v` line would shift every index after it.
+fn for_each_line(text: &[u8], mut f: impl FnMut(usize, &[u8]) -> Result<()>) -> Result<()> {
+    let mut joined: Vec<u8> = Vec::new();
+    let mut joined_line = 0;
+    for (k, raw) in text.split(|&b| b == b'\n').enumerate() {
+        let line = strip_comment(raw.strip_suffix(b"\r").unwrap_or(raw));
+        let trimmed = line.trim_ascii_end();
+        let (body, continued) = match trimmed.strip_suffix(b"\\") {
+            Some(b) => (b, true),
+            None => (line, false),
         };
+        if !continued && joined.is_empty() {
+            f(k + 1, line)?;
+            continue;
+        }
+        if joined.is_empty() {
+            joined_line = k + 1;
+        }
+        joined.extend_from_slice(body);
+        joined.push(b' ');
+        if !continued {
+            f(joined_line, &joined)?;
+            joined.clear();
+        }
+    }
+    if !joined.is_empty() {
+        // A continuation on the last line: the statement simply ends there.
+        f(joined_line, &joined)?;
+    }
+    Ok(())
+}
+
+/// The reader's state between lines.
+struct ObjState<'p> {
+    path: &'p Path,
+    out: ObjMesh,
+    /// Line of each face and of each tag, for errors raised after the scan
+    /// (positive indices may refer to vertices defined later in the file).
+    face_lines: Vec<u32>,
+    crease_lines: Vec<u32>,
+    corner_lines: Vec<u32>,
+    tag_ints: Vec<i64>,
+    tag_floats: Vec<f64>,
+}
+
+impl ObjState<'_> {
+    fn err(&self, lineno: usize, msg: impl Into<String>) -> Error {
+        Error::parse(self.path, format!("line {lineno}"), msg)
+    }
+
+    fn statement(&mut self, lineno: usize, line: &[u8]) -> Result<()> {
         let mut toks = Tokens(line);
-        let Some(key) = toks.next() else { continue };
-        let at = || format!("line {lineno}");
-        match key {
-            b"v" => {
-                let mut p = [0.0f64; 3];
-                for (k, c) in p.iter_mut().enumerate() {
-                    let t = toks.next().ok_or_else(|| {
-                        Error::parse(path, at(), format!("vertex has {k} coordinates, needs 3"))
-                    })?;
-                    *c = parse_f64(t)
-                        .ok_or_else(|| Error::parse(path, at(), bad_token("coordinate", t)))?;
-                }
-                // An optional w or r g b may follow; they are not used, but
-                // must still be numbers or the line is not what we think.
-                for t in toks {
-                    parse_f64(t).ok_or_else(|| Error::parse(path, at(), bad_token("number", t)))?;
-                }
-                out.soup.positions.push(DVec3::from_array(p));
-            }
-            b"f" => {
-                let nv = out.soup.positions.len() as i64;
-                let start = out.soup.face_indices.len();
-                for t in toks {
-                    let vtok = match t.iter().position(|&b| b == b'/') {
-                        Some(k) => &t[..k],
-                        None => t,
-                    };
-                    let i = parse_i64(vtok)
-                        .ok_or_else(|| Error::parse(path, at(), bad_token("vertex index", t)))?;
-                    let idx = if i > 0 {
-                        i - 1
-                    } else if i < 0 {
-                        // Relative to the vertices defined so far (OBJ spec).
-                        nv + i
-                    } else {
-                        return Err(Error::parse(
-                            path,
-                            at(),
-                            "vertex index 0 (OBJ indices start at 1)",
-                        ));
-                    };
-                    if !(0..=u32::MAX as i64 - 1).contains(&idx) {
-                        return Err(Error::invalid_mesh(
-                            path,
-                            format!("face {} (line {lineno})", face_lines.len()),
-                            format!("vertex index {i} out of range ({nv} vertices defined so far)"),
-                        ));
-                    }
-                    out.soup.face_indices.push(idx as u32);
-                }
-                if out.soup.face_indices.len() == start {
-                    return Err(Error::parse(path, at(), "face without vertices"));
-                }
-                let end = u32::try_from(out.soup.face_indices.len())
-                    .map_err(|_| Error::parse(path, at(), "more than 2^32 face corners"))?;
-                out.soup.face_offsets.push(end);
-                face_lines.push(lineno as u32);
-            }
-            b"t" => {
-                let name = toks
-                    .next()
-                    .ok_or_else(|| Error::parse(path, at(), "tag without a name"))?;
-                let counts = toks.next().ok_or_else(|| {
-                    Error::parse(path, at(), "tag without its nints/nfloats/nstrings counts")
-                })?;
-                let (ni, nf, ns) = parse_tag_counts(counts).ok_or_else(|| {
-                    Error::parse(
-                        path,
-                        at(),
-                        bad_token("tag counts nints/nfloats/nstrings", counts),
-                    )
-                })?;
-                tag_ints.clear();
-                tag_floats.clear();
-                for _ in 0..ni {
-                    let t = toks.next().ok_or_else(|| {
-                        Error::parse(path, at(), "tag has fewer integers than announced")
-                    })?;
-                    tag_ints.push(
-                        parse_i64(t)
-                            .ok_or_else(|| Error::parse(path, at(), bad_token("integer", t)))?,
-                    );
-                }
-                for _ in 0..nf {
-                    let t = toks.next().ok_or_else(|| {
-                        Error::parse(path, at(), "tag has fewer floats than announced")
-                    })?;
-                    tag_floats.push(
-                        parse_f64(t)
-                            .ok_or_else(|| Error::parse(path, at(), bad_token("float", t)))?,
-                    );
-                }
-                let strings = toks.count();
-                if strings != ns {
-                    return Err(Error::parse(
-                        path,
-                        at(),
-                        format!("tag announces {ns} strings, has {strings}"),
-                    ));
-                }
-                let vertex = |i: i64| {
-                    u32::try_from(i).map_err(|_| {
-                        Error::parse(
-                            path,
-                            at(),
-                            format!("tag vertex index {i} is negative or too large"),
-                        )
-                    })
-                };
-                match name {
-                    b"crease" => {
-                        // shape_utils: one sharpness for the whole chain, or one per edge.
-                        if ni < 2 || !(nf == 1 || nf == ni - 1) {
-                            return Err(Error::parse(
-                                path,
-                                at(),
-                                format!("crease tag needs >= 2 vertices and 1 or {} sharpness values, has {ni}/{nf}", ni.saturating_sub(1)),
-                            ));
-                        }
-                        for k in 0..ni - 1 {
-                            let s = tag_floats[if nf == 1 { 0 } else { k }];
-                            out.creases
-                                .push((vertex(tag_ints[k])?, vertex(tag_ints[k + 1])?, s));
-                            crease_lines.push(lineno as u32);
-                        }
-                    }
-                    b"corner" => {
-                        if ni < 1 || !(nf == 1 || nf == ni) {
-                            return Err(Error::parse(
-                                path,
-                                at(),
-                                format!("corner tag needs >= 1 vertex and 1 or {ni} sharpness values, has {ni}/{nf}"),
-                            ));
-                        }
-                        for k in 0..ni {
-                            let s = tag_floats[if nf == 1 { 0 } else { k }];
-                            out.corners.push((vertex(tag_ints[k])?, s));
-                            corner_lines.push(lineno as u32);
-                        }
-                    }
-                    // interpolateboundary, facevaryingpropagatecorners, hole, ...:
-                    // scheme options this crate does not take from files.
-                    _ => {}
-                }
-            }
+        match toks.next() {
+            Some(b"v") => self.vertex(lineno, toks),
+            Some(b"f") => self.face(lineno, toks),
+            Some(b"t") => self.tag(lineno, toks),
             // Attributes, grouping and materials carry nothing we use.
-            _ => {}
+            _ => Ok(()),
         }
     }
 
-    let nv = out.soup.positions.len();
-    for (f, face) in out.soup.faces().enumerate() {
-        if let Some(&i) = face.iter().find(|&&i| i as usize >= nv) {
+    fn vertex(&mut self, lineno: usize, mut toks: Tokens) -> Result<()> {
+        let mut p = [0.0f64; 3];
+        for (k, c) in p.iter_mut().enumerate() {
+            let t = toks
+                .next()
+                .ok_or_else(|| self.err(lineno, format!("vertex has {k} coordinates, needs 3")))?;
+            *c = parse_f64(t).ok_or_else(|| self.err(lineno, bad_token("coordinate", t)))?;
+        }
+        // An optional w or r g b may follow; they are not used, but must
+        // still be numbers or the line is not what we think.
+        for t in toks {
+            parse_f64(t).ok_or_else(|| self.err(lineno, bad_token("number", t)))?;
+        }
+        let p = DVec3::from_array(p);
+        if let Some(msg) = non_finite(p) {
+            let i = self.out.soup.positions.len();
             return Err(Error::invalid_mesh(
-                path,
-                format!("face {f} (line {})", face_lines[f]),
+                self.path,
+                format!("vertex {i} (line {lineno})"),
+                msg,
+            ));
+        }
+        self.out.soup.positions.push(p);
+        Ok(())
+    }
+
+    fn face(&mut self, lineno: usize, toks: Tokens) -> Result<()> {
+        let soup = &mut self.out.soup;
+        let nv = soup.positions.len() as i64;
+        let start = soup.face_indices.len();
+        for t in toks {
+            let i = face_vertex(t).ok_or_else(|| {
+                Error::parse(
+                    self.path,
+                    format!("line {lineno}"),
+                    bad_token("vertex index (v, v/vt, v//vn or v/vt/vn)", t),
+                )
+            })?;
+            let idx = if i > 0 {
+                i - 1
+            } else if i < 0 {
+                // Relative to the vertices defined so far (OBJ spec).
+                nv + i
+            } else {
+                return Err(Error::parse(
+                    self.path,
+                    format!("line {lineno}"),
+                    "vertex index 0 (OBJ indices start at 1)",
+                ));
+            };
+            if !(0..=u32::MAX as i64 - 1).contains(&idx) {
+                return Err(Error::invalid_mesh(
+                    self.path,
+                    format!("face {} (line {lineno})", self.face_lines.len()),
+                    format!("vertex index {i} out of range ({nv} vertices defined so far)"),
+                ));
+            }
+            soup.face_indices.push(idx as u32);
+        }
+        if soup.face_indices.len() == start {
+            return Err(self.err(lineno, "face without vertices"));
+        }
+        let end = u32::try_from(soup.face_indices.len()).map_err(|_| {
+            Error::parse(
+                self.path,
+                format!("line {lineno}"),
+                "more than 2^32 face corners",
+            )
+        })?;
+        soup.face_offsets.push(end);
+        self.face_lines.push(lineno as u32);
+        Ok(())
+    }
+
+    /// `t <name> <nints>/<nfloats>/<nstrings> ints... floats... strings...`
+    fn tag(&mut self, lineno: usize, mut toks: Tokens) -> Result<()> {
+        let name = toks
+            .next()
+            .ok_or_else(|| self.err(lineno, "tag without a name"))?;
+        let counts = toks
+            .next()
+            .ok_or_else(|| self.err(lineno, "tag without its nints/nfloats/nstrings counts"))?;
+        let (ni, nf, ns) = parse_tag_counts(counts).ok_or_else(|| {
+            self.err(
+                lineno,
+                bad_token("tag counts nints/nfloats/nstrings", counts),
+            )
+        })?;
+        self.tag_ints.clear();
+        self.tag_floats.clear();
+        for _ in 0..ni {
+            let t = toks
+                .next()
+                .ok_or_else(|| self.err(lineno, "tag has fewer integers than announced"))?;
+            let v = parse_i64(t).ok_or_else(|| self.err(lineno, bad_token("integer", t)))?;
+            self.tag_ints.push(v);
+        }
+        for _ in 0..nf {
+            let t = toks
+                .next()
+                .ok_or_else(|| self.err(lineno, "tag has fewer floats than announced"))?;
+            let v = parse_f64(t).ok_or_else(|| self.err(lineno, bad_token("float", t)))?;
+            self.tag_floats.push(v);
+        }
+        let strings = toks.count();
+        if strings != ns {
+            return Err(self.err(lineno, format!("tag announces {ns} strings, has {strings}")));
+        }
+        match name {
+            b"crease" => self.crease_tag(lineno),
+            b"corner" => self.corner_tag(lineno),
+            // interpolateboundary, facevaryingpropagatecorners, hole, ...:
+            // scheme options this crate does not take from files.
+            _ => Ok(()),
+        }
+    }
+
+    fn tag_vertex(&self, lineno: usize, i: i64) -> Result<u32> {
+        u32::try_from(i).map_err(|_| {
+            self.err(
+                lineno,
+                format!("tag vertex index {i} is negative or too large"),
+            )
+        })
+    }
+
+    /// shape_utils: one sharpness for the whole chain, or one per edge.
+    fn crease_tag(&mut self, lineno: usize) -> Result<()> {
+        let (ni, nf) = (self.tag_ints.len(), self.tag_floats.len());
+        if ni < 2 || !(nf == 1 || nf == ni - 1) {
+            return Err(self.err(
+                lineno,
                 format!(
-                    "vertex index {} out of range (the file has {nv} vertices)",
-                    i as u64 + 1
+                    "crease tag needs >= 2 vertices and 1 or {} sharpness values, has {ni}/{nf}",
+                    ni.saturating_sub(1)
                 ),
             ));
         }
+        for k in 0..ni - 1 {
+            let s = self.tag_floats[if nf == 1 { 0 } else { k }];
+            let a = self.tag_vertex(lineno, self.tag_ints[k])?;
+            let b = self.tag_vertex(lineno, self.tag_ints[k + 1])?;
+            self.out.creases.push((a, b, s));
+            self.crease_lines.push(lineno as u32);
+        }
+        Ok(())
     }
-    for (k, &(a, b, _)) in out.creases.iter().enumerate() {
-        if a as usize >= nv || b as usize >= nv {
-            return Err(Error::invalid_mesh(
-                path,
-                format!("crease tag (line {})", crease_lines[k]),
-                format!("edge ({a}, {b}) names a vertex out of range (the file has {nv} vertices; tags are 0-based)"),
+
+    fn corner_tag(&mut self, lineno: usize) -> Result<()> {
+        let (ni, nf) = (self.tag_ints.len(), self.tag_floats.len());
+        if ni < 1 || !(nf == 1 || nf == ni) {
+            return Err(self.err(
+                lineno,
+                format!(
+                    "corner tag needs >= 1 vertex and 1 or {ni} sharpness values, has {ni}/{nf}"
+                ),
             ));
         }
-    }
-    for (k, &(v, _)) in out.corners.iter().enumerate() {
-        if v as usize >= nv {
-            return Err(Error::invalid_mesh(
-                path,
-                format!("corner tag (line {})", corner_lines[k]),
-                format!("vertex {v} out of range (the file has {nv} vertices; tags are 0-based)"),
-            ));
+        for k in 0..ni {
+            let s = self.tag_floats[if nf == 1 { 0 } else { k }];
+            let v = self.tag_vertex(lineno, self.tag_ints[k])?;
+            self.out.corners.push((v, s));
+            self.corner_lines.push(lineno as u32);
         }
+        Ok(())
     }
-    Ok(out)
-}
 
-/// Whitespace-separated tokens of one line, without allocating.
-struct Tokens<'a>(&'a [u8]);
-
-impl<'a> Iterator for Tokens<'a> {
-    type Item = &'a [u8];
-    fn next(&mut self) -> Option<&'a [u8]> {
-        let s = self.0;
-        let start = s.iter().position(|b| !b.is_ascii_whitespace())?;
-        let len = s[start..]
-            .iter()
-            .position(|b| b.is_ascii_whitespace())
-            .unwrap_or(s.len() - start);
-        self.0 = &s[start + len..];
-        Some(&s[start..start + len])
+    /// Range checks that need the whole file (forward references).
+    fn finish(self) -> Result<ObjMesh> {
+        let (out, path) = (&self.out, self.path);
+        let nv = out.soup.positions.len();
+        for (f, face) in out.soup.faces().enumerate() {
+            if let Some(&i) = face.iter().find(|&&i| i as usize >= nv) {
+                return Err(Error::invalid_mesh(
+                    path,
+                    format!("face {f} (line {})", self.face_lines[f]),
+                    format!(
+                        "vertex index {} out of range (the file has {nv} vertices)",
+                        i as u64 + 1
+                    ),
+                ));
+            }
+        }
+        for (k, &(a, b, _)) in out.creases.iter().enumerate() {
+            if a as usize >= nv || b as usize >= nv {
+                return Err(Error::invalid_mesh(
+                    path,
+                    format!("crease tag (line {})", self.crease_lines[k]),
+                    format!("edge ({a}, {b}) names a vertex out of range (the file has {nv} vertices; tags are 0-based)"),
+                ));
+            }
+        }
+        for (k, &(v, _)) in out.corners.iter().enumerate() {
+            if v as usize >= nv {
+                return Err(Error::invalid_mesh(
+                    path,
+                    format!("corner tag (line {})", self.corner_lines[k]),
+                    format!(
+                        "vertex {v} out of range (the file has {nv} vertices; tags are 0-based)"
+                    ),
+                ));
+            }
+        }
+        Ok(self.out)
     }
 }
 
-pub(crate) fn parse_f64(t: &[u8]) -> Option<f64> {
-    std::str::from_utf8(t).ok()?.parse().ok()
-}
-
-pub(crate) fn parse_i64(t: &[u8]) -> Option<i64> {
-    std::str::from_utf8(t).ok()?.parse().ok()
+/// The vertex index of a face corner `v`, `v/vt`, `v//vn` or `v/vt/vn`.
+/// The texture and normal parts are unused but must be integers where the
+/// form has them: `1/` or `1//` is a record cut short, not a corner.
+fn face_vertex(t: &[u8]) -> Option<i64> {
+    let mut parts = t.split(|&b| b == b'/');
+    let v = parse_i64(parts.next()?)?;
+    let int = |p: &[u8]| parse_i64(p).is_some();
+    let ok = match (parts.next(), parts.next(), parts.next()) {
+        (None, _, _) => true,
+        (Some(vt), None, _) => int(vt),
+        (Some(vt), Some(vn), None) => (vt.is_empty() || int(vt)) && int(vn),
+        _ => false,
+    };
+    ok.then_some(v)
 }
 
 fn parse_tag_counts(t: &[u8]) -> Option<(usize, usize, usize)> {
@@ -274,9 +362,4 @@ fn parse_tag_counts(t: &[u8]) -> Option<(usize, usize, usize)> {
     let mut n = || -> Option<usize> { std::str::from_utf8(it.next()?).ok()?.parse().ok() };
     let r = (n()?, n()?, n()?);
     it.next().is_none().then_some(r)
-}
-
-pub(crate) fn bad_token(what: &str, t: &[u8]) -> String {
-    let shown: String = String::from_utf8_lossy(&t[..t.len().min(40)]).into_owned();
-    format!("expected a {what}, found '{shown}'")
 }

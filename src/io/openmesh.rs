@@ -1,7 +1,8 @@
 //! OpenMesh (C++) reader: OBJ, PLY, OFF and STL (ascii and binary).
 //!
-//! Used for the formats the pure-Rust readers do not cover and as an
-//! independent cross-check of those that they do. OpenMesh parses into a
+//! Not the default for any format: an independent cross-check of the
+//! pure-Rust readers, which agree with it on valid files (its OFF and STL
+//! readers mishandle hostile ones, see `off.rs` and `stl.rs`). OpenMesh parses into a
 //! collecting importer (see `cpp/openmesh_bridge.cpp`), so non-manifold input
 //! reaches [`crate::mesh::validate_soup`] unrepaired. One deliberate
 //! difference: OpenMesh's STL reader merges coincident corners into shared

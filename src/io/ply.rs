@@ -11,7 +11,7 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::io::obj::{bad_token, parse_f64};
+use crate::io::text::{bad_token, bom_len, non_finite, parse_f64, SpanTokens};
 use crate::mesh::PolySoup;
 use crate::DVec3;
 
@@ -129,7 +129,9 @@ struct Header {
 }
 
 fn parse_header(bytes: &[u8], path: &Path) -> Result<Header> {
-    let mut pos = 0usize;
+    // A UTF-8 BOM before `ply` (Windows editors) is skipped; offsets in
+    // errors stay offsets in the file.
+    let mut pos = bom_len(bytes);
     let mut lineno = 0usize;
     let mut format = None;
     let mut elements: Vec<Element> = Vec::new();
@@ -327,6 +329,45 @@ fn push_face_end(soup: &mut PolySoup, path: &Path, at: impl Fn() -> String) -> R
     Ok(())
 }
 
+/// Positions from vertex records of `size` bytes each; `records` starts at
+/// byte `at` of the file.
+#[allow(clippy::too_many_arguments)]
+fn fixed_vertices(
+    records: &[u8],
+    at: usize,
+    size: usize,
+    big: bool,
+    el: &Element,
+    lay: &Layout,
+    path: &Path,
+    soup: &mut PolySoup,
+) -> Result<()> {
+    let mut offs = [0usize; 3];
+    let mut tys = [Scalar::F32; 3];
+    for (k, &pi) in lay.xyz.iter().enumerate() {
+        offs[k] = el.props[..pi]
+            .iter()
+            .map(|p| match p {
+                Property::Scalar { ty, .. } => ty.size(),
+                Property::List { .. } => 0,
+            })
+            .sum();
+        if let Property::Scalar { ty, .. } = el.props[pi] {
+            tys[k] = ty;
+        }
+    }
+    for (k, rec) in records.chunks_exact(size.max(1)).enumerate() {
+        let p = DVec3::new(
+            tys[0].decode(&rec[offs[0]..], big),
+            tys[1].decode(&rec[offs[1]..], big),
+            tys[2].decode(&rec[offs[2]..], big),
+        );
+        check_finite(p, path, || format!("vertex {k} (byte {})", at + k * size))?;
+        soup.positions.push(p);
+    }
+    Ok(())
+}
+
 #[allow(clippy::too_many_arguments)]
 fn read_binary(
     body: &[u8],
@@ -376,28 +417,9 @@ fn read_binary(
         }
         if let (Some(size), true) = (fixed, ei == lay.vertex) {
             // Fast path: fixed-size vertex records.
-            let mut offs = [0usize; 3];
-            let mut tys = [Scalar::F32; 3];
-            for (k, &pi) in lay.xyz.iter().enumerate() {
-                offs[k] = el.props[..pi]
-                    .iter()
-                    .map(|p| match p {
-                        Property::Scalar { ty, .. } => ty.size(),
-                        Property::List { .. } => 0,
-                    })
-                    .sum();
-                if let Property::Scalar { ty, .. } = el.props[pi] {
-                    tys[k] = ty;
-                }
-            }
             let n = el.count * size; // checked against the body length above
-            for rec in body[pos..pos + n].chunks_exact(size.max(1)) {
-                soup.positions.push(DVec3::new(
-                    tys[0].decode(&rec[offs[0]..], big),
-                    tys[1].decode(&rec[offs[1]..], big),
-                    tys[2].decode(&rec[offs[2]..], big),
-                ));
-            }
+            let at = body_offset + pos;
+            fixed_vertices(&body[pos..pos + n], at, size, big, el, lay, path, soup)?;
             pos += n;
             continue;
         }
@@ -413,6 +435,7 @@ fn read_binary(
         }
         let mut xyz = [0.0f64; 3];
         for k in 0..el.count {
+            let record = pos;
             for (pi, p) in el.props.iter().enumerate() {
                 match *p {
                     Property::Scalar { ty, .. } => {
@@ -451,7 +474,8 @@ fn read_binary(
                             for j in 0..c {
                                 let v = item.decode(&body[pos + j * is..], big);
                                 let i = to_index(v).map_err(|m| {
-                                    Error::invalid_mesh(path, format!("face {k}"), m)
+                                    let at = body_offset + pos + j * is;
+                                    Error::invalid_mesh(path, format!("face {k} (byte {at})"), m)
                                 })?;
                                 soup.face_indices.push(i);
                             }
@@ -461,41 +485,36 @@ fn read_binary(
                 }
             }
             if ei == lay.vertex {
-                soup.positions.push(DVec3::from_array(xyz));
+                let p = DVec3::from_array(xyz);
+                check_finite(p, path, || {
+                    format!("vertex {k} (byte {})", body_offset + record)
+                })?;
+                soup.positions.push(p);
             } else if face_prop.is_some() {
                 push_face_end(soup, path, || format!("face {k}"))?;
             }
         }
     }
+    if pos < body.len() {
+        // More data than the header announces: the counts are wrong, and
+        // whatever was read under them cannot be trusted either.
+        return Err(Error::parse(
+            path,
+            format!("byte {}", body_offset + pos),
+            format!(
+                "{} bytes of trailing data after the last element the header announces: the counts in the header are wrong, or the file has extra data",
+                body.len() - pos
+            ),
+        ));
+    }
     Ok(())
 }
 
-/// Ascii body tokens with the line they are on.
-struct AsciiTokens<'a> {
-    rest: &'a [u8],
-    line: usize,
-}
-
-impl<'a> AsciiTokens<'a> {
-    fn next(&mut self) -> Option<&'a [u8]> {
-        let s = self.rest;
-        let mut i = 0;
-        while i < s.len() && s[i].is_ascii_whitespace() {
-            if s[i] == b'\n' {
-                self.line += 1;
-            }
-            i += 1;
-        }
-        if i == s.len() {
-            self.rest = &s[i..];
-            return None;
-        }
-        let start = i;
-        while i < s.len() && !s[i].is_ascii_whitespace() {
-            i += 1;
-        }
-        self.rest = &s[i..];
-        Some(&s[start..i])
+/// Rejects a vertex with a NaN or infinite coordinate at `at()`.
+fn check_finite(p: DVec3, path: &Path, at: impl Fn() -> String) -> Result<()> {
+    match non_finite(p) {
+        Some(msg) => Err(Error::invalid_mesh(path, at(), msg)),
+        None => Ok(()),
     }
 }
 
@@ -506,7 +525,7 @@ fn read_ascii(
     path: &Path,
     soup: &mut PolySoup,
 ) -> Result<()> {
-    let mut toks = AsciiTokens {
+    let mut toks = SpanTokens {
         rest: body,
         line: h.lines + 1,
     };
@@ -522,7 +541,7 @@ fn read_ascii(
         for k in 0..el.count {
             let mut xyz = [0.0f64; 3];
             for (pi, p) in el.props.iter().enumerate() {
-                let number = |what: &str, toks: &mut AsciiTokens| -> Result<f64> {
+                let number = |what: &str, toks: &mut SpanTokens| -> Result<f64> {
                     let line = toks.line;
                     let t = toks.next().ok_or_else(|| {
                         Error::parse(
@@ -578,11 +597,24 @@ fn read_ascii(
                 }
             }
             if ei == lay.vertex {
-                soup.positions.push(DVec3::from_array(xyz));
+                let p = DVec3::from_array(xyz);
+                // `toks.line` is the line of the record's last token.
+                check_finite(p, path, || format!("vertex {k} (line {})", toks.line))?;
+                soup.positions.push(p);
             } else if face_prop.is_some() {
                 push_face_end(soup, path, || format!("face {k}"))?;
             }
         }
+    }
+    if let Some(t) = toks.next() {
+        return Err(Error::parse(
+            path,
+            format!("line {}", toks.line),
+            format!(
+                "trailing data after the last element the header announces ('{}'): the counts in the header are wrong, or the file has extra data",
+                String::from_utf8_lossy(&t[..t.len().min(40)])
+            ),
+        ));
     }
     Ok(())
 }

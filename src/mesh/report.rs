@@ -25,6 +25,7 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
+use crate::io::non_finite;
 use crate::mesh::soup::bbox;
 use crate::mesh::{PolySoup, TriMesh};
 use crate::DVec3;
@@ -117,13 +118,42 @@ pub fn zero_area_threshold(diag: f64) -> f64 {
 
 /// Validates `soup` read from `path` (named in errors).
 pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
-    let nv_in = soup.positions.len();
-    let nf_in = soup.num_faces();
     let mut report = MeshReport {
-        input_vertices: nv_in,
-        input_faces: nf_in,
+        input_vertices: soup.positions.len(),
+        input_faces: soup.num_faces(),
         ..MeshReport::default()
     };
+    check_faces(&soup, path, &mut report)?;
+    let keep = drop_bad_faces(&soup, &mut report);
+    if keep.is_empty() {
+        let nf_in = soup.num_faces();
+        return Err(Error::invalid_mesh(
+            path,
+            "mesh",
+            if nf_in == 0 {
+                "has no faces".to_string()
+            } else {
+                format!("none of its {nf_in} faces is usable (all degenerate or duplicate)")
+            },
+        ));
+    }
+    report.faces = keep.len();
+    let (positions, remap) = used_vertices(&soup, &keep, path, &mut report)?;
+    let triangles = triangulate(&soup, &keep, &positions, &remap, &mut report);
+    topology(&positions, &triangles, &mut report);
+    Ok(ValidatedMesh {
+        mesh: TriMesh {
+            positions,
+            triangles,
+        },
+        report,
+    })
+}
+
+/// Hard errors on the faces: inconsistent offsets, fewer than 3 corners, an
+/// index out of range. Counts the face sizes.
+fn check_faces(soup: &PolySoup, path: &Path, report: &mut MeshReport) -> Result<()> {
+    let nv_in = soup.positions.len();
     if soup.face_offsets.first().copied().unwrap_or(0) != 0
         || soup.face_offsets.windows(2).any(|w| w[1] < w[0])
         || soup.face_offsets.last().map_or(0, |&e| e as usize) != soup.face_indices.len()
@@ -134,8 +164,6 @@ pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
             "inconsistent face offsets",
         ));
     }
-
-    // ---- per-face checks, duplicate and degenerate faces ---------------
     for (f, face) in soup.faces().enumerate() {
         *report.face_sizes.entry(face.len()).or_default() += 1;
         if face.len() < 3 {
@@ -153,6 +181,13 @@ pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
             ));
         }
     }
+    Ok(())
+}
+
+/// The faces kept: those that repeat no vertex index and are no duplicate
+/// (same vertex set) of an earlier face. Counts and notes the others.
+fn drop_bad_faces(soup: &PolySoup, report: &mut MeshReport) -> Vec<u32> {
+    let (nv_in, nf_in) = (soup.positions.len(), soup.num_faces());
     // Each face's vertex set, sorted: a repeated index shows as two equal
     // neighbours, a duplicate face as an equal key.
     let mut sorted = soup.face_indices.clone();
@@ -210,11 +245,6 @@ pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
             }
         }
     }
-    drop(by_min);
-    drop(sorted);
-    let keep: Vec<u32> = (0..nf_in as u32)
-        .filter(|&f| !drop_face[f as usize])
-        .collect();
     if let Some(f) = first_repeated {
         report.notes.push(format!(
             "dropped {} face(s) that repeat a vertex index (first: face {f})",
@@ -227,36 +257,36 @@ pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
             report.duplicate_faces
         ));
     }
-    if keep.is_empty() {
-        return Err(Error::invalid_mesh(
-            path,
-            "mesh",
-            if nf_in == 0 {
-                "has no faces".to_string()
-            } else {
-                format!("none of its {nf_in} faces is usable (all degenerate or duplicate)")
-            },
-        ));
-    }
-    report.faces = keep.len();
+    (0..nf_in as u32)
+        .filter(|&f| !drop_face[f as usize])
+        .collect()
+}
 
-    // ---- used vertices, renumbering, finiteness -------------------------
+/// The vertices used by the kept faces, in their original order, and the
+/// old-to-new index map (`u32::MAX` for dropped ones). Sets the bounding box.
+fn used_vertices(
+    soup: &PolySoup,
+    keep: &[u32],
+    path: &Path,
+    report: &mut MeshReport,
+) -> Result<(Vec<DVec3>, Vec<u32>)> {
+    let nv_in = soup.positions.len();
     const UNUSED: u32 = u32::MAX;
     let mut remap = vec![UNUSED; nv_in];
-    for &f in &keep {
+    for &f in keep {
         for &i in soup.face(f as usize) {
             remap[i as usize] = 0;
         }
     }
     // A non-finite coordinate is an error even on an unreferenced vertex:
     // it means the file is corrupt, and the rest of it cannot be trusted.
+    // The readers already reject them with the line; this guards soups
+    // built in memory.
     if let Some(i) = soup.positions.iter().position(|p| !p.is_finite()) {
-        let p = soup.positions[i];
-        let what = if p.is_nan() { "NaN" } else { "infinite" };
         return Err(Error::invalid_mesh(
             path,
             format!("vertex {i}"),
-            format!("non-finite coordinate ({what}): {p}"),
+            non_finite(soup.positions[i]).unwrap_or_default(),
         ));
     }
     let mut positions = Vec::with_capacity(nv_in);
@@ -280,12 +310,21 @@ pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
     report.bbox_min = lo.to_array();
     report.bbox_max = hi.to_array();
     report.bbox_diagonal = (hi - lo).length();
-    let area_eps = zero_area_threshold(report.bbox_diagonal);
+    Ok((positions, remap))
+}
 
-    // ---- triangulation ----------------------------------------------------
+/// Fan-triangulates the kept faces; counts zero-area faces and polygons.
+fn triangulate(
+    soup: &PolySoup,
+    keep: &[u32],
+    positions: &[DVec3],
+    remap: &[u32],
+    report: &mut MeshReport,
+) -> Vec<[u32; 3]> {
+    let area_eps = zero_area_threshold(report.bbox_diagonal);
     let mut triangles = Vec::with_capacity(soup.face_indices.len());
     let mut polygons = 0usize;
-    for &f in &keep {
+    for &f in keep {
         let face = soup.face(f as usize);
         let mut area2 = DVec3::ZERO;
         let p0 = positions[remap[face[0] as usize] as usize];
@@ -315,15 +354,7 @@ pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
             report.zero_area_faces
         ));
     }
-
-    topology(&positions, &triangles, &mut report);
-    Ok(ValidatedMesh {
-        mesh: TriMesh {
-            positions,
-            triangles,
-        },
-        report,
-    })
+    triangles
 }
 
 fn topology(positions: &[DVec3], tris: &[[u32; 3]], r: &mut MeshReport) {

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::Args;
 use subdfit::analysis::fitmap::DEFAULT_TOLERANCE;
 use subdfit::fit::Objective;
@@ -84,7 +84,9 @@ pub struct ConvertArgs {
 pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
     // Non-manifold vertices and edges are split into manifold pieces (and
     // said so in report.json), as every later stage needs one fan per vertex.
-    let input = subdfit::io::read_mesh(&a.mesh)?.into_manifold(&a.mesh)?;
+    let input = crate::read_input(&a.mesh)?
+        .into_manifold(&a.mesh)
+        .context("input mesh")?;
     let opts = ConvertOptions::default()
         .with_tolerance(Some(a.tolerance))
         .with_target_faces(a.faces)

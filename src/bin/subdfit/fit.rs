@@ -97,11 +97,12 @@ pub fn progress_bars(quiet: bool) -> impl FnMut(&str, f64) -> bool {
 
 pub fn fit(a: FitArgs) -> Result<ExitCode> {
     let mut timer = StageTimer::default();
-    let input = timer.run("read", || {
-        subdfit::io::read_mesh(&a.mesh).and_then(|m| m.into_manifold(&a.mesh))
-    })?;
-    let control = subdfit::io::read_control_mesh(&a.control)
-        .with_context(|| format!("reading the control mesh {}", a.control.display()))?;
+    let input = timer
+        .run("read", || {
+            subdfit::io::read_mesh(&a.mesh).and_then(|m| m.into_manifold(&a.mesh))
+        })
+        .context("input mesh")?;
+    let control = crate::read_control(&a.control)?;
     let caster = timer.run("raycaster", || {
         make_raycaster(RayBackend::Embree, &input.mesh)
     })?;
@@ -162,9 +163,8 @@ pub fn print_summary(report: &subdfit::report::Report, written: &[PathBuf]) -> R
 }
 
 pub fn metrics_cmd(a: MetricsArgs) -> Result<ExitCode> {
-    let input = subdfit::io::read_mesh(&a.mesh)?;
-    let control = subdfit::io::read_control_mesh(&a.control)
-        .with_context(|| format!("reading the control mesh {}", a.control.display()))?;
+    let input = crate::read_input(&a.mesh)?;
+    let control = crate::read_control(&a.control)?;
     let caster = make_raycaster(RayBackend::Embree, &input.mesh)?;
     let m = metrics(
         &input.mesh,

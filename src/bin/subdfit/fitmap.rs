@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
@@ -153,8 +153,7 @@ pub fn colours(f: &Fitmap, by: ColourBy) -> Vec<[u8; 3]> {
 
 pub fn fitmap(a: FitmapArgs) -> Result<ExitCode> {
     let t0 = Instant::now();
-    let vm =
-        subdfit::io::read_mesh(&a.mesh).with_context(|| format!("reading {}", a.mesh.display()))?;
+    let vm = crate::read_input(&a.mesh)?;
     let mesh = vm.mesh;
     let seconds_read = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();

@@ -147,7 +147,7 @@ fn write_row(w: &mut dyn Write, prefix: &str, p: &LimitPoint) -> std::io::Result
 }
 
 pub fn limit(a: LimitArgs) -> Result<ExitCode> {
-    let mesh = subdfit::io::read_control_mesh(&a.control)?;
+    let mesh = crate::read_control(&a.control)?;
     let opts = EvalOptions::default().with_isolation_level(a.isolation);
     let eval = make_evaluator(a.backend.into(), &mesh, &opts)?;
     let out = &a.output;
@@ -182,7 +182,7 @@ pub fn limit(a: LimitArgs) -> Result<ExitCode> {
 }
 
 pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
-    let mesh = subdfit::io::read_control_mesh(&a.control)?;
+    let mesh = crate::read_control(&a.control)?;
     let opts = EvalOptions::default().with_isolation_level(a.isolation);
     let osd = make_evaluator(Backend::Osd, &mesh, &opts)?;
     let rust = make_evaluator(Backend::Rust, &mesh, &opts)?;

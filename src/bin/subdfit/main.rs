@@ -10,10 +10,10 @@ mod quadrangulate;
 mod render;
 mod simplify;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
@@ -65,7 +65,7 @@ enum Command {
 fn run(cli: Cli) -> Result<ExitCode> {
     match cli.command {
         Command::Info { mesh, json } => {
-            let m = subdfit::io::read_mesh(&mesh)?;
+            let m = read_input(&mesh)?;
             if json {
                 emit(&serde_json::to_string_pretty(&m.report)?)?;
             } else {
@@ -91,6 +91,18 @@ fn run(cli: Cli) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// Reads the dense input mesh M. Its errors start with "input mesh" (then
+/// the file and the element), so that a command reading two meshes says
+/// which one is bad; [`read_control`] does the same for the control mesh.
+pub(crate) fn read_input(path: &Path) -> Result<subdfit::mesh::ValidatedMesh> {
+    subdfit::io::read_mesh(path).context("input mesh")
+}
+
+/// Reads a control mesh; errors start with "control mesh".
+pub(crate) fn read_control(path: &Path) -> Result<subdfit::mesh::ControlMesh> {
+    subdfit::io::read_control_mesh(path).context("control mesh")
 }
 
 /// Prints `text` and a newline to stdout. A closed pipe (`subdfit info … |

@@ -38,7 +38,7 @@ struct Summary<'a> {
 
 pub fn run(a: QuadrangulateArgs) -> Result<ExitCode> {
     let t = std::time::Instant::now();
-    let m = subdfit::io::read_mesh(&a.mesh)?;
+    let m = crate::read_input(&a.mesh)?;
     let q = quadrangulate(&m.mesh, &QuadrangulateOptions::default())
         .with_context(|| format!("{}: quadrangulation failed", a.mesh.display()))?;
     subdfit::io::write_control_obj(&a.output, &q.mesh)?;

@@ -132,7 +132,7 @@ struct Summary {
 
 pub fn run(a: SimplifyArgs) -> Result<ExitCode> {
     let t = Instant::now();
-    let m = subdfit::io::read_mesh(&a.mesh)?;
+    let m = crate::read_input(&a.mesh)?;
     let seconds_read = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let caster = make_raycaster(RayBackend::Embree, &m.mesh)
