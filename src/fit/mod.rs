@@ -479,21 +479,7 @@ fn fit_from(
     report_progress(progress, "fit", 1.0)?;
     Ok(Fitted {
         control,
-        report: FitReport {
-            objective: opts.objective,
-            patches: sys.ks.len(),
-            samples_per_side: (
-                sys.ks.iter().copied().min().unwrap_or(0),
-                sys.ks.iter().copied().max().unwrap_or(0),
-            ),
-            data_samples: sys.data_samples,
-            vertex_equations: sys.vertex_equations,
-            initial_rms_permille: iterations[0].rms_permille,
-            final_rms_permille: rms * permille,
-            iterations,
-            best_iteration,
-            seconds: t0.elapsed().as_secs_f64(),
-        },
+        report: sys.report(opts, iterations, best_iteration, rms * permille, t0),
     })
 }
 
@@ -582,6 +568,34 @@ struct RoundTargets {
 }
 
 impl FitSystem {
+    /// The report of a fit over this system: its rounds, the kept one
+    /// (`best_iteration`, final RMS `final_rms_permille`) and the time
+    /// since `t0`.
+    fn report(
+        &self,
+        opts: &FitOptions,
+        iterations: Vec<FitIteration>,
+        best_iteration: usize,
+        final_rms_permille: f64,
+        t0: Instant,
+    ) -> FitReport {
+        FitReport {
+            objective: opts.objective,
+            patches: self.ks.len(),
+            samples_per_side: (
+                self.ks.iter().copied().min().unwrap_or(0),
+                self.ks.iter().copied().max().unwrap_or(0),
+            ),
+            data_samples: self.data_samples,
+            vertex_equations: self.vertex_equations,
+            initial_rms_permille: iterations[0].rms_permille,
+            final_rms_permille,
+            iterations,
+            best_iteration,
+            seconds: t0.elapsed().as_secs_f64(),
+        }
+    }
+
     /// Samples the patches ([`patch_samples`]) and the vertex equations,
     /// and on an open M moves the rim-fitted loops into `control` and adds
     /// the border-curve samples; then builds the stencils and operators.
