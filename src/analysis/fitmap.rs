@@ -1206,9 +1206,15 @@ fn level0_triangles(ctx: &Ctx, sc: &mut Scratch) {
     }
 }
 
-#[allow(clippy::needless_range_loop)] // radius index shared by several per-radius arrays
 /// The fast analysis of vertex `p`; the M-test tries radii `<= cap` only
 /// (`cap = NO_M_TEST`: none, F_S alone).
+///
+/// Fitmaps §3.1.2 (the S-fitmap from the cubic fits' residuals over the
+/// radii) and §3.1.3 (the M-fitmap, the largest radius whose cubic passes
+/// the flip test), with the fast mode's approximations: small radii are
+/// fitted on M itself ([`fit_level0_radii`]), large ones on the proxy
+/// levels ([`fit_proxy_radius`]), and the M-test estimates the flip
+/// fraction by sampling ([`FastMTest`]).
 fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> VertexResult {
     let h = RADIUS_STEPS;
     let mut res = VertexResult {
@@ -1221,133 +1227,223 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
     }
     let centre = ctx.mesh.positions[p as usize];
     let frame = Frame::from_normal(centre, n);
-    let mut errors = Vec::with_capacity(h + 1);
-    let mut balls: Vec<Option<(Cubic, FastBall)>> = (0..=h).map(|_| None).collect();
-    let mut tested = Vec::with_capacity(h + 1);
+    let mut fits = FastFits {
+        errors: Vec::with_capacity(h + 1),
+        balls: (0..=h).map(|_| None).collect(),
+        tested: Vec::with_capacity(h + 1),
+    };
 
     // Radii gathered on M itself: one traversal for all of them.
     let i0 = ctx.level_of.iter().take_while(|l| l.is_none()).count();
     sc.sorted0.clear();
     if i0 > 0 {
-        let mut sorted = std::mem::take(&mut sc.sorted);
-        let stamp = sc.next_stamp();
-        layered_balls(
-            &ctx.adj.vv,
-            &ctx.mesh.positions,
-            p,
-            centre,
-            &ctx.radii[..i0],
-            &mut sc.mark,
-            &mut sc.pmark,
-            stamp,
-            &mut sc.pending,
-            &mut sorted,
-        );
-        for i in 0..i0 {
-            let r = ctx.radii[i];
-            let nb = sorted.partition_point(|&(k, _)| k <= r);
-            if nb < MIN_FIT_POINTS {
-                continue;
-            }
-            // Every vertex of the ball, as in the exact mode: the fit costs
-            // O(|B|) and level-0 balls are small (at most about
-            // FAST_LEVEL0_MAX_VERTICES), while a subsampled cubic would move
-            // the M-test's lines and with them verdicts near τ.
-            sc.pts.clear();
-            sc.pts.extend(
-                sorted[..nb]
-                    .iter()
-                    .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
-            );
-            res.fits += 1;
-            let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, None, r) else {
-                continue;
-            };
-            errors.push((r, rms));
-            balls[i] = Some((cubic, FastBall::Level0));
-            tested.push(i);
-        }
-        // Keep the level-0 ball for the M-test; the proxies reuse the
-        // other buffer.
-        sc.sorted = std::mem::replace(&mut sc.sorted0, sorted);
+        fit_level0_radii(ctx, sc, p, &frame, i0, &mut res, &mut fits);
     }
-
     // Large radii on the proxies.
     for i in i0..=h {
-        let Some(li) = ctx.level_of[i] else { continue };
-        let level = &ctx.levels[li];
-        let r = ctx.radii[i];
-        let mut sorted = std::mem::take(&mut sc.sorted);
-        let stamp = sc.next_stamp();
-        layered_balls(
-            &level.adj,
-            &level.rep,
-            level.cluster_of[p as usize],
-            centre,
-            &[r],
-            &mut sc.level_mark[li],
-            &mut sc.level_pmark[li],
-            stamp,
-            &mut sc.pending,
-            &mut sorted,
-        );
-        sc.pts.clear();
-        sc.w.clear();
-        let total_w: f64 = sorted.iter().map(|&(_, c)| level.weight[c as usize]).sum();
-        if total_w >= MIN_FIT_POINTS as f64 && sorted.len() >= MIN_FIT_POINTS.min(10) {
-            let take = |c: u32, sc: &mut Scratch| {
-                sc.pts.push(frame.to_local(level.rep[c as usize]));
-                sc.w.push(level.weight[c as usize]);
-            };
-            if sorted.len() <= FAST_MAX_FIT_POINTS {
-                for &(_, c) in &sorted {
-                    take(c, sc);
-                }
-            } else {
-                let keep = FAST_MAX_FIT_POINTS as f64 / sorted.len() as f64;
-                for &(_, c) in &sorted {
-                    if keep_vertex(ctx.opts.seed, p, c, keep) {
-                        take(c, sc);
-                    }
-                }
-            }
-            res.fits += 1;
-            if let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, Some(&sc.w), r) {
-                errors.push((r, rms));
-                let clusters = sorted.iter().map(|&(_, c)| c).collect();
-                balls[i] = Some((cubic, FastBall::Proxy(li, clusters)));
-                tested.push(i);
-            }
-        }
-        sc.sorted = sorted;
+        fit_proxy_radius(ctx, sc, p, &frame, i, &mut res, &mut fits);
     }
 
-    let mut rays = 0;
-    // Level-0 triangles are gathered on the first level-0 test only: the
-    // top-down M-test often stops on a proxy radius first.
-    let mut tris_ready = false;
     let tested: Vec<usize> = if cap == NO_M_TEST as usize {
         Vec::new()
     } else {
-        tested.into_iter().filter(|&i| i <= cap).collect()
+        fits.tested.iter().copied().filter(|&i| i <= cap).collect()
     };
-    // One radius's test, as the exact mode's decision where the estimate
-    // is too close to τ to give it (`decide_fast`).
-    let mut test = |i: usize, sc: &mut Scratch| -> Option<bool> {
-        let (cubic, ball) = balls[i].as_ref()?;
+    let mut m_test = FastMTest {
+        ctx,
+        p,
+        frame: &frame,
+        balls: &fits.balls,
+        tris_ready: false,
+        rays: 0,
+    };
+    m_from_top_down(&mut res, &tested, |i| m_test.test(i, sc));
+    res.rays = m_test.rays;
+    res.defined = !fits.errors.is_empty();
+    res.s = s_from_errors(&fits.errors);
+    res
+}
+
+/// The fast mode's fits of one vertex, per radius index: the residuals
+/// for F_S (Fitmaps §3.1.2), the cubic and ball the M-test needs, and the
+/// radii that got a cubic, increasing.
+struct FastFits {
+    errors: Vec<(f64, f64)>,
+    balls: Vec<Option<(Cubic, FastBall)>>,
+    tested: Vec<usize>,
+}
+
+/// The fits of the radii `..i0`, gathered on M itself in one layered
+/// traversal; leaves the level-0 ball in `sc.sorted0` for the M-test.
+#[allow(clippy::needless_range_loop)] // radius index shared by several per-radius arrays
+fn fit_level0_radii(
+    ctx: &Ctx,
+    sc: &mut Scratch,
+    p: u32,
+    frame: &Frame,
+    i0: usize,
+    res: &mut VertexResult,
+    fits: &mut FastFits,
+) {
+    let centre = ctx.mesh.positions[p as usize];
+    let mut sorted = std::mem::take(&mut sc.sorted);
+    let stamp = sc.next_stamp();
+    layered_balls(
+        &ctx.adj.vv,
+        &ctx.mesh.positions,
+        p,
+        centre,
+        &ctx.radii[..i0],
+        &mut sc.mark,
+        &mut sc.pmark,
+        stamp,
+        &mut sc.pending,
+        &mut sorted,
+    );
+    for i in 0..i0 {
         let r = ctx.radii[i];
-        let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(ctx.opts.seed, p, i));
-        if matches!(ball, FastBall::Level0) && !tris_ready {
+        let nb = sorted.partition_point(|&(k, _)| k <= r);
+        if nb < MIN_FIT_POINTS {
+            continue;
+        }
+        // Every vertex of the ball, as in the exact mode: the fit costs
+        // O(|B|) and level-0 balls are small (at most about
+        // FAST_LEVEL0_MAX_VERTICES), while a subsampled cubic would move
+        // the M-test's lines and with them verdicts near τ.
+        sc.pts.clear();
+        sc.pts.extend(
+            sorted[..nb]
+                .iter()
+                .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
+        );
+        res.fits += 1;
+        let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, None, r) else {
+            continue;
+        };
+        fits.errors.push((r, rms));
+        fits.balls[i] = Some((cubic, FastBall::Level0));
+        fits.tested.push(i);
+    }
+    // Keep the level-0 ball for the M-test; the proxies reuse the
+    // other buffer.
+    sc.sorted = std::mem::replace(&mut sc.sorted0, sorted);
+}
+
+/// The fit of radius index `i` on its proxy level (none for a level-0
+/// radius): the clusters in the ball, weighted by the vertices they stand
+/// for, subsampled to [`FAST_MAX_FIT_POINTS`] by a per-vertex hash.
+fn fit_proxy_radius(
+    ctx: &Ctx,
+    sc: &mut Scratch,
+    p: u32,
+    frame: &Frame,
+    i: usize,
+    res: &mut VertexResult,
+    fits: &mut FastFits,
+) {
+    let Some(li) = ctx.level_of[i] else { return };
+    let centre = ctx.mesh.positions[p as usize];
+    let level = &ctx.levels[li];
+    let r = ctx.radii[i];
+    let mut sorted = std::mem::take(&mut sc.sorted);
+    let stamp = sc.next_stamp();
+    layered_balls(
+        &level.adj,
+        &level.rep,
+        level.cluster_of[p as usize],
+        centre,
+        &[r],
+        &mut sc.level_mark[li],
+        &mut sc.level_pmark[li],
+        stamp,
+        &mut sc.pending,
+        &mut sorted,
+    );
+    sc.pts.clear();
+    sc.w.clear();
+    let total_w: f64 = sorted.iter().map(|&(_, c)| level.weight[c as usize]).sum();
+    if total_w >= MIN_FIT_POINTS as f64 && sorted.len() >= MIN_FIT_POINTS.min(10) {
+        let take = |c: u32, sc: &mut Scratch| {
+            sc.pts.push(frame.to_local(level.rep[c as usize]));
+            sc.w.push(level.weight[c as usize]);
+        };
+        if sorted.len() <= FAST_MAX_FIT_POINTS {
+            for &(_, c) in &sorted {
+                take(c, sc);
+            }
+        } else {
+            let keep = FAST_MAX_FIT_POINTS as f64 / sorted.len() as f64;
+            for &(_, c) in &sorted {
+                if keep_vertex(ctx.opts.seed, p, c, keep) {
+                    take(c, sc);
+                }
+            }
+        }
+        res.fits += 1;
+        if let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, Some(&sc.w), r) {
+            fits.errors.push((r, rms));
+            let clusters = sorted.iter().map(|&(_, c)| c).collect();
+            fits.balls[i] = Some((cubic, FastBall::Proxy(li, clusters)));
+            fits.tested.push(i);
+        }
+    }
+    sc.sorted = sorted;
+}
+
+/// The fast M-test of one vertex (Fitmaps §3.1.3): one radius's test at a
+/// time, as [`m_from_top_down`] asks, counting the rays cast. Level-0
+/// triangles are gathered on the first level-0 test only: the top-down
+/// M-test often stops on a proxy radius first.
+struct FastMTest<'a, 'c> {
+    ctx: &'a Ctx<'c>,
+    p: u32,
+    frame: &'a Frame,
+    balls: &'a [Option<(Cubic, FastBall)>],
+    tris_ready: bool,
+    rays: u64,
+}
+
+impl FastMTest<'_, '_> {
+    /// One radius's test, as the exact mode's decision where the estimate
+    /// is too close to τ to give it (`decide_fast`).
+    fn test(&mut self, i: usize, sc: &mut Scratch) -> Option<bool> {
+        let ctx = self.ctx;
+        let (cubic, ball) = self.balls[i].as_ref()?;
+        let r = ctx.radii[i];
+        let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(ctx.opts.seed, self.p, i));
+        if matches!(ball, FastBall::Level0) && !self.tris_ready {
             level0_triangles(ctx, sc);
-            tris_ready = true;
+            self.tris_ready = true;
         }
         sc.memo.reset();
         // The triangles of a level-0 ball: all three vertices inside.
         let nt = sc.tris.partition_point(|&(k, _)| k <= r);
-        let (sampled, k) = match ball {
+        let (sampled, k) = self.sample(sc, cubic, ball, r, nt, &mut rng);
+        self.rays += k;
+        match sampled {
+            Sampled::Nothing => None,
+            Sampled::Decided(pass) => Some(pass),
+            Sampled::Undecided { passes } => self.undecided(sc, cubic, ball, i, nt, passes),
+        }
+    }
+
+    /// The estimate of the flip fraction: literal on a small level-0 ball,
+    /// sampled by area otherwise (M's triangles, or the proxy clusters'
+    /// triangles through their clusters).
+    fn sample(
+        &self,
+        sc: &mut Scratch,
+        cubic: &Cubic,
+        ball: &FastBall,
+        r: f64,
+        nt: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> (Sampled, u64) {
+        let (ctx, frame) = (self.ctx, self.frame);
+        match ball {
             FastBall::Level0 if nt <= FAST_LITERAL_M_MAX_TRIANGLES => {
                 let t: Vec<u32> = sc.tris[..nt].iter().map(|&(_, t)| t).collect();
-                let (f, k) = flip_fraction_literal(ctx, &frame, cubic, r, &t, None);
+                let (f, k) = flip_fraction_literal(ctx, frame, cubic, r, &t, None);
                 (
                     f.map_or(Sampled::Nothing, |f| {
                         Sampled::Decided(f < ctx.opts.tolerance)
@@ -1359,7 +1455,7 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
                 let (tris, cum) = (&sc.tris, &sc.tri_cum[..nt]);
                 let acc = cum[nt - 1];
                 let mut sample = |rng: &mut ChaCha8Rng| (acc > 0.0).then(|| tris[draw(cum, rng)].1);
-                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, &mut rng, &mut sc.memo)
+                flip_test_sampled(ctx, frame, cubic, r, &mut sample, rng, &mut sc.memo)
             }
             FastBall::Proxy(li, clusters) => {
                 let level = &ctx.levels[*li];
@@ -1376,42 +1472,47 @@ fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> Verte
                     let c = clusters[draw(&cum, rng)] as usize;
                     Some(level.tris.row(c)[draw(level.tri_cum_row(c), rng)])
                 };
-                flip_test_sampled(ctx, &frame, cubic, r, &mut sample, &mut rng, &mut sc.memo)
+                flip_test_sampled(ctx, frame, cubic, r, &mut sample, rng, &mut sc.memo)
             }
-        };
-        rays += k;
-        match sampled {
-            Sampled::Nothing => None,
-            Sampled::Decided(pass) => Some(pass),
-            // Within the estimate's uncertainty of τ. A level-0 ball has
-            // the exact mode's cubic: the literal test on its triangles
-            // (those drawn already known) is the exact mode's verdict.
-            Sampled::Undecided { passes } => match ball {
-                FastBall::Level0 if nt <= FAST_LITERAL_FALLBACK_MAX_TRIANGLES => {
-                    let t: Vec<u32> = sc.tris[..nt].iter().map(|&(_, t)| t).collect();
-                    let memo = Some(&mut sc.memo);
-                    let (f, k) = flip_fraction_literal(ctx, &frame, cubic, r, &t, memo);
-                    rays += k;
-                    f.map(|f| f < ctx.opts.tolerance)
-                }
-                // A proxy ball's cubic is not the exact mode's: the exact
-                // ball, cubic and literal test, when asked for.
-                FastBall::Proxy(..) if ctx.opts.certify => {
-                    let (_, exact) = exact_ball(ctx, sc, p, &frame, i);
-                    let (cubic, _, tris) = exact?;
-                    let (f, k) = flip_fraction_literal(ctx, &frame, &cubic, r, &tris, None);
-                    rays += k;
-                    f.map(|f| f < ctx.opts.tolerance)
-                }
-                _ => Some(passes),
-            },
         }
-    };
-    m_from_top_down(&mut res, &tested, |i| test(i, sc));
-    res.rays = rays;
-    res.defined = !errors.is_empty();
-    res.s = s_from_errors(&errors);
-    res
+    }
+
+    /// The verdict where the estimate is within its uncertainty of τ
+    /// (`passes`: the estimate's side).
+    fn undecided(
+        &mut self,
+        sc: &mut Scratch,
+        cubic: &Cubic,
+        ball: &FastBall,
+        i: usize,
+        nt: usize,
+        passes: bool,
+    ) -> Option<bool> {
+        let (ctx, frame) = (self.ctx, self.frame);
+        let r = ctx.radii[i];
+        match ball {
+            // A level-0 ball has the exact mode's cubic: the literal test
+            // on its triangles (those drawn already known) is the exact
+            // mode's verdict.
+            FastBall::Level0 if nt <= FAST_LITERAL_FALLBACK_MAX_TRIANGLES => {
+                let t: Vec<u32> = sc.tris[..nt].iter().map(|&(_, t)| t).collect();
+                let memo = Some(&mut sc.memo);
+                let (f, k) = flip_fraction_literal(ctx, frame, cubic, r, &t, memo);
+                self.rays += k;
+                f.map(|f| f < ctx.opts.tolerance)
+            }
+            // A proxy ball's cubic is not the exact mode's: the exact
+            // ball, cubic and literal test, when asked for.
+            FastBall::Proxy(..) if ctx.opts.certify => {
+                let (_, exact) = exact_ball(ctx, sc, self.p, frame, i);
+                let (cubic, _, tris) = exact?;
+                let (f, k) = flip_fraction_literal(ctx, frame, &cubic, r, &tris, None);
+                self.rays += k;
+                f.map(|f| f < ctx.opts.tolerance)
+            }
+            _ => Some(passes),
+        }
+    }
 }
 
 /// Fast mode: a vertex analysed because its seed neighbours disagree on
@@ -1574,62 +1675,9 @@ pub fn compute_fitmap_cancellable(
         }
     };
     let t0 = Instant::now();
-    if !(opts.tolerance > 0.0 && opts.tolerance <= 1.0) {
-        return Err(Error::InvalidArgument(format!(
-            "fitmap: tolerance τ = {} must be in (0, 1] (a fraction: 0.01 = 1 %)",
-            opts.tolerance
-        )));
-    }
-    if let Some(v) = mesh.positions.iter().position(|p| !p.is_finite()) {
-        return Err(Error::InvalidArgument(format!(
-            "fitmap: vertex {v} has a non-finite coordinate"
-        )));
-    }
+    check_fitmap_input(mesh, opts)?;
     let nv = mesh.positions.len();
-    if let Some(t) = mesh
-        .triangles
-        .iter()
-        .position(|t| t.iter().any(|&v| v as usize >= nv))
-    {
-        return Err(Error::InvalidArgument(format!(
-            "fitmap: triangle {t} indexes a vertex out of range"
-        )));
-    }
-    let radii = fitmap_radii(mesh)?;
-    let (areas, total_area) = checked_areas(mesh)?;
-    let normals = vertex_normals(mesh);
-    let adj = Adjacency::new(mesh);
-    let sample_density = SAMPLES_PER_VERTEX * nv as f64 / total_area;
-
-    let mut level_of = vec![None; radii.len()];
-    let mut levels = Vec::new();
-    let mut proxy_levels = Vec::new();
-    if !opts.exact {
-        for (i, &r) in radii.iter().enumerate() {
-            let expected = std::f64::consts::PI * r * r * nv as f64 / total_area;
-            let cell = r / FAST_PROXY_CELLS_PER_RADIUS;
-            if expected > FAST_LEVEL0_MAX_VERTICES && cell > 2.0 * radii[0] {
-                let level = ProxyLevel::new(mesh, &areas, &adj.vv, cell);
-                proxy_levels.push((i, level.len()));
-                level_of[i] = Some(levels.len());
-                levels.push(level);
-            }
-        }
-    }
-    let samples = MSamples::new(mesh, &areas, sample_density, opts.seed);
-    let ctx = Ctx {
-        mesh,
-        caster,
-        opts,
-        areas,
-        normals,
-        adj,
-        radii: radii.clone(),
-        samples,
-        level_of,
-        levels,
-        failure: std::sync::Mutex::new(None),
-    };
+    let (ctx, proxy_levels) = Ctx::new(mesh, caster, opts)?;
     let setup_seconds = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let analyse = |sc: &mut Scratch, p: u32, cap_of: &[u8]| {
@@ -1666,31 +1714,8 @@ pub fn compute_fitmap_cancellable(
         analysed[p as usize] = true;
     }
     if !opts.exact {
-        let mut fallback = Vec::new();
-        let mut s_only = Vec::new();
-        for v in 0..nv {
-            if analysed[v] {
-                continue;
-            }
-            let range = seed_neighbour_range(&ctx.adj.vv, v, &results, &analysed);
-            match interpolate_from_seeds(&ctx.adj.vv, v, &results, &analysed) {
-                Some(r) => {
-                    results[v] = r;
-                    if let Some(((lo, hi), _)) = range {
-                        if hi > FAST_S_DIRECT_SPREAD * lo {
-                            s_only.push(v as u32);
-                            cap_of[v] = NO_M_TEST;
-                        }
-                    }
-                }
-                None => {
-                    fallback.push(v as u32);
-                    if let Some((_, m)) = range {
-                        cap_of[v] = (m as usize + FAST_M_STEPS_ABOVE_SEEDS).min(RADIUS_STEPS) as u8;
-                    }
-                }
-            }
-        }
+        let (fallback, s_only) =
+            interpolate_unseeded(&ctx.adj.vv, &mut results, &analysed, &mut cap_of);
         progress(nv - first.len() - fallback.len() - s_only.len());
         for (&p, r) in fallback.iter().zip(run(&fallback, &cap_of)) {
             results[p as usize] = r;
@@ -1712,27 +1737,161 @@ pub fn compute_fitmap_cancellable(
         return Err(e);
     }
     let analysis_seconds = t1.elapsed().as_secs_f64();
+    let stats = FitmapStats {
+        vertices: nv,
+        triangles: mesh.triangles.len(),
+        exact: opts.exact,
+        undefined_vertices: 0,
+        m_floor_vertices: 0,
+        analysed_vertices,
+        cubic_fits: 0,
+        rays: 0,
+        proxy_levels,
+        setup_seconds,
+        analysis_seconds,
+    };
+    fitmap_from_results(&results, ctx.radii, opts, stats)
+}
+
+/// The input checks of [`compute_fitmap_cancellable`]: τ a fraction in
+/// (0, 1], finite coordinates, triangle indices in range.
+fn check_fitmap_input(mesh: &TriMesh, opts: &FitmapOptions) -> Result<()> {
+    if !(opts.tolerance > 0.0 && opts.tolerance <= 1.0) {
+        return Err(Error::InvalidArgument(format!(
+            "fitmap: tolerance τ = {} must be in (0, 1] (a fraction: 0.01 = 1 %)",
+            opts.tolerance
+        )));
+    }
+    if let Some(v) = mesh.positions.iter().position(|p| !p.is_finite()) {
+        return Err(Error::InvalidArgument(format!(
+            "fitmap: vertex {v} has a non-finite coordinate"
+        )));
+    }
+    let nv = mesh.positions.len();
+    if let Some(t) = mesh
+        .triangles
+        .iter()
+        .position(|t| t.iter().any(|&v| v as usize >= nv))
+    {
+        return Err(Error::InvalidArgument(format!(
+            "fitmap: triangle {t} indexes a vertex out of range"
+        )));
+    }
+    Ok(())
+}
+
+impl<'a> Ctx<'a> {
+    /// The shared state of one computation: the radii of §3.1.2, areas,
+    /// normals, adjacency, the M-test's samples and, in the fast mode, the
+    /// proxy levels of the large radii (returned as `(radius index,
+    /// clusters)` too, for the stats).
+    #[allow(clippy::type_complexity)]
+    fn new(
+        mesh: &'a TriMesh,
+        caster: &'a dyn RayCaster,
+        opts: &'a FitmapOptions,
+    ) -> Result<(Self, Vec<(usize, usize)>)> {
+        let nv = mesh.positions.len();
+        let radii = fitmap_radii(mesh)?;
+        let (areas, total_area) = checked_areas(mesh)?;
+        let normals = vertex_normals(mesh);
+        let adj = Adjacency::new(mesh);
+        let sample_density = SAMPLES_PER_VERTEX * nv as f64 / total_area;
+
+        let mut level_of = vec![None; radii.len()];
+        let mut levels = Vec::new();
+        let mut proxy_levels = Vec::new();
+        if !opts.exact {
+            for (i, &r) in radii.iter().enumerate() {
+                let expected = std::f64::consts::PI * r * r * nv as f64 / total_area;
+                let cell = r / FAST_PROXY_CELLS_PER_RADIUS;
+                if expected > FAST_LEVEL0_MAX_VERTICES && cell > 2.0 * radii[0] {
+                    let level = ProxyLevel::new(mesh, &areas, &adj.vv, cell);
+                    proxy_levels.push((i, level.len()));
+                    level_of[i] = Some(levels.len());
+                    levels.push(level);
+                }
+            }
+        }
+        let samples = MSamples::new(mesh, &areas, sample_density, opts.seed);
+        let ctx = Ctx {
+            mesh,
+            caster,
+            opts,
+            areas,
+            normals,
+            adj,
+            radii,
+            samples,
+            level_of,
+            levels,
+            failure: std::sync::Mutex::new(None),
+        };
+        Ok((ctx, proxy_levels))
+    }
+}
+
+/// Fast mode, after the seeds: each other vertex takes the interpolation
+/// of its seed neighbours ([`interpolate_from_seeds`]). Returns the
+/// vertices to analyse after all — the fallbacks (no usable seed
+/// neighbour; their M-test capped above the seeds' F_M) and those whose
+/// seeds disagree too much on F_S to interpolate it (`s_only`: F_S
+/// analysed, no M-test) — with their caps set in `cap_of`.
+fn interpolate_unseeded(
+    vv: &Csr,
+    results: &mut [VertexResult],
+    analysed: &[bool],
+    cap_of: &mut [u8],
+) -> (Vec<u32>, Vec<u32>) {
+    let mut fallback = Vec::new();
+    let mut s_only = Vec::new();
+    for v in 0..results.len() {
+        if analysed[v] {
+            continue;
+        }
+        let range = seed_neighbour_range(vv, v, results, analysed);
+        match interpolate_from_seeds(vv, v, results, analysed) {
+            Some(r) => {
+                results[v] = r;
+                if let Some(((lo, hi), _)) = range {
+                    if hi > FAST_S_DIRECT_SPREAD * lo {
+                        s_only.push(v as u32);
+                        cap_of[v] = NO_M_TEST;
+                    }
+                }
+            }
+            None => {
+                fallback.push(v as u32);
+                if let Some((_, m)) = range {
+                    cap_of[v] = (m as usize + FAST_M_STEPS_ABOVE_SEEDS).min(RADIUS_STEPS) as u8;
+                }
+            }
+        }
+    }
+    (fallback, s_only)
+}
+
+/// The Fitmap of the per-vertex results (F_S, and F_M as the radius of
+/// its step, Fitmaps §3.1), with the result counts filled into `stats`;
+/// fails when no vertex had a ball large enough for a cubic.
+fn fitmap_from_results(
+    results: &[VertexResult],
+    radii: Vec<f64>,
+    opts: &FitmapOptions,
+    mut stats: FitmapStats,
+) -> Result<Fitmap> {
     let undefined = results.iter().filter(|r| !r.defined).count();
-    if undefined == nv {
+    if undefined == results.len() {
         return Err(Error::InvalidArgument(format!(
             "fitmap: no vertex has {MIN_FIT_POINTS} vertices within r_h = {:.4e} in a \
              well-posed configuration; the mesh is too small for a cubic fit",
             radii[RADIUS_STEPS]
         )));
     }
-    let stats = FitmapStats {
-        vertices: nv,
-        triangles: mesh.triangles.len(),
-        exact: opts.exact,
-        undefined_vertices: undefined,
-        m_floor_vertices: results.iter().filter(|r| r.m_floor).count(),
-        analysed_vertices,
-        cubic_fits: results.iter().map(|r| r.fits).sum(),
-        rays: results.iter().map(|r| r.rays).sum(),
-        proxy_levels,
-        setup_seconds,
-        analysis_seconds,
-    };
+    stats.undefined_vertices = undefined;
+    stats.m_floor_vertices = results.iter().filter(|r| r.m_floor).count();
+    stats.cubic_fits = results.iter().map(|r| r.fits).sum();
+    stats.rays = results.iter().map(|r| r.rays).sum();
     Ok(Fitmap {
         s: results.iter().map(|r| r.s).collect(),
         m: results.iter().map(|r| radii[r.m_step as usize]).collect(),

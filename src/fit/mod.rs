@@ -381,7 +381,14 @@ pub fn fit_with_progress(
 }
 
 /// One global fit from `control` with the boundary vertices of
-/// `rim_moves` first moved to their rim-fitted positions.
+/// `rim_moves` first moved to their rim-fitted positions (Fitmaps §3.5,
+/// final fitting, with the parameter correction of its last paragraph).
+///
+/// This is the round loop only: the sample set and the fixed operators
+/// come from [`FitSystem::build`], the targets of a round from
+/// [`FitSystem::targets`], its error from [`FitSystem::round_error`] and
+/// its update from [`FitSystem::solve`], so that each step can be read
+/// against the module docs on its own.
 fn fit_from(
     mesh: &TriMesh,
     mut control: ControlMesh,
@@ -391,70 +398,10 @@ fn fit_from(
     rim_moves: &[(VertexId, DVec3)],
     t0: Instant,
 ) -> Result<Fitted> {
-    if mesh.positions.is_empty() || mesh.triangles.is_empty() {
-        return Err(Error::InvalidArgument(
-            "fit: the input mesh is empty".into(),
-        ));
-    }
-    let diag = mesh.bbox_diagonal();
-    if !(diag.is_finite() && diag > 0.0) {
-        return Err(Error::InvalidArgument(format!(
-            "fit: the input mesh has a degenerate bounding box (diagonal {diag})"
-        )));
-    }
+    let diag = checked_diagonal(mesh)?;
     let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));
     report_progress(progress, "fit", 0.0)?;
-
-    let (mut locations, ks) =
-        patch_samples(&control, mesh.positions.len(), opts.min_samples_per_side);
-    let data_samples = locations.len();
-    locations.extend(vertex_locations(&control));
-    let vertex_equations = locations.len() - data_samples;
-    // Boundary fit (see the module docs): samples on the border curves of
-    // the limit surface and the limit points of the boundary vertices take
-    // the closest point of M's rim as their target.
-    let rim = rim_edges(mesh);
-    let rim_segments = rim_segments(mesh, &rim);
-    let mut rim_sample = vec![false; locations.len()];
-    if !rim_segments.is_empty() {
-        // Boundary-curve fit (see [`rim`]): each boundary loop of the
-        // control mesh is first fitted to its rim as a curve (rim → curve,
-        // so the border covers the whole rim instead of hugging part of
-        // it); the surface fit then starts from there, its border rows
-        // keeping the border on the rim. Holding the fitted loops fixed
-        // instead was measured worse (bunny τ = 1 %: RMS D 0.48‰ held vs
-        // 0.28‰ free; τ = 10 %: 1.54‰ both): the border patches need the
-        // loop to follow the interior's parameter correction.
-        let pos = control.positions_mut();
-        for &(v, p) in rim_moves {
-            pos[v.idx()] = p;
-        }
-        for (v, flag) in control.vertices().zip(&mut rim_sample[data_samples..]) {
-            *flag = control.is_boundary_vertex(v);
-        }
-        let border = border_locations(&control, &ks);
-        rim_sample.resize(rim_sample.len() + border.len(), true);
-        locations.extend(border);
-    }
-    let evaluator = make_evaluator(
-        Backend::Osd,
-        &control,
-        &EvalOptions::default().with_isolation_level(opts.isolation_level),
-    )?;
-    // The face of each sample, for the row compression of the solves.
-    let face: Vec<u32> = locations.iter().map(|l| l.face.0).collect();
-    let stencils = evaluator.stencils(&locations)?;
-    let laplacian = umbrella(&control);
-    let m_normals = vertex_normals(mesh);
-    // The SDM's normals and curvatures, also for the final SDM rounds of
-    // the point objective (`FitOptions::final_sdm_rounds`).
-    let sdm = match (opts.objective, opts.final_sdm_rounds) {
-        (Objective::Point, 0) => None,
-        _ => {
-            let curv = curvature::triangle_curvatures(mesh, &m_normals);
-            Some((m_normals.clone(), curv))
-        }
-    };
+    let sys = FitSystem::build(mesh, &mut control, opts, rim_moves)?;
 
     let nv = control.num_vertices();
     let mut positions = control.positions().to_vec();
@@ -465,101 +412,14 @@ fn fit_from(
     let mut outlier_bound = f64::INFINITY;
     let mut first_back: Option<f64> = None;
     for round in 0..=opts.max_iterations {
-        let limit = stencils.apply(&positions);
+        let limit = sys.stencils.apply(&positions);
         let (mut hits, stats) = project_along_normals(caster, &limit, max_dist)?;
         if round == 0 {
-            let mut d: Vec<f64> = hits.iter().flatten().map(|h| h.offset.abs()).collect();
-            if !d.is_empty() {
-                let mid = d.len() / 2;
-                let median = *d.select_nth_unstable_by(mid, f64::total_cmp).1;
-                // A zero median (a control mesh already on M) must not
-                // reject everything else: floor at 1e-6 of the diagonal.
-                outlier_bound = opts.outlier_factor * median.max(1e-6 * diag);
-            }
+            outlier_bound = first_outlier_bound(&hits, opts, diag);
         }
-        let mut outliers = 0;
-        for (h, s) in hits.iter_mut().zip(&limit) {
-            let Some(p) = h else { continue };
-            // Another sheet: too far, or facing away from the limit normal
-            // (M's interpolated normal at the foot against the sample's).
-            let t = mesh.triangles[p.triangle as usize];
-            let nm = (1.0 - p.u - p.v) * m_normals[t[0] as usize]
-                + p.u * m_normals[t[1] as usize]
-                + p.v * m_normals[t[2] as usize];
-            let facing = nm.normalize_or_zero().dot(s.normal()) >= opts.min_normal_cos;
-            if p.offset.abs() > outlier_bound || !facing {
-                *h = None;
-                outliers += 1;
-            }
-        }
-        // Boundary fit: a lost sample whose closest point of M lies on a
-        // boundary edge of M (a hole's rim, an open border) is beyond the
-        // end of M, where φ is undefined. Dropped, nothing would hold the
-        // limit surface there and it drifts past the rim (bunny τ = 1 %:
-        // the 149 patches along its holes overhung them by 3.5‰ median, a
-        // seventh of the displacement samples missed M). Its target is that
-        // closest point, a point-distance row whatever the objective, which
-        // pulls the limit surface's border onto the rim.
-        let mut on_rim = vec![false; hits.len()];
-        let border_idx: Vec<usize> = (0..hits.len()).filter(|&i| rim_sample[i]).collect();
-        let border_pts: Vec<DVec3> = border_idx.iter().map(|&i| limit[i].position).collect();
-        for (&i, target) in border_idx
-            .iter()
-            .zip(closest_on_segments(&rim_segments, &border_pts))
-        {
-            hits[i] = target;
-            on_rim[i] = target.is_some();
-        }
-        let lost_idx: Vec<usize> = (0..hits.len()).filter(|&i| hits[i].is_none()).collect();
-        let lost_pts: Vec<DVec3> = lost_idx.iter().map(|&i| limit[i].position).collect();
-        let lost_closest = caster.closest_points(&lost_pts, f64::INFINITY)?;
-        for (&i, c) in lost_idx.iter().zip(&lost_closest) {
-            if let Some(c) = c {
-                if on_rim_edge(rim[c.triangle as usize], c.u, c.v) {
-                    hits[i] = Some(Projected {
-                        point: c.point,
-                        offset: c.distance,
-                        triangle: c.triangle,
-                        u: c.u,
-                        v: c.v,
-                    });
-                    on_rim[i] = true;
-                }
-            }
-        }
-        let (sum2, count) = hits
-            .iter()
-            .zip(&limit)
-            .filter_map(|(h, s)| h.map(|h| (h.point - s.position).length_squared()))
-            .fold((0.0, 0usize), |(a, c), d2| (a + d2, c + 1));
-        if count == 0 {
-            return Err(Error::InvalidArgument(
-                "fit: no sample of the limit surface projects onto the mesh along its normal; \
-                 the control mesh does not approximate this mesh"
-                    .into(),
-            ));
-        }
-        let rms = (sum2 / count as f64).sqrt();
-        // The iterate's score: every sample counts, a lost one (no hit,
-        // outlier, other sheet) too, so an update that "improves" by losing
-        // samples does not look better.
-        // A lost sample counts at its distance to the closest point of M
-        // (at least the outlier bound when there is one): a spike whose
-        // samples φ cannot follow must weigh what it is, not vanish. A
-        // sample past a rim counts at its distance to the rim (in `sum2`),
-        // the distance the metrics measure there.
-        let floor = if outlier_bound.is_finite() {
-            outlier_bound
-        } else {
-            0.0
-        };
-        let lost2: f64 = lost_idx
-            .iter()
-            .zip(&lost_closest)
-            .filter(|(&i, _)| !on_rim[i])
-            .map(|(_, c)| c.map_or(max_dist, |c| c.distance).max(floor).powi(2))
-            .sum();
-        let one_way = ((sum2 + lost2) / limit.len() as f64).sqrt();
+        let outliers = sys.drop_outliers(mesh, &limit, &mut hits, outlier_bound, opts);
+        let targets = sys.targets(caster, &limit, hits)?;
+        let (rms, one_way) = targets.round_error(&limit, outlier_bound, max_dist)?;
         // The other direction: φ only looks from the surface, so a surface
         // that leaves part of M uncovered (a patch flown off to another
         // sheet) can still score well one way. The RMS distance from M's
@@ -574,21 +434,15 @@ fn fit_from(
         // the result is the same whatever the thread count.
         let last = round == opts.max_iterations;
         let (back, delta) = rayon::join(
-            || mesh_to_samples_rms(mesh, &limit[..data_samples], &ks),
+            || mesh_to_samples_rms(mesh, &limit[..sys.data_samples], &sys.ks),
             || {
                 if last {
                     return Ok(None);
                 }
                 let use_sdm = opts.objective == Objective::Sdm
                     || round + opts.final_sdm_rounds >= opts.max_iterations;
-                match &sdm.as_ref().filter(|_| use_sdm) {
-                    None => solve_point(&stencils, &limit, &hits, &face, &laplacian, nv, opts),
-                    Some((normals, curv)) => solve_sdm(
-                        mesh, normals, curv, &stencils, &limit, &hits, &on_rim, &face, &laplacian,
-                        nv, opts,
-                    ),
-                }
-                .map(Some)
+                sys.solve(mesh, &limit, &targets, use_sdm, nv, opts)
+                    .map(Some)
             },
         );
         let back = back?;
@@ -613,15 +467,7 @@ fn fit_from(
             (round as f64 + 0.5) / (opts.max_iterations as f64 + 1.0),
         )?;
         let Some(delta) = delta? else { break };
-        if delta.iter().any(|d| !d.is_finite()) {
-            return Err(Error::backend(
-                "Eigen",
-                "the fit produced non-finite control points",
-            ));
-        }
-        for (p, d) in positions.iter_mut().zip(&delta) {
-            *p += *d;
-        }
+        apply_update(&mut positions, &delta)?;
         report_progress(
             progress,
             "fit",
@@ -633,22 +479,355 @@ fn fit_from(
     report_progress(progress, "fit", 1.0)?;
     Ok(Fitted {
         control,
-        report: FitReport {
+        report: sys.report(opts, iterations, best_iteration, rms * permille, t0),
+    })
+}
+
+/// The bounding-box diagonal of `mesh`, or the error that makes a fit to
+/// it meaningless (no triangles, or a degenerate box: the permille figures
+/// of the report are relative to this diagonal).
+fn checked_diagonal(mesh: &TriMesh) -> Result<f64> {
+    if mesh.positions.is_empty() || mesh.triangles.is_empty() {
+        return Err(Error::InvalidArgument(
+            "fit: the input mesh is empty".into(),
+        ));
+    }
+    let diag = mesh.bbox_diagonal();
+    if !(diag.is_finite() && diag > 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "fit: the input mesh has a degenerate bounding box (diagonal {diag})"
+        )));
+    }
+    Ok(diag)
+}
+
+/// The outlier bound of the whole fit, set from the first round's
+/// projections: [`FitOptions::outlier_factor`] times their median
+/// distance (see the module docs); infinite when nothing projected.
+fn first_outlier_bound(hits: &[Option<Projected>], opts: &FitOptions, diag: f64) -> f64 {
+    let mut d: Vec<f64> = hits.iter().flatten().map(|h| h.offset.abs()).collect();
+    if d.is_empty() {
+        return f64::INFINITY;
+    }
+    let mid = d.len() / 2;
+    let median = *d.select_nth_unstable_by(mid, f64::total_cmp).1;
+    // A zero median (a control mesh already on M) must not
+    // reject everything else: floor at 1e-6 of the diagonal.
+    opts.outlier_factor * median.max(1e-6 * diag)
+}
+
+/// Adds the solved update `delta` to the control points, refusing a
+/// non-finite one (a singular solve) before it reaches the positions.
+fn apply_update(positions: &mut [DVec3], delta: &[DVec3]) -> Result<()> {
+    if delta.iter().any(|d| !d.is_finite()) {
+        return Err(Error::backend(
+            "Eigen",
+            "the fit produced non-finite control points",
+        ));
+    }
+    for (p, d) in positions.iter_mut().zip(delta) {
+        *p += *d;
+    }
+    Ok(())
+}
+
+/// What stays fixed over the rounds of one global fit (Fitmaps §3.5): the
+/// sample locations' limit stencils, the rim of M and which samples aim
+/// at it, the fairness Laplacian and M's normals and curvatures. Built
+/// once so that a round only re-evaluates and re-projects.
+struct FitSystem {
+    /// Sample side of each patch, in patch order.
+    ks: Vec<usize>,
+    /// Patch samples come first in the rows; then the vertex equations,
+    /// then the border-curve samples (open M only).
+    data_samples: usize,
+    vertex_equations: usize,
+    /// Boundary-edge mask of each triangle of M ([`rim_edges`]).
+    rim: Vec<u8>,
+    rim_segments: Vec<RimSegment>,
+    /// Per sample: its target is the closest point of M's rim.
+    rim_sample: Vec<bool>,
+    /// The face of each sample, for the row compression of the solves.
+    face: Vec<u32>,
+    stencils: LimitStencils,
+    laplacian: Vec<Vec<(u32, f64)>>,
+    m_normals: Vec<DVec3>,
+    /// The SDM's normals and curvatures, also for the final SDM rounds of
+    /// the point objective (`FitOptions::final_sdm_rounds`).
+    sdm: Option<(Vec<DVec3>, Vec<curvature::TriCurvature>)>,
+}
+
+/// One round's targets: `hits` after the outlier screen and the boundary
+/// fit, which of them are rim targets (point rows whatever the objective),
+/// and the lost samples with their closest points of M, for the score.
+struct RoundTargets {
+    hits: Vec<Option<Projected>>,
+    on_rim: Vec<bool>,
+    lost_idx: Vec<usize>,
+    lost_closest: Vec<Option<crate::raycast::ClosestPoint>>,
+}
+
+impl FitSystem {
+    /// The report of a fit over this system: its rounds, the kept one
+    /// (`best_iteration`, final RMS `final_rms_permille`) and the time
+    /// since `t0`.
+    fn report(
+        &self,
+        opts: &FitOptions,
+        iterations: Vec<FitIteration>,
+        best_iteration: usize,
+        final_rms_permille: f64,
+        t0: Instant,
+    ) -> FitReport {
+        FitReport {
             objective: opts.objective,
-            patches: ks.len(),
+            patches: self.ks.len(),
             samples_per_side: (
-                ks.iter().copied().min().unwrap_or(0),
-                ks.iter().copied().max().unwrap_or(0),
+                self.ks.iter().copied().min().unwrap_or(0),
+                self.ks.iter().copied().max().unwrap_or(0),
             ),
-            data_samples,
-            vertex_equations,
+            data_samples: self.data_samples,
+            vertex_equations: self.vertex_equations,
             initial_rms_permille: iterations[0].rms_permille,
-            final_rms_permille: rms * permille,
+            final_rms_permille,
             iterations,
             best_iteration,
             seconds: t0.elapsed().as_secs_f64(),
-        },
-    })
+        }
+    }
+
+    /// Samples the patches ([`patch_samples`]) and the vertex equations,
+    /// and on an open M moves the rim-fitted loops into `control` and adds
+    /// the border-curve samples; then builds the stencils and operators.
+    fn build(
+        mesh: &TriMesh,
+        control: &mut ControlMesh,
+        opts: &FitOptions,
+        rim_moves: &[(VertexId, DVec3)],
+    ) -> Result<Self> {
+        let (mut locations, ks) =
+            patch_samples(control, mesh.positions.len(), opts.min_samples_per_side);
+        let data_samples = locations.len();
+        locations.extend(vertex_locations(control));
+        let vertex_equations = locations.len() - data_samples;
+        // Boundary fit (see the module docs): samples on the border curves of
+        // the limit surface and the limit points of the boundary vertices take
+        // the closest point of M's rim as their target.
+        let rim = rim_edges(mesh);
+        let rim_segments = rim_segments(mesh, &rim);
+        let mut rim_sample = vec![false; locations.len()];
+        if !rim_segments.is_empty() {
+            // Boundary-curve fit (see [`rim`]): each boundary loop of the
+            // control mesh is first fitted to its rim as a curve (rim → curve,
+            // so the border covers the whole rim instead of hugging part of
+            // it); the surface fit then starts from there, its border rows
+            // keeping the border on the rim. Holding the fitted loops fixed
+            // instead was measured worse (bunny τ = 1 %: RMS D 0.48‰ held vs
+            // 0.28‰ free; τ = 10 %: 1.54‰ both): the border patches need the
+            // loop to follow the interior's parameter correction.
+            let pos = control.positions_mut();
+            for &(v, p) in rim_moves {
+                pos[v.idx()] = p;
+            }
+            for (v, flag) in control.vertices().zip(&mut rim_sample[data_samples..]) {
+                *flag = control.is_boundary_vertex(v);
+            }
+            let border = border_locations(control, &ks);
+            rim_sample.resize(rim_sample.len() + border.len(), true);
+            locations.extend(border);
+        }
+        let evaluator = make_evaluator(
+            Backend::Osd,
+            control,
+            &EvalOptions::default().with_isolation_level(opts.isolation_level),
+        )?;
+        let face: Vec<u32> = locations.iter().map(|l| l.face.0).collect();
+        let stencils = evaluator.stencils(&locations)?;
+        let laplacian = umbrella(control);
+        let m_normals = vertex_normals(mesh);
+        let sdm = match (opts.objective, opts.final_sdm_rounds) {
+            (Objective::Point, 0) => None,
+            _ => {
+                let curv = curvature::triangle_curvatures(mesh, &m_normals);
+                Some((m_normals.clone(), curv))
+            }
+        };
+        Ok(FitSystem {
+            ks,
+            data_samples,
+            vertex_equations,
+            rim,
+            rim_segments,
+            rim_sample,
+            face,
+            stencils,
+            laplacian,
+            m_normals,
+            sdm,
+        })
+    }
+
+    /// Drops the projections of `hits` that landed on another sheet of M
+    /// (further than `outlier_bound`, or M's interpolated normal at the
+    /// foot facing away from the limit normal); returns how many.
+    fn drop_outliers(
+        &self,
+        mesh: &TriMesh,
+        limit: &[crate::subdiv::LimitPoint],
+        hits: &mut [Option<Projected>],
+        outlier_bound: f64,
+        opts: &FitOptions,
+    ) -> usize {
+        let m_normals = &self.m_normals;
+        let mut outliers = 0;
+        for (h, s) in hits.iter_mut().zip(limit) {
+            let Some(p) = h else { continue };
+            // Another sheet: too far, or facing away from the limit normal
+            // (M's interpolated normal at the foot against the sample's).
+            let t = mesh.triangles[p.triangle as usize];
+            let nm = (1.0 - p.u - p.v) * m_normals[t[0] as usize]
+                + p.u * m_normals[t[1] as usize]
+                + p.v * m_normals[t[2] as usize];
+            let facing = nm.normalize_or_zero().dot(s.normal()) >= opts.min_normal_cos;
+            if p.offset.abs() > outlier_bound || !facing {
+                *h = None;
+                outliers += 1;
+            }
+        }
+        outliers
+    }
+
+    /// The boundary fit of one round (module docs): rim samples take the
+    /// closest point of M's rim, and a lost sample whose closest point of
+    /// M lies on a rim edge takes that point.
+    fn targets(
+        &self,
+        caster: &dyn RayCaster,
+        limit: &[crate::subdiv::LimitPoint],
+        mut hits: Vec<Option<Projected>>,
+    ) -> Result<RoundTargets> {
+        // Boundary fit: a lost sample whose closest point of M lies on a
+        // boundary edge of M (a hole's rim, an open border) is beyond the
+        // end of M, where φ is undefined. Dropped, nothing would hold the
+        // limit surface there and it drifts past the rim (bunny τ = 1 %:
+        // the 149 patches along its holes overhung them by 3.5‰ median, a
+        // seventh of the displacement samples missed M). Its target is that
+        // closest point, a point-distance row whatever the objective, which
+        // pulls the limit surface's border onto the rim.
+        let mut on_rim = vec![false; hits.len()];
+        let border_idx: Vec<usize> = (0..hits.len()).filter(|&i| self.rim_sample[i]).collect();
+        let border_pts: Vec<DVec3> = border_idx.iter().map(|&i| limit[i].position).collect();
+        for (&i, target) in border_idx
+            .iter()
+            .zip(closest_on_segments(&self.rim_segments, &border_pts))
+        {
+            hits[i] = target;
+            on_rim[i] = target.is_some();
+        }
+        let lost_idx: Vec<usize> = (0..hits.len()).filter(|&i| hits[i].is_none()).collect();
+        let lost_pts: Vec<DVec3> = lost_idx.iter().map(|&i| limit[i].position).collect();
+        let lost_closest = caster.closest_points(&lost_pts, f64::INFINITY)?;
+        for (&i, c) in lost_idx.iter().zip(&lost_closest) {
+            if let Some(c) = c {
+                if on_rim_edge(self.rim[c.triangle as usize], c.u, c.v) {
+                    hits[i] = Some(Projected {
+                        point: c.point,
+                        offset: c.distance,
+                        triangle: c.triangle,
+                        u: c.u,
+                        v: c.v,
+                    });
+                    on_rim[i] = true;
+                }
+            }
+        }
+        Ok(RoundTargets {
+            hits,
+            on_rim,
+            lost_idx,
+            lost_closest,
+        })
+    }
+
+    /// The update δ of one round: the SDM system when `use_sdm` (and the
+    /// curvatures were built), the point-distance one otherwise.
+    fn solve(
+        &self,
+        mesh: &TriMesh,
+        limit: &[crate::subdiv::LimitPoint],
+        targets: &RoundTargets,
+        use_sdm: bool,
+        nv: usize,
+        opts: &FitOptions,
+    ) -> Result<Vec<DVec3>> {
+        let (stencils, hits, face, laplacian) =
+            (&self.stencils, &targets.hits, &self.face, &self.laplacian);
+        match &self.sdm.as_ref().filter(|_| use_sdm) {
+            None => solve_point(stencils, limit, hits, face, laplacian, nv, opts),
+            Some((normals, curv)) => solve_sdm(
+                mesh,
+                normals,
+                curv,
+                stencils,
+                limit,
+                hits,
+                &targets.on_rim,
+                face,
+                laplacian,
+                nv,
+                opts,
+            ),
+        }
+    }
+}
+
+impl RoundTargets {
+    /// The round's RMS over the samples with a target, and its one-way
+    /// score over all samples (the module docs; Fitmaps §3.5 compares
+    /// iterates by their error, this makes a lost sample count).
+    fn round_error(
+        &self,
+        limit: &[crate::subdiv::LimitPoint],
+        outlier_bound: f64,
+        max_dist: f64,
+    ) -> Result<(f64, f64)> {
+        let (sum2, count) = self
+            .hits
+            .iter()
+            .zip(limit)
+            .filter_map(|(h, s)| h.map(|h| (h.point - s.position).length_squared()))
+            .fold((0.0, 0usize), |(a, c), d2| (a + d2, c + 1));
+        if count == 0 {
+            return Err(Error::InvalidArgument(
+                "fit: no sample of the limit surface projects onto the mesh along its normal; \
+                 the control mesh does not approximate this mesh"
+                    .into(),
+            ));
+        }
+        let rms = (sum2 / count as f64).sqrt();
+        // The iterate's score: every sample counts, a lost one (no hit,
+        // outlier, other sheet) too, so an update that "improves" by losing
+        // samples does not look better.
+        // A lost sample counts at its distance to the closest point of M
+        // (at least the outlier bound when there is one): a spike whose
+        // samples φ cannot follow must weigh what it is, not vanish. A
+        // sample past a rim counts at its distance to the rim (in `sum2`),
+        // the distance the metrics measure there.
+        let floor = if outlier_bound.is_finite() {
+            outlier_bound
+        } else {
+            0.0
+        };
+        let lost2: f64 = self
+            .lost_idx
+            .iter()
+            .zip(&self.lost_closest)
+            .filter(|(&i, _)| !self.on_rim[i])
+            .map(|(_, c)| c.map_or(max_dist, |c| c.distance).max(floor).powi(2))
+            .sum();
+        let one_way = ((sum2 + lost2) / limit.len() as f64).sqrt();
+        Ok((rms, one_way))
+    }
 }
 
 /// RMS distance from (up to 20,000, evenly strided) vertices of `mesh` to

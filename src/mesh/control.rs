@@ -120,6 +120,155 @@ impl<T: Ord + Copy> PartialEq for FreeList<T> {
     }
 }
 
+/// The half-edge tables of [`ControlMesh::from_polygons`] while its faces
+/// are added one at a time (boundary half-edges not linked yet).
+struct HalfedgeBuilder {
+    he_vertex: Vec<VertexId>,
+    he_face: Vec<FaceId>,
+    he_next: Vec<HalfedgeId>,
+    he_prev: Vec<HalfedgeId>,
+    face_he: Vec<HalfedgeId>,
+    face_size: Vec<u32>,
+    /// Directed edge (a, b) -> half-edge id; the twin slot of an edge is
+    /// created together with the first half-edge that uses the edge.
+    directed: HashMap<(u32, u32), HalfedgeId>,
+}
+
+impl HalfedgeBuilder {
+    fn with_faces(nf: usize) -> Self {
+        HalfedgeBuilder {
+            he_vertex: Vec::new(),
+            he_face: Vec::new(),
+            he_next: Vec::new(),
+            he_prev: Vec::new(),
+            face_he: Vec::with_capacity(nf),
+            face_size: Vec::with_capacity(nf),
+            directed: HashMap::new(),
+        }
+    }
+
+    /// Adds face `fid` with the vertices `f` (of `nv`): fails on fewer
+    /// than 3 vertices, an out-of-range or repeated one, and an edge
+    /// already used in this direction (a third face on the edge, or
+    /// inconsistent orientation).
+    fn add_face(&mut self, fid: FaceId, f: &[u32], nv: usize) -> Result<()> {
+        if f.len() < 3 {
+            return Err(Error::topology(
+                fid.to_string(),
+                format!("has {} vertices, needs at least 3", f.len()),
+            ));
+        }
+        for (k, &v) in f.iter().enumerate() {
+            if v as usize >= nv {
+                return Err(Error::topology(
+                    fid.to_string(),
+                    format!("vertex index {v} out of range (the mesh has {nv} vertices)"),
+                ));
+            }
+            if f[..k].contains(&v) {
+                return Err(Error::topology(
+                    fid.to_string(),
+                    format!("uses vertex {v} twice"),
+                ));
+            }
+        }
+        let n = f.len();
+        let mut hs = Vec::with_capacity(n);
+        for k in 0..n {
+            let h = self.halfedge(fid, f[k], f[(k + 1) % n])?;
+            hs.push(h);
+        }
+        for k in 0..n {
+            self.he_next[hs[k].idx()] = hs[(k + 1) % n];
+            self.he_prev[hs[(k + 1) % n].idx()] = hs[k];
+        }
+        self.face_he.push(hs[0]);
+        self.face_size.push(n as u32);
+        Ok(())
+    }
+
+    /// The half-edge `a → b` of face `fid`: the slot reserved by the
+    /// opposite face, or a new edge (both half-edges).
+    fn halfedge(&mut self, fid: FaceId, a: u32, b: u32) -> Result<HalfedgeId> {
+        let h = match self.directed.get(&(a, b)) {
+            Some(&h) if self.he_face[h.idx()] != FaceId::INVALID => {
+                return Err(Error::topology(
+                    fid.to_string(),
+                    format!(
+                        "edge ({a}, {b}) is already used in this direction by {}: \
+                         an edge shared by more than two faces, or inconsistent orientation",
+                        self.he_face[h.idx()]
+                    ),
+                ));
+            }
+            // The slot reserved when the opposite face created the edge.
+            Some(&h) => h,
+            None => {
+                let h = HalfedgeId(self.he_vertex.len() as u32);
+                self.he_vertex.push(VertexId(a));
+                self.he_vertex.push(VertexId(b));
+                self.he_face.extend([FaceId::INVALID; 2]);
+                self.he_next.extend([HalfedgeId::INVALID; 2]);
+                self.he_prev.extend([HalfedgeId::INVALID; 2]);
+                self.directed.insert((b, a), h.twin());
+                h
+            }
+        };
+        self.directed.insert((a, b), h);
+        self.he_face[h.idx()] = fid;
+        Ok(h)
+    }
+}
+
+/// Each vertex's stored half-edge (its outgoing boundary half-edge if it
+/// has one) and its outgoing boundary half-edge. Fails on a vertex with
+/// more than one (its faces form several fans: non-manifold) and on a
+/// vertex no face uses.
+fn vertex_halfedges(
+    he_vertex: &[VertexId],
+    he_face: &[FaceId],
+    nv: usize,
+) -> Result<(Vec<HalfedgeId>, Vec<HalfedgeId>)> {
+    let mut vertex_he = vec![HalfedgeId::INVALID; nv];
+    let mut boundary_out = vec![HalfedgeId::INVALID; nv];
+    for h in 0..he_vertex.len() {
+        let hid = HalfedgeId(h as u32);
+        let v = he_vertex[h];
+        if he_face[h] == FaceId::INVALID {
+            if boundary_out[v.idx()].is_valid() {
+                return Err(Error::topology(
+                    v.to_string(),
+                    "non-manifold vertex: its faces form more than one fan (two boundary edges leave it)",
+                ));
+            }
+            boundary_out[v.idx()] = hid;
+        } else if !vertex_he[v.idx()].is_valid() {
+            vertex_he[v.idx()] = hid;
+        }
+    }
+    for v in 0..nv {
+        if boundary_out[v].is_valid() {
+            vertex_he[v] = boundary_out[v];
+        } else if !vertex_he[v].is_valid() {
+            return Err(Error::topology(
+                VertexId(v as u32).to_string(),
+                "is used by no face (remove unreferenced vertices first)",
+            ));
+        }
+    }
+    Ok((vertex_he, boundary_out))
+}
+
+/// `Ok` when `ok`, else the topology error `msg` on element `el`
+/// ([`ControlMesh::validate`]'s checks).
+fn chk(ok: bool, el: String, msg: &str) -> Result<()> {
+    if ok {
+        Ok(())
+    } else {
+        Err(Error::topology(el, msg))
+    }
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct ControlMesh {
     positions: Vec<DVec3>,
@@ -163,108 +312,20 @@ impl ControlMesh {
         if faces.is_empty() {
             return Err(Error::topology("mesh", "no faces"));
         }
-        let mut he_vertex = Vec::new();
-        let mut he_face = Vec::new();
-        let mut he_next = Vec::new();
-        let mut he_prev = Vec::new();
-        let mut face_he = Vec::with_capacity(faces.len());
-        let mut face_size = Vec::with_capacity(faces.len());
-        // Directed edge (a, b) -> half-edge id; the twin slot of an edge is
-        // created together with the first half-edge that uses the edge.
-        let mut directed: HashMap<(u32, u32), HalfedgeId> = HashMap::new();
-
+        let mut b = HalfedgeBuilder::with_faces(faces.len());
         for (fi, f) in faces.iter().enumerate() {
-            let f = f.as_ref();
-            let fid = FaceId(fi as u32);
-            if f.len() < 3 {
-                return Err(Error::topology(
-                    fid.to_string(),
-                    format!("has {} vertices, needs at least 3", f.len()),
-                ));
-            }
-            for (k, &v) in f.iter().enumerate() {
-                if v as usize >= nv {
-                    return Err(Error::topology(
-                        fid.to_string(),
-                        format!("vertex index {v} out of range (the mesh has {nv} vertices)"),
-                    ));
-                }
-                if f[..k].contains(&v) {
-                    return Err(Error::topology(
-                        fid.to_string(),
-                        format!("uses vertex {v} twice"),
-                    ));
-                }
-            }
-            let n = f.len();
-            let mut hs = Vec::with_capacity(n);
-            for k in 0..n {
-                let (a, b) = (f[k], f[(k + 1) % n]);
-                let h = match directed.get(&(a, b)) {
-                    Some(&h) if he_face[h.idx()] != FaceId::INVALID => {
-                        return Err(Error::topology(
-                            fid.to_string(),
-                            format!(
-                                "edge ({a}, {b}) is already used in this direction by {}: \
-                                 an edge shared by more than two faces, or inconsistent orientation",
-                                he_face[h.idx()]
-                            ),
-                        ));
-                    }
-                    // The slot reserved when the opposite face created the edge.
-                    Some(&h) => h,
-                    None => {
-                        let h = HalfedgeId(he_vertex.len() as u32);
-                        he_vertex.push(VertexId(a));
-                        he_vertex.push(VertexId(b));
-                        he_face.extend([FaceId::INVALID; 2]);
-                        he_next.extend([HalfedgeId::INVALID; 2]);
-                        he_prev.extend([HalfedgeId::INVALID; 2]);
-                        directed.insert((b, a), h.twin());
-                        h
-                    }
-                };
-                directed.insert((a, b), h);
-                he_face[h.idx()] = fid;
-                hs.push(h);
-            }
-            for k in 0..n {
-                he_next[hs[k].idx()] = hs[(k + 1) % n];
-                he_prev[hs[(k + 1) % n].idx()] = hs[k];
-            }
-            face_he.push(hs[0]);
-            face_size.push(n as u32);
+            b.add_face(FaceId(fi as u32), f.as_ref(), nv)?;
         }
-
-        // Outgoing boundary half-edges per vertex: more than one means the
-        // faces around the vertex form several fans (non-manifold vertex).
-        let mut vertex_he = vec![HalfedgeId::INVALID; nv];
-        let mut boundary_out = vec![HalfedgeId::INVALID; nv];
-        for h in 0..he_vertex.len() {
-            let hid = HalfedgeId(h as u32);
-            let v = he_vertex[h];
-            if he_face[h] == FaceId::INVALID {
-                if boundary_out[v.idx()].is_valid() {
-                    return Err(Error::topology(
-                        v.to_string(),
-                        "non-manifold vertex: its faces form more than one fan (two boundary edges leave it)",
-                    ));
-                }
-                boundary_out[v.idx()] = hid;
-            } else if !vertex_he[v.idx()].is_valid() {
-                vertex_he[v.idx()] = hid;
-            }
-        }
-        for v in 0..nv {
-            if boundary_out[v].is_valid() {
-                vertex_he[v] = boundary_out[v];
-            } else if !vertex_he[v].is_valid() {
-                return Err(Error::topology(
-                    VertexId(v as u32).to_string(),
-                    "is used by no face (remove unreferenced vertices first)",
-                ));
-            }
-        }
+        let HalfedgeBuilder {
+            he_vertex,
+            he_face,
+            mut he_next,
+            mut he_prev,
+            face_he,
+            face_size,
+            ..
+        } = b;
+        let (vertex_he, boundary_out) = vertex_halfedges(&he_vertex, &he_face, nv)?;
         // Link boundary half-edges into loops: the next boundary half-edge
         // after h (ending at v) is the one leaving v.
         for h in 0..he_vertex.len() {
@@ -291,16 +352,23 @@ impl ControlMesh {
             free_edges: FreeList::default(),
             deleted_vertices: 0,
         };
-        // A vertex whose interior faces form several closed fans (two cones
-        // touching at a point) has no boundary half-edge yet is non-manifold:
-        // rotation from its stored half-edge does not reach all the others.
-        let seen: Vec<u32> = mesh
+        mesh.check_single_fans()?;
+        Ok(mesh)
+    }
+
+    /// [`Self::from_polygons`]'s last check: a vertex whose interior faces
+    /// form several closed fans (two cones touching at a point) has no
+    /// boundary half-edge yet is non-manifold: rotation from its stored
+    /// half-edge does not reach all the others.
+    fn check_single_fans(&self) -> Result<()> {
+        let nv = self.num_vertices();
+        let seen: Vec<u32> = self
             .vertices()
-            .map(|v| mesh.outgoing(v).count() as u32)
+            .map(|v| self.outgoing(v).count() as u32)
             .collect();
         let mut total = vec![0u32; nv];
-        for h in 0..mesh.he_vertex.len() {
-            total[mesh.he_vertex[h].idx()] += 1;
+        for h in 0..self.he_vertex.len() {
+            total[self.he_vertex[h].idx()] += 1;
         }
         for v in 0..nv {
             if seen[v] != total[v] {
@@ -310,7 +378,7 @@ impl ControlMesh {
                 ));
             }
         }
-        Ok(mesh)
+        Ok(())
     }
 
     /// Builds from a [`crate::mesh::PolySoup`].
@@ -582,155 +650,186 @@ impl ControlMesh {
     /// Checks every connectivity invariant; tests call it after every
     /// operation. Returns the first violation, naming the element.
     pub fn validate(&self) -> Result<()> {
-        let nh = self.num_halfedges();
-        let nv = self.num_vertices();
-        let nf = self.num_faces();
-        let chk = |ok: bool, el: String, msg: &str| {
-            if ok {
-                Ok(())
-            } else {
-                Err(Error::topology(el, msg))
-            }
-        };
-        chk(nh % 2 == 0, "mesh".into(), "odd number of half-edges")?;
+        chk(
+            self.num_halfedges() % 2 == 0,
+            "mesh".into(),
+            "odd number of half-edges",
+        )?;
         for (i, p) in self.positions.iter().enumerate() {
             chk(p.is_finite(), format!("vertex {i}"), "non-finite position")?;
         }
-        for h in 0..nh {
-            let hid = HalfedgeId(h as u32);
-            let el = || hid.to_string();
-            if self.is_halfedge_deleted(hid) {
-                chk(
-                    self.is_halfedge_deleted(hid.twin()),
-                    el(),
-                    "deleted half-edge with a live twin",
-                )?;
-                continue;
-            }
-            chk(
-                self.he_next[h].idx() < nh && self.he_prev[h].idx() < nh,
-                el(),
-                "dangling next/prev",
-            )?;
-            chk(self.prev(self.next(hid)) == hid, el(), "prev(next(h)) != h")?;
-            chk(self.he_vertex[h].idx() < nv, el(), "origin out of range")?;
-            chk(
-                self.head(self.next(hid)) != self.head(hid),
-                el(),
-                "degenerate next",
-            )?;
-            chk(
-                self.tail(self.next(hid)) == self.head(hid),
-                el(),
-                "next does not start where h ends",
-            )?;
-            chk(self.tail(hid) != self.head(hid), el(), "edge is a loop")?;
-            chk(
-                self.he_face[h] == self.he_face[self.he_next[h].idx()],
-                el(),
-                "next lies in another face",
-            )?;
-            chk(
-                !(self.is_boundary_halfedge(hid) && self.is_boundary_halfedge(hid.twin())),
-                el(),
-                "edge with no face on either side",
-            )?;
-            chk(
-                !self.is_vertex_deleted(self.tail(hid)),
-                el(),
-                "leaves a deleted vertex",
-            )?;
-            chk(
-                !self.is_halfedge_deleted(self.next(hid)),
-                el(),
-                "next is a deleted half-edge",
-            )?;
-            if let Some(f) = self.face_of(hid) {
-                chk(f.idx() < nf, el(), "face out of range")?;
-                chk(!self.is_face_deleted(f), el(), "lies in a deleted face")?;
-            }
+        for h in 0..self.num_halfedges() {
+            self.validate_halfedge(HalfedgeId(h as u32))?;
         }
         for f in self.faces() {
-            if self.is_face_deleted(f) {
-                continue;
+            if !self.is_face_deleted(f) {
+                self.validate_face(f)?;
             }
-            let h0 = self.face_he[f.idx()];
-            chk(
-                self.face_of(h0) == Some(f),
-                f.to_string(),
-                "first half-edge belongs to another face",
-            )?;
-            let n = self.face_size(f);
-            chk(n >= 3, f.to_string(), "fewer than 3 vertices")?;
-            let mut h = h0;
-            let mut vs = Vec::with_capacity(n);
-            for _ in 0..n {
-                vs.push(self.tail(h));
-                h = self.next(h);
-            }
-            chk(
-                h == h0,
-                f.to_string(),
-                "half-edge loop length differs from the face size",
-            )?;
-            vs.sort_unstable();
-            chk(
-                vs.windows(2).all(|w| w[0] != w[1]),
-                f.to_string(),
-                "repeated vertex",
-            )?;
         }
+        let nv = self.num_vertices();
         let mut out_count = vec![0usize; nv];
-        for h in 0..nh {
+        for h in 0..self.num_halfedges() {
             if !self.is_halfedge_deleted(HalfedgeId(h as u32)) {
                 out_count[self.he_vertex[h].idx()] += 1;
             }
         }
         for v in self.vertices() {
-            if self.is_vertex_deleted(v) {
-                continue;
+            if !self.is_vertex_deleted(v) {
+                self.validate_vertex(v, out_count[v.idx()])?;
             }
-            let h = self.vertex_he[v.idx()];
-            chk(
-                h.idx() < nh && self.tail(h) == v,
-                v.to_string(),
-                "stored half-edge does not leave the vertex",
-            )?;
-            let fan = self.outgoing(v).count();
-            chk(
-                fan == out_count[v.idx()],
-                v.to_string(),
-                "non-manifold: more than one fan",
-            )?;
-            let nb = self
-                .outgoing(v)
-                .filter(|&h| self.is_boundary_halfedge(h))
-                .count();
-            chk(
-                nb <= 1,
-                v.to_string(),
-                "non-manifold: several boundary edges leave it",
-            )?;
-            chk(
-                (nb == 1) == self.is_boundary_halfedge(h),
-                v.to_string(),
-                "boundary vertex must store its boundary half-edge",
-            )?;
-            // No two edges joining the same pair of vertices.
-            let mut heads: Vec<VertexId> = self.outgoing(v).map(|h| self.head(h)).collect();
-            heads.sort_unstable();
-            chk(
-                heads.windows(2).all(|w| w[0] != w[1]),
-                v.to_string(),
-                "two edges join the same vertices",
-            )?;
-            let s = self.vertex_sharpness[v.idx()];
+        }
+        self.validate_free_lists()?;
+        for e in self.edges() {
+            let s = self.edge_sharpness[e.idx()];
             chk(
                 s.is_finite() && s >= 0.0,
-                v.to_string(),
-                "corner sharpness must be finite and >= 0",
+                e.to_string(),
+                "crease sharpness must be finite and >= 0",
             )?;
         }
+        Ok(())
+    }
+
+    /// [`Self::validate`]'s checks of one half-edge: a deleted one has a
+    /// deleted twin; a live one has in-range links forming a face loop of
+    /// distinct consecutive vertices, a face on at least one side, and no
+    /// deleted neighbour.
+    fn validate_halfedge(&self, hid: HalfedgeId) -> Result<()> {
+        let (nh, nv, nf) = (self.num_halfedges(), self.num_vertices(), self.num_faces());
+        let h = hid.idx();
+        let el = || hid.to_string();
+        if self.is_halfedge_deleted(hid) {
+            return chk(
+                self.is_halfedge_deleted(hid.twin()),
+                el(),
+                "deleted half-edge with a live twin",
+            );
+        }
+        chk(
+            self.he_next[h].idx() < nh && self.he_prev[h].idx() < nh,
+            el(),
+            "dangling next/prev",
+        )?;
+        chk(self.prev(self.next(hid)) == hid, el(), "prev(next(h)) != h")?;
+        chk(self.he_vertex[h].idx() < nv, el(), "origin out of range")?;
+        chk(
+            self.head(self.next(hid)) != self.head(hid),
+            el(),
+            "degenerate next",
+        )?;
+        chk(
+            self.tail(self.next(hid)) == self.head(hid),
+            el(),
+            "next does not start where h ends",
+        )?;
+        chk(self.tail(hid) != self.head(hid), el(), "edge is a loop")?;
+        chk(
+            self.he_face[h] == self.he_face[self.he_next[h].idx()],
+            el(),
+            "next lies in another face",
+        )?;
+        chk(
+            !(self.is_boundary_halfedge(hid) && self.is_boundary_halfedge(hid.twin())),
+            el(),
+            "edge with no face on either side",
+        )?;
+        chk(
+            !self.is_vertex_deleted(self.tail(hid)),
+            el(),
+            "leaves a deleted vertex",
+        )?;
+        chk(
+            !self.is_halfedge_deleted(self.next(hid)),
+            el(),
+            "next is a deleted half-edge",
+        )?;
+        if let Some(f) = self.face_of(hid) {
+            chk(f.idx() < nf, el(), "face out of range")?;
+            chk(!self.is_face_deleted(f), el(), "lies in a deleted face")?;
+        }
+        Ok(())
+    }
+
+    /// [`Self::validate`]'s checks of one live face: its stored half-edge
+    /// is its own, and its loop has its size and distinct vertices.
+    fn validate_face(&self, f: FaceId) -> Result<()> {
+        let h0 = self.face_he[f.idx()];
+        chk(
+            self.face_of(h0) == Some(f),
+            f.to_string(),
+            "first half-edge belongs to another face",
+        )?;
+        let n = self.face_size(f);
+        chk(n >= 3, f.to_string(), "fewer than 3 vertices")?;
+        let mut h = h0;
+        let mut vs = Vec::with_capacity(n);
+        for _ in 0..n {
+            vs.push(self.tail(h));
+            h = self.next(h);
+        }
+        chk(
+            h == h0,
+            f.to_string(),
+            "half-edge loop length differs from the face size",
+        )?;
+        vs.sort_unstable();
+        chk(
+            vs.windows(2).all(|w| w[0] != w[1]),
+            f.to_string(),
+            "repeated vertex",
+        )
+    }
+
+    /// [`Self::validate`]'s checks of one live vertex (`out_count` live
+    /// half-edges leave it): manifold (one fan reaching them all, at most
+    /// one boundary edge out, and that one stored), no double edge, and a
+    /// valid corner sharpness.
+    fn validate_vertex(&self, v: VertexId, out_count: usize) -> Result<()> {
+        let h = self.vertex_he[v.idx()];
+        chk(
+            h.idx() < self.num_halfedges() && self.tail(h) == v,
+            v.to_string(),
+            "stored half-edge does not leave the vertex",
+        )?;
+        let fan = self.outgoing(v).count();
+        chk(
+            fan == out_count,
+            v.to_string(),
+            "non-manifold: more than one fan",
+        )?;
+        let nb = self
+            .outgoing(v)
+            .filter(|&h| self.is_boundary_halfedge(h))
+            .count();
+        chk(
+            nb <= 1,
+            v.to_string(),
+            "non-manifold: several boundary edges leave it",
+        )?;
+        chk(
+            (nb == 1) == self.is_boundary_halfedge(h),
+            v.to_string(),
+            "boundary vertex must store its boundary half-edge",
+        )?;
+        // No two edges joining the same pair of vertices.
+        let mut heads: Vec<VertexId> = self.outgoing(v).map(|h| self.head(h)).collect();
+        heads.sort_unstable();
+        chk(
+            heads.windows(2).all(|w| w[0] != w[1]),
+            v.to_string(),
+            "two edges join the same vertices",
+        )?;
+        let s = self.vertex_sharpness[v.idx()];
+        chk(
+            s.is_finite() && s >= 0.0,
+            v.to_string(),
+            "corner sharpness must be finite and >= 0",
+        )
+    }
+
+    /// [`Self::validate`]'s bookkeeping checks: the free lists and the
+    /// deleted-vertex count match the deleted elements.
+    fn validate_free_lists(&self) -> Result<()> {
         let dead_f = self.faces().filter(|&f| self.is_face_deleted(f)).count();
         chk(
             dead_f == self.free_faces.len(),
@@ -751,16 +850,7 @@ impl ControlMesh {
             dead_v == self.deleted_vertices,
             "mesh".into(),
             "deleted vertex count disagrees",
-        )?;
-        for e in self.edges() {
-            let s = self.edge_sharpness[e.idx()];
-            chk(
-                s.is_finite() && s >= 0.0,
-                e.to_string(),
-                "crease sharpness must be finite and >= 0",
-            )?;
-        }
-        Ok(())
+        )
     }
 }
 

@@ -252,130 +252,30 @@ pub struct Quadrangulation {
 /// on out-of-range indices, degenerate (repeated-vertex) triangles,
 /// non-manifold edges or vertices, inconsistent orientation, and non-finite
 /// coordinates.
+///
+/// The steps are those of the module docs (Fitmaps §3.2): candidate pairs
+/// ([`pair_candidates`]), greedy pairing ([`greedy_pairing`]), augmenting
+/// paths over the candidate graph ([`candidate_graph`]), the leftovers
+/// moved to the boundary ([`shift_leftovers`]) and split there
+/// ([`parity_fix`]).
 pub fn quadrangulate(mesh: &TriMesh, opts: &QuadrangulateOptions) -> Result<Quadrangulation> {
-    let nv_in = mesh.positions.len();
     if mesh.triangles.is_empty() {
         return Err(Error::InvalidArgument("quadrangulate: no triangles".into()));
     }
-    // Compact away unreferenced vertices, keeping the order of the others.
-    let mut used = vec![false; nv_in];
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        for &v in tri {
-            if v as usize >= nv_in {
-                return Err(Error::topology(
-                    format!("triangle {t}"),
-                    format!("vertex index {v} out of range (the mesh has {nv_in} vertices)"),
-                ));
-            }
-            used[v as usize] = true;
-        }
-    }
-    let mut vertex_map = vec![None; nv_in];
-    let mut positions = Vec::with_capacity(nv_in);
-    for v in 0..nv_in {
-        if used[v] {
-            vertex_map[v] = Some(VertexId(positions.len() as u32));
-            positions.push(mesh.positions[v]);
-        }
-    }
-    let unreferenced = nv_in - positions.len();
-    let tris: Vec<[u32; 3]> = mesh
-        .triangles
-        .iter()
-        .map(|t| t.map(|v| vertex_map[v as usize].expect("referenced").0))
-        .collect();
+    let (vertex_map, mut positions, tris) = compact_vertices(mesh)?;
+    let unreferenced = mesh.positions.len() - positions.len();
     // The triangle mesh as a half-edge mesh: validates manifoldness and
     // orientation, and gives the dual graph (face ids = triangle indices).
     let tm = ControlMesh::from_polygons(positions.clone(), &tris)?;
     let nt = tris.len();
 
-    // Candidate pairs: interior edges whose two triangles form a quad with
-    // four distinct corners (two triangles sharing all three vertices would
-    // not).
-    let cands: Vec<(EdgeId, u32, u32, QuadQuality, f64)> = (0..tm.num_edges() as u32)
-        .into_par_iter()
-        .filter_map(|e| {
-            let e = EdgeId(e);
-            let h = e.halfedge();
-            let (f1, f2) = (tm.face_of(h)?, tm.face_of(h.twin())?);
-            let q = pair_quad(&tm, h);
-            if q[1] == q[3] {
-                return None;
-            }
-            let qual = quad_quality(q.map(|v| tm.position(v)));
-            let cost = qual.max_angle_deviation_deg.to_radians()
-                + opts.planarity_weight * qual.dihedral_deg.to_radians();
-            Some((e, f1.0, f2.0, qual, cost))
-        })
-        .collect();
-
-    // 1. Greedy pairing by increasing cost (ties by edge id: deterministic).
-    let mut order: Vec<usize> = (0..cands.len()).collect();
-    order.sort_by(|&i, &j| cands[i].4.total_cmp(&cands[j].4).then(i.cmp(&j)));
-    let mut mate = vec![NONE; nt];
-    let mut greedy_pairs = 0;
-    for &i in &order {
-        let (_, a, b, q, _) = cands[i];
-        if (opts.greedy_convex_only && !q.convex)
-            || mate[a as usize] != NONE
-            || mate[b as usize] != NONE
-        {
-            continue;
-        }
-        mate[a as usize] = b;
-        mate[b as usize] = a;
-        greedy_pairs += 1;
-    }
-
-    // 2. Augmenting paths. Neighbour lists sorted by cost, so that the
-    // breadth-first searches try the better-shaped pairs first.
-    let mut rank = vec![0u32; cands.len()];
-    for (r, &i) in order.iter().enumerate() {
-        rank[i] = r as u32;
-    }
-    let mut lists: Vec<Vec<(u32, u32)>> = vec![Vec::new(); nt];
-    for (i, &(_, a, b, _, _)) in cands.iter().enumerate() {
-        lists[a as usize].push((rank[i], b));
-        lists[b as usize].push((rank[i], a));
-    }
-    let mut off = Vec::with_capacity(nt + 1);
-    let mut adj = Vec::with_capacity(2 * cands.len());
-    off.push(0u32);
-    for l in &mut lists {
-        l.sort_unstable();
-        adj.extend(l.iter().map(|&(_, n)| n));
-        off.push(adj.len() as u32);
-    }
-    drop(lists);
-    let graph = Graph { off, adj };
+    let cands = pair_candidates(&tm, opts);
+    let (order, mate, greedy_pairs) = greedy_pairing(&cands, nt, opts);
+    let graph = candidate_graph(&cands, &order, nt);
     let mut matcher = Matcher::new(&graph, mate);
     let augmentations = matcher.maximise();
     let mut mate = matcher.mate;
-
-    // 3. Parity fixes for what a maximum matching leaves over.
-    let boundary_edges = |t: u32| -> Vec<HalfedgeId> {
-        tm.face_halfedges(crate::mesh::FaceId(t))
-            .filter(|&h| tm.is_boundary_halfedge(h.twin()))
-            .collect()
-    };
-    let leftovers: Vec<u32> = (0..nt as u32)
-        .filter(|&t| mate[t as usize] == NONE)
-        .collect();
-    let mut holes = Vec::with_capacity(leftovers.len());
-    for &t in &leftovers {
-        let (target, steps) = shift_hole(&graph, &mut mate, t, |x| {
-            tm.face_halfedges(crate::mesh::FaceId(x))
-                .any(|h| tm.is_boundary_halfedge(h.twin()))
-        })
-        .ok_or_else(|| {
-            Error::topology(
-                format!("triangle {t}"),
-                "cannot be paired into a quad and no alternating path reaches a boundary \
-                 triangle where the parity could be fixed",
-            )
-        })?;
-        holes.push((t, target, steps));
-    }
+    let (leftovers, holes) = shift_leftovers(&tm, &graph, &mut mate)?;
 
     // Output: pair quads in the order of their lower triangle, then the
     // parity-fix quads.
@@ -396,68 +296,9 @@ pub fn quadrangulate(mesh: &TriMesh, opts: &QuadrangulateOptions) -> Result<Quad
     let num_pairs = quads.len();
     let mut parity_fixes = Vec::with_capacity(holes.len());
     for (leftover, t, path_length) in holes {
-        let bnd = boundary_edges(t);
         let first = quads.len();
-        let mut new_vertices = Vec::new();
-        let mut add = |p: DVec3, positions: &mut Vec<DVec3>| {
-            let id = positions.len() as u32;
-            positions.push(p);
-            new_vertices.push(VertexId(id));
-            id
-        };
-        let kind = if bnd.len() == 3 {
-            let h0 = tm.face_halfedge(crate::mesh::FaceId(t));
-            let [a, b, c] = [h0, tm.next(h0), tm.prev(h0)].map(|h| tm.tail(h).0);
-            let [pa, pb, pc] = [a, b, c].map(|v| positions[v as usize]);
-            let g = add((pa + pb + pc) / 3.0, &mut positions);
-            let mab = add((pa + pb) / 2.0, &mut positions);
-            let mbc = add((pb + pc) / 2.0, &mut positions);
-            let mca = add((pc + pa) / 2.0, &mut positions);
-            quads.push([a, mab, g, mca]);
-            quads.push([b, mbc, g, mab]);
-            quads.push([c, mca, g, mbc]);
-            ParityFixKind::IsolatedTriangleSplit
-        } else {
-            // Longest boundary edge: the new vertex lands where the boundary
-            // is coarsest (ties: first in face order).
-            let h = bnd
-                .iter()
-                .copied()
-                .max_by(|&x, &y| {
-                    let l = |h: HalfedgeId| {
-                        (tm.position(tm.head(h)) - tm.position(tm.tail(h))).length()
-                    };
-                    l(x).total_cmp(&l(y)).then(y.cmp(&x))
-                })
-                .expect("the target has a boundary edge");
-            let (a, b, c) = (tm.tail(h).0, tm.head(h).0, tm.head(tm.next(h)).0);
-            let p = |v: u32| positions[v as usize];
-            let (pa, pb, pc) = (p(a), p(b), p(c));
-            let pm = (pa + pb) / 2.0;
-            let g = (pa + pb + pc) / 3.0;
-            let m = add(pm, &mut positions);
-            let ia = add((pa + g) / 2.0, &mut positions);
-            let im = add((pm + g) / 2.0, &mut positions);
-            let ib = add((pb + g) / 2.0, &mut positions);
-            let ic = add((pc + g) / 2.0, &mut positions);
-            // Ring quads (u, w, inner(w), inner(u)) over the polygon
-            // (a, m, b, c), then the inner quad; all oriented like (a, b, c).
-            quads.push([a, m, im, ia]);
-            quads.push([m, b, ib, im]);
-            quads.push([b, c, ic, ib]);
-            quads.push([c, a, ia, ic]);
-            quads.push([ia, im, ib, ic]);
-            let orig = |v: u32| {
-                mesh.triangles[t as usize]
-                    .iter()
-                    .copied()
-                    .find(|&w| vertex_map[w as usize] == Some(VertexId(v)))
-                    .expect("vertex of the triangle")
-            };
-            ParityFixKind::BoundaryEdgeSplit {
-                edge: [orig(a), orig(b)],
-            }
-        };
+        let (kind, new_vertices) =
+            parity_fix(&tm, mesh, &vertex_map, &mut positions, &mut quads, t);
         for _ in first..quads.len() {
             sources.push(QuadSource::Split { triangle: t });
         }
@@ -497,6 +338,229 @@ pub fn quadrangulate(mesh: &TriMesh, opts: &QuadrangulateOptions) -> Result<Quad
         vertex_map,
         report,
     })
+}
+
+/// A candidate pair (Fitmaps §3.2): the shared edge, the two triangles,
+/// the quad's shape and its cost.
+type Candidate = (EdgeId, u32, u32, QuadQuality, f64);
+
+/// A leftover triangle moved to a boundary triangle: (leftover, target,
+/// alternating-path length).
+type Hole = (u32, u32, usize);
+
+/// Compacts away the vertices no triangle uses, keeping the order of the
+/// others (a control mesh cannot hold an isolated vertex): the map from
+/// input vertices, the kept positions and the renumbered triangles. Fails
+/// on an out-of-range index.
+#[allow(clippy::type_complexity)]
+fn compact_vertices(mesh: &TriMesh) -> Result<(Vec<Option<VertexId>>, Vec<DVec3>, Vec<[u32; 3]>)> {
+    let nv_in = mesh.positions.len();
+    let mut used = vec![false; nv_in];
+    for (t, tri) in mesh.triangles.iter().enumerate() {
+        for &v in tri {
+            if v as usize >= nv_in {
+                return Err(Error::topology(
+                    format!("triangle {t}"),
+                    format!("vertex index {v} out of range (the mesh has {nv_in} vertices)"),
+                ));
+            }
+            used[v as usize] = true;
+        }
+    }
+    let mut vertex_map = vec![None; nv_in];
+    let mut positions = Vec::with_capacity(nv_in);
+    for v in 0..nv_in {
+        if used[v] {
+            vertex_map[v] = Some(VertexId(positions.len() as u32));
+            positions.push(mesh.positions[v]);
+        }
+    }
+    let tris: Vec<[u32; 3]> = mesh
+        .triangles
+        .iter()
+        .map(|t| t.map(|v| vertex_map[v as usize].expect("referenced").0))
+        .collect();
+    Ok((vertex_map, positions, tris))
+}
+
+/// Candidate pairs: interior edges whose two triangles form a quad with
+/// four distinct corners (two triangles sharing all three vertices would
+/// not), with the shape cost of the module docs. In edge order.
+fn pair_candidates(tm: &ControlMesh, opts: &QuadrangulateOptions) -> Vec<Candidate> {
+    (0..tm.num_edges() as u32)
+        .into_par_iter()
+        .filter_map(|e| {
+            let e = EdgeId(e);
+            let h = e.halfedge();
+            let (f1, f2) = (tm.face_of(h)?, tm.face_of(h.twin())?);
+            let q = pair_quad(tm, h);
+            if q[1] == q[3] {
+                return None;
+            }
+            let qual = quad_quality(q.map(|v| tm.position(v)));
+            let cost = qual.max_angle_deviation_deg.to_radians()
+                + opts.planarity_weight * qual.dihedral_deg.to_radians();
+            Some((e, f1.0, f2.0, qual, cost))
+        })
+        .collect()
+}
+
+/// Step 1, greedy pairing by increasing cost (ties by edge id:
+/// deterministic): the candidates in cost order, the matching
+/// (`mate[t]`, [`NONE`] when free) and how many pairs it took.
+fn greedy_pairing(
+    cands: &[Candidate],
+    nt: usize,
+    opts: &QuadrangulateOptions,
+) -> (Vec<usize>, Vec<u32>, usize) {
+    let mut order: Vec<usize> = (0..cands.len()).collect();
+    order.sort_by(|&i, &j| cands[i].4.total_cmp(&cands[j].4).then(i.cmp(&j)));
+    let mut mate = vec![NONE; nt];
+    let mut greedy_pairs = 0;
+    for &i in &order {
+        let (_, a, b, q, _) = cands[i];
+        if (opts.greedy_convex_only && !q.convex)
+            || mate[a as usize] != NONE
+            || mate[b as usize] != NONE
+        {
+            continue;
+        }
+        mate[a as usize] = b;
+        mate[b as usize] = a;
+        greedy_pairs += 1;
+    }
+    (order, mate, greedy_pairs)
+}
+
+/// Step 2's graph: the dual graph restricted to the candidates, each
+/// neighbour list sorted by cost (`order`), so that the breadth-first
+/// searches of the augmenting paths try the better-shaped pairs first.
+fn candidate_graph(cands: &[Candidate], order: &[usize], nt: usize) -> Graph {
+    let mut rank = vec![0u32; cands.len()];
+    for (r, &i) in order.iter().enumerate() {
+        rank[i] = r as u32;
+    }
+    let mut lists: Vec<Vec<(u32, u32)>> = vec![Vec::new(); nt];
+    for (i, &(_, a, b, _, _)) in cands.iter().enumerate() {
+        lists[a as usize].push((rank[i], b));
+        lists[b as usize].push((rank[i], a));
+    }
+    let mut off = Vec::with_capacity(nt + 1);
+    let mut adj = Vec::with_capacity(2 * cands.len());
+    off.push(0u32);
+    for l in &mut lists {
+        l.sort_unstable();
+        adj.extend(l.iter().map(|&(_, n)| n));
+        off.push(adj.len() as u32);
+    }
+    Graph { off, adj }
+}
+
+/// Step 3, first half: each triangle a maximum matching leaves over is
+/// moved along an alternating path to a triangle with a boundary edge
+/// (the matching keeps its size). Returns the leftovers and, per
+/// leftover, where it went; fails where no path reaches the boundary.
+fn shift_leftovers(
+    tm: &ControlMesh,
+    graph: &Graph,
+    mate: &mut [u32],
+) -> Result<(Vec<u32>, Vec<Hole>)> {
+    let leftovers: Vec<u32> = (0..mate.len() as u32)
+        .filter(|&t| mate[t as usize] == NONE)
+        .collect();
+    let mut holes = Vec::with_capacity(leftovers.len());
+    for &t in &leftovers {
+        let (target, steps) = shift_hole(graph, mate, t, |x| {
+            tm.face_halfedges(crate::mesh::FaceId(x))
+                .any(|h| tm.is_boundary_halfedge(h.twin()))
+        })
+        .ok_or_else(|| {
+            Error::topology(
+                format!("triangle {t}"),
+                "cannot be paired into a quad and no alternating path reaches a boundary \
+                 triangle where the parity could be fixed",
+            )
+        })?;
+        holes.push((t, target, steps));
+    }
+    Ok((leftovers, holes))
+}
+
+/// Step 3, second half: splits the boundary triangle `t` into quads (see
+/// [`ParityFixKind`]), appending the new vertices to `positions` and the
+/// quads to `quads`; returns the kind of split and the new vertices.
+fn parity_fix(
+    tm: &ControlMesh,
+    mesh: &TriMesh,
+    vertex_map: &[Option<VertexId>],
+    positions: &mut Vec<DVec3>,
+    quads: &mut Vec<[u32; 4]>,
+    t: u32,
+) -> (ParityFixKind, Vec<VertexId>) {
+    let bnd: Vec<HalfedgeId> = tm
+        .face_halfedges(crate::mesh::FaceId(t))
+        .filter(|&h| tm.is_boundary_halfedge(h.twin()))
+        .collect();
+    let mut new_vertices = Vec::new();
+    let mut add = |p: DVec3, positions: &mut Vec<DVec3>| {
+        let id = positions.len() as u32;
+        positions.push(p);
+        new_vertices.push(VertexId(id));
+        id
+    };
+    let kind = if bnd.len() == 3 {
+        let h0 = tm.face_halfedge(crate::mesh::FaceId(t));
+        let [a, b, c] = [h0, tm.next(h0), tm.prev(h0)].map(|h| tm.tail(h).0);
+        let [pa, pb, pc] = [a, b, c].map(|v| positions[v as usize]);
+        let g = add((pa + pb + pc) / 3.0, positions);
+        let mab = add((pa + pb) / 2.0, positions);
+        let mbc = add((pb + pc) / 2.0, positions);
+        let mca = add((pc + pa) / 2.0, positions);
+        quads.push([a, mab, g, mca]);
+        quads.push([b, mbc, g, mab]);
+        quads.push([c, mca, g, mbc]);
+        ParityFixKind::IsolatedTriangleSplit
+    } else {
+        // Longest boundary edge: the new vertex lands where the boundary
+        // is coarsest (ties: first in face order).
+        let h = bnd
+            .iter()
+            .copied()
+            .max_by(|&x, &y| {
+                let l =
+                    |h: HalfedgeId| (tm.position(tm.head(h)) - tm.position(tm.tail(h))).length();
+                l(x).total_cmp(&l(y)).then(y.cmp(&x))
+            })
+            .expect("the target has a boundary edge");
+        let (a, b, c) = (tm.tail(h).0, tm.head(h).0, tm.head(tm.next(h)).0);
+        let p = |v: u32| positions[v as usize];
+        let (pa, pb, pc) = (p(a), p(b), p(c));
+        let pm = (pa + pb) / 2.0;
+        let g = (pa + pb + pc) / 3.0;
+        let m = add(pm, positions);
+        let ia = add((pa + g) / 2.0, positions);
+        let im = add((pm + g) / 2.0, positions);
+        let ib = add((pb + g) / 2.0, positions);
+        let ic = add((pc + g) / 2.0, positions);
+        // Ring quads (u, w, inner(w), inner(u)) over the polygon
+        // (a, m, b, c), then the inner quad; all oriented like (a, b, c).
+        quads.push([a, m, im, ia]);
+        quads.push([m, b, ib, im]);
+        quads.push([b, c, ic, ib]);
+        quads.push([c, a, ia, ic]);
+        quads.push([ia, im, ib, ic]);
+        let orig = |v: u32| {
+            mesh.triangles[t as usize]
+                .iter()
+                .copied()
+                .find(|&w| vertex_map[w as usize] == Some(VertexId(v)))
+                .expect("vertex of the triangle")
+        };
+        ParityFixKind::BoundaryEdgeSplit {
+            edge: [orig(a), orig(b)],
+        }
+    };
+    (kind, new_vertices)
 }
 
 /// The quad made by removing the edge of `h` (from `a` to `b`, inside the

@@ -296,11 +296,14 @@ pub fn render_frame(
             "render: image size {w}x{h} is empty"
         )));
     }
-    let mesh = &surf.mesh;
-    let diag = mesh.bbox_diagonal().max(f64::MIN_POSITIVE);
-    let eps = 1e-5 * diag;
-    let ao_len = shading.ao_radius * diag;
-    let nao = shading.ao_rays;
+    let diag = surf.mesh.bbox_diagonal().max(f64::MIN_POSITIVE);
+    let shade = Shader {
+        surf,
+        cam,
+        shading,
+        eps: 1e-5 * diag,
+        ao_len: shading.ao_radius * diag,
+    };
     let mut frame = Frame {
         width: w,
         height: h,
@@ -309,6 +312,8 @@ pub fn render_frame(
         albedo: vec![[0.0; 3]; w * h],
         line: vec![0.0; w * h],
     };
+    // Bands of rows: the primary hits and the AO rays of one band are
+    // cast as two batches, without holding the whole image's rays.
     let band = shading.band_rows.max(1);
     let mut y0 = 0;
     while y0 < h {
@@ -320,96 +325,7 @@ pub fn render_frame(
         let shaded: Vec<Option<(Sample, Vec<Ray>)>> = hits
             .par_iter()
             .enumerate()
-            .map(|(i, hit)| {
-                let hit: &Hit = hit.as_ref()?;
-                let (x, y) = (i % w, y0 + i / w);
-                let t = hit.triangle as usize;
-                let tri = mesh.triangle(t);
-                let [ia, ib, ic] = mesh.triangles[t];
-                let (bu, bv) = (hit.u, hit.v);
-                let bw = 1.0 - bu - bv;
-                let p = bw * tri[0] + bu * tri[1] + bv * tri[2];
-                let view = cam.dir;
-                let mut ng = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
-                if ng.dot(view) > 0.0 {
-                    ng = -ng;
-                }
-                let ns_raw = bw * surf.normals[ia as usize]
-                    + bu * surf.normals[ib as usize]
-                    + bv * surf.normals[ic as usize];
-                let mut ns = ns_raw.normalize_or_zero();
-                if ns == DVec3::ZERO || !ns.is_finite() {
-                    ns = ng;
-                }
-                // Two-sided lighting: scans are open and not always
-                // consistently oriented.
-                if ns.dot(view) > 0.0 {
-                    ns = -ns;
-                }
-                let albedo = surf
-                    .triangle_colours
-                    .as_ref()
-                    .and_then(|c| c[t])
-                    .unwrap_or_else(|| match &surf.vertex_colours {
-                        Some(c) => {
-                            let (a, b, cc) = (c[ia as usize], c[ib as usize], c[ic as usize]);
-                            let (bw, bu, bv) = (bw as f32, bu as f32, bv as f32);
-                            [0, 1, 2].map(|k| bw * a[k] + bu * b[k] + bv * cc[k])
-                        }
-                        None => surf.base,
-                    });
-                let line = match &surf.patch_uv {
-                    Some(puv) => line_coverage(
-                        cam,
-                        x as f64 + 0.5,
-                        y as f64 + 0.5,
-                        tri,
-                        &puv[t],
-                        (bu, bv),
-                        0.5 * shading.line_width,
-                    ),
-                    None => 0.0,
-                };
-                let mut ao = Vec::with_capacity(nao);
-                if nao > 0 {
-                    let hsh = hash(((y as u64) << 32) | x as u64);
-                    let (r1, r2) = (unit(hsh), unit(hash(hsh)));
-                    let (t1, t2) = onb(ns);
-                    let origin = p + eps * ng;
-                    for k in 0..nao {
-                        // Stratified cosine-weighted hemisphere samples,
-                        // rotated per pixel (Cranley-Patterson).
-                        // Directions within 60° of the normal only
-                        // (u1 ≤ 3/4): grazing rays carry little cosine
-                        // weight but, hitting or not depending on the
-                        // pixel's rotation, most of the noise.
-                        let u1 = 0.75 * ((k as f64 + 0.5) / nao as f64 + r1).fract();
-                        let u2 = (vdc(k as u32) + r2).fract();
-                        let (r, phi) = (u1.sqrt(), std::f64::consts::TAU * u2);
-                        let mut d =
-                            r * phi.cos() * t1 + r * phi.sin() * t2 + (1.0 - u1).sqrt() * ns;
-                        // Keep the ray on the geometric front side.
-                        let dn = d.dot(ng);
-                        if dn < 0.0 {
-                            d -= 2.0 * dn * ng;
-                        }
-                        ao.push(Ray {
-                            origin,
-                            dir: d,
-                            tmin: 0.0,
-                            tmax: ao_len,
-                        });
-                    }
-                }
-                Some((
-                    Sample {
-                        albedo,
-                        facing: -ns.dot(view),
-                        line,
-                    },
-                    ao,
-                ))
-            })
+            .map(|(i, hit)| Some(shade.shade(hit.as_ref()?, i % w, y0 + i / w)))
             .collect();
         let ao_rays: Vec<Ray> = shaded
             .iter()
@@ -417,6 +333,137 @@ pub fn render_frame(
             .flat_map(|(_, r)| r.iter().copied())
             .collect();
         let ao_hits = caster.first_hits(&ao_rays)?;
+        shade.composite(&mut frame, shaded, &ao_hits, y0 * w);
+        y0 = y1;
+        if !progress(y0 as f64 / h as f64) {
+            return Err(Error::Cancelled {
+                stage: "render".into(),
+            });
+        }
+    }
+    Ok(frame)
+}
+
+/// What shading one pixel needs besides its hit: the surface, camera and
+/// shading options, the AO rays' offset `eps` and length `ao_len` (both
+/// relative to the bounding-box diagonal).
+struct Shader<'a> {
+    surf: &'a Surface,
+    cam: &'a Camera,
+    shading: &'a Shading,
+    eps: f64,
+    ao_len: f64,
+}
+
+impl Shader<'_> {
+    /// The sample of pixel `(x, y)` whose primary ray hit `hit`, and its
+    /// ambient-occlusion rays (none when `ao_rays = 0`).
+    fn shade(&self, hit: &Hit, x: usize, y: usize) -> (Sample, Vec<Ray>) {
+        let (surf, cam) = (self.surf, self.cam);
+        let mesh = &surf.mesh;
+        let t = hit.triangle as usize;
+        let tri = mesh.triangle(t);
+        let [ia, ib, ic] = mesh.triangles[t];
+        let (bu, bv) = (hit.u, hit.v);
+        let bw = 1.0 - bu - bv;
+        let p = bw * tri[0] + bu * tri[1] + bv * tri[2];
+        let view = cam.dir;
+        let mut ng = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
+        if ng.dot(view) > 0.0 {
+            ng = -ng;
+        }
+        let ns_raw = bw * surf.normals[ia as usize]
+            + bu * surf.normals[ib as usize]
+            + bv * surf.normals[ic as usize];
+        let mut ns = ns_raw.normalize_or_zero();
+        if ns == DVec3::ZERO || !ns.is_finite() {
+            ns = ng;
+        }
+        // Two-sided lighting: scans are open and not always
+        // consistently oriented.
+        if ns.dot(view) > 0.0 {
+            ns = -ns;
+        }
+        let albedo = surf
+            .triangle_colours
+            .as_ref()
+            .and_then(|c| c[t])
+            .unwrap_or_else(|| match &surf.vertex_colours {
+                Some(c) => {
+                    let (a, b, cc) = (c[ia as usize], c[ib as usize], c[ic as usize]);
+                    let (bw, bu, bv) = (bw as f32, bu as f32, bv as f32);
+                    [0, 1, 2].map(|k| bw * a[k] + bu * b[k] + bv * cc[k])
+                }
+                None => surf.base,
+            });
+        let line = match &surf.patch_uv {
+            Some(puv) => line_coverage(
+                cam,
+                x as f64 + 0.5,
+                y as f64 + 0.5,
+                tri,
+                &puv[t],
+                (bu, bv),
+                0.5 * self.shading.line_width,
+            ),
+            None => 0.0,
+        };
+        let ao = self.ao_rays(p + self.eps * ng, ng, ns, x, y);
+        let sample = Sample {
+            albedo,
+            facing: -ns.dot(view),
+            line,
+        };
+        (sample, ao)
+    }
+
+    /// The AO rays of pixel `(x, y)` from `origin` (the hit lifted off the
+    /// surface), around the shading normal `ns` on the front side of the
+    /// geometric normal `ng`.
+    fn ao_rays(&self, origin: DVec3, ng: DVec3, ns: DVec3, x: usize, y: usize) -> Vec<Ray> {
+        let nao = self.shading.ao_rays;
+        let mut ao = Vec::with_capacity(nao);
+        if nao > 0 {
+            let hsh = hash(((y as u64) << 32) | x as u64);
+            let (r1, r2) = (unit(hsh), unit(hash(hsh)));
+            let (t1, t2) = onb(ns);
+            for k in 0..nao {
+                // Stratified cosine-weighted hemisphere samples,
+                // rotated per pixel (Cranley-Patterson).
+                // Directions within 60° of the normal only
+                // (u1 ≤ 3/4): grazing rays carry little cosine
+                // weight but, hitting or not depending on the
+                // pixel's rotation, most of the noise.
+                let u1 = 0.75 * ((k as f64 + 0.5) / nao as f64 + r1).fract();
+                let u2 = (vdc(k as u32) + r2).fract();
+                let (r, phi) = (u1.sqrt(), std::f64::consts::TAU * u2);
+                let mut d = r * phi.cos() * t1 + r * phi.sin() * t2 + (1.0 - u1).sqrt() * ns;
+                // Keep the ray on the geometric front side.
+                let dn = d.dot(ng);
+                if dn < 0.0 {
+                    d -= 2.0 * dn * ng;
+                }
+                ao.push(Ray {
+                    origin,
+                    dir: d,
+                    tmin: 0.0,
+                    tmax: self.ao_len,
+                });
+            }
+        }
+        ao
+    }
+
+    /// Lights the shaded pixels of one band (starting at pixel `first` of
+    /// the frame) with their AO hits, in band order, into `frame`.
+    fn composite(
+        &self,
+        frame: &mut Frame,
+        shaded: Vec<Option<(Sample, Vec<Ray>)>>,
+        ao_hits: &[Option<Hit>],
+        first: usize,
+    ) {
+        let ao_len = self.ao_len;
         let mut k = 0;
         for (i, s) in shaded.into_iter().enumerate() {
             let Some((s, rays)) = s else { continue };
@@ -444,20 +491,13 @@ pub fn render_frame(
             for j in 0..3 {
                 c[j] = c[j] * (1.0 - l) + LINE[j] * l;
             }
-            let idx = y0 * w + i;
+            let idx = first + i;
             frame.colour[idx] = c;
             frame.hit[idx] = true;
             frame.albedo[idx] = s.albedo;
             frame.line[idx] = l;
         }
-        y0 = y1;
-        if !progress(y0 as f64 / h as f64) {
-            return Err(Error::Cancelled {
-                stage: "render".into(),
-            });
-        }
     }
-    Ok(frame)
 }
 
 /// Draws `surf.markers` that are visible from `cam` as dots on `img`.

@@ -683,19 +683,79 @@ fn dart_masks<P: Clone>(
 /// be complete in `t`). The first tangent points along the edge to `start`
 /// when `c` is smooth and `start` given; `t1 × t2` is the outward normal
 /// for outward-oriented faces.
+///
+/// The ring is first settled ([`settled_ring`]); then each rule of
+/// [`vertex_rule`] has its exact masks: [`dart_limit`], [`smooth_limit`],
+/// [`crease_limit`], and the corner's below.
 pub(crate) fn vertex_limit<P: Pt>(
     t0: &Topo<P>,
     adj0: &Adj,
     c0: u32,
     start: Option<u32>,
 ) -> (P, P, P) {
+    let (t, adj, c, start) = settled_ring(t0, adj0, c0, start);
+    let (mut e, mut f, closed) = fan(&t, &adj, c, start);
+    let sharp: Vec<f64> = e
+        .iter()
+        .map(|&x| t.edge_sharp(&adj, adj.edge_id[&key(c, x)]))
+        .collect();
+    let rule = vertex_rule(t.vert_sharp(&adj, c), &sharp);
+    let nsharp = sharp.iter().filter(|&&s| s > 0.0).count();
+    match rule {
+        Rule::Smooth if nsharp == 1 && closed => {
+            // Dart: the sharp edge's midpoint rule changes the subdivision
+            // matrix, so the smooth masks are not its eigenvectors (they are
+            // off by ~5e-3 of the size on `fixtures::creased_cube`). Sdc uses
+            // the smooth masks anyway; we stay exact, see
+            // `subdiv::known_differences`.
+            let i0 = sharp.iter().position(|&s| s > 0.0).unwrap_or(0);
+            e.rotate_left(i0);
+            f.rotate_left(i0);
+            dart_limit(&t, &adj, c, &e, &f)
+        }
+        Rule::Smooth => smooth_limit(&t, c, &e, &f),
+        Rule::Crease => {
+            // Rotate a closed fan to start at a sharp edge; an open one
+            // starts at its leading boundary edge already.
+            if closed {
+                let i0 = sharp.iter().position(|&s| s > 0.0).unwrap_or(0);
+                e.rotate_left(i0);
+                f.rotate_left(i0);
+            }
+            crease_limit(&t, &adj, c, &e, &f)
+        }
+        Rule::Corner => {
+            // The corner interpolates; the tangents are the edges of the
+            // first sector (of the whole boundary sector when open), like
+            // Sdc's corner tangent masks.
+            let v = &t.pts[c as usize];
+            let last = if closed {
+                e[1 % e.len()]
+            } else {
+                e[e.len() - 1]
+            };
+            let t1 = comb(&[(1.0, &t.pts[e[0] as usize]), (-1.0, v)]);
+            let t2 = comb(&[(1.0, &t.pts[last as usize]), (-1.0, v)]);
+            (v.clone(), t1, t2)
+        }
+    }
+}
+
+/// The 1-ring of `c0` in `t0`, locally subdivided until every incident
+/// face is a quad and every sharpness at the vertex is 0 or infinite
+/// (semi-sharp features run out after at most ceil(sharpness) levels): the
+/// limit masks of [`vertex_limit`] assume both. Returns the ring, its
+/// adjacency, and `c0` and `start` in it.
+fn settled_ring<P: Pt>(
+    t0: &Topo<P>,
+    adj0: &Adj,
+    c0: u32,
+    start: Option<u32>,
+) -> (Topo<P>, Adj, u32, Option<u32>) {
     let (mut t, map) = t0.ring(adj0, &[c0], None);
     let mut c = map[c0 as usize];
     let mut start = start.map(|s| map[s as usize]);
     let mut adj = t.adjacency();
-    // Local subdivision until every incident face is a quad and every
-    // sharpness at `c` is 0 or infinite (semi-sharp features run out after
-    // at most ceil(sharpness) levels); the masks below assume both.
     let settled = |s: f64| s == 0.0 || s >= INF;
     for _ in 0..(INF as usize + 2) {
         let ok = adj.vfaces[c as usize].iter().all(|&f| t.face(f).len() == 4)
@@ -715,132 +775,107 @@ pub(crate) fn vertex_limit<P: Pt>(
         t = nt;
         adj = t.adjacency();
     }
-    let (mut e, mut f, closed) = fan(&t, &adj, c, start);
-    let sharp: Vec<f64> = e
-        .iter()
-        .map(|&x| t.edge_sharp(&adj, adj.edge_id[&key(c, x)]))
-        .collect();
-    let rule = vertex_rule(t.vert_sharp(&adj, c), &sharp);
+    (t, adj, c, start)
+}
+
+/// Dart limit (`e`, `f` rotated to start at the sharp edge): the exact
+/// eigenvector masks of [`dart_masks`] applied to the fan.
+fn dart_limit<P: Pt>(t: &Topo<P>, adj: &Adj, c: u32, e: &[u32], f: &[u32]) -> (P, P, P) {
     let pt = |i: u32| &t.pts[i as usize];
     let v = pt(c);
-    let nsharp = sharp.iter().filter(|&&s| s > 0.0).count();
-    match rule {
-        Rule::Smooth if nsharp == 1 && closed => {
-            // Dart: the sharp edge's midpoint rule changes the subdivision
-            // matrix, so the smooth masks are not its eigenvectors (they are
-            // off by ~5e-3 of the size on `fixtures::creased_cube`). Sdc uses
-            // the smooth masks anyway; we stay exact, see
-            // `subdiv::known_differences`.
-            let i0 = sharp.iter().position(|&s| s > 0.0).unwrap_or(0);
-            e.rotate_left(i0);
-            f.rotate_left(i0);
-            let (p, t1, t2) = dart_masks(&t, &adj, c, &e, &f);
-            let apply = |w: &[f64]| {
-                let mut r = P::zero();
-                r.axpy(w[0], v);
-                for i in 0..e.len() {
-                    r.axpy(w[1 + i], pt(e[i]));
-                    r.axpy(w[1 + e.len() + i], pt(f[i]));
-                }
-                r
-            };
-            (apply(&p), apply(&t1), apply(&t2))
+    let (p, t1, t2) = dart_masks(t, adj, c, e, f);
+    let apply = |w: &[f64]| {
+        let mut r = P::zero();
+        r.axpy(w[0], v);
+        for i in 0..e.len() {
+            r.axpy(w[1 + i], pt(e[i]));
+            r.axpy(w[1 + e.len() + i], pt(f[i]));
         }
-        Rule::Smooth => {
-            // Interior (closed) fan of quads. Position: the dominant left
-            // eigenvector (n²v + 4Σe + Σf)/(n(n+5)), exact for every n ≥ 2
-            // (OpenSubdiv uses the corner mask at n = 2 on purpose, see
-            // `known_differences`). Darts use the smooth masks like Sdc.
-            let n = e.len();
-            let nf = n as f64;
-            let d = nf * (nf + 5.0);
-            let mut p = P::zero();
-            p.axpy(nf * nf / d, v);
-            for i in 0..n {
-                p.axpy(4.0 / d, pt(e[i]));
-                p.axpy(1.0 / d, pt(f[i]));
-            }
-            let (mut t1, mut t2) = (P::zero(), P::zero());
-            if n == 2 {
-                t1 = comb(&[(1.0, pt(e[0])), (-1.0, pt(e[1]))]);
-                t2 = comb(&[(1.0, pt(f[0])), (-1.0, pt(f[1]))]);
-            } else {
-                // Subdominant eigenvectors (Halstead, Kass & DeRose 1993,
-                // appendix): e_i weighted A_n cos(2πi/n), f_i weighted
-                // cos(2πi/n) + cos(2π(i+1)/n); the sine version is the
-                // second one, a quarter period on.
-                let th = 2.0 * std::f64::consts::PI / nf;
-                let an = 1.0 + th.cos() + (th / 2.0).cos() * (2.0 * (9.0 + th.cos())).sqrt();
-                for i in 0..n {
-                    let (a0, a1) = (th * i as f64, th * (i + 1) as f64);
-                    t1.axpy(an * a0.cos(), pt(e[i]));
-                    t1.axpy(a0.cos() + a1.cos(), pt(f[i]));
-                    t2.axpy(an * a0.sin(), pt(e[i]));
-                    t2.axpy(a0.sin() + a1.sin(), pt(f[i]));
-                }
-                // The masks sum to zero; scale like a B-spline derivative
-                // at a regular vertex (A_4 = 4: divide by 12).
-                t1 = comb(&[(1.0 / 12.0, &t1)]);
-                t2 = comb(&[(1.0 / 12.0, &t2)]);
-            }
-            (p, t1, t2)
-        }
-        Rule::Crease => {
-            // Rotate a closed fan to start at a sharp edge; an open one
-            // starts at its leading boundary edge already.
-            if closed {
-                let i0 = sharp.iter().position(|&s| s > 0.0).unwrap_or(0);
-                e.rotate_left(i0);
-                f.rotate_left(i0);
-            }
-            let k = e
-                .iter()
-                .skip(1)
-                .position(|&x| t.edge_sharp(&adj, adj.edge_id[&key(c, x)]) > 0.0)
-                .map_or(e.len() - 1, |i| i + 1);
-            // The crease is a cubic B-spline curve: 1-4-1 limit mask.
-            let p = comb(&[(1.0 / 6.0, pt(e[0])), (4.0 / 6.0, v), (1.0 / 6.0, pt(e[k]))]);
-            let t1 = comb(&[(0.5, pt(e[0])), (-0.5, pt(e[k]))]);
-            // Across: on the side between e_0 and e_k (k faces). For k = 2
-            // the regular boundary B-spline derivative; otherwise the exact
-            // eigenvector.
-            let t2 = if k == 2 {
-                comb(&[
-                    (1.0 / 6.0, pt(f[0])),
-                    (4.0 / 6.0, pt(e[1])),
-                    (1.0 / 6.0, pt(f[1])),
-                    (-1.0 / 6.0, pt(e[0])),
-                    (-4.0 / 6.0, v),
-                    (-1.0 / 6.0, pt(e[2])),
-                ])
-            } else {
-                let w = crease_cross_mask(k);
-                let mut r = P::zero();
-                r.axpy(w[0], v);
-                for i in 0..=k {
-                    r.axpy(w[1 + i], pt(e[i]));
-                }
-                for j in 0..k {
-                    r.axpy(w[2 + k + j], pt(f[j]));
-                }
-                r
-            };
-            (p, t1, t2)
-        }
-        Rule::Corner => {
-            // The corner interpolates; the tangents are the edges of the
-            // first sector (of the whole boundary sector when open), like
-            // Sdc's corner tangent masks.
-            let last = if closed {
-                e[1 % e.len()]
-            } else {
-                e[e.len() - 1]
-            };
-            let t1 = comb(&[(1.0, pt(e[0])), (-1.0, v)]);
-            let t2 = comb(&[(1.0, pt(last)), (-1.0, v)]);
-            (v.clone(), t1, t2)
-        }
+        r
+    };
+    (apply(&p), apply(&t1), apply(&t2))
+}
+
+/// Interior (closed) fan of quads. Position: the dominant left
+/// eigenvector (n²v + 4Σe + Σf)/(n(n+5)), exact for every n ≥ 2
+/// (OpenSubdiv uses the corner mask at n = 2 on purpose, see
+/// `known_differences`). Darts use the smooth masks like Sdc.
+fn smooth_limit<P: Pt>(t: &Topo<P>, c: u32, e: &[u32], f: &[u32]) -> (P, P, P) {
+    let pt = |i: u32| &t.pts[i as usize];
+    let v = pt(c);
+    let n = e.len();
+    let nf = n as f64;
+    let d = nf * (nf + 5.0);
+    let mut p = P::zero();
+    p.axpy(nf * nf / d, v);
+    for i in 0..n {
+        p.axpy(4.0 / d, pt(e[i]));
+        p.axpy(1.0 / d, pt(f[i]));
     }
+    let (mut t1, mut t2) = (P::zero(), P::zero());
+    if n == 2 {
+        t1 = comb(&[(1.0, pt(e[0])), (-1.0, pt(e[1]))]);
+        t2 = comb(&[(1.0, pt(f[0])), (-1.0, pt(f[1]))]);
+    } else {
+        // Subdominant eigenvectors (Halstead, Kass & DeRose 1993,
+        // appendix): e_i weighted A_n cos(2πi/n), f_i weighted
+        // cos(2πi/n) + cos(2π(i+1)/n); the sine version is the
+        // second one, a quarter period on.
+        let th = 2.0 * std::f64::consts::PI / nf;
+        let an = 1.0 + th.cos() + (th / 2.0).cos() * (2.0 * (9.0 + th.cos())).sqrt();
+        for i in 0..n {
+            let (a0, a1) = (th * i as f64, th * (i + 1) as f64);
+            t1.axpy(an * a0.cos(), pt(e[i]));
+            t1.axpy(a0.cos() + a1.cos(), pt(f[i]));
+            t2.axpy(an * a0.sin(), pt(e[i]));
+            t2.axpy(a0.sin() + a1.sin(), pt(f[i]));
+        }
+        // The masks sum to zero; scale like a B-spline derivative
+        // at a regular vertex (A_4 = 4: divide by 12).
+        t1 = comb(&[(1.0 / 12.0, &t1)]);
+        t2 = comb(&[(1.0 / 12.0, &t2)]);
+    }
+    (p, t1, t2)
+}
+
+/// Crease limit (`e`, `f` starting at a sharp edge `e_0`; the other sharp
+/// edge is `e_k`): the crease is a cubic B-spline curve.
+fn crease_limit<P: Pt>(t: &Topo<P>, adj: &Adj, c: u32, e: &[u32], f: &[u32]) -> (P, P, P) {
+    let pt = |i: u32| &t.pts[i as usize];
+    let v = pt(c);
+    let k = e
+        .iter()
+        .skip(1)
+        .position(|&x| t.edge_sharp(adj, adj.edge_id[&key(c, x)]) > 0.0)
+        .map_or(e.len() - 1, |i| i + 1);
+    // The crease is a cubic B-spline curve: 1-4-1 limit mask.
+    let p = comb(&[(1.0 / 6.0, pt(e[0])), (4.0 / 6.0, v), (1.0 / 6.0, pt(e[k]))]);
+    let t1 = comb(&[(0.5, pt(e[0])), (-0.5, pt(e[k]))]);
+    // Across: on the side between e_0 and e_k (k faces). For k = 2
+    // the regular boundary B-spline derivative; otherwise the exact
+    // eigenvector.
+    let t2 = if k == 2 {
+        comb(&[
+            (1.0 / 6.0, pt(f[0])),
+            (4.0 / 6.0, pt(e[1])),
+            (1.0 / 6.0, pt(f[1])),
+            (-1.0 / 6.0, pt(e[0])),
+            (-4.0 / 6.0, v),
+            (-1.0 / 6.0, pt(e[2])),
+        ])
+    } else {
+        let w = crease_cross_mask(k);
+        let mut r = P::zero();
+        r.axpy(w[0], v);
+        for i in 0..=k {
+            r.axpy(w[1 + i], pt(e[i]));
+        }
+        for j in 0..k {
+            r.axpy(w[2 + k + j], pt(f[j]));
+        }
+        r
+    };
+    (p, t1, t2)
 }
 
 impl LimitEvaluator for RustEvaluator {
