@@ -26,14 +26,14 @@
 //! Each vertex and each face is one line (every writer does that); this is
 //! what lets a count that disagrees with the file be caught at the line
 //! where it shows: fewer records than declared is an error at the end of the
-//! file, more is an error at the first extra line. Coordinates are kept in
-//! single precision, as OpenMesh's reader (used for OFF before) did, so that
-//! meshes read before keep byte-identical outputs.
+//! file, more is an error at the first extra line. Coordinates are read in
+//! double precision, as written (OpenMesh's reader, used for OFF before,
+//! rounded them to single precision).
 
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::io::text::{bad_token, bom_len, non_finite, parse_f64, strip_comment, to_f32, Tokens};
+use crate::io::text::{bad_token, bom_len, non_finite, parse_f64, strip_comment, Tokens};
 use crate::mesh::PolySoup;
 use crate::DVec3;
 
@@ -261,13 +261,10 @@ fn vertex(h: &Header, i: usize, lineno: usize, line: &[u8], path: &Path) -> Resu
     for t in Tokens(line) {
         let v = parse_f64(t).ok_or_else(|| Error::parse(path, at(), bad_token("number", t)))?;
         if n < h.coords {
-            c[n] = to_f32(v).ok_or_else(|| {
-                Error::invalid_mesh(
-                    path,
-                    at(),
-                    format!("coordinate {v:e} overflows single precision"),
-                )
-            })?;
+            // Double precision, as written: OpenMesh's reader rounded to
+            // f32, which loses what a file at an odd scale or with many
+            // digits says.
+            c[n] = v;
         }
         n += 1;
     }

@@ -307,8 +307,14 @@ case(
 case(
     "off_overflow.off",
     off(points=[P[0], P[1], (0, "1e39", 0), P[3]]),
-    "err vertex 2 (line 5);overflows single precision",
-    "a coordinate too large for single precision",
+    "ok 4 4 2=0,1e39,0",
+    "a coordinate beyond single precision: kept, OFF is read in double precision",
+)
+case(
+    "off_overflow_double.off",
+    off(points=[P[0], P[1], (0, "1e400", 0), P[3]]),
+    "err vertex 2 (line 5);infinite",
+    "a coordinate beyond double precision (reads as infinity)",
 )
 case(
     "off_out_of_range.off",
