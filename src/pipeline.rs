@@ -369,8 +369,18 @@ fn coarse_control(mesh: &crate::mesh::TriMesh) -> Result<crate::mesh::ControlMes
             base.set_corner(VertexId(v as u32), INFINITELY_SHARP)?;
         }
     }
-    let mut r = crate::subdiv::refine::refine_uniform(&base, 1)?;
-    // refine_uniform decrements sharpness per level; infinite stays infinite.
+    refine_once_keeping_infinite(&base)
+}
+
+/// One level of Catmull-Clark refinement, the same limit surface, with
+/// every infinitely sharp crease and corner still infinitely sharp
+/// (`refine_uniform` decrements sharpness per level, as OpenSubdiv does;
+/// 10 − 1 would turn a crease semi-sharp at the next level).
+fn refine_once_keeping_infinite(
+    control: &crate::mesh::ControlMesh,
+) -> Result<crate::mesh::ControlMesh> {
+    use crate::mesh::INFINITELY_SHARP;
+    let mut r = crate::subdiv::refine::refine_uniform(control, 1)?;
     for (a, b, s) in r.creases() {
         if s >= INFINITELY_SHARP - 1.0 {
             r.set_crease(a, b, INFINITELY_SHARP)?;
@@ -452,7 +462,6 @@ fn convert_mechanical(
     extra_options: serde_json::Value,
     progress: &mut dyn FnMut(&str, f64) -> bool,
 ) -> Result<Converted> {
-    use crate::mesh::{VertexId, INFINITELY_SHARP};
     let mo = crate::mechanical::MechanicalOptions::default().with_max_error(
         opts.max_error
             .unwrap_or(crate::mechanical::DEFAULT_MAX_ERROR),
@@ -467,19 +476,7 @@ fn convert_mechanical(
         if control.is_all_quads() {
             return Ok(control.clone());
         }
-        let mut r = crate::subdiv::refine::refine_uniform(&control, 1)?;
-        // refine_uniform decrements sharpness per level; 10 stays infinite.
-        for (a, b, s) in r.creases() {
-            if s >= INFINITELY_SHARP - 1.0 {
-                r.set_crease(a, b, INFINITELY_SHARP)?;
-            }
-        }
-        for (v, s) in r.corners() {
-            if s >= INFINITELY_SHARP - 1.0 {
-                r.set_corner(VertexId(v.0), INFINITELY_SHARP)?;
-            }
-        }
-        Ok(r)
+        refine_once_keeping_infinite(&control)
     })?;
     let mopts = MetricsOptions::default().with_displacement_res(opts.displacement_res);
     let surfaces = timer.run("displacement+metrics", || {
