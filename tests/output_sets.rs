@@ -120,8 +120,10 @@ fn a_folder_inside_the_output_folder_is_an_error_before_anything_is_written() {
 
 /// Starts a conversion of fandisk into `out` that holds its staged set for
 /// a minute before the swap, and waits until the whole set is staged.
+// The child is returned to the caller, which signals and waits for it.
+#[allow(clippy::zombie_processes)]
 fn start_paused(out: &Path) -> Child {
-    let child = Command::new(env!("CARGO_BIN_EXE_subdfit"))
+    let mut child = Command::new(env!("CARGO_BIN_EXE_subdfit"))
         .arg("convert")
         .arg(data("fandisk.ply"))
         .arg("-o")
@@ -143,10 +145,11 @@ fn start_paused(out: &Path) -> Child {
             std::thread::sleep(Duration::from_millis(300));
             return child;
         }
-        assert!(
-            t0.elapsed() < Duration::from_secs(240),
-            "the set was never staged"
-        );
+        if t0.elapsed() > Duration::from_secs(240) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("the set was never staged");
+        }
         std::thread::sleep(Duration::from_millis(50));
     }
 }

@@ -16,7 +16,7 @@ use crate::mesh::FaceId;
 use crate::subdiv::{Backend, LimitPoint, SurfaceLocation};
 
 #[cxx::bridge(namespace = "subdfit::ffi")]
-pub(crate) mod bridge {
+pub(crate) mod api {
     /// `Options` of the public header, field for field.
     struct FfiOptions {
         tolerance: f64,
@@ -133,7 +133,7 @@ pub(crate) mod bridge {
     }
 }
 
-use bridge::{FfiControlMesh, FfiConversion, FfiMetric, FfiOptions, FfiTile, ProgressSink};
+use api::{FfiControlMesh, FfiConversion, FfiMetric, FfiOptions, FfiTile, ProgressSink};
 
 // SAFETY: `ProgressSink` only holds a pointer to the host's `std::function`,
 // which outlives the call that lent it. `embed::Progress` serialises every
