@@ -88,6 +88,35 @@ fn tick_row(
     Vec::new()
 }
 
+/// `text` fitted into the box `[left, right) × [top, bottom)`, its
+/// rectangle centred on `centre_y` where the box allows: at `size` if it
+/// fits, else smaller, else shortened ([`fit_label`]); `None` if nothing
+/// of it fits.
+fn fit_between(
+    text: &str,
+    size: f32,
+    (left, right): (i64, i64),
+    (top, bottom): (i64, i64),
+    centre_y: i64,
+) -> Option<Label> {
+    let mut s = size;
+    loop {
+        if let Some(l) = fit_label(text, s, right - left) {
+            let l = l.with_left(left).with_top(0);
+            let h = l.rect.h;
+            if h <= bottom - top {
+                let above = l.rect.y - l.y;
+                let rect_top = (centre_y - h / 2).clamp(top, bottom - h);
+                return Some(l.with_top(rect_top - above));
+            }
+        }
+        if s <= 7.0 {
+            return None;
+        }
+        s = (0.93 * s).max(7.0);
+    }
+}
+
 /// Lays out `bar` in the band `(x, y, w, bar_band(scale))`.
 pub fn bar_layout(bar: &ColourBar, x: usize, y: usize, w: usize, scale: usize) -> BarLayout {
     let s = scale.max(1);
@@ -123,15 +152,6 @@ pub fn bar_layout(bar: &ColourBar, x: usize, y: usize, w: usize, scale: usize) -
         w: 10 * si,
         h: ramp.h,
     });
-    // The swatch label sits level with the ramp, between the bar title's
-    // row and the tick labels' row.
-    let swatch_label = swatch.zip(bar.swatch.as_ref()).and_then(|(r, (t, _))| {
-        let left = r.right() + 3 * si;
-        fit_label(t, size, hi - left).map(|l| {
-            let dy = l.y;
-            l.with_left(left).with_top(ramp.y - 2 * si + dy)
-        })
-    });
     let ticks: Vec<(i64, f64)> = {
         let values = bar.ticks();
         let k = values.len().saturating_sub(1).max(1) as f64;
@@ -142,9 +162,27 @@ pub fn bar_layout(bar: &ColourBar, x: usize, y: usize, w: usize, scale: usize) -
             .collect()
     };
     let gap = (2 * si).max((0.35 * size).round() as i64);
-    let (marks, tick_labels) = tick_row(&ticks, size, ramp.bottom() + si, lo, hi, gap)
-        .into_iter()
-        .unzip();
+    let (marks, tick_labels): (Vec<i64>, Vec<Label>) =
+        tick_row(&ticks, size, ramp.bottom() + si, lo, hi, gap)
+            .into_iter()
+            .unzip();
+    // The swatch label sits level with the ramp, below the bar title's
+    // ink and above the tick labels' where they share columns.
+    let swatch_label = swatch.zip(bar.swatch.as_ref()).and_then(|(r, (t, _))| {
+        let (left, right) = (r.right() + 3 * si, hi);
+        let shares = |l: &Label| l.rect.x < right && left < l.rect.right();
+        let top = title
+            .iter()
+            .filter(|l| shares(l))
+            .map(|l| l.rect.bottom())
+            .fold(yi, i64::max);
+        let bottom = tick_labels
+            .iter()
+            .filter(|l| shares(l))
+            .map(|l| l.rect.y)
+            .fold(yi + bar_band(s) as i64, i64::min);
+        fit_between(t, size, (left, right), (top, bottom), ramp.y + ramp.h / 2)
+    });
     BarLayout {
         bar: ramp,
         swatch,
