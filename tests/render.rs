@@ -423,10 +423,7 @@ fn legends_have_no_overlapping_labels_and_a_real_per_mille() {
     let mut per_mille_drawn = false;
     for what in kinds {
         for (w, h) in [(1024, 768), (320, 240), (1600, 300)] {
-            let opts = RenderOptions::default()
-                .with_what(what)
-                .with_size(w, h)
-                .with_rays(RayBackend::Rust);
+            let opts = RenderOptions::default().with_what(what).with_size(w, h);
             let (img, lay) = render_laid_out(&out, &opts, &mut |_| true).unwrap();
             let labels = lay.labels();
             let name = format!("{} {w}x{h}", what.name());
