@@ -1,7 +1,8 @@
 //! The renderer: silhouettes of known size, identical pictures from both
 //! ray casters, patch lines where the patch boundaries are, a perfect fit's
-//! error map uniformly the zero colour, and report.html checked in a real
-//! headless browser.
+//! error map uniformly the zero colour, legends whose labels never overlap
+//! and stay inside the picture (with `‰` its own glyph), and report.html
+//! checked in a real headless browser.
 
 mod common;
 
@@ -12,11 +13,12 @@ use common::*;
 use subdfit::mesh::TriMesh;
 use subdfit::raycast::{make_raycaster, RayBackend};
 use subdfit::render::colormap::{to_rgb8, CLAY, ZERO};
+use subdfit::render::font::{glyph_index, has_glyph, rasterise};
 use subdfit::render::image::decode_png;
 use subdfit::render::report_html::{write_report_html, ReportHtmlOptions};
 use subdfit::render::{
-    error_field, render_frame, render_panels, tessellate_limit, Camera, Frame, Panel,
-    RenderOptions, Shading, Surface, View,
+    error_field, render_frame, render_laid_out, render_panels, tessellate_limit, Camera, Frame,
+    Panel, RenderOptions, Shading, Surface, View, What,
 };
 use subdfit::subdiv::Backend;
 use subdfit::DVec3;
@@ -373,4 +375,96 @@ fn report_html_loads_in_headless_chromium() {
     colours.sort_unstable();
     colours.dedup();
     assert!(colours.len() > 1000, "{} colours", colours.len());
+}
+
+/// The bundled spot converted into `dir/out` (default options).
+fn convert_spot(dir: &Path) -> PathBuf {
+    let out = dir.join("out");
+    let mesh_path = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply"));
+    let input = subdfit::io::read_mesh(&mesh_path).unwrap();
+    let extra = serde_json::json!({"command": "convert", "mesh": mesh_path.display().to_string()});
+    subdfit::pipeline::convert(
+        &input,
+        &subdfit::pipeline::ConvertOptions::default(),
+        extra,
+        &out,
+        &mut |_, _| true,
+    )
+    .unwrap();
+    out
+}
+
+/// Every picture kind of a real conversion (spot), at the default size and
+/// at small and wide ones: the labels the renderer placed (from its
+/// layout) never overlap, each lies inside the picture, uses only glyphs
+/// the embedded font has, and was drawn (its box holds ink, anti-aliased:
+/// grey levels between ink and paper). The error legend prints `‰` with a
+/// glyph of its own: the font maps U+2030 to a glyph other than `%`'s, and
+/// the two rasterise differently.
+#[test]
+fn legends_have_no_overlapping_labels_and_a_real_per_mille() {
+    assert!(has_glyph('‰') && has_glyph('%'));
+    assert_ne!(glyph_index('‰'), glyph_index('%'));
+    let (pm, pc) = (rasterise("‰", 18.0), rasterise("%", 18.0));
+    assert_ne!(pm, pc);
+    // Per mille is the wider sign (a third zero).
+    assert!(pm.ink() > 1.2 * pc.ink(), "{} vs {}", pm.ink(), pc.ink());
+
+    let dir = tempfile::tempdir().unwrap();
+    let out = convert_spot(dir.path());
+    let kinds = [
+        What::Input,
+        What::Fitmap,
+        What::Patches,
+        What::Limit,
+        What::Displaced,
+        What::Error,
+    ];
+    let mut per_mille_drawn = false;
+    for what in kinds {
+        for (w, h) in [(1024, 768), (320, 240), (1600, 300)] {
+            let opts = RenderOptions::default().with_what(what).with_size(w, h);
+            let (img, lay) = render_laid_out(&out, &opts, &mut |_| true).unwrap();
+            let labels = lay.labels();
+            let name = format!("{} {w}x{h}", what.name());
+            let expected = match what {
+                What::Fitmap => 2 * 3,
+                What::Error => 3,
+                _ => 0,
+            };
+            // Panel and bar titles, swatch label, at least the low tick.
+            assert!(labels.len() >= expected, "{name}: {labels:?}");
+            for (i, a) in labels.iter().enumerate() {
+                assert!(a.rect.inside(w, h), "{name}: {a:?} leaves the picture");
+                for b in &labels[i + 1..] {
+                    assert!(!a.rect.overlaps(&b.rect), "{name}: {a:?} overlaps {b:?}");
+                }
+                for c in a.text.chars() {
+                    assert!(has_glyph(c), "{name}: no glyph for {c:?} in {:?}", a.text);
+                }
+                let r = a.rect;
+                // Ink: darker than 110 (the text colour is 20, the paper 255;
+                // a 9 px stem of the light face covers about half a pixel).
+                let mut dark = 0;
+                let mut grey = 0;
+                for y in r.y..r.bottom() {
+                    for x in r.x..r.right() {
+                        let p = img.get(x as usize, y as usize);
+                        let l = (p[0] as u32 + p[1] as u32 + p[2] as u32) / 3;
+                        dark += (l < 110) as usize;
+                        grey += (110..240).contains(&l) as usize;
+                    }
+                }
+                assert!(dark > 0 && grey > 0, "{name}: {:?} not drawn", a.text);
+                per_mille_drawn |= a.text.contains('‰');
+            }
+            if what == What::Error && w == 1024 {
+                let bar = lay.panels[0].bar.as_ref().unwrap();
+                let t = bar.title.as_ref().unwrap();
+                assert!(t.text.contains('‰'), "{t:?}");
+                assert!(bar.tick_labels.len() >= 3, "{:?}", bar.tick_labels);
+            }
+        }
+    }
+    assert!(per_mille_drawn);
 }

@@ -6,8 +6,8 @@
 //! where the values are low, i.e. where a good fit is). Unprojectable
 //! regions get [`UNPROJECTABLE`], a magenta that the map never produces.
 
-use super::font::{draw_text, draw_text_centred, text_height, text_width};
 use super::image::{Image, Rgb};
+use super::layout::BarLayout;
 
 /// Stops of the map, at `0, 1/4, 1/2, 3/4, 1`, linear RGB in [0, 1].
 const STOPS: [[f32; 3]; 5] = [
@@ -103,7 +103,7 @@ impl ColourBar {
     }
 
     /// Tick values: five evenly spaced (linearly or in log).
-    fn ticks(&self) -> Vec<f64> {
+    pub fn ticks(&self) -> Vec<f64> {
         (0..5)
             .map(|k| {
                 let f = k as f64 / 4.0;
@@ -117,12 +117,6 @@ impl ColourBar {
             })
             .collect()
     }
-}
-
-/// Height in pixels of a colour bar drawn at text `scale`.
-pub fn bar_height(scale: usize) -> usize {
-    // title, gap, bar, gap, tick labels, margin.
-    text_height(scale) + 3 * scale + 6 * scale + 2 * scale + text_height(scale) + 4 * scale
 }
 
 /// Compact tick label: 3 significant digits, no exponent for the ranges we
@@ -158,59 +152,35 @@ pub fn format_tick(x: f64) -> String {
     s
 }
 
-/// Draws `bar` into the rectangle `(x, y, w, bar_height(scale))` of `img`.
-pub fn draw_bar(img: &mut Image, bar: &ColourBar, x: usize, y: usize, w: usize, scale: usize) {
-    let s = scale.max(1);
-    let th = text_height(s);
-    let cx = (x + w / 2) as i64;
-    draw_text_centred(img, cx, y as i64, &bar.title, s, TEXT);
-    let swatch_w = bar
-        .swatch
-        .as_ref()
-        .map(|(label, _)| 10 * s + 3 * s + text_width(label, s) + 6 * s)
-        .unwrap_or(0);
-    let bar_w = (w * 6 / 10).min(w.saturating_sub(swatch_w + 8 * s)).max(10);
-    let total = bar_w + swatch_w;
-    let bx = x + w.saturating_sub(total) / 2;
-    let by = y + th + 3 * s;
-    let bh = 6 * s;
-    for i in 0..bar_w {
-        let t = (i as f64 + 0.5) / bar_w as f64;
-        img.fill_rect(
-            (bx + i) as i64,
-            by as i64,
-            1,
-            bh as i64,
-            to_rgb8(colour_map(t)),
-        );
+/// Draws `bar` as laid out by [`super::layout::bar_layout`]: the framed
+/// colour ramp, the tick marks of the labelled ticks, the swatch and every
+/// label.
+pub fn draw_bar(img: &mut Image, bar: &ColourBar, lay: &BarLayout) {
+    let r = lay.bar;
+    for i in 0..r.w {
+        let t = (i as f64 + 0.5) / r.w as f64;
+        img.fill_rect(r.x + i, r.y, 1, r.h, to_rgb8(colour_map(t)));
     }
     // Frame the bar so that its light end stays visible on white.
     let frame = [90, 90, 90];
-    img.fill_rect(bx as i64 - 1, by as i64 - 1, bar_w as i64 + 2, 1, frame);
-    img.fill_rect(bx as i64 - 1, (by + bh) as i64, bar_w as i64 + 2, 1, frame);
-    img.fill_rect(bx as i64 - 1, by as i64 - 1, 1, bh as i64 + 2, frame);
-    img.fill_rect((bx + bar_w) as i64, by as i64 - 1, 1, bh as i64 + 2, frame);
-    let ly = by + bh + 2 * s;
-    let ticks = bar.ticks();
-    for (k, v) in ticks.iter().enumerate() {
-        let tx = bx as f64 + bar_w as f64 * k as f64 / (ticks.len() - 1) as f64;
-        img.fill_rect(tx.round() as i64, (by + bh) as i64, 1, s as i64, frame);
-        let label = format_tick(*v);
-        let lw = text_width(&label, s) as i64;
-        let lx = (tx.round() as i64 - lw / 2).clamp(x as i64, (x + w) as i64 - lw);
-        draw_text(img, lx, ly as i64, &label, s, TEXT);
+    img.fill_rect(r.x - 1, r.y - 1, r.w + 2, 1, frame);
+    img.fill_rect(r.x - 1, r.bottom(), r.w + 2, 1, frame);
+    img.fill_rect(r.x - 1, r.y - 1, 1, r.h + 2, frame);
+    img.fill_rect(r.right(), r.y - 1, 1, r.h + 2, frame);
+    // Tick marks one text-scale unit long (the gap above the labels).
+    let mark = lay
+        .tick_labels
+        .first()
+        .map(|l| (l.y - r.bottom()).max(1))
+        .unwrap_or(1);
+    for &tx in &lay.ticks {
+        img.fill_rect(tx, r.bottom(), 1, mark, frame);
     }
-    if let Some((label, c)) = &bar.swatch {
-        let sx = bx + bar_w + 6 * s;
-        img.fill_rect(sx as i64, by as i64, 10 * s as i64, bh as i64, to_rgb8(*c));
-        draw_text(
-            img,
-            (sx + 13 * s) as i64,
-            (by + bh / 2) as i64 - th as i64 / 2,
-            label,
-            s,
-            TEXT,
-        );
+    if let (Some(s), Some((_, c))) = (lay.swatch, &bar.swatch) {
+        img.fill_rect(s.x, s.y, s.w, s.h, to_rgb8(*c));
+    }
+    for l in lay.labels() {
+        l.draw(img, TEXT);
     }
 }
 

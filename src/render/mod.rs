@@ -9,14 +9,17 @@
 //! (primary rays, headlight + ambient occlusion, patch lines, markers),
 //! [`scene`] (limit tessellation with patch coordinates, error field,
 //! Fitmap colourings), [`input`] (mesh file or output folder),
-//! [`colormap`] and [`font`] (colour bars with a built-in 5×7 font),
-//! [`image`] (RGB8, PNG, base64).
+//! [`colormap`] (colour maps, colour bars), [`layout`] (where titles,
+//! bars and tick labels go, measured so that no two labels overlap),
+//! [`font`] (anti-aliased text from an embedded font), [`image`] (RGB8,
+//! PNG, base64).
 
 pub mod camera;
 pub mod colormap;
 pub mod font;
 pub mod image;
 pub mod input;
+pub mod layout;
 pub mod report_html;
 pub mod scene;
 pub mod tracer;
@@ -36,8 +39,8 @@ use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
 use crate::raycast::{make_raycaster, RayBackend, RayCaster};
 use crate::subdiv::Backend;
-use colormap::{bar_height, draw_bar, BACKGROUND, CLAY, TEXT};
-use font::{draw_text_centred, text_height};
+use colormap::{draw_bar, BACKGROUND, CLAY, TEXT};
+pub use layout::{layout_picture, Legend, PictureLayout};
 
 /// What to picture.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
@@ -240,33 +243,38 @@ pub fn render_panels(
     opts: &RenderOptions,
     progress: &mut dyn FnMut(f64) -> bool,
 ) -> Result<Image> {
+    Ok(render_panels_laid_out(panels, opts, progress)?.0)
+}
+
+/// [`render_panels`], and the layout it drew: every label's rectangle
+/// ([`PictureLayout::labels`]).
+pub fn render_panels_laid_out(
+    panels: &[Panel],
+    opts: &RenderOptions,
+    progress: &mut dyn FnMut(f64) -> bool,
+) -> Result<(Image, PictureLayout)> {
     check_size(opts.width, opts.height)?;
     if panels.is_empty() {
         return Err(Error::InvalidArgument("render: nothing to render".into()));
     }
-    let s = text_scale(opts.width, opts.height);
+    let legends: Vec<Legend> = panels
+        .iter()
+        .map(|p| Legend {
+            title: p.title.as_deref(),
+            bar: p.bar.as_ref(),
+        })
+        .collect();
+    let lay = layout_picture(&legends, opts.width, opts.height);
     let mut img = Image::new(opts.width, opts.height, BACKGROUND);
     let n = panels.len();
-    let pw = opts.width / n;
     let mut view = opts.view;
     let (lo, hi) = panels[0].surface.mesh.bbox();
-    for (k, panel) in panels.iter().enumerate() {
+    for (k, (panel, pl)) in panels.iter().zip(&lay.panels).enumerate() {
         let caster = make_raycaster(opts.rays, &panel.surface.mesh)?;
         if view == View::Auto {
             view = pick_view(&panel.surface.mesh, caster.as_ref())?;
         }
-        let top = if panel.title.is_some() {
-            text_height(s) + 6 * s
-        } else {
-            0
-        };
-        let bottom = if panel.bar.is_some() {
-            bar_height(s)
-        } else {
-            0
-        };
-        let ph = opts.height.saturating_sub(top + bottom).max(8);
-        let cam = Camera::fit(view, lo, hi, pw, ph);
+        let cam = Camera::fit(view, lo, hi, pl.w, pl.h);
         let frame = render_frame(
             &panel.surface,
             caster.as_ref(),
@@ -282,16 +290,15 @@ pub fn render_panels(
             &cam,
             &opts.shading,
         )?;
-        let x0 = k * pw;
-        img.blit(&pic, x0, top);
-        if let Some(t) = &panel.title {
-            draw_text_centred(&mut img, (x0 + pw / 2) as i64, 3 * s as i64, t, s, TEXT);
+        img.blit(&pic, pl.x, pl.top);
+        if let Some(t) = &pl.title {
+            t.draw(&mut img, TEXT);
         }
-        if let Some(bar) = &panel.bar {
-            draw_bar(&mut img, bar, x0, top + ph, pw, s);
+        if let (Some(bar), Some(bl)) = (&panel.bar, &pl.bar) {
+            draw_bar(&mut img, bar, bl);
         }
     }
-    Ok(img)
+    Ok((img, lay))
 }
 
 /// Renders the picture `opts.what` of `input` (a mesh file or an output
@@ -302,10 +309,19 @@ pub fn render(
     opts: &RenderOptions,
     progress: &mut dyn FnMut(f64) -> bool,
 ) -> Result<Image> {
+    Ok(render_laid_out(input, opts, progress)?.0)
+}
+
+/// [`render`], and the layout it drew ([`render_panels_laid_out`]).
+pub fn render_laid_out(
+    input: &Path,
+    opts: &RenderOptions,
+    progress: &mut dyn FnMut(f64) -> bool,
+) -> Result<(Image, PictureLayout)> {
     check_size(opts.width, opts.height)?;
     let mut sources = Sources::new(input, None)?;
     let panels = panels(&mut sources, opts)?;
-    render_panels(&panels, opts, progress)
+    render_panels_laid_out(&panels, opts, progress)
 }
 
 /// Parses `WxH` (e.g. `1024x768`).
