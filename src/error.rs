@@ -49,9 +49,25 @@ pub enum Error {
     /// embedding); nothing was written and no state is left behind.
     #[error("cancelled by the caller during stage '{stage}'")]
     Cancelled { stage: String },
+    /// An error about one of several meshes of a call, with the role of
+    /// that mesh (`"input mesh"`, `"control mesh"`), as the CLI says it.
+    #[error("{role}: {source}")]
+    Role {
+        role: &'static str,
+        #[source]
+        source: Box<Error>,
+    },
 }
 
 impl Error {
+    /// This error, said of the mesh in `role` (see [`Error::Role`]).
+    pub fn in_role(self, role: &'static str) -> Self {
+        Error::Role {
+            role,
+            source: Box::new(self),
+        }
+    }
+
     pub(crate) fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Error::Io {
             path: path.into(),

@@ -502,8 +502,9 @@ pub fn convert(input: &MeshArrays, options: &Options, progress: &Progress) -> Re
     with_threads(options.threads, || {
         progress.report("read", 0.0)?;
         let mesh = input
-            .to_validated(&options.source_name)?
-            .into_manifold(Path::new(&options.source_name))?;
+            .to_validated(&options.source_name)
+            .and_then(|m| m.into_manifold(Path::new(&options.source_name)))
+            .map_err(|e| e.in_role("input mesh"))?;
         progress.report("read", 1.0)?;
         let opts = ConvertOptions::default()
             .with_mode(match options.mode {
@@ -556,8 +557,9 @@ pub fn fit(
     with_threads(options.threads, || {
         progress.report("read", 0.0)?;
         let mesh = input
-            .to_validated(&options.source_name)?
-            .into_manifold(Path::new(&options.source_name))?;
+            .to_validated(&options.source_name)
+            .and_then(|m| m.into_manifold(Path::new(&options.source_name)))
+            .map_err(|e| e.in_role("input mesh"))?;
         let control = control.to_control_mesh()?;
         progress.report("read", 1.0)?;
         let mut timer = StageTimer::default();
