@@ -32,7 +32,7 @@ pub use off::{parse_off, read_off};
 pub use openmesh::read_openmesh;
 pub use ply::{parse_ply, read_ply};
 pub use stl::{parse_stl, read_stl};
-pub(crate) use text::non_finite;
+
 pub use usd::write_usda;
 pub use write::{write_atomically, write_control_obj, write_obj, write_ply};
 

@@ -4,8 +4,6 @@
 //! Kept byte-based and allocation-free: every reader scans the whole file in
 //! memory, and a per-line `String` would dominate the time on a dense mesh.
 
-use crate::DVec3;
-
 /// The UTF-8 byte order mark some Windows editors put at the start of a text
 /// file. It is not whitespace to `u8::is_ascii_whitespace`, so left in place
 /// it glues itself to the first token (`\u{feff}v` is no `v` statement).
@@ -91,15 +89,9 @@ pub(crate) fn bad_token(what: &str, t: &[u8]) -> String {
     format!("expected a {what}, found '{shown}'")
 }
 
-/// Why `p` cannot be a vertex position, if it cannot: NaN or infinite
-/// coordinates poison every bounding box, distance and solve downstream.
-pub(crate) fn non_finite(p: DVec3) -> Option<String> {
-    if p.is_finite() {
-        return None;
-    }
-    let what = if p.is_nan() { "NaN" } else { "infinite" };
-    Some(format!("non-finite coordinate ({what}): {p}"))
-}
+/// The one wording of a NaN/Inf coordinate, shared with `validate_soup`
+/// (it lives in `mesh`, the lower layer).
+pub(crate) use crate::mesh::non_finite;
 
 /// Narrows a coordinate parsed as `f64` to the single precision the STL and
 /// OFF readers keep (see their module docs), refusing values that only turn
@@ -112,6 +104,7 @@ pub(crate) fn to_f32(v: f64) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::DVec3;
 
     #[test]
     fn bom_tokens_and_numbers() {

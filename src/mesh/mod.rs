@@ -12,5 +12,6 @@ pub use control::{
     Compaction, ControlMesh, EdgeId, FaceId, HalfedgeId, VertexId, INFINITELY_SHARP,
 };
 pub use manifold::{split_non_manifold, SplitStats};
+pub(crate) use report::non_finite;
 pub use report::{validate_soup, MeshReport, ValidatedMesh};
 pub use soup::{PolySoup, TriMesh};

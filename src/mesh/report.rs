@@ -25,7 +25,6 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::io::non_finite;
 use crate::mesh::soup::bbox;
 use crate::mesh::{PolySoup, TriMesh};
 use crate::DVec3;
@@ -645,4 +644,14 @@ impl fmt::Display for MeshReport {
         }
         Ok(())
     }
+}
+
+/// Why `p` cannot be a vertex position, if it cannot: NaN or infinite
+/// coordinates poison every bounding box, distance and solve downstream.
+pub(crate) fn non_finite(p: DVec3) -> Option<String> {
+    if p.is_finite() {
+        return None;
+    }
+    let what = if p.is_nan() { "NaN" } else { "infinite" };
+    Some(format!("non-finite coordinate ({what}): {p}"))
 }

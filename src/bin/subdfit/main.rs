@@ -150,7 +150,11 @@ fn handle_signals() {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    handle_signals();
+    // Only the commands that write an output set have staging to clean up;
+    // the others keep the default handling (and no extra thread).
+    if matches!(cli.command, Command::Convert(_) | Command::Fit(_)) {
+        handle_signals();
+    }
     match run(cli) {
         Ok(code) => code,
         Err(e) => {
