@@ -88,12 +88,24 @@ pub fn read_soup(path: &Path) -> Result<PolySoup> {
 /// Reads a polygon soup with the given reader.
 pub fn read_soup_with(path: &Path, reader: Reader) -> Result<PolySoup> {
     let format = Format::from_path(path)?;
-    match (reader, format) {
-        (Reader::Rust, Format::Obj) => Ok(read_obj(path)?.soup),
-        (Reader::Rust, Format::Ply) => read_ply(path),
-        (Reader::Rust, Format::Off) => read_off(path),
-        (Reader::Rust, Format::Stl) => read_stl(path),
-        (Reader::OpenMesh, _) => read_openmesh(path),
+    match reader {
+        Reader::Rust => {
+            let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+            read_soup_bytes(&bytes, format, path)
+        }
+        Reader::OpenMesh => read_openmesh(path),
+    }
+}
+
+/// Parses a polygon soup already in memory with the pure-Rust reader for
+/// `format`; `name` only names the file in errors. [`read_soup`] is this on
+/// the file's bytes (the fuzz targets call it directly).
+pub fn read_soup_bytes(bytes: &[u8], format: Format, name: &Path) -> Result<PolySoup> {
+    match format {
+        Format::Obj => Ok(parse_obj(bytes, name)?.soup),
+        Format::Ply => parse_ply(bytes, name),
+        Format::Off => parse_off(bytes, name),
+        Format::Stl => parse_stl(bytes, name),
     }
 }
 
