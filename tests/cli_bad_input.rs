@@ -177,3 +177,27 @@ fn fit_names_the_role_of_the_bad_mesh() {
     );
     assert!(!out.exists(), "partial output left behind");
 }
+
+#[test]
+fn render_says_which_mesh_is_bad() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(
+        dir.path(),
+        "nan_input.obj",
+        "v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n",
+    );
+    let png = dir.path().join("x.png");
+    let (code, _, err) = subdfit(&["render", p.to_str().unwrap(), "-o", png.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("input mesh") && err.contains("nan_input.obj"),
+        "{err}"
+    );
+    assert!(err.contains("vertex 1"), "{err}");
+    assert_eq!(
+        err.matches("nan_input.obj").count(),
+        1,
+        "file named twice: {err}"
+    );
+    assert!(!png.exists());
+}

@@ -71,15 +71,17 @@ impl Sources {
     /// in `report.json`.
     pub fn input(&mut self) -> Result<&TriMesh> {
         if self.input.is_none() {
+            // Errors say which mesh, as the other commands do.
+            let input = |e: crate::Error| e.in_role("input mesh");
             let mesh = if let Some(p) = &self.input_override {
-                read_mesh(p)?.mesh
+                read_mesh(p).map_err(input)?.mesh
             } else if !self.is_dir {
-                read_mesh(&self.path)?.mesh
+                read_mesh(&self.path).map_err(input)?.mesh
             } else if let Ok(p) = self.file("fitmap.ply") {
-                read_trimesh_as_is(&p)?
+                read_trimesh_as_is(&p).map_err(input)?
             } else {
                 let p = self.report_mesh_path()?;
-                read_mesh(&p)?.mesh
+                read_mesh(&p).map_err(input)?.mesh
             };
             self.input = Some(mesh);
         }

@@ -88,8 +88,16 @@ pub fn run(a: RenderArgs) -> Result<ExitCode> {
             RaysArg::Rust => RayBackend::Rust,
         });
     let mut bars = progress_bars(a.quiet);
-    let img = render(&a.input, &opts, &mut |f| bars("render", f))
-        .map_err(|e| anyhow::anyhow!("{}: {e}", a.input.display()))?;
+    let img = render(&a.input, &opts, &mut |f| bars("render", f)).map_err(|e| {
+        // Errors about a mesh name their file already; others get it.
+        let name = a.input.display().to_string();
+        let msg = e.to_string();
+        if msg.contains(&name) {
+            anyhow::anyhow!("{msg}")
+        } else {
+            anyhow::anyhow!("{name}: {msg}")
+        }
+    })?;
     img.write_png(&a.output)?;
     Ok(ExitCode::SUCCESS)
 }
