@@ -281,6 +281,14 @@ impl MeshArrays<'_> {
     pub fn to_validated(&self, name: &str) -> Result<ValidatedMesh> {
         validate_soup(self.to_soup()?, Path::new(name))
     }
+
+    /// [`MeshArrays::to_validated`] as the CLI's `convert` / `fit` take their
+    /// input: non-manifold pieces split, errors said of the "input mesh".
+    pub fn to_input_mesh(&self, name: &str) -> Result<ValidatedMesh> {
+        self.to_validated(name)
+            .and_then(|m| m.into_manifold(Path::new(name)))
+            .map_err(|e| e.in_role("input mesh"))
+    }
 }
 
 /// A control mesh as flat arrays borrowed from the host.
@@ -501,10 +509,7 @@ pub fn convert(input: &MeshArrays, options: &Options, progress: &Progress) -> Re
     options.check()?;
     with_threads(options.threads, || {
         progress.report("read", 0.0)?;
-        let mesh = input
-            .to_validated(&options.source_name)
-            .and_then(|m| m.into_manifold(Path::new(&options.source_name)))
-            .map_err(|e| e.in_role("input mesh"))?;
+        let mesh = input.to_input_mesh(&options.source_name)?;
         progress.report("read", 1.0)?;
         let opts = ConvertOptions::default()
             .with_mode(match options.mode {
@@ -556,10 +561,7 @@ pub fn fit(
     options.check()?;
     with_threads(options.threads, || {
         progress.report("read", 0.0)?;
-        let mesh = input
-            .to_validated(&options.source_name)
-            .and_then(|m| m.into_manifold(Path::new(&options.source_name)))
-            .map_err(|e| e.in_role("input mesh"))?;
+        let mesh = input.to_input_mesh(&options.source_name)?;
         let control = control.to_control_mesh()?;
         progress.report("read", 1.0)?;
         let mut timer = StageTimer::default();
