@@ -38,6 +38,9 @@ pub struct ConvertOptions {
     /// Mechanical mode's `E_limit`, fraction of the diagonal; `None`:
     /// [`crate::mechanical::DEFAULT_MAX_ERROR`].
     pub max_error: Option<f64>,
+    /// Cells per patch side of `limit.ply` / `displaced.ply`; `None`: the
+    /// default of [`crate::report::tessellate`].
+    pub tessellation: Option<usize>,
 }
 
 /// `convert --mode`.
@@ -60,6 +63,7 @@ impl Default for ConvertOptions {
             displacement_res: None,
             mode: Mode::Auto,
             max_error: None,
+            tessellation: None,
         }
     }
 }
@@ -87,6 +91,10 @@ impl ConvertOptions {
     }
     pub fn with_mode(mut self, m: Mode) -> Self {
         self.mode = m;
+        self
+    }
+    pub fn with_tessellation(mut self, n: Option<usize>) -> Self {
+        self.tessellation = n;
         self
     }
     pub fn with_max_error(mut self, e: Option<f64>) -> Self {
@@ -290,7 +298,9 @@ fn convert_organic(
     stage(progress, "simplify", 1.0)?;
     let po = PipelineOptions::default()
         .with_fit(FitOptions::default().with_objective(opts.objective))
-        .with_metrics(MetricsOptions::default().with_displacement_res(opts.displacement_res))
+        .with_metrics(MetricsOptions::default()
+            .with_displacement_res(opts.displacement_res)
+            .with_output_tessellation(opts.tessellation))
         .with_fitmap(Some(fo));
     let extra = serde_json::json!({
         "mode": extra_options["mode"],
@@ -334,7 +344,9 @@ fn convert_coarse(
     let control = timer.run("control", || coarse_control(mesh))?;
     let po = PipelineOptions::default()
         .with_fit(FitOptions::default().with_objective(opts.objective))
-        .with_metrics(MetricsOptions::default().with_displacement_res(opts.displacement_res));
+        .with_metrics(MetricsOptions::default()
+            .with_displacement_res(opts.displacement_res)
+            .with_output_tessellation(opts.tessellation));
     let extra = serde_json::json!({
         "mode": choice,
         "convert": opts,
@@ -449,9 +461,11 @@ fn fitmap_reporting(
 /// while the displacement atlas and the tessellations need quads: they are
 /// computed on its Catmull-Clark refinement by one level (infinitely sharp
 /// creases and corners re-tagged as infinitely sharp), which has *exactly*
-/// the same limit surface. `control.obj` / `control.usda` are the compact
-/// mixed mesh (creases and corners tagged, no UVs); `control_quads.obj` is
-/// the refined mesh that `displacement.exr`'s atlas is laid out on.
+/// the same limit surface. That refined mesh is the one written
+/// (`control.obj`, `control.usda`, with the atlas UVs and the creases and
+/// corners), so that a USD or Blender pipeline can apply the displacement;
+/// `report.json`'s `control` counts the compact mesh (Lavoué et al.'s
+/// Table 2 figures) and `control_written` the refined one.
 #[allow(clippy::too_many_arguments)]
 fn convert_mechanical(
     input: &ValidatedMesh,
@@ -478,7 +492,9 @@ fn convert_mechanical(
         }
         refine_once_keeping_infinite(&control)
     })?;
-    let mopts = MetricsOptions::default().with_displacement_res(opts.displacement_res);
+    let mopts = MetricsOptions::default()
+            .with_displacement_res(opts.displacement_res)
+            .with_output_tessellation(opts.tessellation);
     let surfaces = timer.run("displacement+metrics", || {
         crate::report::evaluate_surfaces(&input.mesh, &quads, caster, &mopts, progress)
     })?;
@@ -497,12 +513,16 @@ fn convert_mechanical(
         extra,
     );
     report.add_target(max_error_target(&mo, &built.stats));
+    if !control.is_all_quads() {
+        report.control_written = Some(crate::report::control_stats(&quads));
+    }
     Ok(Converted {
         quad_control: (!control.is_all_quads()).then_some(quads),
         control,
         surfaces,
         report,
         fitmap: None,
+        outputs: Default::default(),
     })
 }
 

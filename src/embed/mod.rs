@@ -34,7 +34,7 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use crate::analysis::FitmapOptions;
-use crate::displace::{Atlas, DEFAULT_GUTTER};
+use crate::displace::Atlas;
 use crate::error::{Error, Result};
 use crate::fit::{FitOptions, Objective};
 use crate::io::control_obj_with_uvs;
@@ -378,11 +378,11 @@ impl Conversion {
     fn from_converted(c: Converted) -> Result<Conversion> {
         // Mechanical mode: the atlas is laid out on the once-refined quad
         // mesh (same limit surface), which the host gets, so that UVs and
-        // tiles apply to the mesh it holds (the CLI's control_quads.obj).
+        // tiles apply to the mesh it holds (the CLI's control.obj).
         let control = c.quad_control.unwrap_or(c.control);
         let d = &c.surfaces.displacement;
         let (patches, res) = (d.grid.num_patches(), d.grid.res());
-        let atlas = Atlas::new(patches, res, DEFAULT_GUTTER)?;
+        let atlas = Atlas::for_outputs(patches, res, c.outputs.atlas)?;
         let quads: Vec<[DVec2; 4]> = (0..patches).map(|f| atlas.corner_uvs(f)).collect();
         let control_obj = control_obj_with_uvs(&control, &quads)?;
         // One `vt` per face corner, as in control.obj.

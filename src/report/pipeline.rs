@@ -13,8 +13,8 @@ use crate::mesh::{ControlMesh, ValidatedMesh};
 use crate::raycast::RayCaster;
 
 use super::{
-    evaluate_surfaces, write_outputs_with, ExtraFiles, MetricsOptions, OutputFiles, Report,
-    StageTimer, Surfaces,
+    evaluate_surfaces, write_outputs_with, ExtraFiles, MetricsOptions, OutputFiles, OutputOptions,
+    Report, StageTimer, Surfaces,
 };
 
 /// Options of [`fit_and_write`].
@@ -49,12 +49,24 @@ pub struct Converted {
     pub control: ControlMesh,
     /// When `control` is not all quads (mechanical mode): its Catmull-Clark
     /// refinement by one level, which has the same limit surface and is the
-    /// mesh the displacement atlas (and `surfaces`) are laid out on.
+    /// mesh the displacement atlas (and `surfaces`) are laid out on, and
+    /// the one `control.obj` / `control.usda` carry.
     pub quad_control: Option<ControlMesh>,
     pub surfaces: Surfaces,
     pub report: Report,
     /// The Fitmap written as `fitmap.ply`, when one was computed or given.
     pub fitmap: Option<Fitmap>,
+    /// How [`write_converted`] writes the files (units, atlas layout,
+    /// texel type); the defaults unless the caller sets them.
+    pub outputs: OutputOptions,
+}
+
+impl Converted {
+    /// The control mesh the files carry, with the atlas UVs: `quad_control`
+    /// when there is one (mechanical mode), else `control`.
+    pub fn written_control(&self) -> &ControlMesh {
+        self.quad_control.as_ref().unwrap_or(&self.control)
+    }
 }
 
 /// Fits `control` to `input.mesh` (`caster` built over it) and measures the
@@ -107,6 +119,7 @@ pub fn fit_and_measure(
         surfaces,
         report,
         fitmap,
+        outputs: OutputOptions::default(),
     })
 }
 
@@ -124,11 +137,11 @@ pub fn write_converted(
         dir,
         &OutputFiles {
             mesh: &input.mesh,
-            control: &c.control,
-            quad_control: c.quad_control.as_ref(),
+            control: c.written_control(),
             surfaces: &c.surfaces,
             fitmap: c.fitmap.as_ref(),
             report: &c.report,
+            options: &c.outputs,
         },
         extra,
     )?;
