@@ -107,12 +107,13 @@ pub struct OutputArgs {
     /// Write the EXR texels as 16-bit half floats (default 32-bit float).
     #[arg(long)]
     half: bool,
-    /// Cells per patch side of limit.ply and displaced.ply. Default: the
-    /// smallest power of two from 4 to 64 whose chord error (against the
-    /// exact limit surface) is below a tenth of the fit's RMS distance;
-    /// report.json's `tessellation` gives it.
-    #[arg(long)]
-    tessellation: Option<usize>,
+    /// Cells per patch side of limit.ply and displaced.ply (1-1024).
+    /// Default: the smallest power of two from 16 to 64 whose RMS chord
+    /// error (against the exact limit surface) is below a tenth of the
+    /// fit's RMS distance and whose largest is below that distance;
+    /// report.json's `tessellation` gives the figures.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    tessellation: Option<u64>,
 }
 
 /// `--units`: a unit name or metres per unit.
@@ -171,7 +172,7 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
             ModeArg::Mechanical => Mode::Mechanical,
         })
         .with_max_error(a.max_error)
-        .with_tessellation(a.files.tessellation);
+        .with_tessellation(a.files.tessellation.map(|n| n as usize));
     let extra = serde_json::json!({
         "command": "convert",
         "mesh": a.mesh.display().to_string(),
