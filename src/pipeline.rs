@@ -298,9 +298,11 @@ fn convert_organic(
     stage(progress, "simplify", 1.0)?;
     let po = PipelineOptions::default()
         .with_fit(FitOptions::default().with_objective(opts.objective))
-        .with_metrics(MetricsOptions::default()
-            .with_displacement_res(opts.displacement_res)
-            .with_output_tessellation(opts.tessellation))
+        .with_metrics(
+            MetricsOptions::default()
+                .with_displacement_res(opts.displacement_res)
+                .with_output_tessellation(opts.tessellation),
+        )
         .with_fitmap(Some(fo));
     let extra = serde_json::json!({
         "mode": extra_options["mode"],
@@ -344,9 +346,11 @@ fn convert_coarse(
     let control = timer.run("control", || coarse_control(mesh))?;
     let po = PipelineOptions::default()
         .with_fit(FitOptions::default().with_objective(opts.objective))
-        .with_metrics(MetricsOptions::default()
-            .with_displacement_res(opts.displacement_res)
-            .with_output_tessellation(opts.tessellation));
+        .with_metrics(
+            MetricsOptions::default()
+                .with_displacement_res(opts.displacement_res)
+                .with_output_tessellation(opts.tessellation),
+        );
     let extra = serde_json::json!({
         "mode": choice,
         "convert": opts,
@@ -493,8 +497,8 @@ fn convert_mechanical(
         refine_once_keeping_infinite(&control)
     })?;
     let mopts = MetricsOptions::default()
-            .with_displacement_res(opts.displacement_res)
-            .with_output_tessellation(opts.tessellation);
+        .with_displacement_res(opts.displacement_res)
+        .with_output_tessellation(opts.tessellation);
     let surfaces = timer.run("displacement+metrics", || {
         crate::report::evaluate_surfaces(&input.mesh, &quads, caster, &mopts, progress)
     })?;

@@ -29,7 +29,9 @@ use std::sync::Mutex;
 use crate::analysis::Fitmap;
 use crate::displace::{Atlas, AtlasLayout, TexelType};
 use crate::error::{Error, Result};
-use crate::io::{write_atomically, write_control_obj_with_uvs, write_ply, write_usda_with, UsdOptions};
+use crate::io::{
+    write_atomically, write_control_obj_with_uvs, write_ply, write_usda_with, UsdOptions,
+};
 use crate::mesh::{ControlMesh, TriMesh};
 
 use super::{Report, Surfaces};
@@ -331,10 +333,7 @@ fn pause_for_tests() {
 }
 
 /// One output file: its name and the code that writes it to a path.
-type Job<'a> = (
-    String,
-    Box<dyn Fn(&Path) -> Result<()> + Send + Sync + 'a>,
-);
+type Job<'a> = (String, Box<dyn Fn(&Path) -> Result<()> + Send + Sync + 'a>);
 
 fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<String>> {
     use rayon::prelude::*;

@@ -112,19 +112,18 @@ pub fn tessellate(
         let (max, rms) = (1000.0 * max / diag, 1000.0 * rms / diag);
         let next_samples = grid.num_patches() * (2 * n + 1) * (2 * n + 1);
         let met = rms <= target && max <= 10.0 * target;
-        if segments.is_some()
-            || met
-            || 2 * n > MAX_SEGMENTS
-            || next_samples > MAX_DEFAULT_SAMPLES
-        {
+        if segments.is_some() || met || 2 * n > MAX_SEGMENTS || next_samples > MAX_DEFAULT_SAMPLES {
             break (grid, limit, (max, rms));
         }
         n *= 2;
     };
     let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
     let dirs = sample_directions(control, evaluator, &grid, &limit)?;
-    let (offsets, projected): (Vec<f64>, Vec<bool>) =
-        grid.locations().iter().map(|l| bilinear_offset(d, l)).unzip();
+    let (offsets, projected): (Vec<f64>, Vec<bool>) = grid
+        .locations()
+        .iter()
+        .map(|l| bilinear_offset(d, l))
+        .unzip();
     let displaced_positions: Vec<DVec3> = positions
         .iter()
         .zip(&offsets)
