@@ -138,16 +138,19 @@ fn parse_units(s: &str) -> std::result::Result<f64, String> {
 
 impl OutputArgs {
     fn options(&self) -> subdfit::report::OutputOptions {
-        let mut o = subdfit::report::OutputOptions::default();
-        o.meters_per_unit = self.units;
-        o.atlas = match self.atlas {
-            AtlasArg::Single => subdfit::displace::AtlasLayout::Single,
-            AtlasArg::Udim => subdfit::displace::AtlasLayout::Udim,
-        };
-        if self.half {
-            o.texels = subdfit::displace::TexelType::Half;
+        use subdfit::displace::{AtlasLayout, TexelType};
+        subdfit::report::OutputOptions {
+            meters_per_unit: self.units,
+            atlas: match self.atlas {
+                AtlasArg::Single => AtlasLayout::Single,
+                AtlasArg::Udim => AtlasLayout::Udim,
+            },
+            texels: if self.half {
+                TexelType::Half
+            } else {
+                TexelType::Float
+            },
         }
-        o
     }
 }
 
