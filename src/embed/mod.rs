@@ -39,9 +39,9 @@ use crate::error::{Error, Result};
 use crate::fit::{FitOptions, Objective};
 use crate::io::control_obj_with_uvs;
 use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId};
+use crate::pipeline::fit_in_memory;
 use crate::pipeline::{convert_in_memory, ConvertOptions};
-use crate::raycast::{make_raycaster, RayBackend};
-use crate::report::{fit_and_measure, Converted, MetricsOptions, PipelineOptions, StageTimer};
+use crate::report::{Converted, MetricsOptions, PipelineOptions, StageTimer};
 use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
 use crate::{DVec2, DVec3};
 
@@ -564,10 +564,7 @@ pub fn fit(
         let mesh = input.to_input_mesh(&options.source_name)?;
         let control = control.to_control_mesh()?;
         progress.report("read", 1.0)?;
-        let mut timer = StageTimer::default();
-        let caster = timer.run("raycaster", || {
-            make_raycaster(RayBackend::Embree, &mesh.mesh)
-        })?;
+        let timer = StageTimer::default();
         let po = PipelineOptions::default()
             .with_fit(FitOptions::default().with_objective(objective(options.fit_method)))
             .with_metrics(
@@ -579,14 +576,12 @@ pub fn fit(
             .with_fitmap(Some(
                 FitmapOptions::default().with_tolerance(options.tolerance),
             ));
-        let c = fit_and_measure(
+        let c = fit_in_memory(
             &mesh,
             control,
-            caster.as_ref(),
             &po,
             timer,
             run_info("fit", options),
-            None,
             &mut sink(progress),
         )?;
         Conversion::from_converted(c)

@@ -69,6 +69,40 @@ impl Converted {
     }
 }
 
+impl Converted {
+    /// Multiplies every length of the result by `f`, a power of two (so
+    /// that the product is exact): the inverse of the uniform rescaling
+    /// that [`crate::pipeline`] runs the conversion at. Positions,
+    /// derivatives, displacement offsets, the diagonal and the Fitmap's
+    /// radii scale by `f`; F_S (units 1 / length^(3/4)) by `f^(-3/4)`,
+    /// which the caller keeps exact by passing `f = 2^(4j)`. Everything in
+    /// `report.json` is in ‰ of the diagonal or a count, and stays.
+    pub fn scale_lengths(&mut self, f: f64) {
+        let scale_mesh = |c: &mut ControlMesh| c.positions_mut().iter_mut().for_each(|p| *p *= f);
+        scale_mesh(&mut self.control);
+        if let Some(q) = self.quad_control.as_mut() {
+            scale_mesh(q);
+        }
+        let s = &mut self.surfaces;
+        for l in &mut s.displacement.limit {
+            l.position *= f;
+            l.du *= f;
+            l.dv *= f;
+        }
+        s.displacement.offsets.iter_mut().for_each(|o| *o *= f);
+        for t in [&mut s.limit, &mut s.displaced] {
+            t.positions.iter_mut().for_each(|p| *p *= f);
+        }
+        s.metrics.bbox_diagonal *= f;
+        if let Some(fm) = self.fitmap.as_mut() {
+            fm.radii.iter_mut().for_each(|r| *r *= f);
+            fm.m.iter_mut().for_each(|r| *r *= f);
+            let fs = f.powf(-0.75);
+            fm.s.iter_mut().for_each(|x| *x *= fs);
+        }
+    }
+}
+
 /// Fits `control` to `input.mesh` (`caster` built over it) and measures the
 /// result. `timer` carries the stages run before (reading, simplification
 /// …) into the report; `extra_options` is stored in `report.json` beside the
