@@ -90,6 +90,8 @@ impl Converted {
             l.dv *= f;
         }
         s.displacement.offsets.iter_mut().for_each(|o| *o *= f);
+        // (`directions` are unit vectors; the tessellation figures are ‰.)
+        s.displaced_offsets.iter_mut().for_each(|o| *o *= f);
         for t in [&mut s.limit, &mut s.displaced] {
             t.positions.iter_mut().for_each(|p| *p *= f);
         }
