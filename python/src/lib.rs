@@ -103,7 +103,10 @@ fn run_cancellable<T: Send>(
         Python::attach(|py| match cb.call1(py, (stage, fraction)) {
             Ok(r) => !r.bind(py).is(pyo3::types::PyBool::new(py, false)),
             Err(e) => {
-                raised.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+                raised
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .get_or_insert(e);
                 false
             }
         })
