@@ -192,11 +192,11 @@ pub fn plan(inputs: &[String], out_root: &Path) -> Result<Vec<Asset>> {
                 n.map(|s| s.to_string_lossy().into_owned())
                     .unwrap_or_else(|| "mesh".into())
             };
-            let mut name = name_of(&input, false);
+            let base = name_of(&input, false);
+            let mut name = base.clone();
             if names.contains(&name) {
                 name = name_of(&input, true);
             }
-            let base = name.clone();
             let mut k = 2;
             while names.contains(&name) {
                 name = format!("{base}-{k}");
