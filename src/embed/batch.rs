@@ -278,9 +278,15 @@ fn write_stamp(asset: &Asset, options: &Options, print: String) -> Result<()> {
 
 /// The pipeline `report.json` says made the result.
 fn mode_of(report: &serde_json::Value) -> Option<String> {
-    // `options.run.mode` as written; the second opinion (auto mode) says
-    // which of the two pipelines' results was kept.
-    let mode = &report["options"]["run"]["mode"];
+    // The organic pipeline nests its options under `options.run`, the
+    // mechanical one does not; the second opinion (auto mode) says which
+    // of the two pipelines' results was kept.
+    let o = &report["options"];
+    let mode = if o["run"]["mode"].is_object() {
+        &o["run"]["mode"]
+    } else {
+        &o["mode"]
+    };
     mode["second_opinion"]["kept"]
         .as_str()
         .or_else(|| mode["mode"].as_str())
