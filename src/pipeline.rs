@@ -38,6 +38,9 @@ pub struct ConvertOptions {
     /// Mechanical mode's `E_limit`, fraction of the diagonal; `None`:
     /// [`crate::mechanical::DEFAULT_MAX_ERROR`].
     pub max_error: Option<f64>,
+    /// Cells per patch side of `limit.ply` / `displaced.ply`; `None`: the
+    /// default of [`crate::report::tessellate`].
+    pub tessellation: Option<usize>,
 }
 
 /// `convert --mode`.
@@ -60,6 +63,7 @@ impl Default for ConvertOptions {
             displacement_res: None,
             mode: Mode::Auto,
             max_error: None,
+            tessellation: None,
         }
     }
 }
@@ -89,6 +93,10 @@ impl ConvertOptions {
         self.mode = m;
         self
     }
+    pub fn with_tessellation(mut self, n: Option<usize>) -> Self {
+        self.tessellation = n;
+        self
+    }
     pub fn with_max_error(mut self, e: Option<f64>) -> Self {
         self.max_error = e;
         self
@@ -116,6 +124,106 @@ pub fn convert(
 /// surfaces, the report and the Fitmap, for hosts that keep results in
 /// memory (the C++ API).
 pub fn convert_in_memory(
+    input: &ValidatedMesh,
+    opts: &ConvertOptions,
+    extra_options: serde_json::Value,
+    progress: &mut dyn FnMut(&str, f64) -> bool,
+) -> Result<Converted> {
+    at_unit_scale(input, |m, _| {
+        convert_at_unit_scale(m, opts, extra_options, progress)
+    })
+}
+
+/// `subdfit fit` and the C++ API's fit: fits a given `control` to `input`
+/// and measures it ([`fit_and_measure`] over an Embree caster), at the same
+/// rescaling as [`convert_in_memory`], so a mesh and its control mesh at
+/// 1e20 fit as they do at unit scale.
+pub fn fit_in_memory(
+    input: &ValidatedMesh,
+    mut control: crate::mesh::ControlMesh,
+    opts: &PipelineOptions,
+    mut timer: StageTimer,
+    extra_options: serde_json::Value,
+    progress: &mut dyn FnMut(&str, f64) -> bool,
+) -> Result<Converted> {
+    at_unit_scale(input, |m, f| {
+        control.positions_mut().iter_mut().for_each(|p| *p *= f);
+        let caster = timer.run("raycaster", || make_raycaster(RayBackend::Embree, &m.mesh))?;
+        fit_and_measure(
+            m,
+            control,
+            caster.as_ref(),
+            opts,
+            timer,
+            extra_options,
+            None,
+            progress,
+        )
+    })
+}
+
+/// `subdfit metrics`: Table 1's figures for a given `control` against
+/// `input`, at the rescaling of [`convert_in_memory`] (all of them are in
+/// ‰ of the diagonal or counts; the diagonal is the input's).
+pub fn measure(
+    input: &ValidatedMesh,
+    mut control: crate::mesh::ControlMesh,
+    opts: &MetricsOptions,
+) -> Result<crate::report::Metrics> {
+    let k = normalising_exponent(input.mesh.bbox_diagonal());
+    let f = 2f64.powi(-k);
+    let mut mesh = std::borrow::Cow::Borrowed(&input.mesh);
+    if k != 0 {
+        control.positions_mut().iter_mut().for_each(|p| *p *= f);
+        mesh.to_mut().positions.iter_mut().for_each(|p| *p *= f);
+    }
+    let caster = make_raycaster(RayBackend::Embree, &mesh)?;
+    let mut m = crate::report::metrics(&mesh, &control, caster.as_ref(), opts)?;
+    m.bbox_diagonal = input.mesh.bbox_diagonal();
+    Ok(m)
+}
+
+/// Runs `run` on `input` rescaled by a power of two `f` into a diagonal in
+/// `[1, 16)` (`run` gets the mesh and `f`, to scale whatever else it
+/// measures against it), then scales the result back.
+fn at_unit_scale(
+    input: &ValidatedMesh,
+    run: impl FnOnce(&ValidatedMesh, f64) -> Result<Converted>,
+) -> Result<Converted> {
+    let k = normalising_exponent(input.mesh.bbox_diagonal());
+    if k == 0 {
+        return run(input, 1.0);
+    }
+    let f = 2f64.powi(-k);
+    let mut scaled = input.clone();
+    scaled.mesh.positions.iter_mut().for_each(|p| *p *= f);
+    let mut c = run(&scaled, f)?;
+    c.scale_lengths(2f64.powi(k));
+    c.report.input = input.report.clone();
+    Ok(c)
+}
+
+/// The exponent `k` of the uniform rescaling by `2^-k` that brings a mesh
+/// of bounding-box diagonal `diag` into `[1, 16)`, or 0 when it is there
+/// already (most meshes: their bytes do not change).
+///
+/// Why: the pipeline is meant to be scale-free (every threshold is a
+/// fraction of the diagonal or of a local radius), but Embree works in
+/// f32, whose squares overflow past ~1e19 and underflow below ~1e-19, and
+/// a few f64 round-off guards are absolute; a mesh at 1e-20 or 1e20 (issue
+/// 22, "any scale") used to fail in the fit. Powers of two make the
+/// scaling and its inverse exact, so a mesh's result is the one of the
+/// same mesh at unit scale, multiplied back. Steps of 2^4 keep F_S's
+/// length^(-3/4) exact too (see [`Converted::scale_lengths`]).
+fn normalising_exponent(diag: f64) -> i32 {
+    if !(diag.is_finite() && diag > 0.0) || (1.0..16.0).contains(&diag) {
+        return 0;
+    }
+    4 * (diag.log2() / 4.0).floor() as i32
+}
+
+/// [`convert_in_memory`] on a mesh whose diagonal is in `[1, 16)`.
+fn convert_at_unit_scale(
     input: &ValidatedMesh,
     opts: &ConvertOptions,
     extra_options: serde_json::Value,
@@ -290,7 +398,11 @@ fn convert_organic(
     stage(progress, "simplify", 1.0)?;
     let po = PipelineOptions::default()
         .with_fit(FitOptions::default().with_objective(opts.objective))
-        .with_metrics(MetricsOptions::default().with_displacement_res(opts.displacement_res))
+        .with_metrics(
+            MetricsOptions::default()
+                .with_displacement_res(opts.displacement_res)
+                .with_output_tessellation(opts.tessellation),
+        )
         .with_fitmap(Some(fo));
     let extra = serde_json::json!({
         "mode": extra_options["mode"],
@@ -334,7 +446,11 @@ fn convert_coarse(
     let control = timer.run("control", || coarse_control(mesh))?;
     let po = PipelineOptions::default()
         .with_fit(FitOptions::default().with_objective(opts.objective))
-        .with_metrics(MetricsOptions::default().with_displacement_res(opts.displacement_res));
+        .with_metrics(
+            MetricsOptions::default()
+                .with_displacement_res(opts.displacement_res)
+                .with_output_tessellation(opts.tessellation),
+        );
     let extra = serde_json::json!({
         "mode": choice,
         "convert": opts,
@@ -449,9 +565,11 @@ fn fitmap_reporting(
 /// while the displacement atlas and the tessellations need quads: they are
 /// computed on its Catmull-Clark refinement by one level (infinitely sharp
 /// creases and corners re-tagged as infinitely sharp), which has *exactly*
-/// the same limit surface. `control.obj` / `control.usda` are the compact
-/// mixed mesh (creases and corners tagged, no UVs); `control_quads.obj` is
-/// the refined mesh that `displacement.exr`'s atlas is laid out on.
+/// the same limit surface. That refined mesh is the one written
+/// (`control.obj`, `control.usda`, with the atlas UVs and the creases and
+/// corners), so that a USD or Blender pipeline can apply the displacement;
+/// `report.json`'s `control` counts the compact mesh (Lavoué et al.'s
+/// Table 2 figures) and `control_written` the refined one.
 #[allow(clippy::too_many_arguments)]
 fn convert_mechanical(
     input: &ValidatedMesh,
@@ -478,7 +596,9 @@ fn convert_mechanical(
         }
         refine_once_keeping_infinite(&control)
     })?;
-    let mopts = MetricsOptions::default().with_displacement_res(opts.displacement_res);
+    let mopts = MetricsOptions::default()
+        .with_displacement_res(opts.displacement_res)
+        .with_output_tessellation(opts.tessellation);
     let surfaces = timer.run("displacement+metrics", || {
         crate::report::evaluate_surfaces(&input.mesh, &quads, caster, &mopts, progress)
     })?;
@@ -497,12 +617,16 @@ fn convert_mechanical(
         extra,
     );
     report.add_target(max_error_target(&mo, &built.stats));
+    if !control.is_all_quads() {
+        report.control_written = Some(crate::report::control_stats(&quads));
+    }
     Ok(Converted {
         quad_control: (!control.is_all_quads()).then_some(quads),
         control,
         surfaces,
         report,
         fitmap: None,
+        outputs: Default::default(),
     })
 }
 

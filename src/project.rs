@@ -57,14 +57,31 @@ pub fn project_along_normals(
     }
     let origins: Vec<DVec3> = points.iter().map(|p| p.position).collect();
     let dirs: Vec<DVec3> = points.iter().map(|p| p.normal()).collect();
-    let hits = caster.line_hits(&origins, &dirs, max_dist)?;
+    project_along(caster, &origins, &dirs, max_dist)
+}
+
+/// [`project_along_normals`] from `origins` along given unit directions
+/// `dirs` (the displacement's, [`crate::displace`]'s rule at creases).
+pub fn project_along(
+    caster: &dyn RayCaster,
+    origins: &[DVec3],
+    dirs: &[DVec3],
+    max_dist: f64,
+) -> Result<(Vec<Option<Projected>>, ProjectionStats)> {
+    if !(max_dist.is_finite() && max_dist > 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "projection: max_dist {max_dist} must be finite and > 0"
+        )));
+    }
+    let points = origins;
+    let hits = caster.line_hits(origins, dirs, max_dist)?;
     let mut stats = ProjectionStats {
         points: points.len(),
         unprojectable: 0,
     };
     let out = hits
         .iter()
-        .zip(origins.iter().zip(&dirs))
+        .zip(origins.iter().zip(dirs))
         .map(|(h, (&o, &d))| match h {
             Some(h) if d != DVec3::ZERO => Some(Projected {
                 point: o + h.t * d,

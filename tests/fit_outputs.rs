@@ -305,8 +305,9 @@ fn control_usda_loads_in_pixar_usd() {
         r#"
 from pxr import Usd, UsdGeom
 stage = Usd.Stage.Open({path:?})
-mesh = UsdGeom.Mesh(stage.GetDefaultPrim())
-assert mesh, "no default Mesh prim"
+assert stage.GetDefaultPrim().GetPath() == "/subdfit"
+mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/subdfit/control"))
+assert mesh, "no Mesh prim /subdfit/control"
 assert mesh.GetSubdivisionSchemeAttr().Get() == "catmullClark"
 assert mesh.GetInterpolateBoundaryAttr().Get() == "edgeAndCorner"
 assert len(mesh.GetFaceVertexCountsAttr().Get()) == {faces}

@@ -171,3 +171,61 @@ fn a_tetrahedron_becomes_its_own_creased_control_mesh() {
         report["options"]
     );
 }
+
+/// Converts spot at unit scale and at `f` (library API, default options)
+/// and returns (unit-scale result, scaled result).
+fn spot_at_scale(f: f64) -> (subdfit::report::Converted, subdfit::report::Converted) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot.ply");
+    let unit = subdfit::io::read_mesh(&path).unwrap();
+    let mut soup = subdfit::io::read_soup(&path).unwrap();
+    soup.positions.iter_mut().for_each(|p| *p *= f);
+    let scaled = subdfit::mesh::validate_soup(soup, &path).unwrap();
+    let opts = subdfit::pipeline::ConvertOptions::default();
+    let run = |m: &subdfit::mesh::ValidatedMesh| {
+        subdfit::pipeline::convert_in_memory(m, &opts, serde_json::json!({}), &mut |_, _| true)
+            .unwrap()
+    };
+    (run(&unit), run(&scaled))
+}
+
+/// Issue 22: any uniform scale gives the same result up to that scale. The
+/// pipeline runs every mesh at a power-of-two rescaling with its diagonal
+/// in [1, 16) (`pipeline::normalising_exponent`), so spot at 2^±66
+/// (≈ 7.4e19 and 1.4e-20: Embree's f32 squares over- and underflow there)
+/// gives unit spot's control mesh times the factor. The tolerance 1e-9 of
+/// the diagonal is the issue's; with exact scaling the match is exact, so
+/// any drift would mean a length left unscaled somewhere.
+#[test]
+fn spot_at_1e20_and_1e_minus_20_gives_the_scaled_result() {
+    for k in [66, -66] {
+        let f = 2f64.powi(k);
+        let (unit, scaled) = spot_at_scale(f);
+        let (a, b) = (unit.control.positions(), scaled.control.positions());
+        assert_eq!(a.len(), b.len(), "2^{k}: vertex count");
+        assert_eq!(unit.control.num_faces(), scaled.control.num_faces());
+        let diag = unit.report.input.bbox_diagonal;
+        let worst = a
+            .iter()
+            .zip(b)
+            .map(|(p, q)| (*q / f - *p).length() / diag)
+            .fold(0.0, f64::max);
+        assert!(
+            worst <= 1e-9,
+            "2^{k}: control points differ by {worst:e} of the diagonal"
+        );
+        // Everything else that has a length scales too, and report.json
+        // (‰ of the diagonal) is unchanged.
+        let du = |c: &subdfit::report::Converted| c.surfaces.displacement.offsets.clone();
+        for (o, p) in du(&unit).iter().zip(du(&scaled)) {
+            assert!((p / f - o).abs() <= 1e-9 * diag);
+        }
+        assert_eq!(
+            unit.report.accuracy.limit.rms_permille,
+            scaled.report.accuracy.limit.rms_permille
+        );
+        assert_eq!(scaled.report.input.bbox_diagonal, diag * f);
+        assert_eq!(scaled.surfaces.metrics.bbox_diagonal, diag * f);
+        let fm = scaled.fitmap.as_ref().unwrap();
+        assert_eq!(fm.radii[0], unit.fitmap.as_ref().unwrap().radii[0] * f);
+    }
+}

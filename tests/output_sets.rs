@@ -79,7 +79,6 @@ fn a_folder_holds_one_runs_set() {
         [
             "control.obj",
             "control.usda",
-            "control_quads.obj",
             "displaced.ply",
             "displacement.exr",
             "limit.ply",

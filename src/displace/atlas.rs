@@ -1,18 +1,33 @@
 //! The displacement atlas: one square tile of `R × R` texels per patch,
-//! surrounded by a gutter, tiles laid out row-major in a near-square grid,
-//! written as a single-channel float OpenEXR image.
+//! surrounded by a gutter, tiles laid out row-major in a grid, written as
+//! single-channel OpenEXR images: one image holding every patch
+//! ([`AtlasLayout::Single`], `displacement.exr`), or UDIM tiles of
+//! [`UDIM_PATCHES`]² patches each ([`AtlasLayout::Udim`],
+//! `displacement.1001.exr`, `displacement.1002.exr`, …; tile `k` covers
+//! UV square `[k mod 10, k mod 10 + 1) × [⌊k/10⌋, ⌊k/10⌋ + 1)`, the UDIM
+//! convention, so UVs run past 1).
 //!
 //! Texel `(i, j)` of a tile holds the sample at grid point `(i, j)` of its
 //! patch, so texel *centres* sit exactly on the samples and the per-corner
 //! UVs point at the centres of the four corner texels: bilinear filtering
 //! between the corner UVs reproduces the samples, and the value at a shared
 //! edge is the same number in both tiles. The gutter repeats the tile's
-//! border texels outwards (clamp), so bilinear and the first mip levels do
-//! not bleed a neighbour tile into a patch.
+//! border texels outwards (clamp).
+//!
+//! Mip-mapping: a level-`L` texel averages a `2^L`-texel block of the full
+//! image, and a bilinear lookup at level `L` reads two level-`L` texels per
+//! axis. Tiles start on multiples of `2^L` texels ([`MIP_LEVELS`]: the tile
+//! pitch is rounded up to a multiple of `2^MIP_LEVELS`) and the gutter is at
+//! least `2^(L−1)` texels on every side, so no lookup inside a patch's UV
+//! square at levels `0..=MIP_LEVELS` reads a texel of another patch's
+//! tile: the blocks it touches hold the patch's own texels and its clamped
+//! border only. With [`DEFAULT_GUTTER`] = 4 that holds up to level 3
+//! (1/8 resolution, e.g. a `.tx` made by `maketx`); beyond it, bleeding
+//! starts.
 //!
 //! Orientation: EXR rows run top to bottom; texture coordinates follow the
 //! OBJ / USD convention with `v = 0` at the bottom row, i.e.
-//! `v = 1 - (row + 0.5) / height`.
+//! `v = 1 - (row + 0.5) / height` (plus the UDIM tile's offset).
 
 use std::io::Cursor;
 use std::path::Path;
@@ -22,35 +37,113 @@ use crate::DVec2;
 
 use super::Displacement;
 
-/// Gutter width in texels: 2 covers bilinear filtering (1 texel) at the
-/// full resolution and at the first mip level.
-pub const DEFAULT_GUTTER: usize = 2;
+/// Gutter width in texels on each side of a tile: with tiles aligned to
+/// `2^MIP_LEVELS` texels, `2^(MIP_LEVELS−1)` = 4 keeps mip levels up to
+/// [`MIP_LEVELS`] free of bleeding (module docs).
+pub const DEFAULT_GUTTER: usize = 4;
+
+/// The deepest mip level the default layout serves without bleeding
+/// (module docs): tile pitch a multiple of `2^MIP_LEVELS` = 8 texels.
+pub const MIP_LEVELS: u32 = 3;
+
+/// Patches per UDIM tile side: a UDIM tile holds up to 8 × 8 patches
+/// (at R = 64 and the default gutter, 640 × 640 texels).
+pub const UDIM_PATCHES: usize = 8;
+
+/// One image for every patch, or UDIM tiles.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AtlasLayout {
+    #[default]
+    Single,
+    Udim,
+}
+
+/// Texel storage of the EXR files.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TexelType {
+    /// 32-bit float: the offsets exactly as computed (to f32).
+    #[default]
+    Float,
+    /// 16-bit half float: 11 significant bits, relative error ≤ 2^-11 of
+    /// each offset (offsets are small, so absolute error is far below the
+    /// fit's).
+    Half,
+}
 
 /// Layout of the atlas.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Atlas {
     /// Texels per patch side (the grid resolution R).
     pub res: usize,
+    /// Gutter on the left and top of each tile (the right and bottom
+    /// ones are at least as wide: see `pitch`).
     pub gutter: usize,
-    /// Tiles per atlas row.
+    /// Tile pitch in texels: `res + 2·gutter` rounded up to a multiple of
+    /// `2^MIP_LEVELS` when `gutter` is the default (module docs).
+    pub pitch: usize,
+    /// Tiles per image row and rows per image.
     pub columns: usize,
     pub rows: usize,
+    /// Size of one image (of every UDIM tile).
     pub width: usize,
     pub height: usize,
+    /// Number of images (1 unless UDIM).
+    pub images: usize,
+    pub layout: AtlasLayout,
 }
 
 impl Atlas {
-    /// A near-square layout for `patches` tiles of `res` texels.
+    /// A near-square single-image layout for `patches` tiles of `res`
+    /// texels.
     pub fn new(patches: usize, res: usize, gutter: usize) -> Result<Atlas> {
+        Atlas::with_layout(patches, res, gutter, AtlasLayout::Single)
+    }
+
+    /// The layout of the outputs: `layout`, [`DEFAULT_GUTTER`].
+    pub fn for_outputs(patches: usize, res: usize, layout: AtlasLayout) -> Result<Atlas> {
+        Atlas::with_layout(patches, res, DEFAULT_GUTTER, layout)
+    }
+
+    /// `patches` tiles of `res` texels in `layout`. The pitch is aligned
+    /// to `2^MIP_LEVELS` texels whenever the gutter is at least the
+    /// default, so that the mip-map promise of the module docs holds.
+    pub fn with_layout(
+        patches: usize,
+        res: usize,
+        gutter: usize,
+        layout: AtlasLayout,
+    ) -> Result<Atlas> {
         if patches == 0 || res < 2 {
             return Err(Error::InvalidArgument(format!(
                 "atlas: {patches} patches of {res} texels; need at least one patch of 2 texels"
             )));
         }
-        let columns = (patches as f64).sqrt().ceil() as usize;
-        let rows = patches.div_ceil(columns);
-        let tile = res + 2 * gutter;
-        let (width, height) = (columns * tile, rows * tile);
+        let align = if gutter >= DEFAULT_GUTTER {
+            1usize << MIP_LEVELS
+        } else {
+            1
+        };
+        let pitch = (res + 2 * gutter).div_ceil(align) * align;
+        let (columns, rows, images) = match layout {
+            AtlasLayout::Single => {
+                let columns = (patches as f64).sqrt().ceil() as usize;
+                (columns, patches.div_ceil(columns), 1)
+            }
+            AtlasLayout::Udim => {
+                let per = UDIM_PATCHES.min((patches as f64).sqrt().ceil() as usize);
+                let images = patches.div_ceil(per * per);
+                // UDIM numbers run 1001..=1999: 10 tiles per row, 100 rows.
+                if images > 1000 {
+                    return Err(Error::InvalidArgument(format!(
+                        "atlas: {patches} patches need {images} UDIM tiles (max 1000)"
+                    )));
+                }
+                (per, per, images)
+            }
+        };
+        let (width, height) = (columns * pitch, rows * pitch);
         // EXR stores sizes as i32; keep well inside.
         if width > 1 << 16 || height > 1 << 16 {
             return Err(Error::InvalidArgument(format!(
@@ -60,30 +153,61 @@ impl Atlas {
         Ok(Atlas {
             res,
             gutter,
+            pitch,
             columns,
             rows,
             width,
             height,
+            images,
+            layout,
         })
     }
 
-    fn tile_origin(&self, patch: usize) -> (usize, usize) {
-        let tile = self.res + 2 * self.gutter;
+    /// Image of `patch` and the texel of its grid point (0, 0) there.
+    fn tile_origin(&self, patch: usize) -> (usize, usize, usize) {
+        let per_image = self.columns * self.rows;
+        let (image, k) = (patch / per_image, patch % per_image);
         (
-            (patch % self.columns) * tile + self.gutter,
-            (patch / self.columns) * tile + self.gutter,
+            image,
+            (k % self.columns) * self.pitch + self.gutter,
+            (k / self.columns) * self.pitch + self.gutter,
         )
+    }
+
+    /// The UDIM number of image `k` (1001, 1002, …).
+    pub fn udim(k: usize) -> usize {
+        1001 + k
+    }
+
+    /// The file name of image `k`: `displacement.exr`, or
+    /// `displacement.<UDIM>.exr`.
+    pub fn file_name(&self, k: usize) -> String {
+        match self.layout {
+            AtlasLayout::Single => "displacement.exr".to_string(),
+            AtlasLayout::Udim => format!("displacement.{}.exr", Atlas::udim(k)),
+        }
+    }
+
+    /// The texture path a USD or renderer reads (UDIM's `<UDIM>` token).
+    pub fn texture_pattern(&self) -> &'static str {
+        match self.layout {
+            AtlasLayout::Single => "displacement.exr",
+            AtlasLayout::Udim => "displacement.<UDIM>.exr",
+        }
     }
 
     /// UV of the centre of texel `(i, j)` of patch `patch`.
     pub fn uv(&self, patch: usize, i: usize, j: usize) -> DVec2 {
-        let (x0, y0) = self.tile_origin(patch);
-        DVec2::new(
+        let (image, x0, y0) = self.tile_origin(patch);
+        let local = DVec2::new(
             (x0 + i) as f64 + 0.5,
             self.height as f64 - ((y0 + j) as f64 + 0.5),
-        ) / DVec2::new(self.width as f64, self.height as f64)
+        ) / DVec2::new(self.width as f64, self.height as f64);
+        match self.layout {
+            AtlasLayout::Single => local,
+            AtlasLayout::Udim => local + DVec2::new((image % 10) as f64, (image / 10) as f64),
+        }
     }
-
     /// The UVs of the four corners of `patch`, in the face's corner order
     /// (`(u, v)` = (0,0), (1,0), (1,1), (0,1)).
     pub fn corner_uvs(&self, patch: usize) -> [DVec2; 4] {
@@ -96,9 +220,17 @@ impl Atlas {
         ]
     }
 
-    /// The texels (row-major, top row first) of the displacement, gutters
-    /// filled by clamping to the tile border, unused tiles 0.
+    /// The texels of image 0 (row-major, top row first); see
+    /// [`Atlas::bake_images`].
     pub fn bake(&self, d: &Displacement) -> Result<Vec<f32>> {
+        Ok(self.bake_images(d)?.swap_remove(0))
+    }
+
+    /// The texels of every image (row-major, top row first), each tile's
+    /// whole pitch box filled by clamping to the tile border (so a mip
+    /// block that straddles the border averages the patch's own values),
+    /// unused tiles 0.
+    pub fn bake_images(&self, d: &Displacement) -> Result<Vec<Vec<f32>>> {
         if d.grid.res() != self.res {
             return Err(Error::InvalidArgument(format!(
                 "atlas: resolution {} does not match the displacement's {}",
@@ -106,13 +238,17 @@ impl Atlas {
                 d.grid.res()
             )));
         }
-        let mut img = vec![0.0f32; self.width * self.height];
+        let mut imgs = vec![vec![0.0f32; self.width * self.height]; self.images];
         let g = self.gutter as isize;
+        let far = (self.pitch - self.gutter) as isize - 1;
         let r1 = self.res as isize - 1;
         for f in 0..d.grid.num_patches() {
-            let (x0, y0) = self.tile_origin(f);
-            for y in -g..=r1 + g {
-                for x in -g..=r1 + g {
+            let (image, x0, y0) = self.tile_origin(f);
+            let img = imgs.get_mut(image).ok_or_else(|| {
+                Error::InvalidArgument(format!("atlas: patch {f} beyond the layout"))
+            })?;
+            for y in -g..=far {
+                for x in -g..=far {
                     let (i, j) = (x.clamp(0, r1) as usize, y.clamp(0, r1) as usize);
                     let s = d.grid.sample(f, i, j) as usize;
                     let px = (x0 as isize + x) as usize;
@@ -121,16 +257,21 @@ impl Atlas {
                 }
             }
         }
-        Ok(img)
+        Ok(imgs)
     }
 
     /// Encodes texels from [`Atlas::bake`] as a single-channel (`Y`, the
     /// OpenEXR name of a luminance-only image) 32-bit float EXR with
-    /// lossless ZIP compression. Deterministic bytes: sequential encoding,
-    /// increasing line order.
+    /// lossless ZIP compression.
     pub fn encode_exr(&self, texels: &[f32]) -> Result<Vec<u8>> {
+        self.encode_exr_as(texels, TexelType::Float)
+    }
+
+    /// [`Atlas::encode_exr`] in `ty` (half floats rounded to nearest).
+    /// Deterministic bytes: sequential encoding, increasing line order.
+    pub fn encode_exr_as(&self, texels: &[f32], ty: TexelType) -> Result<Vec<u8>> {
         use exr::prelude::{
-            AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes,
+            f16, AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes,
             SmallVec, WritableImage,
         };
         if texels.len() != self.width * self.height {
@@ -141,10 +282,11 @@ impl Atlas {
                 self.height
             )));
         }
-        let channels = AnyChannels::sort(SmallVec::from_vec(vec![AnyChannel::new(
-            "Y",
-            FlatSamples::F32(texels.to_vec()),
-        )]));
+        let samples = match ty {
+            TexelType::Float => FlatSamples::F32(texels.to_vec()),
+            TexelType::Half => FlatSamples::F16(texels.iter().map(|&t| f16::from_f32(t)).collect()),
+        };
+        let channels = AnyChannels::sort(SmallVec::from_vec(vec![AnyChannel::new("Y", samples)]));
         let layer = Layer::new(
             (self.width, self.height),
             LayerAttributes::named("displacement"),

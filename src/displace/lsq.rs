@@ -140,7 +140,7 @@ pub fn refine_offsets(
     opts: &LsqOffsetOptions,
 ) -> Result<LsqOffsetStats> {
     let n = disp.offsets.len();
-    let normals: Vec<DVec3> = disp.limit.iter().map(|p| p.normal()).collect();
+    let normals: Vec<DVec3> = disp.directions.clone();
     let (mp, mw, _) = edge_midpoints(mesh);
     let total_m: f64 = mw.iter().sum();
     let mut stats = LsqOffsetStats::default();

@@ -14,6 +14,19 @@
 //! surface (an offset of 0 leaves the limit surface's whole error at the
 //! sample, and a tent of it over the neighbouring triangles).
 //!
+//! **Direction.** A sample is displaced along the unit limit normal,
+//! except on an infinitely sharp crease or at a corner (a control edge of
+//! sharpness ≥ [`INFINITELY_SHARP`], a corner vertex, or an end of such an
+//! edge), where the patches meeting there have different normals: there
+//! the direction is the normalised sum of the unit normals of every patch
+//! that contains the sample, each evaluated in its own patch
+//! ([`sample_directions`]). The sample is welded (one offset, one
+//! direction, whatever patch it is seen from), so the displaced surface
+//! stays watertight along creases; displacing each patch along its own
+//! normal there opens a gap of |d|·|n₁ − n₂|. Renderers that displace
+//! along averaged vertex normals (Blender's Displace modifier) do the same
+//! at a welded crease.
+//!
 //! φ's offsets make D interpolate M at the samples; [`refine_offsets`]
 //! then replaces them by the offsets that minimise the integrated squared
 //! distance between D and M in both directions (see its module), which
@@ -23,17 +36,19 @@ mod atlas;
 mod grid;
 mod lsq;
 
-pub use atlas::{read_exr, Atlas, DEFAULT_GUTTER};
+pub use atlas::{
+    read_exr, Atlas, AtlasLayout, TexelType, DEFAULT_GUTTER, MIP_LEVELS, UDIM_PATCHES,
+};
 pub use grid::PatchGrid;
 pub use lsq::{refine_offsets, LsqOffsetOptions, LsqOffsetStats};
 
 use serde::Serialize;
 
 use crate::error::Result;
-use crate::mesh::ControlMesh;
-use crate::project::{project_along_normals, ProjectionStats};
+use crate::mesh::{ControlMesh, INFINITELY_SHARP};
+use crate::project::{project_along, ProjectionStats};
 use crate::raycast::RayCaster;
-use crate::subdiv::{LimitEvaluator, LimitPoint};
+use crate::subdiv::{LimitEvaluator, LimitPoint, SurfaceLocation};
 use crate::DVec3;
 
 /// The per-patch resolution R that makes the number of distinct samples
@@ -93,8 +108,10 @@ pub struct Displacement {
     pub grid: PatchGrid,
     /// Limit point (with derivatives) at each global sample.
     pub limit: Vec<LimitPoint>,
-    /// Signed offset along the unit limit normal (inpainted where
-    /// unprojectable).
+    /// Unit displacement direction at each sample: the limit normal, or
+    /// the crease rule of the module docs.
+    pub directions: Vec<DVec3>,
+    /// Signed offset along `directions` (inpainted where unprojectable).
     pub offsets: Vec<f64>,
     pub projected: Vec<bool>,
     pub stats: DisplacementStats,
@@ -111,7 +128,8 @@ impl Displacement {
         self.limit
             .iter()
             .zip(&self.offsets)
-            .map(|(p, &d)| p.position + d * p.normal())
+            .zip(&self.directions)
+            .map(|((p, &d), &n)| p.position + d * n)
             .collect()
     }
 }
@@ -150,9 +168,10 @@ pub fn compute_displacement(
 ) -> Result<Displacement> {
     let grid = PatchGrid::new(control, res)?;
     let limit = evaluator.evaluate(control.positions(), grid.locations())?;
-    let (mut hits, mut pstats): (_, ProjectionStats) =
-        project_along_normals(caster, &limit, max_dist)?;
+    let directions = sample_directions(control, evaluator, &grid, &limit)?;
     let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
+    let (mut hits, mut pstats): (_, ProjectionStats) =
+        project_along(caster, &positions, &directions, max_dist)?;
     let closest = caster.closest_points(&positions, f64::INFINITY)?;
     let mut other_sheet = 0;
     for (h, c) in hits.iter_mut().zip(&closest) {
@@ -182,10 +201,92 @@ pub fn compute_displacement(
     Ok(Displacement {
         grid,
         limit,
+        directions,
         offsets,
         projected,
         stats,
     })
+}
+
+/// The displacement direction at every sample of `grid` (`limit` its
+/// limit points): the unit limit normal, or on infinitely sharp creases and
+/// at corners the normalised sum of the unit normals of the patches that
+/// contain the sample (module docs). Deterministic: patches are visited in
+/// order.
+pub fn sample_directions(
+    control: &ControlMesh,
+    evaluator: &dyn LimitEvaluator,
+    grid: &PatchGrid,
+    limit: &[LimitPoint],
+) -> Result<Vec<DVec3>> {
+    use std::collections::HashSet;
+    let mut sharp_edges: HashSet<(u32, u32)> = HashSet::new();
+    let mut sharp_vertex = vec![false; control.num_vertices()];
+    for (a, b, s) in control.creases() {
+        if s >= INFINITELY_SHARP {
+            sharp_edges.insert((a.0.min(b.0), a.0.max(b.0)));
+            sharp_vertex[a.0 as usize] = true;
+            sharp_vertex[b.0 as usize] = true;
+        }
+    }
+    for (v, _) in control.corners() {
+        sharp_vertex[v.0 as usize] = true;
+    }
+    let mut dirs: Vec<DVec3> = limit.iter().map(|p| p.normal()).collect();
+    if sharp_edges.is_empty() && !sharp_vertex.iter().any(|&s| s) {
+        return Ok(dirs);
+    }
+    let r1 = grid.res() - 1;
+    let (mut locs, mut ids) = (Vec::new(), Vec::new());
+    for f in 0..grid.num_patches() {
+        let vs = grid.patch_vertices(f);
+        let on_sharp_edge = |k: usize| {
+            let (a, b) = (vs[k], vs[(k + 1) % 4]);
+            sharp_edges.contains(&(a.min(b), a.max(b)))
+        };
+        let mut push = |i: usize, j: usize| {
+            locs.push(SurfaceLocation::quad(
+                crate::mesh::FaceId(f as u32),
+                i as f64 / r1 as f64,
+                j as f64 / r1 as f64,
+            ));
+            ids.push(grid.sample(f, i, j));
+        };
+        for (k, (i, j)) in [(0, 0), (r1, 0), (r1, r1), (0, r1)].into_iter().enumerate() {
+            if sharp_vertex[vs[k] as usize] {
+                push(i, j);
+            }
+        }
+        for k in 1..r1 {
+            if on_sharp_edge(0) {
+                push(k, 0);
+            }
+            if on_sharp_edge(1) {
+                push(r1, k);
+            }
+            if on_sharp_edge(2) {
+                push(k, r1);
+            }
+            if on_sharp_edge(3) {
+                push(0, k);
+            }
+        }
+    }
+    if locs.is_empty() {
+        return Ok(dirs);
+    }
+    let pts = evaluator.evaluate(control.positions(), &locs)?;
+    let mut sum: std::collections::BTreeMap<u32, DVec3> = Default::default();
+    for (p, &s) in pts.iter().zip(&ids) {
+        *sum.entry(s).or_insert(DVec3::ZERO) += p.normal();
+    }
+    for (s, n) in sum {
+        let n = n.normalize_or_zero();
+        if n != DVec3::ZERO {
+            dirs[s as usize] = n;
+        }
+    }
+    Ok(dirs)
 }
 
 /// Sweeps of the Gauss–Seidel smoothing in [`inpaint`]: enough for the

@@ -34,16 +34,14 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crate::analysis::FitmapOptions;
-use crate::displace::{Atlas, DEFAULT_GUTTER};
+use crate::displace::Atlas;
 use crate::error::{Error, Result};
 use crate::fit::{FitOptions, Objective};
 use crate::io::control_obj_with_uvs;
 use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId};
+use crate::pipeline::fit_in_memory;
 use crate::pipeline::{convert_in_memory, ConvertOptions};
-use crate::raycast::{make_raycaster, RayBackend};
-use crate::report::{
-    fit_and_measure, write_converted, Converted, MetricsOptions, PipelineOptions, StageTimer,
-};
+use crate::report::{write_converted, Converted, MetricsOptions, PipelineOptions, StageTimer};
 use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
 use crate::{DVec2, DVec3};
 
@@ -412,11 +410,11 @@ impl Conversion {
     fn from_converted(input: ValidatedMesh, c: Converted) -> Result<Conversion> {
         // Mechanical mode: the atlas is laid out on the once-refined quad
         // mesh (same limit surface), which the host gets, so that UVs and
-        // tiles apply to the mesh it holds (the CLI's control_quads.obj).
+        // tiles apply to the mesh it holds (the CLI's control.obj).
         let control = c.quad_control.as_ref().unwrap_or(&c.control).clone();
         let d = &c.surfaces.displacement;
         let (patches, res) = (d.grid.num_patches(), d.grid.res());
-        let atlas = Atlas::new(patches, res, DEFAULT_GUTTER)?;
+        let atlas = Atlas::for_outputs(patches, res, c.outputs.atlas)?;
         let quads: Vec<[DVec2; 4]> = (0..patches).map(|f| atlas.corner_uvs(f)).collect();
         let control_obj = control_obj_with_uvs(&control, &quads)?;
         // One `vt` per face corner, as in control.obj.
@@ -664,10 +662,7 @@ pub fn fit(
         let mesh = input.to_input_mesh(&options.source_name)?;
         let control = control.to_control_mesh()?;
         progress.report("read", 1.0)?;
-        let mut timer = StageTimer::default();
-        let caster = timer.run("raycaster", || {
-            make_raycaster(RayBackend::Embree, &mesh.mesh)
-        })?;
+        let timer = StageTimer::default();
         let po = PipelineOptions::default()
             .with_fit(FitOptions::default().with_objective(objective(options.fit_method)))
             .with_metrics(
@@ -679,14 +674,12 @@ pub fn fit(
             .with_fitmap(Some(
                 FitmapOptions::default().with_tolerance(options.tolerance),
             ));
-        let c = fit_and_measure(
+        let c = fit_in_memory(
             &mesh,
             control,
-            caster.as_ref(),
             &po,
             timer,
             run_info("fit", options),
-            None,
             &mut sink(progress),
         )?;
         Conversion::from_converted(mesh, c)

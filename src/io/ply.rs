@@ -299,24 +299,22 @@ pub fn parse_ply(bytes: &[u8], path: &Path) -> Result<PolySoup> {
         Format::BinaryLe => read_binary(body, h.body, false, &h, &lay, path, &mut soup)?,
         Format::BinaryBe => read_binary(body, h.body, true, &h, &lay, path, &mut soup)?,
     }
-    let nv = soup.positions.len();
-    for (f, face) in soup.faces().enumerate() {
-        if let Some(&i) = face.iter().find(|&&i| i as usize >= nv) {
-            return Err(Error::invalid_mesh(
-                path,
-                format!("face {f}"),
-                format!("vertex index {i} out of range (the file has {nv} vertices)"),
-            ));
-        }
-    }
     Ok(soup)
 }
 
-/// Converts a decoded list entry to a vertex index, or explains why not.
+/// Converts a decoded list entry to a vertex index below `nv` (the header's
+/// vertex count, known before any face is read whatever the element order),
+/// or explains why not; the caller names the line or byte.
 #[inline]
-fn to_index(v: f64) -> std::result::Result<u32, String> {
+fn to_index(v: f64, nv: usize) -> std::result::Result<u32, String> {
     if v >= 0.0 && v < u32::MAX as f64 && v.fract() == 0.0 {
-        Ok(v as u32)
+        if (v as usize) < nv {
+            Ok(v as u32)
+        } else {
+            Err(format!(
+                "vertex index {v} out of range (the file has {nv} vertices)"
+            ))
+        }
     } else {
         Err(format!("vertex index {v} is not a valid index"))
     }
@@ -379,6 +377,7 @@ fn read_binary(
     soup: &mut PolySoup,
 ) -> Result<()> {
     let mut pos = 0usize;
+    let nv = h.elements[lay.vertex].count;
     for (ei, el) in h.elements.iter().enumerate() {
         let fixed: Option<usize> = el
             .props
@@ -473,7 +472,7 @@ fn read_binary(
                         if face_prop == Some(pi) {
                             for j in 0..c {
                                 let v = item.decode(&body[pos + j * is..], big);
-                                let i = to_index(v).map_err(|m| {
+                                let i = to_index(v, nv).map_err(|m| {
                                     let at = body_offset + pos + j * is;
                                     Error::invalid_mesh(path, format!("face {k} (byte {at})"), m)
                                 })?;
@@ -529,6 +528,7 @@ fn read_ascii(
         rest: body,
         line: h.lines + 1,
     };
+    let nv = h.elements[lay.vertex].count;
     for (ei, el) in h.elements.iter().enumerate() {
         let face_prop = lay.face.filter(|f| f.0 == ei).map(|f| f.1);
         // Each record needs at least two bytes per property ("0 ").
@@ -583,7 +583,7 @@ fn read_ascii(
                         for _ in 0..c as usize {
                             let v = number(p.name(), &mut toks)?;
                             if face_prop == Some(pi) {
-                                let i = to_index(v).map_err(|m| {
+                                let i = to_index(v, nv).map_err(|m| {
                                     Error::invalid_mesh(
                                         path,
                                         format!("face {k} (line {})", toks.line),

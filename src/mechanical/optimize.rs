@@ -331,6 +331,7 @@ pub fn optimize(
     let all: Vec<bool> = book.best.iter().map(|b| b.is_some()).collect();
     // (A shared free vertex, which no layout here has, leaves it as is.)
     let _ = restore_regions(polys, &book.best, &all);
+    split_doublets(polys);
     // A last geometry pass on the output, run to convergence: the
     // umbrella damping of each step (λ|Lδ|², on the update, so it does not
     // move the minimum) makes the alternating foot-point iteration converge
@@ -350,6 +351,66 @@ pub fn optimize(
         1e-3,
     )?;
     Ok(rounds)
+}
+
+/// Removes every interior vertex of valence 2 (a *doublet*: two faces
+/// sharing two consecutive edges, which Fitmaps §3.3 removes and
+/// OpenSubdiv pins in place, so its surface is not the one fitted) by
+/// splitting each of its two faces that has four or more corners along
+/// the diagonal from the vertex to the corner opposite it. The vertex
+/// keeps its place and its creases, so a crease curve through it (§5's
+/// control points, fixed) is unchanged: an infinitely sharp crease's limit
+/// depends on its crease vertices only. Merging the two faces instead, as
+/// §3.3 does on all-quad meshes, would drop the vertex from its crease
+/// curve. Valence becomes 4 (3 next to a triangle); the final geometry
+/// pass then refits the free vertices around it. Returns the number of
+/// vertices fixed.
+pub fn split_doublets(p: &mut Polys) -> usize {
+    let mut fixed = 0;
+    loop {
+        let ef = edge_faces(&p.faces);
+        let mut nbrs: Vec<Vec<u32>> = vec![Vec::new(); p.positions.len()];
+        let mut boundary = vec![false; p.positions.len()];
+        for (&(a, b), fs) in &ef {
+            nbrs[a as usize].push(b);
+            nbrs[b as usize].push(a);
+            if fs.len() == 1 {
+                boundary[a as usize] = true;
+                boundary[b as usize] = true;
+            }
+        }
+        // Lowest vertex first: deterministic whatever the hash order.
+        let Some(v) = (0..p.positions.len()).find(|&v| nbrs[v].len() == 2 && !boundary[v]) else {
+            return fixed;
+        };
+        let faces: Vec<usize> = (0..p.faces.len())
+            .filter(|&f| p.faces[f].contains(&(v as u32)))
+            .collect();
+        let mut split_any = false;
+        for f in faces {
+            let face = p.faces[f].clone();
+            let n = face.len();
+            if n < 4 {
+                continue;
+            }
+            let k = face.iter().position(|&x| x == v as u32).unwrap_or(0);
+            // v, then corners k+1 ..= k+n/2 | k+n/2 .. k+n-1, v.
+            let half = n / 2;
+            let first: Vec<u32> = (0..=half).map(|i| face[(k + i) % n]).collect();
+            let mut second: Vec<u32> = (half..n).map(|i| face[(k + i) % n]).collect();
+            second.push(v as u32);
+            p.faces[f] = first;
+            p.faces.push(second);
+            let region = p.face_region[f];
+            p.face_region.push(region);
+            split_any = true;
+        }
+        if !split_any {
+            // Two triangles: a closed pillow, no mesh of this pipeline.
+            return fixed;
+        }
+        fixed += 1;
+    }
 }
 
 /// Squared restricted sample distances summed per face and per region

@@ -25,7 +25,8 @@
 //! symmetric figure that neither a surface covering only part of M nor one
 //! with a fin sticking out can pass).
 //!
-//! Tessellations: L is evaluated (OpenSubdiv, isolation level 10, the
+//! Tessellations (of the measurements; the files have their own,
+//! [`tessellate`]): L is evaluated (OpenSubdiv, isolation level 10, the
 //! reference setting of STACK-NOTES) on a welded `t × t` grid per patch,
 //! `t` large enough that L has about four times as many samples as M has
 //! vertices (at least the displacement resolution, at most 64): its chordal
@@ -47,12 +48,13 @@
 mod floor;
 mod output;
 mod pipeline;
+pub mod tessellate;
 
 pub use floor::resampling_floor;
 
 pub use output::{
-    remove_staging_folders, write_outputs, write_outputs_with, ExtraFiles, OutputFiles,
-    KNOWN_NAMES, OUTPUT_NAMES,
+    is_known_name, remove_staging_folders, write_outputs, write_outputs_with, ExtraFiles,
+    OutputFiles, OutputOptions, KNOWN_NAMES, OUTPUT_NAMES,
 };
 pub use pipeline::{fit_and_measure, fit_and_write, write_converted, Converted, PipelineOptions};
 
@@ -87,6 +89,9 @@ pub struct MetricsOptions {
     pub max_dist: Option<f64>,
     /// φ's hits, or least-squares offsets (the default).
     pub offsets: OffsetMode,
+    /// Cells per patch side of `limit.ply` / `displaced.ply`; `None`: the
+    /// default of [`tessellate`].
+    pub output_tessellation: Option<usize>,
 }
 
 impl MetricsOptions {
@@ -96,6 +101,10 @@ impl MetricsOptions {
     }
     pub fn with_tessellation_res(mut self, r: Option<usize>) -> Self {
         self.tessellation_res = r;
+        self
+    }
+    pub fn with_output_tessellation(mut self, n: Option<usize>) -> Self {
+        self.output_tessellation = n;
         self
     }
     pub fn with_offsets(mut self, m: OffsetMode) -> Self {
@@ -136,6 +145,9 @@ pub struct Metrics {
     pub tessellation_res: usize,
     /// Where D's surface→mesh error sits (see [`DisplacedBreakdown`]).
     pub displaced_breakdown: DisplacedBreakdown,
+    /// The tessellations written as `limit.ply` / `displaced.ply` (the
+    /// figures above are measured on grids of their own, module docs).
+    pub files: tessellate::TessellationStats,
 }
 
 /// Where the displaced surface's S → M error comes from. D's RMS is an
@@ -187,10 +199,14 @@ pub const WORST_PATCHES: usize = 8;
 #[derive(Clone, Debug)]
 pub struct Surfaces {
     pub displacement: Displacement,
-    /// L's tessellation (welded, watertight where the control mesh is).
+    /// `limit.ply`: L's tessellation (welded, watertight where the control
+    /// mesh is), [`tessellate`].
     pub limit: TriMesh,
-    /// D's tessellation, on the displacement grid.
+    /// `displaced.ply`: D on the same grid, [`tessellate`].
     pub displaced: TriMesh,
+    /// Per vertex of `displaced`: offset and projected flag.
+    pub displaced_offsets: Vec<f64>,
+    pub displaced_projected: Vec<bool>,
     pub metrics: Metrics,
 }
 
@@ -315,8 +331,16 @@ pub fn evaluate_surfaces(
             Ok((displacement, displaced, acc, bd))
         },
     );
-    let (limit, limit_acc, unprojectable_area_percent) = limit_side?;
-    let (displacement, displaced, displaced_acc, displaced_breakdown) = displaced_side?;
+    let (_, limit_acc, unprojectable_area_percent) = limit_side?;
+    let (displacement, _, displaced_acc, displaced_breakdown) = displaced_side?;
+    let files = tessellate::tessellate(
+        control,
+        evaluator.as_ref(),
+        &displacement,
+        diag,
+        opts.output_tessellation,
+        limit_acc.rms_permille,
+    )?;
     report_progress(progress, "displacement", 1.0)?;
     report_progress(progress, "metrics", 0.0)?;
     report_progress(progress, "metrics", 1.0)?;
@@ -328,11 +352,14 @@ pub fn evaluate_surfaces(
         displacement: displacement.stats.clone(),
         tessellation_res: t,
         displaced_breakdown,
+        files: files.stats,
     };
     Ok(Surfaces {
         displacement,
-        limit,
-        displaced,
+        limit: files.limit,
+        displaced: files.displaced,
+        displaced_offsets: files.offsets,
+        displaced_projected: files.projected,
         metrics,
     })
 }
@@ -714,9 +741,16 @@ pub struct Report {
     pub version: BTreeMap<String, String>,
     pub input: crate::mesh::MeshReport,
     pub control: ControlStats,
+    /// The mesh `control.obj` / `control.usda` carry when it is not
+    /// `control` (mechanical mode: the compact quad/triangle mesh refined
+    /// once into quads, the same limit surface); absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub control_written: Option<ControlStats>,
     pub fit: Option<crate::fit::FitReport>,
     pub accuracy: ReportAccuracy,
     pub projectability: ReportProjectability,
+    /// `limit.ply` / `displaced.ply`: cells per patch side, chord error.
+    pub tessellation: tessellate::TessellationStats,
     pub stages: Vec<StageStat>,
     /// The options of the run, as given.
     pub options: serde_json::Value,
@@ -787,6 +821,7 @@ impl Report {
             version: versions(),
             input,
             control: control_stats(control),
+            control_written: None,
             fit,
             accuracy: ReportAccuracy {
                 unit: "permille of the input's bounding-box diagonal",
@@ -798,6 +833,7 @@ impl Report {
                 unprojectable_area_percent: metrics.unprojectable_area_percent,
                 displacement: metrics.displacement.clone(),
             },
+            tessellation: metrics.files.clone(),
             stages,
             options,
             targets_met: true,

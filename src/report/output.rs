@@ -27,10 +27,10 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use crate::analysis::Fitmap;
-use crate::displace::{Atlas, DEFAULT_GUTTER};
+use crate::displace::{Atlas, AtlasLayout, TexelType};
 use crate::error::{Error, Result};
 use crate::io::{
-    write_atomically, write_control_obj, write_control_obj_with_uvs, write_ply, write_usda,
+    write_atomically, write_control_obj_with_uvs, write_ply, write_usda_with, UsdOptions,
 };
 use crate::mesh::{ControlMesh, TriMesh};
 
@@ -45,19 +45,42 @@ pub type ExtraFiles<'a> = &'a mut dyn FnMut(&Path) -> Result<Vec<String>>;
 pub struct OutputFiles<'a> {
     /// M, for `fitmap.ply`.
     pub mesh: &'a TriMesh,
+    /// The control mesh `control.obj` and `control.usda` carry, with UVs
+    /// into the atlas: all quads (in mechanical mode, Lavoué et al.'s
+    /// quad/triangle mesh refined once, see
+    /// [`super::Converted::quad_control`]).
     pub control: &'a ControlMesh,
-    /// The all-quad mesh the atlas is laid out on when `control` has other
-    /// faces (see [`super::Converted::quad_control`]): then `control.obj`
-    /// and `control.usda` carry `control` without UVs, and
-    /// `control_quads.obj` this mesh with them.
-    pub quad_control: Option<&'a ControlMesh>,
     pub surfaces: &'a Surfaces,
     /// `fitmap.ply` is written when given.
     pub fitmap: Option<&'a Fitmap>,
     pub report: &'a Report,
+    pub options: &'a OutputOptions,
 }
 
-/// The file names, in the order they are written.
+/// How the files are written (not what they hold).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct OutputOptions {
+    /// `control.usda`'s `metersPerUnit`: what one unit of the input is
+    /// (`--units`; the input is taken to be in metres by default).
+    pub meters_per_unit: f64,
+    /// `displacement.exr`, or UDIM tiles `displacement.1001.exr`, ….
+    pub atlas: AtlasLayout,
+    /// 32- or 16-bit float texels.
+    pub texels: TexelType,
+}
+
+impl Default for OutputOptions {
+    fn default() -> Self {
+        OutputOptions {
+            meters_per_unit: 1.0,
+            atlas: AtlasLayout::Single,
+            texels: TexelType::Float,
+        }
+    }
+}
+
+/// The file names, in the order they are written (UDIM outputs write
+/// `displacement.1001.exr`, … instead of `displacement.exr`).
 pub const OUTPUT_NAMES: [&str; 7] = [
     "control.obj",
     "control.usda",
@@ -69,8 +92,9 @@ pub const OUTPUT_NAMES: [&str; 7] = [
 ];
 
 /// Every name subdfit may write into an output folder: a file of these
-/// names is part of an earlier set and is replaced (or dropped), never
-/// carried over.
+/// names (or a UDIM tile, [`is_known_name`]) is part of an earlier set and
+/// is replaced (or dropped), never carried over. `control_quads.obj` is
+/// what older versions wrote in mechanical mode.
 pub const KNOWN_NAMES: [&str; 9] = [
     "control.obj",
     "control.usda",
@@ -131,7 +155,7 @@ pub fn write_outputs_with(
         .map_err(|e| Error::io(&staging, e))
         .and_then(|_| write_all(&staging, out))
         .and_then(|names| {
-            let mut names: Vec<String> = names.iter().map(|n| n.to_string()).collect();
+            let mut names = names;
             if let Some(extra) = extra.as_mut() {
                 names.extend(extra(&staging)?);
             }
@@ -207,12 +231,22 @@ fn foreign_files(dir: &Path) -> Result<Vec<String>> {
                 ),
             ));
         }
-        if !KNOWN_NAMES.contains(&name.as_str()) {
+        if !is_known_name(&name) {
             out.push(name);
         }
     }
     out.sort();
     Ok(out)
+}
+
+/// Whether subdfit writes files named `name`: [`KNOWN_NAMES`] and the
+/// UDIM tiles `displacement.NNNN.exr`.
+pub fn is_known_name(name: &str) -> bool {
+    let udim = name
+        .strip_prefix("displacement.")
+        .and_then(|r| r.strip_suffix(".exr"))
+        .is_some_and(|n| n.len() == 4 && n.bytes().all(|b| b.is_ascii_digit()));
+    udim || KNOWN_NAMES.contains(&name)
 }
 
 /// Removes staging folders left by killed runs: beside `dir` (this
@@ -299,60 +333,46 @@ fn pause_for_tests() {
 }
 
 /// One output file: its name and the code that writes it to a path.
-type Job<'a> = (
-    &'static str,
-    Box<dyn Fn(&Path) -> Result<()> + Send + Sync + 'a>,
-);
+type Job<'a> = (String, Box<dyn Fn(&Path) -> Result<()> + Send + Sync + 'a>);
 
-fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<&'static str>> {
+fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<String>> {
     use rayon::prelude::*;
     let d = &out.surfaces.displacement;
-    let atlas = Atlas::new(d.grid.num_patches(), d.grid.res(), DEFAULT_GUTTER)?;
+    let atlas = Atlas::for_outputs(d.grid.num_patches(), d.grid.res(), out.options.atlas)?;
     let uvs: Vec<_> = (0..d.grid.num_patches())
         .map(|f| atlas.corner_uvs(f))
         .collect();
+    let images = atlas.bake_images(d)?;
     let (atlas, uvs) = (&atlas, &uvs);
+    let usd = UsdOptions {
+        meters_per_unit: out.options.meters_per_unit,
+        texture: Some(atlas.texture_pattern().to_string()),
+    };
+    let usd = &usd;
     let mut jobs: Vec<Job<'_>> = Vec::new();
-    match out.quad_control {
-        None => {
-            jobs.push((
-                "control.obj",
-                Box::new(move |p| write_control_obj_with_uvs(p, out.control, uvs)),
-            ));
-            jobs.push((
-                "control.usda",
-                Box::new(move |p| write_usda(p, out.control, Some(uvs))),
-            ));
-        }
-        Some(quads) => {
-            jobs.push((
-                "control.obj",
-                Box::new(move |p| write_control_obj(p, out.control)),
-            ));
-            jobs.push((
-                "control.usda",
-                Box::new(move |p| write_usda(p, out.control, None)),
-            ));
-            jobs.push((
-                "control_quads.obj",
-                Box::new(move |p| write_control_obj_with_uvs(p, quads, uvs)),
-            ));
-        }
-    }
     jobs.push((
-        "limit.ply",
+        "control.obj".into(),
+        Box::new(move |p| write_control_obj_with_uvs(p, out.control, uvs)),
+    ));
+    jobs.push((
+        "control.usda".into(),
+        Box::new(move |p| write_usda_with(p, out.control, Some(uvs), usd)),
+    ));
+    jobs.push((
+        "limit.ply".into(),
         Box::new(move |p| {
             let lim = &out.surfaces.limit;
             write_ply(p, &lim.positions, &lim.triangles, &[], None)
         }),
     ));
     jobs.push((
-        "displaced.ply",
+        "displaced.ply".into(),
         Box::new(move |p| {
             let dis = &out.surfaces.displaced;
-            let offsets: Vec<f32> = d.offsets.iter().map(|&x| x as f32).collect();
-            let projected: Vec<f32> = d
-                .projected
+            let surf = out.surfaces;
+            let offsets: Vec<f32> = surf.displaced_offsets.iter().map(|&x| x as f32).collect();
+            let projected: Vec<f32> = surf
+                .displaced_projected
                 .iter()
                 .map(|&p| if p { 1.0 } else { 0.0 })
                 .collect();
@@ -365,16 +385,19 @@ fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<&'static str>> {
             )
         }),
     ));
-    jobs.push((
-        "displacement.exr",
-        Box::new(move |p| {
-            let exr = atlas.encode_exr(&atlas.bake(d)?)?;
-            write_atomically(p, |w| w.write_all(&exr).map_err(|e| Error::io(p, e)))
-        }),
-    ));
+    // Each image encoded in its own job (the UDIM tiles side by side).
+    for (k, img) in images.iter().enumerate() {
+        jobs.push((
+            atlas.file_name(k),
+            Box::new(move |p| {
+                let exr = atlas.encode_exr_as(img, out.options.texels)?;
+                write_atomically(p, |w| w.write_all(&exr).map_err(|e| Error::io(p, e)))
+            }),
+        ));
+    }
     if let Some(fm) = out.fitmap {
         jobs.push((
-            "fitmap.ply",
+            "fitmap.ply".into(),
             Box::new(move |p| {
                 let s: Vec<f32> = fm.s.iter().map(|&x| x as f32).collect();
                 let m: Vec<f32> = fm.m.iter().map(|&x| x as f32).collect();
@@ -389,7 +412,7 @@ fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<&'static str>> {
         ));
     }
     jobs.push((
-        "report.json",
+        "report.json".into(),
         Box::new(move |p| {
             let json = serde_json::to_string_pretty(out.report)
                 .map_err(|e| Error::InvalidArgument(format!("report.json: {e}")))?;
@@ -409,5 +432,5 @@ fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<&'static str>> {
         .collect::<Vec<Result<()>>>()
         .into_iter()
         .collect::<Result<()>>()?;
-    Ok(jobs.iter().map(|(name, _)| *name).collect())
+    Ok(jobs.into_iter().map(|(name, _)| name).collect())
 }

@@ -13,8 +13,8 @@ use crate::mesh::{ControlMesh, ValidatedMesh};
 use crate::raycast::RayCaster;
 
 use super::{
-    evaluate_surfaces, write_outputs_with, ExtraFiles, MetricsOptions, OutputFiles, Report,
-    StageTimer, Surfaces,
+    evaluate_surfaces, write_outputs_with, ExtraFiles, MetricsOptions, OutputFiles, OutputOptions,
+    Report, StageTimer, Surfaces,
 };
 
 /// Options of [`fit_and_write`].
@@ -49,12 +49,60 @@ pub struct Converted {
     pub control: ControlMesh,
     /// When `control` is not all quads (mechanical mode): its Catmull-Clark
     /// refinement by one level, which has the same limit surface and is the
-    /// mesh the displacement atlas (and `surfaces`) are laid out on.
+    /// mesh the displacement atlas (and `surfaces`) are laid out on, and
+    /// the one `control.obj` / `control.usda` carry.
     pub quad_control: Option<ControlMesh>,
     pub surfaces: Surfaces,
     pub report: Report,
     /// The Fitmap written as `fitmap.ply`, when one was computed or given.
     pub fitmap: Option<Fitmap>,
+    /// How [`write_converted`] writes the files (units, atlas layout,
+    /// texel type); the defaults unless the caller sets them.
+    pub outputs: OutputOptions,
+}
+
+impl Converted {
+    /// The control mesh the files carry, with the atlas UVs: `quad_control`
+    /// when there is one (mechanical mode), else `control`.
+    pub fn written_control(&self) -> &ControlMesh {
+        self.quad_control.as_ref().unwrap_or(&self.control)
+    }
+}
+
+impl Converted {
+    /// Multiplies every length of the result by `f`, a power of two (so
+    /// that the product is exact): the inverse of the uniform rescaling
+    /// that [`crate::pipeline`] runs the conversion at. Positions,
+    /// derivatives, displacement offsets, the diagonal and the Fitmap's
+    /// radii scale by `f`; F_S (units 1 / length^(3/4)) by `f^(-3/4)`,
+    /// which the caller keeps exact by passing `f = 2^(4j)`. Everything in
+    /// `report.json` is in ‰ of the diagonal or a count, and stays.
+    pub fn scale_lengths(&mut self, f: f64) {
+        let scale_mesh = |c: &mut ControlMesh| c.positions_mut().iter_mut().for_each(|p| *p *= f);
+        scale_mesh(&mut self.control);
+        if let Some(q) = self.quad_control.as_mut() {
+            scale_mesh(q);
+        }
+        let s = &mut self.surfaces;
+        for l in &mut s.displacement.limit {
+            l.position *= f;
+            l.du *= f;
+            l.dv *= f;
+        }
+        s.displacement.offsets.iter_mut().for_each(|o| *o *= f);
+        // (`directions` are unit vectors; the tessellation figures are ‰.)
+        s.displaced_offsets.iter_mut().for_each(|o| *o *= f);
+        for t in [&mut s.limit, &mut s.displaced] {
+            t.positions.iter_mut().for_each(|p| *p *= f);
+        }
+        s.metrics.bbox_diagonal *= f;
+        if let Some(fm) = self.fitmap.as_mut() {
+            fm.radii.iter_mut().for_each(|r| *r *= f);
+            fm.m.iter_mut().for_each(|r| *r *= f);
+            let fs = f.powf(-0.75);
+            fm.s.iter_mut().for_each(|x| *x *= fs);
+        }
+    }
 }
 
 /// Fits `control` to `input.mesh` (`caster` built over it) and measures the
@@ -107,6 +155,7 @@ pub fn fit_and_measure(
         surfaces,
         report,
         fitmap,
+        outputs: OutputOptions::default(),
     })
 }
 
@@ -124,11 +173,11 @@ pub fn write_converted(
         dir,
         &OutputFiles {
             mesh: &input.mesh,
-            control: &c.control,
-            quad_control: c.quad_control.as_ref(),
+            control: c.written_control(),
             surfaces: &c.surfaces,
             fitmap: c.fitmap.as_ref(),
             report: &c.report,
+            options: &c.outputs,
         },
         extra,
     )?;

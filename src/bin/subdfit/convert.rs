@@ -25,10 +25,10 @@ pub struct ConvertArgs {
     /// manifold surface.
     mesh: PathBuf,
     /// Output folder: control.obj, control.usda, limit.ply, displaced.ply,
-    /// displacement.exr, fitmap.ply, report.json (and report.html) as one
-    /// set: built beside the folder and swapped in whole, so the folder
-    /// never mixes two runs; other files in it are kept, a sub-folder in it
-    /// is an error.
+    /// displacement.exr (or UDIM tiles), fitmap.ply, report.json (and
+    /// report.html) as one set: built beside the folder and swapped in
+    /// whole, so the folder never mixes two runs; other files in it are
+    /// kept, a sub-folder in it is an error.
     #[arg(short, long)]
     output: PathBuf,
     /// τ, the only parameter of the method (Fitmaps §3.1.3): the share of a
@@ -64,6 +64,8 @@ pub struct ConvertArgs {
     /// paper's).
     #[arg(long)]
     max_error: Option<f64>,
+    #[command(flatten)]
+    files: OutputArgs,
     /// No progress bars.
     #[arg(long)]
     quiet: bool,
@@ -79,6 +81,77 @@ pub struct ConvertArgs {
     /// miss is a warning on stderr and `"targets_met": false`.
     #[arg(long)]
     strict: bool,
+}
+
+/// `--atlas`.
+#[derive(Copy, Clone, Debug, clap::ValueEnum)]
+pub enum AtlasArg {
+    Single,
+    Udim,
+}
+
+/// How the output files are written (shared by `convert`).
+#[derive(Args)]
+pub struct OutputArgs {
+    /// The length of one unit of the input's coordinates, for
+    /// control.usda's metersPerUnit: m, dm, cm, mm, in, ft, or metres as a
+    /// number (0.01 = cm). Default m: the input is taken to be in metres
+    /// (scans and the Stanford models are; CAD exports are often mm).
+    #[arg(long, default_value = "m", value_parser = parse_units)]
+    units: f64,
+    /// Displacement atlas: `single` (displacement.exr) or `udim` (tiles
+    /// displacement.1001.exr, … of 8 × 8 patches each, UVs in UDIM space).
+    /// Gutters and tile alignment serve mip levels 0-3 without bleeding.
+    #[arg(long, value_enum, default_value_t = AtlasArg::Single)]
+    atlas: AtlasArg,
+    /// Write the EXR texels as 16-bit half floats (default 32-bit float).
+    #[arg(long)]
+    half: bool,
+    /// Cells per patch side of limit.ply and displaced.ply (1-1024).
+    /// Default: the smallest power of two from 16 to 64 whose RMS chord
+    /// error (against the exact limit surface) is below a tenth of the
+    /// fit's RMS distance and whose largest is below that distance;
+    /// report.json's `tessellation` gives the figures.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    tessellation: Option<u64>,
+}
+
+/// `--units`: a unit name or metres per unit.
+fn parse_units(s: &str) -> std::result::Result<f64, String> {
+    let m = match s {
+        "m" => 1.0,
+        "dm" => 0.1,
+        "cm" => 0.01,
+        "mm" => 0.001,
+        "in" => 0.0254,
+        "ft" => 0.3048,
+        _ => s
+            .parse::<f64>()
+            .map_err(|_| format!("{s:?}: give m, dm, cm, mm, in, ft or metres per unit"))?,
+    };
+    if m.is_finite() && m > 0.0 {
+        Ok(m)
+    } else {
+        Err(format!("{s:?}: metres per unit must be finite and > 0"))
+    }
+}
+
+impl OutputArgs {
+    fn options(&self) -> subdfit::report::OutputOptions {
+        use subdfit::displace::{AtlasLayout, TexelType};
+        subdfit::report::OutputOptions {
+            meters_per_unit: self.units,
+            atlas: match self.atlas {
+                AtlasArg::Single => AtlasLayout::Single,
+                AtlasArg::Udim => AtlasLayout::Udim,
+            },
+            texels: if self.half {
+                TexelType::Half
+            } else {
+                TexelType::Float
+            },
+        }
+    }
 }
 
 pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
@@ -101,14 +174,16 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
             ModeArg::Organic => Mode::Organic,
             ModeArg::Mechanical => Mode::Mechanical,
         })
-        .with_max_error(a.max_error);
+        .with_max_error(a.max_error)
+        .with_tessellation(a.files.tessellation.map(|n| n as usize));
     let extra = serde_json::json!({
         "command": "convert",
         "mesh": a.mesh.display().to_string(),
     });
     let mut progress = progress_bars(a.quiet || a.json);
-    let converted = convert_in_memory(&input, &opts, extra, &mut progress)
+    let mut converted = convert_in_memory(&input, &opts, extra, &mut progress)
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.mesh.display()))?;
+    converted.outputs = a.files.options();
     // report.html is drawn from the staged files, so it belongs to the set.
     let mut html = |staging: &std::path::Path| -> subdfit::Result<Vec<String>> {
         if !a.report {

@@ -9,8 +9,8 @@ use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use indicatif::{ProgressBar, ProgressStyle};
 use subdfit::fit::{FitOptions, Objective};
-use subdfit::raycast::{make_raycaster, RayBackend};
-use subdfit::report::{fit_and_write, metrics, MetricsOptions, PipelineOptions, StageTimer};
+use subdfit::pipeline::{fit_in_memory, measure};
+use subdfit::report::{write_converted, MetricsOptions, PipelineOptions, StageTimer};
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
 pub enum FitArg {
@@ -103,9 +103,6 @@ pub fn fit(a: FitArgs) -> Result<ExitCode> {
         })
         .context("input mesh")?;
     let control = crate::read_control(&a.control)?;
-    let caster = timer.run("raycaster", || {
-        make_raycaster(RayBackend::Embree, &input.mesh)
-    })?;
     let objective = match a.fit {
         FitArg::Point => Objective::Point,
         FitArg::Sdm => Objective::Sdm,
@@ -124,17 +121,9 @@ pub fn fit(a: FitArgs) -> Result<ExitCode> {
         "control": a.control.display().to_string(),
     });
     let mut progress = progress_bars(a.quiet || a.json);
-    let (report, written) = fit_and_write(
-        &input,
-        control,
-        caster.as_ref(),
-        &opts,
-        timer,
-        extra,
-        None,
-        &a.output,
-        &mut progress,
-    )?;
+    let c = fit_in_memory(&input, control, &opts, timer, extra, &mut progress)?;
+    let written = write_converted(&input, &c, &a.output, None, &mut progress)?;
+    let report = c.report;
     if a.json {
         crate::emit(&serde_json::to_string_pretty(&report)?)?;
     } else if !a.quiet {
@@ -165,14 +154,12 @@ pub fn print_summary(report: &subdfit::report::Report, written: &[PathBuf]) -> R
 pub fn metrics_cmd(a: MetricsArgs) -> Result<ExitCode> {
     let input = crate::read_input(&a.mesh)?;
     let control = crate::read_control(&a.control)?;
-    let caster = make_raycaster(RayBackend::Embree, &input.mesh)?;
-    let m = metrics(
-        &input.mesh,
-        &control,
-        caster.as_ref(),
+    let stats = subdfit::report::control_stats(&control);
+    let m = measure(
+        &input,
+        control,
         &MetricsOptions::default().with_displacement_res(a.displacement_res),
     )?;
-    let stats = subdfit::report::control_stats(&control);
     if a.json {
         let v = serde_json::json!({ "control": stats, "metrics": m });
         crate::emit(&serde_json::to_string_pretty(&v)?)?;

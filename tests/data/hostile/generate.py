@@ -197,7 +197,7 @@ case(
 case(
     "ply_out_of_range.ply",
     ply_ascii(faces=[T[0], (0, 1, 7), T[2], T[3]]),
-    "err face 1;vertex index 7 out of range",
+    "err face 1 (line 15);vertex index 7 out of range",
     "face index past the last vertex",
 )
 case(

@@ -1,0 +1,295 @@
+"""subdfit conversion folders in Blender (one file: an add-on and a script).
+
+Imports a folder written by `subdfit convert` as a mesh object with the
+conventions of the outputs (README, "Renderers"):
+
+- `control.obj` read here, not by Blender's OBJ importer, which drops the
+  OpenSubdiv `t crease` / `t corner` tags: creases and corners become edge
+  and vertex creases (Blender's crease 1.0 is OpenSubdiv's sharpness 10,
+  infinitely sharp; sharpness s maps to s / 10);
+- the `vt` UVs as UV map "st";
+- a Subdivision Surface modifier: Catmull-Clark, Boundary Smooth "Keep
+  Corners" (our edge-and-corner boundary rule), UV Smooth "None" (UVs are
+  piecewise bilinear per patch), limit surface on, creases on;
+- a Displace modifier reading `displacement.exr` (or the UDIM tiles) as
+  Non-Color data, image clamp off (offsets are signed), midlevel 0,
+  strength 1, UV coordinates, direction Normal (our offsets run along the
+  unit normal; Blender's vertex normal at a welded crease averages both
+  sides, our crease rule).
+
+Add-on: Edit > Preferences > Add-ons > Install this file, then File >
+Import > "subdfit conversion folder". Headless:
+
+    blender -b --python blender/subdfit_blender.py -- OUTDIR [--level L] [--check]
+
+imports OUTDIR; `--level` is the subdivision level (default log2 of the
+folder's tessellation when it is a power of two, else 4); `--check`
+compares the evaluated mesh with `limit.ply` (Displace off) and
+`displaced.ply` (on) and prints one JSON line `SUBDFIT_CHECK {...}` with
+the largest distance to the nearest vertex of each file, as a fraction of
+the bounding-box diagonal. Depends on nothing but Blender.
+"""
+
+import json
+import math
+import os
+import struct
+import sys
+
+import bpy
+import bmesh
+
+bl_info = {
+    "name": "subdfit conversion folder",
+    "author": "subdfit",
+    "version": (0, 1, 0),
+    "blender": (3, 4, 0),
+    "location": "File > Import > subdfit conversion folder",
+    "description": "Imports a subdfit output folder: control mesh with creases, corners "
+    "and UVs, Subdivision Surface and Displace modifiers set to its conventions",
+    "category": "Import-Export",
+}
+
+
+def read_control_obj(path):
+    """Vertices, faces (vertex indices), per-corner UVs, creases
+    {(a, b): sharpness} and corners {v: sharpness} of a control.obj."""
+    verts, uvs, faces, face_uvs = [], [], [], []
+    creases, corners = {}, {}
+    with open(path) as f:
+        for line in f:
+            t = line.split()
+            if not t or t[0].startswith("#"):
+                continue
+            if t[0] == "v":
+                verts.append(tuple(float(x) for x in t[1:4]))
+            elif t[0] == "vt":
+                uvs.append((float(t[1]), float(t[2])))
+            elif t[0] == "f":
+                vs, ts = [], []
+                for c in t[1:]:
+                    parts = c.split("/")
+                    vs.append(int(parts[0]) - 1)
+                    if len(parts) > 1 and parts[1]:
+                        ts.append(int(parts[1]) - 1)
+                faces.append(vs)
+                face_uvs.append(ts if len(ts) == len(vs) else None)
+            elif t[0] == "t":
+                # OpenSubdiv shape tags: t NAME nints/nfloats/nstrings ints floats
+                ni, nf = (int(x) for x in t[2].split("/")[:2])
+                ints = [int(x) for x in t[3:3 + ni]]
+                floats = [float(x) for x in t[3 + ni:3 + ni + nf]]
+                if t[1] == "crease":
+                    for k in range(len(ints) - 1):
+                        s = floats[k] if len(floats) == len(ints) - 1 else floats[0]
+                        creases[tuple(sorted((ints[k], ints[k + 1])))] = s
+                elif t[1] == "corner":
+                    for k, v in enumerate(ints):
+                        corners[v] = floats[k] if len(floats) == len(ints) else floats[0]
+    return verts, faces, uvs, face_uvs, creases, corners
+
+
+def read_ply_vertices(path):
+    """The x, y, z of every vertex of a binary little-endian PLY."""
+    with open(path, "rb") as f:
+        data = f.read()
+    end = data.index(b"end_header\n") + len(b"end_header\n")
+    header = data[:end].decode("ascii").splitlines()
+    n, props, in_vertex = 0, [], False
+    sizes = {"float": ("f", 4), "double": ("d", 8), "uchar": ("B", 1), "int": ("i", 4)}
+    for line in header:
+        t = line.split()
+        if t[:2] == ["element", "vertex"]:
+            n, in_vertex = int(t[2]), True
+        elif t and t[0] == "element":
+            in_vertex = False
+        elif in_vertex and t[0] == "property":
+            props.append(sizes[t[1]][0])
+    fmt = "<" + "".join(props)
+    step = struct.calcsize(fmt)
+    out = []
+    for k in range(n):
+        vals = struct.unpack_from(fmt, data, end + k * step)
+        out.append(vals[:3])
+    return out
+
+
+def import_folder(folder, level=None, name=None):
+    """Builds the object of the module docs from `folder`; returns it."""
+    verts, faces, uvs, face_uvs, creases, corners = read_control_obj(
+        os.path.join(folder, "control.obj"))
+    report = {}
+    rp = os.path.join(folder, "report.json")
+    if os.path.isfile(rp):
+        with open(rp) as f:
+            report = json.load(f)
+    if level is None:
+        n = report.get("tessellation", {}).get("segments_per_patch_side", 16)
+        level = int(round(math.log2(n))) if n & (n - 1) == 0 and n <= 64 else 4
+    name = name or os.path.basename(os.path.normpath(folder))
+    me = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    # Layers first: adding one reallocates the elements' data.
+    uv_layer = bm.loops.layers.uv.new("st")
+    ecrease = bm.edges.layers.crease.verify()
+    vcrease = bm.verts.layers.crease.verify()
+    bv = [bm.verts.new(p) for p in verts]
+    bm.verts.index_update()
+    bm.verts.ensure_lookup_table()
+    for f, ts in zip(faces, face_uvs):
+        face = bm.faces.new([bv[i] for i in f])
+        if ts is not None:
+            for loop, t in zip(face.loops, ts):
+                loop[uv_layer].uv = uvs[t]
+    bm.edges.ensure_lookup_table()
+    for e in bm.edges:
+        key = tuple(sorted((e.verts[0].index, e.verts[1].index)))
+        if key in creases:
+            e[ecrease] = min(creases[key] / 10.0, 1.0)
+    for v, s in corners.items():
+        bv[v][vcrease] = min(s / 10.0, 1.0)
+    bm.to_mesh(me)
+    bm.free()
+    obj = bpy.data.objects.new(name, me)
+    bpy.context.collection.objects.link(obj)
+
+    sub = obj.modifiers.new("Subdivision", "SUBSURF")
+    sub.subdivision_type = "CATMULL_CLARK"
+    sub.levels = level
+    sub.render_levels = level
+    sub.quality = 6
+    sub.boundary_smooth = "PRESERVE_CORNERS"
+    sub.uv_smooth = "NONE"
+    sub.use_limit_surface = True
+    sub.use_creases = True
+
+    udim = os.path.join(folder, "displacement.1001.exr")
+    single = os.path.join(folder, "displacement.exr")
+    path = udim if os.path.isfile(udim) else single
+    if os.path.isfile(path):
+        img = bpy.data.images.load(path, check_existing=False)
+        if path == udim:
+            img.source = "TILED"
+        img.colorspace_settings.name = "Non-Color"
+        tex = bpy.data.textures.new(name + "_displacement", "IMAGE")
+        tex.image = img
+        tex.extension = "EXTEND"
+        tex.use_clamp = False
+        tex.use_interpolation = True
+        tex.use_mipmap = False
+        tex.filter_type = "BOX"
+        dis = obj.modifiers.new("Displace", "DISPLACE")
+        dis.texture = tex
+        dis.texture_coords = "UV"
+        dis.uv_layer = "st"
+        dis.mid_level = 0.0
+        dis.strength = 1.0
+        dis.direction = "NORMAL"
+        dis.space = "LOCAL"
+    return obj
+
+
+def evaluated_vertices(obj, with_resolved=False):
+    """The evaluated mesh's vertices (and, with `with_resolved`, whether
+    the surface is resolved at each: every face around it within 30° of
+    the vertex normal; where the fitted limit surface folds on itself, no
+    vertex normal of a tessellation agrees with the exact one)."""
+    dg = bpy.context.evaluated_depsgraph_get()
+    ev = obj.evaluated_get(dg)
+    me = ev.to_mesh()
+    pts = [tuple(v.co) for v in me.vertices]
+    resolved = None
+    if with_resolved:
+        resolved = [True] * len(pts)
+        cos30 = math.cos(math.radians(30.0))
+        for p in me.polygons:
+            for v in p.vertices:
+                if p.normal.dot(me.vertices[v].normal) < cos30:
+                    resolved[v] = False
+    ev.to_mesh_clear()
+    return (pts, resolved) if with_resolved else pts
+
+
+def farthest_from(points, reference):
+    """Largest distance from a point of `points` to its nearest in
+    `reference`, and the reference's bounding-box diagonal."""
+    from mathutils import kdtree
+    tree = kdtree.KDTree(len(reference))
+    for i, p in enumerate(reference):
+        tree.insert(p, i)
+    tree.balance()
+    worst = max(tree.find(p)[2] for p in points)
+    lo = [min(p[k] for p in reference) for k in range(3)]
+    hi = [max(p[k] for p in reference) for k in range(3)]
+    return worst, math.dist(lo, hi)
+
+
+def check(folder, obj):
+    out = {"folder": folder, "vertices": 0}
+    dis = obj.modifiers.get("Displace")
+    if dis is not None:
+        dis.show_viewport = False
+    pts, resolved = evaluated_vertices(obj, True)
+    out["vertices"] = len(pts)
+    out["unresolved_vertices"] = resolved.count(False)
+    limit = read_ply_vertices(os.path.join(folder, "limit.ply"))
+    out["limit_vertices"] = len(limit)
+    worst, diag = farthest_from(pts, limit)
+    out["limit_max_over_diagonal"] = worst / diag
+    if dis is not None:
+        dis.show_viewport = True
+        pts = evaluated_vertices(obj)
+        displaced = read_ply_vertices(os.path.join(folder, "displaced.ply"))
+        worst, _ = farthest_from(pts, displaced)
+        out["displaced_max_over_diagonal"] = worst / diag
+        kept = [p for p, r in zip(pts, resolved) if r]
+        worst, _ = farthest_from(kept, displaced)
+        out["displaced_resolved_max_over_diagonal"] = worst / diag
+    return out
+
+
+class ImportSubdfit(bpy.types.Operator):
+    """Import a subdfit conversion folder"""
+    bl_idname = "import_scene.subdfit"
+    bl_label = "subdfit conversion folder"
+    directory: bpy.props.StringProperty(subtype="DIR_PATH")
+
+    def execute(self, context):
+        import_folder(self.directory)
+        return {"FINISHED"}
+
+    def invoke(self, context, event):
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+
+def menu(self, context):
+    self.layout.operator(ImportSubdfit.bl_idname, text="subdfit conversion folder")
+
+
+def register():
+    bpy.utils.register_class(ImportSubdfit)
+    bpy.types.TOPBAR_MT_file_import.append(menu)
+
+
+def unregister():
+    bpy.types.TOPBAR_MT_file_import.remove(menu)
+    bpy.utils.unregister_class(ImportSubdfit)
+
+
+def main(argv):
+    args = argv[argv.index("--") + 1:] if "--" in argv else []
+    if not args:
+        return
+    folder, level, do_check = args[0], None, "--check" in args
+    if "--level" in args:
+        level = int(args[args.index("--level") + 1])
+    for o in list(bpy.data.objects):
+        bpy.data.objects.remove(o)
+    obj = import_folder(folder, level)
+    if do_check:
+        print("SUBDFIT_CHECK " + json.dumps(check(folder, obj)), flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv)

@@ -1,0 +1,231 @@
+//! The tessellations written as `limit.ply` and `displaced.ply`: `N × N`
+//! cells per patch (`--tessellation N`), welded, so they are watertight
+//! wherever the control mesh is closed.
+//!
+//! - `limit.ply`: the exact limit surface (OpenSubdiv) at the grid points,
+//!   each cell split along the same diagonal;
+//! - `displaced.ply`: at each grid point the limit point plus the
+//!   displacement read from the `R × R` samples by bilinear interpolation
+//!   in the patch's `(u, v)` — what a renderer does with the atlas and its
+//!   UVs — along the displacement direction ([`crate::displace`]'s rule:
+//!   the limit normal, the normalised sum of the patches' normals on
+//!   creases and corners); cells split along the shorter displaced
+//!   diagonal.
+//!
+//! **Chord error** is the distance between the tessellation and the exact
+//! limit surface, measured at every cell's edge midpoints and at the
+//! midpoint of its diagonal (where a piecewise-linear interpolant of a
+//! smooth surface is furthest from it, to second order) as the distance
+//! from the linear point to the tangent plane of the surface point at the
+//! same parameter (to second order, its distance to the surface). The default `N`
+//! is the smallest power of two ([`MIN_SEGMENTS`] to [`MAX_SEGMENTS`], and below
+//! [`MAX_DEFAULT_SAMPLES`] vertices) whose RMS chord error is below a
+//! tenth of the fit's RMS distance L → M and whose largest is below that
+//! RMS distance itself. (The largest sits at extraordinary vertices, where
+//! Catmull-Clark's curvature is unbounded, and falls slowly with N: a
+//! tenth of RMS L there would take N = 64 on spot and more on fandisk, for
+//! files of 50 MB.) So the
+//! file is the fitted surface to well within the fit's own error; a power
+//! of two, so that a renderer's uniform subdivision at level log₂ N puts
+//! its vertices on ours. The figures are in `report.json`'s
+//! `tessellation`.
+
+use serde::Serialize;
+
+use crate::displace::{sample_directions, Displacement, PatchGrid};
+use crate::error::{Error, Result};
+use crate::mesh::{ControlMesh, FaceId, TriMesh};
+use crate::subdiv::{LimitEvaluator, SurfaceLocation};
+use crate::DVec3;
+
+/// The smallest default tessellation: never coarser than the grids the
+/// measurements use on the shared meshes (13–22 cells per side).
+pub const MIN_SEGMENTS: usize = 16;
+
+/// The largest default tessellation (cells per patch side); a given
+/// `--tessellation` may go to [`MAX_GIVEN_SEGMENTS`].
+pub const MAX_SEGMENTS: usize = 64;
+
+/// The default stops doubling before the files would pass this many
+/// vertices (a few hundred MB of PLY): the chord error is then reported as
+/// missing its target.
+pub const MAX_DEFAULT_SAMPLES: usize = 4_000_000;
+
+/// The largest `--tessellation` accepted.
+pub const MAX_GIVEN_SEGMENTS: usize = 1024;
+
+/// Figures of the written tessellations, for `report.json`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct TessellationStats {
+    /// Cells per patch side of `limit.ply` and `displaced.ply`.
+    pub segments_per_patch_side: usize,
+    /// Whether `segments_per_patch_side` was given or chosen (module docs).
+    pub given: bool,
+    /// Chord error of `limit.ply` against the exact limit surface, ‰ of
+    /// M's diagonal.
+    pub chord_error_max_permille: f64,
+    pub chord_error_rms_permille: f64,
+    /// A tenth of the fit's RMS L: the default's bound on the RMS chord
+    /// error, and ten times it (RMS L itself) on the largest (module
+    /// docs).
+    pub target_permille: f64,
+    pub target_met: bool,
+}
+
+/// The two tessellations and their figures.
+pub struct Tessellations {
+    pub limit: TriMesh,
+    pub displaced: TriMesh,
+    /// Per vertex of `displaced`: its offset, and whether every sample the
+    /// interpolation reads was projected (`displaced.ply`'s `displacement`
+    /// and `projected`).
+    pub offsets: Vec<f64>,
+    pub projected: Vec<bool>,
+    pub stats: TessellationStats,
+}
+
+/// `limit.ply` and `displaced.ply` for `control` (all quads) and its
+/// displacement `d`, at `segments` cells per patch side or the default
+/// (module docs) for a fit of RMS L `rms_l_permille`.
+pub fn tessellate(
+    control: &ControlMesh,
+    evaluator: &dyn LimitEvaluator,
+    d: &Displacement,
+    diag: f64,
+    segments: Option<usize>,
+    rms_l_permille: f64,
+) -> Result<Tessellations> {
+    if let Some(n) = segments {
+        if n == 0 || n > MAX_GIVEN_SEGMENTS {
+            return Err(Error::InvalidArgument(format!(
+                "tessellation: {n} cells per patch side; give 1 to {MAX_GIVEN_SEGMENTS}"
+            )));
+        }
+    }
+    let target = 0.1 * rms_l_permille;
+    let mut n = segments.unwrap_or(MIN_SEGMENTS);
+    let (grid, limit, (max, rms)) = loop {
+        let grid = PatchGrid::new(control, n + 1)?;
+        let limit = evaluator.evaluate(control.positions(), grid.locations())?;
+        let pos: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
+        let (max, rms) = chord_error(control, evaluator, &grid, &pos)?;
+        let (max, rms) = (1000.0 * max / diag, 1000.0 * rms / diag);
+        let next_samples = grid.num_patches() * (2 * n + 1) * (2 * n + 1);
+        let met = rms <= target && max <= 10.0 * target;
+        if segments.is_some() || met || 2 * n > MAX_SEGMENTS || next_samples > MAX_DEFAULT_SAMPLES {
+            break (grid, limit, (max, rms));
+        }
+        n *= 2;
+    };
+    let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
+    let dirs = sample_directions(control, evaluator, &grid, &limit)?;
+    let (offsets, projected): (Vec<f64>, Vec<bool>) = grid
+        .locations()
+        .iter()
+        .map(|l| bilinear_offset(d, l))
+        .unzip();
+    let displaced_positions: Vec<DVec3> = positions
+        .iter()
+        .zip(&offsets)
+        .zip(&dirs)
+        .map(|((&p, &o), &dir)| p + o * dir)
+        .collect();
+    Ok(Tessellations {
+        limit: TriMesh {
+            triangles: grid.triangles(),
+            positions,
+        },
+        displaced: TriMesh {
+            triangles: grid.triangles_shorter_diagonal(&displaced_positions),
+            positions: displaced_positions,
+        },
+        offsets,
+        projected,
+        stats: TessellationStats {
+            segments_per_patch_side: n,
+            given: segments.is_some(),
+            chord_error_max_permille: max,
+            chord_error_rms_permille: rms,
+            target_permille: target,
+            target_met: rms <= target && max <= 10.0 * target,
+        },
+    })
+}
+
+/// The displacement at `loc` (a quad patch location): bilinear in the
+/// patch's `R × R` samples, as a renderer filters the atlas between texel
+/// centres; and whether the samples with a nonzero weight were all
+/// projected.
+fn bilinear_offset(d: &Displacement, loc: &SurfaceLocation) -> (f64, bool) {
+    let g = &d.grid;
+    let r1 = g.res() - 1;
+    let f = loc.face.idx();
+    let at = |x: f64| {
+        let x = x.clamp(0.0, 1.0) * r1 as f64;
+        let i = (x.floor() as usize).min(r1 - 1);
+        (i, x - i as f64)
+    };
+    let ((i, s), (j, t)) = (at(loc.u), at(loc.v));
+    let o = |i: usize, j: usize| d.offsets[g.sample(f, i, j) as usize];
+    let value = (1.0 - t) * ((1.0 - s) * o(i, j) + s * o(i + 1, j))
+        + t * ((1.0 - s) * o(i, j + 1) + s * o(i + 1, j + 1));
+    let mut projected = true;
+    for (di, wi) in [(0, 1.0 - s), (1, s)] {
+        for (dj, wj) in [(0, 1.0 - t), (1, t)] {
+            if wi * wj > 0.0 {
+                projected &= d.projected[g.sample(f, i + di, j + dj) as usize];
+            }
+        }
+    }
+    (value, projected)
+}
+
+/// Largest and RMS chord error (module docs) of the tessellation of
+/// `grid` with vertex positions `pos`, in model units.
+fn chord_error(
+    control: &ControlMesh,
+    evaluator: &dyn LimitEvaluator,
+    grid: &PatchGrid,
+    pos: &[DVec3],
+) -> Result<(f64, f64)> {
+    let r1 = grid.res() - 1;
+    let h = 1.0 / r1 as f64;
+    let mut locs = Vec::new();
+    let mut linear = Vec::new();
+    for f in 0..grid.num_patches() {
+        let p = |i: usize, j: usize| pos[grid.sample(f, i, j) as usize];
+        let face = FaceId(f as u32);
+        for j in 0..=r1 {
+            for i in 0..=r1 {
+                let (u, v) = (i as f64 * h, j as f64 * h);
+                // Edge midpoints along u and v (the last row and column
+                // close the grid), and the diagonal a–c of
+                // `PatchGrid::triangles`.
+                if i < r1 {
+                    locs.push(SurfaceLocation::quad(face, u + 0.5 * h, v));
+                    linear.push(0.5 * (p(i, j) + p(i + 1, j)));
+                }
+                if j < r1 {
+                    locs.push(SurfaceLocation::quad(face, u, v + 0.5 * h));
+                    linear.push(0.5 * (p(i, j) + p(i, j + 1)));
+                }
+                if i < r1 && j < r1 {
+                    locs.push(SurfaceLocation::quad(face, u + 0.5 * h, v + 0.5 * h));
+                    linear.push(0.5 * (p(i, j) + p(i + 1, j + 1)));
+                }
+            }
+        }
+    }
+    let exact = evaluator.evaluate(control.positions(), &locs)?;
+    let (mut max, mut sum) = (0.0f64, 0.0);
+    for (e, l) in exact.iter().zip(&linear) {
+        // The normal component: near an extraordinary vertex the
+        // parametrisation is far from uniform, so the linear point and the
+        // surface point at the same parameter are apart *along* the
+        // surface too, which is not an error of the shape.
+        let dist = (e.position - *l).dot(e.normal()).abs();
+        max = max.max(dist);
+        sum += dist * dist;
+    }
+    Ok((max, (sum / locs.len().max(1) as f64).sqrt()))
+}
