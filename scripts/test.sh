@@ -12,4 +12,14 @@ export SUBDFIT_REQUIRE_CHROMIUM=1
 cargo test --all-targets
 cargo test --doc
 cargo clippy --all-targets -- -D warnings
-cargo fmt --check
+cargo fmt --all --check
+
+# The Python package (python/): a wheel of the test profile, so it reuses the
+# library built above, installed into .venv, then its pytest suite (which
+# compares its outputs with the CLI's target/debug/subdfit).
+export PYO3_PYTHON="$PWD/.venv/bin/python"
+cargo clippy -p subdfit-python --all-targets -- -D warnings
+(cd python && ../.venv/bin/maturin build --profile dev --strip -i ../.venv/bin/python -o ../target/wheels)
+.venv/bin/python -m pip install --quiet --disable-pip-version-check --force-reinstall --no-deps \
+  target/wheels/subdfit-0.1.0-cp311-abi3-linux_x86_64.whl
+SUBDFIT_CLI="$PWD/target/debug/subdfit" .venv/bin/python -m pytest python/tests -q -rs

@@ -232,10 +232,11 @@ fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
         displacement_resolution: o.displacement_resolution,
         threads: o.threads,
         source_name: if o.source_name.is_empty() {
-            defaults.source_name
+            defaults.source_name.clone()
         } else {
             o.source_name.to_string()
         },
+        ..defaults
     })
 }
 

@@ -28,9 +28,9 @@
 //! instead of waiting), so the host sees one call at a time, though not
 //! necessarily on its own thread.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crate::analysis::FitmapOptions;
@@ -41,7 +41,7 @@ use crate::io::control_obj_with_uvs;
 use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId};
 use crate::pipeline::fit_in_memory;
 use crate::pipeline::{convert_in_memory, ConvertOptions};
-use crate::report::{Converted, MetricsOptions, PipelineOptions, StageTimer};
+use crate::report::{write_converted, Converted, MetricsOptions, PipelineOptions, StageTimer};
 use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
 use crate::{DVec2, DVec3};
 
@@ -49,6 +49,8 @@ use crate::{DVec2, DVec3};
 /// beside the API it exposes, so that `crate::ffi` (bridges *to* C++, used by
 /// the lowest layers) never imports the top of the crate.
 mod bridge;
+
+pub mod batch;
 
 // ---- options ------------------------------------------------------------------
 
@@ -91,6 +93,11 @@ pub struct Options {
     /// `--displacement-res`: samples per patch side; 0 picks it so the total
     /// roughly matches the input's vertex count (Fitmaps Table 1).
     pub displacement_resolution: u32,
+    /// `--max-error`: mechanical mode's E_limit (RMS per control face, as a
+    /// fraction of the bounding-box diagonal); `None` is the paper's 3e-3.
+    pub max_error: Option<f64>,
+    /// `false` is `--no-mfitmap`: the projectability test lifted.
+    pub m_fitmap: bool,
     /// Worker threads; 0 uses rayon's global pool (all cores). A non-zero
     /// value runs the call on a pool of its own that ends with the call.
     pub threads: u32,
@@ -107,6 +114,8 @@ impl Default for Options {
             mode: Mode::Auto,
             fit_method: FitMethod::Point,
             displacement_resolution: 0,
+            max_error: None,
+            m_fitmap: true,
             threads: 0,
             source_name: "input mesh".to_owned(),
         }
@@ -121,6 +130,13 @@ impl Options {
                 "tolerance {} out of range: it is a fraction in (0, 1), e.g. 0.01 for 1%",
                 self.tolerance
             )));
+        }
+        if let Some(e) = self.max_error {
+            if !(e.is_finite() && e > 0.0) {
+                return Err(Error::InvalidArgument(format!(
+                    "max error {e} out of range: it is a positive fraction of the diagonal, e.g. 3e-3"
+                )));
+            }
         }
         if self.displacement_resolution > 4096 {
             return Err(Error::InvalidArgument(format!(
@@ -370,16 +386,32 @@ pub struct Conversion {
     pub report_json: String,
     /// `control.obj`, byte for byte what the CLI writes.
     pub control_obj: Vec<u8>,
+    /// What [`Conversion::write`] writes from: the validated input and the
+    /// pipeline's own result (shared, so a clone stays cheap).
+    outputs: Arc<Outputs>,
+}
+
+/// The input and the pipeline result behind a [`Conversion`], kept so that
+/// the host can write the CLI's output set without a second run.
+struct Outputs {
+    input: ValidatedMesh,
+    converted: Converted,
+}
+
+impl std::fmt::Debug for Outputs {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Outputs { .. }")
+    }
 }
 
 impl Conversion {
     /// Everything a host gets from a pipeline result, taken from the same
     /// values the CLI writes (so files made from it match the CLI's).
-    fn from_converted(c: Converted) -> Result<Conversion> {
+    fn from_converted(input: ValidatedMesh, c: Converted) -> Result<Conversion> {
         // Mechanical mode: the atlas is laid out on the once-refined quad
         // mesh (same limit surface), which the host gets, so that UVs and
         // tiles apply to the mesh it holds (the CLI's control.obj).
-        let control = c.quad_control.unwrap_or(c.control);
+        let control = c.quad_control.as_ref().unwrap_or(&c.control).clone();
         let d = &c.surfaces.displacement;
         let (patches, res) = (d.grid.num_patches(), d.grid.res());
         let atlas = Atlas::for_outputs(patches, res, c.outputs.atlas)?;
@@ -416,8 +448,51 @@ impl Conversion {
             tiles,
             report_json,
             control_obj,
+            outputs: Arc::new(Outputs {
+                input,
+                converted: c,
+            }),
         })
     }
+
+    /// Writes the CLI's output set (`control.obj`, `control.usda`,
+    /// `limit.ply`, `displaced.ply`, `displacement.exr`, `fitmap.ply`,
+    /// `report.json`, …) into `dir` as `subdfit convert` / `subdfit fit`
+    /// does: the same bytes (but for the timings in `report.json`), built
+    /// beside `dir` and swapped in whole. Returns the files written.
+    pub fn write(&self, dir: &Path, progress: &Progress) -> Result<Vec<PathBuf>> {
+        let o = &self.outputs;
+        write_converted(&o.input, &o.converted, dir, None, &mut sink(progress)).map_err(|e| match e
+        {
+            Error::Cancelled { .. } => e,
+            e => Error::InvalidArgument(format!("{}: {e}", dir.display())),
+        })
+    }
+}
+
+/// An error as the CLI prints it after `subdfit: error: `: the message
+/// and its causes, `: `-separated, skipping a cause whose text is already
+/// there (our errors print their source too).
+pub fn error_message(e: &Error) -> String {
+    let mut out = e.to_string();
+    let mut cause = std::error::Error::source(e);
+    while let Some(c) = cause {
+        let text = c.to_string();
+        if !out.contains(&text) {
+            out += ": ";
+            out += &text;
+        }
+        cause = c.source();
+    }
+    out
+}
+
+/// Reads a mesh file as `subdfit convert` / `subdfit fit` read their input:
+/// validated, non-manifold pieces split, errors said of the "input mesh".
+pub fn read_input(path: &Path) -> Result<ValidatedMesh> {
+    crate::io::read_mesh(path)
+        .and_then(|m| m.into_manifold(path))
+        .map_err(|e| e.in_role("input mesh"))
 }
 
 /// Flattens the numeric leaves of a JSON report into dotted keys, so a C++
@@ -511,28 +586,51 @@ pub fn convert(input: &MeshArrays, options: &Options, progress: &Progress) -> Re
         progress.report("read", 0.0)?;
         let mesh = input.to_input_mesh(&options.source_name)?;
         progress.report("read", 1.0)?;
-        let opts = ConvertOptions::default()
-            .with_mode(match options.mode {
-                Mode::Auto => crate::pipeline::Mode::Auto,
-                Mode::Organic => crate::pipeline::Mode::Organic,
-                Mode::Mechanical => crate::pipeline::Mode::Mechanical,
-            })
-            .with_tolerance(Some(options.tolerance))
-            .with_target_faces((options.target_faces > 0).then_some(options.target_faces as usize))
-            .with_objective(objective(options.fit_method))
-            .with_displacement_res(
-                (options.displacement_resolution > 0)
-                    .then_some(options.displacement_resolution as usize),
-            );
-        let c = convert_in_memory(
-            &mesh,
-            &opts,
-            run_info("convert", options),
-            &mut sink(progress),
-        )
-        .map_err(|e| with_source(e, options))?;
-        Conversion::from_converted(c)
+        convert_validated(mesh, options, progress)
     })
+}
+
+/// [`convert`] of a mesh file: `subdfit convert PATH` (errors and
+/// `report.json` name the file as `options.source_name` says).
+pub fn convert_file(path: &Path, options: &Options, progress: &Progress) -> Result<Conversion> {
+    options.check()?;
+    with_threads(options.threads, || {
+        progress.report("read", 0.0)?;
+        let mesh = read_input(path)?;
+        progress.report("read", 1.0)?;
+        convert_validated(mesh, options, progress)
+    })
+}
+
+/// The pipeline of [`convert`] on an input already read and validated.
+fn convert_validated(
+    mesh: ValidatedMesh,
+    options: &Options,
+    progress: &Progress,
+) -> Result<Conversion> {
+    let opts = ConvertOptions::default()
+        .with_mode(match options.mode {
+            Mode::Auto => crate::pipeline::Mode::Auto,
+            Mode::Organic => crate::pipeline::Mode::Organic,
+            Mode::Mechanical => crate::pipeline::Mode::Mechanical,
+        })
+        .with_tolerance(Some(options.tolerance))
+        .with_m_fitmap(options.m_fitmap)
+        .with_max_error(options.max_error)
+        .with_target_faces((options.target_faces > 0).then_some(options.target_faces as usize))
+        .with_objective(objective(options.fit_method))
+        .with_displacement_res(
+            (options.displacement_resolution > 0)
+                .then_some(options.displacement_resolution as usize),
+        );
+    let c = convert_in_memory(
+        &mesh,
+        &opts,
+        run_info("convert", options),
+        &mut sink(progress),
+    )
+    .map_err(|e| with_source(e, options))?;
+    Conversion::from_converted(mesh, c)
 }
 
 fn objective(m: FitMethod) -> Objective {
@@ -584,7 +682,7 @@ pub fn fit(
             run_info("fit", options),
             &mut sink(progress),
         )?;
-        Conversion::from_converted(c)
+        Conversion::from_converted(mesh, c)
     })
 }
 

@@ -1,6 +1,7 @@
 //! The `subdfit` command line. Exit status: 0 success, 1 a check failed
 //! (e.g. `diff-limit` above tolerance), 2 an error (bad input, I/O, ...).
 
+mod batch;
 mod convert;
 mod fit;
 mod fitmap;
@@ -53,6 +54,9 @@ enum Command {
     Version,
     /// Convert a dense mesh into a fitted Catmull-Clark surface with displacement (Fitmaps).
     Convert(convert::ConvertArgs),
+    /// Convert many meshes (files, folders, globs, manifests), one output folder each;
+    /// resumable, with a summary table, CSV and JSON.
+    Batch(batch::BatchArgs),
     /// Fit a given control mesh to a mesh and write the surface, displacement and report.
     Fit(fit::FitArgs),
     /// Accuracy and projectability of a control mesh against a mesh (Table 1 figures).
@@ -78,6 +82,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Quadrangulate(a) => quadrangulate::run(a),
         Command::Simplify(a) => simplify::run(a),
         Command::Convert(a) => convert::convert(a),
+        Command::Batch(a) => batch::run(a),
         Command::Fit(a) => fit::fit(a),
         Command::Metrics(a) => metrics::metrics(a),
         Command::Fitmap(a) => fitmap::fitmap(a),
@@ -152,7 +157,10 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     // Only the commands that write an output set have staging to clean up;
     // the others keep the default handling (and no extra thread).
-    if matches!(cli.command, Command::Convert(_) | Command::Fit(_)) {
+    if matches!(
+        cli.command,
+        Command::Convert(_) | Command::Fit(_) | Command::Batch(_)
+    ) {
         handle_signals();
     }
     match run(cli) {
