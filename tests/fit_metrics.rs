@@ -25,7 +25,9 @@ fn metrics_match_brute_force_point_to_triangle_distances() {
     c.set_positions(p).unwrap();
     let opts = MetricsOptions::default()
         .with_displacement_res(Some(4))
-        .with_tessellation_res(Some(5));
+        .with_tessellation_res(Some(5))
+        // Cells per side: the same grid as the metrics' 5 samples per side.
+        .with_output_tessellation(Some(4));
     let s = evaluate_surfaces(&mesh, &c, caster.as_ref(), &opts, &mut |_, _| true).unwrap();
     let m = &s.metrics;
     let diag = mesh.bbox_diagonal();
@@ -68,12 +70,19 @@ fn metrics_match_brute_force_point_to_triangle_distances() {
         m.limit.surface_to_mesh.rms_permille.max(got.rms_permille)
     );
 
-    // D both ways, quadrature points on both sides.
-    let (dp, dw) = quadrature_points(&s.displaced);
+    // D both ways, quadrature points on both sides. D is measured on the
+    // displacement grid itself (each cell split along its shorter displaced
+    // diagonal), not on displaced.ply's finer output tessellation.
+    let positions = s.displacement.displaced_positions();
+    let d = subdfit::mesh::TriMesh {
+        triangles: s.displacement.grid.triangles_shorter_diagonal(&positions),
+        positions,
+    };
+    let (dp, dw) = quadrature_points(&d);
     let (rms, _, max) = brute_stats(&dp, &dw, &mesh, diag);
     assert!(close(m.displaced.surface_to_mesh.rms_permille, rms));
     assert!(close(m.displaced.surface_to_mesh.max_permille, max));
-    let (rms, _, _) = brute_stats(&mp, &mw, &s.displaced, diag);
+    let (rms, _, _) = brute_stats(&mp, &mw, &d, diag);
     assert!(close(m.displaced.mesh_to_surface.rms_permille, rms));
 
     // The perturbation is 0.5 % of the radius ≈ 1.4 ‰ of the diagonal
