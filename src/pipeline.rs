@@ -10,7 +10,7 @@ use serde::Serialize;
 use crate::analysis::FitmapOptions;
 use crate::error::{Error, Result};
 use crate::fit::{FitOptions, Objective};
-use crate::mesh::ValidatedMesh;
+use crate::mesh::{Frame, ValidatedMesh};
 use crate::quad::{simplify_with_progress, SimplifyOptions};
 use crate::raycast::{make_raycaster, RayBackend};
 use crate::report::{
@@ -136,7 +136,7 @@ pub fn convert_in_memory(
 
 /// `subdfit fit` and the C++ API's fit: fits a given `control` to `input`
 /// and measures it ([`fit_and_measure`] over an Embree caster), at the same
-/// rescaling as [`convert_in_memory`], so a mesh and its control mesh at
+/// working frame as [`convert_in_memory`], so a mesh and its control mesh at
 /// 1e20 fit as they do at unit scale.
 pub fn fit_in_memory(
     input: &ValidatedMesh,
@@ -146,8 +146,8 @@ pub fn fit_in_memory(
     extra_options: serde_json::Value,
     progress: &mut dyn FnMut(&str, f64) -> bool,
 ) -> Result<Converted> {
-    at_unit_scale(input, |m, f| {
-        control.positions_mut().iter_mut().for_each(|p| *p *= f);
+    at_unit_scale(input, |m, frame| {
+        frame.points_to_unit(control.positions_mut());
         let caster = timer.run("raycaster", || make_raycaster(RayBackend::Embree, &m.mesh))?;
         fit_and_measure(
             m,
@@ -163,66 +163,51 @@ pub fn fit_in_memory(
 }
 
 /// `subdfit metrics`: Table 1's figures for a given `control` against
-/// `input`, at the rescaling of [`convert_in_memory`] (all of them are in
+/// `input`, in the working frame of [`convert_in_memory`] (all of them are in
 /// ‰ of the diagonal or counts; the diagonal is the input's).
 pub fn measure(
     input: &ValidatedMesh,
     mut control: crate::mesh::ControlMesh,
     opts: &MetricsOptions,
 ) -> Result<crate::report::Metrics> {
-    let k = normalising_exponent(input.mesh.bbox_diagonal());
-    let f = 2f64.powi(-k);
-    let mut mesh = std::borrow::Cow::Borrowed(&input.mesh);
-    if k != 0 {
-        control.positions_mut().iter_mut().for_each(|p| *p *= f);
-        mesh.to_mut().positions.iter_mut().for_each(|p| *p *= f);
-    }
+    let frame = working_frame(&input.mesh);
+    let mut mesh = input.mesh.clone();
+    frame.points_to_unit(&mut mesh.positions);
+    frame.points_to_unit(control.positions_mut());
     let caster = make_raycaster(RayBackend::Embree, &mesh)?;
     let mut m = crate::report::metrics(&mesh, &control, caster.as_ref(), opts)?;
     m.bbox_diagonal = input.mesh.bbox_diagonal();
     Ok(m)
 }
 
-/// Runs `run` on `input` rescaled by a power of two `f` into a diagonal in
-/// `[1, 16)` (`run` gets the mesh and `f`, to scale whatever else it
-/// measures against it), then scales the result back.
+/// Runs `run` on `input` in its working frame ([`Frame`]: centred, unit
+/// diagonal, snapped; `run` gets the mesh and the frame, to map whatever
+/// else it measures against it), then maps the result back.
 fn at_unit_scale(
     input: &ValidatedMesh,
-    run: impl FnOnce(&ValidatedMesh, f64) -> Result<Converted>,
+    run: impl FnOnce(&ValidatedMesh, &Frame) -> Result<Converted>,
 ) -> Result<Converted> {
-    let k = normalising_exponent(input.mesh.bbox_diagonal());
-    if k == 0 {
-        return run(input, 1.0);
-    }
-    let f = 2f64.powi(-k);
-    let mut scaled = input.clone();
-    scaled.mesh.positions.iter_mut().for_each(|p| *p *= f);
-    let mut c = run(&scaled, f)?;
-    c.scale_lengths(2f64.powi(k));
+    let frame = working_frame(&input.mesh);
+    let mut unit = input.clone();
+    frame.points_to_unit(&mut unit.mesh.positions);
+    let mut c = run(&unit, &frame)?;
+    c.map_from_unit(&frame);
+    // The input's own diagonal, not the snapped working mesh's times the
+    // scale (they differ by ~1e-9 relative); the ‰ figures were taken
+    // against the latter and differ by as little.
+    c.surfaces.metrics.bbox_diagonal = input.mesh.bbox_diagonal();
     c.report.input = input.report.clone();
     Ok(c)
 }
 
-/// The exponent `k` of the uniform rescaling by `2^-k` that brings a mesh
-/// of bounding-box diagonal `diag` into `[1, 16)`, or 0 when it is there
-/// already (most meshes: their bytes do not change).
-///
-/// Why: the pipeline is meant to be scale-free (every threshold is a
-/// fraction of the diagonal or of a local radius), but Embree works in
-/// f32, whose squares overflow past ~1e19 and underflow below ~1e-19, and
-/// a few f64 round-off guards are absolute; a mesh at 1e-20 or 1e20 (issue
-/// 22, "any scale") used to fail in the fit. Powers of two make the
-/// scaling and its inverse exact, so a mesh's result is the one of the
-/// same mesh at unit scale, multiplied back. Steps of 2^4 keep F_S's
-/// length^(-3/4) exact too (see [`Converted::scale_lengths`]).
-fn normalising_exponent(diag: f64) -> i32 {
-    if !(diag.is_finite() && diag > 0.0) || (1.0..16.0).contains(&diag) {
-        return 0;
-    }
-    4 * (diag.log2() / 4.0).floor() as i32
+/// The working frame of `mesh` (see [`Frame`] for why every conversion
+/// runs in one).
+fn working_frame(mesh: &crate::mesh::TriMesh) -> Frame {
+    let (lo, hi) = mesh.bbox();
+    Frame::of_bbox(lo, hi)
 }
 
-/// [`convert_in_memory`] on a mesh whose diagonal is in `[1, 16)`.
+/// [`convert_in_memory`] on a mesh in its working frame.
 fn convert_at_unit_scale(
     input: &ValidatedMesh,
     opts: &ConvertOptions,

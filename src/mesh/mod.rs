@@ -1,9 +1,10 @@
 //! Meshes: the polygon soup a reader produces ([`PolySoup`]), its validation
 //! report ([`MeshReport`]), the triangle mesh the pipeline analyses
-//! ([`TriMesh`]) and the control mesh that owns its connectivity
-//! ([`ControlMesh`]).
+//! ([`TriMesh`]), the control mesh that owns its connectivity
+//! ([`ControlMesh`]) and the working frame conversions run in ([`Frame`]).
 
 mod control;
+mod frame;
 mod manifold;
 mod report;
 mod soup;
@@ -11,6 +12,7 @@ mod soup;
 pub use control::{
     Compaction, ControlMesh, EdgeId, FaceId, HalfedgeId, VertexId, INFINITELY_SHARP,
 };
+pub use frame::Frame;
 pub use manifold::{split_non_manifold, SplitStats};
 pub(crate) use report::non_finite;
 pub use report::{validate_soup, MeshReport, ValidatedMesh};

@@ -9,7 +9,7 @@ use serde::Serialize;
 use crate::analysis::{compute_fitmap, Fitmap, FitmapOptions};
 use crate::error::Result;
 use crate::fit::{fit_with_progress, FitOptions, Progress};
-use crate::mesh::{ControlMesh, ValidatedMesh};
+use crate::mesh::{ControlMesh, Frame, ValidatedMesh};
 use crate::raycast::RayCaster;
 
 use super::{
@@ -70,22 +70,24 @@ impl Converted {
 }
 
 impl Converted {
-    /// Multiplies every length of the result by `f`, a power of two (so
-    /// that the product is exact): the inverse of the uniform rescaling
-    /// that [`crate::pipeline`] runs the conversion at. Positions,
-    /// derivatives, displacement offsets, the diagonal and the Fitmap's
-    /// radii scale by `f`; F_S (units 1 / length^(3/4)) by `f^(-3/4)`,
-    /// which the caller keeps exact by passing `f = 2^(4j)`. Everything in
-    /// `report.json` is in ‰ of the diagonal or a count, and stays.
-    pub fn scale_lengths(&mut self, f: f64) {
-        let scale_mesh = |c: &mut ControlMesh| c.positions_mut().iter_mut().for_each(|p| *p *= f);
-        scale_mesh(&mut self.control);
+    /// Maps the result from the working `frame` the conversion ran in (see
+    /// [`Frame`]) back to the input's coordinates: positions by
+    /// [`Frame::from_unit`]; derivatives, displacement offsets, the
+    /// diagonal and the Fitmap's radii by the frame's scale `f`; F_S (units
+    /// 1 / length^(3/4)) by `f^(-3/4)`. Everything in `report.json` is in ‰
+    /// of the diagonal or a count, and stays.
+    pub fn map_from_unit(&mut self, frame: &Frame) {
+        if *frame == Frame::IDENTITY {
+            return;
+        }
+        let f = frame.scale;
+        frame.points_from_unit(self.control.positions_mut());
         if let Some(q) = self.quad_control.as_mut() {
-            scale_mesh(q);
+            frame.points_from_unit(q.positions_mut());
         }
         let s = &mut self.surfaces;
         for l in &mut s.displacement.limit {
-            l.position *= f;
+            l.position = frame.from_unit(l.position);
             l.du *= f;
             l.dv *= f;
         }
@@ -93,7 +95,7 @@ impl Converted {
         // (`directions` are unit vectors; the tessellation figures are ‰.)
         s.displaced_offsets.iter_mut().for_each(|o| *o *= f);
         for t in [&mut s.limit, &mut s.displaced] {
-            t.positions.iter_mut().for_each(|p| *p *= f);
+            frame.points_from_unit(&mut t.positions);
         }
         s.metrics.bbox_diagonal *= f;
         if let Some(fm) = self.fitmap.as_mut() {
