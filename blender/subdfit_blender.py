@@ -11,11 +11,17 @@ conventions of the outputs (README, "Renderers"):
 - a Subdivision Surface modifier: Catmull-Clark, Boundary Smooth "Keep
   Corners" (our edge-and-corner boundary rule), UV Smooth "None" (UVs are
   piecewise bilinear per patch), limit surface on, creases on;
-- a Displace modifier reading `displacement.exr` (or the UDIM tiles) as
-  Non-Color data, image clamp off (offsets are signed), midlevel 0,
-  strength 1, UV coordinates, direction Normal (our offsets run along the
-  unit normal; Blender's vertex normal at a welded crease averages both
-  sides, our crease rule).
+- a Displace modifier reading `displacement_vector.exr` (or its UDIM
+  tiles) as Non-Color data, image clamp off (offsets are signed),
+  midlevel 0, strength 1, UV coordinates, direction "RGB to XYZ" in local
+  space: the map holds the displacement vector itself, so the result does
+  not depend on Blender's vertex normals, which are those of its
+  tessellation and differ from the limit normals along which we displace
+  by up to tens of degrees where the surface folds (with the scalar
+  `displacement.exr` and direction Normal, spot lands up to 0.7 % of the
+  diagonal off `displaced.ply`; with the vector map, to f32 round-off).
+  Folders of older versions without the vector map get the scalar map
+  along Normal.
 
 Add-on: Edit > Preferences > Add-ons > Install this file, then File >
 Import > "subdfit conversion folder". Headless:
@@ -163,12 +169,14 @@ def import_folder(folder, level=None, name=None):
     sub.use_limit_surface = True
     sub.use_creases = True
 
-    udim = os.path.join(folder, "displacement.1001.exr")
-    single = os.path.join(folder, "displacement.exr")
-    path = udim if os.path.isfile(udim) else single
-    if os.path.isfile(path):
+    path, vector = None, False
+    for stem, is_vector in (("displacement_vector", True), ("displacement", False)):
+        for file in (stem + ".1001.exr", stem + ".exr"):
+            if path is None and os.path.isfile(os.path.join(folder, file)):
+                path, vector = os.path.join(folder, file), is_vector
+    if path is not None:
         img = bpy.data.images.load(path, check_existing=False)
-        if path == udim:
+        if ".1001." in os.path.basename(path):
             img.source = "TILED"
         img.colorspace_settings.name = "Non-Color"
         tex = bpy.data.textures.new(name + "_displacement", "IMAGE")
@@ -184,7 +192,7 @@ def import_folder(folder, level=None, name=None):
         dis.uv_layer = "st"
         dis.mid_level = 0.0
         dis.strength = 1.0
-        dis.direction = "NORMAL"
+        dis.direction = "RGB_TO_XYZ" if vector else "NORMAL"
         dis.space = "LOCAL"
     return obj
 

@@ -79,6 +79,7 @@ fn batch_converts_reports_and_resumes() {
         "limit.ply",
         "displaced.ply",
         "displacement.exr",
+        "displacement_vector.exr",
         "fitmap.ply",
     ] {
         let a = std::fs::read(root.join("out/spot").join(f)).unwrap();

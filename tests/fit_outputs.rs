@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use fit_support::*;
-use subdfit::displace::{read_exr, Atlas, DEFAULT_GUTTER};
+use subdfit::displace::{read_exr, read_exr_channels, Atlas, DEFAULT_GUTTER};
 use subdfit::fit::FitOptions;
 use subdfit::mesh::ValidatedMesh;
 use subdfit::raycast::{make_raycaster, RayBackend};
@@ -204,6 +204,45 @@ fn displacement_atlas_round_trips_and_shared_edges_agree() {
         back[(y - 1) * w + x - 1].to_bits(),
         back[y * w + x].to_bits()
     );
+
+    // The vector map on the same layout: channels R, G, B, and at every
+    // sample's texel the displacement vector offset · direction (to f32),
+    // i.e. the scalar texel times the sample's unit direction.
+    let vectors = atlas.bake_vector_images(d).unwrap();
+    let vpath = tmp.path().join("v.exr");
+    std::fs::write(
+        &vpath,
+        atlas
+            .encode_vector_exr_as(&vectors[0], subdfit::displace::TexelType::Float)
+            .unwrap(),
+    )
+    .unwrap();
+    let (vw, vh, channels) = read_exr_channels(&vpath).unwrap();
+    assert_eq!((vw, vh), (w, h));
+    let names: Vec<&str> = channels.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["B", "G", "R"]);
+    let (b, g, r) = (&channels[0].1, &channels[1].1, &channels[2].1);
+    let mut worst = 0.0f64;
+    for f in 0..d.grid.num_patches() {
+        for j in 0..=r1 {
+            for i in 0..=r1 {
+                let uv = atlas.uv(f, i, j);
+                let x = (uv.x * w as f64 - 0.5).round() as usize;
+                let y = ((1.0 - uv.y) * h as f64 - 0.5).round() as usize;
+                let k = y * w + x;
+                let got = subdfit::DVec3::new(r[k] as f64, g[k] as f64, b[k] as f64);
+                let s = d.grid.sample(f, i, j) as usize;
+                let want = d.offsets[s] * d.directions[s];
+                // f32 texels: relative round-off 2^-24 of each component.
+                worst = worst.max((got - want).length() / want.length().max(1e-30));
+                assert!(
+                    (got.dot(d.directions[s]) - back[k] as f64).abs()
+                        <= 1e-6 * d.offsets[s].abs().max(1e-12)
+                );
+            }
+        }
+    }
+    assert!(worst <= 1e-6, "vector texels off by {worst:e} relative");
 }
 
 #[test]

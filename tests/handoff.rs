@@ -250,6 +250,17 @@ fn udim_tiles_and_half_floats_read_back_in_openexr() {
         let pitch = (res + 8).div_ceil(8) * 8;
         assert_eq!((w, h), (8 * pitch, 8 * pitch));
         assert!(texels.iter().any(|t| t.abs() > 0.0));
+        // Its vector twin: same size, R, G, B, half floats too.
+        let pv = out.join(format!("displacement_vector.{}.exr", 1001 + k));
+        let (vw, vh, ch) = subdfit::displace::read_exr_channels(&pv).unwrap();
+        assert_eq!((vw, vh), (w, h));
+        assert_eq!(
+            ch.iter().map(|c| c.0.as_str()).collect::<Vec<_>>(),
+            ["B", "G", "R"]
+        );
+        if let Some(text) = exrheader(&pv) {
+            assert!(text.contains("R, 16-bit floating-point"), "{text}");
+        }
         match exrheader(&p) {
             Some(text) => {
                 assert!(

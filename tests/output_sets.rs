@@ -81,6 +81,7 @@ fn a_folder_holds_one_runs_set() {
             "control.usda",
             "displaced.ply",
             "displacement.exr",
+            "displacement_vector.exr",
             "limit.ply",
             "notes.txt",
             "report.json"

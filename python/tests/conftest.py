@@ -17,7 +17,7 @@ SHARED = REPO.parent / "shared" / "data"
 
 # The files `subdfit convert` writes; report.json is compared apart (timings).
 OUTPUTS = ["control.obj", "control.usda", "limit.ply", "displaced.ply",
-           "displacement.exr", "fitmap.ply"]
+           "displacement.exr", "displacement_vector.exr", "fitmap.ply"]
 
 
 def cli_path() -> Path:

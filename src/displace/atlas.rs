@@ -1,6 +1,13 @@
 //! The displacement atlas: one square tile of `R × R` texels per patch,
 //! surrounded by a gutter, tiles laid out row-major in a grid, written as
-//! single-channel OpenEXR images: one image holding every patch
+//! OpenEXR images of two maps on the same layout ([`AtlasMap`]): the
+//! scalar offsets (`displacement*.exr`, one channel) and the displacement
+//! vectors (`displacement_vector*.exr`, RGB = xyz in object space). Hosts
+//! that displace along their own tessellation's normals (Blender) are off
+//! by up to 1.5 % of the diagonal with the scalar map where the limit
+//! surface folds or meets a crease (spot, bunny, fandisk: the sample
+//! directions turn by tens of degrees within a texel there); with the
+//! vector map they land on `displaced.ply`. One image holding every patch
 //! ([`AtlasLayout::Single`], `displacement.exr`), or UDIM tiles of
 //! [`UDIM_PATCHES`]² patches each ([`AtlasLayout::Udim`],
 //! `displacement.1001.exr`, `displacement.1002.exr`, …; tile `k` covers
@@ -182,9 +189,17 @@ impl Atlas {
     /// The file name of image `k`: `displacement.exr`, or
     /// `displacement.<UDIM>.exr`.
     pub fn file_name(&self, k: usize) -> String {
+        self.file_name_of(AtlasMap::Scalar, k)
+    }
+
+    /// The file name of image `k` of `map`: `displacement.exr` or
+    /// `displacement_vector.exr`, with `.<UDIM>` before `.exr` in UDIM
+    /// layout.
+    pub fn file_name_of(&self, map: AtlasMap, k: usize) -> String {
+        let stem = map.stem();
         match self.layout {
-            AtlasLayout::Single => "displacement.exr".to_string(),
-            AtlasLayout::Udim => format!("displacement.{}.exr", Atlas::udim(k)),
+            AtlasLayout::Single => format!("{stem}.exr"),
+            AtlasLayout::Udim => format!("{stem}.{}.exr", Atlas::udim(k)),
         }
     }
 
@@ -231,6 +246,27 @@ impl Atlas {
     /// block that straddles the border averages the patch's own values),
     /// unused tiles 0.
     pub fn bake_images(&self, d: &Displacement) -> Result<Vec<Vec<f32>>> {
+        self.bake_images_of(d, |s| d.offsets[s])
+    }
+
+    /// The three channels (x, y, z) of every image of the vector map: at
+    /// each sample its displacement `offset · direction` (module docs).
+    pub fn bake_vector_images(&self, d: &Displacement) -> Result<Vec<[Vec<f32>; 3]>> {
+        let component = |c: usize| self.bake_images_of(d, |s| d.offsets[s] * d.directions[s][c]);
+        let (x, y, z) = (component(0)?, component(1)?, component(2)?);
+        Ok(x.into_iter()
+            .zip(y)
+            .zip(z)
+            .map(|((x, y), z)| [x, y, z])
+            .collect())
+    }
+
+    /// [`Atlas::bake_images`] of `value(sample)`.
+    fn bake_images_of(
+        &self,
+        d: &Displacement,
+        value: impl Fn(usize) -> f64,
+    ) -> Result<Vec<Vec<f32>>> {
         if d.grid.res() != self.res {
             return Err(Error::InvalidArgument(format!(
                 "atlas: resolution {} does not match the displacement's {}",
@@ -253,7 +289,7 @@ impl Atlas {
                     let s = d.grid.sample(f, i, j) as usize;
                     let px = (x0 as isize + x) as usize;
                     let py = (y0 as isize + y) as usize;
-                    img[py * self.width + px] = d.offsets[s] as f32;
+                    img[py * self.width + px] = value(s) as f32;
                 }
             }
         }
@@ -270,26 +306,49 @@ impl Atlas {
     /// [`Atlas::encode_exr`] in `ty` (half floats rounded to nearest).
     /// Deterministic bytes: sequential encoding, increasing line order.
     pub fn encode_exr_as(&self, texels: &[f32], ty: TexelType) -> Result<Vec<u8>> {
+        self.encode_exr_channels(AtlasMap::Scalar, &[("Y", texels)], ty)
+    }
+
+    /// The vector map's image from [`Atlas::bake_vector_images`]: channels
+    /// `R`, `G`, `B` holding x, y, z (the names every reader maps to a
+    /// colour, which is how DCCs read vector displacement), in `ty`.
+    pub fn encode_vector_exr_as(&self, xyz: &[Vec<f32>; 3], ty: TexelType) -> Result<Vec<u8>> {
+        let [x, y, z] = xyz;
+        self.encode_exr_channels(AtlasMap::Vector, &[("R", x), ("G", y), ("B", z)], ty)
+    }
+
+    fn encode_exr_channels(
+        &self,
+        map: AtlasMap,
+        channels: &[(&str, &[f32])],
+        ty: TexelType,
+    ) -> Result<Vec<u8>> {
         use exr::prelude::{
             f16, AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes,
             SmallVec, WritableImage,
         };
-        if texels.len() != self.width * self.height {
-            return Err(Error::InvalidArgument(format!(
-                "atlas: {} texels for {} × {}",
-                texels.len(),
-                self.width,
-                self.height
-            )));
+        let mut list = Vec::new();
+        for (name, texels) in channels {
+            if texels.len() != self.width * self.height {
+                return Err(Error::InvalidArgument(format!(
+                    "atlas: {} texels for {} × {}",
+                    texels.len(),
+                    self.width,
+                    self.height
+                )));
+            }
+            let samples = match ty {
+                TexelType::Float => FlatSamples::F32(texels.to_vec()),
+                TexelType::Half => {
+                    FlatSamples::F16(texels.iter().map(|&t| f16::from_f32(t)).collect())
+                }
+            };
+            list.push(AnyChannel::new(*name, samples));
         }
-        let samples = match ty {
-            TexelType::Float => FlatSamples::F32(texels.to_vec()),
-            TexelType::Half => FlatSamples::F16(texels.iter().map(|&t| f16::from_f32(t)).collect()),
-        };
-        let channels = AnyChannels::sort(SmallVec::from_vec(vec![AnyChannel::new("Y", samples)]));
+        let channels = AnyChannels::sort(SmallVec::from_vec(list));
         let layer = Layer::new(
             (self.width, self.height),
-            LayerAttributes::named("displacement"),
+            LayerAttributes::named(map.stem()),
             Encoding::SMALL_LOSSLESS,
             channels,
         );
@@ -301,6 +360,27 @@ impl Atlas {
             .to_buffered(&mut buf)
             .map_err(|e| Error::backend("exr", e.to_string()))?;
         Ok(buf.into_inner())
+    }
+}
+
+/// The two maps the outputs carry, on the same layout.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum AtlasMap {
+    /// `displacement.exr`: the signed offset along the displacement
+    /// direction (one channel, `Y`).
+    Scalar,
+    /// `displacement_vector.exr`: the displacement itself, `offset ·
+    /// direction`, in the control mesh's object space (`R`, `G`, `B` = x,
+    /// y, z), for hosts whose normals are not the limit surface's.
+    Vector,
+}
+
+impl AtlasMap {
+    fn stem(self) -> &'static str {
+        match self {
+            AtlasMap::Scalar => "displacement",
+            AtlasMap::Vector => "displacement_vector",
+        }
     }
 }
 
@@ -318,4 +398,20 @@ pub fn read_exr(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
         .ok_or_else(|| Error::parse(path, "layer", "no channel"))?;
     let texels: Vec<f32> = ch.sample_data.values_as_f32().collect();
     Ok((size.0, size.1, texels))
+}
+
+/// Reads every channel of an EXR's first layer as `(width, height,
+/// [(name, texels)])`, channels in the file's (alphabetical) order: for
+/// tests and tools.
+pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, Vec<(String, Vec<f32>)>)> {
+    let img = exr::prelude::read_first_flat_layer_from_file(path)
+        .map_err(|e| Error::backend("exr", format!("{}: {e}", path.display())))?;
+    let layer = img.layer_data;
+    let channels = layer
+        .channel_data
+        .list
+        .iter()
+        .map(|c| (c.name.to_string(), c.sample_data.values_as_f32().collect()))
+        .collect();
+    Ok((layer.size.0, layer.size.1, channels))
 }

@@ -37,7 +37,8 @@ mod grid;
 mod lsq;
 
 pub use atlas::{
-    read_exr, Atlas, AtlasLayout, TexelType, DEFAULT_GUTTER, MIP_LEVELS, UDIM_PATCHES,
+    read_exr, read_exr_channels, Atlas, AtlasLayout, AtlasMap, TexelType, DEFAULT_GUTTER,
+    MIP_LEVELS, UDIM_PATCHES,
 };
 pub use grid::PatchGrid;
 pub use lsq::{refine_offsets, LsqOffsetOptions, LsqOffsetStats};

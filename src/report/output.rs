@@ -27,7 +27,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use crate::analysis::Fitmap;
-use crate::displace::{Atlas, AtlasLayout, TexelType};
+use crate::displace::{Atlas, AtlasLayout, AtlasMap, TexelType};
 use crate::error::{Error, Result};
 use crate::io::{
     write_atomically, write_control_obj_with_uvs, write_ply, write_usda_with, UsdOptions,
@@ -80,13 +80,15 @@ impl Default for OutputOptions {
 }
 
 /// The file names, in the order they are written (UDIM outputs write
-/// `displacement.1001.exr`, … instead of `displacement.exr`).
-pub const OUTPUT_NAMES: [&str; 7] = [
+/// `displacement.1001.exr`, … instead of `displacement.exr`, and the same
+/// for `displacement_vector.exr`).
+pub const OUTPUT_NAMES: [&str; 8] = [
     "control.obj",
     "control.usda",
     "limit.ply",
     "displaced.ply",
     "displacement.exr",
+    "displacement_vector.exr",
     "fitmap.ply",
     "report.json",
 ];
@@ -95,13 +97,14 @@ pub const OUTPUT_NAMES: [&str; 7] = [
 /// names (or a UDIM tile, [`is_known_name`]) is part of an earlier set and
 /// is replaced (or dropped), never carried over. `control_quads.obj` is
 /// what older versions wrote in mechanical mode.
-pub const KNOWN_NAMES: [&str; 9] = [
+pub const KNOWN_NAMES: [&str; 10] = [
     "control.obj",
     "control.usda",
     "control_quads.obj",
     "limit.ply",
     "displaced.ply",
     "displacement.exr",
+    "displacement_vector.exr",
     "fitmap.ply",
     "report.json",
     "report.html",
@@ -240,12 +243,15 @@ fn foreign_files(dir: &Path) -> Result<Vec<String>> {
 }
 
 /// Whether subdfit writes files named `name`: [`KNOWN_NAMES`] and the
-/// UDIM tiles `displacement.NNNN.exr`.
+/// UDIM tiles `displacement.NNNN.exr` and `displacement_vector.NNNN.exr`.
 pub fn is_known_name(name: &str) -> bool {
-    let udim = name
-        .strip_prefix("displacement.")
-        .and_then(|r| r.strip_suffix(".exr"))
-        .is_some_and(|n| n.len() == 4 && n.bytes().all(|b| b.is_ascii_digit()));
+    let udim = ["displacement.", "displacement_vector."]
+        .iter()
+        .any(|stem| {
+            name.strip_prefix(stem)
+                .and_then(|r| r.strip_suffix(".exr"))
+                .is_some_and(|n| n.len() == 4 && n.bytes().all(|b| b.is_ascii_digit()))
+        });
     udim || KNOWN_NAMES.contains(&name)
 }
 
@@ -343,6 +349,7 @@ fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<String>> {
         .map(|f| atlas.corner_uvs(f))
         .collect();
     let images = atlas.bake_images(d)?;
+    let vectors = atlas.bake_vector_images(d)?;
     let (atlas, uvs) = (&atlas, &uvs);
     let usd = UsdOptions {
         meters_per_unit: out.options.meters_per_unit,
@@ -391,6 +398,15 @@ fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<String>> {
             atlas.file_name(k),
             Box::new(move |p| {
                 let exr = atlas.encode_exr_as(img, out.options.texels)?;
+                write_atomically(p, |w| w.write_all(&exr).map_err(|e| Error::io(p, e)))
+            }),
+        ));
+    }
+    for (k, xyz) in vectors.iter().enumerate() {
+        jobs.push((
+            atlas.file_name_of(AtlasMap::Vector, k),
+            Box::new(move |p| {
+                let exr = atlas.encode_vector_exr_as(xyz, out.options.texels)?;
                 write_atomically(p, |w| w.write_all(&exr).map_err(|e| Error::io(p, e)))
             }),
         ));

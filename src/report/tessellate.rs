@@ -5,12 +5,20 @@
 //! - `limit.ply`: the exact limit surface (OpenSubdiv) at the grid points,
 //!   each cell split along the same diagonal;
 //! - `displaced.ply`: at each grid point the limit point plus the
-//!   displacement read from the `R × R` samples by bilinear interpolation
-//!   in the patch's `(u, v)` — what a renderer does with the atlas and its
-//!   UVs — along the displacement direction ([`crate::displace`]'s rule:
-//!   the limit normal, the normalised sum of the patches' normals on
-//!   creases and corners); cells split along the shorter displaced
-//!   diagonal.
+//!   displacement *vector* (`offset · direction` at each of the `R × R`
+//!   samples, the direction by [`crate::displace`]'s rule: the limit
+//!   normal, the normalised sum of the patches' normals on creases and
+//!   corners) read by bilinear interpolation in the patch's `(u, v)` —
+//!   what a host does with `displacement_vector.exr` and its UVs, exactly
+//!   (Blender's Displace in RGB-to-XYZ mode lands on these vertices to
+//!   f32 round-off). At the samples it is the scalar map along the
+//!   direction; between them the two differ by the turn of the direction
+//!   within a texel times the offset: nothing on smooth parts, but up to
+//!   1.5 % of the diagonal where the limit surface folds (spot), where
+//!   "along the normal" means something different in every renderer.
+//!   Shared-edge samples are the same numbers on both sides, so the
+//!   displaced surface is watertight wherever L is. Cells split along the
+//!   shorter displaced diagonal.
 //!
 //! **Chord error** is the distance between the tessellation and the exact
 //! limit surface, measured at every cell's edge midpoints and at the
@@ -32,7 +40,7 @@
 
 use serde::Serialize;
 
-use crate::displace::{sample_directions, Displacement, PatchGrid};
+use crate::displace::{Displacement, PatchGrid};
 use crate::error::{Error, Result};
 use crate::mesh::{ControlMesh, FaceId, TriMesh};
 use crate::subdiv::{LimitEvaluator, SurfaceLocation};
@@ -118,17 +126,15 @@ pub fn tessellate(
         n *= 2;
     };
     let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
-    let dirs = sample_directions(control, evaluator, &grid, &limit)?;
     let (offsets, projected): (Vec<f64>, Vec<bool>) = grid
         .locations()
         .iter()
-        .map(|l| bilinear_offset(d, l))
+        .map(|l| bilinear(d, l, |s| d.offsets[s]))
         .unzip();
     let displaced_positions: Vec<DVec3> = positions
         .iter()
-        .zip(&offsets)
-        .zip(&dirs)
-        .map(|((&p, &o), &dir)| p + o * dir)
+        .zip(grid.locations())
+        .map(|(&p, l)| p + bilinear(d, l, |s| d.offsets[s] * d.directions[s]).0)
         .collect();
     Ok(Tessellations {
         limit: TriMesh {
@@ -152,11 +158,14 @@ pub fn tessellate(
     })
 }
 
-/// The displacement at `loc` (a quad patch location): bilinear in the
+/// `value(sample)` at `loc` (a quad patch location): bilinear in the
 /// patch's `R × R` samples, as a renderer filters the atlas between texel
 /// centres; and whether the samples with a nonzero weight were all
 /// projected.
-fn bilinear_offset(d: &Displacement, loc: &SurfaceLocation) -> (f64, bool) {
+fn bilinear<T>(d: &Displacement, loc: &SurfaceLocation, value: impl Fn(usize) -> T) -> (T, bool)
+where
+    T: std::ops::Mul<f64, Output = T> + std::ops::Add<Output = T>,
+{
     let g = &d.grid;
     let r1 = g.res() - 1;
     let f = loc.face.idx();
@@ -166,9 +175,9 @@ fn bilinear_offset(d: &Displacement, loc: &SurfaceLocation) -> (f64, bool) {
         (i, x - i as f64)
     };
     let ((i, s), (j, t)) = (at(loc.u), at(loc.v));
-    let o = |i: usize, j: usize| d.offsets[g.sample(f, i, j) as usize];
-    let value = (1.0 - t) * ((1.0 - s) * o(i, j) + s * o(i + 1, j))
-        + t * ((1.0 - s) * o(i, j + 1) + s * o(i + 1, j + 1));
+    let o = |i: usize, j: usize| value(g.sample(f, i, j) as usize);
+    let value = (o(i, j) * (1.0 - s) + o(i + 1, j) * s) * (1.0 - t)
+        + (o(i, j + 1) * (1.0 - s) + o(i + 1, j + 1) * s) * t;
     let mut projected = true;
     for (di, wi) in [(0, 1.0 - s), (1, s)] {
         for (dj, wj) in [(0, 1.0 - t), (1, t)] {
