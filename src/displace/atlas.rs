@@ -400,10 +400,13 @@ pub fn read_exr(path: &Path) -> Result<(usize, usize, Vec<f32>)> {
     Ok((size.0, size.1, texels))
 }
 
+/// An EXR channel as read back: its name and texels.
+pub type Channel = (String, Vec<f32>);
+
 /// Reads every channel of an EXR's first layer as `(width, height,
 /// [(name, texels)])`, channels in the file's (alphabetical) order: for
 /// tests and tools.
-pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, Vec<(String, Vec<f32>)>)> {
+pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, Vec<Channel>)> {
     let img = exr::prelude::read_first_flat_layer_from_file(path)
         .map_err(|e| Error::backend("exr", format!("{}: {e}", path.display())))?;
     let layer = img.layer_data;
