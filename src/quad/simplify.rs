@@ -164,7 +164,19 @@ pub struct SimplifyOptions {
     /// −0.16 and quartile ratios 0.90 / 0.86 / 0.65 / 1.07 with the test
     /// off, ≤ 0.45 with it on at the cost of counts beyond Table 1.
     pub s_fitmap_scale: f64,
+    /// Keep the last this many intermediate meshes of the loop, one each
+    /// time the face count falls by another factor [`CHECKPOINT_RATIO`]
+    /// ([`Simplified::checkpoints`]): the candidates with more patches than
+    /// the natural end that `pipeline`'s `--max-error` search fits when the
+    /// end itself is not accurate enough. 0: none.
+    pub checkpoints: usize,
 }
+
+/// Face-count ratio between consecutive checkpoints
+/// ([`SimplifyOptions::checkpoints`]): the `--max-error` search lands
+/// within this factor of the fewest patches that meet the bound, and 40
+/// checkpoints reach 1.06^40 ≈ 10× the natural end's count.
+pub const CHECKPOINT_RATIO: f64 = 1.06;
 
 impl Default for SimplifyOptions {
     fn default() -> Self {
@@ -179,6 +191,7 @@ impl Default for SimplifyOptions {
             guard_floor: 0.026,
             guard_min_cos: 0.3,
             s_fitmap_scale: DEFAULT_S_FITMAP_SCALE,
+            checkpoints: 0,
         }
     }
 }
@@ -194,6 +207,11 @@ impl SimplifyOptions {
     }
     pub fn with_check_every_step(mut self, on: bool) -> Self {
         self.check_every_step = on;
+        self
+    }
+    /// Keep the last `n` checkpoints ([`SimplifyOptions::checkpoints`]).
+    pub fn with_checkpoints(mut self, n: usize) -> Self {
+        self.checkpoints = n;
         self
     }
     /// The S-fitmap test's κ in units of [`s_fitmap_kappa`] (0: off).
@@ -345,6 +363,11 @@ pub fn radius_ratio_fs_quartiles(patches: &[(f64, f64)]) -> f64 {
 pub struct Simplified {
     pub mesh: ControlMesh,
     pub stats: SimplifyStats,
+    /// Intermediate meshes of the loop (compact), fewest faces first, each
+    /// at least [`CHECKPOINT_RATIO`] times the previous one's count (and
+    /// the first than `mesh`'s); empty unless
+    /// [`SimplifyOptions::checkpoints`] asked for them.
+    pub checkpoints: Vec<ControlMesh>,
 }
 
 /// [`simplify_with_progress`] without a progress callback.
@@ -601,6 +624,10 @@ struct Simplifier<'a> {
     blocked: std::collections::HashMap<u32, u8>,
     /// κ of the S-fitmap test (0: off).
     kappa: f64,
+    /// The last [`SimplifyOptions::checkpoints`] checkpoints, oldest
+    /// (most faces) first, and the face count that takes the next one.
+    checkpoints: std::collections::VecDeque<ControlMesh>,
+    next_checkpoint: usize,
 }
 
 /// The result of φ at one patch centre, for the guard.
@@ -748,6 +775,8 @@ impl<'a> Simplifier<'a> {
             } else {
                 0.0
             },
+            checkpoints: Default::default(),
+            next_checkpoint: (nf as f64 / CHECKPOINT_RATIO) as usize,
         })
     }
 
@@ -1044,6 +1073,7 @@ impl<'a> Simplifier<'a> {
                     continue;
                 }
             }
+            self.checkpoint()?;
             if stats.collapses % 256 == 0 {
                 let p = Progress {
                     faces: self.k.num_live_faces(),
@@ -1065,6 +1095,23 @@ impl<'a> Simplifier<'a> {
         stats.s_fitmap_kappa = self.kappa;
         stats.projections = self.projections;
         stats.unprojectable = self.unprojectable;
+        Ok(())
+    }
+
+    /// Keeps a compact copy of the mesh when its face count has fallen
+    /// below the next checkpoint's ([`SimplifyOptions::checkpoints`]).
+    fn checkpoint(&mut self) -> Result<()> {
+        let n = self.k.num_live_faces();
+        if self.opts.checkpoints == 0 || n > self.next_checkpoint {
+            return Ok(());
+        }
+        let mut c = self.k.clone();
+        c.compact()?;
+        if self.checkpoints.len() == self.opts.checkpoints {
+            self.checkpoints.pop_front();
+        }
+        self.checkpoints.push_back(c);
+        self.next_checkpoint = (n as f64 / CHECKPOINT_RATIO).floor() as usize;
         Ok(())
     }
 
@@ -1111,6 +1158,7 @@ impl<'a> Simplifier<'a> {
         let Simplifier {
             mut k,
             valence_targets,
+            checkpoints,
             ..
         } = self;
         stats.irregular_vertices = k
@@ -1121,7 +1169,19 @@ impl<'a> Simplifier<'a> {
         stats.faces = k.num_faces();
         stats.vertices = k.num_vertices();
         stats.seconds_simplify = t.elapsed().as_secs_f64();
-        Ok(Simplified { mesh: k, stats })
+        // Fewest faces first; the last checkpoints of the loop may be no
+        // larger than the end itself by the ratio (taken just before it).
+        let floor = k.num_faces() as f64 * CHECKPOINT_RATIO;
+        let checkpoints = checkpoints
+            .into_iter()
+            .rev()
+            .filter(|c| c.num_faces() as f64 >= floor)
+            .collect();
+        Ok(Simplified {
+            mesh: k,
+            stats,
+            checkpoints,
+        })
     }
 
     /// The faces within reach of a step on quad `f` (every face with a

@@ -56,7 +56,9 @@ pub use output::{
     is_known_name, remove_staging_folders, write_outputs, write_outputs_with, ExtraFiles,
     OutputFiles, OutputOptions, KNOWN_NAMES, OUTPUT_NAMES,
 };
-pub use pipeline::{fit_and_measure, fit_and_write, write_converted, Converted, PipelineOptions};
+pub use pipeline::{
+    fit_and_measure, fit_and_write, measure_fitted, write_converted, Converted, PipelineOptions,
+};
 
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -713,7 +715,7 @@ pub struct StageStat {
 }
 
 /// Collects [`StageStat`]s.
-#[derive(Debug, Default)]
+#[derive(Clone, Debug, Default)]
 pub struct StageTimer {
     pub stages: Vec<StageStat>,
 }

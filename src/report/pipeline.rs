@@ -125,10 +125,35 @@ pub fn fit_and_measure(
     precomputed_fitmap: Option<Fitmap>,
     progress: &mut Progress<'_>,
 ) -> Result<Converted> {
-    let mesh = &input.mesh;
     let fitted = timer.run("fit", || {
-        fit_with_progress(mesh, control, caster, &opts.fit, progress)
+        fit_with_progress(&input.mesh, control, caster, &opts.fit, progress)
     })?;
+    measure_fitted(
+        input,
+        fitted,
+        caster,
+        opts,
+        timer,
+        extra_options,
+        precomputed_fitmap,
+        progress,
+    )
+}
+
+/// The tail of [`fit_and_measure`] for a control mesh fitted already:
+/// displacement, metrics, Fitmap and the report.
+#[allow(clippy::too_many_arguments)]
+pub fn measure_fitted(
+    input: &ValidatedMesh,
+    fitted: crate::fit::Fitted,
+    caster: &dyn RayCaster,
+    opts: &PipelineOptions,
+    mut timer: StageTimer,
+    extra_options: serde_json::Value,
+    precomputed_fitmap: Option<Fitmap>,
+    progress: &mut Progress<'_>,
+) -> Result<Converted> {
+    let mesh = &input.mesh;
     let surfaces = timer.run("displacement+metrics", || {
         evaluate_surfaces(mesh, &fitted.control, caster, &opts.metrics, progress)
     })?;
