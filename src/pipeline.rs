@@ -14,8 +14,8 @@ use crate::mesh::{Frame, ValidatedMesh};
 use crate::quad::{simplify_with_progress, Simplified, SimplifyOptions};
 use crate::raycast::{make_raycaster, RayBackend};
 use crate::report::{
-    fit_and_measure, measure_fitted, write_converted, Converted, MetricsOptions, PipelineOptions, Report,
-    StageTimer, TargetCheck,
+    fit_and_measure, measure_fitted, write_converted, Converted, MetricsOptions, PipelineOptions,
+    Report, StageTimer, TargetCheck,
 };
 
 /// Options of [`convert`], mirroring `subdfit convert`.
@@ -434,7 +434,7 @@ fn convert_organic(
         let fitted = timer.run("fit", || {
             crate::fit::fit_with_progress(mesh, end, caster, &po.fit, progress)
         })?;
-        return measure_fitted(
+        let mut c = measure_fitted(
             input,
             fitted,
             caster,
@@ -443,7 +443,11 @@ fn convert_organic(
             extra(None),
             Some(fitmap),
             progress,
-        );
+        )?;
+        if let Some(n) = opts.target_faces {
+            c.report.add_target(faces_target(n, &stats, &c.report));
+        }
+        return Ok(c);
     };
     // The search judges candidates by the fit's own RMS distance; the
     // metrics (M's quadrature points both ways) can read a few % higher
@@ -486,6 +490,32 @@ fn convert_organic(
         // Next round: a bound below this candidate's fit RMS by the
         // metrics' ratio, so that it (and every smaller one) misses.
         bound = (bound * e / rms).min(fit_rms * (1.0 - 1e-9));
+    }
+}
+
+/// `--faces N`'s target: within ±2 % of `n` (issue 17), with what
+/// relaxing the halting tests to get there cost in projectability.
+fn faces_target(n: usize, stats: &crate::quad::SimplifyStats, report: &Report) -> TargetCheck {
+    let got = report.control.faces;
+    let (lo, hi) = (0.98 * n as f64, 1.02 * n as f64);
+    let relaxed = if stats.relax_steps > 0 {
+        format!(
+            "below the natural end: M-fitmap radius, S-fitmap bound and guard relaxed ×{:.3} ({} steps of ×{})",
+            stats.relaxation,
+            stats.relax_steps,
+            crate::quad::simplify::RELAX_STEP
+        )
+    } else {
+        "the halting tests as they are".to_string()
+    };
+    TargetCheck {
+        option: "faces",
+        target: format!("{n} faces ±2 % (--faces {n})"),
+        met: (lo..=hi).contains(&(got as f64)),
+        outcome: format!(
+            "{got} faces; {relaxed}; unprojectable area {:.3} %",
+            report.projectability.unprojectable_area_percent
+        ),
     }
 }
 

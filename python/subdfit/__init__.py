@@ -278,7 +278,8 @@ def convert(
     integer array, a list of polygons, or flat indices with ``face_sizes``.
     Options are the CLI's: ``tolerance`` (τ, a fraction), ``mode``
     (``"auto"``, ``"organic"``, ``"mechanical"``), ``max_error``
-    (mechanical E_limit), ``faces_target`` (``--faces``; 0: τ decides),
+    (RMS bound, fraction of the diagonal: mechanical E_limit per face,
+    organic RMS L, default 5e-3; ``math.inf``: natural end), ``faces_target`` (``--faces``; 0: τ decides),
     ``fit`` (``"point"``/``"sdm"``), ``displacement_res`` (0: automatic),
     ``m_fitmap`` (False: ``--no-mfitmap``), ``threads`` (0: all cores).
     ``name`` names the input in errors and report.json (the CLI uses the

@@ -93,8 +93,10 @@ pub struct Options {
     /// `--displacement-res`: samples per patch side; 0 picks it so the total
     /// roughly matches the input's vertex count (Fitmaps Table 1).
     pub displacement_resolution: u32,
-    /// `--max-error`: mechanical mode's E_limit (RMS per control face, as a
-    /// fraction of the bounding-box diagonal); `None` is the paper's 3e-3.
+    /// `--max-error`, a fraction of the bounding-box diagonal: mechanical
+    /// mode's E_limit (RMS per control face; `None` is the paper's 3e-3),
+    /// organic mode's bound on RMS L (`None`: 5e-3 unless a face target is
+    /// given; infinity: the simplification's natural end).
     pub max_error: Option<f64>,
     /// `false` is `--no-mfitmap`: the projectability test lifted.
     pub m_fitmap: bool,
@@ -132,9 +134,9 @@ impl Options {
             )));
         }
         if let Some(e) = self.max_error {
-            if !(e.is_finite() && e > 0.0) {
+            if !(e > 0.0) {
                 return Err(Error::InvalidArgument(format!(
-                    "max error {e} out of range: it is a positive fraction of the diagonal, e.g. 3e-3"
+                    "max error {e} out of range: it is a positive fraction of the diagonal, e.g. 3e-3 (or infinity)"
                 )));
             }
         }

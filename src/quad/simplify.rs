@@ -172,6 +172,16 @@ pub struct SimplifyOptions {
     pub checkpoints: usize,
 }
 
+/// `--faces N` below the natural end (issue 17: "beyond the natural end
+/// the M-fitmap test is relaxed step by step"): each time the loop ends
+/// above `1.02·N`, the M-fitmap radius F_M, the S-fitmap bound κ and the
+/// guard's distance bound are multiplied by this factor (the guard's
+/// normal test stays: a patch whose normal turns away from M's is never
+/// accepted) and every face is tried again, at most [`MAX_RELAX_STEPS`]
+/// times (1.25^16 ≈ 36: far past any meaningful projectability).
+pub const RELAX_STEP: f64 = 1.25;
+pub const MAX_RELAX_STEPS: usize = 16;
+
 /// Face-count ratio between consecutive checkpoints
 /// ([`SimplifyOptions::checkpoints`]): the `--max-error` search lands
 /// within this factor of the fewest patches that meet the bound, and 40
@@ -284,8 +294,16 @@ pub struct SimplifyStats {
     pub refused_guard_distance: usize,
     /// Collapses undone because a patch's limit normal disagreed with M's.
     pub refused_guard_normal: usize,
+    /// Collapses undone because their doublet removals would have left
+    /// fewer faces than `target_faces`' 2 % window.
+    pub refused_undershoot: usize,
     /// Full re-evaluations of every face after the heap ran dry.
     pub sweeps: usize,
+    /// The factor the halting tests were relaxed by to reach
+    /// `target_faces` below the natural end (1: not relaxed; see
+    /// [`RELAX_STEP`]), and how many steps that took.
+    pub relaxation: f64,
+    pub relax_steps: usize,
     /// φ queries and those with no hit (counted, then handled by a closest
     /// point look-up for the Fitmap values, or by not moving the vertex).
     pub projections: usize,
@@ -628,6 +646,9 @@ struct Simplifier<'a> {
     /// (most faces) first, and the face count that takes the next one.
     checkpoints: std::collections::VecDeque<ControlMesh>,
     next_checkpoint: usize,
+    /// The relaxation of the halting tests ([`RELAX_STEP`]), 1 unless
+    /// `target_faces` asked for fewer faces than the natural end.
+    relax: f64,
 }
 
 /// The result of φ at one patch centre, for the guard.
@@ -657,12 +678,15 @@ impl Blocked {
     const S_FITMAP: u8 = 4;
     const GUARD_DISTANCE: u8 = 8;
     const GUARD_NORMAL: u8 = 16;
-    const NAMES: [(u8, &'static str); 5] = [
+    /// The collapse would leave fewer than `target_faces`' 2 % window.
+    const UNDERSHOOT: u8 = 32;
+    const NAMES: [(u8, &'static str); 6] = [
         (Self::TOPOLOGY, "topology"),
         (Self::M_FITMAP, "m_fitmap"),
         (Self::S_FITMAP, "s_fitmap"),
         (Self::GUARD_DISTANCE, "guard_distance"),
         (Self::GUARD_NORMAL, "guard_normal"),
+        (Self::UNDERSHOOT, "undershoot"),
     ];
 }
 
@@ -777,6 +801,7 @@ impl<'a> Simplifier<'a> {
             },
             checkpoints: Default::default(),
             next_checkpoint: (nf as f64 / CHECKPOINT_RATIO) as usize,
+            relax: 1.0,
         })
     }
 
@@ -952,10 +977,10 @@ impl<'a> Simplifier<'a> {
                 ),
                 None => (self.fm[g.idx()], self.fs[g.idx()]),
             };
-            if r > fm {
+            if r > fm * self.relax {
                 return Some(Blocked::M_FITMAP);
             }
-            if r * fs > self.kappa && self.kappa > 0.0 {
+            if r * fs > self.kappa * self.relax && self.kappa > 0.0 {
                 return Some(Blocked::S_FITMAP);
             }
         }
@@ -982,7 +1007,16 @@ impl<'a> Simplifier<'a> {
                 // declaring the natural end, re-evaluate every face once
                 // more, as long as the previous sweep led to collapses.
                 if stats.collapses == at_last_sweep {
-                    break;
+                    // The natural end. Above a `target_faces` (by more than
+                    // its 2 % window), relax the halting tests one step
+                    // and sweep again.
+                    let above = self.k.num_live_faces() as f64 > 1.02 * target as f64;
+                    if target == 0 || !above || stats.relax_steps == MAX_RELAX_STEPS {
+                        break;
+                    }
+                    self.relax *= RELAX_STEP;
+                    stats.relax_steps += 1;
+                    stats.relaxation = self.relax;
                 }
                 at_last_sweep = stats.collapses;
                 stats.sweeps += 1;
@@ -1037,7 +1071,15 @@ impl<'a> Simplifier<'a> {
                 }
             }
             let guard = self.opts.guard_scale > 0.0;
-            let snap = if guard { Some(self.snapshot(f)) } else { None };
+            // A collapse whose doublet removals would take the mesh below
+            // `target_faces`' 2 % window is undone too (`--faces N` lands
+            // within ±2 %; one that removes a single face is always fine).
+            let floor = (0.98 * target as f64).ceil() as usize;
+            let snap = if guard || target > 0 {
+                Some(self.snapshot(f))
+            } else {
+                None
+            };
             self.pos_log.clear();
             self.lim_log.clear();
             self.pos_log.push((plan.keep, self.k.position(plan.keep)));
@@ -1052,17 +1094,18 @@ impl<'a> Simplifier<'a> {
             stats.rotations += rotations;
             let checks = self.refit(&touched)?;
             if let Some(snap) = snap {
-                if let Some(normal) = self.guard(&checks) {
-                    let why = if normal {
-                        Blocked::GUARD_NORMAL
-                    } else {
-                        Blocked::GUARD_DISTANCE
-                    };
+                let why = match guard.then(|| self.guard(&checks)).flatten() {
+                    Some(true) => Some(Blocked::GUARD_NORMAL),
+                    Some(false) => Some(Blocked::GUARD_DISTANCE),
+                    None if self.k.num_live_faces() < floor => Some(Blocked::UNDERSHOOT),
+                    None => None,
+                };
+                if let Some(why) = why {
                     self.block(fi, why);
-                    if normal {
-                        stats.refused_guard_normal += 1;
-                    } else {
-                        stats.refused_guard_distance += 1;
+                    match why {
+                        Blocked::GUARD_NORMAL => stats.refused_guard_normal += 1,
+                        Blocked::GUARD_DISTANCE => stats.refused_guard_distance += 1,
+                        _ => stats.refused_undershoot += 1,
                     }
                     stats.collapses -= 1;
                     stats.doublets -= done.doublets.len();
@@ -1092,6 +1135,7 @@ impl<'a> Simplifier<'a> {
             stop = StopReason::TargetFaces;
         }
         stats.stop = Some(stop);
+        stats.relaxation = self.relax;
         stats.s_fitmap_kappa = self.kappa;
         stats.projections = self.projections;
         stats.unprojectable = self.unprojectable;
@@ -1311,7 +1355,7 @@ impl<'a> Simplifier<'a> {
             let ctr = q.iter().sum::<DVec3>() / q.len() as f64;
             let r = q.iter().map(|p| (*p - ctr).length()).fold(0.0, f64::max);
             let e = (self.fs[c.face.idx()] * r).powi(4);
-            if c.residual > self.opts.guard_scale * e + floor {
+            if c.residual > self.relax * (self.opts.guard_scale * e + floor) {
                 return Some(false);
             }
         }

@@ -51,7 +51,7 @@ pub struct BatchArgs {
     #[arg(long, value_enum, default_value_t = ModeArg::Auto)]
     mode: ModeArg,
     /// As `subdfit convert --max-error`.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::convert::parse_max_error)]
     max_error: Option<f64>,
     /// No progress bar and no table (the summary files are still written).
     #[arg(long)]
