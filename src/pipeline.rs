@@ -455,7 +455,7 @@ fn convert_organic(
     // that ratio and searches on among the larger candidates (at most
     // `ROUNDS` measurements).
     const ROUNDS: usize = 3;
-    let mut search = ErrorSearch::new(end, checkpoints, e);
+    let mut search = ErrorSearcher::new(end, checkpoints, e);
     let mut bound = search.record.max_error_permille;
     let mut round = 0;
     loop {
@@ -566,7 +566,7 @@ struct ErrorSearcher {
     record: ErrorSearch,
 }
 
-impl ErrorSearch {
+impl ErrorSearcher {
     fn new(
         end: crate::mesh::ControlMesh,
         checkpoints: Vec<crate::mesh::ControlMesh>,
@@ -647,7 +647,7 @@ impl ErrorSearcher {
         let mut lo = known(self, false).into_iter().max();
         let mut best = known(self, true)
             .into_iter()
-            .filter(|&i| lo.is_none_or(|l| i > l))
+            .filter(|&i| lo.map_or(true, |l| i > l))
             .min();
         if lo.is_none() && best != Some(0) {
             if self.rms(0, mesh, caster, fo, progress)? <= bound {

@@ -134,7 +134,7 @@ impl Options {
             )));
         }
         if let Some(e) = self.max_error {
-            if !(e > 0.0) {
+            if e.is_nan() || e <= 0.0 {
                 return Err(Error::InvalidArgument(format!(
                     "max error {e} out of range: it is a positive fraction of the diagonal, e.g. 3e-3 (or infinity)"
                 )));
