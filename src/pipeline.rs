@@ -191,6 +191,11 @@ pub fn measure(
     let mut mesh = input.mesh.clone();
     frame.points_to_unit(&mut mesh.positions);
     frame.points_to_unit(control.positions_mut());
+    // Triangles and n-gons are measured on the refinement by one level:
+    // the same limit surface, all quads (the displacement's patches).
+    if !control.is_all_quads() {
+        control = crate::subdiv::refine::refine_once_keeping_infinite(&control)?;
+    }
     let caster = make_raycaster(RayBackend::Embree, &mesh)?;
     let mut m = crate::report::metrics(&mesh, &control, caster.as_ref(), opts)?;
     m.bbox_diagonal = input.mesh.bbox_diagonal();
@@ -750,29 +755,7 @@ fn coarse_control(mesh: &crate::mesh::TriMesh) -> Result<crate::mesh::ControlMes
             base.set_corner(VertexId(v as u32), INFINITELY_SHARP)?;
         }
     }
-    refine_once_keeping_infinite(&base)
-}
-
-/// One level of Catmull-Clark refinement, the same limit surface, with
-/// every infinitely sharp crease and corner still infinitely sharp
-/// (`refine_uniform` decrements sharpness per level, as OpenSubdiv does;
-/// 10 − 1 would turn a crease semi-sharp at the next level).
-fn refine_once_keeping_infinite(
-    control: &crate::mesh::ControlMesh,
-) -> Result<crate::mesh::ControlMesh> {
-    use crate::mesh::INFINITELY_SHARP;
-    let mut r = crate::subdiv::refine::refine_uniform(control, 1)?;
-    for (a, b, s) in r.creases() {
-        if s >= INFINITELY_SHARP - 1.0 {
-            r.set_crease(a, b, INFINITELY_SHARP)?;
-        }
-    }
-    for (v, s) in r.corners() {
-        if s >= INFINITELY_SHARP - 1.0 {
-            r.set_corner(v, INFINITELY_SHARP)?;
-        }
-    }
-    Ok(r)
+    crate::subdiv::refine::refine_once_keeping_infinite(&base)
 }
 
 /// The Fitmap (§3.1) with progress and cancellation: the analysis runs as
@@ -859,7 +842,7 @@ fn convert_mechanical(
         if control.is_all_quads() {
             return Ok(control.clone());
         }
-        refine_once_keeping_infinite(&control)
+        crate::subdiv::refine::refine_once_keeping_infinite(&control)
     })?;
     let mopts = MetricsOptions::default()
         .with_displacement_res(opts.displacement_res)

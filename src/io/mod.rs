@@ -115,17 +115,39 @@ pub fn read_mesh(path: &Path) -> Result<ValidatedMesh> {
     validate_soup(read_soup(path)?, path)
 }
 
-/// Reads a control mesh: polygons plus, for OBJ, the `t crease` / `t corner`
-/// tags. The mesh must be a manifold, consistently oriented polygon mesh
-/// without unreferenced vertices; violations name the file and the element.
-pub fn read_control_mesh(path: &Path) -> Result<ControlMesh> {
-    let (soup, creases, corners) = match Format::from_path(path)? {
+/// A control mesh file's polygons, creases `(a, b, s)` and corners
+/// `(v, s)` (OBJ's shape-file tags; none in the other formats).
+type ControlParts = (PolySoup, Vec<(u32, u32, f64)>, Vec<(u32, f64)>);
+
+fn read_control_parts(path: &Path) -> Result<ControlParts> {
+    Ok(match Format::from_path(path)? {
         Format::Obj => {
             let o = read_obj(path)?;
             (o.soup, o.creases, o.corners)
         }
         _ => (read_soup(path)?, Vec::new(), Vec::new()),
-    };
+    })
+}
+
+/// [`read_control_mesh`] for layouts other tools wrote (`subdfit fit`):
+/// unreferenced vertices, repeated corners, degenerate faces and
+/// non-manifold vertices and edges are repaired instead of refused
+/// ([`crate::mesh::control_from_foreign_soup`]), and the repairs returned.
+pub fn read_control_mesh_as_found(
+    path: &Path,
+) -> Result<(ControlMesh, crate::mesh::ForeignRepairs)> {
+    let (soup, creases, corners) = read_control_parts(path)?;
+    crate::mesh::control_from_foreign_soup(&soup, &creases, &corners).map_err(|e| match e {
+        Error::Topology { element, msg } => Error::invalid_mesh(path, element, msg),
+        e => e,
+    })
+}
+
+/// Reads a control mesh: polygons plus, for OBJ, the `t crease` / `t corner`
+/// tags. The mesh must be a manifold, consistently oriented polygon mesh
+/// without unreferenced vertices; violations name the file and the element.
+pub fn read_control_mesh(path: &Path) -> Result<ControlMesh> {
+    let (soup, creases, corners) = read_control_parts(path)?;
     let in_file = |e: Error| match e {
         Error::Topology { element, msg } => Error::invalid_mesh(path, element, msg),
         e => e,

@@ -17,6 +17,7 @@ use std::path::Path;
 
 use super::{validate_soup, MeshReport, PolySoup, TriMesh, ValidatedMesh};
 use crate::error::Result;
+use crate::DVec3;
 
 /// What [`split_non_manifold`] did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -50,22 +51,75 @@ fn union(parent: &mut [u32], a: u32, b: u32) {
 /// are appended after the original vertices in order of first use, so a
 /// manifold mesh comes back unchanged.
 pub fn split_non_manifold(mesh: &TriMesh) -> (TriMesh, SplitStats) {
-    let nt = mesh.triangles.len();
-    // Corner c = 3·t + k is triangle t's k-th vertex.
-    let mut parent: Vec<u32> = (0..3 * nt as u32).collect();
-    // Undirected edge → the corners (at its first vertex in the triangle's
-    // order) that traverse it, with their direction.
-    let mut edges: HashMap<(u32, u32), Vec<(u32, bool)>> = HashMap::with_capacity(3 * nt / 2);
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (tri[k], tri[(k + 1) % 3]);
-            edges
-                .entry((a.min(b), a.max(b)))
-                .or_default()
-                .push(((3 * t + k) as u32, a < b));
+    let corners: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
+    let next = |c: u32| c - c % 3 + (c % 3 + 1) % 3;
+    let split = split_corners(&mesh.positions, &corners, next);
+    let triangles = split
+        .corner_vertex
+        .chunks_exact(3)
+        .map(|t| [t[0], t[1], t[2]])
+        .collect();
+    (
+        TriMesh {
+            positions: split.positions,
+            triangles,
+        },
+        split.stats,
+    )
+}
+
+/// [`split_non_manifold`] for polygons of any size (control meshes as
+/// other tools write them, issue 17): the same rule, a vertex's faces
+/// joined only through manifold edges. Returns the split soup, the counts
+/// and, per vertex of the result, the input vertex it copies.
+pub fn split_non_manifold_polygons(soup: &PolySoup) -> (PolySoup, SplitStats, Vec<u32>) {
+    let mut next = vec![0u32; soup.face_indices.len()];
+    for w in soup.face_offsets.windows(2) {
+        let (lo, hi) = (w[0], w[1]);
+        for c in lo..hi {
+            next[c as usize] = if c + 1 == hi { lo } else { c + 1 };
         }
     }
-    let next = |c: u32| c - c % 3 + (c % 3 + 1) % 3;
+    let split = split_corners(&soup.positions, &soup.face_indices, |c| next[c as usize]);
+    let n = soup.positions.len() as u32;
+    let origin = (0..n).chain(split.copy_of.iter().copied()).collect();
+    (
+        PolySoup {
+            positions: split.positions,
+            face_offsets: soup.face_offsets.clone(),
+            face_indices: split.corner_vertex,
+        },
+        split.stats,
+        origin,
+    )
+}
+
+/// What [`split_corners`] makes: per corner its (new) vertex, the
+/// positions with the copies appended, and each copy's original.
+struct CornerSplit {
+    corner_vertex: Vec<u32>,
+    positions: Vec<DVec3>,
+    copy_of: Vec<u32>,
+    stats: SplitStats,
+}
+
+/// The fan split over face corners (`corners[c]` the vertex of corner `c`,
+/// `next(c)` the next corner of its face): corners of one vertex joined
+/// across manifold edges (exactly two uses, opposite directions) keep one
+/// vertex; each further fan gets a copy.
+fn split_corners(positions: &[DVec3], corners: &[u32], next: impl Fn(u32) -> u32) -> CornerSplit {
+    let nc = corners.len();
+    let mut parent: Vec<u32> = (0..nc as u32).collect();
+    // Undirected edge → the corners (at its first vertex in the face's
+    // order) that traverse it, with their direction.
+    let mut edges: HashMap<(u32, u32), Vec<(u32, bool)>> = HashMap::with_capacity(nc / 2);
+    for c in 0..nc as u32 {
+        let (a, b) = (corners[c as usize], corners[next(c) as usize]);
+        edges
+            .entry((a.min(b), a.max(b)))
+            .or_default()
+            .push((c, a < b));
+    }
     for uses in edges.values() {
         if let [(c0, d0), (c1, d1)] = uses[..] {
             if d0 != d1 {
@@ -76,40 +130,37 @@ pub fn split_non_manifold(mesh: &TriMesh) -> (TriMesh, SplitStats) {
             }
         }
     }
-    let mut positions = mesh.positions.clone();
-    let mut triangles = mesh.triangles.clone();
+    let mut out = CornerSplit {
+        corner_vertex: corners.to_vec(),
+        positions: positions.to_vec(),
+        copy_of: Vec::new(),
+        stats: SplitStats::default(),
+    };
     // Per vertex, the fan root that keeps the vertex's own index.
-    let mut owner: Vec<u32> = vec![u32::MAX; mesh.positions.len()];
+    let mut owner: Vec<u32> = vec![u32::MAX; positions.len()];
     let mut copy_of_root: HashMap<u32, u32> = HashMap::new();
-    let mut split = vec![false; mesh.positions.len()];
-    let mut stats = SplitStats::default();
-    for c in 0..3 * nt as u32 {
-        let (t, k) = ((c / 3) as usize, (c % 3) as usize);
-        let v = mesh.triangles[t][k];
+    let mut split = vec![false; positions.len()];
+    for c in 0..nc as u32 {
+        let v = corners[c as usize];
         let root = find(&mut parent, c);
         let o = &mut owner[v as usize];
         if *o == u32::MAX {
             *o = root;
         } else if *o != root {
             let id = *copy_of_root.entry(root).or_insert_with(|| {
-                positions.push(mesh.positions[v as usize]);
-                stats.vertices_added += 1;
+                out.positions.push(positions[v as usize]);
+                out.copy_of.push(v);
+                out.stats.vertices_added += 1;
                 if !split[v as usize] {
                     split[v as usize] = true;
-                    stats.vertices_split += 1;
+                    out.stats.vertices_split += 1;
                 }
-                (positions.len() - 1) as u32
+                (out.positions.len() - 1) as u32
             });
-            triangles[t][k] = id;
+            out.corner_vertex[c as usize] = id;
         }
     }
-    (
-        TriMesh {
-            positions,
-            triangles,
-        },
-        stats,
-    )
+    out
 }
 
 impl ValidatedMesh {

@@ -4,6 +4,7 @@
 //! ([`ControlMesh`]) and the working frame conversions run in ([`Frame`]).
 
 mod control;
+mod foreign;
 mod frame;
 mod manifold;
 mod report;
@@ -12,8 +13,9 @@ mod soup;
 pub use control::{
     Compaction, ControlMesh, EdgeId, FaceId, HalfedgeId, VertexId, INFINITELY_SHARP,
 };
+pub use foreign::{control_from_foreign_soup, ForeignRepairs};
 pub use frame::Frame;
-pub use manifold::{split_non_manifold, SplitStats};
+pub use manifold::{split_non_manifold, split_non_manifold_polygons, SplitStats};
 pub(crate) use report::non_finite;
 pub use report::{validate_soup, MeshReport, ValidatedMesh};
 pub use soup::{PolySoup, TriMesh};

@@ -248,6 +248,17 @@ pub enum StopReason {
     NaturalEnd,
 }
 
+impl SimplifyStats {
+    /// Counts an undone collapse by its reason ([`Simplifier::refusal`]).
+    fn count_refusal(&mut self, why: u8) {
+        match why {
+            Blocked::GUARD_NORMAL => self.refused_guard_normal += 1,
+            Blocked::GUARD_DISTANCE => self.refused_guard_distance += 1,
+            _ => self.refused_undershoot += 1,
+        }
+    }
+}
+
 /// Passed to the progress callback every few hundred collapses.
 #[derive(Copy, Clone, Debug, PartialEq, Serialize)]
 pub struct Progress {
@@ -1094,19 +1105,9 @@ impl<'a> Simplifier<'a> {
             stats.rotations += rotations;
             let checks = self.refit(&touched)?;
             if let Some(snap) = snap {
-                let why = match guard.then(|| self.guard(&checks)).flatten() {
-                    Some(true) => Some(Blocked::GUARD_NORMAL),
-                    Some(false) => Some(Blocked::GUARD_DISTANCE),
-                    None if self.k.num_live_faces() < floor => Some(Blocked::UNDERSHOOT),
-                    None => None,
-                };
-                if let Some(why) = why {
+                if let Some(why) = self.refusal(guard, &checks, floor) {
                     self.block(fi, why);
-                    match why {
-                        Blocked::GUARD_NORMAL => stats.refused_guard_normal += 1,
-                        Blocked::GUARD_DISTANCE => stats.refused_guard_distance += 1,
-                        _ => stats.refused_undershoot += 1,
-                    }
+                    stats.count_refusal(why);
                     stats.collapses -= 1;
                     stats.doublets -= done.doublets.len();
                     stats.rotations -= rotations;
@@ -1140,6 +1141,18 @@ impl<'a> Simplifier<'a> {
         stats.projections = self.projections;
         stats.unprojectable = self.unprojectable;
         Ok(())
+    }
+
+    /// Why a collapse just made must be undone: the guard (when on) or an
+    /// undershoot of `floor` faces (`target_faces`' 2 % window); `None`:
+    /// keep it.
+    fn refusal(&self, guard: bool, checks: &[CentreCheck], floor: usize) -> Option<u8> {
+        match guard.then(|| self.guard(checks)).flatten() {
+            Some(true) => Some(Blocked::GUARD_NORMAL),
+            Some(false) => Some(Blocked::GUARD_DISTANCE),
+            None if self.k.num_live_faces() < floor => Some(Blocked::UNDERSHOOT),
+            None => None,
+        }
     }
 
     /// Keeps a compact copy of the mesh when its face count has fallen

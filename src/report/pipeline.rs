@@ -154,8 +154,19 @@ pub fn measure_fitted(
     progress: &mut Progress<'_>,
 ) -> Result<Converted> {
     let mesh = &input.mesh;
+    // A layout with triangles or n-gons (another tool's, or mechanical
+    // mode's) carries its displacement atlas on its refinement by one
+    // level: all quads, the same limit surface.
+    let quads = if fitted.control.is_all_quads() {
+        None
+    } else {
+        Some(timer.run("refine", || {
+            crate::subdiv::refine::refine_once_keeping_infinite(&fitted.control)
+        })?)
+    };
     let surfaces = timer.run("displacement+metrics", || {
-        evaluate_surfaces(mesh, &fitted.control, caster, &opts.metrics, progress)
+        let on = quads.as_ref().unwrap_or(&fitted.control);
+        evaluate_surfaces(mesh, on, caster, &opts.metrics, progress)
     })?;
     let fitmap = match (&opts.fitmap, precomputed_fitmap) {
         (_, Some(f)) => Some(f),
@@ -168,7 +179,7 @@ pub fn measure_fitted(
         (None, None) => None,
     };
     let options = serde_json::json!({ "pipeline": opts, "run": extra_options });
-    let report = Report::new(
+    let mut report = Report::new(
         input.report.clone(),
         &fitted.control,
         Some(fitted.report.clone()),
@@ -176,9 +187,10 @@ pub fn measure_fitted(
         timer.stages,
         options,
     );
+    report.control_written = quads.as_ref().map(super::control_stats);
     Ok(Converted {
         control: fitted.control,
-        quad_control: None,
+        quad_control: quads,
         surfaces,
         report,
         fitmap,

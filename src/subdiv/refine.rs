@@ -47,3 +47,23 @@ pub fn refine_uniform(mesh: &ControlMesh, levels: u32) -> Result<ControlMesh> {
     }
     Ok(out)
 }
+
+/// One level of Catmull-Clark refinement, the same limit surface, with
+/// every infinitely sharp crease and corner still infinitely sharp
+/// (`refine_uniform` decrements sharpness per level, as OpenSubdiv does;
+/// 10 − 1 would turn a crease semi-sharp at the next level).
+pub fn refine_once_keeping_infinite(control: &ControlMesh) -> Result<ControlMesh> {
+    use crate::mesh::INFINITELY_SHARP;
+    let mut r = refine_uniform(control, 1)?;
+    for (a, b, s) in r.creases() {
+        if s >= INFINITELY_SHARP - 1.0 {
+            r.set_crease(a, b, INFINITELY_SHARP)?;
+        }
+    }
+    for (v, s) in r.corners() {
+        if s >= INFINITELY_SHARP - 1.0 {
+            r.set_corner(v, INFINITELY_SHARP)?;
+        }
+    }
+    Ok(r)
+}

@@ -102,7 +102,8 @@ pub fn fit(a: FitArgs) -> Result<ExitCode> {
             subdfit::io::read_mesh(&a.mesh).and_then(|m| m.into_manifold(&a.mesh))
         })
         .context("input mesh")?;
-    let control = crate::read_control(&a.control)?;
+    let (control, repairs) = crate::read_layout(&a.control, a.quiet)?;
+    let notes = repairs.notes();
     let objective = match a.fit {
         FitArg::Point => Objective::Point,
         FitArg::Sdm => Objective::Sdm,
@@ -119,6 +120,8 @@ pub fn fit(a: FitArgs) -> Result<ExitCode> {
         "command": "fit",
         "mesh": a.mesh.display().to_string(),
         "control": a.control.display().to_string(),
+        "control_repairs": repairs,
+        "control_notes": notes,
     });
     let mut progress = progress_bars(a.quiet || a.json);
     let c = fit_in_memory(&input, control, &opts, timer, extra, &mut progress)?;
@@ -153,7 +156,7 @@ pub fn print_summary(report: &subdfit::report::Report, written: &[PathBuf]) -> R
 
 pub fn metrics_cmd(a: MetricsArgs) -> Result<ExitCode> {
     let input = crate::read_input(&a.mesh)?;
-    let control = crate::read_control(&a.control)?;
+    let (control, repairs) = crate::read_layout(&a.control, a.json)?;
     let stats = subdfit::report::control_stats(&control);
     let m = measure(
         &input,
@@ -161,7 +164,11 @@ pub fn metrics_cmd(a: MetricsArgs) -> Result<ExitCode> {
         &MetricsOptions::default().with_displacement_res(a.displacement_res),
     )?;
     if a.json {
-        let v = serde_json::json!({ "control": stats, "metrics": m });
+        let v = serde_json::json!({
+            "control": stats,
+            "control_notes": repairs.notes(),
+            "metrics": m,
+        });
         crate::emit(&serde_json::to_string_pretty(&v)?)?;
     } else {
         let l = &m.limit;

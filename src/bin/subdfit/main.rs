@@ -110,6 +110,24 @@ pub(crate) fn read_control(path: &Path) -> Result<subdfit::mesh::ControlMesh> {
     subdfit::io::read_control_mesh(path).context("control mesh")
 }
 
+/// Reads a layout another tool may have written (`fit`, `metrics`): as
+/// [`read_control`], but repaired the least that makes it a manifold
+/// control mesh (issue 17, "fit any layout"), each repair a note on stderr
+/// unless `quiet`.
+pub(crate) fn read_layout(
+    path: &Path,
+    quiet: bool,
+) -> Result<(subdfit::mesh::ControlMesh, subdfit::mesh::ForeignRepairs)> {
+    let (control, repairs) =
+        subdfit::io::read_control_mesh_as_found(path).context("control mesh")?;
+    if !quiet {
+        for n in repairs.notes() {
+            eprintln!("subdfit: note: control mesh {}: {n}", path.display());
+        }
+    }
+    Ok((control, repairs))
+}
+
 /// Prints `text` and a newline to stdout. A closed pipe (`subdfit info … |
 /// head`) ends the output quietly instead of panicking like `println!`.
 pub(crate) fn emit(text: &str) -> Result<()> {

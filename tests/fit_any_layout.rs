@@ -1,0 +1,88 @@
+//! `subdfit fit` on layouts other tools made (issue 17, "fit any layout"):
+//! Instant Meshes' quad-dominant mesh (triangles, pentagons, unreferenced
+//! vertices) and QuadriFlow's quads, both of `data/spot.ply`
+//! (`tests/data/layouts/README.md`). Each fits without an error, the
+//! repairs are reported, a non-quad layout carries its atlas on its
+//! refinement (same limit surface), and `subdfit metrics` on the written
+//! control mesh agrees with the report.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn fit(layout: &Path, out: &Path) -> (serde_json::Value, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .arg("fit")
+        .arg(root().join("data/spot.ply"))
+        .arg(layout)
+        .arg("-o")
+        .arg(out)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "{}: {stderr}", layout.display());
+    let r =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    (r, stderr)
+}
+
+fn metrics_rms_l(control: &Path) -> f64 {
+    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .arg("metrics")
+        .arg(root().join("data/spot.ply"))
+        .arg(control)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let m: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    m["metrics"]["limit"]["rms_permille"].as_f64().unwrap()
+}
+
+/// Both layouts fit; the bound on RMS L is loose on purpose (a layout of
+/// ~300 patches on spot fits to ~1‰; 5‰ would mean the fit went wrong,
+/// e.g. a dropped face or a split that tore the surface).
+#[test]
+fn peer_layouts_fit_and_say_what_was_repaired() {
+    let tmp = tempfile::tempdir().unwrap();
+    let layouts = root().join("tests/data/layouts");
+
+    let (im, stderr) = fit(
+        &layouts.join("spot_instant_meshes.obj"),
+        &tmp.path().join("im"),
+    );
+    let notes = im["options"]["run"]["control_notes"].as_array().unwrap();
+    assert!(
+        notes
+            .iter()
+            .any(|n| n.as_str().unwrap().contains("used by no face")),
+        "{notes:?}"
+    );
+    assert!(stderr.contains("used by no face"), "{stderr}");
+    assert!(im["options"]["run"]["control_repairs"]["unreferenced_vertices"].as_u64() > Some(0));
+    // Triangles and pentagons: the written mesh is the refinement.
+    let written = &im["control_written"];
+    assert!(
+        written.is_object(),
+        "no control_written in {}",
+        im["control"]
+    );
+    assert_eq!(written["quads"], written["faces"]);
+    assert!(written["faces"].as_u64() > im["control"]["faces"].as_u64());
+    let l = im["accuracy"]["limit"]["rms_permille"].as_f64().unwrap();
+    assert!(l < 5.0, "Instant Meshes layout: RMS L {l}‰");
+    let m = metrics_rms_l(&tmp.path().join("im/control.obj"));
+    assert!(
+        (m - l).abs() <= 1e-6 * l.max(1.0),
+        "metrics {m} vs report {l}"
+    );
+
+    let (qf, _) = fit(&layouts.join("spot_quadriflow.obj"), &tmp.path().join("qf"));
+    assert_eq!(qf["options"]["run"]["control_notes"], serde_json::json!([]));
+    assert!(qf.get("control_written").is_none());
+    let l = qf["accuracy"]["limit"]["rms_permille"].as_f64().unwrap();
+    assert!(l < 5.0, "QuadriFlow layout: RMS L {l}‰");
+}
