@@ -24,7 +24,7 @@ mod write;
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId};
+use crate::mesh::{validate_soup, ControlMesh, PolySoup, SchemeOptions, ValidatedMesh, VertexId};
 
 pub use obj::{parse_obj, read_obj, ObjMesh};
 pub use obj_uv::{control_obj_with_uvs, write_control_obj_with_uvs};
@@ -119,12 +119,38 @@ pub fn read_mesh(path: &Path) -> Result<ValidatedMesh> {
 /// tags. The mesh must be a manifold, consistently oriented polygon mesh
 /// without unreferenced vertices; violations name the file and the element.
 pub fn read_control_mesh(path: &Path) -> Result<ControlMesh> {
-    let (soup, creases, corners) = match Format::from_path(path)? {
+    let ControlFile { mesh, scheme } = read_control_file(path)?;
+    if !scheme.is_default() {
+        // Dropping them would change the surface without a word.
+        return Err(Error::invalid_mesh(
+            path,
+            "scheme tags",
+            format!(
+                "the file asks for {scheme}; this reader keeps only the crate's defaults \
+                 (use `read_control_file`, or `subdfit limit`/`diff-limit` which honour them)"
+            ),
+        ));
+    }
+    Ok(mesh)
+}
+
+/// A control mesh with the scheme options its file states.
+#[derive(Clone, Debug)]
+pub struct ControlFile {
+    pub mesh: ControlMesh,
+    pub scheme: SchemeOptions,
+}
+
+/// Reads a control mesh and, from an OBJ shape file, its sharpness tags
+/// and scheme options (see the `obj` module doc); other formats carry the
+/// default options.
+pub fn read_control_file(path: &Path) -> Result<ControlFile> {
+    let (soup, creases, corners, scheme) = match Format::from_path(path)? {
         Format::Obj => {
             let o = read_obj(path)?;
-            (o.soup, o.creases, o.corners)
+            (o.soup, o.creases, o.corners, o.scheme)
         }
-        _ => (read_soup(path)?, Vec::new(), Vec::new()),
+        _ => (read_soup(path)?, Vec::new(), Vec::new(), SchemeOptions::default()),
     };
     let in_file = |e: Error| match e {
         Error::Topology { element, msg } => Error::invalid_mesh(path, element, msg),
@@ -138,5 +164,5 @@ pub fn read_control_mesh(path: &Path) -> Result<ControlMesh> {
     for (v, s) in corners {
         mesh.set_corner(VertexId(v), s).map_err(in_file)?;
     }
-    Ok(mesh)
+    Ok(ControlFile { mesh, scheme })
 }

@@ -6,6 +6,7 @@
 mod control;
 mod manifold;
 mod report;
+mod scheme;
 mod soup;
 
 pub use control::{
@@ -14,4 +15,7 @@ pub use control::{
 pub use manifold::{split_non_manifold, SplitStats};
 pub(crate) use report::non_finite;
 pub use report::{validate_soup, MeshReport, ValidatedMesh};
+pub use scheme::{
+    BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions, TriangleSubdivision,
+};
 pub use soup::{PolySoup, TriMesh};

@@ -14,9 +14,9 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use crate::error::Result;
-use crate::mesh::{ControlMesh, FaceId, VertexId, INFINITELY_SHARP};
+use crate::mesh::{BoundaryInterpolation, ControlMesh, FaceId, SchemeOptions, VertexId, INFINITELY_SHARP};
 use crate::subdiv::{
-    known_differences, KnownDifference, LimitEvaluator, LimitPoint, SurfaceLocation,
+    known_differences_with, KnownDifference, LimitEvaluator, LimitPoint, SurfaceLocation,
 };
 use crate::DVec3;
 
@@ -52,6 +52,8 @@ impl Worst {
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct DiffReport {
     pub backends: [String; 2],
+    /// The scheme options both evaluators followed.
+    pub scheme: SchemeOptions,
     pub bbox_diagonal: f64,
     /// At control vertices, known differences excluded.
     pub vertices: Worst,
@@ -79,7 +81,20 @@ pub fn angle_between(a: DVec3, b: DVec3) -> f64 {
 /// evaluator (extraordinary valence, darts, uneven creases, corners with a
 /// face count other than one): the places where end caps are used.
 pub fn is_irregular_vertex(mesh: &ControlMesh, v: VertexId) -> bool {
+    is_irregular_vertex_with(mesh, &SchemeOptions::default(), v)
+}
+
+/// [`is_irregular_vertex`] under `scheme`: without corner sharpening
+/// (boundary "edge only" or "none"), a boundary vertex with one face is a
+/// crease vertex of valence 2, irregular.
+pub fn is_irregular_vertex_with(mesh: &ControlMesh, scheme: &SchemeOptions, v: VertexId) -> bool {
     let valence = mesh.valence(v);
+    if scheme.boundary != BoundaryInterpolation::EdgeAndCorner
+        && mesh.is_boundary_vertex(v)
+        && valence == 2
+    {
+        return true;
+    }
     let sharp: Vec<f64> = mesh
         .outgoing(v)
         .filter(|&h| !mesh.is_boundary_edge(h.edge()))
@@ -110,13 +125,20 @@ pub fn is_irregular_vertex(mesh: &ControlMesh, v: VertexId) -> bool {
 /// sharp crease (two or more such edges) nor at an infinitely sharp corner
 /// (boundary corners included).
 pub fn normal_is_defined(mesh: &ControlMesh, v: VertexId) -> bool {
+    normal_is_defined_with(mesh, &SchemeOptions::default(), v)
+}
+
+/// [`normal_is_defined`] under `scheme` (a boundary vertex with one face is
+/// a corner only when boundary corners are sharpened).
+pub fn normal_is_defined_with(mesh: &ControlMesh, scheme: &SchemeOptions, v: VertexId) -> bool {
+    let sharpened = scheme.boundary == BoundaryInterpolation::EdgeAndCorner;
     let sharp = mesh
         .outgoing(v)
         .filter(|&h| {
             !mesh.is_boundary_edge(h.edge()) && mesh.edge_sharpness(h.edge()) >= INFINITELY_SHARP
         })
         .count();
-    let boundary_corner = mesh.is_boundary_vertex(v) && mesh.valence(v) == 2;
+    let boundary_corner = sharpened && mesh.is_boundary_vertex(v) && mesh.valence(v) == 2;
     let corner = mesh.vertex_sharpness(v) >= INFINITELY_SHARP;
     let sharp_on_boundary = mesh.is_boundary_vertex(v) && sharp > 0;
     sharp < 2 && !(boundary_corner || corner || sharp_on_boundary)
@@ -153,14 +175,29 @@ fn irregular_corners(
 /// `n` random locations, uniform in `(u, v)` over uniformly chosen
 /// sub-quads (ptex faces), from a fixed seed.
 pub fn random_locations(mesh: &ControlMesh, n: usize, seed: u64) -> Vec<SurfaceLocation> {
+    random_locations_with(mesh, &SchemeOptions::default(), n, seed)
+}
+
+/// [`random_locations`] on the faces that have a limit surface under
+/// `scheme` (none if every face is a hole).
+pub fn random_locations_with(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    n: usize,
+    seed: u64,
+) -> Vec<SurfaceLocation> {
+    let holes = scheme.effective_holes(mesh);
     let mut ptex: Vec<(FaceId, u16)> = Vec::new();
-    for f in mesh.faces() {
+    for f in mesh.faces().filter(|f| !holes[f.idx()]) {
         let k = mesh.face_size(f);
         if k == 4 {
             ptex.push((f, 0));
         } else {
             ptex.extend((0..k as u16).map(|s| (f, s)));
         }
+    }
+    if ptex.is_empty() {
+        return Vec::new();
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     (0..n)
@@ -186,13 +223,25 @@ pub fn near_irregular_locations(
     margin: f64,
     seed: u64,
 ) -> Vec<SurfaceLocation> {
+    near_irregular_locations_with(mesh, &SchemeOptions::default(), per_corner, margin, seed)
+}
+
+/// [`near_irregular_locations`] under `scheme` (holes skipped).
+pub fn near_irregular_locations_with(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    per_corner: usize,
+    margin: f64,
+    seed: u64,
+) -> Vec<SurfaceLocation> {
     let irregular: Vec<bool> = mesh
         .vertices()
-        .map(|v| is_irregular_vertex(mesh, v))
+        .map(|v| is_irregular_vertex_with(mesh, scheme, v))
         .collect();
+    let holes = scheme.effective_holes(mesh);
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut out = Vec::new();
-    for face in mesh.faces() {
+    for face in mesh.faces().filter(|f| !holes[f.idx()]) {
         let subs = if mesh.face_size(face) == 4 {
             1
         } else {
@@ -230,8 +279,22 @@ pub fn compare(
     locations: &[SurfaceLocation],
     margin: f64,
 ) -> Result<DiffReport> {
+    compare_with(mesh, &SchemeOptions::default(), a, b, locations, margin)
+}
+
+/// [`compare`] of two evaluators built with `scheme`: vertices whose faces
+/// are all holes have no surface and are not compared.
+pub fn compare_with(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    a: &dyn LimitEvaluator,
+    b: &dyn LimitEvaluator,
+    locations: &[SurfaceLocation],
+    margin: f64,
+) -> Result<DiffReport> {
     let diag = mesh.bbox_diagonal().max(f64::MIN_POSITIVE);
-    let known = known_differences(mesh);
+    let known = known_differences_with(mesh, scheme);
+    let holes = scheme.effective_holes(mesh);
     // 0: no known difference, 1: normal only, 2: position and normal.
     let mut is_known = vec![0u8; mesh.num_vertices()];
     for k in &known {
@@ -239,6 +302,7 @@ pub fn compare(
     }
     let mut report = DiffReport {
         backends: [a.name().to_string(), b.name().to_string()],
+        scheme: scheme.clone(),
         bbox_diagonal: diag,
         known_differences: known,
         margin,
@@ -247,10 +311,13 @@ pub fn compare(
     let p = mesh.positions();
     let (va, vb) = (a.vertex_limits(p)?, b.vertex_limits(p)?);
     for (i, (x, y)) in va.iter().zip(&vb).enumerate() {
+        if mesh.vertex_faces(VertexId(i as u32)).all(|f| holes[f.idx()]) {
+            continue;
+        }
         let dp = (x.position - y.position).length() / diag;
         // On an infinitely sharp crease or corner the normal jumps: each
         // evaluator picks one side, so there is nothing to compare.
-        let dn = if normal_is_defined(mesh, VertexId(i as u32)) {
+        let dn = if normal_is_defined_with(mesh, scheme, VertexId(i as u32)) {
             angle_between(x.normal(), y.normal())
         } else {
             0.0
@@ -267,7 +334,7 @@ pub fn compare(
     }
     let irregular: Vec<bool> = mesh
         .vertices()
-        .map(|v| is_irregular_vertex(mesh, v))
+        .map(|v| is_irregular_vertex_with(mesh, scheme, v))
         .collect();
     let (la, lb): (Vec<LimitPoint>, Vec<LimitPoint>) =
         (a.evaluate(p, locations)?, b.evaluate(p, locations)?);
@@ -300,6 +367,7 @@ impl std::fmt::Display for DiffReport {
             "{} vs {} (deviations relative to the bbox diagonal {:.6e}; normals in rad)",
             self.backends[0], self.backends[1], self.bbox_diagonal
         )?;
+        writeln!(f, "  scheme: {}", self.scheme)?;
         let line = |f: &mut std::fmt::Formatter<'_>, name: &str, w: &Worst| {
             if w.count == 0 {
                 return writeln!(f, "  {name:<28} (none)");

@@ -38,7 +38,10 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::ffi::osd::bridge;
 use crate::mesh::{ControlMesh, INFINITELY_SHARP};
-use crate::subdiv::{EvalOptions, LimitEvaluator, LimitPoint, LimitStencils, SurfaceLocation};
+use crate::subdiv::{
+    checked_holes, BoundaryInterpolation, CreaseMethod, EvalOptions, FVarLinear, LimitEvaluator,
+    LimitPoint, LimitStencils, SchemeOptions, SurfaceLocation, TriangleSubdivision,
+};
 use crate::DVec3;
 
 /// Locations per parallel chunk of [`LimitEvaluator::evaluate`]: large enough
@@ -47,6 +50,34 @@ const EVAL_CHUNK: usize = 2048;
 /// Minimum locations per chunk of [`LimitEvaluator::stencils`]: every factory
 /// call rebuilds a `PatchMap`, so chunks must be large.
 const STENCIL_CHUNK_MIN: usize = 4096;
+
+/// The bridge's form of the scheme options (OpenSubdiv's enum order).
+pub(crate) fn scheme_desc(s: &SchemeOptions) -> bridge::SchemeDesc {
+    bridge::SchemeDesc {
+        boundary: match s.boundary {
+            BoundaryInterpolation::None => 0,
+            BoundaryInterpolation::EdgeOnly => 1,
+            BoundaryInterpolation::EdgeAndCorner => 2,
+        },
+        fvar: match s.fvar {
+            FVarLinear::None => 0,
+            FVarLinear::CornersOnly => 1,
+            FVarLinear::CornersPlus1 => 2,
+            FVarLinear::CornersPlus2 => 3,
+            FVarLinear::Boundaries => 4,
+            FVarLinear::All => 5,
+        },
+        creasing: match s.crease_method {
+            CreaseMethod::Uniform => 0,
+            CreaseMethod::Chaikin => 1,
+        },
+        triangles: match s.triangles {
+            TriangleSubdivision::Catmark => 0,
+            TriangleSubdivision::Smooth => 1,
+        },
+        holes: s.holes.iter().map(|f| f.0).collect(),
+    }
+}
 
 fn backend(e: cxx::Exception) -> Error {
     Error::backend("OpenSubdiv", e.what())
@@ -107,6 +138,7 @@ impl OsdEvaluator {
             &crease_weights,
             &corner_vertices,
             &corner_weights,
+            &scheme_desc(&options.scheme),
             level as u32,
         )
         .map_err(backend)?;
@@ -122,7 +154,13 @@ impl OsdEvaluator {
             ));
         }
 
-        let semi_sharp = |s: f64| s > 1.0 && s < INFINITELY_SHARP;
+        // Under Chaikin creasing a semi-sharp edge of sharpness <= 1 can
+        // still be sharp at level 1 (its neighbours' average is added), so
+        // every semi-sharp feature takes the patch route there.
+        let chaikin = options.scheme.crease_method == CreaseMethod::Chaikin;
+        let min_sharp = if chaikin { 0.0 } else { 1.0 };
+        let semi_sharp = |s: f64| s > min_sharp && s < INFINITELY_SHARP;
+        let holes = checked_holes(mesh, &options.scheme)?;
         let patch_route_vertices = mesh
             .vertices()
             .filter(|&v| {
@@ -132,8 +170,11 @@ impl OsdEvaluator {
                         .any(|h| semi_sharp(mesh.edge_sharpness(h.edge())))
             })
             .filter_map(|v| {
-                // Any face at v: the corner of its ptex face at v.
-                let h = mesh.outgoing(v).find(|&h| mesh.face_of(h).is_some())?;
+                // Any face at v with a surface: the corner of its ptex face
+                // at v (a vertex with only holes around keeps Limit's value).
+                let h = mesh
+                    .outgoing(v)
+                    .find(|&h| mesh.face_of(h).is_some_and(|f| !holes[f.idx()]))?;
                 let f = mesh.face_of(h)?;
                 let k = mesh.face_halfedges(f).position(|g| g == h)?;
                 let loc = if mesh.face_size(f) == 4 {
@@ -404,6 +445,18 @@ pub fn osd_refine_uniform(
     levels: u32,
     limits: bool,
 ) -> Result<OsdUniformRefinement> {
+    osd_refine_uniform_with(mesh, scheme, &SchemeOptions::default(), levels, limits)
+}
+
+/// [`osd_refine_uniform`] with explicit scheme options (holes included:
+/// OpenSubdiv still refines hole faces uniformly).
+pub fn osd_refine_uniform_with(
+    mesh: &ControlMesh,
+    scheme: OsdScheme,
+    options: &SchemeOptions,
+    levels: u32,
+    limits: bool,
+) -> Result<OsdUniformRefinement> {
     if !(1..=10).contains(&levels) {
         return Err(Error::InvalidArgument(format!(
             "OpenSubdiv uniform refinement: {levels} levels requested, 1..=10 supported"
@@ -437,6 +490,7 @@ pub fn osd_refine_uniform(
         &crease_weights,
         &corner_vertices,
         &corner_weights,
+        &scheme_desc(options),
         &flat,
         levels,
         limits,
@@ -501,7 +555,17 @@ mod tests {
     /// bridge is called directly: a descriptor without vertices).
     #[test]
     fn opensubdiv_refusal_is_a_backend_error() {
-        let e = bridge::new_osd_topology(0, &[], &[], &[], &[], &[], &[], 4)
+        let e = bridge::new_osd_topology(
+            0,
+            &[],
+            &[],
+            &[],
+            &[],
+            &[],
+            &[],
+            &scheme_desc(&SchemeOptions::default()),
+            4,
+        )
             .err()
             .expect("OpenSubdiv must refuse an empty descriptor");
         let msg = e.what().to_string();
@@ -512,7 +576,17 @@ mod tests {
 
     #[test]
     fn descriptor_is_checked_before_opensubdiv_sees_it() {
-        let e = bridge::new_osd_topology(3, &[3], &[0, 1, 7], &[], &[], &[], &[], 4)
+        let e = bridge::new_osd_topology(
+            3,
+            &[3],
+            &[0, 1, 7],
+            &[],
+            &[],
+            &[],
+            &[],
+            &scheme_desc(&SchemeOptions::default()),
+            4,
+        )
             .err()
             .expect("out-of-range index must be refused");
         assert!(e.what().contains("out of range"), "{}", e.what());
