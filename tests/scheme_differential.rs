@@ -136,7 +136,7 @@ fn uniform_refinement_matches_opensubdiv_under_every_option() {
 #[test]
 fn limit_evaluators_agree_under_every_option() {
     let mut failures = Vec::new();
-    let mut worst: Vec<(String, [f64; 3])> = Vec::new();
+    let mut worst: Vec<(String, [f64; 4])> = Vec::new();
     for (name, m) in meshes() {
         for (oname, opts) in option_sets(&m) {
             let eo = EvalOptions::default().with_scheme(opts.clone());
@@ -146,26 +146,32 @@ fn limit_evaluators_agree_under_every_option() {
             locs.extend(near_irregular_locations_with(&m, &opts, 2, 0.01, 5));
             let r = compare_with(&m, &opts, osd.as_ref(), rust.as_ref(), &locs, 0.01)
                 .unwrap_or_else(|e| panic!("{name}/{oname}: {e}"));
-            let w = [r.vertices.position, r.regular.position, r.regular.normal];
+            let w = [
+                r.vertices.position,
+                r.regular.position,
+                r.regular.normal,
+                r.vertices.normal,
+            ];
             match worst.iter_mut().find(|x| x.0 == oname) {
                 Some(x) => {
-                    for k in 0..3 {
+                    for k in 0..4 {
                         x.1[k] = x.1[k].max(w[k]);
                     }
                 }
                 None => worst.push((oname.to_string(), w)),
             }
             // Normals: 1e-6 rad away from irregular corners, where a
-            // position agreement of 1e-9 leaves derivatives good to ~1e-7.
-            if !(w[0] <= 1e-9 && w[1] <= 1e-9 && w[2] <= 1e-6) {
+            // position agreement of 1e-9 leaves derivatives good to ~1e-7;
+            // at control vertices (closed-form masks in both) too.
+            if !(w[0] <= 1e-9 && w[1] <= 1e-9 && w[2] <= 1e-6 && w[3] <= 1e-6) {
                 failures.push(format!("{name}/{oname}: {r}"));
             }
         }
     }
     for (o, w) in &worst {
         println!(
-            "limit, {o}: vertices {:.2e}, locations {:.2e}, normals {:.2e} rad",
-            w[0], w[1], w[2]
+            "limit, {o}: vertices {:.2e} (normals {:.2e} rad), locations {:.2e} (normals {:.2e} rad)",
+            w[0], w[3], w[1], w[2]
         );
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
@@ -234,4 +240,84 @@ fn every_option_changes_the_surface() {
         }
     }
     let _ = INFINITELY_SHARP;
+}
+
+/// `subdfit diff-limit` on every mesh × option set of the suite, written as
+/// shape files with their tags: exit 0 on all of them (OpenSubdiv's known
+/// approximations are reported, not failures), and exit 1 once one limit
+/// mask of the Rust evaluator is broken on purpose.
+#[test]
+fn diff_limit_passes_the_suite_and_catches_a_broken_mask() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |path: &std::path::Path, extra: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"))
+            .arg("diff-limit")
+            .arg(path)
+            .args(["--samples", "1000"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let mut failures = Vec::new();
+    for (name, m) in meshes() {
+        for (oname, opts) in option_sets(&m) {
+            let path = dir.path().join(format!("{name}-{oname}.obj"));
+            subdfit::io::write_control_file(&path, &m, &opts).unwrap();
+            let back = subdfit::io::read_control_file(&path).unwrap();
+            assert_eq!(back.scheme, opts, "{name}/{oname}: tags do not round-trip");
+            let o = run(&path, &[]);
+            if o.status.code() != Some(0) {
+                failures.push(format!(
+                    "{name}/{oname}: exit {:?}\n{}{}",
+                    o.status.code(),
+                    String::from_utf8_lossy(&o.stdout),
+                    String::from_utf8_lossy(&o.stderr)
+                ));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+
+    // A broken mask: vertex 0's own weight + 1e-3 in its limit mask.
+    let path = dir.path().join("broken.obj");
+    subdfit::io::write_control_obj(&path, &fixtures::polar_sphere(5, 2)).unwrap();
+    let o = run(&path, &["--break-mask", "0"]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(o.status.code(), Some(1), "{out}");
+    assert!(out.contains("FAIL: control-vertex position"), "{out}");
+    assert_eq!(run(&path, &[]).status.code(), Some(0));
+}
+
+/// At a boundary corner with one face under "edge only", the exact tangent
+/// plane is the osculating plane of the boundary curve (a defective
+/// eigenvalue, see `catmark::crease_limit`): both evaluators give it.
+#[test]
+fn edge_only_corner_normal_is_the_osculating_plane() {
+    let opts = EvalOptions::default()
+        .with_scheme(SchemeOptions::default().with_boundary(BoundaryInterpolation::EdgeOnly));
+    for (name, m) in [("grid", fixtures::grid(5, 4, 6)), ("tri", open_triangles())] {
+        let quads = m.is_all_quads();
+        for backend in [Backend::Rust, Backend::Osd] {
+            let e = make_evaluator(backend, &m, &opts).unwrap();
+            let lim = e.vertex_limits(m.positions()).unwrap();
+            let mut seen = 0;
+            for v in m.vertices() {
+                if !(m.is_boundary_vertex(v) && m.valence(v) == 2) || !quads {
+                    continue;
+                }
+                let f = m.vertex_faces(v).next().unwrap();
+                let fv: Vec<VertexId> = m.face_vertices(f).collect();
+                let k = fv.iter().position(|&x| x == v).unwrap();
+                let (p, a, b) = (m.position(v), m.position(fv[(k + 1) % 4]), m.position(fv[(k + 3) % 4]));
+                let osc = (a - b).cross(2.0 * p - a - b).normalize();
+                let n = lim[v.idx()].normal();
+                let d = subdfit::subdiv::diff::angle_between(osc, n).min(
+                    subdfit::subdiv::diff::angle_between(-osc, n),
+                );
+                assert!(d <= 1e-12, "{name} {backend:?} vertex {}: {d:.3e} rad", v.0);
+                seen += 1;
+            }
+            assert!(!quads || seen == 4, "{name}: {seen} corners");
+        }
+    }
 }

@@ -34,7 +34,9 @@ pub use ply::{parse_ply, read_ply};
 pub use stl::{parse_stl, read_stl};
 
 pub use usd::{usda_text_with, write_usda, write_usda_with, UsdOptions};
-pub use write::{write_atomically, write_control_obj, write_obj, write_ply};
+pub use write::{
+    scheme_tags, write_atomically, write_control_file, write_control_obj, write_obj, write_ply,
+};
 
 /// Which implementation parses a file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -79,6 +79,30 @@ pub(crate) fn scheme_desc(s: &SchemeOptions) -> bridge::SchemeDesc {
     }
 }
 
+/// Per vertex: whether [`OsdEvaluator`]'s `vertex_limits` evaluates it on
+/// the patch table rather than with `PrimvarRefiner::Limit` — where a
+/// semi-sharp feature at it is still sharp at level 1 (sharpness > 1; under
+/// Chaikin creasing any semi-sharp edge, whose child adds its neighbours'
+/// average). Where the vertex is extraordinary once the features run out,
+/// that is a Gregory end cap, whose tangent plane only approximates the
+/// limit (see `diff::DiffReport::approximations`).
+pub fn patch_evaluated_vertices(mesh: &ControlMesh, scheme: &SchemeOptions) -> Vec<bool> {
+    let min = if scheme.crease_method == CreaseMethod::Chaikin {
+        0.0
+    } else {
+        1.0
+    };
+    let semi_sharp = |s: f64| s > min && s < INFINITELY_SHARP;
+    mesh.vertices()
+        .map(|v| {
+            semi_sharp(mesh.vertex_sharpness(v))
+                || mesh
+                    .outgoing(v)
+                    .any(|h| semi_sharp(mesh.edge_sharpness(h.edge())))
+        })
+        .collect()
+}
+
 fn backend(e: cxx::Exception) -> Error {
     Error::backend("OpenSubdiv", e.what())
 }
@@ -154,21 +178,11 @@ impl OsdEvaluator {
             ));
         }
 
-        // Under Chaikin creasing a semi-sharp edge of sharpness <= 1 can
-        // still be sharp at level 1 (its neighbours' average is added), so
-        // every semi-sharp feature takes the patch route there.
-        let chaikin = options.scheme.crease_method == CreaseMethod::Chaikin;
-        let min_sharp = if chaikin { 0.0 } else { 1.0 };
-        let semi_sharp = |s: f64| s > min_sharp && s < INFINITELY_SHARP;
         let holes = checked_holes(mesh, &options.scheme)?;
+        let routed = patch_evaluated_vertices(mesh, &options.scheme);
         let patch_route_vertices = mesh
             .vertices()
-            .filter(|&v| {
-                semi_sharp(mesh.vertex_sharpness(v))
-                    || mesh
-                        .outgoing(v)
-                        .any(|h| semi_sharp(mesh.edge_sharpness(h.edge())))
-            })
+            .filter(|&v| routed[v.idx()])
             .filter_map(|v| {
                 // Any face at v with a surface: the corner of its ptex face
                 // at v (a vertex with only holes around keeps Limit's value).

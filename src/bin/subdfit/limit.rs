@@ -190,6 +190,10 @@ pub struct DiffArgs {
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
+    /// Test hook: break the Rust evaluator's limit mask of this control
+    /// vertex (its own weight + 1e-3), to check that a defect is caught.
+    #[arg(long, hide = true)]
+    break_mask: Option<u32>,
 }
 
 fn read_locations(path: &Path) -> Result<Vec<SurfaceLocation>> {
@@ -302,7 +306,11 @@ pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
         .with_isolation_level(a.isolation)
         .with_scheme(scheme.clone());
     let osd = make_evaluator(Backend::Osd, &mesh, &opts)?;
-    let rust = make_evaluator(Backend::Rust, &mesh, &opts)?;
+    let rust_opts = match a.break_mask {
+        Some(v) => opts.clone().with_broken_mask(v, 1e-3),
+        None => opts,
+    };
+    let rust = make_evaluator(Backend::Rust, &mesh, &rust_opts)?;
     let mut locs = diff::random_locations_with(&mesh, &scheme, a.samples, a.seed);
     locs.extend(diff::near_irregular_locations_with(
         &mesh, &scheme, 8, a.margin, a.seed,

@@ -872,7 +872,18 @@ fn crease_limit<P: Pt>(t: &Topo<P>, adj: &Adj, c: u32, e: &[u32], f: &[u32]) -> 
     // Across: on the side between e_0 and e_k (k faces). For k = 2
     // the regular boundary B-spline derivative; otherwise the exact
     // eigenvector.
-    let t2 = if k == 2 {
+    let t2 = if k == 1 {
+        // One face between the two sharp edges (a boundary corner without
+        // corner sharpening, "edge only"): on the symmetric modes, 1/4 is
+        // a defective eigenvalue (the crease curve's second difference and
+        // the face point share it in a Jordan block), whose only left
+        // eigenvector is `2v - e_0 - e_1`. The face point's share of the
+        // surface decays faster by a factor of the level, so the tangent
+        // plane is the osculating plane of the crease curve; a power
+        // iteration would converge like 1/iterations (9e-5 rad off after
+        // 4000). Sdc's crease limit tangent gives the same plane.
+        comb(&[(0.5, pt(e[0])), (0.5, pt(e[1])), (-1.0, v)])
+    } else if k == 2 {
         comb(&[
             (1.0 / 6.0, pt(f[0])),
             (4.0 / 6.0, pt(e[1])),
