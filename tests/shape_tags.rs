@@ -41,23 +41,35 @@ fn every_known_tag_is_honoured() {
         assert_eq!(s.boundary, want);
     }
     use FVarLinear as F;
-    let fvars = [F::None, F::CornersOnly, F::CornersPlus1, F::CornersPlus2, F::Boundaries, F::All];
+    let fvars = [
+        F::None,
+        F::CornersOnly,
+        F::CornersPlus1,
+        F::CornersPlus2,
+        F::Boundaries,
+        F::All,
+    ];
     for (v, want) in fvars.into_iter().enumerate() {
         let s = scheme(&format!("t facevaryinginterpolateboundary 1/0/0 {v}\n"));
         assert_eq!(s.fvar, want);
     }
     // Propagate corners: Hbr's edge-and-corner + propagate = corners plus 2,
     // in either tag order.
-    let s = scheme("t facevaryingpropagatecorners 1/0/0 1\nt facevaryinginterpolateboundary 1/0/0 2\n");
+    let s =
+        scheme("t facevaryingpropagatecorners 1/0/0 1\nt facevaryinginterpolateboundary 1/0/0 2\n");
     assert_eq!(s.fvar, F::CornersPlus2);
-    let s = scheme("t facevaryinginterpolateboundary 1/0/0 2\nt facevaryingpropagatecorners 1/0/0 0\n");
+    let s =
+        scheme("t facevaryinginterpolateboundary 1/0/0 2\nt facevaryingpropagatecorners 1/0/0 0\n");
     assert_eq!(s.fvar, F::CornersPlus1);
     for (v, want) in [
         ("normal", CreaseMethod::Uniform),
         ("uniform", CreaseMethod::Uniform),
         ("chaikin", CreaseMethod::Chaikin),
     ] {
-        assert_eq!(scheme(&format!("t creasemethod 0/0/1 {v}\n")).crease_method, want);
+        assert_eq!(
+            scheme(&format!("t creasemethod 0/0/1 {v}\n")).crease_method,
+            want
+        );
     }
     use TriangleSubdivision as T;
     for (tag, want) in [
@@ -66,11 +78,17 @@ fn every_known_tag_is_honoured() {
         ("1/0/0 2", T::Smooth),
         ("1/0/0 0", T::Catmark),
     ] {
-        assert_eq!(scheme(&format!("t smoothtriangles {tag}\n")).triangles, want);
+        assert_eq!(
+            scheme(&format!("t smoothtriangles {tag}\n")).triangles,
+            want
+        );
     }
     let s = scheme("t hole 2/0/0 2 0\nt hole 1/0/0 2\n");
     assert_eq!(s.holes, vec![FaceId(0), FaceId(2)]);
-    let o = parse(&strip("t crease 3/1/0 1 2 3 2.5\nt corner 2/2/0 0 7 1.5 10\n")).unwrap();
+    let o = parse(&strip(
+        "t crease 3/1/0 1 2 3 2.5\nt corner 2/2/0 0 7 1.5 10\n",
+    ))
+    .unwrap();
     assert_eq!(o.creases, vec![(1, 2, 2.5), (2, 3, 2.5)]);
     assert_eq!(o.corners, vec![(0, 1.5), (7, 10.0)]);
     // No tag: the crate's defaults.
@@ -80,13 +98,25 @@ fn every_known_tag_is_honoured() {
 #[test]
 fn unknown_and_malformed_tags_are_errors_naming_the_line() {
     let bad = [
-        ("t vertexedit 3/2/1 0 1 2 0.5 0.5 add", "unknown tag `vertexedit`"),
+        (
+            "t vertexedit 3/2/1 0 1 2 0.5 0.5 add",
+            "unknown tag `vertexedit`",
+        ),
         ("t faceedit 1/0/0 0", "unknown tag `faceedit`"),
-        ("t interpolateboundry 1/0/0 1", "unknown tag `interpolateboundry`"),
-        ("t interpolateboundary 1/0/0 3", "interpolateboundary value 3"),
+        (
+            "t interpolateboundry 1/0/0 1",
+            "unknown tag `interpolateboundry`",
+        ),
+        (
+            "t interpolateboundary 1/0/0 3",
+            "interpolateboundary value 3",
+        ),
         ("t interpolateboundary 2/0/0 1 1", "1/0/0 arguments"),
         ("t facevaryinginterpolateboundary 1/0/0 6", "value 6"),
-        ("t facevaryingpropagatecorners 1/0/0 1", "facevaryingpropagatecorners 1 needs"),
+        (
+            "t facevaryingpropagatecorners 1/0/0 1",
+            "facevaryingpropagatecorners 1 needs",
+        ),
         ("t creasemethod 0/0/1 sharp", "creasemethod `sharp`"),
         ("t smoothtriangles 1/0/0 1", "k_Old"),
         ("t smoothtriangles 0/0/1 loop", "smoothtriangles `loop`"),
@@ -165,7 +195,14 @@ fn flags_override_the_file_and_the_report_says_so() {
     assert_eq!(j["scheme"]["triangles"], "smooth");
     assert_eq!(j["scheme"]["holes"], serde_json::json!([0, 2]));
     let out = dir.path().join("l.csv");
-    let o = subdfit(&["limit", ps, "-o", out.to_str().unwrap(), "--fvar", "boundaries"]);
+    let o = subdfit(&[
+        "limit",
+        ps,
+        "-o",
+        out.to_str().unwrap(),
+        "--fvar",
+        "boundaries",
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(

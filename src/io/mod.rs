@@ -152,7 +152,12 @@ pub fn read_control_file(path: &Path) -> Result<ControlFile> {
             let o = read_obj(path)?;
             (o.soup, o.creases, o.corners, o.scheme)
         }
-        _ => (read_soup(path)?, Vec::new(), Vec::new(), SchemeOptions::default()),
+        _ => (
+            read_soup(path)?,
+            Vec::new(),
+            Vec::new(),
+            SchemeOptions::default(),
+        ),
     };
     let in_file = |e: Error| match e {
         Error::Topology { element, msg } => Error::invalid_mesh(path, element, msg),

@@ -272,7 +272,8 @@ impl ObjState<'_> {
         }
         self.tag_strings.clear();
         for t in toks {
-            self.tag_strings.push(String::from_utf8_lossy(t).into_owned());
+            self.tag_strings
+                .push(String::from_utf8_lossy(t).into_owned());
         }
         if self.tag_strings.len() != ns {
             return Err(self.err(
@@ -323,7 +324,9 @@ impl ObjState<'_> {
                     v => {
                         return Err(self.err(
                             lineno,
-                            format!("creasemethod `{v}`: expected `normal` (or `uniform`) or `chaikin`"),
+                            format!(
+                                "creasemethod `{v}`: expected `normal` (or `uniform`) or `chaikin`"
+                            ),
                         ))
                     }
                 };
@@ -348,53 +351,66 @@ impl ObjState<'_> {
 
     /// The single integer of a `1/0/0` tag.
     fn one_int(&self, lineno: usize, what: &str) -> Result<i64> {
-        match (self.tag_ints.as_slice(), self.tag_floats.len(), self.tag_strings.len()) {
+        match (
+            self.tag_ints.as_slice(),
+            self.tag_floats.len(),
+            self.tag_strings.len(),
+        ) {
             (&[i], 0, 0) => Ok(i),
             (ints, nf, ns) => Err(self.err(
                 lineno,
-                format!("{what} tag takes 1/0/0 arguments, has {}/{nf}/{ns}", ints.len()),
+                format!(
+                    "{what} tag takes 1/0/0 arguments, has {}/{nf}/{ns}",
+                    ints.len()
+                ),
             )),
         }
     }
 
     /// The single string of a `0/0/1` tag.
     fn one_string(&self, lineno: usize, what: &str) -> Result<&str> {
-        match (self.tag_ints.len(), self.tag_floats.len(), self.tag_strings.as_slice()) {
+        match (
+            self.tag_ints.len(),
+            self.tag_floats.len(),
+            self.tag_strings.as_slice(),
+        ) {
             (0, 0, [s]) => Ok(s.as_str()),
             (ni, nf, strings) => Err(self.err(
                 lineno,
-                format!("{what} tag takes 0/0/1 arguments, has {ni}/{nf}/{}", strings.len()),
+                format!(
+                    "{what} tag takes 0/0/1 arguments, has {ni}/{nf}/{}",
+                    strings.len()
+                ),
             )),
         }
     }
 
     fn smooth_triangles_tag(&mut self, lineno: usize) -> Result<()> {
         let what = "smoothtriangles";
-        self.out.scheme.triangles = if self.tag_strings.is_empty() {
-            match self.one_int(lineno, what)? {
-                0 => TriangleSubdivision::Catmark,
-                2 => TriangleSubdivision::Smooth,
-                1 => {
-                    return Err(self.err(
+        self.out.scheme.triangles =
+            if self.tag_strings.is_empty() {
+                match self.one_int(lineno, what)? {
+                    0 => TriangleSubdivision::Catmark,
+                    2 => TriangleSubdivision::Smooth,
+                    1 => return Err(self.err(
                         lineno,
                         "smoothtriangles 1 is Hbr's old triangle rule (k_Old), which OpenSubdiv 3 \
                          does not have; use 2 or `smooth` for TRI_SUB_SMOOTH",
-                    ))
+                    )),
+                    i => return Err(self.bad_value(lineno, what, i, "0 (catmark) or 2 (smooth)")),
                 }
-                i => return Err(self.bad_value(lineno, what, i, "0 (catmark) or 2 (smooth)")),
-            }
-        } else {
-            match self.one_string(lineno, what)? {
-                "catmark" => TriangleSubdivision::Catmark,
-                "smooth" => TriangleSubdivision::Smooth,
-                v => {
-                    return Err(self.err(
-                        lineno,
-                        format!("smoothtriangles `{v}`: expected `catmark` or `smooth`"),
-                    ))
+            } else {
+                match self.one_string(lineno, what)? {
+                    "catmark" => TriangleSubdivision::Catmark,
+                    "smooth" => TriangleSubdivision::Smooth,
+                    v => {
+                        return Err(self.err(
+                            lineno,
+                            format!("smoothtriangles `{v}`: expected `catmark` or `smooth`"),
+                        ))
+                    }
                 }
-            }
-        };
+            };
         Ok(())
     }
 
@@ -414,7 +430,10 @@ impl ObjState<'_> {
         for k in 0..self.tag_ints.len() {
             let i = self.tag_ints[k];
             let f = u32::try_from(i).map_err(|_| {
-                self.err(lineno, format!("hole face index {i} is negative or too large"))
+                self.err(
+                    lineno,
+                    format!("hole face index {i} is negative or too large"),
+                )
             })?;
             self.out.scheme.holes.push(FaceId(f));
             self.hole_lines.push(lineno as u32);
@@ -496,7 +515,10 @@ impl ObjState<'_> {
                 return Err(Error::invalid_mesh(
                     self.path,
                     format!("hole tag (line {})", self.hole_lines[k]),
-                    format!("face {} out of range (the file has {nf} faces; tags are 0-based)", f.0),
+                    format!(
+                        "face {} out of range (the file has {nf} faces; tags are 0-based)",
+                        f.0
+                    ),
                 ));
             }
         }

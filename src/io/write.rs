@@ -206,8 +206,8 @@ pub fn write_control_file(
 
 /// The shape-file tags stating `scheme` (all four options, and the holes).
 pub fn scheme_tags(scheme: &crate::mesh::SchemeOptions) -> String {
-    use crate::mesh::{BoundaryInterpolation as B, CreaseMethod as C, FVarLinear as F};
     use crate::mesh::TriangleSubdivision as T;
+    use crate::mesh::{BoundaryInterpolation as B, CreaseMethod as C, FVarLinear as F};
     let b = match scheme.boundary {
         B::None => 0,
         B::EdgeAndCorner => 1,

@@ -14,7 +14,9 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use crate::error::Result;
-use crate::mesh::{BoundaryInterpolation, ControlMesh, FaceId, SchemeOptions, VertexId, INFINITELY_SHARP};
+use crate::mesh::{
+    BoundaryInterpolation, ControlMesh, FaceId, SchemeOptions, VertexId, INFINITELY_SHARP,
+};
 use crate::subdiv::{
     known_differences_with, KnownDifference, LimitEvaluator, LimitPoint, SurfaceLocation,
 };
@@ -392,7 +394,10 @@ pub fn compare_with(
     let p = mesh.positions();
     let (va, vb) = (a.vertex_limits(p)?, b.vertex_limits(p)?);
     for (i, (x, y)) in va.iter().zip(&vb).enumerate() {
-        if mesh.vertex_faces(VertexId(i as u32)).all(|f| holes[f.idx()]) {
+        if mesh
+            .vertex_faces(VertexId(i as u32))
+            .all(|f| holes[f.idx()])
+        {
             continue;
         }
         let dp = (x.position - y.position).length() / diag;

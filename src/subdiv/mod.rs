@@ -3,8 +3,13 @@
 //! (OpenSubdiv Far, the reference of every DCC tool).
 //!
 //! Conventions, fixed once here:
-//! - Boundary interpolation "edge and corner" (USD's default): boundary
-//!   edges are infinitely sharp creases, valence-2 boundary vertices corners.
+//! - The subdivision rules are OpenSubdiv's `Sdc::Options` of
+//!   [`EvalOptions::scheme`] ([`SchemeOptions`]), honoured by both
+//!   evaluators: boundary interpolation (default "edge and corner", USD's:
+//!   boundary edges are infinitely sharp creases, valence-2 boundary
+//!   vertices corners), creasing method, triangle rule, holes (faces
+//!   without limit surface; evaluating there is an error). Sharpness is
+//!   OpenSubdiv's 32-bit float (see `catmark::topo`).
 //! - A surface location is `(face, sub, u, v)`. On a quad `(v0 v1 v2 v3)` in
 //!   file order, `(0,0)` is at v0, `(1,0)` at v1, `(1,1)` at v2, `(0,1)` at v3
 //!   and `sub` is 0. A non-quad face with n corners is split as Catmull-Clark

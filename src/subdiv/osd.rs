@@ -1,8 +1,8 @@
 //! OpenSubdiv (Far) limit evaluation through the cxx bridge.
 //!
 //! The topology is handed to OpenSubdiv once, as the plain arrays of
-//! `Far::TopologyDescriptor`, with the options of the module doc (Catmark,
-//! boundary "edge and corner", uniform creasing, Catmark triangle rule). It
+//! `Far::TopologyDescriptor` (holes as its `holeIndices`), with the Catmark
+//! scheme and the `Sdc::Options` of [`EvalOptions::scheme`]. It
 //! is refined feature-adaptively to [`EvalOptions::isolation_level`] and
 //! turned into a double-precision `Far::PatchTable` (Gregory basis end caps)
 //! with a `Far::PatchMap`; all of that lives in one immutable C++ object.
@@ -580,8 +580,8 @@ mod tests {
             &scheme_desc(&SchemeOptions::default()),
             4,
         )
-            .err()
-            .expect("OpenSubdiv must refuse an empty descriptor");
+        .err()
+        .expect("OpenSubdiv must refuse an empty descriptor");
         let msg = e.what().to_string();
         assert!(msg.contains("TopologyRefinerFactory"), "{msg}");
         // The message came from OpenSubdiv's error callback, not our default.
@@ -601,8 +601,8 @@ mod tests {
             &scheme_desc(&SchemeOptions::default()),
             4,
         )
-            .err()
-            .expect("out-of-range index must be refused");
+        .err()
+        .expect("out-of-range index must be refused");
         assert!(e.what().contains("out of range"), "{}", e.what());
     }
 }

@@ -3,8 +3,8 @@
 //! limit evaluators, and the tessellator of later stages.
 
 use crate::error::{Error, Result};
-use crate::mesh::{ControlMesh, VertexId};
 use crate::mesh::SchemeOptions;
+use crate::mesh::{ControlMesh, VertexId};
 use crate::subdiv::catmark::topo::{topo_from_mesh, Rules, Topo};
 use crate::DVec3;
 
@@ -24,9 +24,8 @@ pub fn refine_uniform(mesh: &ControlMesh, levels: u32) -> Result<ControlMesh> {
 
 /// [`refine_uniform`] under the refinement rules of `scheme` (boundary
 /// interpolation, creasing method, triangle rule; holes do not change the
-/// refinement, and the refined mesh carries no hole tags: the caller knows
-/// that child faces `4^l`-fold of a hole are holes). Sharpness is rounded
-/// to f32 like OpenSubdiv's (see `catmark::topo`).
+/// refinement, and the refined mesh carries no hole tags). Sharpness is
+/// rounded to f32 like OpenSubdiv's (see `catmark::topo`).
 pub fn refine_uniform_with(
     mesh: &ControlMesh,
     scheme: &SchemeOptions,

@@ -123,7 +123,11 @@ impl SchemeArgs {
 fn read_with_scheme(path: &Path, args: &SchemeArgs) -> Result<(ControlMesh, SchemeOptions)> {
     let file = subdfit::io::read_control_file(path).context("control mesh")?;
     let scheme = args.apply(file.scheme);
-    if let Some(f) = scheme.holes.iter().find(|f| f.idx() >= file.mesh.num_faces()) {
+    if let Some(f) = scheme
+        .holes
+        .iter()
+        .find(|f| f.idx() >= file.mesh.num_faces())
+    {
         bail!(
             "{}: hole face {} out of range (the mesh has {} faces)",
             path.display(),
@@ -182,9 +186,10 @@ pub struct DiffArgs {
     /// that shrinks as `--isolation` grows.
     #[arg(long, default_value_t = 0.01)]
     margin: f64,
-    /// Normal deviation allowed at control vertices, radians: where a
-    /// vertex is extraordinary once its semi-sharp features run out,
-    /// OpenSubdiv evaluates it on a Gregory end cap (~2e-6 rad at level 10).
+    /// Normal deviation allowed at control vertices, radians. Vertices
+    /// OpenSubdiv evaluates on its patches (semi-sharp features still sharp
+    /// at level 1: a Gregory end cap where the vertex is extraordinary once
+    /// they run out) are reported apart with their size, not held to it.
     #[arg(long, default_value_t = 1e-5)]
     vertex_normal_tolerance: f64,
     /// Print the report as JSON.

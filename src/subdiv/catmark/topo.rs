@@ -574,7 +574,11 @@ impl<P: Pt> Topo<P> {
             for end in [a, b] {
                 let d = if self.rules.chaikin {
                     around.clear();
-                    around.extend(adj.vedges[end as usize].iter().map(|&x| self.edge_sharp(adj, x)));
+                    around.extend(
+                        adj.vedges[end as usize]
+                            .iter()
+                            .map(|&x| self.edge_sharp(adj, x)),
+                    );
                     child_edge_sharpness(self.rules, s, &around)
                 } else {
                     decrement(s)
