@@ -214,3 +214,34 @@ fn flags_override_the_file_and_the_report_says_so() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("hole face 9 out of range"));
 }
+
+/// `limit --at` on a hole: an error naming the face (exit 2), not a panic;
+/// off the hole it evaluates.
+#[test]
+fn limit_on_a_hole_is_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("h.obj");
+    std::fs::write(&p, strip("t hole 1/0/0 1\n")).unwrap();
+    let at = dir.path().join("at.csv");
+    let out = dir.path().join("o.csv");
+    for (face, ok) in [(1, false), (0, true)] {
+        std::fs::write(&at, format!("face,u,v\n{face},0.5,0.5\n")).unwrap();
+        let o = subdfit(&[
+            "limit",
+            p.to_str().unwrap(),
+            "--at",
+            at.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--backend",
+            "rust",
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        if ok {
+            assert!(o.status.success(), "{err}");
+        } else {
+            assert_eq!(o.status.code(), Some(2), "{err}");
+            assert!(err.contains("face 1 is a hole"), "{err}");
+        }
+    }
+}
