@@ -201,6 +201,10 @@ std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
   t->corner_weights_.assign(corner_weights.begin(), corner_weights.end());
   t->holes_ = hole_indices(scheme, face_sizes.size());
   t->sdc_options_ = sdc_options(scheme);
+  if (scheme.scheme_type != Sdc::SCHEME_BILINEAR && scheme.scheme_type != Sdc::SCHEME_CATMARK)
+    throw std::invalid_argument("scheme type " + std::to_string(scheme.scheme_type) +
+                                " is neither bilinear (0) nor Catmark (1)");
+  t->scheme_type_ = static_cast<Sdc::SchemeType>(scheme.scheme_type);
 
   std::lock_guard<std::mutex> lock(g_construction_mutex);
   ErrorScope errors;
@@ -259,7 +263,7 @@ Far::TopologyRefiner* OsdTopology::make_refiner() const {
   d.numHoles = static_cast<int>(holes_.size());
   d.holeIndices = holes_.data();
   using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
-  return Factory::Create(d, Factory::Options(Sdc::SCHEME_CATMARK, sdc_options_));
+  return Factory::Create(d, Factory::Options(scheme_type_, sdc_options_));
 }
 
 std::uint32_t OsdTopology::num_control_vertices() const { return static_cast<std::uint32_t>(num_vertices_); }
@@ -530,6 +534,7 @@ UniformRefinement uniform_refine(std::uint32_t scheme_type, std::uint32_t num_ve
   const std::vector<int> holes = hole_indices(scheme, sizes.size());
   d.numHoles = static_cast<int>(holes.size());
   d.holeIndices = holes.data();
+  // `scheme_type` chooses the scheme here; `scheme.scheme_type` is not read.
   const Sdc::Options options = sdc_options(scheme);
 
   std::unique_ptr<Far::TopologyRefiner> r;

@@ -17,6 +17,7 @@
 #include <opensubdiv/far/stencilTable.h>
 #include <opensubdiv/far/topologyRefiner.h>
 #include <opensubdiv/sdc/options.h>
+#include <opensubdiv/sdc/types.h>
 
 #include "rust/cxx.h"
 
@@ -81,6 +82,7 @@ class OsdTopology {
   std::vector<float> corner_weights_;
   std::vector<int> holes_;
   OpenSubdiv::Sdc::Options sdc_options_;
+  OpenSubdiv::Sdc::SchemeType scheme_type_ = OpenSubdiv::Sdc::SCHEME_CATMARK;
 
   std::unique_ptr<OpenSubdiv::Far::TopologyRefiner> adaptive_;
   std::unique_ptr<const OpenSubdiv::Far::PatchTable> patches_;

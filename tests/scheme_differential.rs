@@ -13,6 +13,8 @@
 //! - **holes**: no limit on a hole, and the neighbours of a hole keep the
 //!   surface they have without it.
 //!
+//! The bilinear scheme is checked against OpenSubdiv's the same way.
+//!
 //! Options: each of boundary none / edge only / edge and corner, Chaikin
 //! creasing, smooth triangles, holes, and all of them at once, over the
 //! fixture collection (valences 2 to 8, boundaries, corners, semi-sharp and
@@ -315,6 +317,20 @@ fn diff_limit_passes_the_suite_and_catches_a_broken_mask() {
             }
         }
     }
+    // The bilinear scheme from the command line.
+    for (name, m) in meshes() {
+        let path = dir.path().join(format!("{name}-bilinear.obj"));
+        subdfit::io::write_control_obj(&path, &m).unwrap();
+        let o = run(&path, &["--scheme", "bilinear", "--json"]);
+        let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(j["scheme"]["scheme"], "bilinear");
+        if o.status.code() != Some(0) {
+            failures.push(format!(
+                "{name}/bilinear: {}",
+                String::from_utf8_lossy(&o.stdout)
+            ));
+        }
+    }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 
     // A broken mask: vertex 0's own weight + 1e-3 in its limit mask.
@@ -413,4 +429,52 @@ fn vertex_limits_equal_opensubdiv_refined_limits() {
         }
     }
     println!("vertex limits vs OpenSubdiv's level-{LEVEL} limits: max {worst:.2e}");
+}
+
+/// The bilinear scheme, both evaluators: equal to round-off at random
+/// locations (positions and derivatives, so normals) and at the control
+/// vertices, which it interpolates; a planar quad's limit is that quad.
+#[test]
+fn bilinear_scheme_agrees_with_opensubdiv() {
+    use subdfit::mesh::SubdivScheme;
+    let mut worst = [0.0f64; 3];
+    for (name, m) in meshes() {
+        let opts = SchemeOptions::default().with_scheme(SubdivScheme::Bilinear);
+        let eo = EvalOptions::default().with_scheme(opts.clone());
+        let osd = make_evaluator(Backend::Osd, &m, &eo).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let rust = make_evaluator(Backend::Rust, &m, &eo).unwrap();
+        let locs = random_locations_with(&m, &opts, 2000, 13);
+        let r = compare_with(&m, &opts, osd.as_ref(), rust.as_ref(), &locs, 0.01).unwrap();
+        let v = rust.vertex_limits(m.positions()).unwrap();
+        let interp = v
+            .iter()
+            .zip(m.positions())
+            .map(|(a, p)| (a.position - *p).length())
+            .fold(0.0, f64::max);
+        assert_eq!(interp, 0.0, "{name}: bilinear limits interpolate");
+        let (a, b) = (
+            osd.evaluate(m.positions(), &locs).unwrap(),
+            rust.evaluate(m.positions(), &locs).unwrap(),
+        );
+        let dd = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x.du - y.du).length().max((x.dv - y.dv).length()))
+            .fold(0.0, f64::max)
+            / m.bbox_diagonal();
+        for (w, x) in worst
+            .iter_mut()
+            .zip([r.vertices.position, r.regular.position, dd])
+        {
+            *w = w.max(x);
+        }
+        assert!(
+            r.vertices.position <= 1e-12 && r.regular.position <= 1e-12 && dd <= 1e-12,
+            "{name}: {r}\nderivatives {dd:.3e}"
+        );
+    }
+    println!(
+        "bilinear: vertices {:.2e}, locations {:.2e}, derivatives {:.2e}",
+        worst[0], worst[1], worst[2]
+    );
 }

@@ -33,6 +33,8 @@ pub(crate) mod bridge {
     /// (`VtxBoundaryInterpolation`, `FVarLinearInterpolation`,
     /// `CreasingMethod`, `TriangleSubdivision`) and the hole faces.
     struct SchemeDesc {
+        /// `Sdc::SchemeType`: 0 bilinear, 1 Catmark (as OpenSubdiv numbers them).
+        scheme_type: u32,
         boundary: u32,
         fvar: u32,
         creasing: u32,

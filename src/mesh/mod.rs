@@ -16,6 +16,7 @@ pub use manifold::{split_non_manifold, SplitStats};
 pub(crate) use report::non_finite;
 pub use report::{validate_soup, MeshReport, ValidatedMesh};
 pub use scheme::{
-    BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions, TriangleSubdivision,
+    BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions, SubdivScheme,
+    TriangleSubdivision,
 };
 pub use soup::{PolySoup, TriMesh};

@@ -15,6 +15,21 @@ use serde::Serialize;
 
 use crate::mesh::{ControlMesh, FaceId, INFINITELY_SHARP};
 
+/// `Sdc::SchemeType` of the evaluators (Loop is not evaluated here).
+#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SubdivScheme {
+    /// `SCHEME_CATMARK`: Catmull-Clark.
+    #[default]
+    Catmark,
+    /// `SCHEME_BILINEAR`: every face (an n-gon split at its edge midpoints
+    /// and centroid into n quads) is its bilinear patch; the boundary,
+    /// creasing and triangle options change nothing, and boundary "none"
+    /// makes no holes (`Sdc::SchemeTypeTraits::GetLocalNeighborhoodSize` is
+    /// 0 for bilinear).
+    Bilinear,
+}
+
 /// `Sdc::Options::VtxBoundaryInterpolation`.
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -81,6 +96,7 @@ pub enum TriangleSubdivision {
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
 #[non_exhaustive]
 pub struct SchemeOptions {
+    pub scheme: SubdivScheme,
     pub boundary: BoundaryInterpolation,
     pub fvar: FVarLinear,
     pub crease_method: CreaseMethod,
@@ -97,6 +113,10 @@ fn face_indices<S: serde::Serializer>(faces: &[FaceId], s: S) -> Result<S::Ok, S
 }
 
 impl SchemeOptions {
+    pub fn with_scheme(mut self, s: SubdivScheme) -> Self {
+        self.scheme = s;
+        self
+    }
     pub fn with_boundary(mut self, b: BoundaryInterpolation) -> Self {
         self.boundary = b;
         self
@@ -139,7 +159,7 @@ impl SchemeOptions {
                 *h = true;
             }
         }
-        if self.boundary == BoundaryInterpolation::None {
+        if self.boundary == BoundaryInterpolation::None && self.scheme == SubdivScheme::Catmark {
             for v in mesh.vertices() {
                 let soft_boundary = mesh.outgoing(v).any(|h| {
                     mesh.is_boundary_edge(h.edge())
@@ -160,7 +180,8 @@ impl std::fmt::Display for SchemeOptions {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "boundary {}, face-varying linear {}, creasing {}, triangles {}, {} hole face(s)",
+            "{}, boundary {}, face-varying linear {}, creasing {}, triangles {}, {} hole face(s)",
+            self.scheme.name(),
             self.boundary.name(),
             self.fvar.name(),
             self.crease_method.name(),
@@ -180,6 +201,7 @@ macro_rules! named {
         }
     };
 }
+named!(SubdivScheme { Catmark => "catmark", Bilinear => "bilinear" });
 named!(BoundaryInterpolation { None => "none", EdgeOnly => "edge-only", EdgeAndCorner => "edge-and-corner" });
 named!(FVarLinear {
     None => "none", CornersOnly => "corners-only", CornersPlus1 => "corners-plus1",

@@ -15,7 +15,8 @@ use serde::Serialize;
 
 use crate::error::Result;
 use crate::mesh::{
-    BoundaryInterpolation, ControlMesh, FaceId, SchemeOptions, VertexId, INFINITELY_SHARP,
+    BoundaryInterpolation, ControlMesh, FaceId, SchemeOptions, SubdivScheme, VertexId,
+    INFINITELY_SHARP,
 };
 use crate::subdiv::{
     known_differences_with, KnownDifference, LimitEvaluator, LimitPoint, SurfaceLocation,
@@ -170,6 +171,9 @@ pub fn is_irregular_vertex(mesh: &ControlMesh, v: VertexId) -> bool {
 /// (boundary "edge only" or "none"), a boundary vertex with one face is a
 /// crease vertex of valence 2, irregular.
 pub fn is_irregular_vertex_with(mesh: &ControlMesh, scheme: &SchemeOptions, v: VertexId) -> bool {
+    if scheme.scheme == SubdivScheme::Bilinear {
+        return false; // every patch is an exact bilinear one
+    }
     let valence = mesh.valence(v);
     if scheme.boundary != BoundaryInterpolation::EdgeAndCorner
         && mesh.is_boundary_vertex(v)
@@ -213,6 +217,9 @@ pub fn normal_is_defined(mesh: &ControlMesh, v: VertexId) -> bool {
 /// [`normal_is_defined`] under `scheme` (a boundary vertex with one face is
 /// a corner only when boundary corners are sharpened).
 pub fn normal_is_defined_with(mesh: &ControlMesh, scheme: &SchemeOptions, v: VertexId) -> bool {
+    if scheme.scheme == SubdivScheme::Bilinear {
+        return false; // a polyhedral surface has no normal at its vertices
+    }
     let sharpened = scheme.boundary == BoundaryInterpolation::EdgeAndCorner;
     let sharp = mesh
         .outgoing(v)

@@ -19,6 +19,7 @@
 //!   two tangents are those of the limit tangent masks (their scale is not
 //!   comparable between backends); only the unit normal is.
 
+pub mod bilinear;
 pub mod catmark;
 pub mod diff;
 pub mod osd;
@@ -31,7 +32,8 @@ use serde::Serialize;
 
 use crate::error::{Error, Result};
 pub use crate::mesh::{
-    BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions, TriangleSubdivision,
+    BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions, SubdivScheme,
+    TriangleSubdivision,
 };
 use crate::mesh::{ControlMesh, FaceId, VertexId};
 use crate::DVec3;
@@ -207,6 +209,11 @@ pub fn make_evaluator(
             face_sizes,
             holes,
         }),
+        Backend::Rust if options.scheme.scheme == SubdivScheme::Bilinear => Box::new(Checked {
+            inner: bilinear::BilinearEvaluator::new(mesh, options)?,
+            face_sizes,
+            holes,
+        }),
         Backend::Rust => Box::new(Checked {
             inner: catmark::RustEvaluator::new(mesh, options)?,
             face_sizes,
@@ -259,7 +266,7 @@ pub fn check_locations(face_sizes: &[u32], locations: &[SurfaceLocation]) -> Res
     Ok(())
 }
 
-fn check_positions(n: usize, positions: &[DVec3]) -> Result<()> {
+pub(crate) fn check_positions(n: usize, positions: &[DVec3]) -> Result<()> {
     if positions.len() != n {
         return Err(Error::InvalidArgument(format!(
             "expected {n} control positions, got {}",
@@ -339,6 +346,9 @@ pub fn known_differences(mesh: &ControlMesh) -> Vec<KnownDifference> {
 /// have no surface and are left out.
 pub fn known_differences_with(mesh: &ControlMesh, scheme: &SchemeOptions) -> Vec<KnownDifference> {
     use crate::mesh::INFINITELY_SHARP;
+    if scheme.scheme == SubdivScheme::Bilinear {
+        return Vec::new(); // both evaluators use the exact bilinear masks
+    }
     let holes = scheme.effective_holes(mesh);
     mesh.vertices()
         .filter(|&v| mesh.vertex_faces(v).any(|f| !holes[f.idx()]))

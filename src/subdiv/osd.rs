@@ -40,7 +40,7 @@ use crate::ffi::osd::bridge;
 use crate::mesh::{ControlMesh, INFINITELY_SHARP};
 use crate::subdiv::{
     checked_holes, BoundaryInterpolation, CreaseMethod, EvalOptions, FVarLinear, LimitEvaluator,
-    LimitPoint, LimitStencils, SchemeOptions, SurfaceLocation, TriangleSubdivision,
+    LimitPoint, LimitStencils, SchemeOptions, SubdivScheme, SurfaceLocation, TriangleSubdivision,
 };
 use crate::DVec3;
 
@@ -54,6 +54,10 @@ const STENCIL_CHUNK_MIN: usize = 4096;
 /// The bridge's form of the scheme options (OpenSubdiv's enum order).
 pub(crate) fn scheme_desc(s: &SchemeOptions) -> bridge::SchemeDesc {
     bridge::SchemeDesc {
+        scheme_type: match s.scheme {
+            SubdivScheme::Bilinear => 0,
+            SubdivScheme::Catmark => 1,
+        },
         boundary: match s.boundary {
             BoundaryInterpolation::None => 0,
             BoundaryInterpolation::EdgeOnly => 1,
@@ -87,6 +91,10 @@ pub(crate) fn scheme_desc(s: &SchemeOptions) -> bridge::SchemeDesc {
 /// that is a Gregory end cap, whose tangent plane only approximates the
 /// limit (see `diff::DiffReport::approximations`).
 pub fn patch_evaluated_vertices(mesh: &ControlMesh, scheme: &SchemeOptions) -> Vec<bool> {
+    if scheme.scheme == SubdivScheme::Bilinear {
+        // Bilinear limit masks ignore sharpness: `Limit` is exact.
+        return vec![false; mesh.num_vertices()];
+    }
     let min = if scheme.crease_method == CreaseMethod::Chaikin {
         0.0
     } else {

@@ -9,7 +9,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use subdfit::mesh::{
     BoundaryInterpolation, ControlMesh, CreaseMethod, FVarLinear, FaceId, SchemeOptions,
-    TriangleSubdivision,
+    SubdivScheme, TriangleSubdivision,
 };
 use subdfit::subdiv::{diff, make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
 
@@ -28,6 +28,12 @@ impl From<BackendArg> for Backend {
             BackendArg::Rust => Backend::Rust,
         }
     }
+}
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum SchemeArg {
+    Catmark,
+    Bilinear,
 }
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
@@ -62,6 +68,9 @@ pub enum TrianglesArg {
 /// Scheme options; each one given here overrides the shape file's tag.
 #[derive(Args)]
 pub struct SchemeArgs {
+    /// Subdivision scheme (default catmark; shape files do not say).
+    #[arg(long, value_enum)]
+    scheme: Option<SchemeArg>,
     /// Boundary interpolation (`t interpolateboundary`).
     #[arg(long, value_enum)]
     boundary: Option<BoundaryArg>,
@@ -83,6 +92,12 @@ pub struct SchemeArgs {
 impl SchemeArgs {
     /// The file's options with the command line's on top.
     fn apply(&self, mut s: SchemeOptions) -> SchemeOptions {
+        if let Some(k) = self.scheme {
+            s = s.with_scheme(match k {
+                SchemeArg::Catmark => SubdivScheme::Catmark,
+                SchemeArg::Bilinear => SubdivScheme::Bilinear,
+            });
+        }
         if let Some(b) = self.boundary {
             s = s.with_boundary(match b {
                 BoundaryArg::None => BoundaryInterpolation::None,
