@@ -478,3 +478,36 @@ fn bilinear_scheme_agrees_with_opensubdiv() {
         worst[0], worst[1], worst[2]
     );
 }
+
+/// The size diff-limit gives OpenSubdiv's f32 sharpness: zero when every
+/// sharpness is exact in f32, small but non-zero for 0.7, 1.4, 2.8 …, and
+/// it is what separates OpenSubdiv from the sharpness as written.
+#[test]
+fn f32_sharpness_effect_is_measured() {
+    use subdfit::subdiv::diff::f32_sharpness_effect;
+    let cube = fixtures::creased_cube(10); // 0.5, 1.5, 2.0, 2.5: exact in f32
+    let eo = EvalOptions::default();
+    let locs = random_locations_with(&cube, &SchemeOptions::default(), 300, 1);
+    assert_eq!(f32_sharpness_effect(&cube, &eo, &locs).unwrap(), (0.0, 0.0));
+    let m = chaikin_star();
+    let locs = random_locations_with(&m, &SchemeOptions::default(), 300, 1);
+    let (dp, dn) = f32_sharpness_effect(&m, &eo, &locs).unwrap();
+    println!(
+        "chaikin_star: f32 sharpness moves the limit by {dp:.2e} of the diagonal, {dn:.2e} rad"
+    );
+    assert!(dp > 1e-13 && dp < 1e-6, "{dp:.3e}");
+    // OpenSubdiv follows the f32 surface, not the one as written.
+    let osd = make_evaluator(Backend::Osd, &m, &eo).unwrap();
+    let exact = make_evaluator(Backend::Rust, &m, &eo.clone().with_exact_sharpness(true)).unwrap();
+    let rust = make_evaluator(Backend::Rust, &m, &eo).unwrap();
+    let p = m.positions();
+    let d = |a: &dyn subdfit::subdiv::LimitEvaluator| {
+        let (x, y) = (osd.vertex_limits(p).unwrap(), a.vertex_limits(p).unwrap());
+        x.iter()
+            .zip(&y)
+            .map(|(u, v)| (u.position - v.position).length())
+            .fold(0.0, f64::max)
+            / m.bbox_diagonal()
+    };
+    assert!(d(rust.as_ref()) < 1e-14 && d(exact.as_ref()) > 1e-13);
+}

@@ -143,11 +143,68 @@ impl DiffReport {
             why: format!(
                 "OpenSubdiv stores sharpness as f32 ({n} value(s) here are not exact, rounded \
                  by up to {r:.1e}); the Rust evaluator follows the same f32 values and rules, \
-                 so no deviation results"
+                 so the backends agree; the size given is how far that (f32) surface is from \
+                 the one with the sharpness as written"
             ),
         });
         self.approximations = out;
     }
+
+    /// Records the measured effect of f32 sharpness
+    /// ([`f32_sharpness_effect`]) as that approximation's size.
+    pub fn set_f32_effect(&mut self, position: f64, normal: f64) {
+        if let Some(a) = self
+            .approximations
+            .iter_mut()
+            .find(|a| a.name == "float32 sharpness")
+        {
+            a.position = position;
+            a.normal = normal;
+        }
+    }
+}
+
+/// How far the surface with OpenSubdiv's f32 sharpness is from the one with
+/// the sharpness as written: the Rust evaluator both ways, at the control
+/// vertices and `locations` (worst position relative to the diagonal, worst
+/// normal angle). Zero when every sharpness is exact in f32.
+pub fn f32_sharpness_effect(
+    mesh: &ControlMesh,
+    options: &crate::subdiv::EvalOptions,
+    locations: &[SurfaceLocation],
+) -> Result<(f64, f64)> {
+    use crate::subdiv::{make_evaluator, Backend};
+    if f32_sharpness_rounding(mesh).0 == 0 || options.scheme.scheme == SubdivScheme::Bilinear {
+        return Ok((0.0, 0.0));
+    }
+    let a = make_evaluator(
+        Backend::Rust,
+        mesh,
+        &options.clone().with_exact_sharpness(false),
+    )?;
+    let b = make_evaluator(
+        Backend::Rust,
+        mesh,
+        &options.clone().with_exact_sharpness(true),
+    )?;
+    let p = mesh.positions();
+    let diag = mesh.bbox_diagonal().max(f64::MIN_POSITIVE);
+    let mut pairs = a
+        .vertex_limits(p)?
+        .into_iter()
+        .zip(b.vertex_limits(p)?)
+        .collect::<Vec<_>>();
+    pairs.extend(
+        a.evaluate(p, locations)?
+            .into_iter()
+            .zip(b.evaluate(p, locations)?),
+    );
+    Ok(pairs.iter().fold((0.0f64, 0.0f64), |(dp, dn), (x, y)| {
+        (
+            dp.max((x.position - y.position).length() / diag),
+            dn.max(angle_between(x.normal(), y.normal())),
+        )
+    }))
 }
 
 /// Angle between two vectors' directions (0 when both are zero).

@@ -125,6 +125,10 @@ pub struct EvalOptions {
     /// tests can check that `diff-limit` catches a real defect.
     #[doc(hidden)]
     pub broken_mask: Option<(u32, f64)>,
+    /// Rust evaluator only: follow the sharpness as written (f64) instead
+    /// of OpenSubdiv's f32 rounding — to measure what that rounding does
+    /// (`diff::f32_sharpness_effect`); it then departs from OpenSubdiv.
+    pub exact_sharpness: bool,
 }
 
 impl Default for EvalOptions {
@@ -133,6 +137,7 @@ impl Default for EvalOptions {
             isolation_level: 10,
             scheme: SchemeOptions::default(),
             broken_mask: None,
+            exact_sharpness: false,
         }
     }
 }
@@ -144,6 +149,10 @@ impl EvalOptions {
     }
     pub fn with_scheme(mut self, scheme: SchemeOptions) -> Self {
         self.scheme = scheme;
+        self
+    }
+    pub fn with_exact_sharpness(mut self, exact: bool) -> Self {
+        self.exact_sharpness = exact;
         self
     }
     #[doc(hidden)]

@@ -335,7 +335,11 @@ pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
     locs.extend(diff::near_irregular_locations_with(
         &mesh, &scheme, 8, a.margin, a.seed,
     ));
-    let report = diff::compare_with(&mesh, &scheme, osd.as_ref(), rust.as_ref(), &locs, a.margin)?;
+    let mut report =
+        diff::compare_with(&mesh, &scheme, osd.as_ref(), rust.as_ref(), &locs, a.margin)?;
+    // The size of OpenSubdiv's f32 sharpness: what it does to the surface.
+    let (dp, dn) = diff::f32_sharpness_effect(&mesh, &rust_opts, &locs)?;
+    report.set_f32_effect(dp, dn);
     let mut failures = Vec::new();
     let mut check = |what: &str, value: f64, tol: f64| {
         // NaN counts as a failure.

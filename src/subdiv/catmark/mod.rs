@@ -134,7 +134,10 @@ impl RustEvaluator {
     pub fn new(mesh: &ControlMesh, options: &EvalOptions) -> Result<Self> {
         mesh.validate()?;
         let holes = checked_holes(mesh, &options.scheme)?;
-        let sdc = Rules::from_scheme(&options.scheme);
+        let sdc = Rules {
+            f32_sharpness: !options.exact_sharpness,
+            ..Rules::from_scheme(&options.scheme)
+        };
         let rules: Vec<_> = (0..16u8).map(phantom_rules).collect();
         let grids: Vec<Option<RegularPatch>> = mesh
             .faces()

@@ -138,6 +138,10 @@ pub(crate) struct Rules {
     pub chaikin: bool,
     /// `TRI_SUB_SMOOTH`.
     pub smooth_triangles: bool,
+    /// Sharpness as OpenSubdiv's f32 (the default). Off, the sharpness as
+    /// written (f64) is followed instead: only to measure what the f32
+    /// rounding does to a surface.
+    pub f32_sharpness: bool,
 }
 
 impl Default for Rules {
@@ -147,6 +151,7 @@ impl Default for Rules {
             sharpen_corners: true,
             chaikin: false,
             smooth_triangles: false,
+            f32_sharpness: true,
         }
     }
 }
@@ -158,14 +163,22 @@ impl Rules {
             sharpen_corners: s.boundary == BoundaryInterpolation::EdgeAndCorner,
             chaikin: s.crease_method == CreaseMethod::Chaikin,
             smooth_triangles: s.triangles == TriangleSubdivision::Smooth,
+            f32_sharpness: true,
         }
     }
-}
 
-/// A sharpness as OpenSubdiv stores it (f32), back in an f64.
-#[inline]
-pub(crate) fn sharpness_f32(s: f64) -> f64 {
-    s as f32 as f64
+    /// A sharpness value or the result of one operation on sharpness
+    /// values, as Sdc computes it: rounded to f32. (One f64 operation on f32
+    /// operands rounded to f32 is the f32 operation: f64 has more than
+    /// 2·24 + 2 bits.)
+    #[inline]
+    pub fn sharp(self, s: f64) -> f64 {
+        if self.f32_sharpness {
+            s as f32 as f64
+        } else {
+            s
+        }
+    }
 }
 
 /// Sharpness of the child of an edge of sharpness `s` at a vertex whose
@@ -183,21 +196,22 @@ pub(crate) fn child_edge_sharpness(rules: Rules, s: f64, at_vertex: &[f64]) -> f
     if s >= INF {
         return INF;
     }
-    let (mut sum, mut count) = (0.0f32, 0u32);
+    let r = |x: f64| rules.sharp(x);
+    let (mut sum, mut count) = (0.0, 0u32);
     for &x in at_vertex {
         if x > 0.0 && x < INF {
-            sum += x as f32;
+            sum = r(sum + x);
             count += 1;
         }
     }
-    let mut e = s as f32;
+    let mut e = s;
     if count > 1 {
-        let avg = (sum - e) / (count - 1) as f32;
-        e = 0.75f32 * e + 0.25f32 * avg;
+        let avg = r(r(sum - e) / (count - 1) as f64);
+        e = r(r(0.75 * e) + r(0.25 * avg));
     }
-    e -= 1.0;
+    e = r(e - 1.0);
     if e > 0.0 {
-        e as f64
+        e
     } else {
         0.0
     }
@@ -521,22 +535,23 @@ impl<P: Pt> Topo<P> {
                 // three or more distinct sharpness values running out at once
                 // the f32 sum may differ in the last bit (a weight error of
                 // ~6e-8, far below the tolerance); the suite has none.
+                let r = |x: f64| self.rules.sharp(x);
                 let mut count = 0u32;
-                let mut sum = 0.0f32;
+                let mut sum = 0.0;
                 if psv > 0.0 && csv <= 0.0 {
                     count += 1;
-                    sum += psv as f32;
+                    sum = r(sum + psv);
                 }
                 for k in 0..ps.len() {
                     if ps[k] > 0.0 && cs[k] <= 0.0 {
                         count += 1;
-                        sum += ps[k] as f32;
+                        sum = r(sum + ps[k]);
                     }
                 }
                 let w = if count == 0 {
                     0.0
                 } else {
-                    (sum / count as f32).min(1.0) as f64
+                    r(sum / count as f64).min(1.0)
                 };
                 let pm = self.vertex_mask(adj, v, prule, &ps, &fpts);
                 let cm = self.vertex_mask(adj, v, crule, &cs, &fpts);
@@ -640,7 +655,7 @@ pub(crate) fn topo_from_mesh(
         t.pts = (0..mesh.num_vertices() as u32).collect();
         t.vsharp = mesh
             .vertices()
-            .map(|v| sharpness_f32(mesh.vertex_sharpness(v)))
+            .map(|v| rules.sharp(mesh.vertex_sharpness(v)))
             .collect();
     }
     for &f in faces {
@@ -651,7 +666,7 @@ pub(crate) fn topo_from_mesh(
             } else {
                 *map.entry(v.0).or_insert_with(|| {
                     t.pts.push(v.0);
-                    t.vsharp.push(sharpness_f32(mesh.vertex_sharpness(v)));
+                    t.vsharp.push(rules.sharp(mesh.vertex_sharpness(v)));
                     t.pts.len() as u32 - 1
                 })
             };
@@ -661,7 +676,7 @@ pub(crate) fn topo_from_mesh(
     }
     for f in faces {
         for h in mesh.face_halfedges(*f) {
-            let s = sharpness_f32(mesh.edge_sharpness(h.edge()));
+            let s = rules.sharp(mesh.edge_sharpness(h.edge()));
             if s > 0.0 {
                 let (a, b) = (mesh.tail(h).0, mesh.head(h).0);
                 let (a, b) = if whole { (a, b) } else { (map[&a], map[&b]) };
