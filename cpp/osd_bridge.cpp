@@ -101,12 +101,34 @@ void put(rust::Slice<double> out, std::size_t at, const P3& p) {
 
 // ---- topology ---------------------------------------------------------------
 
-Sdc::Options sdc_options() {
+// The Sdc options of `scheme` (integers in the order of OpenSubdiv's enums,
+// checked here: a cast of an out-of-range value would be undefined).
+Sdc::Options sdc_options(const SchemeDesc& scheme) {
+  if (scheme.boundary > Sdc::Options::VTX_BOUNDARY_EDGE_AND_CORNER)
+    throw std::invalid_argument("boundary interpolation " + std::to_string(scheme.boundary) + " outside 0..=2");
+  if (scheme.fvar > Sdc::Options::FVAR_LINEAR_ALL)
+    throw std::invalid_argument("face-varying interpolation " + std::to_string(scheme.fvar) + " outside 0..=5");
+  if (scheme.creasing > Sdc::Options::CREASE_CHAIKIN)
+    throw std::invalid_argument("creasing method " + std::to_string(scheme.creasing) + " outside 0..=1");
+  if (scheme.triangles > Sdc::Options::TRI_SUB_SMOOTH)
+    throw std::invalid_argument("triangle subdivision " + std::to_string(scheme.triangles) + " outside 0..=1");
   Sdc::Options o;
-  o.SetVtxBoundaryInterpolation(Sdc::Options::VTX_BOUNDARY_EDGE_AND_CORNER);
-  o.SetCreasingMethod(Sdc::Options::CREASE_UNIFORM);
-  o.SetTriangleSubdivision(Sdc::Options::TRI_SUB_CATMARK);
+  o.SetVtxBoundaryInterpolation(static_cast<Sdc::Options::VtxBoundaryInterpolation>(scheme.boundary));
+  o.SetFVarLinearInterpolation(static_cast<Sdc::Options::FVarLinearInterpolation>(scheme.fvar));
+  o.SetCreasingMethod(static_cast<Sdc::Options::CreasingMethod>(scheme.creasing));
+  o.SetTriangleSubdivision(static_cast<Sdc::Options::TriangleSubdivision>(scheme.triangles));
   return o;
+}
+
+// Hole faces as the descriptor's int array, range-checked.
+std::vector<int> hole_indices(const SchemeDesc& scheme, std::size_t num_faces) {
+  std::vector<int> holes;
+  holes.reserve(scheme.holes.size());
+  for (auto f : scheme.holes) {
+    if (f >= num_faces) throw std::invalid_argument("hole face " + std::to_string(f) + " out of range");
+    holes.push_back(static_cast<int>(f));
+  }
+  return holes;
 }
 
 // Largest patch: Gregory basis (20 points); regular B-spline patches have 16.
@@ -161,7 +183,7 @@ std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
                                               rust::Slice<const double> crease_weights,
                                               rust::Slice<const std::uint32_t> corner_vertices,
                                               rust::Slice<const double> corner_weights,
-                                              std::uint32_t isolation_level) {
+                                              const SchemeDesc& scheme, std::uint32_t isolation_level) {
   // OpenSubdiv trusts its descriptor (an out-of-range index is undefined
   // behaviour there), so check the arrays before handing them over.
   if (isolation_level < 1 || isolation_level > 10)
@@ -177,6 +199,12 @@ std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
   t->crease_weights_.assign(crease_weights.begin(), crease_weights.end());
   t->corner_vertices_.assign(corner_vertices.begin(), corner_vertices.end());
   t->corner_weights_.assign(corner_weights.begin(), corner_weights.end());
+  t->holes_ = hole_indices(scheme, face_sizes.size());
+  t->sdc_options_ = sdc_options(scheme);
+  if (scheme.scheme_type != Sdc::SCHEME_BILINEAR && scheme.scheme_type != Sdc::SCHEME_CATMARK)
+    throw std::invalid_argument("scheme type " + std::to_string(scheme.scheme_type) +
+                                " is neither bilinear (0) nor Catmark (1)");
+  t->scheme_type_ = static_cast<Sdc::SchemeType>(scheme.scheme_type);
 
   std::lock_guard<std::mutex> lock(g_construction_mutex);
   ErrorScope errors;
@@ -230,8 +258,12 @@ Far::TopologyRefiner* OsdTopology::make_refiner() const {
   d.numCorners = static_cast<int>(corner_weights_.size());
   d.cornerVertexIndices = corner_vertices_.data();
   d.cornerWeights = corner_weights_.data();
+  // Hole faces keep their place in the subdivision rules of their
+  // neighbours but get no patches (Far::PatchTableFactory skips them).
+  d.numHoles = static_cast<int>(holes_.size());
+  d.holeIndices = holes_.data();
   using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
-  return Factory::Create(d, Factory::Options(Sdc::SCHEME_CATMARK, sdc_options()));
+  return Factory::Create(d, Factory::Options(scheme_type_, sdc_options_));
 }
 
 std::uint32_t OsdTopology::num_control_vertices() const { return static_cast<std::uint32_t>(num_vertices_); }
@@ -283,9 +315,11 @@ void OsdTopology::evaluate_patches(rust::Slice<const double> points, rust::Slice
     // PatchMap::FindPatch and PatchTable::EvaluateBasis are const and touch
     // no shared mutable state: safe from several threads.
     const Far::PatchTable::PatchHandle* h = patch_map_->FindPatch(static_cast<int>(ptex[i]), u[i], v[i]);
+    // Hole faces (tagged, or boundary faces under boundary interpolation
+    // "none") have no patches: no limit surface there.
     if (!h)
       throw std::runtime_error("no patch at ptex face " + std::to_string(ptex[i]) + " (" + std::to_string(u[i]) +
-                               ", " + std::to_string(v[i]) + ")");
+                               ", " + std::to_string(v[i]) + "): a hole, no limit surface there");
     Far::ConstIndexArray cvs = patches_->GetPatchVertices(*h);
     if (cvs.size() > kMaxPatchPoints) throw std::logic_error("patch with more than 20 control points");
     // EvaluateBasis maps (u, v) of the ptex face into the (sub-)patch and
@@ -463,15 +497,15 @@ StencilRows OsdTopology::limit_stencils(rust::Slice<const std::uint32_t> ptex, r
 namespace subdfit::osd {
 
 
-UniformRefinement uniform_refine(std::uint32_t scheme, std::uint32_t num_vertices,
+UniformRefinement uniform_refine(std::uint32_t scheme_type, std::uint32_t num_vertices,
                                  rust::Slice<const std::uint32_t> face_sizes,
                                  rust::Slice<const std::uint32_t> face_indices,
                                  rust::Slice<const std::uint32_t> crease_vertices,
                                  rust::Slice<const double> crease_weights,
                                  rust::Slice<const std::uint32_t> corner_vertices,
-                                 rust::Slice<const double> corner_weights, rust::Slice<const double> positions,
-                                 std::uint32_t levels, bool limits) {
-  if (scheme > 1) throw std::invalid_argument("scheme " + std::to_string(scheme) + " is neither Catmark (0) nor Loop (1)");
+                                 rust::Slice<const double> corner_weights, const SchemeDesc& scheme,
+                                 rust::Slice<const double> positions, std::uint32_t levels, bool limits) {
+  if (scheme_type > 1) throw std::invalid_argument("scheme " + std::to_string(scheme_type) + " is neither Catmark (0) nor Loop (1)");
   // RefineUniform stores the level in 4 bits; 10 is OpenSubdiv's documented maximum.
   if (levels < 1 || levels > 10)
     throw std::invalid_argument("uniform refinement level " + std::to_string(levels) + " outside 1..=10");
@@ -497,16 +531,20 @@ UniformRefinement uniform_refine(std::uint32_t scheme, std::uint32_t num_vertice
   d.numCorners = static_cast<int>(kweights.size());
   d.cornerVertexIndices = kverts.data();
   d.cornerWeights = kweights.data();
+  const std::vector<int> holes = hole_indices(scheme, sizes.size());
+  d.numHoles = static_cast<int>(holes.size());
+  d.holeIndices = holes.data();
+  // `scheme_type` chooses the scheme here; `scheme.scheme_type` is not read.
+  const Sdc::Options options = sdc_options(scheme);
 
   std::unique_ptr<Far::TopologyRefiner> r;
   {
     std::lock_guard<std::mutex> lock(g_construction_mutex);
     ErrorScope errors;
-    // Same options as the Catmark evaluator (sdc_options); the triangle
-    // subdivision rule only matters to Catmark.
+    // The triangle subdivision rule only matters to Catmark.
     using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
-    const Sdc::SchemeType type = scheme == 0 ? Sdc::SCHEME_CATMARK : Sdc::SCHEME_LOOP;
-    r.reset(Factory::Create(d, Factory::Options(type, sdc_options())));
+    const Sdc::SchemeType type = scheme_type == 0 ? Sdc::SCHEME_CATMARK : Sdc::SCHEME_LOOP;
+    r.reset(Factory::Create(d, Factory::Options(type, options)));
     if (!r) errors.fail("TopologyRefinerFactory<TopologyDescriptor>::Create");
     errors.check("TopologyRefinerFactory<TopologyDescriptor>::Create");
     // Full topology in the last level: PrimvarRefiner::Limit needs it
@@ -562,7 +600,7 @@ UniformRefinement uniform_refine(std::uint32_t scheme, std::uint32_t num_vertice
     for (int e = 0; e < parent.GetNumEdges(); ++e) assign(parent.GetEdgeChildVertex(e), 1, parent.GetEdgeVertices(e));
     // Loop's triangle split creates no face vertices, and its refinement
     // keeps no face-child-vertex table to ask (reading it is out of bounds).
-    if (scheme == 0)
+    if (scheme_type == 0)
       for (int f = 0; f < parent.GetNumFaces(); ++f)
         assign(parent.GetFaceChildVertex(f), 2, parent.GetFaceVertices(f));
     for (std::size_t c = 0; c < n; ++c) {

@@ -16,6 +16,8 @@
 #include <opensubdiv/far/patchTable.h>
 #include <opensubdiv/far/stencilTable.h>
 #include <opensubdiv/far/topologyRefiner.h>
+#include <opensubdiv/sdc/options.h>
+#include <opensubdiv/sdc/types.h>
 
 #include "rust/cxx.h"
 
@@ -24,6 +26,7 @@ namespace subdfit::osd {
 // Defined by the bridge (shared structs), see src/ffi/osd.rs.
 struct StencilRows;
 struct UniformRefinement;
+struct SchemeDesc;
 
 rust::String library_version();
 
@@ -61,7 +64,7 @@ class OsdTopology {
   friend std::unique_ptr<OsdTopology> new_osd_topology(
       std::uint32_t, rust::Slice<const std::uint32_t>, rust::Slice<const std::uint32_t>,
       rust::Slice<const std::uint32_t>, rust::Slice<const double>, rust::Slice<const std::uint32_t>,
-      rust::Slice<const double>, std::uint32_t);
+      rust::Slice<const double>, const SchemeDesc&, std::uint32_t);
 
   // A fresh, unrefined refiner from the stored descriptor arrays (null on
   // failure, with OpenSubdiv's message in the error callback).
@@ -77,6 +80,9 @@ class OsdTopology {
   std::vector<float> crease_weights_;
   std::vector<int> corner_vertices_;
   std::vector<float> corner_weights_;
+  std::vector<int> holes_;
+  OpenSubdiv::Sdc::Options sdc_options_;
+  OpenSubdiv::Sdc::SchemeType scheme_type_ = OpenSubdiv::Sdc::SCHEME_CATMARK;
 
   std::unique_ptr<OpenSubdiv::Far::TopologyRefiner> adaptive_;
   std::unique_ptr<const OpenSubdiv::Far::PatchTable> patches_;
@@ -92,8 +98,8 @@ class OsdTopology {
   mutable std::unique_ptr<const OpenSubdiv::Far::StencilTableReal<double>> control_stencils_;
 };
 
-// Builds the topology (Catmark, boundary "edge and corner", uniform
-// creasing, Catmark triangle rule), refines it adaptively to
+// Builds the topology (Catmark, with the Sdc options and holes of
+// `scheme`), refines it adaptively to
 // `isolation_level` and builds a double-precision patch table with Gregory
 // basis end caps. Creases are vertex pairs + sharpness, corners vertex +
 // sharpness. Throws (-> Rust Err) with OpenSubdiv's own message on failure.
@@ -104,7 +110,7 @@ std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
                                               rust::Slice<const double> crease_weights,
                                               rust::Slice<const std::uint32_t> corner_vertices,
                                               rust::Slice<const double> corner_weights,
-                                              std::uint32_t isolation_level);
+                                              const SchemeDesc& scheme, std::uint32_t isolation_level);
 
 // Uniform refinement of vertex positions with `scheme` 0 = Catmark, 1 = Loop
 // (same boundary and creasing options as above; Loop needs an all-triangle
@@ -116,13 +122,13 @@ std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
 // `limits`, PrimvarRefiner::Limit positions of the last level's vertices
 // are added. Independent of OsdTopology (no patch table is built). Throws
 // (-> Rust Err) on bad input or OpenSubdiv's refusal.
-UniformRefinement uniform_refine(std::uint32_t scheme, std::uint32_t num_vertices,
+UniformRefinement uniform_refine(std::uint32_t scheme_type, std::uint32_t num_vertices,
                                  rust::Slice<const std::uint32_t> face_sizes,
                                  rust::Slice<const std::uint32_t> face_indices,
                                  rust::Slice<const std::uint32_t> crease_vertices,
                                  rust::Slice<const double> crease_weights,
                                  rust::Slice<const std::uint32_t> corner_vertices,
-                                 rust::Slice<const double> corner_weights, rust::Slice<const double> positions,
-                                 std::uint32_t levels, bool limits);
+                                 rust::Slice<const double> corner_weights, const SchemeDesc& scheme,
+                                 rust::Slice<const double> positions, std::uint32_t levels, bool limits);
 
 }  // namespace subdfit::osd

@@ -29,6 +29,19 @@ pub(crate) mod bridge {
         limits: Vec<f64>,
     }
 
+    /// `Sdc::Options` as integers in the order of OpenSubdiv's enums
+    /// (`VtxBoundaryInterpolation`, `FVarLinearInterpolation`,
+    /// `CreasingMethod`, `TriangleSubdivision`) and the hole faces.
+    struct SchemeDesc {
+        /// `Sdc::SchemeType`: 0 bilinear, 1 Catmark (as OpenSubdiv numbers them).
+        scheme_type: u32,
+        boundary: u32,
+        fvar: u32,
+        creasing: u32,
+        triangles: u32,
+        holes: Vec<u32>,
+    }
+
     unsafe extern "C++" {
         include!("subdfit/cpp/osd_bridge.h");
 
@@ -48,6 +61,7 @@ pub(crate) mod bridge {
             crease_weights: &[f64],
             corner_vertices: &[u32],
             corner_weights: &[f64],
+            scheme: &SchemeDesc,
             isolation_level: u32,
         ) -> Result<UniquePtr<OsdTopology>>;
 
@@ -79,10 +93,10 @@ pub(crate) mod bridge {
             v: &[f64],
         ) -> Result<StencilRows>;
 
-        /// `scheme` 0 = Catmark, 1 = Loop; `levels` in 1..=10.
+        /// `scheme_type` 0 = Catmark, 1 = Loop; `levels` in 1..=10.
         #[allow(clippy::too_many_arguments)]
         fn uniform_refine(
-            scheme: u32,
+            scheme_type: u32,
             num_vertices: u32,
             face_sizes: &[u32],
             face_indices: &[u32],
@@ -90,6 +104,7 @@ pub(crate) mod bridge {
             crease_weights: &[f64],
             corner_vertices: &[u32],
             corner_weights: &[f64],
+            scheme: &SchemeDesc,
             positions: &[f64],
             levels: u32,
             limits: bool,

@@ -24,7 +24,7 @@ mod write;
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId};
+use crate::mesh::{validate_soup, ControlMesh, PolySoup, SchemeOptions, ValidatedMesh, VertexId};
 
 pub use obj::{parse_obj, read_obj, ObjMesh};
 pub use obj_uv::{control_obj_with_uvs, write_control_obj_with_uvs};
@@ -34,7 +34,9 @@ pub use ply::{parse_ply, read_ply};
 pub use stl::{parse_stl, read_stl};
 
 pub use usd::{usda_text_with, write_usda, write_usda_with, UsdOptions};
-pub use write::{write_atomically, write_control_obj, write_obj, write_ply};
+pub use write::{
+    scheme_tags, write_atomically, write_control_file, write_control_obj, write_obj, write_ply,
+};
 
 /// Which implementation parses a file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -115,18 +117,43 @@ pub fn read_mesh(path: &Path) -> Result<ValidatedMesh> {
     validate_soup(read_soup(path)?, path)
 }
 
-/// A control mesh file's polygons, creases `(a, b, s)` and corners
-/// `(v, s)` (OBJ's shape-file tags; none in the other formats).
-type ControlParts = (PolySoup, Vec<(u32, u32, f64)>, Vec<(u32, f64)>);
+/// A control mesh file's polygons, creases `(a, b, s)`, corners `(v, s)`
+/// and scheme options (OBJ's shape-file tags; none and the defaults in the
+/// other formats).
+type ControlParts = (
+    PolySoup,
+    Vec<(u32, u32, f64)>,
+    Vec<(u32, f64)>,
+    SchemeOptions,
+);
 
 fn read_control_parts(path: &Path) -> Result<ControlParts> {
     Ok(match Format::from_path(path)? {
         Format::Obj => {
             let o = read_obj(path)?;
-            (o.soup, o.creases, o.corners)
+            (o.soup, o.creases, o.corners, o.scheme)
         }
-        _ => (read_soup(path)?, Vec::new(), Vec::new()),
+        _ => (
+            read_soup(path)?,
+            Vec::new(),
+            Vec::new(),
+            SchemeOptions::default(),
+        ),
     })
+}
+
+/// The error for a file whose scheme options a reader of the crate's
+/// defaults would drop.
+fn non_default_scheme(path: &Path, scheme: &SchemeOptions) -> Error {
+    // Dropping them would change the surface without a word.
+    Error::invalid_mesh(
+        path,
+        "scheme tags",
+        format!(
+            "the file asks for {scheme}; this reader keeps only the crate's defaults \
+             (use `read_control_file`, or `subdfit limit`/`diff-limit` which honour them)"
+        ),
+    )
 }
 
 /// [`read_control_mesh`] for layouts other tools wrote (`subdfit fit`):
@@ -136,7 +163,10 @@ fn read_control_parts(path: &Path) -> Result<ControlParts> {
 pub fn read_control_mesh_as_found(
     path: &Path,
 ) -> Result<(ControlMesh, crate::mesh::ForeignRepairs)> {
-    let (soup, creases, corners) = read_control_parts(path)?;
+    let (soup, creases, corners, scheme) = read_control_parts(path)?;
+    if !scheme.is_default() {
+        return Err(non_default_scheme(path, &scheme));
+    }
     crate::mesh::control_from_foreign_soup(&soup, &creases, &corners).map_err(|e| match e {
         Error::Topology { element, msg } => Error::invalid_mesh(path, element, msg),
         e => e,
@@ -147,7 +177,25 @@ pub fn read_control_mesh_as_found(
 /// tags. The mesh must be a manifold, consistently oriented polygon mesh
 /// without unreferenced vertices; violations name the file and the element.
 pub fn read_control_mesh(path: &Path) -> Result<ControlMesh> {
-    let (soup, creases, corners) = read_control_parts(path)?;
+    let ControlFile { mesh, scheme } = read_control_file(path)?;
+    if !scheme.is_default() {
+        return Err(non_default_scheme(path, &scheme));
+    }
+    Ok(mesh)
+}
+
+/// A control mesh with the scheme options its file states.
+#[derive(Clone, Debug)]
+pub struct ControlFile {
+    pub mesh: ControlMesh,
+    pub scheme: SchemeOptions,
+}
+
+/// Reads a control mesh and, from an OBJ shape file, its sharpness tags
+/// and scheme options (see the `obj` module doc); other formats carry the
+/// default options.
+pub fn read_control_file(path: &Path) -> Result<ControlFile> {
+    let (soup, creases, corners, scheme) = read_control_parts(path)?;
     let in_file = |e: Error| match e {
         Error::Topology { element, msg } => Error::invalid_mesh(path, element, msg),
         e => e,
@@ -160,5 +208,5 @@ pub fn read_control_mesh(path: &Path) -> Result<ControlMesh> {
     for (v, s) in corners {
         mesh.set_corner(VertexId(v), s).map_err(in_file)?;
     }
-    Ok(mesh)
+    Ok(ControlFile { mesh, scheme })
 }

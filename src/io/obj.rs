@@ -8,8 +8,29 @@
 //! unknown statements. OpenSubdiv's shape files (`regression/shapes/*.h`,
 //! parsed by `regression/common/shape_utils.cpp`) add tags
 //! `t <name> <nints>/<nfloats>/<nstrings> ints... floats... strings...` with
-//! **0-based** vertex indices; `crease` (an edge chain with one sharpness for
-//! the chain or one per edge) and `corner` are kept, other tags ignored.
+//! **0-based** vertex and face indices. Every tag OpenSubdiv's regression
+//! harness interprets (`regression/common/far_utils.h`: `GetSdcOptions`,
+//! `assignComponentTags`) is honoured, into [`ObjMesh::creases`],
+//! [`ObjMesh::corners`] and [`ObjMesh::scheme`]:
+//! - `crease` (an edge chain with one sharpness for the chain or one per
+//!   edge) and `corner` (vertices with one sharpness or one each);
+//! - `interpolateboundary 1/0/0 i`: 0 none, 1 edge and corner, 2 edge only;
+//! - `facevaryinginterpolateboundary 1/0/0 i`: 0..=5 in the order of
+//!   `Sdc::Options::FVarLinearInterpolation` (none, corners only, corners
+//!   +1, corners +2, boundaries, all);
+//! - `facevaryingpropagatecorners 1/0/0 b`: OpenSubdiv 3 has no such
+//!   option; Hbr's "propagate corners" on an "edge and corner" face-varying
+//!   boundary is 3.x's corners +2 (OpenSubdiv's "Subdivision Compatibility"
+//!   notes), so `1` turns mode 2 into 3 and is an error with any other mode;
+//! - `creasemethod 0/0/1 normal|uniform|chaikin`;
+//! - `smoothtriangles 0/0/1 catmark|smooth` (far_utils.h), or Hbr's integer
+//!   form `1/0/0 i` with 0 the Catmark rule and 2 `k_New`, the weights
+//!   `TRI_SUB_SMOOTH` reproduces (1, Hbr's `k_Old`, has no 3.x equivalent);
+//! - `hole n/0/0 faces...`.
+//!
+//! Any other tag (hierarchical edits such as `vertexedit`, `edgeedit`,
+//! `faceedit`, or a misspelling) is an error naming the file and line: a
+//! dropped tag would change the surface without a word.
 //!
 //! OBJ declares no counts, so a file cut between two statements cannot be
 //! told from a shorter file; a statement cut short (`v 1 2`, `f 1/1 2/`) is
@@ -24,7 +45,10 @@ use crate::error::{Error, Result};
 use crate::io::text::{
     bad_token, bom_len, non_finite, parse_f64, parse_i64, strip_comment, Tokens,
 };
-use crate::mesh::PolySoup;
+use crate::mesh::{
+    BoundaryInterpolation, CreaseMethod, FVarLinear, FaceId, PolySoup, SchemeOptions,
+    TriangleSubdivision,
+};
 use crate::DVec3;
 
 /// An OBJ file: its polygons and the shape-file sharpness tags.
@@ -36,6 +60,8 @@ pub struct ObjMesh {
     pub creases: Vec<(u32, u32, f64)>,
     /// `(vertex, sharpness)`, 0-based, in file order.
     pub corners: Vec<(u32, f64)>,
+    /// Scheme options and holes stated by the tags (defaults where none).
+    pub scheme: SchemeOptions,
 }
 
 /// Reads an OBJ file.
@@ -57,6 +83,9 @@ pub fn parse_obj(bytes: &[u8], path: &Path) -> Result<ObjMesh> {
         corner_lines: Vec::new(),
         tag_ints: Vec::new(),
         tag_floats: Vec::new(),
+        tag_strings: Vec::new(),
+        hole_lines: Vec::new(),
+        propagate_corners: None,
     };
     // A rough guess that avoids most reallocations: ~30 bytes per `v` line.
     st.out.soup.positions.reserve(bytes.len() / 64);
@@ -114,6 +143,11 @@ struct ObjState<'p> {
     corner_lines: Vec<u32>,
     tag_ints: Vec<i64>,
     tag_floats: Vec<f64>,
+    tag_strings: Vec<String>,
+    hole_lines: Vec<u32>,
+    /// `facevaryingpropagatecorners` and its line, resolved at the end (the
+    /// tag may come before or after `facevaryinginterpolateboundary`).
+    propagate_corners: Option<(bool, usize)>,
 }
 
 impl ObjState<'_> {
@@ -236,17 +270,175 @@ impl ObjState<'_> {
             let v = parse_f64(t).ok_or_else(|| self.err(lineno, bad_token("float", t)))?;
             self.tag_floats.push(v);
         }
-        let strings = toks.count();
-        if strings != ns {
-            return Err(self.err(lineno, format!("tag announces {ns} strings, has {strings}")));
+        self.tag_strings.clear();
+        for t in toks {
+            self.tag_strings
+                .push(String::from_utf8_lossy(t).into_owned());
+        }
+        if self.tag_strings.len() != ns {
+            return Err(self.err(
+                lineno,
+                format!("tag announces {ns} strings, has {}", self.tag_strings.len()),
+            ));
         }
         match name {
             b"crease" => self.crease_tag(lineno),
             b"corner" => self.corner_tag(lineno),
-            // interpolateboundary, facevaryingpropagatecorners, hole, ...:
-            // scheme options this crate does not take from files.
-            _ => Ok(()),
+            b"hole" => self.hole_tag(lineno),
+            b"interpolateboundary" => {
+                self.out.scheme.boundary = match self.one_int(lineno, "interpolateboundary")? {
+                    0 => BoundaryInterpolation::None,
+                    1 => BoundaryInterpolation::EdgeAndCorner,
+                    2 => BoundaryInterpolation::EdgeOnly,
+                    i => return Err(self.bad_value(lineno, "interpolateboundary", i, "0, 1 or 2")),
+                };
+                Ok(())
+            }
+            b"facevaryinginterpolateboundary" => {
+                let what = "facevaryinginterpolateboundary";
+                self.out.scheme.fvar = match self.one_int(lineno, what)? {
+                    0 => FVarLinear::None,
+                    1 => FVarLinear::CornersOnly,
+                    2 => FVarLinear::CornersPlus1,
+                    3 => FVarLinear::CornersPlus2,
+                    4 => FVarLinear::Boundaries,
+                    5 => FVarLinear::All,
+                    i => return Err(self.bad_value(lineno, what, i, "0 to 5")),
+                };
+                Ok(())
+            }
+            b"facevaryingpropagatecorners" => {
+                let what = "facevaryingpropagatecorners";
+                let b = match self.one_int(lineno, what)? {
+                    0 => false,
+                    1 => true,
+                    i => return Err(self.bad_value(lineno, what, i, "0 or 1")),
+                };
+                self.propagate_corners = Some((b, lineno));
+                Ok(())
+            }
+            b"creasemethod" => {
+                self.out.scheme.crease_method = match self.one_string(lineno, "creasemethod")? {
+                    "normal" | "uniform" => CreaseMethod::Uniform,
+                    "chaikin" => CreaseMethod::Chaikin,
+                    v => {
+                        return Err(self.err(
+                            lineno,
+                            format!(
+                                "creasemethod `{v}`: expected `normal` (or `uniform`) or `chaikin`"
+                            ),
+                        ))
+                    }
+                };
+                Ok(())
+            }
+            b"smoothtriangles" => self.smooth_triangles_tag(lineno),
+            other => Err(self.err(
+                lineno,
+                format!(
+                    "unknown tag `{}`: known tags are crease, corner, hole, interpolateboundary, \
+                     facevaryinginterpolateboundary, facevaryingpropagatecorners, creasemethod, \
+                     smoothtriangles (hierarchical edits are not supported)",
+                    String::from_utf8_lossy(other)
+                ),
+            )),
         }
+    }
+
+    fn bad_value(&self, lineno: usize, what: &str, v: i64, expected: &str) -> Error {
+        self.err(lineno, format!("{what} value {v}: expected {expected}"))
+    }
+
+    /// The single integer of a `1/0/0` tag.
+    fn one_int(&self, lineno: usize, what: &str) -> Result<i64> {
+        match (
+            self.tag_ints.as_slice(),
+            self.tag_floats.len(),
+            self.tag_strings.len(),
+        ) {
+            (&[i], 0, 0) => Ok(i),
+            (ints, nf, ns) => Err(self.err(
+                lineno,
+                format!(
+                    "{what} tag takes 1/0/0 arguments, has {}/{nf}/{ns}",
+                    ints.len()
+                ),
+            )),
+        }
+    }
+
+    /// The single string of a `0/0/1` tag.
+    fn one_string(&self, lineno: usize, what: &str) -> Result<&str> {
+        match (
+            self.tag_ints.len(),
+            self.tag_floats.len(),
+            self.tag_strings.as_slice(),
+        ) {
+            (0, 0, [s]) => Ok(s.as_str()),
+            (ni, nf, strings) => Err(self.err(
+                lineno,
+                format!(
+                    "{what} tag takes 0/0/1 arguments, has {ni}/{nf}/{}",
+                    strings.len()
+                ),
+            )),
+        }
+    }
+
+    fn smooth_triangles_tag(&mut self, lineno: usize) -> Result<()> {
+        let what = "smoothtriangles";
+        self.out.scheme.triangles =
+            if self.tag_strings.is_empty() {
+                match self.one_int(lineno, what)? {
+                    0 => TriangleSubdivision::Catmark,
+                    2 => TriangleSubdivision::Smooth,
+                    1 => return Err(self.err(
+                        lineno,
+                        "smoothtriangles 1 is Hbr's old triangle rule (k_Old), which OpenSubdiv 3 \
+                         does not have; use 2 or `smooth` for TRI_SUB_SMOOTH",
+                    )),
+                    i => return Err(self.bad_value(lineno, what, i, "0 (catmark) or 2 (smooth)")),
+                }
+            } else {
+                match self.one_string(lineno, what)? {
+                    "catmark" => TriangleSubdivision::Catmark,
+                    "smooth" => TriangleSubdivision::Smooth,
+                    v => {
+                        return Err(self.err(
+                            lineno,
+                            format!("smoothtriangles `{v}`: expected `catmark` or `smooth`"),
+                        ))
+                    }
+                }
+            };
+        Ok(())
+    }
+
+    /// `hole n/0/0 f...`: 0-based face indices (range-checked at the end).
+    fn hole_tag(&mut self, lineno: usize) -> Result<()> {
+        if self.tag_ints.is_empty() || !self.tag_floats.is_empty() || !self.tag_strings.is_empty() {
+            return Err(self.err(
+                lineno,
+                format!(
+                    "hole tag takes n/0/0 arguments (n >= 1 face indices), has {}/{}/{}",
+                    self.tag_ints.len(),
+                    self.tag_floats.len(),
+                    self.tag_strings.len()
+                ),
+            ));
+        }
+        for k in 0..self.tag_ints.len() {
+            let i = self.tag_ints[k];
+            let f = u32::try_from(i).map_err(|_| {
+                self.err(
+                    lineno,
+                    format!("hole face index {i} is negative or too large"),
+                )
+            })?;
+            self.out.scheme.holes.push(FaceId(f));
+            self.hole_lines.push(lineno as u32);
+        }
+        Ok(())
     }
 
     fn tag_vertex(&self, lineno: usize, i: i64) -> Result<u32> {
@@ -300,7 +492,38 @@ impl ObjState<'_> {
     }
 
     /// Range checks that need the whole file (forward references).
-    fn finish(self) -> Result<ObjMesh> {
+    fn finish(mut self) -> Result<ObjMesh> {
+        if let Some((true, line)) = self.propagate_corners {
+            let fvar = &mut self.out.scheme.fvar;
+            match *fvar {
+                FVarLinear::CornersPlus1 | FVarLinear::CornersPlus2 => *fvar = FVarLinear::CornersPlus2,
+                other => {
+                    return Err(self.err(
+                        line,
+                        format!(
+                            "facevaryingpropagatecorners 1 needs facevaryinginterpolateboundary 2 \
+                             (Hbr's edge-and-corner, OpenSubdiv 3's corners-plus2); the file's mode is {}",
+                            other.name()
+                        ),
+                    ))
+                }
+            }
+        }
+        let nf = self.out.soup.num_faces();
+        for (k, f) in self.out.scheme.holes.iter().enumerate() {
+            if f.idx() >= nf {
+                return Err(Error::invalid_mesh(
+                    self.path,
+                    format!("hole tag (line {})", self.hole_lines[k]),
+                    format!(
+                        "face {} out of range (the file has {nf} faces; tags are 0-based)",
+                        f.0
+                    ),
+                ));
+            }
+        }
+        let holes = std::mem::take(&mut self.out.scheme.holes);
+        self.out.scheme = std::mem::take(&mut self.out.scheme).with_holes(holes);
         let (out, path) = (&self.out, self.path);
         let nv = out.soup.positions.len();
         for (f, face) in out.soup.faces().enumerate() {

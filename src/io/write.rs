@@ -186,6 +186,63 @@ pub fn write_control_obj(path: &Path, mesh: &ControlMesh) -> Result<()> {
     )
 }
 
+/// Writes a control mesh with its scheme options as an OpenSubdiv shape
+/// file: [`write_control_obj`] plus the `t` tags of [`scheme_tags`], which
+/// `read_control_file` reads back.
+pub fn write_control_file(
+    path: &Path,
+    mesh: &ControlMesh,
+    scheme: &crate::mesh::SchemeOptions,
+) -> Result<()> {
+    write_control_obj(path, mesh)?;
+    use std::io::Write;
+    let mut f = std::fs::OpenOptions::new()
+        .append(true)
+        .open(path)
+        .map_err(|e| Error::io(path, e))?;
+    f.write_all(scheme_tags(scheme).as_bytes())
+        .map_err(|e| Error::io(path, e))
+}
+
+/// The shape-file tags stating `scheme` (all four options, and the holes).
+pub fn scheme_tags(scheme: &crate::mesh::SchemeOptions) -> String {
+    use crate::mesh::TriangleSubdivision as T;
+    use crate::mesh::{BoundaryInterpolation as B, CreaseMethod as C, FVarLinear as F};
+    let b = match scheme.boundary {
+        B::None => 0,
+        B::EdgeAndCorner => 1,
+        B::EdgeOnly => 2,
+    };
+    let fv = match scheme.fvar {
+        F::None => 0,
+        F::CornersOnly => 1,
+        F::CornersPlus1 => 2,
+        F::CornersPlus2 => 3,
+        F::Boundaries => 4,
+        F::All => 5,
+    };
+    let c = match scheme.crease_method {
+        C::Uniform => "normal",
+        C::Chaikin => "chaikin",
+    };
+    let t = match scheme.triangles {
+        T::Catmark => "catmark",
+        T::Smooth => "smooth",
+    };
+    let mut s = format!(
+        "t interpolateboundary 1/0/0 {b}\nt facevaryinginterpolateboundary 1/0/0 {fv}\n\
+         t creasemethod 0/0/1 {c}\nt smoothtriangles 0/0/1 {t}\n"
+    );
+    if !scheme.holes.is_empty() {
+        s += &format!("t hole {}/0/0", scheme.holes.len());
+        for h in &scheme.holes {
+            s += &format!(" {}", h.0);
+        }
+        s += "\n";
+    }
+    s
+}
+
 /// Writes a binary little-endian PLY: `float` x, y, z, then one `float`
 /// property per entry of `vertex_props` (name, one value per vertex), then
 /// optional `uchar` red, green, blue; faces as `list uchar int

@@ -8,6 +8,7 @@ mod foreign;
 mod frame;
 mod manifold;
 mod report;
+mod scheme;
 mod soup;
 
 pub use control::{
@@ -18,4 +19,8 @@ pub use frame::Frame;
 pub use manifold::{split_non_manifold, split_non_manifold_polygons, SplitStats};
 pub(crate) use report::non_finite;
 pub use report::{validate_soup, MeshReport, ValidatedMesh};
+pub use scheme::{
+    BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions, SubdivScheme,
+    TriangleSubdivision,
+};
 pub use soup::{PolySoup, TriMesh};

@@ -14,9 +14,12 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use crate::error::Result;
-use crate::mesh::{ControlMesh, FaceId, VertexId, INFINITELY_SHARP};
+use crate::mesh::{
+    BoundaryInterpolation, ControlMesh, FaceId, SchemeOptions, SubdivScheme, VertexId,
+    INFINITELY_SHARP,
+};
 use crate::subdiv::{
-    known_differences, KnownDifference, LimitEvaluator, LimitPoint, SurfaceLocation,
+    known_differences_with, KnownDifference, LimitEvaluator, LimitPoint, SurfaceLocation,
 };
 use crate::DVec3;
 
@@ -52,6 +55,8 @@ impl Worst {
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct DiffReport {
     pub backends: [String; 2],
+    /// The scheme options both evaluators followed.
+    pub scheme: SchemeOptions,
     pub bbox_diagonal: f64,
     /// At control vertices, known differences excluded.
     pub vertices: Worst,
@@ -63,6 +68,143 @@ pub struct DiffReport {
     /// At locations within `margin` of an irregular corner.
     pub near_irregular: Worst,
     pub margin: f64,
+    /// Normals at control vertices OpenSubdiv evaluates on its patches
+    /// ([`crate::subdiv::osd::patch_evaluated_vertices`]); their positions
+    /// are in `vertices`.
+    pub patch_vertices: Worst,
+    /// OpenSubdiv's known approximations and deliberate differences, each
+    /// with its measured size: reported, never a failure by themselves.
+    pub approximations: Vec<Approximation>,
+}
+
+/// One known way OpenSubdiv departs from the exact limit, as measured.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct Approximation {
+    pub name: &'static str,
+    /// Samples (or sharpness values) concerned.
+    pub count: usize,
+    /// Worst position deviation there, relative to the diagonal.
+    pub position: f64,
+    /// Worst normal deviation there, radians.
+    pub normal: f64,
+    pub why: String,
+}
+
+/// Largest rounding of a sharpness value to f32 and how many values are
+/// not exact there.
+fn f32_sharpness_rounding(mesh: &ControlMesh) -> (usize, f64) {
+    let all = mesh
+        .creases()
+        .into_iter()
+        .map(|c| c.2)
+        .chain(mesh.corners().into_iter().map(|c| c.1));
+    all.map(|s| (s - s as f32 as f64).abs())
+        .filter(|&d| d > 0.0)
+        .fold((0, 0.0), |(n, m), d| (n + 1, f64::max(m, d)))
+}
+
+impl DiffReport {
+    fn summarise_approximations(&mut self, mesh: &ControlMesh) {
+        let from = |name, w: &Worst, why: &str| Approximation {
+            name,
+            count: w.count,
+            position: w.position,
+            normal: w.normal,
+            why: why.to_string(),
+        };
+        let mut out = vec![
+            from(
+                "end caps near irregular corners",
+                &self.near_irregular,
+                "OpenSubdiv covers the last isolation level around an irregular vertex with \
+                 Gregory patches, which approximate (and reparametrise) the limit; shrinks as \
+                 --isolation grows",
+            ),
+            from(
+                "end caps at semi-sharp control vertices (normals)",
+                &self.patch_vertices,
+                "a vertex whose semi-sharp feature is still sharp at level 1 is evaluated on \
+                 OpenSubdiv's patches; where it is extraordinary once the feature runs out, \
+                 that is a Gregory end cap whose tangent plane is approximate",
+            ),
+            from(
+                "deliberate differences at control vertices",
+                &self.known,
+                "interior valence-2 vertices (corner mask), darts (smooth masks) and boundary \
+                 tangent masks of OpenSubdiv are not the exact limit; listed per vertex",
+            ),
+        ];
+        let (n, r) = f32_sharpness_rounding(mesh);
+        out.push(Approximation {
+            name: "float32 sharpness",
+            count: n,
+            position: 0.0,
+            normal: 0.0,
+            why: format!(
+                "OpenSubdiv stores sharpness as f32 ({n} value(s) here are not exact, rounded \
+                 by up to {r:.1e}); the Rust evaluator follows the same f32 values and rules, \
+                 so the backends agree; the size given is how far that (f32) surface is from \
+                 the one with the sharpness as written"
+            ),
+        });
+        self.approximations = out;
+    }
+
+    /// Records the measured effect of f32 sharpness
+    /// ([`f32_sharpness_effect`]) as that approximation's size.
+    pub fn set_f32_effect(&mut self, position: f64, normal: f64) {
+        if let Some(a) = self
+            .approximations
+            .iter_mut()
+            .find(|a| a.name == "float32 sharpness")
+        {
+            a.position = position;
+            a.normal = normal;
+        }
+    }
+}
+
+/// How far the surface with OpenSubdiv's f32 sharpness is from the one with
+/// the sharpness as written: the Rust evaluator both ways, at the control
+/// vertices and `locations` (worst position relative to the diagonal, worst
+/// normal angle). Zero when every sharpness is exact in f32.
+pub fn f32_sharpness_effect(
+    mesh: &ControlMesh,
+    options: &crate::subdiv::EvalOptions,
+    locations: &[SurfaceLocation],
+) -> Result<(f64, f64)> {
+    use crate::subdiv::{make_evaluator, Backend};
+    if f32_sharpness_rounding(mesh).0 == 0 || options.scheme.scheme == SubdivScheme::Bilinear {
+        return Ok((0.0, 0.0));
+    }
+    let a = make_evaluator(
+        Backend::Rust,
+        mesh,
+        &options.clone().with_exact_sharpness(false),
+    )?;
+    let b = make_evaluator(
+        Backend::Rust,
+        mesh,
+        &options.clone().with_exact_sharpness(true),
+    )?;
+    let p = mesh.positions();
+    let diag = mesh.bbox_diagonal().max(f64::MIN_POSITIVE);
+    let mut pairs = a
+        .vertex_limits(p)?
+        .into_iter()
+        .zip(b.vertex_limits(p)?)
+        .collect::<Vec<_>>();
+    pairs.extend(
+        a.evaluate(p, locations)?
+            .into_iter()
+            .zip(b.evaluate(p, locations)?),
+    );
+    Ok(pairs.iter().fold((0.0f64, 0.0f64), |(dp, dn), (x, y)| {
+        (
+            dp.max((x.position - y.position).length() / diag),
+            dn.max(angle_between(x.normal(), y.normal())),
+        )
+    }))
 }
 
 /// Angle between two vectors' directions (0 when both are zero).
@@ -79,7 +221,23 @@ pub fn angle_between(a: DVec3, b: DVec3) -> f64 {
 /// evaluator (extraordinary valence, darts, uneven creases, corners with a
 /// face count other than one): the places where end caps are used.
 pub fn is_irregular_vertex(mesh: &ControlMesh, v: VertexId) -> bool {
+    is_irregular_vertex_with(mesh, &SchemeOptions::default(), v)
+}
+
+/// [`is_irregular_vertex`] under `scheme`: without corner sharpening
+/// (boundary "edge only" or "none"), a boundary vertex with one face is a
+/// crease vertex of valence 2, irregular.
+pub fn is_irregular_vertex_with(mesh: &ControlMesh, scheme: &SchemeOptions, v: VertexId) -> bool {
+    if scheme.scheme == SubdivScheme::Bilinear {
+        return false; // every patch is an exact bilinear one
+    }
     let valence = mesh.valence(v);
+    if scheme.boundary != BoundaryInterpolation::EdgeAndCorner
+        && mesh.is_boundary_vertex(v)
+        && valence == 2
+    {
+        return true;
+    }
     let sharp: Vec<f64> = mesh
         .outgoing(v)
         .filter(|&h| !mesh.is_boundary_edge(h.edge()))
@@ -110,13 +268,23 @@ pub fn is_irregular_vertex(mesh: &ControlMesh, v: VertexId) -> bool {
 /// sharp crease (two or more such edges) nor at an infinitely sharp corner
 /// (boundary corners included).
 pub fn normal_is_defined(mesh: &ControlMesh, v: VertexId) -> bool {
+    normal_is_defined_with(mesh, &SchemeOptions::default(), v)
+}
+
+/// [`normal_is_defined`] under `scheme` (a boundary vertex with one face is
+/// a corner only when boundary corners are sharpened).
+pub fn normal_is_defined_with(mesh: &ControlMesh, scheme: &SchemeOptions, v: VertexId) -> bool {
+    if scheme.scheme == SubdivScheme::Bilinear {
+        return false; // a polyhedral surface has no normal at its vertices
+    }
+    let sharpened = scheme.boundary == BoundaryInterpolation::EdgeAndCorner;
     let sharp = mesh
         .outgoing(v)
         .filter(|&h| {
             !mesh.is_boundary_edge(h.edge()) && mesh.edge_sharpness(h.edge()) >= INFINITELY_SHARP
         })
         .count();
-    let boundary_corner = mesh.is_boundary_vertex(v) && mesh.valence(v) == 2;
+    let boundary_corner = sharpened && mesh.is_boundary_vertex(v) && mesh.valence(v) == 2;
     let corner = mesh.vertex_sharpness(v) >= INFINITELY_SHARP;
     let sharp_on_boundary = mesh.is_boundary_vertex(v) && sharp > 0;
     sharp < 2 && !(boundary_corner || corner || sharp_on_boundary)
@@ -153,14 +321,29 @@ fn irregular_corners(
 /// `n` random locations, uniform in `(u, v)` over uniformly chosen
 /// sub-quads (ptex faces), from a fixed seed.
 pub fn random_locations(mesh: &ControlMesh, n: usize, seed: u64) -> Vec<SurfaceLocation> {
+    random_locations_with(mesh, &SchemeOptions::default(), n, seed)
+}
+
+/// [`random_locations`] on the faces that have a limit surface under
+/// `scheme` (none if every face is a hole).
+pub fn random_locations_with(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    n: usize,
+    seed: u64,
+) -> Vec<SurfaceLocation> {
+    let holes = scheme.effective_holes(mesh);
     let mut ptex: Vec<(FaceId, u16)> = Vec::new();
-    for f in mesh.faces() {
+    for f in mesh.faces().filter(|f| !holes[f.idx()]) {
         let k = mesh.face_size(f);
         if k == 4 {
             ptex.push((f, 0));
         } else {
             ptex.extend((0..k as u16).map(|s| (f, s)));
         }
+    }
+    if ptex.is_empty() {
+        return Vec::new();
     }
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     (0..n)
@@ -186,13 +369,25 @@ pub fn near_irregular_locations(
     margin: f64,
     seed: u64,
 ) -> Vec<SurfaceLocation> {
+    near_irregular_locations_with(mesh, &SchemeOptions::default(), per_corner, margin, seed)
+}
+
+/// [`near_irregular_locations`] under `scheme` (holes skipped).
+pub fn near_irregular_locations_with(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    per_corner: usize,
+    margin: f64,
+    seed: u64,
+) -> Vec<SurfaceLocation> {
     let irregular: Vec<bool> = mesh
         .vertices()
-        .map(|v| is_irregular_vertex(mesh, v))
+        .map(|v| is_irregular_vertex_with(mesh, scheme, v))
         .collect();
+    let holes = scheme.effective_holes(mesh);
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut out = Vec::new();
-    for face in mesh.faces() {
+    for face in mesh.faces().filter(|f| !holes[f.idx()]) {
         let subs = if mesh.face_size(face) == 4 {
             1
         } else {
@@ -230,8 +425,23 @@ pub fn compare(
     locations: &[SurfaceLocation],
     margin: f64,
 ) -> Result<DiffReport> {
+    compare_with(mesh, &SchemeOptions::default(), a, b, locations, margin)
+}
+
+/// [`compare`] of two evaluators built with `scheme`: vertices whose faces
+/// are all holes have no surface and are not compared.
+pub fn compare_with(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    a: &dyn LimitEvaluator,
+    b: &dyn LimitEvaluator,
+    locations: &[SurfaceLocation],
+    margin: f64,
+) -> Result<DiffReport> {
     let diag = mesh.bbox_diagonal().max(f64::MIN_POSITIVE);
-    let known = known_differences(mesh);
+    let known = known_differences_with(mesh, scheme);
+    let holes = scheme.effective_holes(mesh);
+    let on_patches = crate::subdiv::osd::patch_evaluated_vertices(mesh, scheme);
     // 0: no known difference, 1: normal only, 2: position and normal.
     let mut is_known = vec![0u8; mesh.num_vertices()];
     for k in &known {
@@ -239,6 +449,7 @@ pub fn compare(
     }
     let mut report = DiffReport {
         backends: [a.name().to_string(), b.name().to_string()],
+        scheme: scheme.clone(),
         bbox_diagonal: diag,
         known_differences: known,
         margin,
@@ -247,16 +458,26 @@ pub fn compare(
     let p = mesh.positions();
     let (va, vb) = (a.vertex_limits(p)?, b.vertex_limits(p)?);
     for (i, (x, y)) in va.iter().zip(&vb).enumerate() {
+        if mesh
+            .vertex_faces(VertexId(i as u32))
+            .all(|f| holes[f.idx()])
+        {
+            continue;
+        }
         let dp = (x.position - y.position).length() / diag;
         // On an infinitely sharp crease or corner the normal jumps: each
         // evaluator picks one side, so there is nothing to compare.
-        let dn = if normal_is_defined(mesh, VertexId(i as u32)) {
+        let dn = if normal_is_defined_with(mesh, scheme, VertexId(i as u32)) {
             angle_between(x.normal(), y.normal())
         } else {
             0.0
         };
         let at = || format!("vertex {i}");
         match is_known[i] {
+            0 if on_patches[i] => {
+                report.vertices.add(at, dp, 0.0);
+                report.patch_vertices.add(at, 0.0, dn);
+            }
             0 => report.vertices.add(at, dp, dn),
             1 => {
                 report.vertices.add(at, dp, 0.0);
@@ -267,7 +488,7 @@ pub fn compare(
     }
     let irregular: Vec<bool> = mesh
         .vertices()
-        .map(|v| is_irregular_vertex(mesh, v))
+        .map(|v| is_irregular_vertex_with(mesh, scheme, v))
         .collect();
     let (la, lb): (Vec<LimitPoint>, Vec<LimitPoint>) =
         (a.evaluate(p, locations)?, b.evaluate(p, locations)?);
@@ -290,6 +511,7 @@ pub fn compare(
             report.regular.add(at, dp, dn);
         }
     }
+    report.summarise_approximations(mesh);
     Ok(report)
 }
 
@@ -300,6 +522,7 @@ impl std::fmt::Display for DiffReport {
             "{} vs {} (deviations relative to the bbox diagonal {:.6e}; normals in rad)",
             self.backends[0], self.backends[1], self.bbox_diagonal
         )?;
+        writeln!(f, "  scheme: {}", self.scheme)?;
         let line = |f: &mut std::fmt::Formatter<'_>, name: &str, w: &Worst| {
             if w.count == 0 {
                 return writeln!(f, "  {name:<28} (none)");
@@ -314,11 +537,20 @@ impl std::fmt::Display for DiffReport {
         line(f, "random locations", &self.regular)?;
         let near = format!("near irregular (< {})", self.margin);
         line(f, &near, &self.near_irregular)?;
+        line(f, "patch-evaluated vertices", &self.patch_vertices)?;
         if !self.known_differences.is_empty() {
             line(f, "known differences", &self.known)?;
             for k in &self.known_differences {
                 writeln!(f, "    vertex {}: {}", k.vertex, k.reason)?;
             }
+        }
+        writeln!(f, "  OpenSubdiv's approximations (reported, not failures):")?;
+        for a in &self.approximations {
+            writeln!(
+                f,
+                "    {}: n={} position {:.3e} normal {:.3e} rad ({})",
+                a.name, a.count, a.position, a.normal, a.why
+            )?;
         }
         Ok(())
     }

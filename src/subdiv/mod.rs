@@ -3,8 +3,13 @@
 //! (OpenSubdiv Far, the reference of every DCC tool).
 //!
 //! Conventions, fixed once here:
-//! - Boundary interpolation "edge and corner" (USD's default): boundary
-//!   edges are infinitely sharp creases, valence-2 boundary vertices corners.
+//! - The subdivision rules are OpenSubdiv's `Sdc::Options` of
+//!   [`EvalOptions::scheme`] ([`SchemeOptions`]), honoured by both
+//!   evaluators: boundary interpolation (default "edge and corner", USD's:
+//!   boundary edges are infinitely sharp creases, valence-2 boundary
+//!   vertices corners), creasing method, triangle rule, holes (faces
+//!   without limit surface; evaluating there is an error). Sharpness is
+//!   OpenSubdiv's 32-bit float (see `catmark::topo`).
 //! - A surface location is `(face, sub, u, v)`. On a quad `(v0 v1 v2 v3)` in
 //!   file order, `(0,0)` is at v0, `(1,0)` at v1, `(1,1)` at v2, `(0,1)` at v3
 //!   and `sub` is 0. A non-quad face with n corners is split as Catmull-Clark
@@ -14,6 +19,7 @@
 //!   two tangents are those of the limit tangent masks (their scale is not
 //!   comparable between backends); only the unit normal is.
 
+pub mod bilinear;
 pub mod catmark;
 pub mod diff;
 pub mod osd;
@@ -25,6 +31,10 @@ pub use quadtri::{QuadTriEvaluator, QuadTriRefiner};
 use serde::Serialize;
 
 use crate::error::{Error, Result};
+pub use crate::mesh::{
+    BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions, SubdivScheme,
+    TriangleSubdivision,
+};
 use crate::mesh::{ControlMesh, FaceId, VertexId};
 use crate::DVec3;
 
@@ -107,12 +117,27 @@ pub struct EvalOptions {
     /// vertices (STACK-NOTES: ~2e-4 of the size at level 6), so a reference
     /// needs a high level; 10 is OpenSubdiv's maximum.
     pub isolation_level: u8,
+    /// The subdivision rules (Sdc options) and holes; both evaluators
+    /// honour every one of them.
+    pub scheme: SchemeOptions,
+    /// Test hook: adds `.1` to the weight of vertex `.0` in its own limit
+    /// position mask in the Rust evaluator — a deliberately broken mask, so
+    /// tests can check that `diff-limit` catches a real defect.
+    #[doc(hidden)]
+    pub broken_mask: Option<(u32, f64)>,
+    /// Rust evaluator only: follow the sharpness as written (f64) instead
+    /// of OpenSubdiv's f32 rounding — to measure what that rounding does
+    /// (`diff::f32_sharpness_effect`); it then departs from OpenSubdiv.
+    pub exact_sharpness: bool,
 }
 
 impl Default for EvalOptions {
     fn default() -> Self {
         EvalOptions {
             isolation_level: 10,
+            scheme: SchemeOptions::default(),
+            broken_mask: None,
+            exact_sharpness: false,
         }
     }
 }
@@ -122,6 +147,32 @@ impl EvalOptions {
         self.isolation_level = level;
         self
     }
+    pub fn with_scheme(mut self, scheme: SchemeOptions) -> Self {
+        self.scheme = scheme;
+        self
+    }
+    pub fn with_exact_sharpness(mut self, exact: bool) -> Self {
+        self.exact_sharpness = exact;
+        self
+    }
+    #[doc(hidden)]
+    pub fn with_broken_mask(mut self, vertex: u32, delta: f64) -> Self {
+        self.broken_mask = Some((vertex, delta));
+        self
+    }
+}
+
+/// Checks the scheme options against `mesh` (hole faces in range) and
+/// returns its per-face hole flags ([`SchemeOptions::effective_holes`]).
+pub fn checked_holes(mesh: &ControlMesh, scheme: &SchemeOptions) -> Result<Vec<bool>> {
+    if let Some(f) = scheme.holes.iter().find(|f| f.idx() >= mesh.num_faces()) {
+        return Err(Error::InvalidArgument(format!(
+            "hole face {} out of range (the mesh has {} faces)",
+            f.0,
+            mesh.num_faces()
+        )));
+    }
+    Ok(scheme.effective_holes(mesh))
 }
 
 /// Which implementation of [`LimitEvaluator`].
@@ -160,16 +211,39 @@ pub fn make_evaluator(
     options: &EvalOptions,
 ) -> Result<Box<dyn LimitEvaluator>> {
     let face_sizes = mesh.face_sizes();
+    let holes = checked_holes(mesh, &options.scheme)?;
     Ok(match backend {
         Backend::Osd => Box::new(Checked {
             inner: osd::OsdEvaluator::new(mesh, options)?,
             face_sizes,
+            holes,
+        }),
+        Backend::Rust if options.scheme.scheme == SubdivScheme::Bilinear => Box::new(Checked {
+            inner: bilinear::BilinearEvaluator::new(mesh, options)?,
+            face_sizes,
+            holes,
         }),
         Backend::Rust => Box::new(Checked {
             inner: catmark::RustEvaluator::new(mesh, options)?,
             face_sizes,
+            holes,
         }),
     })
+}
+
+/// Fails on the first location on a face without limit surface.
+pub fn check_not_holes(holes: &[bool], locations: &[SurfaceLocation]) -> Result<()> {
+    match locations
+        .iter()
+        .position(|l| holes.get(l.face.idx()).copied().unwrap_or(false))
+    {
+        Some(i) => Err(Error::InvalidArgument(format!(
+            "location {i}: face {} is a hole (tagged `hole`, or a boundary face under \
+             boundary interpolation \"none\"): it has no limit surface",
+            locations[i].face.0
+        ))),
+        None => Ok(()),
+    }
 }
 
 /// Checks `locations` against a mesh with these face sizes: face in range,
@@ -201,7 +275,7 @@ pub fn check_locations(face_sizes: &[u32], locations: &[SurfaceLocation]) -> Res
     Ok(())
 }
 
-fn check_positions(n: usize, positions: &[DVec3]) -> Result<()> {
+pub(crate) fn check_positions(n: usize, positions: &[DVec3]) -> Result<()> {
     if positions.len() != n {
         return Err(Error::InvalidArgument(format!(
             "expected {n} control positions, got {}",
@@ -220,6 +294,7 @@ fn check_positions(n: usize, positions: &[DVec3]) -> Result<()> {
 struct Checked<E> {
     inner: E,
     face_sizes: Vec<u32>,
+    holes: Vec<bool>,
 }
 
 impl<E: LimitEvaluator> LimitEvaluator for Checked<E> {
@@ -240,10 +315,12 @@ impl<E: LimitEvaluator> LimitEvaluator for Checked<E> {
     ) -> Result<Vec<LimitPoint>> {
         check_positions(self.num_control_vertices(), positions)?;
         check_locations(&self.face_sizes, locations)?;
+        check_not_holes(&self.holes, locations)?;
         self.inner.evaluate(positions, locations)
     }
     fn stencils(&self, locations: &[SurfaceLocation]) -> Result<LimitStencils> {
         check_locations(&self.face_sizes, locations)?;
+        check_not_holes(&self.holes, locations)?;
         self.inner.stencils(locations)
     }
 }
@@ -271,8 +348,19 @@ pub struct KnownDifference {
 /// on `fixtures::creased_cube`, and so does the normal. (A semi-sharp single
 /// edge is not a dart in the limit: it runs out, both agree.)
 pub fn known_differences(mesh: &ControlMesh) -> Vec<KnownDifference> {
+    known_differences_with(mesh, &SchemeOptions::default())
+}
+
+/// [`known_differences`] under `scheme`: vertices whose faces are all holes
+/// have no surface and are left out.
+pub fn known_differences_with(mesh: &ControlMesh, scheme: &SchemeOptions) -> Vec<KnownDifference> {
     use crate::mesh::INFINITELY_SHARP;
+    if scheme.scheme == SubdivScheme::Bilinear {
+        return Vec::new(); // both evaluators use the exact bilinear masks
+    }
+    let holes = scheme.effective_holes(mesh);
     mesh.vertices()
+        .filter(|&v| mesh.vertex_faces(v).any(|f| !holes[f.idx()]))
         .filter_map(|v: VertexId| {
             if mesh.is_boundary_vertex(v) {
                 // Edge-and-corner rule: a boundary vertex with one face is a

@@ -1,8 +1,8 @@
 //! OpenSubdiv (Far) limit evaluation through the cxx bridge.
 //!
 //! The topology is handed to OpenSubdiv once, as the plain arrays of
-//! `Far::TopologyDescriptor`, with the options of the module doc (Catmark,
-//! boundary "edge and corner", uniform creasing, Catmark triangle rule). It
+//! `Far::TopologyDescriptor` (holes as its `holeIndices`), with the Catmark
+//! scheme and the `Sdc::Options` of [`EvalOptions::scheme`]. It
 //! is refined feature-adaptively to [`EvalOptions::isolation_level`] and
 //! turned into a double-precision `Far::PatchTable` (Gregory basis end caps)
 //! with a `Far::PatchMap`; all of that lives in one immutable C++ object.
@@ -38,7 +38,10 @@ use rayon::prelude::*;
 use crate::error::{Error, Result};
 use crate::ffi::osd::bridge;
 use crate::mesh::{ControlMesh, INFINITELY_SHARP};
-use crate::subdiv::{EvalOptions, LimitEvaluator, LimitPoint, LimitStencils, SurfaceLocation};
+use crate::subdiv::{
+    checked_holes, BoundaryInterpolation, CreaseMethod, EvalOptions, FVarLinear, LimitEvaluator,
+    LimitPoint, LimitStencils, SchemeOptions, SubdivScheme, SurfaceLocation, TriangleSubdivision,
+};
 use crate::DVec3;
 
 /// Locations per parallel chunk of [`LimitEvaluator::evaluate`]: large enough
@@ -47,6 +50,66 @@ const EVAL_CHUNK: usize = 2048;
 /// Minimum locations per chunk of [`LimitEvaluator::stencils`]: every factory
 /// call rebuilds a `PatchMap`, so chunks must be large.
 const STENCIL_CHUNK_MIN: usize = 4096;
+
+/// The bridge's form of the scheme options (OpenSubdiv's enum order).
+pub(crate) fn scheme_desc(s: &SchemeOptions) -> bridge::SchemeDesc {
+    bridge::SchemeDesc {
+        scheme_type: match s.scheme {
+            SubdivScheme::Bilinear => 0,
+            SubdivScheme::Catmark => 1,
+        },
+        boundary: match s.boundary {
+            BoundaryInterpolation::None => 0,
+            BoundaryInterpolation::EdgeOnly => 1,
+            BoundaryInterpolation::EdgeAndCorner => 2,
+        },
+        fvar: match s.fvar {
+            FVarLinear::None => 0,
+            FVarLinear::CornersOnly => 1,
+            FVarLinear::CornersPlus1 => 2,
+            FVarLinear::CornersPlus2 => 3,
+            FVarLinear::Boundaries => 4,
+            FVarLinear::All => 5,
+        },
+        creasing: match s.crease_method {
+            CreaseMethod::Uniform => 0,
+            CreaseMethod::Chaikin => 1,
+        },
+        triangles: match s.triangles {
+            TriangleSubdivision::Catmark => 0,
+            TriangleSubdivision::Smooth => 1,
+        },
+        holes: s.holes.iter().map(|f| f.0).collect(),
+    }
+}
+
+/// Per vertex: whether [`OsdEvaluator`]'s `vertex_limits` evaluates it on
+/// the patch table rather than with `PrimvarRefiner::Limit` — where a
+/// semi-sharp feature at it is still sharp at level 1 (sharpness > 1; under
+/// Chaikin creasing any semi-sharp edge, whose child adds its neighbours'
+/// average). Where the vertex is extraordinary once the features run out,
+/// that is a Gregory end cap, whose tangent plane only approximates the
+/// limit (see `diff::DiffReport::approximations`).
+pub fn patch_evaluated_vertices(mesh: &ControlMesh, scheme: &SchemeOptions) -> Vec<bool> {
+    if scheme.scheme == SubdivScheme::Bilinear {
+        // Bilinear limit masks ignore sharpness: `Limit` is exact.
+        return vec![false; mesh.num_vertices()];
+    }
+    let min = if scheme.crease_method == CreaseMethod::Chaikin {
+        0.0
+    } else {
+        1.0
+    };
+    let semi_sharp = |s: f64| s > min && s < INFINITELY_SHARP;
+    mesh.vertices()
+        .map(|v| {
+            semi_sharp(mesh.vertex_sharpness(v))
+                || mesh
+                    .outgoing(v)
+                    .any(|h| semi_sharp(mesh.edge_sharpness(h.edge())))
+        })
+        .collect()
+}
 
 fn backend(e: cxx::Exception) -> Error {
     Error::backend("OpenSubdiv", e.what())
@@ -107,6 +170,7 @@ impl OsdEvaluator {
             &crease_weights,
             &corner_vertices,
             &corner_weights,
+            &scheme_desc(&options.scheme),
             level as u32,
         )
         .map_err(backend)?;
@@ -122,18 +186,17 @@ impl OsdEvaluator {
             ));
         }
 
-        let semi_sharp = |s: f64| s > 1.0 && s < INFINITELY_SHARP;
+        let holes = checked_holes(mesh, &options.scheme)?;
+        let routed = patch_evaluated_vertices(mesh, &options.scheme);
         let patch_route_vertices = mesh
             .vertices()
-            .filter(|&v| {
-                semi_sharp(mesh.vertex_sharpness(v))
-                    || mesh
-                        .outgoing(v)
-                        .any(|h| semi_sharp(mesh.edge_sharpness(h.edge())))
-            })
+            .filter(|&v| routed[v.idx()])
             .filter_map(|v| {
-                // Any face at v: the corner of its ptex face at v.
-                let h = mesh.outgoing(v).find(|&h| mesh.face_of(h).is_some())?;
+                // Any face at v with a surface: the corner of its ptex face
+                // at v (a vertex with only holes around keeps Limit's value).
+                let h = mesh
+                    .outgoing(v)
+                    .find(|&h| mesh.face_of(h).is_some_and(|f| !holes[f.idx()]))?;
                 let f = mesh.face_of(h)?;
                 let k = mesh.face_halfedges(f).position(|g| g == h)?;
                 let loc = if mesh.face_size(f) == 4 {
@@ -404,6 +467,18 @@ pub fn osd_refine_uniform(
     levels: u32,
     limits: bool,
 ) -> Result<OsdUniformRefinement> {
+    osd_refine_uniform_with(mesh, scheme, &SchemeOptions::default(), levels, limits)
+}
+
+/// [`osd_refine_uniform`] with explicit scheme options (holes included:
+/// OpenSubdiv still refines hole faces uniformly).
+pub fn osd_refine_uniform_with(
+    mesh: &ControlMesh,
+    scheme: OsdScheme,
+    options: &SchemeOptions,
+    levels: u32,
+    limits: bool,
+) -> Result<OsdUniformRefinement> {
     if !(1..=10).contains(&levels) {
         return Err(Error::InvalidArgument(format!(
             "OpenSubdiv uniform refinement: {levels} levels requested, 1..=10 supported"
@@ -437,6 +512,7 @@ pub fn osd_refine_uniform(
         &crease_weights,
         &corner_vertices,
         &corner_weights,
+        &scheme_desc(options),
         &flat,
         levels,
         limits,
@@ -501,9 +577,19 @@ mod tests {
     /// bridge is called directly: a descriptor without vertices).
     #[test]
     fn opensubdiv_refusal_is_a_backend_error() {
-        let e = bridge::new_osd_topology(0, &[], &[], &[], &[], &[], &[], 4)
-            .err()
-            .expect("OpenSubdiv must refuse an empty descriptor");
+        let e = bridge::new_osd_topology(
+            0,
+            &[],
+            &[],
+            &[],
+            &[],
+            &[],
+            &[],
+            &scheme_desc(&SchemeOptions::default()),
+            4,
+        )
+        .err()
+        .expect("OpenSubdiv must refuse an empty descriptor");
         let msg = e.what().to_string();
         assert!(msg.contains("TopologyRefinerFactory"), "{msg}");
         // The message came from OpenSubdiv's error callback, not our default.
@@ -512,9 +598,19 @@ mod tests {
 
     #[test]
     fn descriptor_is_checked_before_opensubdiv_sees_it() {
-        let e = bridge::new_osd_topology(3, &[3], &[0, 1, 7], &[], &[], &[], &[], 4)
-            .err()
-            .expect("out-of-range index must be refused");
+        let e = bridge::new_osd_topology(
+            3,
+            &[3],
+            &[0, 1, 7],
+            &[],
+            &[],
+            &[],
+            &[],
+            &scheme_desc(&SchemeOptions::default()),
+            4,
+        )
+        .err()
+        .expect("out-of-range index must be refused");
         assert!(e.what().contains("out of range"), "{}", e.what());
     }
 }

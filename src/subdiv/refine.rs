@@ -3,8 +3,9 @@
 //! limit evaluators, and the tessellator of later stages.
 
 use crate::error::{Error, Result};
+use crate::mesh::SchemeOptions;
 use crate::mesh::{ControlMesh, VertexId};
-use crate::subdiv::catmark::topo::{topo_from_mesh, Topo};
+use crate::subdiv::catmark::topo::{topo_from_mesh, Rules, Topo};
 use crate::DVec3;
 
 /// The most levels [`refine_uniform`] accepts: each level multiplies the face
@@ -18,18 +19,31 @@ pub const MAX_UNIFORM_LEVELS: u32 = 8;
 /// Crease and corner sharpness are carried over, decremented by one per
 /// level (`Sdc::Options::CREASE_UNIFORM`).
 pub fn refine_uniform(mesh: &ControlMesh, levels: u32) -> Result<ControlMesh> {
+    refine_uniform_with(mesh, &SchemeOptions::default(), levels)
+}
+
+/// [`refine_uniform`] under the refinement rules of `scheme` (boundary
+/// interpolation, creasing method, triangle rule; holes do not change the
+/// refinement, and the refined mesh carries no hole tags). Sharpness is
+/// rounded to f32 like OpenSubdiv's (see `catmark::topo`).
+pub fn refine_uniform_with(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    levels: u32,
+) -> Result<ControlMesh> {
     if levels > MAX_UNIFORM_LEVELS {
         return Err(Error::InvalidArgument(format!(
             "refine_uniform: {levels} levels requested, at most {MAX_UNIFORM_LEVELS} supported"
         )));
     }
-    let ids = topo_from_mesh(mesh, None);
+    let ids = topo_from_mesh(mesh, None, Rules::from_scheme(scheme));
     let mut t: Topo<DVec3> = Topo {
         pts: mesh.positions().to_vec(),
         vsharp: ids.vsharp,
         foff: ids.foff,
         fv: ids.fv,
         esharp: ids.esharp,
+        rules: ids.rules,
     };
     for _ in 0..levels {
         let adj = t.adjacency();

@@ -7,7 +7,10 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
-use subdfit::mesh::FaceId;
+use subdfit::mesh::{
+    BoundaryInterpolation, ControlMesh, CreaseMethod, FVarLinear, FaceId, SchemeOptions,
+    SubdivScheme, TriangleSubdivision,
+};
 use subdfit::subdiv::{diff, make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
@@ -27,10 +30,135 @@ impl From<BackendArg> for Backend {
     }
 }
 
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum SchemeArg {
+    Catmark,
+    Bilinear,
+}
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum BoundaryArg {
+    None,
+    EdgeOnly,
+    EdgeAndCorner,
+}
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum FVarArg {
+    None,
+    CornersOnly,
+    CornersPlus1,
+    CornersPlus2,
+    Boundaries,
+    All,
+}
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum CreaseArg {
+    Uniform,
+    Chaikin,
+}
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum TrianglesArg {
+    Catmark,
+    Smooth,
+}
+
+/// Scheme options; each one given here overrides the shape file's tag.
+#[derive(Args)]
+pub struct SchemeArgs {
+    /// Subdivision scheme (default catmark; shape files do not say).
+    #[arg(long, value_enum)]
+    scheme: Option<SchemeArg>,
+    /// Boundary interpolation (`t interpolateboundary`).
+    #[arg(long, value_enum)]
+    boundary: Option<BoundaryArg>,
+    /// Face-varying linear interpolation (`t facevaryinginterpolateboundary`).
+    #[arg(long, value_enum)]
+    fvar: Option<FVarArg>,
+    /// Creasing method (`t creasemethod`).
+    #[arg(long, value_enum)]
+    crease_method: Option<CreaseArg>,
+    /// Triangle subdivision rule (`t smoothtriangles`).
+    #[arg(long, value_enum)]
+    triangles: Option<TrianglesArg>,
+    /// Hole faces, 0-based and comma-separated (`t hole`); replaces the
+    /// file's list (`--holes ''` for none).
+    #[arg(long, value_delimiter = ',', num_args = 0..)]
+    holes: Option<Vec<u32>>,
+}
+
+impl SchemeArgs {
+    /// The file's options with the command line's on top.
+    fn apply(&self, mut s: SchemeOptions) -> SchemeOptions {
+        if let Some(k) = self.scheme {
+            s = s.with_scheme(match k {
+                SchemeArg::Catmark => SubdivScheme::Catmark,
+                SchemeArg::Bilinear => SubdivScheme::Bilinear,
+            });
+        }
+        if let Some(b) = self.boundary {
+            s = s.with_boundary(match b {
+                BoundaryArg::None => BoundaryInterpolation::None,
+                BoundaryArg::EdgeOnly => BoundaryInterpolation::EdgeOnly,
+                BoundaryArg::EdgeAndCorner => BoundaryInterpolation::EdgeAndCorner,
+            });
+        }
+        if let Some(f) = self.fvar {
+            s = s.with_fvar(match f {
+                FVarArg::None => FVarLinear::None,
+                FVarArg::CornersOnly => FVarLinear::CornersOnly,
+                FVarArg::CornersPlus1 => FVarLinear::CornersPlus1,
+                FVarArg::CornersPlus2 => FVarLinear::CornersPlus2,
+                FVarArg::Boundaries => FVarLinear::Boundaries,
+                FVarArg::All => FVarLinear::All,
+            });
+        }
+        if let Some(c) = self.crease_method {
+            s = s.with_crease_method(match c {
+                CreaseArg::Uniform => CreaseMethod::Uniform,
+                CreaseArg::Chaikin => CreaseMethod::Chaikin,
+            });
+        }
+        if let Some(t) = self.triangles {
+            s = s.with_triangles(match t {
+                TrianglesArg::Catmark => TriangleSubdivision::Catmark,
+                TrianglesArg::Smooth => TriangleSubdivision::Smooth,
+            });
+        }
+        if let Some(h) = &self.holes {
+            s = s.with_holes(h.iter().map(|&f| FaceId(f)).collect());
+        }
+        s
+    }
+}
+
+/// Reads the control mesh and the scheme options in force (file, then flags).
+fn read_with_scheme(path: &Path, args: &SchemeArgs) -> Result<(ControlMesh, SchemeOptions)> {
+    let file = subdfit::io::read_control_file(path).context("control mesh")?;
+    let scheme = args.apply(file.scheme);
+    if let Some(f) = scheme
+        .holes
+        .iter()
+        .find(|f| f.idx() >= file.mesh.num_faces())
+    {
+        bail!(
+            "{}: hole face {} out of range (the mesh has {} faces)",
+            path.display(),
+            f.0,
+            file.mesh.num_faces()
+        );
+    }
+    Ok((file.mesh, scheme))
+}
+
 #[derive(Args)]
 pub struct LimitArgs {
-    /// Control mesh (OBJ; `t crease` / `t corner` tags honoured).
+    /// Control mesh (OBJ shape file: every `t` tag honoured, see README).
     control: PathBuf,
+    #[command(flatten)]
+    scheme: SchemeArgs,
     #[arg(long, value_enum, default_value_t = BackendArg::Osd)]
     backend: BackendArg,
     /// CSV of locations with header `face,u,v` (quad faces) or
@@ -47,8 +175,10 @@ pub struct LimitArgs {
 
 #[derive(Args)]
 pub struct DiffArgs {
-    /// Control mesh (OBJ; `t crease` / `t corner` tags honoured).
+    /// Control mesh (OBJ shape file: every `t` tag honoured, see README).
     control: PathBuf,
+    #[command(flatten)]
+    scheme: SchemeArgs,
     /// Random locations compared besides the control vertices.
     #[arg(long, default_value_t = 10_000)]
     samples: usize,
@@ -71,14 +201,19 @@ pub struct DiffArgs {
     /// that shrinks as `--isolation` grows.
     #[arg(long, default_value_t = 0.01)]
     margin: f64,
-    /// Normal deviation allowed at control vertices, radians: where a
-    /// vertex is extraordinary once its semi-sharp features run out,
-    /// OpenSubdiv evaluates it on a Gregory end cap (~2e-6 rad at level 10).
+    /// Normal deviation allowed at control vertices, radians. Vertices
+    /// OpenSubdiv evaluates on its patches (semi-sharp features still sharp
+    /// at level 1: a Gregory end cap where the vertex is extraordinary once
+    /// they run out) are reported apart with their size, not held to it.
     #[arg(long, default_value_t = 1e-5)]
     vertex_normal_tolerance: f64,
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
+    /// Test hook: break the Rust evaluator's limit mask of this control
+    /// vertex (its own weight + 1e-3), to check that a defect is caught.
+    #[arg(long, hide = true)]
+    break_mask: Option<u32>,
 }
 
 fn read_locations(path: &Path) -> Result<Vec<SurfaceLocation>> {
@@ -147,8 +282,12 @@ fn write_row(w: &mut dyn Write, prefix: &str, p: &LimitPoint) -> std::io::Result
 }
 
 pub fn limit(a: LimitArgs) -> Result<ExitCode> {
-    let mesh = crate::read_control(&a.control)?;
-    let opts = EvalOptions::default().with_isolation_level(a.isolation);
+    let (mesh, scheme) = read_with_scheme(&a.control, &a.scheme)?;
+    // State the rules the numbers follow: a file's tags change the surface.
+    crate::emit(&format!("scheme: {scheme}"))?;
+    let opts = EvalOptions::default()
+        .with_isolation_level(a.isolation)
+        .with_scheme(scheme);
     let eval = make_evaluator(a.backend.into(), &mesh, &opts)?;
     let out = &a.output;
     let io = |e: std::io::Error| subdfit::Error::Io {
@@ -182,13 +321,25 @@ pub fn limit(a: LimitArgs) -> Result<ExitCode> {
 }
 
 pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
-    let mesh = crate::read_control(&a.control)?;
-    let opts = EvalOptions::default().with_isolation_level(a.isolation);
+    let (mesh, scheme) = read_with_scheme(&a.control, &a.scheme)?;
+    let opts = EvalOptions::default()
+        .with_isolation_level(a.isolation)
+        .with_scheme(scheme.clone());
     let osd = make_evaluator(Backend::Osd, &mesh, &opts)?;
-    let rust = make_evaluator(Backend::Rust, &mesh, &opts)?;
-    let mut locs = diff::random_locations(&mesh, a.samples, a.seed);
-    locs.extend(diff::near_irregular_locations(&mesh, 8, a.margin, a.seed));
-    let report = diff::compare(&mesh, osd.as_ref(), rust.as_ref(), &locs, a.margin)?;
+    let rust_opts = match a.break_mask {
+        Some(v) => opts.clone().with_broken_mask(v, 1e-3),
+        None => opts,
+    };
+    let rust = make_evaluator(Backend::Rust, &mesh, &rust_opts)?;
+    let mut locs = diff::random_locations_with(&mesh, &scheme, a.samples, a.seed);
+    locs.extend(diff::near_irregular_locations_with(
+        &mesh, &scheme, 8, a.margin, a.seed,
+    ));
+    let mut report =
+        diff::compare_with(&mesh, &scheme, osd.as_ref(), rust.as_ref(), &locs, a.margin)?;
+    // The size of OpenSubdiv's f32 sharpness: what it does to the surface.
+    let (dp, dn) = diff::f32_sharpness_effect(&mesh, &rust_opts, &locs)?;
+    report.set_f32_effect(dp, dn);
     let mut failures = Vec::new();
     let mut check = |what: &str, value: f64, tol: f64| {
         // NaN counts as a failure.

@@ -100,18 +100,13 @@ fn run(cli: Cli) -> Result<ExitCode> {
 
 /// Reads the dense input mesh M. Its errors start with "input mesh" (then
 /// the file and the element), so that a command reading two meshes says
-/// which one is bad; [`read_control`] does the same for the control mesh.
+/// which one is bad; [`read_layout`] does the same for the control mesh.
 pub(crate) fn read_input(path: &Path) -> Result<subdfit::mesh::ValidatedMesh> {
     subdfit::io::read_mesh(path).context("input mesh")
 }
 
-/// Reads a control mesh; errors start with "control mesh".
-pub(crate) fn read_control(path: &Path) -> Result<subdfit::mesh::ControlMesh> {
-    subdfit::io::read_control_mesh(path).context("control mesh")
-}
-
-/// Reads a layout another tool may have written (`fit`, `metrics`): as
-/// [`read_control`], but repaired the least that makes it a manifold
+/// Reads a layout another tool may have written (`fit`, `metrics`), its
+/// errors starting with "control mesh"; repaired the least that makes it a manifold
 /// control mesh (issue 17, "fit any layout"), each repair a note on stderr
 /// unless `quiet`.
 pub(crate) fn read_layout(

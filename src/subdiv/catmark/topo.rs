@@ -1,7 +1,14 @@
 //! A small polygon mesh with generic per-vertex "points", and one level of
 //! Catmull-Clark refinement on it with OpenSubdiv 3.5's rules (Sdc, Catmark
-//! scheme, `VTX_BOUNDARY_EDGE_AND_CORNER`, `CREASE_UNIFORM`,
-//! `TRI_SUB_CATMARK`).
+//! scheme) under the options of [`Rules`]: boundary corners sharpened or
+//! not, uniform or Chaikin creasing, Catmark or smooth triangles.
+//!
+//! Sharpness is a 32-bit float, as everywhere in Sdc (`Sdc::Crease` takes
+//! and returns `float`): values are rounded to f32 when a mesh is read in
+//! ([`topo_from_mesh`]) and every sharpness update (decrement, Chaikin
+//! average, fractional transition weight) is computed in f32, so both
+//! evaluators subdivide the same surface. A sharpness such as 0.7 is thus
+//! really 0.699999988 here and in OpenSubdiv.
 //!
 //! The same code refines whole meshes ([`crate::subdiv::refine`]) and the
 //! local neighbourhoods the exact evaluator subdivides around a location.
@@ -119,6 +126,97 @@ pub(crate) fn comb<P: Pt>(terms: &[(f64, &P)]) -> P {
     r
 }
 
+/// The Sdc options that change the refinement of positions.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub(crate) struct Rules {
+    /// `VTX_BOUNDARY_EDGE_AND_CORNER`: a boundary vertex with one face is
+    /// an infinitely sharp corner (`Sdc::Crease::SharpenBoundaryVertex`).
+    /// Boundary edges are infinitely sharp under every option (Sdc's
+    /// `SharpenBoundaryEdge`, even for "none").
+    pub sharpen_corners: bool,
+    /// `CREASE_CHAIKIN`.
+    pub chaikin: bool,
+    /// `TRI_SUB_SMOOTH`.
+    pub smooth_triangles: bool,
+    /// Sharpness as OpenSubdiv's f32 (the default). Off, the sharpness as
+    /// written (f64) is followed instead: only to measure what the f32
+    /// rounding does to a surface.
+    pub f32_sharpness: bool,
+}
+
+impl Default for Rules {
+    /// The crate's conventions: edge and corner, uniform, Catmark.
+    fn default() -> Self {
+        Rules {
+            sharpen_corners: true,
+            chaikin: false,
+            smooth_triangles: false,
+            f32_sharpness: true,
+        }
+    }
+}
+
+impl Rules {
+    pub fn from_scheme(s: &crate::mesh::SchemeOptions) -> Self {
+        use crate::mesh::{BoundaryInterpolation, CreaseMethod, TriangleSubdivision};
+        Rules {
+            sharpen_corners: s.boundary == BoundaryInterpolation::EdgeAndCorner,
+            chaikin: s.crease_method == CreaseMethod::Chaikin,
+            smooth_triangles: s.triangles == TriangleSubdivision::Smooth,
+            f32_sharpness: true,
+        }
+    }
+
+    /// A sharpness value or the result of one operation on sharpness
+    /// values, as Sdc computes it: rounded to f32. (One f64 operation on f32
+    /// operands rounded to f32 is the f32 operation: f64 has more than
+    /// 2·24 + 2 bits.)
+    #[inline]
+    pub fn sharp(self, s: f64) -> f64 {
+        if self.f32_sharpness {
+            s as f32 as f64
+        } else {
+            s
+        }
+    }
+}
+
+/// Sharpness of the child of an edge of sharpness `s` at a vertex whose
+/// incident edges have sharpness `at_vertex` (`s` among them):
+/// `Sdc::Crease::SubdivideEdgeSharpnessAtVertex`. Uniform: [`decrement`].
+/// Chaikin: `0.75 s + 0.25 avg(other semi-sharp edges at the vertex) - 1`,
+/// in f32 like Sdc.
+pub(crate) fn child_edge_sharpness(rules: Rules, s: f64, at_vertex: &[f64]) -> f64 {
+    if !rules.chaikin || at_vertex.len() < 2 {
+        return decrement(s);
+    }
+    if s <= 0.0 {
+        return 0.0;
+    }
+    if s >= INF {
+        return INF;
+    }
+    let r = |x: f64| rules.sharp(x);
+    let (mut sum, mut count) = (0.0, 0u32);
+    for &x in at_vertex {
+        if x > 0.0 && x < INF {
+            sum = r(sum + x);
+            count += 1;
+        }
+    }
+    let mut e = s;
+    if count > 1 {
+        let avg = r(r(sum - e) / (count - 1) as f64);
+        e = r(r(0.75 * e) + r(0.25 * avg));
+    }
+    e = r(e - 1.0);
+    if e > 0.0 {
+        e
+    } else {
+        0.0
+    }
+}
+
 /// `Sdc::Crease::SubdivideUniformSharpness`: infinite stays infinite,
 /// otherwise one less per level, clamped at 0.
 #[inline]
@@ -171,6 +269,7 @@ pub(crate) struct Topo<P> {
     pub fv: Vec<u32>,
     /// Non-zero crease sharpness by sorted vertex pair.
     pub esharp: HashMap<(u32, u32), f64>,
+    pub rules: Rules,
 }
 
 /// Adjacency derived from a [`Topo`].
@@ -241,12 +340,12 @@ impl<P> Topo<P> {
             self.esharp.get(&(p, q)).copied().unwrap_or(0.0)
         }
     }
-    /// Effective corner sharpness: a boundary vertex with a single face is an
-    /// infinitely sharp corner (`VTX_BOUNDARY_EDGE_AND_CORNER`).
+    /// Effective corner sharpness: with `VTX_BOUNDARY_EDGE_AND_CORNER` a
+    /// boundary vertex with a single face is an infinitely sharp corner.
     #[inline]
     pub fn vert_sharp(&self, adj: &Adj, v: u32) -> f64 {
         let vi = v as usize;
-        if adj.vfaces[vi].len() == 1 && adj.vedges[vi].len() == 2 {
+        if self.rules.sharpen_corners && adj.vfaces[vi].len() == 1 && adj.vedges[vi].len() == 2 {
             INF
         } else {
             self.vsharp[vi]
@@ -286,6 +385,7 @@ impl<P> Topo<P> {
             foff: vec![0],
             fv: Vec::new(),
             esharp: HashMap::default(),
+            rules: self.rules,
         };
         for &f in &faces {
             for &v in self.face(f) {
@@ -347,6 +447,42 @@ impl<P: Pt> Topo<P> {
         }
     }
 
+    /// Edge point of edge `e`: smooth `(v0 + v1 + F0 + F1)/4`, sharp
+    /// midpoint, and a fractional sharpness in (0, 1) blends the two (Sdc
+    /// `ComputeEdgeVertexMask`). `fpts` are the face points.
+    fn edge_point(&self, adj: &Adj, e: u32, fpts: &[P]) -> P {
+        let (a, b) = adj.edges[e as usize];
+        let s = self.edge_sharp(adj, e);
+        let mid = comb(&[(0.5, &self.pts[a as usize]), (0.5, &self.pts[b as usize])]);
+        if s >= 1.0 || adj.edge_nfaces[e as usize] != 2 {
+            return mid;
+        }
+        let [f0, f1] = adj.edge_faces[e as usize];
+        // TRI_SUB_SMOOTH (`Sdc::Scheme<CATMARK>::assignSmoothMaskForEdge`,
+        // Hbr's order of operations): a triangle's face weight 0.47 instead
+        // of 0.25, both faces get the average, the vertices the rest. Only
+        // level 0 has triangles.
+        let tri = |f: u32| self.rules.smooth_triangles && self.face(f).len() == 3;
+        let (fw, vw) = if tri(f0) || tri(f1) {
+            let w = |f: u32| if tri(f) { 0.470 } else { 0.25 };
+            let fw = 0.5 * (w(f0) + w(f1));
+            (fw, 0.5 * (1.0 - 2.0 * fw))
+        } else {
+            (0.25, 0.25)
+        };
+        let smooth = comb(&[
+            (vw, &self.pts[a as usize]),
+            (vw, &self.pts[b as usize]),
+            (fw, &fpts[f0 as usize]),
+            (fw, &fpts[f1 as usize]),
+        ]);
+        if s > 0.0 {
+            comb(&[(s, &mid), (1.0 - s, &smooth)])
+        } else {
+            smooth
+        }
+    }
+
     /// One level of Catmull-Clark refinement. Child vertices are numbered
     /// vertex points, then edge points (by edge id), then face points; child
     /// face `foff[f] + k` of face `f` is the quad at its corner k,
@@ -382,6 +518,11 @@ impl<P: Pt> Topo<P> {
                 ps.push(s);
                 cs.push(decrement(s));
             }
+            if self.rules.chaikin {
+                for k in 0..ps.len() {
+                    cs[k] = child_edge_sharpness(self.rules, ps[k], &ps);
+                }
+            }
             let psv = self.vert_sharp(adj, v);
             let csv = decrement(psv);
             let prule = vertex_rule(psv, &ps);
@@ -389,22 +530,28 @@ impl<P: Pt> Topo<P> {
             let p = if prule == Rule::Smooth || prule == crule {
                 self.vertex_mask(adj, v, prule, &ps, &fpts)
             } else {
-                let mut count = 0usize;
+                // In f32 like Sdc (`ComputeFractionalWeightAtVertex`). Sdc
+                // sums the edges in its own order around the vertex: with
+                // three or more distinct sharpness values running out at once
+                // the f32 sum may differ in the last bit (a weight error of
+                // ~6e-8, far below the tolerance); the suite has none.
+                let r = |x: f64| self.rules.sharp(x);
+                let mut count = 0u32;
                 let mut sum = 0.0;
                 if psv > 0.0 && csv <= 0.0 {
                     count += 1;
-                    sum += psv;
+                    sum = r(sum + psv);
                 }
                 for k in 0..ps.len() {
                     if ps[k] > 0.0 && cs[k] <= 0.0 {
                         count += 1;
-                        sum += ps[k];
+                        sum = r(sum + ps[k]);
                     }
                 }
                 let w = if count == 0 {
                     0.0
                 } else {
-                    (sum / count as f64).min(1.0)
+                    r(sum / count as f64).min(1.0)
                 };
                 let pm = self.vertex_mask(adj, v, prule, &ps, &fpts);
                 let cm = self.vertex_mask(adj, v, crule, &cs, &fpts);
@@ -412,29 +559,8 @@ impl<P: Pt> Topo<P> {
             };
             pts.push(p);
         }
-        // Edge points: smooth (v0 + v1 + F0 + F1)/4, sharp midpoint, and a
-        // fractional sharpness in (0, 1) blends the two (Sdc
-        // `ComputeEdgeVertexMask`).
-        for e in 0..ne {
-            let (a, b) = adj.edges[e];
-            let s = self.edge_sharp(adj, e as u32);
-            let mid = comb(&[(0.5, &self.pts[a as usize]), (0.5, &self.pts[b as usize])]);
-            let p = if s >= 1.0 || adj.edge_nfaces[e] != 2 {
-                mid
-            } else {
-                let [f0, f1] = adj.edge_faces[e];
-                let smooth = comb(&[
-                    (0.25, &self.pts[a as usize]),
-                    (0.25, &self.pts[b as usize]),
-                    (0.25, &fpts[f0 as usize]),
-                    (0.25, &fpts[f1 as usize]),
-                ]);
-                if s > 0.0 {
-                    comb(&[(s, &mid), (1.0 - s, &smooth)])
-                } else {
-                    smooth
-                }
-            };
+        for e in 0..ne as u32 {
+            let p = self.edge_point(adj, e, &fpts);
             pts.push(p);
         }
         pts.extend(fpts);
@@ -457,14 +583,30 @@ impl<P: Pt> Topo<P> {
                 foff.push(fv.len() as u32);
             }
         }
+        // Each child edge takes its sharpness from the rule at its parent
+        // end vertex (Vtr `Refinement::subdivideEdgeSharpness`).
         let mut esharp = HashMap::default();
-        for (&(a, b), &s) in &self.esharp {
-            let d = decrement(s);
-            if d > 0.0 {
-                if let Some(&e) = adj.edge_id.get(&(a, b)) {
-                    let ep = nv as u32 + e;
-                    esharp.insert(key(a, ep), d);
-                    esharp.insert(key(b, ep), d);
+        let mut around = Vec::new();
+        for &(a, b) in self.esharp.keys() {
+            let Some(&e) = adj.edge_id.get(&(a, b)) else {
+                continue;
+            };
+            let s = self.edge_sharp(adj, e);
+            let ep = nv as u32 + e;
+            for end in [a, b] {
+                let d = if self.rules.chaikin {
+                    around.clear();
+                    around.extend(
+                        adj.vedges[end as usize]
+                            .iter()
+                            .map(|&x| self.edge_sharp(adj, x)),
+                    );
+                    child_edge_sharpness(self.rules, s, &around)
+                } else {
+                    decrement(s)
+                };
+                if d > 0.0 {
+                    esharp.insert(key(end, ep), d);
                 }
             }
         }
@@ -476,6 +618,7 @@ impl<P: Pt> Topo<P> {
             foff,
             fv,
             esharp,
+            rules: self.rules,
         }
     }
 }
@@ -487,6 +630,7 @@ impl<P: Pt> Topo<P> {
 pub(crate) fn topo_from_mesh(
     mesh: &crate::mesh::ControlMesh,
     faces: Option<&[crate::mesh::FaceId]>,
+    rules: Rules,
 ) -> Topo<u32> {
     use crate::mesh::FaceId;
     let all: Vec<FaceId>;
@@ -505,10 +649,14 @@ pub(crate) fn topo_from_mesh(
         foff: vec![0],
         fv: Vec::new(),
         esharp: HashMap::default(),
+        rules,
     };
     if whole {
         t.pts = (0..mesh.num_vertices() as u32).collect();
-        t.vsharp = mesh.vertices().map(|v| mesh.vertex_sharpness(v)).collect();
+        t.vsharp = mesh
+            .vertices()
+            .map(|v| rules.sharp(mesh.vertex_sharpness(v)))
+            .collect();
     }
     for &f in faces {
         for h in mesh.face_halfedges(f) {
@@ -518,7 +666,7 @@ pub(crate) fn topo_from_mesh(
             } else {
                 *map.entry(v.0).or_insert_with(|| {
                     t.pts.push(v.0);
-                    t.vsharp.push(mesh.vertex_sharpness(v));
+                    t.vsharp.push(rules.sharp(mesh.vertex_sharpness(v)));
                     t.pts.len() as u32 - 1
                 })
             };
@@ -528,7 +676,7 @@ pub(crate) fn topo_from_mesh(
     }
     for f in faces {
         for h in mesh.face_halfedges(*f) {
-            let s = mesh.edge_sharpness(h.edge());
+            let s = rules.sharp(mesh.edge_sharpness(h.edge()));
             if s > 0.0 {
                 let (a, b) = (mesh.tail(h).0, mesh.head(h).0);
                 let (a, b) = if whole { (a, b) } else { (map[&a], map[&b]) };

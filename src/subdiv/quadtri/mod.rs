@@ -57,7 +57,7 @@ pub use limit::{vertex_limit_stencils, QuadTriEvaluator, DEFAULT_EVAL_LEVEL};
 
 use crate::error::{Error, Result};
 use crate::mesh::{ControlMesh, VertexId, INFINITELY_SHARP};
-use crate::subdiv::catmark::topo::{key, topo_from_mesh, Adj, Pt, Sparse, Topo, INF};
+use crate::subdiv::catmark::topo::{key, topo_from_mesh, Adj, Pt, Rules, Sparse, Topo, INF};
 use crate::DVec3;
 
 /// The most levels [`QuadTriRefiner`] accepts: each level multiplies the
@@ -334,6 +334,7 @@ pub(crate) fn refine_step(p: &Level) -> Step {
         foff,
         fv,
         esharp,
+        rules: Rules::default(),
     });
 
     // Averaging.
@@ -401,13 +402,14 @@ impl QuadTriRefiner {
             )));
         }
         check_mesh(mesh)?;
-        let t0 = topo_from_mesh(mesh, None);
+        let t0 = topo_from_mesh(mesh, None, Rules::default());
         let mut cur = Level::new(Topo {
             pts: vec![(); t0.pts.len()],
             vsharp: t0.vsharp,
             foff: t0.foff,
             fv: t0.fv,
             esharp: t0.esharp,
+            rules: t0.rules,
         });
         let mut r = QuadTriRefiner {
             levels: Vec::new(),
