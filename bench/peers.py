@@ -12,6 +12,7 @@ count (a quad is one patch, an n-gon n), irregular vertices, RMS L and D
 input's genus and boundary count, layout and fit seconds, or the error.
 """
 
+import contextlib
 import json
 import os
 import subprocess
@@ -41,6 +42,21 @@ def write_obj(path, vertices, faces):
             f.write("v %.9g %.9g %.9g\n" % tuple(v))
         for face in faces:
             f.write("f " + " ".join(str(int(i) + 1) for i in face) + "\n")
+
+
+@contextlib.contextmanager
+def stdout_to_stderr():
+    """The peers' C++ code prints progress on stdout (file descriptor 1):
+    send it to stderr, so that stdout carries only this script's JSON."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    try:
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def quadriflow(mesh, n, out):
@@ -77,12 +93,14 @@ def run(tool, mesh_path, target, outdir, subdfit):
     n = target
     t0 = time.time()
     try:
-        # Two tries: the tools land near, not on, the count they are given.
-        for _ in range(2):
-            if tool == "quadriflow":
-                quadriflow(mesh, n, layout)
-            else:
-                instant_meshes(mesh_path, n, layout)
+        # Up to four tries: the tools land near, not on, the count they
+        # are given.
+        for _ in range(4):
+            with stdout_to_stderr():
+                if tool == "quadriflow":
+                    quadriflow(mesh, n, layout)
+                else:
+                    instant_meshes(mesh_path, n, layout)
             got = ptex_patches(read_obj_faces(layout))
             if abs(got - target) <= 0.05 * target:
                 break

@@ -17,7 +17,7 @@ DATA=${1:-../shared/data}
 OUT=${2:-target/bench-peers}
 MESHES=${MESHES:-"bunny gargoyle homer spot cheburashka"}
 TAUS=${TAUS:-"0.01 0.1"}
-BIN=target/release/subdfit
+BIN=${SUBDFIT_BIN:-target/release/subdfit}
 [ -x "$BIN" ] || cargo build --release --quiet
 if [ ! -x .venv-peers/bin/python ]; then
   python3 -m venv .venv-peers
