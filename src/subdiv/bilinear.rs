@@ -130,35 +130,15 @@ impl LimitEvaluator for BilinearEvaluator {
         check_not_holes(&self.holes, locations)?;
         Ok(locations
             .iter()
-            .map(|l| {
-                let mut p = LimitPoint::default();
-                for (i, w) in self.row(l) {
-                    let x = positions[i as usize];
-                    p.position += w[0] * x;
-                    p.du += w[1] * x;
-                    p.dv += w[2] * x;
-                }
-                p
-            })
+            .map(|l| LimitPoint::from_row(self.row(l), positions))
             .collect())
     }
     fn stencils(&self, locations: &[SurfaceLocation]) -> Result<LimitStencils> {
         check_locations(&self.face_sizes, locations)?;
         check_not_holes(&self.holes, locations)?;
-        let mut st = LimitStencils {
-            offsets: vec![0],
-            ..Default::default()
-        };
-        for l in locations {
-            for (i, w) in self.row(l) {
-                st.indices.push(i);
-                st.weights.push(w[0]);
-                st.du_weights.push(w[1]);
-                st.dv_weights.push(w[2]);
-            }
-            st.offsets.push(st.indices.len() as u32);
-        }
-        Ok(st)
+        Ok(LimitStencils::from_rows(
+            locations.iter().map(|l| self.row(l)),
+        ))
     }
 }
 

@@ -66,6 +66,22 @@ impl LimitPoint {
     pub fn normal(&self) -> DVec3 {
         self.du.cross(self.dv).normalize_or_zero()
     }
+
+    /// The point of one weight row over `points`: `Σ w · x` for the
+    /// position, `du` and `dv` weights `w` of each `(index, w)`.
+    pub(crate) fn from_row(
+        row: impl IntoIterator<Item = (u32, [f64; 3])>,
+        points: &[DVec3],
+    ) -> Self {
+        let mut p = LimitPoint::default();
+        for (i, w) in row {
+            let x = points[i as usize];
+            p.position += w[0] * x;
+            p.du += w[1] * x;
+            p.dv += w[2] * x;
+        }
+        p
+    }
 }
 
 /// Limit stencils: for each location, weights over control vertices for the
@@ -82,6 +98,27 @@ pub struct LimitStencils {
 }
 
 impl LimitStencils {
+    /// The stencils of one weight row (`(index, [w, w_u, w_v])`) per
+    /// location.
+    pub(crate) fn from_rows<R: IntoIterator<Item = (u32, [f64; 3])>>(
+        rows: impl IntoIterator<Item = R>,
+    ) -> Self {
+        let mut st = LimitStencils {
+            offsets: vec![0],
+            ..Default::default()
+        };
+        for row in rows {
+            for (i, w) in row {
+                st.indices.push(i);
+                st.weights.push(w[0]);
+                st.du_weights.push(w[1]);
+                st.dv_weights.push(w[2]);
+            }
+            st.offsets.push(st.indices.len() as u32);
+        }
+        st
+    }
+
     pub fn len(&self) -> usize {
         self.offsets.len().saturating_sub(1)
     }

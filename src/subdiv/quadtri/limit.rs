@@ -407,33 +407,13 @@ impl LimitEvaluator for QuadTriEvaluator {
         let lim = self.limits.apply(positions);
         Ok(locations
             .iter()
-            .map(|l| {
-                let mut p = LimitPoint::default();
-                for (v, w) in self.locate(l) {
-                    let x = lim[v as usize];
-                    p.position += w[0] * x;
-                    p.du += w[1] * x;
-                    p.dv += w[2] * x;
-                }
-                p
-            })
+            .map(|l| LimitPoint::from_row(self.locate(l), &lim))
             .collect())
     }
     fn stencils(&self, locations: &[SurfaceLocation]) -> Result<LimitStencils> {
         crate::subdiv::check_locations(&self.face_sizes, locations)?;
-        let mut s = LimitStencils {
-            offsets: vec![0],
-            ..Default::default()
-        };
-        for l in locations {
-            for (c, w) in self.stencil_rows(l) {
-                s.indices.push(c);
-                s.weights.push(w[0]);
-                s.du_weights.push(w[1]);
-                s.dv_weights.push(w[2]);
-            }
-            s.offsets.push(s.indices.len() as u32);
-        }
-        Ok(s)
+        Ok(LimitStencils::from_rows(
+            locations.iter().map(|l| self.stencil_rows(l)),
+        ))
     }
 }
