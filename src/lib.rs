@@ -30,6 +30,7 @@
 
 pub mod error;
 pub(crate) mod ffi;
+pub mod watch;
 
 pub mod io;
 pub mod mesh;

@@ -130,7 +130,7 @@ pub fn convert(
     opts: &ConvertOptions,
     extra_options: serde_json::Value,
     dir: &Path,
-    progress: &mut dyn FnMut(&str, f64) -> bool,
+    progress: &mut crate::watch::Progress<'_>,
 ) -> Result<(Report, Vec<PathBuf>)> {
     let c = convert_in_memory(input, opts, extra_options, progress)?;
     let written = write_converted(input, &c, dir, None, progress)?;
@@ -144,7 +144,7 @@ pub fn convert_in_memory(
     input: &ValidatedMesh,
     opts: &ConvertOptions,
     extra_options: serde_json::Value,
-    progress: &mut dyn FnMut(&str, f64) -> bool,
+    progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
     at_unit_scale(input, |m, _| {
         convert_at_unit_scale(m, opts, extra_options, progress)
@@ -161,7 +161,7 @@ pub fn fit_in_memory(
     opts: &PipelineOptions,
     mut timer: StageTimer,
     extra_options: serde_json::Value,
-    progress: &mut dyn FnMut(&str, f64) -> bool,
+    progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
     at_unit_scale(input, |m, frame| {
         frame.points_to_unit(control.positions_mut());
@@ -234,7 +234,7 @@ fn convert_at_unit_scale(
     input: &ValidatedMesh,
     opts: &ConvertOptions,
     extra_options: serde_json::Value,
-    progress: &mut dyn FnMut(&str, f64) -> bool,
+    progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
     let mut timer = StageTimer::default();
     let mesh = &input.mesh;
@@ -356,9 +356,9 @@ fn convert_organic(
     caster: &dyn crate::raycast::RayCaster,
     mut timer: StageTimer,
     extra_options: serde_json::Value,
-    progress: &mut dyn FnMut(&str, f64) -> bool,
+    progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
-    let stage = |progress: &mut dyn FnMut(&str, f64) -> bool, name: &str, f: f64| {
+    let stage = |progress: &mut crate::watch::Progress<'_>, name: &str, f: f64| {
         if progress(name, f) {
             Ok(())
         } else {
@@ -609,7 +609,7 @@ impl ErrorSearcher {
         mesh: &crate::mesh::TriMesh,
         caster: &dyn crate::raycast::RayCaster,
         fo: &FitOptions,
-        progress: &mut dyn FnMut(&str, f64) -> bool,
+        progress: &mut crate::watch::Progress<'_>,
     ) -> Result<f64> {
         if let Some(f) = &self.fits[i] {
             return Ok(f.report.final_rms_permille);
@@ -637,7 +637,7 @@ impl ErrorSearcher {
         mesh: &crate::mesh::TriMesh,
         caster: &dyn crate::raycast::RayCaster,
         fo: &FitOptions,
-        progress: &mut dyn FnMut(&str, f64) -> bool,
+        progress: &mut crate::watch::Progress<'_>,
     ) -> Result<(usize, crate::fit::Fitted)> {
         let last = self.len() - 1;
         let known = |s: &Self, pass: bool| -> Vec<usize> {
@@ -707,7 +707,7 @@ fn convert_coarse(
     mut timer: StageTimer,
     extra_options: serde_json::Value,
     why: Error,
-    progress: &mut dyn FnMut(&str, f64) -> bool,
+    progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
     let mesh = &input.mesh;
     if !(mesh.bbox_diagonal().is_finite() && mesh.bbox_diagonal() > 0.0) {
@@ -758,49 +758,23 @@ fn coarse_control(mesh: &crate::mesh::TriMesh) -> Result<crate::mesh::ControlMes
     crate::subdiv::refine::refine_once_keeping_infinite(&base)
 }
 
-/// The Fitmap (§3.1) with progress and cancellation: the analysis runs as
-/// a task of the current rayon pool (so `Options::threads` holds) while this
-/// thread reports the workers' count of analysed vertices every 20 ms
-/// through `progress`. The host callback thus runs on the caller's thread,
-/// never concurrently, and a `false` stops the workers within one vertex
-/// each. On a one-thread pool this thread runs the task itself
-/// (`yield_now`), reporting when it is done.
+/// The Fitmap (§3.1) with progress and cancellation, watched
+/// ([`crate::watch::watched`]): the workers count their analysed vertices
+/// and stop within one vertex each once the host said stop.
 fn fitmap_reporting(
     mesh: &crate::mesh::TriMesh,
     caster: &dyn crate::raycast::RayCaster,
     fo: &FitmapOptions,
-    progress: &mut dyn FnMut(&str, f64) -> bool,
+    progress: &mut crate::watch::Progress<'_>,
 ) -> Result<crate::analysis::Fitmap> {
-    use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+    use std::sync::atomic::{AtomicUsize, Ordering};
     let done = AtomicUsize::new(0);
-    let stop = AtomicBool::new(false);
-    let result = std::sync::Mutex::new(None);
     let total = mesh.positions.len().max(1) as f64;
-    rayon::in_place_scope(|scope| {
-        scope.spawn(|_| {
-            let r = crate::analysis::compute_fitmap_cancellable(mesh, caster, fo, &|k| {
-                done.fetch_add(k, Ordering::Relaxed);
-                !stop.load(Ordering::Relaxed)
-            });
-            *result.lock().unwrap_or_else(|p| p.into_inner()) = Some(r);
-        });
-        loop {
-            if result.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
-                break;
-            }
-            if rayon::yield_now() != Some(rayon::Yield::Executed) {
-                std::thread::sleep(std::time::Duration::from_millis(20));
-            }
-            let f = done.load(Ordering::Relaxed) as f64 / total;
-            if !stop.load(Ordering::Relaxed) && !progress("fitmap", f.min(0.99)) {
-                stop.store(true, Ordering::Relaxed);
-            }
-        }
-    });
-    let r = result.into_inner().unwrap_or_else(|p| p.into_inner());
-    r.unwrap_or_else(|| {
-        Err(Error::Cancelled {
-            stage: "fitmap".into(),
+    crate::watch::watched(progress, |w| {
+        w.report("fitmap", 0.0)?;
+        crate::analysis::compute_fitmap_cancellable(mesh, caster, fo, &|k| {
+            let d = done.fetch_add(k, Ordering::Relaxed) + k;
+            w.report("fitmap", (d as f64 / total).min(0.99)).is_ok()
         })
     })
 }
@@ -826,7 +800,7 @@ fn convert_mechanical(
     caster: &dyn crate::raycast::RayCaster,
     mut timer: StageTimer,
     extra_options: serde_json::Value,
-    progress: &mut dyn FnMut(&str, f64) -> bool,
+    progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
     let mo = crate::mechanical::MechanicalOptions::default().with_max_error(
         opts.max_error

@@ -162,7 +162,7 @@ pub struct Progress<'a> {
     cancelled: AtomicBool,
     /// Held while the host callback runs; also the time of the last call and
     /// the last stage, for rate limiting.
-    state: Mutex<(Option<Instant>, String)>,
+    state: Mutex<(Option<Instant>, String, f64)>,
 }
 
 impl<'a> Progress<'a> {
@@ -174,7 +174,7 @@ impl<'a> Progress<'a> {
         Progress {
             sink: None,
             cancelled: AtomicBool::new(false),
-            state: Mutex::new((None, String::new())),
+            state: Mutex::new((None, String::new(), -1.0)),
         }
     }
 
@@ -203,11 +203,16 @@ impl<'a> Progress<'a> {
             return Ok(());
         };
         let now = Instant::now();
-        let boundary = fraction == 0.0 || fraction == 1.0 || state.1 != stage;
+        // A stage's start and end always pass; a repeat of the last report
+        // (a watched stage asking whether to go on, `crate::watch`) is rate
+        // limited like any other.
+        let boundary =
+            state.1 != stage || ((fraction == 0.0 || fraction == 1.0) && state.2 != fraction);
         if !boundary && state.0.is_some_and(|t| now - t < Self::MIN_INTERVAL) {
             return Ok(());
         }
         state.0 = Some(now);
+        state.2 = fraction;
         if state.1 != stage {
             state.1 = stage.to_owned();
         }

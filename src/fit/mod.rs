@@ -102,20 +102,7 @@ use crate::solve::{least_squares, LsqOptions, Triplets};
 use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitStencils, SurfaceLocation};
 use crate::DVec3;
 
-/// A progress callback: `(stage, fraction in [0, 1])`; returning `false`
-/// cancels the run with [`Error::Cancelled`].
-pub type Progress<'a> = dyn FnMut(&str, f64) -> bool + 'a;
-
-/// Calls `progress` and turns a `false` into [`Error::Cancelled`].
-pub fn report_progress(progress: &mut Progress<'_>, stage: &str, fraction: f64) -> Result<()> {
-    if progress(stage, fraction.clamp(0.0, 1.0)) {
-        Ok(())
-    } else {
-        Err(Error::Cancelled {
-            stage: stage.to_string(),
-        })
-    }
-}
+pub use crate::watch::{report_progress, Progress};
 
 /// The distance minimised by the global fit.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize)]
@@ -336,6 +323,24 @@ pub fn fit(
 /// with the lower score of the fit's own kept iterate wins (ties keep the
 /// rim start): one more fit, on open meshes whose loops moved only.
 pub fn fit_with_progress(
+    mesh: &TriMesh,
+    control: ControlMesh,
+    caster: &dyn RayCaster,
+    opts: &FitOptions,
+    progress: &mut Progress<'_>,
+) -> Result<Fitted> {
+    // Watched (`crate::watch`): the ray queries of every round are chunked,
+    // so a cancellation ends the fit within one chunk, not one round.
+    crate::watch::watched(progress, |w| {
+        let caster = crate::raycast::Watched::new(caster, w);
+        fit_both_starts(mesh, control, &caster, opts, &mut |s: &str, f: f64| {
+            w.report(s, f).is_ok()
+        })
+    })
+}
+
+/// [`fit_with_progress`] on the calling thread.
+fn fit_both_starts(
     mesh: &TriMesh,
     control: ControlMesh,
     caster: &dyn RayCaster,

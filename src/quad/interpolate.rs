@@ -296,7 +296,8 @@ fn sweep(
     p: &mut [DVec3],
     tol: f64,
     max_sweeps: usize,
-) -> (usize, f64) {
+    poll: &mut dyn FnMut() -> Result<()>,
+) -> Result<(usize, f64)> {
     let residuals = |p: &[DVec3]| -> Vec<DVec3> {
         rows.par_iter()
             .enumerate()
@@ -314,6 +315,7 @@ fn sweep(
             p[v.idx()] += r[i];
         }
         k += 1;
+        poll()?;
         r = residuals(p);
         res = max_norm(&r);
         // Diverging (an irregular configuration where I − L is not a
@@ -322,7 +324,7 @@ fn sweep(
             break;
         }
     }
-    (k, res)
+    Ok((k, res))
 }
 
 /// Places all control vertices so that the limit position of vertex `i` is
@@ -334,10 +336,22 @@ pub fn interpolate_limit(
     targets: &[DVec3],
     opts: &InterpolationOptions,
 ) -> Result<InterpolationReport> {
+    interpolate_limit_polled(control, targets, opts, &mut || Ok(()))
+}
+
+/// [`interpolate_limit`], calling `poll` after each sweep (an `Err` from
+/// it, a cancellation, ends the call with the positions untouched).
+pub(crate) fn interpolate_limit_polled(
+    control: &mut ControlMesh,
+    targets: &[DVec3],
+    opts: &InterpolationOptions,
+    poll: &mut dyn FnMut() -> Result<()>,
+) -> Result<InterpolationReport> {
     let diag = check_targets(control, targets)?;
     let tol = opts.tolerance * diag;
     let rows: Vec<VertexId> = control.vertices().collect();
     let l = LimitMatrix::rows(control, &rows)?;
+    poll()?;
     // The paper starts from V_K = V_M: the limit of a dense mesh is close to
     // its control points, so few sweeps are needed.
     let mut p = targets.to_vec();
@@ -346,7 +360,7 @@ pub fn interpolate_limit(
     let mut solver = opts.solver;
     let mut res = f64::INFINITY;
     if solver == InterpolationSolver::FixedPoint {
-        let (k, r) = sweep(&l, &rows, targets, &mut p, tol, opts.max_iterations);
+        let (k, r) = sweep(&l, &rows, targets, &mut p, tol, opts.max_iterations, poll)?;
         iterations = k;
         res = r;
         if res.is_nan() || res > tol {
@@ -371,7 +385,7 @@ pub fn interpolate_limit(
             .collect();
         // The normal equations square the condition number: a few sweeps
         // remove the rounding left over.
-        let (k, r) = sweep(&l, &rows, targets, &mut p, tol, 50);
+        let (k, r) = sweep(&l, &rows, targets, &mut p, tol, 50, poll)?;
         iterations += k;
         res = r;
     }
@@ -413,7 +427,7 @@ pub fn interpolate_limit_local(
     rows.dedup();
     let l = LimitMatrix::rows(control, &rows)?;
     let mut p = control.positions().to_vec();
-    let (k, res) = sweep(&l, &rows, targets, &mut p, 0.0, iterations);
+    let (k, res) = sweep(&l, &rows, targets, &mut p, 0.0, iterations, &mut || Ok(()))?;
     let tol = InterpolationOptions::default().tolerance;
     control.set_positions(p)?;
     Ok(InterpolationReport {

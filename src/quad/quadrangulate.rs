@@ -259,6 +259,17 @@ pub struct Quadrangulation {
 /// moved to the boundary ([`shift_leftovers`]) and split there
 /// ([`parity_fix`]).
 pub fn quadrangulate(mesh: &TriMesh, opts: &QuadrangulateOptions) -> Result<Quadrangulation> {
+    quadrangulate_polled(mesh, opts, &mut || Ok(()))
+}
+
+/// [`quadrangulate`], calling `poll` between its steps (an `Err` from it,
+/// a cancellation, ends the call): the simplifier's set-up stays
+/// cancellable on a million triangles.
+pub(crate) fn quadrangulate_polled(
+    mesh: &TriMesh,
+    opts: &QuadrangulateOptions,
+    poll: &mut dyn FnMut() -> Result<()>,
+) -> Result<Quadrangulation> {
     if mesh.triangles.is_empty() {
         return Err(Error::InvalidArgument("quadrangulate: no triangles".into()));
     }
@@ -266,16 +277,23 @@ pub fn quadrangulate(mesh: &TriMesh, opts: &QuadrangulateOptions) -> Result<Quad
     let unreferenced = mesh.positions.len() - positions.len();
     // The triangle mesh as a half-edge mesh: validates manifoldness and
     // orientation, and gives the dual graph (face ids = triangle indices).
+    poll()?;
     let tm = ControlMesh::from_polygons(positions.clone(), &tris)?;
+    poll()?;
     let nt = tris.len();
 
     let cands = pair_candidates(&tm, opts);
+    poll()?;
     let (order, mate, greedy_pairs) = greedy_pairing(&cands, nt, opts);
+    poll()?;
     let graph = candidate_graph(&cands, &order, nt);
+    poll()?;
     let mut matcher = Matcher::new(&graph, mate);
     let augmentations = matcher.maximise();
+    poll()?;
     let mut mate = matcher.mate;
     let (leftovers, holes) = shift_leftovers(&tm, &graph, &mut mate)?;
+    poll()?;
 
     // Output: pair quads in the order of their lower triangle, then the
     // parity-fix quads.
@@ -316,6 +334,7 @@ pub fn quadrangulate(mesh: &TriMesh, opts: &QuadrangulateOptions) -> Result<Quad
         .par_iter()
         .map(|q| quad_quality(q.map(|v| positions[v as usize])))
         .collect();
+    poll()?;
     let out = ControlMesh::from_polygons(positions, &quads)?;
     let report = QuadrangulationReport {
         num_triangles: nt,

@@ -35,11 +35,13 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use super::interpolate::interpolate_limit_polled;
 use super::ops::{
     can_collapse_diagonal, can_rotate_edge, collapse_diagonal, remove_doublets, rotate_edge,
     rotation_energy_gain, CollapsePlan, Rotation, ValenceTargets,
 };
-use super::{interpolate_limit, quadrangulate, vertex_limit_mask, InterpolationOptions};
+use super::quadrangulate::quadrangulate_polled;
+use super::{vertex_limit_mask, InterpolationOptions};
 use super::{QuadrangulateOptions, Quadrangulation};
 use crate::analysis::Fitmap;
 use crate::error::{Error, Result};
@@ -259,7 +261,9 @@ impl SimplifyStats {
     }
 }
 
-/// Passed to the progress callback every few hundred collapses.
+/// Passed to the progress callback every few dozen steps (see `run`);
+/// during the set-up (quadrangulation, limit interpolation), before the
+/// control mesh exists, `faces` and `initial_faces` are 0.
 #[derive(Copy, Clone, Debug, PartialEq, Serialize)]
 pub struct Progress {
     pub faces: usize,
@@ -432,16 +436,34 @@ pub fn simplify_with_progress(
         input_triangles: mesh.triangles.len(),
         ..Default::default()
     };
+    // Between the set-up steps too, so that a cancellation waits for one
+    // step (each well under a second on a million triangles), not all.
+    let t_all = Instant::now();
+    let mut ask = || {
+        let p = Progress {
+            faces: 0,
+            initial_faces: 0,
+            collapses: 0,
+            seconds: t_all.elapsed().as_secs_f64(),
+        };
+        if progress(p) {
+            Ok(())
+        } else {
+            Err(Error::Cancelled {
+                stage: "simplification".into(),
+            })
+        }
+    };
     let t = Instant::now();
     let Quadrangulation { mesh: mut k, .. } =
-        quadrangulate(mesh, &QuadrangulateOptions::default())?;
+        quadrangulate_polled(mesh, &QuadrangulateOptions::default(), &mut ask)?;
     stats.seconds_quadrangulate = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let targets = k.positions().to_vec();
-    interpolate_limit(&mut k, &targets, &InterpolationOptions::default())?;
+    interpolate_limit_polled(&mut k, &targets, &InterpolationOptions::default(), &mut ask)?;
     stats.seconds_interpolate = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let mut s = Simplifier::new(mesh, fitmap, caster, opts, k)?;
+    let mut s = Simplifier::new(mesh, fitmap, caster, opts, k, &mut ask)?;
     s.run(&mut stats, progress)?;
     s.finish(stats, t)
 }
@@ -462,7 +484,7 @@ pub fn simplify_control(
         ..Default::default()
     };
     let t = Instant::now();
-    let mut s = Simplifier::new(mesh, fitmap, caster, opts, k)?;
+    let mut s = Simplifier::new(mesh, fitmap, caster, opts, k, &mut || Ok(()))?;
     s.run(&mut stats, progress)?;
     s.finish(stats, t)
 }
@@ -750,6 +772,7 @@ impl<'a> Simplifier<'a> {
         caster: &'a dyn RayCaster,
         opts: &SimplifyOptions,
         mut k: ControlMesh,
+        poll: &mut dyn FnMut() -> Result<()>,
     ) -> Result<Self> {
         if !k.is_all_quads() {
             return Err(Error::InvalidArgument(
@@ -761,10 +784,13 @@ impl<'a> Simplifier<'a> {
         // whose paired diagonals left it two edges) go first (§3.3.3).
         let all: Vec<VertexId> = k.live_vertices().collect();
         remove_doublets(&mut k, &all)?;
+        poll()?;
         let valence_targets = ValenceTargets::new(&k);
         let invariants = (k.num_components(), k.num_boundary_loops(), euler(&k));
         let nf = k.num_faces();
+        poll()?;
         let bvh = BvhCaster::new(m)?;
+        poll()?;
         let lim = {
             use rayon::prelude::*;
             let kk = &k;
@@ -780,6 +806,7 @@ impl<'a> Simplifier<'a> {
                 })
                 .collect::<Result<Vec<_>>>()?
         };
+        poll()?;
         Ok(Simplifier {
             m,
             fitmap,
@@ -1004,13 +1031,46 @@ impl<'a> Simplifier<'a> {
         progress: &mut dyn FnMut(Progress) -> bool,
     ) -> Result<()> {
         let t0 = Instant::now();
+        // The progress callback is also how a cancellation arrives: it is
+        // asked every ASK_EVERY heap pops (refused ones included: a run of
+        // refusals can be long) and between chunks of a full sweep.
+        const ASK_EVERY: usize = 64;
+        const SWEEP_CHUNK: usize = 2048;
+        let ask = |k: &ControlMesh,
+                   stats: &SimplifyStats,
+                   progress: &mut dyn FnMut(Progress) -> bool|
+         -> Result<()> {
+            let p = Progress {
+                faces: k.num_live_faces(),
+                initial_faces: stats.initial_faces,
+                collapses: stats.collapses,
+                seconds: t0.elapsed().as_secs_f64(),
+            };
+            if progress(p) {
+                Ok(())
+            } else {
+                Err(Error::Cancelled {
+                    stage: "simplification".into(),
+                })
+            }
+        };
         let all: Vec<FaceId> = self.k.live_faces().collect();
         stats.initial_faces = all.len();
-        let _ = self.update_faces(&all)?;
+        // Chunks: the same heap entries in the same order as one batch
+        // (each face's update is independent of the others').
+        for c in all.chunks(SWEEP_CHUNK) {
+            let _ = self.update_faces(c)?;
+            ask(&self.k, stats, progress)?;
+        }
         let target = self.opts.target_faces.unwrap_or(0);
         let mut stop = StopReason::NaturalEnd;
         let mut at_last_sweep = stats.collapses;
+        let mut pops = 0usize;
         loop {
+            pops += 1;
+            if pops % ASK_EVERY == 0 {
+                ask(&self.k, stats, progress)?;
+            }
             let Some(Reverse((_, fi, d, ver))) = self.heap.pop() else {
                 // The heap only re-evaluates faces around a refit region; a
                 // refused collapse whose blocking neighbour changed later
@@ -1039,7 +1099,10 @@ impl<'a> Simplifier<'a> {
                 self.refused.clear();
                 self.blocked.clear();
                 let all: Vec<FaceId> = self.k.live_faces().collect();
-                let _ = self.update_faces(&all)?;
+                for c in all.chunks(SWEEP_CHUNK) {
+                    let _ = self.update_faces(c)?;
+                    ask(&self.k, stats, progress)?;
+                }
                 continue;
             };
             if self.k.num_live_faces() <= target {
@@ -1118,19 +1181,6 @@ impl<'a> Simplifier<'a> {
                 }
             }
             self.checkpoint()?;
-            if stats.collapses % 256 == 0 {
-                let p = Progress {
-                    faces: self.k.num_live_faces(),
-                    initial_faces: stats.initial_faces,
-                    collapses: stats.collapses,
-                    seconds: t0.elapsed().as_secs_f64(),
-                };
-                if !progress(p) {
-                    return Err(Error::Cancelled {
-                        stage: "simplification".into(),
-                    });
-                }
-            }
         }
         if self.k.num_live_faces() <= target {
             stop = StopReason::TargetFaces;

@@ -20,6 +20,8 @@
 
 pub mod bvh;
 pub mod embree;
+pub mod watched;
+pub use watched::Watched;
 
 use serde::Serialize;
 

@@ -71,9 +71,10 @@ use crate::displace::{
     LsqOffsetOptions, OffsetMode, PatchGrid,
 };
 use crate::error::{Error, Result};
-use crate::fit::{report_progress, Progress};
+use crate::fit::Progress;
 use crate::mesh::{ControlMesh, TriMesh};
 use crate::project::default_max_dist;
+use crate::raycast::Watched;
 use crate::raycast::{make_raycaster, RayBackend, RayCaster};
 use crate::subdiv::{make_evaluator, Backend, EvalOptions};
 use crate::DVec3;
@@ -249,103 +250,125 @@ pub fn evaluate_surfaces(
         let t = (4.0 * n as f64 / patches.max(1) as f64).sqrt().ceil() as usize + 1;
         t.clamp(r.min(64), 64).max(r)
     });
-    report_progress(progress, "displacement", 0.0)?;
-    let edge = mean_edge_length(mesh);
-    // M's 3-point quadrature, the M → S samples of both L and D.
-    let (mp, mw) = quadrature_points(mesh);
-    // L (tessellation, accuracy, projectability) and D (displacement,
-    // least-squares offsets, accuracy) depend only on the control mesh and
-    // M, not on each other: they run side by side, which keeps both cores
-    // busy through the serial parts of each (OpenSubdiv's evaluation, the
-    // inpainting, Eigen's solve, the BVH builds). Each side is
-    // deterministic on its own, so the figures do not depend on the
-    // thread count.
-    let (limit_side, displaced_side) = rayon::join(
-        || -> Result<_> {
-            let grid = PatchGrid::new(control, t)?;
-            let limit_pts = evaluator.evaluate(control.positions(), grid.locations())?;
-            let limit = TriMesh {
-                positions: limit_pts.iter().map(|p| p.position).collect(),
-                triangles: grid.triangles(),
-            };
-            let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
-            let (acc, unreached) = rayon::join(
-                || limit_accuracy(caster, &limit, limit_caster.as_ref(), &mp, &mw, diag),
-                || {
-                    unprojectable_percent(
+    // Watched (`crate::watch`): every ray query below is chunked and a
+    // cancellation ends the stage within one chunk.
+    let (
+        limit_acc,
+        unprojectable_area_percent,
+        displacement,
+        displaced_acc,
+        displaced_breakdown,
+        files,
+    ) = crate::watch::watched(progress, |w| {
+        w.report("displacement", 0.0)?;
+        let caster = &Watched::new(caster, w);
+        let edge = mean_edge_length(mesh);
+        // M's 3-point quadrature, the M → S samples of both L and D.
+        let (mp, mw) = quadrature_points(mesh);
+        // L (tessellation, accuracy, projectability) and D (displacement,
+        // least-squares offsets, accuracy) depend only on the control mesh and
+        // M, not on each other: they run side by side, which keeps both cores
+        // busy through the serial parts of each (OpenSubdiv's evaluation, the
+        // inpainting, Eigen's solve, the BVH builds). Each side is
+        // deterministic on its own, so the figures do not depend on the
+        // thread count.
+        let (limit_side, displaced_side) = rayon::join(
+            || -> Result<_> {
+                let grid = PatchGrid::new(control, t)?;
+                let limit_pts = evaluator.evaluate(control.positions(), grid.locations())?;
+                let limit = TriMesh {
+                    positions: limit_pts.iter().map(|p| p.position).collect(),
+                    triangles: grid.triangles(),
+                };
+                let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
+                let limit_caster = Watched::new(limit_caster.as_ref(), w);
+                let (acc, unreached) = rayon::join(
+                    || limit_accuracy(caster, &limit, &limit_caster, &mp, &mw, diag),
+                    || {
+                        unprojectable_percent(
+                            mesh,
+                            caster,
+                            control,
+                            evaluator.as_ref(),
+                            &grid,
+                            &limit_caster,
+                            max_dist,
+                            edge,
+                        )
+                    },
+                );
+                Ok((limit, acc?, unreached?))
+            },
+            || -> Result<_> {
+                let mut displacement = compute_displacement(
+                    control,
+                    evaluator.as_ref(),
+                    caster,
+                    r,
+                    max_dist,
+                    diag,
+                    0.5 * edge,
+                )?;
+                if opts.offsets == OffsetMode::LeastSquares {
+                    let st = refine_offsets(
                         mesh,
                         caster,
-                        control,
-                        evaluator.as_ref(),
-                        &grid,
-                        limit_caster.as_ref(),
-                        max_dist,
-                        edge,
-                    )
-                },
-            );
-            Ok((limit, acc?, unreached?))
-        },
-        || -> Result<_> {
-            let mut displacement = compute_displacement(
-                control,
-                evaluator.as_ref(),
-                caster,
-                r,
-                max_dist,
-                diag,
-                0.5 * edge,
-            )?;
-            if opts.offsets == OffsetMode::LeastSquares {
-                let st = refine_offsets(
-                    mesh,
-                    caster,
-                    &mut displacement,
-                    diag,
-                    &LsqOffsetOptions::default(),
-                )?;
-                let max_abs = displacement
-                    .offsets
-                    .iter()
-                    .fold(0.0f64, |m, d| m.max(d.abs()));
-                displacement.stats.max_abs_offset_permille = 1000.0 * max_abs / diag;
-                displacement.stats.least_squares = Some(st);
-            }
-            // D: the displacement grid, each cell split along its shorter
-            // displaced diagonal (`PatchGrid::triangles_shorter_diagonal`).
-            let displaced_positions = displacement.displaced_positions();
-            let displaced = TriMesh {
-                triangles: displacement
-                    .grid
-                    .triangles_shorter_diagonal(&displaced_positions),
-                positions: displaced_positions,
-            };
-            let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
-            // D's S → M by the 3-point rule, kept per point for the breakdown.
-            let (dp, dw) = quadrature_points(&displaced);
-            let (dd, m2d) = rayon::join(
-                || closest_distances(&dp, caster),
-                || distance_stats(&mp, &mw, displaced_caster.as_ref(), diag),
-            );
-            let dd = dd?;
-            let acc = Accuracy::from_directions(stats_of(&dd, &dw, diag), m2d?);
-            let bd = breakdown(control, &displacement, &displaced, &dd, &dw, diag);
-            Ok((displacement, displaced, acc, bd))
-        },
-    );
-    let (_, limit_acc, unprojectable_area_percent) = limit_side?;
-    let (displacement, _, displaced_acc, displaced_breakdown) = displaced_side?;
-    let files = tessellate::tessellate(
-        control,
-        evaluator.as_ref(),
-        &displacement,
-        diag,
-        opts.output_tessellation,
-        limit_acc.rms_permille,
-    )?;
-    report_progress(progress, "displacement", 1.0)?;
-    report_progress(progress, "metrics", 0.0)?;
-    report_progress(progress, "metrics", 1.0)?;
+                        &mut displacement,
+                        diag,
+                        &LsqOffsetOptions::default(),
+                    )?;
+                    let max_abs = displacement
+                        .offsets
+                        .iter()
+                        .fold(0.0f64, |m, d| m.max(d.abs()));
+                    displacement.stats.max_abs_offset_permille = 1000.0 * max_abs / diag;
+                    displacement.stats.least_squares = Some(st);
+                }
+                // D: the displacement grid, each cell split along its shorter
+                // displaced diagonal (`PatchGrid::triangles_shorter_diagonal`).
+                let displaced_positions = displacement.displaced_positions();
+                let displaced = TriMesh {
+                    triangles: displacement
+                        .grid
+                        .triangles_shorter_diagonal(&displaced_positions),
+                    positions: displaced_positions,
+                };
+                let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
+                let displaced_caster = Watched::new(displaced_caster.as_ref(), w);
+                // D's S → M by the 3-point rule, kept per point for the breakdown.
+                let (dp, dw) = quadrature_points(&displaced);
+                let (dd, m2d) = rayon::join(
+                    || closest_distances(&dp, caster),
+                    || distance_stats(&mp, &mw, &displaced_caster, diag),
+                );
+                let dd = dd?;
+                let acc = Accuracy::from_directions(stats_of(&dd, &dw, diag), m2d?);
+                let bd = breakdown(control, &displacement, &displaced, &dd, &dw, diag);
+                Ok((displacement, displaced, acc, bd))
+            },
+        );
+        let (_, limit_acc, unprojectable_area_percent) = limit_side?;
+        let (displacement, _, displaced_acc, displaced_breakdown) = displaced_side?;
+        let files = tessellate::tessellate(
+            control,
+            evaluator.as_ref(),
+            &displacement,
+            diag,
+            opts.output_tessellation,
+            limit_acc.rms_permille,
+        )?;
+        w.report("displacement", 1.0)?;
+        w.report("metrics", 0.0)?;
+        w.report("metrics", 1.0)?;
+        Ok((
+            limit_acc,
+            unprojectable_area_percent,
+            displacement,
+            displaced_acc,
+            displaced_breakdown,
+            files,
+        ))
+    })?;
     let metrics = Metrics {
         bbox_diagonal: diag,
         limit: limit_acc,

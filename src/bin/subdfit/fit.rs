@@ -78,9 +78,11 @@ pub fn progress_bars(quiet: bool) -> impl FnMut(&str, f64) -> bool {
             }
             let bar = ProgressBar::new(1000);
             bar.set_style(
-                ProgressStyle::with_template("{prefix:>14} [{bar:30}] {percent:>3}% {elapsed}")
-                    .expect("static template")
-                    .progress_chars("=> "),
+                ProgressStyle::with_template(
+                    "{prefix:>14} [{bar:30}] {percent:>3}% {elapsed} (eta {eta})",
+                )
+                .expect("static template")
+                .progress_chars("=> "),
             );
             bar.set_prefix(stage.to_string());
             current = Some((stage.to_string(), bar));
