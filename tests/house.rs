@@ -19,6 +19,7 @@ use std::path::{Path, PathBuf};
 /// floor 0 and of glam.
 const ORDER: &[(&str, u32)] = &[
     ("error", 0),
+    ("watch", 0),
     ("ffi", 0),
     ("mesh", 1),
     ("io", 1),

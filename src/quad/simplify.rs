@@ -1025,6 +1025,46 @@ impl<'a> Simplifier<'a> {
         None
     }
 
+    /// Tells `progress` where the run is; its `false` is a cancellation.
+    fn ask(
+        &self,
+        stats: &SimplifyStats,
+        t0: Instant,
+        progress: &mut dyn FnMut(Progress) -> bool,
+    ) -> Result<()> {
+        let p = Progress {
+            faces: self.k.num_live_faces(),
+            initial_faces: stats.initial_faces,
+            collapses: stats.collapses,
+            seconds: t0.elapsed().as_secs_f64(),
+        };
+        if progress(p) {
+            Ok(())
+        } else {
+            Err(Error::Cancelled {
+                stage: "simplification".into(),
+            })
+        }
+    }
+
+    /// Re-evaluates every live face, asking `progress` between chunks: the
+    /// same heap entries in the same order as one batch (each face's update
+    /// is independent of the others').
+    fn update_all(
+        &mut self,
+        stats: &SimplifyStats,
+        t0: Instant,
+        progress: &mut dyn FnMut(Progress) -> bool,
+    ) -> Result<()> {
+        const SWEEP_CHUNK: usize = 2048;
+        let all: Vec<FaceId> = self.k.live_faces().collect();
+        for c in all.chunks(SWEEP_CHUNK) {
+            let _ = self.update_faces(c)?;
+            self.ask(stats, t0, progress)?;
+        }
+        Ok(())
+    }
+
     fn run(
         &mut self,
         stats: &mut SimplifyStats,
@@ -1035,33 +1075,8 @@ impl<'a> Simplifier<'a> {
         // asked every ASK_EVERY heap pops (refused ones included: a run of
         // refusals can be long) and between chunks of a full sweep.
         const ASK_EVERY: usize = 64;
-        const SWEEP_CHUNK: usize = 2048;
-        let ask = |k: &ControlMesh,
-                   stats: &SimplifyStats,
-                   progress: &mut dyn FnMut(Progress) -> bool|
-         -> Result<()> {
-            let p = Progress {
-                faces: k.num_live_faces(),
-                initial_faces: stats.initial_faces,
-                collapses: stats.collapses,
-                seconds: t0.elapsed().as_secs_f64(),
-            };
-            if progress(p) {
-                Ok(())
-            } else {
-                Err(Error::Cancelled {
-                    stage: "simplification".into(),
-                })
-            }
-        };
-        let all: Vec<FaceId> = self.k.live_faces().collect();
-        stats.initial_faces = all.len();
-        // Chunks: the same heap entries in the same order as one batch
-        // (each face's update is independent of the others').
-        for c in all.chunks(SWEEP_CHUNK) {
-            let _ = self.update_faces(c)?;
-            ask(&self.k, stats, progress)?;
-        }
+        stats.initial_faces = self.k.num_live_faces();
+        self.update_all(stats, t0, progress)?;
         let target = self.opts.target_faces.unwrap_or(0);
         let mut stop = StopReason::NaturalEnd;
         let mut at_last_sweep = stats.collapses;
@@ -1069,7 +1084,7 @@ impl<'a> Simplifier<'a> {
         loop {
             pops += 1;
             if pops % ASK_EVERY == 0 {
-                ask(&self.k, stats, progress)?;
+                self.ask(stats, t0, progress)?;
             }
             let Some(Reverse((_, fi, d, ver))) = self.heap.pop() else {
                 // The heap only re-evaluates faces around a refit region; a
@@ -1098,11 +1113,7 @@ impl<'a> Simplifier<'a> {
                 // still ends: a sweep with no collapse is the last.
                 self.refused.clear();
                 self.blocked.clear();
-                let all: Vec<FaceId> = self.k.live_faces().collect();
-                for c in all.chunks(SWEEP_CHUNK) {
-                    let _ = self.update_faces(c)?;
-                    ask(&self.k, stats, progress)?;
-                }
+                self.update_all(stats, t0, progress)?;
                 continue;
             };
             if self.k.num_live_faces() <= target {

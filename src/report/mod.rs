@@ -299,56 +299,22 @@ pub fn evaluate_surfaces(
                 );
                 Ok((limit, acc?, unreached?))
             },
-            || -> Result<_> {
-                let mut displacement = compute_displacement(
+            || {
+                let at = Sampling {
+                    mesh,
                     control,
-                    evaluator.as_ref(),
-                    caster,
                     r,
                     max_dist,
                     diag,
-                    0.5 * edge,
-                )?;
-                if opts.offsets == OffsetMode::LeastSquares {
-                    let st = refine_offsets(
-                        mesh,
-                        caster,
-                        &mut displacement,
-                        diag,
-                        &LsqOffsetOptions::default(),
-                    )?;
-                    let max_abs = displacement
-                        .offsets
-                        .iter()
-                        .fold(0.0f64, |m, d| m.max(d.abs()));
-                    displacement.stats.max_abs_offset_permille = 1000.0 * max_abs / diag;
-                    displacement.stats.least_squares = Some(st);
-                }
-                // D: the displacement grid, each cell split along its shorter
-                // displaced diagonal (`PatchGrid::triangles_shorter_diagonal`).
-                let displaced_positions = displacement.displaced_positions();
-                let displaced = TriMesh {
-                    triangles: displacement
-                        .grid
-                        .triangles_shorter_diagonal(&displaced_positions),
-                    positions: displaced_positions,
+                    edge,
+                    mp: &mp,
+                    mw: &mw,
                 };
-                let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
-                let displaced_caster = Watched::new(displaced_caster.as_ref(), w);
-                // D's S → M by the 3-point rule, kept per point for the breakdown.
-                let (dp, dw) = quadrature_points(&displaced);
-                let (dd, m2d) = rayon::join(
-                    || closest_distances(&dp, caster),
-                    || distance_stats(&mp, &mw, &displaced_caster, diag),
-                );
-                let dd = dd?;
-                let acc = Accuracy::from_directions(stats_of(&dd, &dw, diag), m2d?);
-                let bd = breakdown(control, &displacement, &displaced, &dd, &dw, diag);
-                Ok((displacement, displaced, acc, bd))
+                displaced_side(&at, evaluator.as_ref(), caster, w, opts)
             },
         );
         let (_, limit_acc, unprojectable_area_percent) = limit_side?;
-        let (displacement, _, displaced_acc, displaced_breakdown) = displaced_side?;
+        let (displacement, displaced_acc, displaced_breakdown) = displaced_side?;
         let files = tessellate::tessellate(
             control,
             evaluator.as_ref(),
@@ -387,6 +353,78 @@ pub fn evaluate_surfaces(
         displaced_projected: files.projected,
         metrics,
     })
+}
+
+/// What both sides of [`evaluate_surfaces`] sample: M, its quadrature
+/// (`mp`, `mw`), the control mesh and the displacement grid's settings.
+struct Sampling<'a> {
+    mesh: &'a TriMesh,
+    control: &'a ControlMesh,
+    r: usize,
+    max_dist: f64,
+    diag: f64,
+    edge: f64,
+    mp: &'a [DVec3],
+    mw: &'a [f64],
+}
+
+/// D's side of [`evaluate_surfaces`]: the displacement (§3.5), its
+/// least-squares offsets, and D's accuracy both ways with its breakdown.
+fn displaced_side(
+    at: &Sampling<'_>,
+    evaluator: &dyn crate::subdiv::LimitEvaluator,
+    caster: &dyn RayCaster,
+    w: &crate::watch::Watch,
+    opts: &MetricsOptions,
+) -> Result<(Displacement, Accuracy, DisplacedBreakdown)> {
+    let Sampling {
+        mesh,
+        control,
+        r,
+        max_dist,
+        diag,
+        edge,
+        mp,
+        mw,
+    } = *at;
+    let mut displacement =
+        compute_displacement(control, evaluator, caster, r, max_dist, diag, 0.5 * edge)?;
+    if opts.offsets == OffsetMode::LeastSquares {
+        let st = refine_offsets(
+            mesh,
+            caster,
+            &mut displacement,
+            diag,
+            &LsqOffsetOptions::default(),
+        )?;
+        let max_abs = displacement
+            .offsets
+            .iter()
+            .fold(0.0f64, |m, d| m.max(d.abs()));
+        displacement.stats.max_abs_offset_permille = 1000.0 * max_abs / diag;
+        displacement.stats.least_squares = Some(st);
+    }
+    // D: the displacement grid, each cell split along its shorter
+    // displaced diagonal (`PatchGrid::triangles_shorter_diagonal`).
+    let displaced_positions = displacement.displaced_positions();
+    let displaced = TriMesh {
+        triangles: displacement
+            .grid
+            .triangles_shorter_diagonal(&displaced_positions),
+        positions: displaced_positions,
+    };
+    let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
+    let displaced_caster = Watched::new(displaced_caster.as_ref(), w);
+    // D's S → M by the 3-point rule, kept per point for the breakdown.
+    let (dp, dw) = quadrature_points(&displaced);
+    let (dd, m2d) = rayon::join(
+        || closest_distances(&dp, caster),
+        || distance_stats(mp, mw, &displaced_caster, diag),
+    );
+    let dd = dd?;
+    let acc = Accuracy::from_directions(stats_of(&dd, &dw, diag), m2d?);
+    let bd = breakdown(control, &displacement, &displaced, &dd, &dw, diag);
+    Ok((displacement, acc, bd))
 }
 
 /// A third of the area of each vertex's triangles.
