@@ -766,6 +766,30 @@ fn closed_form_limit(t: &Topo<DVec3>, adj: &Adj, c: u32) -> DVec3 {
     }
 }
 
+/// The unit normal of Loop's closed-form tangent masks
+/// `Σ cos(2πi/n) e_i`, `Σ sin(2πi/n) e_i` (Loop 1987; exact eigenvectors of
+/// the smooth one-ring matrix) at a smooth interior vertex without sharp
+/// edges; `None` elsewhere (creases, corners, darts).
+fn closed_form_normal(t: &Topo<DVec3>, adj: &Adj, c: u32) -> Option<DVec3> {
+    let sharp = adj.vedges[c as usize]
+        .iter()
+        .any(|&e| t.edge_sharp(adj, e) > 0.0);
+    if sharp || t.vert_sharp(adj, c) > 0.0 {
+        return None;
+    }
+    let (e, closed) = loop_fan(t, adj, c);
+    if !closed {
+        return None;
+    }
+    let th = std::f64::consts::TAU / e.len() as f64;
+    let (mut a, mut b) = (DVec3::ZERO, DVec3::ZERO);
+    for (i, &x) in e.iter().enumerate() {
+        a += (th * i as f64).cos() * t.pts[x as usize];
+        b += (th * i as f64).sin() * t.pts[x as usize];
+    }
+    Some(a.cross(b).normalize())
+}
+
 /// Brute-force reference of the limit at a dyadic location `(u, v)` of
 /// triangle `face` (`u·2^levels` and `v·2^levels` integers): `levels` of
 /// uniform Loop refinement (restricted at each level to the 1-ring of the
@@ -774,7 +798,9 @@ fn closed_form_limit(t: &Topo<DVec3>, adj: &Adj, c: u32) -> DVec3 {
 /// location has become. With `levels` at least the largest semi-sharpness
 /// this involves no patch, eigenvector or box spline at all; it is how the
 /// tests check the exact evaluator near irregular vertices, where
-/// OpenSubdiv only approximates.
+/// OpenSubdiv only approximates. Also returns the unit normal of the
+/// closed-form tangent masks where that vertex is smooth (see
+/// [`closed_form_normal`]). `levels` is at most 62.
 pub fn limit_by_refinement(
     mesh: &ControlMesh,
     scheme: &crate::mesh::SchemeOptions,
@@ -782,11 +808,11 @@ pub fn limit_by_refinement(
     u: f64,
     v: f64,
     levels: u32,
-) -> Result<DVec3> {
+) -> Result<(DVec3, Option<DVec3>)> {
     let rules = loop_rules(mesh, scheme)?;
-    let scale = (1u64 << levels) as f64;
+    let scale = (1u64 << levels.min(62)) as f64;
     let dyadic = |x: f64| (x * scale).fract() == 0.0 && (0.0..=1.0).contains(&x);
-    if face.idx() >= mesh.num_faces() || !dyadic(u) || !dyadic(v) || u + v > 1.0 {
+    if levels > 62 || face.idx() >= mesh.num_faces() || !dyadic(u) || !dyadic(v) || u + v > 1.0 {
         return Err(crate::error::Error::InvalidArgument(format!(
             "limit_by_refinement: ({u}, {v}) on face {} is not a dyadic location of level {levels}",
             face.0
@@ -811,5 +837,6 @@ pub fn limit_by_refinement(
         _ => 2,
     };
     let adj = t.adjacency();
-    Ok(closed_form_limit(&t, &adj, t.face(0)[k]))
+    let c = t.face(0)[k];
+    Ok((closed_form_limit(&t, &adj, c), closed_form_normal(&t, &adj, c)))
 }
