@@ -354,3 +354,82 @@ fn loop_limit_matches_brute_force() {
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
+
+/// Loop is defined on triangles only: both backends refuse another face,
+/// naming it, and locations outside the triangle are refused.
+#[test]
+fn loop_refuses_non_triangles_and_outside_locations() {
+    let quads = ControlMesh::from_polygons(
+        vec![
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(1.0, 1.0, 0.0),
+            DVec3::new(0.0, 1.0, 0.0),
+            DVec3::new(2.0, 0.0, 0.0),
+        ],
+        &[vec![1, 4, 2], vec![0, 1, 2, 3]],
+    )
+    .unwrap();
+    let eo = EvalOptions::default().with_scheme(SchemeOptions::default().with_scheme(SubdivScheme::Loop));
+    for backend in [Backend::Osd, Backend::Rust] {
+        let e = make_evaluator(backend, &quads, &eo).err().expect("a quad must be refused");
+        assert!(e.to_string().contains("face 1 has 4 corners"), "{e}");
+    }
+    let m = mesh(icosphere());
+    for backend in [Backend::Osd, Backend::Rust] {
+        let e = make_evaluator(backend, &m, &eo).unwrap();
+        let err = e
+            .evaluate(m.positions(), &[SurfaceLocation::quad(FaceId(0), 0.6, 0.5)])
+            .expect_err("u + v > 1 is outside the triangle");
+        assert!(err.to_string().contains("triangle"), "{err}");
+        let sub = SurfaceLocation { sub: 1, ..SurfaceLocation::quad(FaceId(0), 0.1, 0.1) };
+        assert!(e.evaluate(m.positions(), &[sub]).is_err());
+    }
+}
+
+/// The comparison can fail: a deliberately broken vertex mask in the Rust
+/// evaluator is caught at that vertex.
+#[test]
+fn loop_broken_mask_is_caught() {
+    let m = mesh(bump(icosphere(), 0.02));
+    let opts = SchemeOptions::default().with_scheme(SubdivScheme::Loop);
+    let eo = EvalOptions::default().with_scheme(opts.clone());
+    let osd = make_evaluator(Backend::Osd, &m, &eo).unwrap();
+    let broken = make_evaluator(Backend::Rust, &m, &eo.clone().with_broken_mask(7, 1e-3)).unwrap();
+    let r = compare_with(&m, &opts, osd.as_ref(), broken.as_ref(), &[], 0.01).unwrap();
+    assert!(r.vertices.position > 1e-5, "{r}");
+    assert_eq!(r.vertices.position_at, "vertex 7");
+}
+
+/// Stencils are the evaluation's weights: applied to the control points
+/// they give the evaluated limit, in both backends, and the two backends'
+/// stencils give the same surface away from irregular corners.
+#[test]
+fn loop_stencils_reproduce_evaluation() {
+    let m = mesh(bump(open_grid(), 0.05));
+    let opts = SchemeOptions::default().with_scheme(SubdivScheme::Loop);
+    let eo = EvalOptions::default().with_scheme(opts.clone());
+    let locs = random_locations_with(&m, &opts, 300, 11);
+    let diag = m.bbox_diagonal();
+    let mut applied = Vec::new();
+    for backend in [Backend::Osd, Backend::Rust] {
+        let e = make_evaluator(backend, &m, &eo).unwrap();
+        let st = e.stencils(&locs).unwrap();
+        let a = st.apply(m.positions());
+        let b = e.evaluate(m.positions(), &locs).unwrap();
+        let d = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x.position - y.position).length().max((x.du - y.du).length()) / diag)
+            .fold(0.0, f64::max);
+        assert!(d <= 1e-12, "{backend:?}: stencils differ from evaluation by {d:.3e}");
+        applied.push(a);
+    }
+    let d = applied[0]
+        .iter()
+        .zip(&applied[1])
+        .map(|(x, y)| (x.position - y.position).length() / diag)
+        .fold(0.0, f64::max);
+    println!("stencils, Rust vs OpenSubdiv: {d:.2e}");
+    assert!(d <= 1e-9, "{d:.3e}");
+}
