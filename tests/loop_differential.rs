@@ -24,7 +24,9 @@
 use subdfit::mesh::{
     BoundaryInterpolation, ControlMesh, CreaseMethod, FaceId, SchemeOptions, VertexId,
 };
-use subdfit::subdiv::diff::{angle_between, compare_with, near_irregular_locations_with, random_locations_with};
+use subdfit::subdiv::diff::{
+    angle_between, compare_with, near_irregular_locations_with, random_locations_with,
+};
 use subdfit::subdiv::loop_scheme::{limit_by_refinement, refine_uniform_loop};
 use subdfit::subdiv::osd::{osd_refine_uniform_with, OsdScheme};
 use subdfit::subdiv::{make_evaluator, Backend, EvalOptions, SubdivScheme, SurfaceLocation};
@@ -146,7 +148,11 @@ fn open_grid() -> Tris {
         .flat_map(|j| (0..=n).map(move |i| (i, j)))
         .map(|(i, j)| {
             let (x, y) = (i as f64, j as f64);
-            DVec3::new(x + 0.15 * y, y, 0.4 * (0.8 * x).sin() * (0.5 * y + 0.2).cos())
+            DVec3::new(
+                x + 0.15 * y,
+                y,
+                0.4 * (0.8 * x).sin() * (0.5 * y + 0.2).cos(),
+            )
         })
         .collect();
     let mut f = Vec::new();
@@ -300,8 +306,21 @@ fn dyadic_locations(m: &ControlMesh, opts: &SchemeOptions, level: u32) -> Vec<Su
     let holes = opts.effective_holes(m);
     let mut out = Vec::new();
     for f in m.faces().filter(|f| !holes[f.idx()]).step_by(5) {
-        for (i, j) in [(1, 0), (0, 1), (1, 1), (2, 1), (n - 1, 1), (1, n - 2), (n / 4, n / 2), (3, n - 3)] {
-            out.push(SurfaceLocation::quad(f, i as f64 / n as f64, j as f64 / n as f64));
+        for (i, j) in [
+            (1, 0),
+            (0, 1),
+            (1, 1),
+            (2, 1),
+            (n - 1, 1),
+            (1, n - 2),
+            (n / 4, n / 2),
+            (3, n - 3),
+        ] {
+            out.push(SurfaceLocation::quad(
+                f,
+                i as f64 / n as f64,
+                j as f64 / n as f64,
+            ));
         }
     }
     out
@@ -370,9 +389,12 @@ fn loop_refuses_non_triangles_and_outside_locations() {
         &[vec![1, 4, 2], vec![0, 1, 2, 3]],
     )
     .unwrap();
-    let eo = EvalOptions::default().with_scheme(SchemeOptions::default().with_scheme(SubdivScheme::Loop));
+    let eo = EvalOptions::default()
+        .with_scheme(SchemeOptions::default().with_scheme(SubdivScheme::Loop));
     for backend in [Backend::Osd, Backend::Rust] {
-        let e = make_evaluator(backend, &quads, &eo).err().expect("a quad must be refused");
+        let e = make_evaluator(backend, &quads, &eo)
+            .err()
+            .expect("a quad must be refused");
         assert!(e.to_string().contains("face 1 has 4 corners"), "{e}");
     }
     let m = mesh(icosphere());
@@ -382,7 +404,10 @@ fn loop_refuses_non_triangles_and_outside_locations() {
             .evaluate(m.positions(), &[SurfaceLocation::quad(FaceId(0), 0.6, 0.5)])
             .expect_err("u + v > 1 is outside the triangle");
         assert!(err.to_string().contains("triangle"), "{err}");
-        let sub = SurfaceLocation { sub: 1, ..SurfaceLocation::quad(FaceId(0), 0.1, 0.1) };
+        let sub = SurfaceLocation {
+            sub: 1,
+            ..SurfaceLocation::quad(FaceId(0), 0.1, 0.1)
+        };
         assert!(e.evaluate(m.positions(), &[sub]).is_err());
     }
 }
@@ -420,9 +445,17 @@ fn loop_stencils_reproduce_evaluation() {
         let d = a
             .iter()
             .zip(&b)
-            .map(|(x, y)| (x.position - y.position).length().max((x.du - y.du).length()) / diag)
+            .map(|(x, y)| {
+                (x.position - y.position)
+                    .length()
+                    .max((x.du - y.du).length())
+                    / diag
+            })
             .fold(0.0, f64::max);
-        assert!(d <= 1e-12, "{backend:?}: stencils differ from evaluation by {d:.3e}");
+        assert!(
+            d <= 1e-12,
+            "{backend:?}: stencils differ from evaluation by {d:.3e}"
+        );
         applied.push(a);
     }
     let d = applied[0]

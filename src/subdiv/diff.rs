@@ -274,14 +274,13 @@ pub fn is_irregular_vertex_with(mesh: &ControlMesh, scheme: &SchemeOptions, v: V
 fn is_irregular_loop_vertex(mesh: &ControlMesh, v: VertexId) -> bool {
     let hs: Vec<_> = mesh.outgoing(v).collect();
     let sharp: Vec<usize> = (0..hs.len())
-        .filter(|&i| {
-            mesh.is_boundary_edge(hs[i].edge()) || mesh.edge_sharpness(hs[i].edge()) > 0.0
-        })
+        .filter(|&i| mesh.is_boundary_edge(hs[i].edge()) || mesh.edge_sharpness(hs[i].edge()) > 0.0)
         .collect();
     if mesh.vertex_sharpness(v) > 0.0
-        || sharp
-            .iter()
-            .any(|&i| !mesh.is_boundary_edge(hs[i].edge()) && mesh.edge_sharpness(hs[i].edge()) < INFINITELY_SHARP)
+        || sharp.iter().any(|&i| {
+            !mesh.is_boundary_edge(hs[i].edge())
+                && mesh.edge_sharpness(hs[i].edge()) < INFINITELY_SHARP
+        })
     {
         return true;
     }

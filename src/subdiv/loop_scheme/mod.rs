@@ -36,7 +36,7 @@ use crate::subdiv::catmark::topo::{
     comb, key, topo_from_mesh, vertex_rule, Adj, Pt, Rule, Rules, Sparse, Topo, INF,
 };
 use crate::subdiv::{
-    check_locations_for, check_not_holes, checked_holes, check_positions, EvalOptions,
+    check_locations_for, check_not_holes, check_positions, checked_holes, EvalOptions,
     LimitEvaluator, LimitPoint, LimitStencils, SubdivScheme, SurfaceLocation,
 };
 use crate::DVec3;
@@ -419,10 +419,7 @@ fn ring_matrix<P>(t: &Topo<P>, adj: &Adj, c: u32, e: &[u32], closed: bool) -> Ve
         } else {
             // Interior smooth edge: its opposite vertices are the fan
             // neighbours on either side.
-            let (prev, next) = (
-                (i + n - 1) % n,
-                (i + 1) % n,
-            );
+            let (prev, next) = ((i + n - 1) % n, (i + 1) % n);
             debug_assert!(closed || (i > 0 && i + 1 < n));
             row[0] = 0.375;
             row[1 + i] += 0.375;
@@ -461,7 +458,10 @@ fn eigen_masks(s: &[Vec<f64>], ra: &[f64], rb: &[f64]) -> (Vec<f64>, Vec<f64>, V
     p[0] = 1.0;
     for _ in 0..5000 {
         let np = left_apply(s, &p);
-        let d = np.iter().zip(&p).fold(0.0f64, |a, (x, y)| a.max((x - y).abs()));
+        let d = np
+            .iter()
+            .zip(&p)
+            .fold(0.0f64, |a, (x, y)| a.max((x - y).abs()));
         p = np;
         if d < 1e-18 {
             break;
@@ -604,11 +604,9 @@ impl LoopEvaluator {
                 regular_patch(&t, &adj, 0).map(|slots| {
                     slots.map(|s| match s {
                         Slot::Real(i) => Slot::Real(t.pts[i as usize]),
-                        Slot::Phantom(a, b, c) => Slot::Phantom(
-                            t.pts[a as usize],
-                            t.pts[b as usize],
-                            t.pts[c as usize],
-                        ),
+                        Slot::Phantom(a, b, c) => {
+                            Slot::Phantom(t.pts[a as usize], t.pts[b as usize], t.pts[c as usize])
+                        }
                     })
                 })
             })
@@ -620,7 +618,11 @@ impl LoopEvaluator {
             .map(|&v| {
                 let faces: Vec<FaceId> = mesh.vertex_faces(v).collect();
                 let t = topo_from_mesh(mesh, Some(&faces), sdc);
-                let local = t.pts.iter().position(|&g| g == v.0).expect("v is in its ring") as u32;
+                let local = t
+                    .pts
+                    .iter()
+                    .position(|&g| g == v.0)
+                    .expect("v is in its ring") as u32;
                 let t = with_points(t, Sparse::unit);
                 let adj = t.adjacency();
                 let (mut p, a, b) = vertex_limit(&t, &adj, local);
@@ -746,7 +748,9 @@ fn closed_form_limit(t: &Topo<DVec3>, adj: &Adj, c: u32) -> DVec3 {
         .iter()
         .map(|&e| t.edge_sharp(adj, e))
         .collect();
-    let others = adj.vedges[c as usize].iter().map(|&e| t.pts[t.other(adj, e, c) as usize]);
+    let others = adj.vedges[c as usize]
+        .iter()
+        .map(|&e| t.pts[t.other(adj, e, c) as usize]);
     match vertex_rule(t.vert_sharp(adj, c), &sharp) {
         Rule::Corner => x,
         Rule::Crease => {
@@ -818,9 +822,10 @@ pub fn limit_by_refinement(
             face.0
         )));
     }
-    let mut t = with_points(topo_from_mesh(mesh, Some(&face_ring(mesh, face)), rules), |g| {
-        mesh.positions()[g as usize]
-    });
+    let mut t = with_points(
+        topo_from_mesh(mesh, Some(&face_ring(mesh, face)), rules),
+        |g| mesh.positions()[g as usize],
+    );
     let (mut s, mut tt) = (u, v);
     for _ in 0..levels {
         let adj = t.adjacency();
@@ -831,12 +836,17 @@ pub fn limit_by_refinement(
         t = r.ring(&radj, &cv, Some(child)).0;
         (s, tt) = (ns, nt);
     }
-    let k = match (s, tt) {
-        (x, y) if x == 0.0 && y == 0.0 => 0,
-        (x, _) if x == 1.0 => 1,
-        _ => 2,
+    let k = if s == 0.0 && tt == 0.0 {
+        0
+    } else if s == 1.0 {
+        1
+    } else {
+        2
     };
     let adj = t.adjacency();
     let c = t.face(0)[k];
-    Ok((closed_form_limit(&t, &adj, c), closed_form_normal(&t, &adj, c)))
+    Ok((
+        closed_form_limit(&t, &adj, c),
+        closed_form_normal(&t, &adj, c),
+    ))
 }

@@ -81,9 +81,7 @@ fn refine_grid(g: &[Vec<f64>]) -> Vec<Vec<f64>> {
                     0.375 * (at(i, j) + at(i, j + 1)) + 0.125 * (at(i + 1, j) + at(i - 1, j + 1))
                 }
                 // Edge (i+1, j)-(i, j+1): opposite (i, j) and (i+1, j+1).
-                _ => {
-                    0.375 * (at(i + 1, j) + at(i, j + 1)) + 0.125 * (at(i, j) + at(i + 1, j + 1))
-                }
+                _ => 0.375 * (at(i + 1, j) + at(i, j + 1)) + 0.125 * (at(i, j) + at(i + 1, j + 1)),
             };
         }
     }
@@ -146,17 +144,17 @@ fn lagrange_factor(x: f64, dx: [f64; 2], k: i32) -> [f64; 3] {
         let d = (k - a) as f64;
         let f = (4.0 * x - a as f64) / d;
         let df = [4.0 * dx[0] / d, 4.0 * dx[1] / d];
-        r = [
-            r[0] * f,
-            r[1] * f + r[0] * df[0],
-            r[2] * f + r[0] * df[1],
-        ];
+        r = [r[0] * f, r[1] * f + r[0] * df[0], r[2] * f + r[0] * df[1]];
     }
     r
 }
 
 fn mul(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] * b[0], a[1] * b[0] + a[0] * b[1], a[2] * b[0] + a[0] * b[2]]
+    [
+        a[0] * b[0],
+        a[1] * b[0] + a[0] * b[1],
+        a[2] * b[0] + a[0] * b[2],
+    ]
 }
 
 /// Weights of the 12 control points ([`LATTICE`] order) at `(u, v)` for the
@@ -198,10 +196,12 @@ fn vertex_dirs<P>(t: &Topo<P>, adj: &Adj, c: u32, n0: u32, d0: usize) -> Option<
     }
     let wall = |x: u32| -> Option<bool> {
         let s = t.edge_sharp(adj, *adj.edge_id.get(&key(c, x))?);
-        match s {
-            s if s == 0.0 => Some(false),
-            s if s >= INF => Some(true),
-            _ => None, // semi-sharp: not regular
+        if s == 0.0 {
+            Some(false)
+        } else if s >= INF {
+            Some(true)
+        } else {
+            None // semi-sharp: not regular
         }
     };
     let mut walls = 0;
@@ -282,7 +282,11 @@ pub(crate) fn regular_patch<P>(t: &Topo<P>, adj: &Adj, f: u32) -> Option<[Slot; 
     if fv.len() != 3 {
         return None;
     }
-    let corners = [((0, 0), fv[0], fv[1], 0), ((1, 0), fv[1], fv[2], 2), ((0, 1), fv[2], fv[0], 4)];
+    let corners = [
+        ((0, 0), fv[0], fv[1], 0),
+        ((1, 0), fv[1], fv[2], 2),
+        ((0, 1), fv[2], fv[0], 4),
+    ];
     let mut slots: [Option<Slot>; 12] = [None; 12];
     for ((ci, cj), c, n0, d0) in corners {
         let dirs = vertex_dirs(t, adj, c, n0, d0)?;
@@ -301,7 +305,10 @@ pub(crate) fn regular_patch<P>(t: &Topo<P>, adj: &Adj, f: u32) -> Option<[Slot; 
             put((ci + di, cj + dj), dirs[k])?;
         }
     }
-    slots.iter().all(|s| s.is_some()).then(|| slots.map(|s| s.expect("checked")))
+    slots
+        .iter()
+        .all(|s| s.is_some())
+        .then(|| slots.map(|s| s.expect("checked")))
 }
 
 #[cfg(test)]
