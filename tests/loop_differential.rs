@@ -466,3 +466,84 @@ fn loop_stencils_reproduce_evaluation() {
     println!("stencils, Rust vs OpenSubdiv: {d:.2e}");
     assert!(d <= 1e-9, "{d:.3e}");
 }
+
+/// Rust and OpenSubdiv give the same parametric derivatives (not only the
+/// same normals) away from irregular corners: both use the triangular ptex
+/// parametrisation of the module doc.
+#[test]
+fn loop_derivatives_match_opensubdiv() {
+    use subdfit::subdiv::diff::is_irregular_vertex_with;
+    for (name, m) in meshes() {
+        let opts = SchemeOptions::default().with_scheme(SubdivScheme::Loop);
+        let eo = EvalOptions::default().with_scheme(opts.clone());
+        let osd = make_evaluator(Backend::Osd, &m, &eo).unwrap();
+        let rust = make_evaluator(Backend::Rust, &m, &eo).unwrap();
+        let irregular: Vec<bool> = m
+            .vertices()
+            .map(|v| is_irregular_vertex_with(&m, &opts, v))
+            .collect();
+        let locs: Vec<SurfaceLocation> = random_locations_with(&m, &opts, 1000, 17)
+            .into_iter()
+            .filter(|l| {
+                let vs: Vec<VertexId> = m.face_vertices(l.face).collect();
+                let w = [1.0 - l.u - l.v, l.u, l.v];
+                (0..3).all(|k| !irregular[vs[k].idx()] || w[k] < 0.99)
+            })
+            .collect();
+        let (a, b) = (
+            osd.evaluate(m.positions(), &locs).unwrap(),
+            rust.evaluate(m.positions(), &locs).unwrap(),
+        );
+        let diag = m.bbox_diagonal();
+        let d = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x.du - y.du).length().max((x.dv - y.dv).length()) / diag)
+            .fold(0.0, f64::max);
+        println!("derivatives {name}: {d:.2e} over {} locations", locs.len());
+        assert!(d <= 1e-9, "{name}: derivatives differ by {d:.3e}");
+    }
+}
+
+/// `subdfit diff-limit --scheme loop` passes on a triangle mesh with a
+/// semi-sharp crease and refuses a quad mesh, naming the face.
+#[test]
+fn diff_limit_cli_loop() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |path: &std::path::Path| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"))
+            .arg("diff-limit")
+            .arg(path)
+            .args(["--samples", "1000", "--scheme", "loop"])
+            .output()
+            .unwrap()
+    };
+    let tri = dir.path().join("sphere.obj");
+    let opts = SchemeOptions::default();
+    subdfit::io::write_control_file(&tri, &creased_sphere(), &opts).unwrap();
+    let o = run(&tri);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{text}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(text.contains("scheme: loop"), "{text}");
+    let quad = dir.path().join("quad.obj");
+    let q = ControlMesh::from_polygons(
+        vec![
+            DVec3::new(0.0, 0.0, 0.0),
+            DVec3::new(1.0, 0.0, 0.0),
+            DVec3::new(1.0, 1.0, 0.0),
+            DVec3::new(0.0, 1.0, 0.0),
+        ],
+        &[vec![0, 1, 2, 3]],
+    )
+    .unwrap();
+    subdfit::io::write_control_file(&quad, &q, &opts).unwrap();
+    let o = run(&quad);
+    assert_ne!(o.status.code(), Some(0));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("face 0 has 4 corners"), "{err}");
+}
