@@ -1,6 +1,8 @@
-//! Catmull-Clark limit evaluation behind one trait, two implementations:
-//! [`catmark::RustEvaluator`] (pure Rust, exact) and [`osd::OsdEvaluator`]
-//! (OpenSubdiv Far, the reference of every DCC tool).
+//! Subdivision limit evaluation behind one trait, two implementations:
+//! pure Rust and exact ([`catmark::RustEvaluator`] for Catmull-Clark,
+//! [`loop_scheme::LoopEvaluator`] for Loop, [`bilinear::BilinearEvaluator`])
+//! and [`osd::OsdEvaluator`] (OpenSubdiv Far, the reference of every DCC
+//! tool).
 //!
 //! Conventions, fixed once here:
 //! - The subdivision rules are OpenSubdiv's `Sdc::Options` of

@@ -1,8 +1,10 @@
 //! OpenSubdiv (Far) limit evaluation through the cxx bridge.
 //!
 //! The topology is handed to OpenSubdiv once, as the plain arrays of
-//! `Far::TopologyDescriptor` (holes as its `holeIndices`), with the Catmark
-//! scheme and the `Sdc::Options` of [`EvalOptions::scheme`]. It
+//! `Far::TopologyDescriptor` (holes as its `holeIndices`), with the scheme
+//! (Catmark, Loop or bilinear) and the `Sdc::Options` of
+//! [`EvalOptions::scheme`]; Loop's patches are quartic box splines with
+//! Gregory-triangle end caps, its ptex faces the triangles themselves. It
 //! is refined feature-adaptively to [`EvalOptions::isolation_level`] and
 //! turned into a double-precision `Far::PatchTable` (Gregory basis end caps)
 //! with a `Far::PatchMap`; all of that lives in one immutable C++ object.
