@@ -1,6 +1,6 @@
 //! Pure-Rust exact Loop limit evaluation (`Sdc::SCHEME_LOOP`), with
 //! OpenSubdiv 3.5's rules (`sdc/loopScheme.h`, and the scheme-independent
-//! `Sdc::Crease` logic shared with Catmark in [`crate::subdiv::catmark::topo`]):
+//! `Sdc::Crease` logic shared with Catmark in `subdiv::catmark::topo`):
 //! Loop's (1987) smooth masks with Sdc's weights for every valence,
 //! crease masks (3/4, 1/8, 1/8) and edge midpoints at boundaries and
 //! infinitely sharp creases, corners, semi-sharp creases and corners decaying
@@ -9,7 +9,7 @@
 //!
 //! - A triangle whose three vertices are regular (six faces, smooth; or on
 //!   a boundary/crease with three faces on its side) is a quartic box-spline
-//!   patch over 12 control points (Stam 1998), see [`patch`].
+//!   patch over 12 control points (Stam 1998), see the `patch` module.
 //! - Every other triangle is evaluated by local subdivision: its 1-ring is
 //!   refined, the child triangle containing the location is kept with its
 //!   own 1-ring, and so on until the child is regular (each level halves the
@@ -803,8 +803,9 @@ fn closed_form_normal(t: &Topo<DVec3>, adj: &Adj, c: u32) -> Option<DVec3> {
 /// this involves no patch, eigenvector or box spline at all; it is how the
 /// tests check the exact evaluator near irregular vertices, where
 /// OpenSubdiv only approximates. Also returns the unit normal of the
-/// closed-form tangent masks where that vertex is smooth (see
-/// [`closed_form_normal`]). `levels` is at most 62.
+/// closed-form tangent masks (Loop's cosine and sine masks) where that
+/// vertex is smooth, `None` at creases, corners and darts. `levels` is at
+/// most 62.
 pub fn limit_by_refinement(
     mesh: &ControlMesh,
     scheme: &crate::mesh::SchemeOptions,
