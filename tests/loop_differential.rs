@@ -596,3 +596,32 @@ fn loop_exact_where_opensubdiv_end_caps_approximate() {
         "{worst_rust:?}"
     );
 }
+
+/// The vertex normal at a dart (exact eigenvector masks; OpenSubdiv uses
+/// the smooth ones there) is the limit of the surface normals approaching
+/// it: 2^-k from the dart in each face around it, k = 10..40.
+#[test]
+fn loop_dart_normal_is_the_limit_of_nearby_normals() {
+    let m = creased_sphere();
+    let opts = SchemeOptions::default().with_scheme(SubdivScheme::Loop);
+    let eo = EvalOptions::default().with_scheme(opts);
+    let rust = make_evaluator(Backend::Rust, &m, &eo).unwrap();
+    let dart = VertexId(6);
+    let vn = rust.vertex_limits(m.positions()).unwrap()[dart.idx()].normal();
+    let mut last = f64::MAX;
+    for k in [10, 20, 30, 40] {
+        let d = 0.5f64.powi(k);
+        let mut worst = 0.0f64;
+        for f in m.vertex_faces(dart) {
+            let c = m.face_vertices(f).position(|v| v == dart).unwrap();
+            let (u, v) = [(d, d), (1.0 - 2.0 * d, d), (d, 1.0 - 2.0 * d)][c];
+            let p = rust
+                .evaluate(m.positions(), &[SurfaceLocation::quad(f, u, v)])
+                .unwrap()[0];
+            worst = worst.max(angle_between(vn, p.normal()));
+        }
+        println!("dart: 2^-{k} away, normals within {worst:.2e} rad of the vertex normal");
+        last = worst;
+    }
+    assert!(last <= 1e-6, "{last:.3e}");
+}
