@@ -201,9 +201,10 @@ std::unique_ptr<OsdTopology> new_osd_topology(std::uint32_t num_vertices,
   t->corner_weights_.assign(corner_weights.begin(), corner_weights.end());
   t->holes_ = hole_indices(scheme, face_sizes.size());
   t->sdc_options_ = sdc_options(scheme);
-  if (scheme.scheme_type != Sdc::SCHEME_BILINEAR && scheme.scheme_type != Sdc::SCHEME_CATMARK)
+  if (scheme.scheme_type != Sdc::SCHEME_BILINEAR && scheme.scheme_type != Sdc::SCHEME_CATMARK &&
+      scheme.scheme_type != Sdc::SCHEME_LOOP)
     throw std::invalid_argument("scheme type " + std::to_string(scheme.scheme_type) +
-                                " is neither bilinear (0) nor Catmark (1)");
+                                " is neither bilinear (0), Catmark (1) nor Loop (2)");
   t->scheme_type_ = static_cast<Sdc::SchemeType>(scheme.scheme_type);
 
   std::lock_guard<std::mutex> lock(g_construction_mutex);

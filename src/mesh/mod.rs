@@ -20,7 +20,7 @@ pub use manifold::{split_non_manifold, split_non_manifold_polygons, SplitStats};
 pub(crate) use report::non_finite;
 pub use report::{validate_soup, MeshReport, ValidatedMesh};
 pub use scheme::{
-    BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions, SubdivScheme,
-    TriangleSubdivision,
+    check_loop_triangles, BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions,
+    SubdivScheme, TriangleSubdivision,
 };
 pub use soup::{PolySoup, TriMesh};

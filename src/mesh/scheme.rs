@@ -15,7 +15,7 @@ use serde::Serialize;
 
 use crate::mesh::{ControlMesh, FaceId, INFINITELY_SHARP};
 
-/// `Sdc::SchemeType` of the evaluators (Loop is not evaluated here).
+/// `Sdc::SchemeType` of the evaluators.
 #[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum SubdivScheme {
@@ -28,6 +28,11 @@ pub enum SubdivScheme {
     /// makes no holes (`Sdc::SchemeTypeTraits::GetLocalNeighborhoodSize` is
     /// 0 for bilinear).
     Bilinear,
+    /// `SCHEME_LOOP`: Loop (1987) subdivision of all-triangle meshes, with
+    /// OpenSubdiv's Sdc Loop rules for boundaries, creases and corners
+    /// (`sdc/loopScheme.h`). Faces other than triangles are refused, as
+    /// OpenSubdiv refuses them; the triangle option changes nothing.
+    Loop,
 }
 
 /// `Sdc::Options::VtxBoundaryInterpolation`.
@@ -159,7 +164,9 @@ impl SchemeOptions {
                 *h = true;
             }
         }
-        if self.boundary == BoundaryInterpolation::None && self.scheme == SubdivScheme::Catmark {
+        // Both Catmark and Loop have a 1-ring neighbourhood (Sdc's
+        // `GetLocalNeighborhoodSize`); bilinear has none and makes no holes.
+        if self.boundary == BoundaryInterpolation::None && self.scheme != SubdivScheme::Bilinear {
             for v in mesh.vertices() {
                 let soft_boundary = mesh.outgoing(v).any(|h| {
                     mesh.is_boundary_edge(h.edge())
@@ -173,6 +180,21 @@ impl SchemeOptions {
             }
         }
         hole
+    }
+}
+
+/// Loop subdivision is defined on triangles only: the first face of `mesh`
+/// that is not one, named, as an error (OpenSubdiv's
+/// `TopologyRefinerFactory` refuses such a mesh too, with a less specific
+/// message).
+pub fn check_loop_triangles(mesh: &ControlMesh) -> crate::error::Result<()> {
+    match mesh.faces().find(|&f| mesh.face_size(f) != 3) {
+        Some(f) => Err(crate::error::Error::InvalidArgument(format!(
+            "the Loop scheme needs an all-triangle mesh, but face {} has {} corners",
+            f.0,
+            mesh.face_size(f)
+        ))),
+        None => Ok(()),
     }
 }
 
@@ -201,7 +223,7 @@ macro_rules! named {
         }
     };
 }
-named!(SubdivScheme { Catmark => "catmark", Bilinear => "bilinear" });
+named!(SubdivScheme { Catmark => "catmark", Bilinear => "bilinear", Loop => "loop" });
 named!(BoundaryInterpolation { None => "none", EdgeOnly => "edge-only", EdgeAndCorner => "edge-and-corner" });
 named!(FVarLinear {
     None => "none", CornersOnly => "corners-only", CornersPlus1 => "corners-plus1",

@@ -231,6 +231,9 @@ pub fn is_irregular_vertex_with(mesh: &ControlMesh, scheme: &SchemeOptions, v: V
     if scheme.scheme == SubdivScheme::Bilinear {
         return false; // every patch is an exact bilinear one
     }
+    if scheme.scheme == SubdivScheme::Loop {
+        return is_irregular_loop_vertex(mesh, v);
+    }
     let valence = mesh.valence(v);
     if scheme.boundary != BoundaryInterpolation::EdgeAndCorner
         && mesh.is_boundary_vertex(v)
@@ -260,6 +263,33 @@ pub fn is_irregular_vertex_with(mesh: &ControlMesh, scheme: &SchemeOptions, v: V
                 .collect();
             valence != 4 || k[1] - k[0] != 2
         }
+        _ => true,
+    }
+}
+
+/// Loop: regular vertices have six faces and no sharpness, or sit on a
+/// boundary or infinitely sharp crease with three faces on each side (the
+/// box-spline patches of `loop_scheme::patch`); every other vertex, corners
+/// included, is irregular.
+fn is_irregular_loop_vertex(mesh: &ControlMesh, v: VertexId) -> bool {
+    let hs: Vec<_> = mesh.outgoing(v).collect();
+    let sharp: Vec<usize> = (0..hs.len())
+        .filter(|&i| mesh.is_boundary_edge(hs[i].edge()) || mesh.edge_sharpness(hs[i].edge()) > 0.0)
+        .collect();
+    if mesh.vertex_sharpness(v) > 0.0
+        || sharp.iter().any(|&i| {
+            !mesh.is_boundary_edge(hs[i].edge())
+                && mesh.edge_sharpness(hs[i].edge()) < INFINITELY_SHARP
+        })
+    {
+        return true;
+    }
+    if mesh.is_boundary_vertex(v) {
+        return hs.len() != 4 || sharp.len() != 2;
+    }
+    match sharp.len() {
+        0 => hs.len() != 6,
+        2 => hs.len() != 6 || sharp[1] - sharp[0] != 3,
         _ => true,
     }
 }
@@ -296,10 +326,18 @@ fn irregular_corners(
     mesh: &ControlMesh,
     irregular: &[bool],
     loc: &SurfaceLocation,
+    loop_tris: bool,
 ) -> Vec<(f64, f64)> {
     let verts: Vec<VertexId> = mesh.face_vertices(loc.face).collect();
     let mut out = Vec::new();
-    if verts.len() == 4 {
+    if loop_tris {
+        // A Loop triangle: (0,0), (1,0), (0,1) at its corners.
+        for (k, c) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)].into_iter().enumerate() {
+            if irregular[verts[k].idx()] {
+                out.push(c);
+            }
+        }
+    } else if verts.len() == 4 {
         for (k, c) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)]
             .into_iter()
             .enumerate()
@@ -336,7 +374,7 @@ pub fn random_locations_with(
     let mut ptex: Vec<(FaceId, u16)> = Vec::new();
     for f in mesh.faces().filter(|f| !holes[f.idx()]) {
         let k = mesh.face_size(f);
-        if k == 4 {
+        if k == 4 || scheme.scheme == SubdivScheme::Loop {
             ptex.push((f, 0));
         } else {
             ptex.extend((0..k as u16).map(|s| (f, s)));
@@ -349,12 +387,12 @@ pub fn random_locations_with(
     (0..n)
         .map(|_| {
             let (face, sub) = ptex[rng.gen_range(0..ptex.len())];
-            SurfaceLocation {
-                face,
-                sub,
-                u: rng.gen::<f64>(),
-                v: rng.gen::<f64>(),
+            let (mut u, mut v) = (rng.gen::<f64>(), rng.gen::<f64>());
+            if scheme.scheme == SubdivScheme::Loop && u + v > 1.0 {
+                // Fold the square onto the triangle: uniform over it.
+                (u, v) = (1.0 - u, 1.0 - v);
             }
+            SurfaceLocation { face, sub, u, v }
         })
         .collect()
 }
@@ -388,7 +426,7 @@ pub fn near_irregular_locations_with(
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut out = Vec::new();
     for face in mesh.faces().filter(|f| !holes[f.idx()]) {
-        let subs = if mesh.face_size(face) == 4 {
+        let subs = if mesh.face_size(face) == 4 || scheme.scheme == SubdivScheme::Loop {
             1
         } else {
             mesh.face_size(face) as u16
@@ -400,16 +438,20 @@ pub fn near_irregular_locations_with(
                 u: 0.5,
                 v: 0.5,
             };
-            for (cu, cv) in irregular_corners(mesh, &irregular, &probe) {
+            let loop_tris = scheme.scheme == SubdivScheme::Loop;
+            for (cu, cv) in irregular_corners(mesh, &irregular, &probe, loop_tris) {
                 for _ in 0..per_corner {
                     let mut d = || margin * 10f64.powf(-6.0 * rng.gen::<f64>());
                     let (du, dv) = (d(), d());
-                    out.push(SurfaceLocation {
-                        face,
-                        sub,
-                        u: (cu - du).abs(),
-                        v: (cv - dv).abs(),
-                    });
+                    // Towards the inside of the triangle or square.
+                    let (u, v) = if loop_tris && cu == 1.0 {
+                        (1.0 - du - dv, dv)
+                    } else if loop_tris && cv == 1.0 {
+                        (du, 1.0 - du - dv)
+                    } else {
+                        ((cu - du).abs(), (cv - dv).abs())
+                    };
+                    out.push(SurfaceLocation { face, sub, u, v });
                 }
             }
         }
@@ -496,7 +538,7 @@ pub fn compare_with(
         let (x, y) = (la[i], lb[i]);
         let dp = (x.position - y.position).length() / diag;
         let dn = angle_between(x.normal(), y.normal());
-        let near = irregular_corners(mesh, &irregular, loc)
+        let near = irregular_corners(mesh, &irregular, loc, scheme.scheme == SubdivScheme::Loop)
             .iter()
             .any(|&(cu, cv)| (loc.u - cu).abs() < margin && (loc.v - cv).abs() < margin);
         let at = || {

@@ -1,6 +1,8 @@
-//! Catmull-Clark limit evaluation behind one trait, two implementations:
-//! [`catmark::RustEvaluator`] (pure Rust, exact) and [`osd::OsdEvaluator`]
-//! (OpenSubdiv Far, the reference of every DCC tool).
+//! Subdivision limit evaluation behind one trait, two implementations:
+//! pure Rust and exact ([`catmark::RustEvaluator`] for Catmull-Clark,
+//! [`loop_scheme::LoopEvaluator`] for Loop, [`bilinear::BilinearEvaluator`])
+//! and [`osd::OsdEvaluator`] (OpenSubdiv Far, the reference of every DCC
+//! tool).
 //!
 //! Conventions, fixed once here:
 //! - The subdivision rules are OpenSubdiv's `Sdc::Options` of
@@ -15,6 +17,9 @@
 //!   and `sub` is 0. A non-quad face with n corners is split as Catmull-Clark
 //!   splits it into n quads (OpenSubdiv's ptex faces), `sub = k` being the
 //!   one at corner k with `(0,0)` at that corner.
+//! - Loop scheme (all-triangle meshes): a triangle `(v0 v1 v2)` is one
+//!   ptex face (`sub` 0) with `(0,0)` at v0, `(1,0)` at v1, `(0,1)` at v2
+//!   and `u + v <= 1` (OpenSubdiv's triangular ptex convention).
 //! - Derivatives are with respect to that `(u, v)`. At a control vertex the
 //!   two tangents are those of the limit tangent masks (their scale is not
 //!   comparable between backends); only the unit normal is.
@@ -22,6 +27,7 @@
 pub mod bilinear;
 pub mod catmark;
 pub mod diff;
+pub mod loop_scheme;
 pub mod osd;
 pub mod quadtri;
 pub mod refine;
@@ -249,21 +255,34 @@ pub fn make_evaluator(
 ) -> Result<Box<dyn LimitEvaluator>> {
     let face_sizes = mesh.face_sizes();
     let holes = checked_holes(mesh, &options.scheme)?;
+    let scheme = options.scheme.scheme;
+    if scheme == SubdivScheme::Loop {
+        crate::mesh::check_loop_triangles(mesh)?;
+    }
     Ok(match backend {
         Backend::Osd => Box::new(Checked {
             inner: osd::OsdEvaluator::new(mesh, options)?,
             face_sizes,
             holes,
+            scheme,
         }),
-        Backend::Rust if options.scheme.scheme == SubdivScheme::Bilinear => Box::new(Checked {
+        Backend::Rust if scheme == SubdivScheme::Bilinear => Box::new(Checked {
             inner: bilinear::BilinearEvaluator::new(mesh, options)?,
             face_sizes,
             holes,
+            scheme,
+        }),
+        Backend::Rust if scheme == SubdivScheme::Loop => Box::new(Checked {
+            inner: loop_scheme::LoopEvaluator::new(mesh, options)?,
+            face_sizes,
+            holes,
+            scheme,
         }),
         Backend::Rust => Box::new(Checked {
             inner: catmark::RustEvaluator::new(mesh, options)?,
             face_sizes,
             holes,
+            scheme,
         }),
     })
 }
@@ -286,6 +305,19 @@ pub fn check_not_holes(holes: &[bool], locations: &[SurfaceLocation]) -> Result<
 /// Checks `locations` against a mesh with these face sizes: face in range,
 /// `sub` a corner of a non-quad face (0 on quads), `u`, `v` in `[0, 1]`.
 pub fn check_locations(face_sizes: &[u32], locations: &[SurfaceLocation]) -> Result<()> {
+    check_locations_for(SubdivScheme::Catmark, face_sizes, locations)
+}
+
+/// [`check_locations`] under `scheme`: with Loop every face is one
+/// triangular ptex face (`sub` 0, `u + v <= 1`), see the module doc.
+pub fn check_locations_for(
+    scheme: SubdivScheme,
+    face_sizes: &[u32],
+    locations: &[SurfaceLocation],
+) -> Result<()> {
+    if scheme == SubdivScheme::Loop {
+        return check_triangle_locations(face_sizes, locations);
+    }
     for (i, l) in locations.iter().enumerate() {
         let bad = |msg: String| Err(Error::InvalidArgument(format!("location {i}: {msg}")));
         let Some(&n) = face_sizes.get(l.face.idx()) else {
@@ -305,6 +337,33 @@ pub fn check_locations(face_sizes: &[u32], locations: &[SurfaceLocation]) -> Res
         if !((0.0..=1.0).contains(&l.u) && (0.0..=1.0).contains(&l.v)) {
             return bad(format!(
                 "(u, v) = ({}, {}) outside [0, 1]² on face {}",
+                l.u, l.v, l.face.0
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn check_triangle_locations(face_sizes: &[u32], locations: &[SurfaceLocation]) -> Result<()> {
+    for (i, l) in locations.iter().enumerate() {
+        let bad = |msg: String| Err(Error::InvalidArgument(format!("location {i}: {msg}")));
+        if l.face.idx() >= face_sizes.len() {
+            return bad(format!(
+                "face {} out of range (the mesh has {} faces)",
+                l.face.0,
+                face_sizes.len()
+            ));
+        }
+        if l.sub != 0 {
+            return bad(format!(
+                "sub-face {} out of range: a Loop triangle is one ptex face (sub 0)",
+                l.sub
+            ));
+        }
+        let inside = l.u >= 0.0 && l.v >= 0.0 && l.u + l.v <= 1.0;
+        if !inside {
+            return bad(format!(
+                "(u, v) = ({}, {}) outside the triangle u, v >= 0, u + v <= 1 of face {}",
                 l.u, l.v, l.face.0
             ));
         }
@@ -332,6 +391,7 @@ struct Checked<E> {
     inner: E,
     face_sizes: Vec<u32>,
     holes: Vec<bool>,
+    scheme: SubdivScheme,
 }
 
 impl<E: LimitEvaluator> LimitEvaluator for Checked<E> {
@@ -351,12 +411,12 @@ impl<E: LimitEvaluator> LimitEvaluator for Checked<E> {
         locations: &[SurfaceLocation],
     ) -> Result<Vec<LimitPoint>> {
         check_positions(self.num_control_vertices(), positions)?;
-        check_locations(&self.face_sizes, locations)?;
+        check_locations_for(self.scheme, &self.face_sizes, locations)?;
         check_not_holes(&self.holes, locations)?;
         self.inner.evaluate(positions, locations)
     }
     fn stencils(&self, locations: &[SurfaceLocation]) -> Result<LimitStencils> {
-        check_locations(&self.face_sizes, locations)?;
+        check_locations_for(self.scheme, &self.face_sizes, locations)?;
         check_not_holes(&self.holes, locations)?;
         self.inner.stencils(locations)
     }
@@ -389,7 +449,10 @@ pub fn known_differences(mesh: &ControlMesh) -> Vec<KnownDifference> {
 }
 
 /// [`known_differences`] under `scheme`: vertices whose faces are all holes
-/// have no surface and are left out.
+/// have no surface and are left out. Loop: only the darts (Sdc's Loop
+/// scheme also gives them the smooth masks; the exact limit, checked
+/// against brute-force refinement, is 1e-3 of the size away on the test
+/// meshes); the boundary-tangent entry is Catmark's only.
 pub fn known_differences_with(mesh: &ControlMesh, scheme: &SchemeOptions) -> Vec<KnownDifference> {
     use crate::mesh::INFINITELY_SHARP;
     if scheme.scheme == SubdivScheme::Bilinear {
@@ -399,6 +462,12 @@ pub fn known_differences_with(mesh: &ControlMesh, scheme: &SchemeOptions) -> Vec
     mesh.vertices()
         .filter(|&v| mesh.vertex_faces(v).any(|f| !holes[f.idx()]))
         .filter_map(|v: VertexId| {
+            if mesh.is_boundary_vertex(v) && scheme.scheme == SubdivScheme::Loop {
+                // Loop: OpenSubdiv's crease limit masks are exact at
+                // boundary vertices (both agree to round-off on
+                // `tests/loop_differential.rs`'s open grid).
+                return None;
+            }
             if mesh.is_boundary_vertex(v) {
                 // Edge-and-corner rule: a boundary vertex with one face is a
                 // corner, with two regular. With more, OpenSubdiv's limit

@@ -1,8 +1,10 @@
 //! OpenSubdiv (Far) limit evaluation through the cxx bridge.
 //!
 //! The topology is handed to OpenSubdiv once, as the plain arrays of
-//! `Far::TopologyDescriptor` (holes as its `holeIndices`), with the Catmark
-//! scheme and the `Sdc::Options` of [`EvalOptions::scheme`]. It
+//! `Far::TopologyDescriptor` (holes as its `holeIndices`), with the scheme
+//! (Catmark, Loop or bilinear) and the `Sdc::Options` of
+//! [`EvalOptions::scheme`]; Loop's patches are quartic box splines with
+//! Gregory-triangle end caps, its ptex faces the triangles themselves. It
 //! is refined feature-adaptively to [`EvalOptions::isolation_level`] and
 //! turned into a double-precision `Far::PatchTable` (Gregory basis end caps)
 //! with a `Far::PatchMap`; all of that lives in one immutable C++ object.
@@ -57,6 +59,7 @@ pub(crate) fn scheme_desc(s: &SchemeOptions) -> bridge::SchemeDesc {
         scheme_type: match s.scheme {
             SubdivScheme::Bilinear => 0,
             SubdivScheme::Catmark => 1,
+            SubdivScheme::Loop => 2,
         },
         boundary: match s.boundary {
             BoundaryInterpolation::None => 0,
@@ -134,6 +137,8 @@ pub struct OsdEvaluator {
     /// at level 1, so `Limit` would apply a crease/corner mask), with a face
     /// corner at which the patch table gives their limit instead.
     patch_route_vertices: Vec<(u32, SurfaceLocation)>,
+    /// Loop scheme: triangular ptex faces.
+    loop_scheme: bool,
 }
 
 impl OsdEvaluator {
@@ -148,6 +153,10 @@ impl OsdEvaluator {
             return Err(Error::InvalidArgument(format!(
                 "OpenSubdiv isolation level {level} outside 1..=10 (10 is OpenSubdiv's maximum)"
             )));
+        }
+        let loop_scheme = options.scheme.scheme == SubdivScheme::Loop;
+        if loop_scheme {
+            crate::mesh::check_loop_triangles(mesh)?;
         }
         let num_vertices = mesh.num_vertices();
         let nv = u32::try_from(num_vertices).map_err(|_| {
@@ -199,7 +208,10 @@ impl OsdEvaluator {
                     .find(|&h| mesh.face_of(h).is_some_and(|f| !holes[f.idx()]))?;
                 let f = mesh.face_of(h)?;
                 let k = mesh.face_halfedges(f).position(|g| g == h)?;
-                let loc = if mesh.face_size(f) == 4 {
+                let loc = if loop_scheme {
+                    let (u, w) = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)][k];
+                    SurfaceLocation::quad(f, u, w)
+                } else if mesh.face_size(f) == 4 {
                     let (u, w) = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)][k];
                     SurfaceLocation::quad(f, u, w)
                 } else {
@@ -223,6 +235,7 @@ impl OsdEvaluator {
             isolation_level: level,
             max_level,
             patch_route_vertices,
+            loop_scheme,
         })
     }
 
@@ -261,7 +274,8 @@ impl OsdEvaluator {
                 self.face_sizes.len()
             )));
         };
-        let subs = if n == 4 { 1 } else { n };
+        // Loop: every triangle is one triangular ptex face.
+        let subs = if n == 4 || self.loop_scheme { 1 } else { n };
         if u32::from(loc.sub) >= subs {
             return Err(bad(format!(
                 "sub-face {} of {f}, which has {n} corners ({subs} ptex face(s))",
@@ -272,6 +286,12 @@ impl OsdEvaluator {
             if !(0.0..=1.0).contains(&x) {
                 return Err(bad(format!("{name} = {x} is not in [0, 1]")));
             }
+        }
+        if self.loop_scheme && loc.u + loc.v > 1.0 {
+            return Err(bad(format!(
+                "(u, v) = ({}, {}) is outside the triangle (u + v > 1)",
+                loc.u, loc.v
+            )));
         }
         Ok(self.ptex_base[f.idx()] + u32::from(loc.sub))
     }

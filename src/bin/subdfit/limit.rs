@@ -34,6 +34,8 @@ impl From<BackendArg> for Backend {
 pub enum SchemeArg {
     Catmark,
     Bilinear,
+    /// Loop subdivision (all-triangle meshes only).
+    Loop,
 }
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
@@ -68,7 +70,8 @@ pub enum TrianglesArg {
 /// Scheme options; each one given here overrides the shape file's tag.
 #[derive(Args)]
 pub struct SchemeArgs {
-    /// Subdivision scheme (default catmark; shape files do not say).
+    /// Subdivision scheme (default catmark; shape files do not say: OpenSubdiv's
+    /// shapes state it in their test harness). Loop needs all triangles.
     #[arg(long, value_enum)]
     scheme: Option<SchemeArg>,
     /// Boundary interpolation (`t interpolateboundary`).
@@ -96,6 +99,7 @@ impl SchemeArgs {
             s = s.with_scheme(match k {
                 SchemeArg::Catmark => SubdivScheme::Catmark,
                 SchemeArg::Bilinear => SubdivScheme::Bilinear,
+                SchemeArg::Loop => SubdivScheme::Loop,
             });
         }
         if let Some(b) = self.boundary {

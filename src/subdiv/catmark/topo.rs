@@ -483,6 +483,94 @@ impl<P: Pt> Topo<P> {
         }
     }
 
+    /// The child of vertex `v` (Sdc `ComputeVertexVertexMask`, shared by
+    /// Catmark and Loop): the parent rule's mask, or for a transition between
+    /// rules (a semi-sharp feature running out at this level) a blend of the
+    /// parent and child masks weighted by
+    /// `Crease::ComputeFractionalWeightAtVertex`. `mask(rule, sharpness of
+    /// the incident edges in `adj.vedges` order)` is the scheme's mask.
+    pub(crate) fn vertex_point(&self, adj: &Adj, v: u32, mask: impl Fn(Rule, &[f64]) -> P) -> P {
+        let vi = v as usize;
+        let ps: Vec<f64> = adj.vedges[vi]
+            .iter()
+            .map(|&e| self.edge_sharp(adj, e))
+            .collect();
+        let cs: Vec<f64> = if self.rules.chaikin {
+            ps.iter()
+                .map(|&s| child_edge_sharpness(self.rules, s, &ps))
+                .collect()
+        } else {
+            ps.iter().map(|&s| decrement(s)).collect()
+        };
+        let psv = self.vert_sharp(adj, v);
+        let csv = decrement(psv);
+        let prule = vertex_rule(psv, &ps);
+        let crule = vertex_rule(csv, &cs);
+        if prule == Rule::Smooth || prule == crule {
+            return mask(prule, &ps);
+        }
+        // In f32 like Sdc (`ComputeFractionalWeightAtVertex`). Sdc sums the
+        // edges in its own order around the vertex: with three or more
+        // distinct sharpness values running out at once the f32 sum may
+        // differ in the last bit (a weight error of ~6e-8, far below the
+        // tolerance); the suite has none.
+        let r = |x: f64| self.rules.sharp(x);
+        let mut count = 0u32;
+        let mut sum = 0.0;
+        if psv > 0.0 && csv <= 0.0 {
+            count += 1;
+            sum = r(sum + psv);
+        }
+        for k in 0..ps.len() {
+            if ps[k] > 0.0 && cs[k] <= 0.0 {
+                count += 1;
+                sum = r(sum + ps[k]);
+            }
+        }
+        let w = if count == 0 {
+            0.0
+        } else {
+            r(sum / count as f64).min(1.0)
+        };
+        let pm = mask(prule, &ps);
+        let cm = mask(crule, &cs);
+        comb(&[(w, &pm), (1.0 - w, &cm)])
+    }
+
+    /// Sharpness of the child edges of the sharp edges (keyed by child
+    /// vertex pairs, edge points numbered `nv + edge id` as in both
+    /// refinements): each child edge takes its sharpness from the rule at
+    /// its parent end vertex (Vtr `Refinement::subdivideEdgeSharpness`).
+    pub(crate) fn child_edge_sharpness(&self, adj: &Adj) -> HashMap<(u32, u32), f64> {
+        let nv = self.pts.len();
+        let mut esharp = HashMap::default();
+        let mut around = Vec::new();
+        for &(a, b) in self.esharp.keys() {
+            let Some(&e) = adj.edge_id.get(&(a, b)) else {
+                continue;
+            };
+            let s = self.edge_sharp(adj, e);
+            let ep = nv as u32 + e;
+            for end in [a, b] {
+                let d = if self.rules.chaikin {
+                    around.clear();
+                    around.extend(
+                        adj.vedges[end as usize]
+                            .iter()
+                            .map(|&x| self.edge_sharp(adj, x)),
+                    );
+                    child_edge_sharpness(self.rules, s, &around)
+                } else {
+                    decrement(s)
+                };
+                if d > 0.0 {
+                    esharp.insert(key(end, ep), d);
+                }
+            }
+        }
+        esharp
+    }
+
     /// One level of Catmull-Clark refinement. Child vertices are numbered
     /// vertex points, then edge points (by edge id), then face points; child
     /// face `foff[f] + k` of face `f` is the quad at its corner k,
@@ -503,60 +591,10 @@ impl<P: Pt> Topo<P> {
                 r
             })
             .collect();
-        // Vertex points (Sdc `ComputeVertexVertexMask`): the parent rule, or
-        // for a transition between rules (a semi-sharp feature running out
-        // at this level) a blend of the parent and child masks weighted by
-        // `Crease::ComputeFractionalWeightAtVertex`.
-        let mut ps = Vec::new();
-        let mut cs = Vec::new();
         for v in 0..nv as u32 {
-            let vi = v as usize;
-            ps.clear();
-            cs.clear();
-            for &e in &adj.vedges[vi] {
-                let s = self.edge_sharp(adj, e);
-                ps.push(s);
-                cs.push(decrement(s));
-            }
-            if self.rules.chaikin {
-                for k in 0..ps.len() {
-                    cs[k] = child_edge_sharpness(self.rules, ps[k], &ps);
-                }
-            }
-            let psv = self.vert_sharp(adj, v);
-            let csv = decrement(psv);
-            let prule = vertex_rule(psv, &ps);
-            let crule = vertex_rule(csv, &cs);
-            let p = if prule == Rule::Smooth || prule == crule {
-                self.vertex_mask(adj, v, prule, &ps, &fpts)
-            } else {
-                // In f32 like Sdc (`ComputeFractionalWeightAtVertex`). Sdc
-                // sums the edges in its own order around the vertex: with
-                // three or more distinct sharpness values running out at once
-                // the f32 sum may differ in the last bit (a weight error of
-                // ~6e-8, far below the tolerance); the suite has none.
-                let r = |x: f64| self.rules.sharp(x);
-                let mut count = 0u32;
-                let mut sum = 0.0;
-                if psv > 0.0 && csv <= 0.0 {
-                    count += 1;
-                    sum = r(sum + psv);
-                }
-                for k in 0..ps.len() {
-                    if ps[k] > 0.0 && cs[k] <= 0.0 {
-                        count += 1;
-                        sum = r(sum + ps[k]);
-                    }
-                }
-                let w = if count == 0 {
-                    0.0
-                } else {
-                    r(sum / count as f64).min(1.0)
-                };
-                let pm = self.vertex_mask(adj, v, prule, &ps, &fpts);
-                let cm = self.vertex_mask(adj, v, crule, &cs, &fpts);
-                comb(&[(w, &pm), (1.0 - w, &cm)])
-            };
+            let p = self.vertex_point(adj, v, |rule, sharp| {
+                self.vertex_mask(adj, v, rule, sharp, &fpts)
+            });
             pts.push(p);
         }
         for e in 0..ne as u32 {
@@ -583,33 +621,7 @@ impl<P: Pt> Topo<P> {
                 foff.push(fv.len() as u32);
             }
         }
-        // Each child edge takes its sharpness from the rule at its parent
-        // end vertex (Vtr `Refinement::subdivideEdgeSharpness`).
-        let mut esharp = HashMap::default();
-        let mut around = Vec::new();
-        for &(a, b) in self.esharp.keys() {
-            let Some(&e) = adj.edge_id.get(&(a, b)) else {
-                continue;
-            };
-            let s = self.edge_sharp(adj, e);
-            let ep = nv as u32 + e;
-            for end in [a, b] {
-                let d = if self.rules.chaikin {
-                    around.clear();
-                    around.extend(
-                        adj.vedges[end as usize]
-                            .iter()
-                            .map(|&x| self.edge_sharp(adj, x)),
-                    );
-                    child_edge_sharpness(self.rules, s, &around)
-                } else {
-                    decrement(s)
-                };
-                if d > 0.0 {
-                    esharp.insert(key(end, ep), d);
-                }
-            }
-        }
+        let esharp = self.child_edge_sharpness(adj);
         let mut vsharp: Vec<f64> = self.vsharp.iter().map(|&s| decrement(s)).collect();
         vsharp.resize(nv + ne + nf, 0.0);
         Topo {
