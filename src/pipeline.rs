@@ -60,7 +60,8 @@ pub struct ConvertOptions {
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Proxy {
-    /// M′ of [`PROXY_AUTO_TRIANGLES`] triangles when M has more.
+    /// M′ of [`PROXY_AUTO_TRIANGLES`] triangles when M has more than
+    /// [`PROXY_AUTO_ABOVE`].
     #[default]
     Auto,
     /// The layout runs on M itself.
@@ -69,22 +70,29 @@ pub enum Proxy {
     Triangles(usize),
 }
 
-/// The size of [`Proxy::Auto`]'s M′, in triangles. Why this many: see
-/// `docs/status.md` (scale) — the final control meshes of the paper's τ
-/// range have 10²–10³ patches, and a proxy of this size still gives every
-/// patch dozens of M′ vertices to choose its corners from.
-pub const PROXY_AUTO_TRIANGLES: usize = 40_000;
+/// The size of [`Proxy::Auto`]'s M′, in triangles: the final control
+/// meshes of the paper's τ range have 10²–10³ patches, and 50k triangles
+/// still give every patch dozens of M′ vertices to choose its corners from,
+/// while the layout stages (Fitmap, quadrangulation, simplification: ~200
+/// µs per triangle they see on this 2-core machine) then cost ~10 s
+/// whatever the size of M.
+pub const PROXY_AUTO_TRIANGLES: usize = 50_000;
+
+/// [`Proxy::Auto`] decimates only inputs above this many triangles: below
+/// it the full-resolution layout costs under ~20 s and stays the reference
+/// (the papers' meshes, 50–70k triangles, convert as before).
+pub const PROXY_AUTO_ABOVE: usize = 100_000;
 
 impl Proxy {
     /// The triangle count M′ should have for a mesh of `triangles`, or
     /// `None` when the layout runs on M.
     pub fn target(self, triangles: usize) -> Option<usize> {
-        let bound = match self {
-            Proxy::Auto => PROXY_AUTO_TRIANGLES,
+        let (above, size) = match self {
+            Proxy::Auto => (PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES),
             Proxy::None => return None,
-            Proxy::Triangles(n) => n,
+            Proxy::Triangles(n) => (n, n),
         };
-        (triangles > bound).then_some(bound)
+        (triangles > above).then_some(size)
     }
 }
 

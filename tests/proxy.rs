@@ -98,7 +98,9 @@ fn a_proxy_layout_keeps_the_topology_the_bound_and_projectability_of_m() {
     // M′): the full-resolution layout leaves 0.017 % of spot's area
     // unprojectable, the proxy one 0.025 %; a layout that stopped
     // respecting M would leave whole patches (≥ 1 %).
-    let un = r["projectability"]["unprojectable_area_percent"].as_f64().unwrap();
+    let un = r["projectability"]["unprojectable_area_percent"]
+        .as_f64()
+        .unwrap();
     assert!(un < 0.2, "{un} % of M unprojectable");
     // Deterministic.
     convert(&spot(), &b, &["--proxy", "2500"]);
@@ -114,9 +116,17 @@ fn a_proxy_layout_keeps_the_topology_the_bound_and_projectability_of_m() {
 fn no_proxy_below_the_bound_or_when_asked() {
     let dir = tempfile::tempdir().unwrap();
     let r = convert(&spot(), dir.path(), &["--proxy", "none"]);
-    assert!(r["options"]["run"]["layout_proxy"].is_null(), "{}", r["options"]["run"]);
+    assert!(
+        r["options"]["run"]["layout_proxy"].is_null(),
+        "{}",
+        r["options"]["run"]
+    );
     let dir = tempfile::tempdir().unwrap();
-    // auto: 40 000 triangles, spot has fewer.
+    // auto: only above 100 000 triangles; spot has 5 856.
     let r = convert(&spot(), dir.path(), &[]);
-    assert!(r["options"]["run"]["layout_proxy"].is_null(), "{}", r["options"]["run"]);
+    assert!(
+        r["options"]["run"]["layout_proxy"].is_null(),
+        "{}",
+        r["options"]["run"]
+    );
 }

@@ -111,7 +111,13 @@ pub fn decimate(mesh: &TriMesh, target_triangles: usize) -> Result<(TriMesh, Dec
     }
     let triangles: Vec<[u32; 3]> = kept
         .chunks_exact(3)
-        .map(|c| [used[c[0] as usize], used[c[1] as usize], used[c[2] as usize]])
+        .map(|c| {
+            [
+                used[c[0] as usize],
+                used[c[1] as usize],
+                used[c[2] as usize],
+            ]
+        })
         .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2])
         .collect();
     // The degenerate-triangle filter keeps the order, so the decimated
@@ -170,7 +176,13 @@ fn without_pockets(m: TriMesh, decimated: usize) -> (TriMesh, usize) {
         }
     }
     let triangles = kept.iter().map(|t| t.map(|v| used[v as usize])).collect();
-    (TriMesh { positions, triangles }, removed)
+    (
+        TriMesh {
+            positions,
+            triangles,
+        },
+        removed,
+    )
 }
 
 /// See [`without_pockets`]: a pinched-off fold has a handful of triangles;
@@ -208,7 +220,10 @@ fn halves(mesh: &TriMesh, tris: &[u32]) -> (Vec<u32>, Vec<u32>) {
         let [a, b, c] = mesh.triangle(t as usize);
         (a + b + c) / 3.0
     };
-    let (mut lo, mut hi) = (crate::DVec3::splat(f64::INFINITY), crate::DVec3::splat(f64::NEG_INFINITY));
+    let (mut lo, mut hi) = (
+        crate::DVec3::splat(f64::INFINITY),
+        crate::DVec3::splat(f64::NEG_INFINITY),
+    );
     for &t in tris {
         let c = centroid(t);
         lo = lo.min(c);
@@ -396,7 +411,11 @@ mod tests {
             let th = PI * i as f64 / n as f64;
             for j in 0..k {
                 let ph = 2.0 * PI * j as f64 / k as f64;
-                positions.push(DVec3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()));
+                positions.push(DVec3::new(
+                    th.sin() * ph.cos(),
+                    th.sin() * ph.sin(),
+                    th.cos(),
+                ));
             }
         }
         positions.push(-DVec3::Z);
@@ -414,7 +433,10 @@ mod tests {
                 triangles.push([a, c, d]);
             }
         }
-        TriMesh { positions, triangles }
+        TriMesh {
+            positions,
+            triangles,
+        }
     }
 
     /// A closed UV sphere of `n` rings: decimation keeps it closed, reaches
@@ -431,7 +453,10 @@ mod tests {
             .iter()
             .map(|p| p.to_array().map(f64::to_bits))
             .collect();
-        assert!(d.positions.iter().all(|p| set.contains(&p.to_array().map(f64::to_bits))));
+        assert!(d
+            .positions
+            .iter()
+            .all(|p| set.contains(&p.to_array().map(f64::to_bits))));
         // Closed 2-manifold of genus 0: V - E + F = 2 with E = 3F/2.
         let (v, f) = (d.positions.len() as i64, d.triangles.len() as i64);
         assert_eq!(v - 3 * f / 2 + f, 2);
@@ -450,8 +475,10 @@ mod tests {
         // Two copies side by side: everything adds.
         let mut two = s.clone();
         let n = s.positions.len() as u32;
-        two.positions.extend(s.positions.iter().map(|p| *p + DVec3::X * 3.0));
-        two.triangles.extend(s.triangles.iter().map(|t| t.map(|v| v + n)));
+        two.positions
+            .extend(s.positions.iter().map(|p| *p + DVec3::X * 3.0));
+        two.triangles
+            .extend(s.triangles.iter().map(|t| t.map(|v| v + n)));
         let t = Topology::of(&two);
         assert_eq!((t.components, t.boundary_loops, t.euler), (2, 0, 4));
     }
@@ -472,7 +499,11 @@ mod tests {
         assert!(m.triangles.len() > SPLIT_ABOVE);
         let (d, st) = decimate(&m, 20_000).unwrap();
         assert_eq!(st.parts, 2);
-        assert!((19_000..=20_000).contains(&d.triangles.len()), "{}", d.triangles.len());
+        assert!(
+            (19_000..=20_000).contains(&d.triangles.len()),
+            "{}",
+            d.triangles.len()
+        );
         assert_eq!(Topology::of(&d), Topology::of(&m));
     }
 }

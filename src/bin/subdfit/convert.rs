@@ -81,9 +81,13 @@ pub struct ConvertArgs {
     /// Organic mode's layout proxy M' (Fitmaps §4): the Fitmap,
     /// quadrangulation and simplification run on a quadric decimation of
     /// the input to this many triangles, while the fit, displacement and
-    /// every figure use the input itself. `auto`: 40 000 triangles, only
-    /// for larger inputs; `none`: the layout runs on the input (slower on
-    /// big scans, for comparison); or a triangle count.
+    /// every figure use the input itself. `auto`: 50 000 triangles for
+    /// inputs above 100 000 (below, the full-resolution layout takes under
+    /// ~20 s and stays the reference); `none`: the layout runs on the input
+    /// (minutes on big scans, for comparison); or a triangle count (used
+    /// when the input has more). The proxy is used only if it keeps the
+    /// input's topology (components, boundary loops, Euler characteristic);
+    /// report.json's `layout_proxy` says what was tried.
     #[arg(long, default_value = "auto", value_parser = parse_proxy)]
     proxy: Proxy,
     /// No progress bars.
