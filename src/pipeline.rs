@@ -45,6 +45,55 @@ pub struct ConvertOptions {
     /// Cells per patch side of `limit.ply` / `displaced.ply`; `None`: the
     /// default of [`crate::report::tessellate`].
     pub tessellation: Option<usize>,
+    /// The mesh the layout stages (Fitmap, quadrangulation,
+    /// simplification) run on; see [`Proxy`].
+    pub proxy: Proxy,
+}
+
+/// `convert --proxy`: the layout proxy M′ of the Fitmaps paper's §4 (its
+/// Armadillo runs compute the control mesh from a simplified copy of the
+/// input while every fit, projection and measurement refers to M). The
+/// Fitmap, the quadrangulation and the simplification cost ~50 and ~150 µs
+/// per vertex they see, the fit and the metrics scale with M's size
+/// only through ray casting; so the layout runs on M′ (meshoptimizer's quadric
+/// simplification, [`crate::mesh::decimate`]) and the rest on M.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Proxy {
+    /// M′ of [`PROXY_AUTO_TRIANGLES`] triangles when M has more than
+    /// [`PROXY_AUTO_ABOVE`].
+    #[default]
+    Auto,
+    /// The layout runs on M itself.
+    None,
+    /// M′ of about this many triangles when M has more.
+    Triangles(usize),
+}
+
+/// The size of [`Proxy::Auto`]'s M′, in triangles: the final control
+/// meshes of the paper's τ range have 10²–10³ patches, and 50k triangles
+/// still give every patch dozens of M′ vertices to choose its corners from,
+/// while the layout stages (Fitmap, quadrangulation, simplification: ~200
+/// µs per triangle they see on this 2-core machine) then cost ~10 s
+/// whatever the size of M.
+pub const PROXY_AUTO_TRIANGLES: usize = 50_000;
+
+/// [`Proxy::Auto`] decimates only inputs above this many triangles: below
+/// it the full-resolution layout costs under ~20 s and stays the reference
+/// (the papers' meshes, 50–70k triangles, convert as before).
+pub const PROXY_AUTO_ABOVE: usize = 100_000;
+
+impl Proxy {
+    /// The triangle count M′ should have for a mesh of `triangles`, or
+    /// `None` when the layout runs on M.
+    pub fn target(self, triangles: usize) -> Option<usize> {
+        let (above, size) = match self {
+            Proxy::Auto => (PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES),
+            Proxy::None => return None,
+            Proxy::Triangles(n) => (n, n),
+        };
+        (triangles > above).then_some(size)
+    }
 }
 
 /// Organic mode's default RMS L bound (5‰ of the diagonal; issue 17: "no
@@ -81,6 +130,7 @@ impl Default for ConvertOptions {
             mode: Mode::Auto,
             max_error: None,
             tessellation: None,
+            proxy: Proxy::Auto,
         }
     }
 }
@@ -116,6 +166,10 @@ impl ConvertOptions {
     }
     pub fn with_max_error(mut self, e: Option<f64>) -> Self {
         self.max_error = e;
+        self
+    }
+    pub fn with_proxy(mut self, p: Proxy) -> Self {
+        self.proxy = p;
         self
     }
 }
@@ -383,9 +437,14 @@ fn convert_organic(
     if let Some(t) = opts.tolerance {
         fo = fo.with_tolerance(t);
     }
+    let (proxy, proxy_stats) = layout_proxy(mesh, opts.proxy, &mut timer, progress)?;
+    let (layout, layout_caster) = match &proxy {
+        Some((m, c)) => (m, c.as_ref()),
+        None => (mesh, caster),
+    };
     stage(progress, "fitmap", 0.0)?;
     let fitmap = timer.run("fitmap", || {
-        fitmap_reporting(mesh, caster, &fo, &mut *progress)
+        fitmap_reporting(layout, layout_caster, &fo, &mut *progress)
     })?;
     stage(progress, "fitmap", 1.0)?;
     let max_error = match (opts.max_error, opts.target_faces) {
@@ -403,7 +462,7 @@ fn convert_organic(
         });
     stage(progress, "simplify", 0.0)?;
     let simplified = timer.run("simplify", || {
-        simplify_with_progress(mesh, &fitmap, caster, &so, &mut |p| {
+        simplify_with_progress(layout, &fitmap, layout_caster, &so, &mut |p| {
             let goal = p
                 .initial_faces
                 .saturating_sub(opts.target_faces.unwrap_or(0))
@@ -413,6 +472,13 @@ fn convert_organic(
         })
     })?;
     stage(progress, "simplify", 1.0)?;
+    // fitmap.ply and the pictures show the Fitmap on M's own vertices.
+    let fitmap = match &proxy {
+        Some((m, c)) => timer.run("fitmap transfer", || {
+            fitmap.transferred(m, c.as_ref(), mesh)
+        })?,
+        None => fitmap,
+    };
     let po = PipelineOptions::default()
         .with_fit(FitOptions::default().with_objective(opts.objective))
         .with_metrics(
@@ -430,6 +496,7 @@ fn convert_organic(
         serde_json::json!({
             "mode": extra_options["mode"],
             "convert": opts,
+            "layout_proxy": proxy_stats,
             "simplification": stats,
             "max_error_search": search,
             "run": extra_options["options"],
@@ -691,6 +758,66 @@ impl ErrorSearcher {
         Ok((i, f))
     }
 }
+
+/// The layout proxy M′ for `proxy` (see [`Proxy`]) with an Embree caster
+/// over it, or `None` when the layout runs on M; and what was done, for
+/// the report. M′ is used only when it has M's [`Topology`] (components,
+/// boundary loops, Euler characteristic): the control mesh inherits the
+/// layout mesh's topology, so a decimation that closed a handle or pinched
+/// a part off would give a wrong surface, not just a coarser one. A failed
+/// check retries at twice the triangles, up to [`PROXY_ATTEMPTS`] times,
+/// then falls back to M (the report says why).
+fn layout_proxy(
+    mesh: &crate::mesh::TriMesh,
+    proxy: Proxy,
+    timer: &mut StageTimer,
+    progress: &mut crate::watch::Progress<'_>,
+) -> Result<(
+    Option<(crate::mesh::TriMesh, Box<dyn crate::raycast::RayCaster>)>,
+    Option<serde_json::Value>,
+)> {
+    use crate::mesh::Topology;
+    let Some(mut triangles) = proxy.target(mesh.triangles.len()) else {
+        return Ok((None, None));
+    };
+    crate::fit::report_progress(progress, "proxy", 0.0)?;
+    let found = timer.run("proxy", || -> Result<_> {
+        let want = Topology::of(mesh);
+        let mut tried = Vec::new();
+        for _ in 0..PROXY_ATTEMPTS {
+            if 2 * triangles > mesh.triangles.len() {
+                break;
+            }
+            let (m, stats) = crate::mesh::decimate(mesh, triangles)?;
+            let got = Topology::of(&m);
+            tried.push(serde_json::json!({
+                "target_triangles": triangles,
+                "triangles": m.triangles.len(),
+                "topology": got,
+                "decimation": stats,
+            }));
+            if got == want {
+                let c = make_raycaster(RayBackend::Embree, &m)?;
+                return Ok((Some((m, c)), tried, want));
+            }
+            triangles *= 2;
+        }
+        Ok((None, tried, want))
+    })?;
+    crate::fit::report_progress(progress, "proxy", 1.0)?;
+    let (m, tried, want) = found;
+    let stats = serde_json::json!({
+        "used": m.is_some(),
+        "input_triangles": mesh.triangles.len(),
+        "input_topology": want,
+        "attempts": tried,
+    });
+    Ok((m, Some(stats)))
+}
+
+/// Decimations tried for a layout proxy with M's topology (targets 1×, 2×,
+/// 4× the bound) before the layout runs on M.
+const PROXY_ATTEMPTS: usize = 3;
 
 /// The organic branch for a mesh coarser than the Fitmap's radii (its mean
 /// edge is longer than a quarter of its diagonal: a tetrahedron, a box of

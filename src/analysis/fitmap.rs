@@ -277,6 +277,47 @@ impl Fitmap {
     pub fn m_at(&self, mesh: &TriMesh, tri: u32, u: f64, v: f64) -> f64 {
         Self::interp(&self.m, mesh, tri, u, v)
     }
+
+    /// This Fitmap, computed on `from` (the layout proxy M′, §4), carried
+    /// to the vertices of `to` (M): each vertex of M takes the values at
+    /// its closest point on M′ (`from_caster`, built over `from`), linearly
+    /// interpolated over that face as §3.1.1 interpolates the Fitmap over
+    /// faces. F_M's step is the largest radius step not above the value.
+    pub fn transferred(
+        &self,
+        from: &TriMesh,
+        from_caster: &dyn crate::raycast::RayCaster,
+        to: &TriMesh,
+    ) -> Result<Fitmap> {
+        let hits = from_caster.closest_points(&to.positions, f64::INFINITY)?;
+        let (mut s, mut m, mut m_step) = (
+            Vec::with_capacity(hits.len()),
+            Vec::with_capacity(hits.len()),
+            Vec::with_capacity(hits.len()),
+        );
+        for (i, h) in hits.iter().enumerate() {
+            let h = h.as_ref().ok_or_else(|| Error::Topology {
+                element: format!("vertex {i}"),
+                msg: "no closest point on the layout proxy".into(),
+            })?;
+            s.push(self.s_at(from, h.triangle, h.u, h.v));
+            let mv = self.m_at(from, h.triangle, h.u, h.v);
+            m.push(mv);
+            let step = self.radii.iter().rposition(|&r| r <= mv * (1.0 + 1e-12));
+            m_step.push(step.unwrap_or(0) as u8);
+        }
+        let mut stats = self.stats.clone();
+        stats.vertices = to.positions.len();
+        stats.triangles = to.triangles.len();
+        Ok(Fitmap {
+            radii: self.radii.clone(),
+            s,
+            m,
+            m_step,
+            tolerance: self.tolerance,
+            stats,
+        })
+    }
 }
 
 /// The radii `r_0..r_h` of §3.1.2 for `mesh`, or an error when they are not

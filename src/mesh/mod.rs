@@ -4,6 +4,7 @@
 //! ([`ControlMesh`]) and the working frame conversions run in ([`Frame`]).
 
 mod control;
+mod decimate;
 mod foreign;
 mod frame;
 mod manifold;
@@ -14,6 +15,7 @@ mod soup;
 pub use control::{
     Compaction, ControlMesh, EdgeId, FaceId, HalfedgeId, VertexId, INFINITELY_SHARP,
 };
+pub use decimate::{decimate, DecimateStats, Topology};
 pub use foreign::{control_from_foreign_soup, ForeignRepairs};
 pub use frame::Frame;
 pub use manifold::{split_non_manifold, split_non_manifold_polygons, SplitStats};

@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use subdfit::analysis::fitmap::DEFAULT_TOLERANCE;
 use subdfit::fit::Objective;
-use subdfit::pipeline::{convert_in_memory, ConvertOptions, Mode};
+use subdfit::pipeline::{convert_in_memory, ConvertOptions, Mode, Proxy};
 use subdfit::report::write_converted;
 
 #[derive(Copy, Clone, Debug, clap::ValueEnum)]
@@ -78,6 +78,18 @@ pub struct ConvertArgs {
     max_error: Option<f64>,
     #[command(flatten)]
     files: OutputArgs,
+    /// Organic mode's layout proxy M' (Fitmaps §4): the Fitmap,
+    /// quadrangulation and simplification run on a quadric decimation of
+    /// the input to this many triangles, while the fit, displacement and
+    /// every figure use the input itself. `auto`: 50 000 triangles for
+    /// inputs above 100 000 (below, the full-resolution layout takes under
+    /// ~20 s and stays the reference); `none`: the layout runs on the input
+    /// (minutes on big scans, for comparison); or a triangle count (used
+    /// when the input has more). The proxy is used only if it keeps the
+    /// input's topology (components, boundary loops, Euler characteristic);
+    /// report.json's `layout_proxy` says what was tried.
+    #[arg(long, default_value = "auto", value_parser = parse_proxy)]
+    proxy: Proxy,
     /// No progress bars.
     #[arg(long)]
     quiet: bool,
@@ -135,6 +147,20 @@ pub(crate) fn parse_max_error(s: &str) -> std::result::Result<f64, String> {
         _ => Err(format!(
             "{s:?}: give a positive fraction of the diagonal (e.g. 0.005), or inf"
         )),
+    }
+}
+
+/// `--proxy auto|none|N`.
+fn parse_proxy(s: &str) -> std::result::Result<Proxy, String> {
+    match s {
+        "auto" => Ok(Proxy::Auto),
+        "none" => Ok(Proxy::None),
+        n => match n.parse::<usize>() {
+            Ok(n) if n >= 100 => Ok(Proxy::Triangles(n)),
+            _ => Err(format!(
+                "expected auto, none or a triangle count of at least 100, got '{n}'"
+            )),
+        },
     }
 }
 
@@ -197,7 +223,8 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
             ModeArg::Mechanical => Mode::Mechanical,
         })
         .with_max_error(a.max_error)
-        .with_tessellation(a.files.tessellation.map(|n| n as usize));
+        .with_tessellation(a.files.tessellation.map(|n| n as usize))
+        .with_proxy(a.proxy);
     let extra = serde_json::json!({
         "command": "convert",
         "mesh": a.mesh.display().to_string(),
