@@ -412,13 +412,6 @@ fn convert_organic(
     extra_options: serde_json::Value,
     progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
-    let stage = |progress: &mut crate::watch::Progress<'_>, name: &str, f: f64| {
-        if progress(name, f) {
-            Ok(())
-        } else {
-            Err(Error::Cancelled { stage: name.into() })
-        }
-    };
     let mesh = &input.mesh;
     if let Err(why) = crate::analysis::fitmap::fitmap_radii(mesh) {
         return convert_coarse(
@@ -437,48 +430,20 @@ fn convert_organic(
     if let Some(t) = opts.tolerance {
         fo = fo.with_tolerance(t);
     }
-    let (proxy, proxy_stats) = layout_proxy(mesh, opts.proxy, &mut timer, progress)?;
-    let (layout, layout_caster) = match &proxy {
-        Some((m, c)) => (m, c.as_ref()),
-        None => (mesh, caster),
-    };
-    stage(progress, "fitmap", 0.0)?;
-    let fitmap = timer.run("fitmap", || {
-        fitmap_reporting(layout, layout_caster, &fo, &mut *progress)
-    })?;
-    stage(progress, "fitmap", 1.0)?;
     let max_error = match (opts.max_error, opts.target_faces) {
         (Some(e), _) => Some(e).filter(|e| e.is_finite()),
         (None, None) => Some(DEFAULT_ORGANIC_MAX_ERROR),
         (None, Some(_)) => None,
     };
-    let so = SimplifyOptions::default()
-        .with_target_faces(opts.target_faces)
-        .with_m_fitmap(!opts.no_m_fitmap)
-        .with_checkpoints(if max_error.is_some() {
-            ERROR_SEARCH_CHECKPOINTS
-        } else {
-            0
-        });
-    stage(progress, "simplify", 0.0)?;
-    let simplified = timer.run("simplify", || {
-        simplify_with_progress(layout, &fitmap, layout_caster, &so, &mut |p| {
-            let goal = p
-                .initial_faces
-                .saturating_sub(opts.target_faces.unwrap_or(0))
-                .max(1);
-            let done = p.initial_faces.saturating_sub(p.faces) as f64 / goal as f64;
-            progress("simplify", done.min(0.99))
-        })
-    })?;
-    stage(progress, "simplify", 1.0)?;
-    // fitmap.ply and the pictures show the Fitmap on M's own vertices.
-    let fitmap = match &proxy {
-        Some((m, c)) => timer.run("fitmap transfer", || {
-            fitmap.transferred(m, c.as_ref(), mesh)
-        })?,
-        None => fitmap,
-    };
+    let (simplified, fitmap, proxy_stats) = organic_layout(
+        mesh,
+        caster,
+        opts,
+        &fo,
+        max_error.is_some(),
+        &mut timer,
+        progress,
+    )?;
     let po = PipelineOptions::default()
         .with_fit(FitOptions::default().with_objective(opts.objective))
         .with_metrics(
@@ -563,6 +528,64 @@ fn convert_organic(
         // metrics' ratio, so that it (and every smaller one) misses.
         bound = (bound * e / rms).min(fit_rms * (1.0 - 1e-9));
     }
+}
+
+/// The organic layout (Fitmaps §3.1–3.3): the Fitmap and the simplified
+/// control mesh, on the layout proxy M′ when there is one (§4; the Fitmap
+/// then transferred to M's vertices for fitmap.ply and the pictures), with
+/// the proxy's record for the report.
+fn organic_layout(
+    mesh: &crate::mesh::TriMesh,
+    caster: &dyn crate::raycast::RayCaster,
+    opts: &ConvertOptions,
+    fo: &FitmapOptions,
+    checkpoints: bool,
+    timer: &mut StageTimer,
+    progress: &mut crate::watch::Progress<'_>,
+) -> Result<(
+    Simplified,
+    crate::analysis::Fitmap,
+    Option<serde_json::Value>,
+)> {
+    let stage = crate::fit::report_progress;
+    let (proxy, proxy_stats) = layout_proxy(mesh, opts.proxy, timer, progress)?;
+    let (layout, layout_caster) = match &proxy {
+        Some((m, c)) => (m, c.as_ref()),
+        None => (mesh, caster),
+    };
+    stage(progress, "fitmap", 0.0)?;
+    let fitmap = timer.run("fitmap", || {
+        fitmap_reporting(layout, layout_caster, fo, &mut *progress)
+    })?;
+    stage(progress, "fitmap", 1.0)?;
+    let so = SimplifyOptions::default()
+        .with_target_faces(opts.target_faces)
+        .with_m_fitmap(!opts.no_m_fitmap)
+        .with_checkpoints(if checkpoints {
+            ERROR_SEARCH_CHECKPOINTS
+        } else {
+            0
+        });
+    stage(progress, "simplify", 0.0)?;
+    let simplified = timer.run("simplify", || {
+        simplify_with_progress(layout, &fitmap, layout_caster, &so, &mut |p| {
+            let goal = p
+                .initial_faces
+                .saturating_sub(opts.target_faces.unwrap_or(0))
+                .max(1);
+            let done = p.initial_faces.saturating_sub(p.faces) as f64 / goal as f64;
+            progress("simplify", done.min(0.99))
+        })
+    })?;
+    stage(progress, "simplify", 1.0)?;
+    // fitmap.ply and the pictures show the Fitmap on M's own vertices.
+    let fitmap = match &proxy {
+        Some((m, c)) => timer.run("fitmap transfer", || {
+            fitmap.transferred(m, c.as_ref(), mesh)
+        })?,
+        None => fitmap,
+    };
+    Ok((simplified, fitmap, proxy_stats))
 }
 
 /// `--faces N`'s target: within ±2 % of `n` (issue 17), with what
@@ -772,10 +795,7 @@ fn layout_proxy(
     proxy: Proxy,
     timer: &mut StageTimer,
     progress: &mut crate::watch::Progress<'_>,
-) -> Result<(
-    Option<(crate::mesh::TriMesh, Box<dyn crate::raycast::RayCaster>)>,
-    Option<serde_json::Value>,
-)> {
+) -> Result<(Option<LayoutProxy>, Option<serde_json::Value>)> {
     use crate::mesh::Topology;
     let Some(mut triangles) = proxy.target(mesh.triangles.len()) else {
         return Ok((None, None));
@@ -814,6 +834,9 @@ fn layout_proxy(
     });
     Ok((m, Some(stats)))
 }
+
+/// M′ and a ray caster over it.
+type LayoutProxy = (crate::mesh::TriMesh, Box<dyn crate::raycast::RayCaster>);
 
 /// Decimations tried for a layout proxy with M's topology (targets 1×, 2×,
 /// 4× the bound) before the layout runs on M.
