@@ -3,6 +3,7 @@
 #include "subdfit/cpp/eigen_bridge.h"
 
 #include <Eigen/Core>
+#include <Eigen/IterativeLinearSolvers>
 #include <Eigen/OrderingMethods>
 #include <Eigen/SparseCholesky>
 #include <Eigen/SparseCore>
@@ -55,7 +56,7 @@ rust::Vec<double> sparse_least_squares(std::size_t rows_a, std::size_t cols, rus
                                        std::size_t rows_r, rust::Slice<const uint32_t> r_rows,
                                        rust::Slice<const uint32_t> r_cols, rust::Slice<const double> r_vals,
                                        double lambda, rust::Slice<const double> b, std::size_t nrhs, uint32_t method,
-                                       double rank_tolerance) {
+                                       double tolerance) {
   if (cols == 0) throw std::runtime_error("no unknowns");
   if (b.size() != rows_a * nrhs) throw std::runtime_error("right-hand side has the wrong length");
   SpMat A = from_triplets("A", rows_a, cols, a_rows, a_cols, a_vals);
@@ -63,7 +64,32 @@ rust::Vec<double> sparse_least_squares(std::size_t rows_a, std::size_t cols, rus
   Eigen::Map<const Eigen::MatrixXd> B(b.data(), Eigen::Index(rows_a), Eigen::Index(nrhs));
   Eigen::MatrixXd X(cols, nrhs);
 
-  if (method == 0) {
+  if (method == 2) {
+    // Conjugate gradients on the normal equations, Jacobi-preconditioned:
+    // for systems whose normal matrix is close to a mass matrix (every
+    // unknown pulled by data rows around it, as the displacement offsets'
+    // are), the condition number does not grow with the size and CG
+    // converges in tens of iterations, where LDL^T's fill-in grows as
+    // n^1.5 (5.6 s for 567k offsets against 0.6 s). Single-threaded
+    // column-major products: the same bytes whatever the thread count.
+    SpMat N = SpMat(A.transpose() * A);
+    if (lambda != 0.0 && rows_r > 0) N += lambda * SpMat(R.transpose() * R);
+    Eigen::MatrixXd rhs = A.transpose() * B;
+    Eigen::ConjugateGradient<SpMat, Eigen::Lower | Eigen::Upper, Eigen::DiagonalPreconditioner<double>> cg;
+    cg.setTolerance(tolerance);
+    cg.setMaxIterations(2000);
+    cg.compute(N);
+    if (cg.info() != Eigen::Success) throw std::runtime_error("conjugate gradients: set-up failed");
+    for (Eigen::Index j = 0; j < rhs.cols(); ++j) {
+      X.col(j) = cg.solve(rhs.col(j));
+      if (cg.info() != Eigen::Success) {
+        std::ostringstream s;
+        s << "conjugate gradients did not converge in " << cg.iterations() << " iterations (residual "
+          << cg.error() << ", tolerance " << tolerance << ")";
+        throw std::runtime_error(s.str());
+      }
+    }
+  } else if (method == 0) {
     // Normal equations: fast, and the fitting systems are well conditioned
     // once the fairness term is in; a pivot check catches rank deficiency.
     SpMat N = SpMat(A.transpose() * A);
@@ -75,7 +101,7 @@ rust::Vec<double> sparse_least_squares(std::size_t rows_a, std::size_t cols, rus
     const Eigen::VectorXd d = ldlt.vectorD();
     const double dmax = d.cwiseAbs().maxCoeff();
     for (Eigen::Index i = 0; i < d.size(); ++i) {
-      if (!(d[i] > rank_tolerance * dmax)) {
+      if (!(d[i] > tolerance * dmax)) {
         // vectorD is in the permuted order; report the original unknown.
         const int col = ldlt.permutationPinv().indices()[i];
         std::ostringstream s;
@@ -104,7 +130,7 @@ rust::Vec<double> sparse_least_squares(std::size_t rows_a, std::size_t cols, rus
     Eigen::MatrixXd Bs = Eigen::MatrixXd::Zero(S.rows(), Eigen::Index(nrhs));
     Bs.topRows(Eigen::Index(rows_a)) = B;
     Eigen::SparseQR<SpMat, Eigen::COLAMDOrdering<int>> qr;
-    qr.setPivotThreshold(rank_tolerance);
+    qr.setPivotThreshold(tolerance);
     qr.compute(S);
     if (qr.info() != Eigen::Success) throw std::runtime_error("sparse QR factorisation failed: " + qr.lastErrorMessage());
     if (qr.rank() < Eigen::Index(cols)) {

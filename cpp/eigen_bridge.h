@@ -17,5 +17,5 @@ rust::Vec<double> sparse_least_squares(std::size_t rows_a, std::size_t cols, rus
                                        std::size_t rows_r, rust::Slice<const uint32_t> r_rows,
                                        rust::Slice<const uint32_t> r_cols, rust::Slice<const double> r_vals,
                                        double lambda, rust::Slice<const double> b, std::size_t nrhs, uint32_t method,
-                                       double rank_tolerance);
+                                       double tolerance);
 }  // namespace subdfit::eigen

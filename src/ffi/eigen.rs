@@ -21,7 +21,7 @@ pub(crate) mod bridge {
             b: &[f64],
             nrhs: usize,
             method: u32,
-            rank_tolerance: f64,
+            tolerance: f64,
         ) -> Result<Vec<f64>>;
     }
 }
