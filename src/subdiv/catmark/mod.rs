@@ -42,7 +42,10 @@ use crate::subdiv::{
 use crate::DVec3;
 
 use patch::{corner_is_regular, patch_weights, phantom_rules, regular_grid};
-use topo::{comb, key, topo_from_mesh, vertex_rule, Adj, Pt, Rule, Rules, Sparse, Topo, INF};
+use topo::{
+    comb, face_ring, key, merge3, topo_from_mesh, vertex_rule, Adj, Pt, Rule, Rules, Sparse, Topo,
+    INF,
+};
 
 /// The deepest local subdivision used to approach an irregular corner; the
 /// limit surface moves by less than `0.66^MAX_DEPTH` (≈ 4e-15) of the
@@ -78,56 +81,6 @@ pub struct RustEvaluator {
     vm_off: Vec<u32>,
     vm_idx: Vec<u32>,
     vm_w: Vec<[f64; 3]>,
-}
-
-/// Faces of the 1-ring of face `f`: `f` first, then the faces around each
-/// of its vertices.
-fn face_ring(mesh: &ControlMesh, f: FaceId) -> Vec<FaceId> {
-    let mut faces = vec![f];
-    for v in mesh.face_vertices(f) {
-        for g in mesh.vertex_faces(v) {
-            if !faces.contains(&g) {
-                faces.push(g);
-            }
-        }
-    }
-    faces
-}
-
-fn map_pts<P>(t: Topo<u32>, f: impl Fn(u32) -> P) -> Topo<P> {
-    Topo {
-        pts: t.pts.iter().map(|&i| f(i)).collect(),
-        vsharp: t.vsharp,
-        foff: t.foff,
-        fv: t.fv,
-        esharp: t.esharp,
-        rules: t.rules,
-    }
-}
-
-/// Merges three sparse rows into one index list with three weights.
-fn merge3(p: &Sparse, a: &Sparse, b: &Sparse) -> Vec<(u32, [f64; 3])> {
-    let mut all: Vec<(u32, [f64; 3])> = Vec::with_capacity(p.0.len() + a.0.len() + b.0.len());
-    for (k, s) in [p, a, b].into_iter().enumerate() {
-        for &(i, w) in &s.0 {
-            let mut x = [0.0; 3];
-            x[k] = w;
-            all.push((i, x));
-        }
-    }
-    all.sort_by_key(|e| e.0);
-    let mut out: Vec<(u32, [f64; 3])> = Vec::with_capacity(all.len());
-    for (i, w) in all {
-        match out.last_mut() {
-            Some(l) if l.0 == i => {
-                for (a, b) in l.1.iter_mut().zip(w) {
-                    *a += b;
-                }
-            }
-            _ => out.push((i, w)),
-        }
-    }
-    out
 }
 
 impl RustEvaluator {
@@ -178,13 +131,13 @@ impl RustEvaluator {
                     .iter()
                     .position(|&g| g == v.0)
                     .expect("v is in its ring") as u32;
-                let t = map_pts(t, Sparse::unit);
+                let t = t.with_points(Sparse::unit);
                 let adj = t.adjacency();
                 let (mut p, a, b) = vertex_limit(&t, &adj, local, None);
                 if let Some((bv, delta)) = options.broken_mask.filter(|m| m.0 == v.0) {
                     p.axpy(delta, &Sparse::unit(bv));
                 }
-                merge3(&p, &a, &b)
+                merge3([&p, &a, &b])
             })
             .collect();
         let mut vm_off = vec![0u32];
@@ -278,7 +231,7 @@ impl RustEvaluator {
             }
             FaceKind::Irregular => {
                 let t = topo_from_mesh(&self.mesh, Some(&face_ring(&self.mesh, l.face)), self.sdc);
-                let t = map_pts(t, |g| positions[g as usize]);
+                let t = t.with_points(|g| positions[g as usize]);
                 let (p, du, dv) = eval_local(t, l.sub as usize, l.u, l.v, &self.rules);
                 LimitPoint {
                     position: p,
@@ -313,9 +266,9 @@ impl RustEvaluator {
             }
             FaceKind::Irregular => {
                 let t = topo_from_mesh(&self.mesh, Some(&face_ring(&self.mesh, l.face)), self.sdc);
-                let t = map_pts(t, Sparse::unit);
+                let t = t.with_points(Sparse::unit);
                 let (p, du, dv) = eval_local(t, l.sub as usize, l.u, l.v, &self.rules);
-                merge3(&p, &du, &dv)
+                merge3([&p, &du, &dv])
             }
         }
     }

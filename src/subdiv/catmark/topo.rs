@@ -414,11 +414,21 @@ impl<P: Pt> Topo<P> {
     pub fn edge_child(&self, e: u32) -> u32 {
         self.pts.len() as u32 + e
     }
-    fn vertex_mask(&self, adj: &Adj, v: u32, rule: Rule, sharp: &[f64], fpts: &[P]) -> P {
+    /// The corner and crease vertex masks, which Catmark and Loop share
+    /// (Sdc `assignCornerMaskForVertex`, `assignCreaseMaskForVertex`:
+    /// 3/4 of the vertex, 1/8 of each end of its two sharp edges); `None`
+    /// for a smooth vertex, whose mask is the scheme's own.
+    pub(crate) fn sharp_vertex_mask(
+        &self,
+        adj: &Adj,
+        v: u32,
+        rule: Rule,
+        sharp: &[f64],
+    ) -> Option<P> {
         let vi = v as usize;
         let x = &self.pts[vi];
         match rule {
-            Rule::Corner => x.clone(),
+            Rule::Corner => Some(x.clone()),
             Rule::Crease => {
                 let mut r = P::zero();
                 r.axpy(0.75, x);
@@ -427,24 +437,31 @@ impl<P: Pt> Topo<P> {
                         r.axpy(0.125, &self.pts[self.other(adj, e, v) as usize]);
                     }
                 }
-                r
+                Some(r)
             }
-            Rule::Smooth => {
-                // Catmark smooth vertex rule with face centroids
-                // (Sdc `assignSmoothMaskForVertex`): (n-2)/n v + Σe/n² + ΣF/n².
-                let n = adj.vedges[vi].len() as f64;
-                let mut r = P::zero();
-                r.axpy((n - 2.0) / n, x);
-                let w = 1.0 / (n * n);
-                for &e in &adj.vedges[vi] {
-                    r.axpy(w, &self.pts[self.other(adj, e, v) as usize]);
-                }
-                for &f in &adj.vfaces[vi] {
-                    r.axpy(w, &fpts[f as usize]);
-                }
-                r
-            }
+            Rule::Smooth => None,
         }
+    }
+
+    fn vertex_mask(&self, adj: &Adj, v: u32, rule: Rule, sharp: &[f64], fpts: &[P]) -> P {
+        if let Some(r) = self.sharp_vertex_mask(adj, v, rule, sharp) {
+            return r;
+        }
+        let vi = v as usize;
+        let x = &self.pts[vi];
+        // Catmark smooth vertex rule with face centroids
+        // (Sdc `assignSmoothMaskForVertex`): (n-2)/n v + Σe/n² + ΣF/n².
+        let n = adj.vedges[vi].len() as f64;
+        let mut r = P::zero();
+        r.axpy((n - 2.0) / n, x);
+        let w = 1.0 / (n * n);
+        for &e in &adj.vedges[vi] {
+            r.axpy(w, &self.pts[self.other(adj, e, v) as usize]);
+        }
+        for &f in &adj.vfaces[vi] {
+            r.axpy(w, &fpts[f as usize]);
+        }
+        r
     }
 
     /// Edge point of edge `e`: smooth `(v0 + v1 + F0 + F1)/4`, sharp
@@ -697,4 +714,63 @@ pub(crate) fn topo_from_mesh(
         }
     }
     t
+}
+
+/// Faces of the 1-ring of face `f`: `f` first, then the faces around each
+/// of its vertices — the neighbourhood both exact evaluators (Catmark and
+/// Loop) subdivide around a location.
+pub(crate) fn face_ring(
+    mesh: &crate::mesh::ControlMesh,
+    f: crate::mesh::FaceId,
+) -> Vec<crate::mesh::FaceId> {
+    let mut faces = vec![f];
+    for v in mesh.face_vertices(f) {
+        for g in mesh.vertex_faces(v) {
+            if !faces.contains(&g) {
+                faces.push(g);
+            }
+        }
+    }
+    faces
+}
+
+impl Topo<u32> {
+    /// The same topology with point `f(i)` for control vertex `i`:
+    /// positions to evaluate, or unit [`Sparse`] rows to build stencils.
+    pub(crate) fn with_points<P>(self, f: impl Fn(u32) -> P) -> Topo<P> {
+        Topo {
+            pts: self.pts.iter().map(|&i| f(i)).collect(),
+            vsharp: self.vsharp,
+            foff: self.foff,
+            fv: self.fv,
+            esharp: self.esharp,
+            rules: self.rules,
+        }
+    }
+}
+
+/// Sparse rows (position, du, dv) merged into one index list, sorted, with
+/// three weights per index.
+pub(crate) fn merge3(rows: [&Sparse; 3]) -> Vec<(u32, [f64; 3])> {
+    let mut all: Vec<(u32, [f64; 3])> = Vec::with_capacity(rows.iter().map(|s| s.0.len()).sum());
+    for (k, s) in rows.into_iter().enumerate() {
+        for &(i, w) in &s.0 {
+            let mut x = [0.0; 3];
+            x[k] = w;
+            all.push((i, x));
+        }
+    }
+    all.sort_by_key(|e| e.0);
+    let mut out: Vec<(u32, [f64; 3])> = Vec::with_capacity(all.len());
+    for (i, w) in all {
+        match out.last_mut() {
+            Some(l) if l.0 == i => {
+                for (a, b) in l.1.iter_mut().zip(w) {
+                    *a += b;
+                }
+            }
+            _ => out.push((i, w)),
+        }
+    }
+    out
 }

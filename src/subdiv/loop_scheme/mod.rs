@@ -33,7 +33,8 @@ use rayon::prelude::*;
 use crate::error::Result;
 use crate::mesh::{check_loop_triangles, ControlMesh, FaceId};
 use crate::subdiv::catmark::topo::{
-    comb, key, topo_from_mesh, vertex_rule, Adj, Pt, Rule, Rules, Sparse, Topo, INF,
+    comb, face_ring, key, merge3, topo_from_mesh, vertex_rule, Adj, Pt, Rule, Rules, Sparse, Topo,
+    INF,
 };
 use crate::subdiv::{
     check_locations_for, check_not_holes, check_positions, checked_holes, EvalOptions,
@@ -66,30 +67,17 @@ fn smooth_weights(n: usize) -> (f64, f64) {
 impl<P: Pt> Topo<P> {
     /// Loop mask of the child of vertex `v` under `rule`.
     fn loop_vertex_mask(&self, adj: &Adj, v: u32, rule: Rule, sharp: &[f64]) -> P {
-        let vi = v as usize;
-        let x = &self.pts[vi];
-        match rule {
-            Rule::Corner => x.clone(),
-            Rule::Crease => {
-                let mut r = P::zero();
-                r.axpy(0.75, x);
-                for (k, &e) in adj.vedges[vi].iter().enumerate() {
-                    if sharp[k] > 0.0 {
-                        r.axpy(0.125, &self.pts[self.other(adj, e, v) as usize]);
-                    }
-                }
-                r
-            }
-            Rule::Smooth => {
-                let (wv, we) = smooth_weights(adj.vfaces[vi].len());
-                let mut r = P::zero();
-                r.axpy(wv, x);
-                for &e in &adj.vedges[vi] {
-                    r.axpy(we, &self.pts[self.other(adj, e, v) as usize]);
-                }
-                r
-            }
+        if let Some(r) = self.sharp_vertex_mask(adj, v, rule, sharp) {
+            return r;
         }
+        let vi = v as usize;
+        let (wv, we) = smooth_weights(adj.vfaces[vi].len());
+        let mut r = P::zero();
+        r.axpy(wv, &self.pts[vi]);
+        for &e in &adj.vedges[vi] {
+            r.axpy(we, &self.pts[self.other(adj, e, v) as usize]);
+        }
+        r
     }
 
     /// Loop edge point: smooth 3/8 of each end and 1/8 of each opposite
@@ -181,52 +169,6 @@ pub struct LoopEvaluator {
     patches: Vec<Option<[Slot; 12]>>,
     /// Vertex limit masks (position, tangent 1, tangent 2) per vertex.
     masks: Vec<Vec<(u32, [f64; 3])>>,
-}
-
-/// Faces of the 1-ring of face `f`: `f` first, then the faces around each
-/// of its vertices.
-fn face_ring(mesh: &ControlMesh, f: FaceId) -> Vec<FaceId> {
-    let mut faces = vec![f];
-    for v in mesh.face_vertices(f) {
-        for g in mesh.vertex_faces(v) {
-            if !faces.contains(&g) {
-                faces.push(g);
-            }
-        }
-    }
-    faces
-}
-
-fn with_points<P>(t: Topo<u32>, f: impl Fn(u32) -> P) -> Topo<P> {
-    Topo {
-        pts: t.pts.iter().map(|&i| f(i)).collect(),
-        vsharp: t.vsharp,
-        foff: t.foff,
-        fv: t.fv,
-        esharp: t.esharp,
-        rules: t.rules,
-    }
-}
-
-/// Sparse rows (position, du, dv) merged into one sorted index list.
-fn merge3(rows: [&Sparse; 3]) -> Vec<(u32, [f64; 3])> {
-    let mut all: Vec<(u32, [f64; 3])> = Vec::new();
-    for (k, s) in rows.into_iter().enumerate() {
-        for &(i, w) in &s.0 {
-            let mut x = [0.0; 3];
-            x[k] = w;
-            all.push((i, x));
-        }
-    }
-    all.sort_by_key(|e| e.0);
-    let mut out: Vec<(u32, [f64; 3])> = Vec::with_capacity(all.len());
-    for (i, w) in all {
-        match out.last_mut() {
-            Some(l) if l.0 == i => (0..3).for_each(|k| l.1[k] += w[k]),
-            _ => out.push((i, w)),
-        }
-    }
-    out
 }
 
 /// Applies patch weights to the slots of `pts`.
@@ -623,7 +565,7 @@ impl LoopEvaluator {
                     .iter()
                     .position(|&g| g == v.0)
                     .expect("v is in its ring") as u32;
-                let t = with_points(t, Sparse::unit);
+                let t = t.with_points(Sparse::unit);
                 let adj = t.adjacency();
                 let (mut p, a, b) = vertex_limit(&t, &adj, local);
                 if let Some((bv, delta)) = options.broken_mask.filter(|m| m.0 == v.0) {
@@ -656,13 +598,13 @@ impl LoopEvaluator {
             let [position, du, dv] = apply_patch(slots, &w, positions);
             return LimitPoint { position, du, dv };
         }
-        let t = with_points(self.local(l.face), |g| positions[g as usize]);
+        let t = self.local(l.face).with_points(|g| positions[g as usize]);
         let (position, du, dv) = eval_local(t, l.u, l.v);
         LimitPoint { position, du, dv }
     }
 
     fn stencil_one(&self, l: &SurfaceLocation) -> Vec<(u32, [f64; 3])> {
-        let t = with_points(self.local(l.face), Sparse::unit);
+        let t = self.local(l.face).with_points(Sparse::unit);
         let (p, du, dv) = eval_local(t, l.u, l.v);
         merge3([&p, &du, &dv])
     }
@@ -728,9 +670,7 @@ pub fn refine_uniform_loop(
     levels: u32,
 ) -> Result<Vec<DVec3>> {
     let rules = loop_rules(mesh, scheme)?;
-    let mut t = with_points(topo_from_mesh(mesh, None, rules), |g| {
-        mesh.positions()[g as usize]
-    });
+    let mut t = topo_from_mesh(mesh, None, rules).with_points(|g| mesh.positions()[g as usize]);
     for _ in 0..levels {
         let adj = t.adjacency();
         t = t.refine_loop(&adj);
@@ -823,10 +763,8 @@ pub fn limit_by_refinement(
             face.0
         )));
     }
-    let mut t = with_points(
-        topo_from_mesh(mesh, Some(&face_ring(mesh, face)), rules),
-        |g| mesh.positions()[g as usize],
-    );
+    let mut t = topo_from_mesh(mesh, Some(&face_ring(mesh, face)), rules)
+        .with_points(|g| mesh.positions()[g as usize]);
     let (mut s, mut tt) = (u, v);
     for _ in 0..levels {
         let adj = t.adjacency();
