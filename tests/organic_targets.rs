@@ -7,22 +7,14 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+mod common;
+
 fn spot() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot.ply")
+    common::fixture("spot.ply")
 }
 
 fn convert(out: &Path, args: &[&str]) -> serde_json::Value {
-    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
-        .arg("convert")
-        .arg(spot())
-        .arg("-o")
-        .arg(out)
-        .args(["--quiet", "--mode", "organic"])
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+    common::convert_organic(&spot(), out, args)
 }
 
 /// `subdfit metrics` of `out/control.obj` against spot: (faces, RMS L ‰).

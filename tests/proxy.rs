@@ -9,22 +9,10 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn spot() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot.ply")
-}
+mod common;
 
-fn convert(input: &Path, out: &Path, args: &[&str]) -> serde_json::Value {
-    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
-        .arg("convert")
-        .arg(input)
-        .arg("-o")
-        .arg(out)
-        .args(["--quiet", "--mode", "organic"])
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+fn spot() -> PathBuf {
+    common::fixture("spot.ply")
 }
 
 /// V − E + F and the number of components of an OBJ's faces.
@@ -74,7 +62,7 @@ fn a_proxy_layout_keeps_the_topology_the_bound_and_projectability_of_m() {
     let dir = tempfile::tempdir().unwrap();
     let (a, b) = (dir.path().join("a"), dir.path().join("b"));
     // spot has 5 856 triangles: a 2 500-triangle proxy is a 2.3× decimation.
-    let r = convert(&spot(), &a, &["--proxy", "2500"]);
+    let r = common::convert_organic(&spot(), &a, &["--proxy", "2500"]);
     let p = &r["options"]["run"]["layout_proxy"];
     assert_eq!(p["used"], true, "{p}");
     let last = p["attempts"].as_array().unwrap().last().unwrap();
@@ -103,7 +91,7 @@ fn a_proxy_layout_keeps_the_topology_the_bound_and_projectability_of_m() {
         .unwrap();
     assert!(un < 0.2, "{un} % of M unprojectable");
     // Deterministic.
-    convert(&spot(), &b, &["--proxy", "2500"]);
+    common::convert_organic(&spot(), &b, &["--proxy", "2500"]);
     for f in ["control.obj", "displacement.exr"] {
         assert!(
             std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap(),
@@ -115,7 +103,7 @@ fn a_proxy_layout_keeps_the_topology_the_bound_and_projectability_of_m() {
 #[test]
 fn no_proxy_below_the_bound_or_when_asked() {
     let dir = tempfile::tempdir().unwrap();
-    let r = convert(&spot(), dir.path(), &["--proxy", "none"]);
+    let r = common::convert_organic(&spot(), dir.path(), &["--proxy", "none"]);
     assert!(
         r["options"]["run"]["layout_proxy"].is_null(),
         "{}",
@@ -123,7 +111,7 @@ fn no_proxy_below_the_bound_or_when_asked() {
     );
     let dir = tempfile::tempdir().unwrap();
     // auto: only above 100 000 triangles; spot has 5 856.
-    let r = convert(&spot(), dir.path(), &[]);
+    let r = common::convert_organic(&spot(), dir.path(), &[]);
     assert!(
         r["options"]["run"]["layout_proxy"].is_null(),
         "{}",

@@ -207,3 +207,26 @@ pub fn random_surface_point(rng: &mut ChaCha8Rng, mesh: &TriMesh) -> (DVec3, DVe
         return ((1.0 - u - v) * a + u * b + v * c, n.normalize());
     }
 }
+
+/// A fixture of the repository's `data/` folder.
+pub fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("data")
+        .join(name)
+}
+
+/// `subdfit convert --quiet --mode organic INPUT -o OUT ARGS…`, asserted to
+/// succeed; its `report.json`.
+pub fn convert_organic(input: &Path, out: &Path, args: &[&str]) -> serde_json::Value {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .arg("convert")
+        .arg(input)
+        .arg("-o")
+        .arg(out)
+        .args(["--quiet", "--mode", "organic"])
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
+}
