@@ -32,6 +32,9 @@ use subdfit::subdiv::osd::{osd_refine_uniform_with, OsdScheme};
 use subdfit::subdiv::{make_evaluator, Backend, EvalOptions, SubdivScheme, SurfaceLocation};
 use subdfit::DVec3;
 
+mod common;
+use common::max_nearest;
+
 type Tris = (Vec<DVec3>, Vec<[u32; 3]>);
 
 fn icosahedron() -> Tris {
@@ -106,6 +109,9 @@ fn bump(mut t: Tris, amp: f64) -> Tris {
     t
 }
 
+/// The icosahedron split once onto the unit sphere (valences 5 and 6), in
+/// this file's own vertex order, which the tests below name vertices by
+/// (`creased_sphere`'s corner is vertex 30).
 fn icosphere() -> Tris {
     let (p, f) = split4(icosahedron());
     (p.into_iter().map(|x| x.normalize()).collect(), f)
@@ -233,18 +239,6 @@ fn option_sets(m: &ControlMesh) -> Vec<(&'static str, SchemeOptions)> {
         ),
         ("chaikin", d().with_crease_method(CreaseMethod::Chaikin)),
     ]
-}
-
-fn max_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .map(|p| {
-            b.iter()
-                .map(|q| p.distance_squared(*q))
-                .fold(f64::MAX, f64::min)
-        })
-        .fold(0.0, f64::max)
-        .sqrt()
 }
 
 #[test]

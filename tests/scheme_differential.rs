@@ -33,6 +33,9 @@ use subdfit::subdiv::refine::refine_uniform_with;
 use subdfit::subdiv::{make_evaluator, Backend, EvalOptions, SurfaceLocation};
 use subdfit::DVec3;
 
+mod common;
+use common::max_nearest;
+
 /// A bumpy 4x4 grid whose centre vertex has four semi-sharp edges of
 /// different sharpness (0.7, 1.4, 2.8 are not exact in f32), one of them
 /// continuing as a chain to the boundary, and a semi-sharp corner.
@@ -115,20 +118,6 @@ fn option_sets(m: &ControlMesh) -> Vec<(&'static str, SchemeOptions)> {
                 .with_holes(some_holes(m)),
         ),
     ]
-}
-
-/// Largest distance from a point of `a` to its nearest point in `b`
-/// (both the same size; OpenSubdiv numbers refined vertices its own way).
-fn max_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
-    assert_eq!(a.len(), b.len());
-    a.iter()
-        .map(|p| {
-            b.iter()
-                .map(|q| p.distance_squared(*q))
-                .fold(f64::MAX, f64::min)
-        })
-        .fold(0.0, f64::max)
-        .sqrt()
 }
 
 #[test]

@@ -230,3 +230,17 @@ pub fn convert_organic(input: &Path, out: &Path, args: &[&str]) -> serde_json::V
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap()
 }
+
+/// Largest distance from a point of `a` to its nearest point in `b`
+/// (both the same size; OpenSubdiv numbers refined vertices its own way).
+pub fn max_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .map(|p| {
+            b.iter()
+                .map(|q| p.distance_squared(*q))
+                .fold(f64::MAX, f64::min)
+        })
+        .fold(0.0, f64::max)
+        .sqrt()
+}
