@@ -621,7 +621,7 @@ impl FitSystem {
         // Boundary fit (see the module docs): samples on the border curves of
         // the limit surface and the limit points of the boundary vertices take
         // the closest point of M's rim as their target.
-        let rim = rim_edges(mesh);
+        let rim = mesh.boundary_edge_masks();
         let rim_segments = rim_segments(mesh, &rim);
         let mut rim_sample = vec![false; locations.len()];
         if !rim_segments.is_empty() {
@@ -985,37 +985,6 @@ pub fn vertex_locations(control: &ControlMesh) -> Vec<SurfaceLocation> {
 /// solve) cost in proportion to M (issue 16). Detail finer than the
 /// patches is the displacement's job (§3.5), sampled at M's density.
 pub const FIT_SAMPLE_BUDGET: usize = 100_000;
-
-/// Per triangle of `mesh`, which of its edges are boundary edges (used by
-/// one triangle only): bit 0 edge (a, b), bit 1 (b, c), bit 2 (c, a).
-fn rim_edges(mesh: &TriMesh) -> Vec<u8> {
-    // A sorted key list, not a hash map: every fit builds this over M
-    // (~10× faster on a million triangles).
-    let key = |a: u32, b: u32| (u64::from(a.min(b)) << 32) | u64::from(a.max(b));
-    let mut keys: Vec<u64> = mesh
-        .triangles
-        .iter()
-        .flat_map(|t| [key(t[0], t[1]), key(t[1], t[2]), key(t[2], t[0])])
-        .collect();
-    keys.sort_unstable();
-    let once = |k: u64| {
-        let i = keys.partition_point(|&x| x < k);
-        keys.get(i + 1) != Some(&k)
-    };
-    mesh.triangles
-        .iter()
-        .map(|t| {
-            (0..3).fold(0u8, |m, k| {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                if once(key(a, b)) {
-                    m | (1 << k)
-                } else {
-                    m
-                }
-            })
-        })
-        .collect()
-}
 
 /// A boundary edge of M: its end points, its triangle and which edge of it
 /// (0: (a, b), 1: (b, c), 2: (c, a)).

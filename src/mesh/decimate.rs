@@ -330,27 +330,9 @@ pub struct Topology {
 
 impl Topology {
     pub fn of(mesh: &TriMesh) -> Topology {
-        let key = |a: u32, b: u32| (u64::from(a.min(b)) << 32) | u64::from(a.max(b));
-        let mut edges: Vec<u64> = mesh
-            .triangles
-            .iter()
-            .flat_map(|t| [key(t[0], t[1]), key(t[1], t[2]), key(t[2], t[0])])
-            .collect();
-        edges.sort_unstable();
-        let mut boundary = Vec::new();
-        let mut e = 0usize;
-        let mut i = 0;
-        while i < edges.len() {
-            let mut j = i + 1;
-            while j < edges.len() && edges[j] == edges[i] {
-                j += 1;
-            }
-            if j - i == 1 {
-                boundary.push(edges[i]);
-            }
-            e += 1;
-            i = j;
-        }
+        let edges = mesh.edge_counts();
+        let e = edges.len();
+        let boundary: Vec<u64> = edges.iter().filter(|c| c.1 == 1).map(|c| c.0).collect();
         let mut referenced = vec![false; mesh.positions.len()];
         for &v in mesh.triangles.iter().flatten() {
             referenced[v as usize] = true;

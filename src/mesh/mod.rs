@@ -25,4 +25,4 @@ pub use scheme::{
     check_loop_triangles, BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions,
     SubdivScheme, TriangleSubdivision,
 };
-pub use soup::{PolySoup, TriMesh};
+pub use soup::{edge_key, PolySoup, TriMesh};
