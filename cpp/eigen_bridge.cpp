@@ -49,6 +49,57 @@ SpMat from_triplets(const char* name, std::size_t rows, std::size_t cols, rust::
   m.setFromTriplets(t.begin(), t.end());  // duplicates are summed
   return m;
 }
+
+// Conjugate gradients, Jacobi-preconditioned: for systems whose normal
+// matrix is close to a mass matrix (every unknown pulled by data rows around
+// it, as the displacement offsets' are), the condition number does not grow
+// with the size and CG converges in tens of iterations, where LDL^T's
+// fill-in grows as n^1.5 (567k offsets: 5.6 s with LDL^T, 2.2 s with CG
+// and forming N). Single-threaded column-major products: the same bytes
+// whatever the thread count. `tolerance` is the relative residual.
+Eigen::MatrixXd conjugate_gradients(const SpMat &N, const Eigen::MatrixXd &rhs, double tolerance) {
+  Eigen::MatrixXd X(N.cols(), rhs.cols());
+  Eigen::ConjugateGradient<SpMat, Eigen::Lower | Eigen::Upper, Eigen::DiagonalPreconditioner<double>> cg;
+  cg.setTolerance(tolerance);
+  cg.setMaxIterations(2000);
+  cg.compute(N);
+  if (cg.info() != Eigen::Success) throw std::runtime_error("conjugate gradients: set-up failed");
+  for (Eigen::Index j = 0; j < rhs.cols(); ++j) {
+    X.col(j) = cg.solve(rhs.col(j));
+    if (cg.info() != Eigen::Success) {
+      std::ostringstream s;
+      s << "conjugate gradients did not converge in " << cg.iterations() << " iterations (residual "
+        << cg.error() << ", tolerance " << tolerance << ")";
+      throw std::runtime_error(s.str());
+    }
+  }
+  return X;
+}
+
+// LDL^T of the normal equations: fast, and the fitting systems are well
+// conditioned once the fairness term is in; a pivot check (relative pivot
+// below `tolerance`) catches rank deficiency.
+Eigen::MatrixXd ldlt_solve(const SpMat &N, const Eigen::MatrixXd &rhs, double tolerance) {
+  Eigen::SimplicialLDLT<SpMat> ldlt;
+  ldlt.compute(N);
+  if (ldlt.info() != Eigen::Success) throw std::runtime_error("rank deficient: LDL^T factorisation failed");
+  const Eigen::VectorXd d = ldlt.vectorD();
+  const double dmax = d.cwiseAbs().maxCoeff();
+  for (Eigen::Index i = 0; i < d.size(); ++i) {
+    if (!(d[i] > tolerance * dmax)) {
+      // vectorD is in the permuted order; report the original unknown.
+      const int col = ldlt.permutationPinv().indices()[i];
+      std::ostringstream s;
+      s << "rank deficient: unknown " << col << " is not determined (pivot " << d[i] << ", largest " << dmax
+        << ")";
+      throw std::runtime_error(s.str());
+    }
+  }
+  Eigen::MatrixXd X = ldlt.solve(rhs);
+  if (ldlt.info() != Eigen::Success) throw std::runtime_error("LDL^T solve failed");
+  return X;
+}
+
 }  // namespace
 
 rust::Vec<double> sparse_least_squares(std::size_t rows_a, std::size_t cols, rust::Slice<const uint32_t> a_rows,
@@ -64,54 +115,15 @@ rust::Vec<double> sparse_least_squares(std::size_t rows_a, std::size_t cols, rus
   Eigen::Map<const Eigen::MatrixXd> B(b.data(), Eigen::Index(rows_a), Eigen::Index(nrhs));
   Eigen::MatrixXd X(cols, nrhs);
 
-  if (method == 2) {
-    // Conjugate gradients on the normal equations, Jacobi-preconditioned:
-    // for systems whose normal matrix is close to a mass matrix (every
-    // unknown pulled by data rows around it, as the displacement offsets'
-    // are), the condition number does not grow with the size and CG
-    // converges in tens of iterations, where LDL^T's fill-in grows as
-    // n^1.5 (5.6 s for 567k offsets against 0.6 s). Single-threaded
-    // column-major products: the same bytes whatever the thread count.
+  if (method == 0 || method == 2) {
+    // Both solve the normal equations N x = A^T b.
     SpMat N = SpMat(A.transpose() * A);
     if (lambda != 0.0 && rows_r > 0) N += lambda * SpMat(R.transpose() * R);
     Eigen::MatrixXd rhs = A.transpose() * B;
-    Eigen::ConjugateGradient<SpMat, Eigen::Lower | Eigen::Upper, Eigen::DiagonalPreconditioner<double>> cg;
-    cg.setTolerance(tolerance);
-    cg.setMaxIterations(2000);
-    cg.compute(N);
-    if (cg.info() != Eigen::Success) throw std::runtime_error("conjugate gradients: set-up failed");
-    for (Eigen::Index j = 0; j < rhs.cols(); ++j) {
-      X.col(j) = cg.solve(rhs.col(j));
-      if (cg.info() != Eigen::Success) {
-        std::ostringstream s;
-        s << "conjugate gradients did not converge in " << cg.iterations() << " iterations (residual "
-          << cg.error() << ", tolerance " << tolerance << ")";
-        throw std::runtime_error(s.str());
-      }
-    }
-  } else if (method == 0) {
-    // Normal equations: fast, and the fitting systems are well conditioned
-    // once the fairness term is in; a pivot check catches rank deficiency.
-    SpMat N = SpMat(A.transpose() * A);
-    if (lambda != 0.0 && rows_r > 0) N += lambda * SpMat(R.transpose() * R);
-    Eigen::MatrixXd rhs = A.transpose() * B;
-    Eigen::SimplicialLDLT<SpMat> ldlt;
-    ldlt.compute(N);
-    if (ldlt.info() != Eigen::Success) throw std::runtime_error("rank deficient: LDL^T factorisation failed");
-    const Eigen::VectorXd d = ldlt.vectorD();
-    const double dmax = d.cwiseAbs().maxCoeff();
-    for (Eigen::Index i = 0; i < d.size(); ++i) {
-      if (!(d[i] > tolerance * dmax)) {
-        // vectorD is in the permuted order; report the original unknown.
-        const int col = ldlt.permutationPinv().indices()[i];
-        std::ostringstream s;
-        s << "rank deficient: unknown " << col << " is not determined (pivot " << d[i] << ", largest " << dmax
-          << ")";
-        throw std::runtime_error(s.str());
-      }
-    }
-    X = ldlt.solve(rhs);
-    if (ldlt.info() != Eigen::Success) throw std::runtime_error("LDL^T solve failed");
+    if (method == 2)
+      X = conjugate_gradients(N, rhs, tolerance);
+    else
+      X = ldlt_solve(N, rhs, tolerance);
   } else {
     // QR of the stacked system [A; sqrt(lambda) R]: slower, but avoids
     // squaring the condition number.
