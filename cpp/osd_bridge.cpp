@@ -498,6 +498,97 @@ StencilRows OsdTopology::limit_stencils(rust::Slice<const std::uint32_t> ptex, r
 namespace subdfit::osd {
 
 
+namespace {
+
+struct P2 {
+  double x = 0, y = 0;
+  void Clear(void* = nullptr) { x = y = 0; }
+  void AddWithWeight(const P2& s, double w) {
+    x += w * s.x;
+    y += w * s.y;
+  }
+};
+
+// The control-mesh descriptor of `uniform_refine` and `uniform_refine_fvar`,
+// with its arrays (the descriptor only points at them).
+struct UniformDescriptor {
+  std::vector<int> sizes, indices, cverts, kverts, holes, fvar_indices;
+  std::vector<float> cweights, kweights;
+  Far::TopologyDescriptor::FVarChannel channel;
+  Far::TopologyDescriptor d;
+};
+
+// Checks the arrays and refines them uniformly `levels` times, the last
+// level with full topology (PrimvarRefiner::Limit needs it, STACK-NOTES).
+// `type` 0 Catmark, 1 Loop, 2 bilinear. A face-varying channel is attached
+// when `fvar_indices` is not empty.
+std::unique_ptr<Far::TopologyRefiner> refine_uniformly(
+    std::uint32_t type, std::uint32_t num_vertices, rust::Slice<const std::uint32_t> face_sizes,
+    rust::Slice<const std::uint32_t> face_indices, rust::Slice<const std::uint32_t> crease_vertices,
+    rust::Slice<const double> crease_weights, rust::Slice<const std::uint32_t> corner_vertices,
+    rust::Slice<const double> corner_weights, const SchemeDesc& scheme, std::uint32_t levels,
+    rust::Slice<const std::uint32_t> fvar_indices, std::uint32_t num_fvar_values) {
+  if (type > 2) throw std::invalid_argument("scheme " + std::to_string(type) + " is neither Catmark (0), Loop (1) nor bilinear (2)");
+  // RefineUniform stores the level in 4 bits; 10 is OpenSubdiv's documented maximum.
+  if (levels < 1 || levels > 10)
+    throw std::invalid_argument("uniform refinement level " + std::to_string(levels) + " outside 1..=10");
+  check_descriptor(num_vertices, face_sizes, face_indices, crease_vertices, crease_weights, corner_vertices,
+                   corner_weights);
+  if (!fvar_indices.empty()) {
+    if (fvar_indices.size() != face_indices.size())
+      throw std::invalid_argument("face-varying channel needs one index per face corner");
+    for (auto i : fvar_indices)
+      if (i >= num_fvar_values) throw std::invalid_argument("face-varying index " + std::to_string(i) + " out of range");
+  }
+  UniformDescriptor u;
+  u.sizes.assign(face_sizes.begin(), face_sizes.end());
+  u.indices.assign(face_indices.begin(), face_indices.end());
+  u.cverts.assign(crease_vertices.begin(), crease_vertices.end());
+  u.cweights.assign(crease_weights.begin(), crease_weights.end());
+  u.kverts.assign(corner_vertices.begin(), corner_vertices.end());
+  u.kweights.assign(corner_weights.begin(), corner_weights.end());
+  u.fvar_indices.assign(fvar_indices.begin(), fvar_indices.end());
+  Far::TopologyDescriptor& d = u.d;
+  d.numVertices = static_cast<int>(num_vertices);
+  d.numFaces = static_cast<int>(u.sizes.size());
+  d.numVertsPerFace = u.sizes.data();
+  d.vertIndicesPerFace = u.indices.data();
+  d.numCreases = static_cast<int>(u.cweights.size());
+  d.creaseVertexIndexPairs = u.cverts.data();
+  d.creaseWeights = u.cweights.data();
+  d.numCorners = static_cast<int>(u.kweights.size());
+  d.cornerVertexIndices = u.kverts.data();
+  d.cornerWeights = u.kweights.data();
+  u.holes = hole_indices(scheme, u.sizes.size());
+  d.numHoles = static_cast<int>(u.holes.size());
+  d.holeIndices = u.holes.data();
+  if (!u.fvar_indices.empty()) {
+    u.channel.numValues = static_cast<int>(num_fvar_values);
+    u.channel.valueIndices = u.fvar_indices.data();
+    d.numFVarChannels = 1;
+    d.fvarChannels = &u.channel;
+  }
+  // `type` chooses the scheme here; `scheme.scheme_type` is not read.
+  const Sdc::Options options = sdc_options(scheme);
+
+  std::unique_ptr<Far::TopologyRefiner> r;
+  std::lock_guard<std::mutex> lock(g_construction_mutex);
+  ErrorScope errors;
+  // The triangle subdivision rule only matters to Catmark.
+  using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
+  const Sdc::SchemeType st = type == 0 ? Sdc::SCHEME_CATMARK : type == 1 ? Sdc::SCHEME_LOOP : Sdc::SCHEME_BILINEAR;
+  r.reset(Factory::Create(d, Factory::Options(st, options)));
+  if (!r) errors.fail("TopologyRefinerFactory<TopologyDescriptor>::Create");
+  errors.check("TopologyRefinerFactory<TopologyDescriptor>::Create");
+  Far::TopologyRefiner::UniformOptions uo(static_cast<int>(levels));
+  uo.fullTopologyInLastLevel = true;
+  r->RefineUniform(uo);
+  errors.check("TopologyRefiner::RefineUniform");
+  return r;
+}
+
+}  // namespace
+
 UniformRefinement uniform_refine(std::uint32_t scheme_type, std::uint32_t num_vertices,
                                  rust::Slice<const std::uint32_t> face_sizes,
                                  rust::Slice<const std::uint32_t> face_indices,
@@ -507,54 +598,11 @@ UniformRefinement uniform_refine(std::uint32_t scheme_type, std::uint32_t num_ve
                                  rust::Slice<const double> corner_weights, const SchemeDesc& scheme,
                                  rust::Slice<const double> positions, std::uint32_t levels, bool limits) {
   if (scheme_type > 1) throw std::invalid_argument("scheme " + std::to_string(scheme_type) + " is neither Catmark (0) nor Loop (1)");
-  // RefineUniform stores the level in 4 bits; 10 is OpenSubdiv's documented maximum.
-  if (levels < 1 || levels > 10)
-    throw std::invalid_argument("uniform refinement level " + std::to_string(levels) + " outside 1..=10");
-  check_descriptor(num_vertices, face_sizes, face_indices, crease_vertices, crease_weights, corner_vertices,
-                   corner_weights);
   if (positions.size() != 3 * static_cast<std::size_t>(num_vertices))
     throw std::invalid_argument("expected " + std::to_string(num_vertices) + " positions");
-
-  std::vector<int> sizes(face_sizes.begin(), face_sizes.end());
-  std::vector<int> indices(face_indices.begin(), face_indices.end());
-  std::vector<int> cverts(crease_vertices.begin(), crease_vertices.end());
-  std::vector<float> cweights(crease_weights.begin(), crease_weights.end());
-  std::vector<int> kverts(corner_vertices.begin(), corner_vertices.end());
-  std::vector<float> kweights(corner_weights.begin(), corner_weights.end());
-  Far::TopologyDescriptor d;
-  d.numVertices = static_cast<int>(num_vertices);
-  d.numFaces = static_cast<int>(sizes.size());
-  d.numVertsPerFace = sizes.data();
-  d.vertIndicesPerFace = indices.data();
-  d.numCreases = static_cast<int>(cweights.size());
-  d.creaseVertexIndexPairs = cverts.data();
-  d.creaseWeights = cweights.data();
-  d.numCorners = static_cast<int>(kweights.size());
-  d.cornerVertexIndices = kverts.data();
-  d.cornerWeights = kweights.data();
-  const std::vector<int> holes = hole_indices(scheme, sizes.size());
-  d.numHoles = static_cast<int>(holes.size());
-  d.holeIndices = holes.data();
-  // `scheme_type` chooses the scheme here; `scheme.scheme_type` is not read.
-  const Sdc::Options options = sdc_options(scheme);
-
-  std::unique_ptr<Far::TopologyRefiner> r;
-  {
-    std::lock_guard<std::mutex> lock(g_construction_mutex);
-    ErrorScope errors;
-    // The triangle subdivision rule only matters to Catmark.
-    using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
-    const Sdc::SchemeType type = scheme_type == 0 ? Sdc::SCHEME_CATMARK : Sdc::SCHEME_LOOP;
-    r.reset(Factory::Create(d, Factory::Options(type, options)));
-    if (!r) errors.fail("TopologyRefinerFactory<TopologyDescriptor>::Create");
-    errors.check("TopologyRefinerFactory<TopologyDescriptor>::Create");
-    // Full topology in the last level: PrimvarRefiner::Limit needs it
-    // (STACK-NOTES), and it costs nothing that matters here.
-    Far::TopologyRefiner::UniformOptions uo(static_cast<int>(levels));
-    uo.fullTopologyInLastLevel = true;
-    r->RefineUniform(uo);
-    errors.check("TopologyRefiner::RefineUniform");
-  }
+  std::unique_ptr<Far::TopologyRefiner> r =
+      refine_uniformly(scheme_type, num_vertices, face_sizes, face_indices, crease_vertices, crease_weights,
+                       corner_vertices, corner_weights, scheme, levels, {}, 0);
 
   UniformRefinement out;
   const int nlevels = r->GetNumLevels();  // levels + 1
@@ -629,6 +677,60 @@ UniformRefinement uniform_refine(std::uint32_t scheme_type, std::uint32_t num_ve
       out.limits.push_back(p.z);
     }
   }
+  return out;
+}
+
+FVarUniform uniform_refine_fvar(std::uint32_t scheme_type, std::uint32_t num_vertices,
+                                rust::Slice<const std::uint32_t> face_sizes,
+                                rust::Slice<const std::uint32_t> face_indices,
+                                rust::Slice<const std::uint32_t> crease_vertices,
+                                rust::Slice<const double> crease_weights,
+                                rust::Slice<const std::uint32_t> corner_vertices,
+                                rust::Slice<const double> corner_weights, const SchemeDesc& scheme,
+                                rust::Slice<const std::uint32_t> fvar_indices, rust::Slice<const double> fvar_values,
+                                std::uint32_t levels) {
+  if (fvar_indices.empty()) throw std::invalid_argument("face-varying channel without indices");
+  if (fvar_values.size() % 2 != 0) throw std::invalid_argument("face-varying values need 2 doubles each");
+  const auto nvalues = static_cast<std::uint32_t>(fvar_values.size() / 2);
+  std::unique_ptr<Far::TopologyRefiner> r =
+      refine_uniformly(scheme_type, num_vertices, face_sizes, face_indices, crease_vertices, crease_weights,
+                       corner_vertices, corner_weights, scheme, levels, fvar_indices, nvalues);
+  const int nlevels = r->GetNumLevels();
+  std::vector<std::vector<P2>> lv(static_cast<std::size_t>(nlevels));
+  lv[0].resize(nvalues);
+  for (std::uint32_t i = 0; i < nvalues; ++i) lv[0][i] = P2{fvar_values[2 * i], fvar_values[2 * i + 1]};
+  Far::PrimvarRefinerReal<double> primvar(*r);
+  for (int l = 1; l < nlevels; ++l) {
+    lv[l].resize(static_cast<std::size_t>(r->GetLevel(l).GetNumFVarValues(0)));
+    const P2* src = lv[l - 1].data();
+    P2* dst = lv[l].data();
+    primvar.InterpolateFaceVarying(l, src, dst, 0);
+  }
+  const std::vector<P2>& last = lv[static_cast<std::size_t>(nlevels - 1)];
+  std::vector<P2> lim(last.size());
+  {
+    const P2* src = last.data();
+    P2* dst = lim.data();
+    ErrorScope errors;
+    primvar.LimitFaceVarying(src, dst, 0);
+    errors.check("PrimvarRefiner::LimitFaceVarying");
+  }
+  FVarUniform out;
+  for (std::size_t i = 0; i < last.size(); ++i) {
+    out.values.push_back(last[i].x);
+    out.values.push_back(last[i].y);
+    out.limits.push_back(lim[i].x);
+    out.limits.push_back(lim[i].y);
+  }
+  // The last level's faces by value index, for callers that match values
+  // to locations.
+  const Far::TopologyLevel& top = r->GetLevel(nlevels - 1);
+  for (int f = 0; f < top.GetNumFaces(); ++f) {
+    Far::ConstIndexArray fv = top.GetFaceFVarValues(f, 0);
+    out.face_offsets.push_back(static_cast<std::uint32_t>(out.face_values.size()));
+    for (int k = 0; k < fv.size(); ++k) out.face_values.push_back(static_cast<std::uint32_t>(fv[k]));
+  }
+  out.face_offsets.push_back(static_cast<std::uint32_t>(out.face_values.size()));
   return out;
 }
 

@@ -26,6 +26,7 @@ namespace subdfit::osd {
 // Defined by the bridge (shared structs), see src/ffi/osd.rs.
 struct StencilRows;
 struct UniformRefinement;
+struct FVarUniform;
 struct SchemeDesc;
 
 rust::String library_version();
@@ -130,5 +131,20 @@ UniformRefinement uniform_refine(std::uint32_t scheme_type, std::uint32_t num_ve
                                  rust::Slice<const std::uint32_t> corner_vertices,
                                  rust::Slice<const double> corner_weights, const SchemeDesc& scheme,
                                  rust::Slice<const double> positions, std::uint32_t levels, bool limits);
+
+// Uniform refinement of one face-varying channel (`fvar_indices` one value
+// index per face corner, `fvar_values` 2 doubles per value) with `scheme`'s
+// face-varying interpolation: PrimvarRefiner::InterpolateFaceVarying level
+// by level, then LimitFaceVarying at the last level. `scheme_type` 0
+// Catmark, 1 Loop, 2 bilinear. Throws (-> Rust Err) on bad input.
+FVarUniform uniform_refine_fvar(std::uint32_t scheme_type, std::uint32_t num_vertices,
+                                rust::Slice<const std::uint32_t> face_sizes,
+                                rust::Slice<const std::uint32_t> face_indices,
+                                rust::Slice<const std::uint32_t> crease_vertices,
+                                rust::Slice<const double> crease_weights,
+                                rust::Slice<const std::uint32_t> corner_vertices,
+                                rust::Slice<const double> corner_weights, const SchemeDesc& scheme,
+                                rust::Slice<const std::uint32_t> fvar_indices, rust::Slice<const double> fvar_values,
+                                std::uint32_t levels);
 
 }  // namespace subdfit::osd

@@ -29,6 +29,17 @@ pub(crate) mod bridge {
         limits: Vec<f64>,
     }
 
+    /// Uniform refinement of a face-varying channel (`uniform_refine_fvar`):
+    /// the last level's values and their limits (2 doubles each), and its
+    /// faces by value index (`face_values[face_offsets[f]..face_offsets[f +
+    /// 1]]`).
+    struct FVarUniform {
+        values: Vec<f64>,
+        limits: Vec<f64>,
+        face_offsets: Vec<u32>,
+        face_values: Vec<u32>,
+    }
+
     /// `Sdc::Options` as integers in the order of OpenSubdiv's enums
     /// (`VtxBoundaryInterpolation`, `FVarLinearInterpolation`,
     /// `CreasingMethod`, `TriangleSubdivision`) and the hole faces.
@@ -109,6 +120,23 @@ pub(crate) mod bridge {
             levels: u32,
             limits: bool,
         ) -> Result<UniformRefinement>;
+
+        /// `scheme_type` 0 = Catmark, 1 = Loop, 2 = bilinear; `levels` in 1..=10.
+        #[allow(clippy::too_many_arguments)]
+        fn uniform_refine_fvar(
+            scheme_type: u32,
+            num_vertices: u32,
+            face_sizes: &[u32],
+            face_indices: &[u32],
+            crease_vertices: &[u32],
+            crease_weights: &[f64],
+            corner_vertices: &[u32],
+            corner_weights: &[f64],
+            scheme: &SchemeDesc,
+            fvar_indices: &[u32],
+            fvar_values: &[f64],
+            levels: u32,
+        ) -> Result<FVarUniform>;
     }
 }
 

@@ -24,7 +24,9 @@ mod write;
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::mesh::{validate_soup, ControlMesh, PolySoup, SchemeOptions, ValidatedMesh, VertexId};
+use crate::mesh::{
+    validate_soup, ControlMesh, FVarChannel, PolySoup, SchemeOptions, ValidatedMesh, VertexId,
+};
 
 pub use obj::{parse_obj, read_obj, ObjMesh};
 pub use obj_uv::{control_obj_with_uvs, write_control_obj_with_uvs};
@@ -125,19 +127,21 @@ type ControlParts = (
     Vec<(u32, u32, f64)>,
     Vec<(u32, f64)>,
     SchemeOptions,
+    Option<FVarChannel>,
 );
 
 fn read_control_parts(path: &Path) -> Result<ControlParts> {
     Ok(match Format::from_path(path)? {
         Format::Obj => {
             let o = read_obj(path)?;
-            (o.soup, o.creases, o.corners, o.scheme)
+            (o.soup, o.creases, o.corners, o.scheme, o.uv)
         }
         _ => (
             read_soup(path)?,
             Vec::new(),
             Vec::new(),
             SchemeOptions::default(),
+            None,
         ),
     })
 }
@@ -163,7 +167,7 @@ fn non_default_scheme(path: &Path, scheme: &SchemeOptions) -> Error {
 pub fn read_control_mesh_as_found(
     path: &Path,
 ) -> Result<(ControlMesh, crate::mesh::ForeignRepairs)> {
-    let (soup, creases, corners, scheme) = read_control_parts(path)?;
+    let (soup, creases, corners, scheme, _uv) = read_control_parts(path)?;
     if !scheme.is_default() {
         return Err(non_default_scheme(path, &scheme));
     }
@@ -177,7 +181,7 @@ pub fn read_control_mesh_as_found(
 /// tags. The mesh must be a manifold, consistently oriented polygon mesh
 /// without unreferenced vertices; violations name the file and the element.
 pub fn read_control_mesh(path: &Path) -> Result<ControlMesh> {
-    let ControlFile { mesh, scheme } = read_control_file(path)?;
+    let ControlFile { mesh, scheme, .. } = read_control_file(path)?;
     if !scheme.is_default() {
         return Err(non_default_scheme(path, &scheme));
     }
@@ -189,13 +193,15 @@ pub fn read_control_mesh(path: &Path) -> Result<ControlMesh> {
 pub struct ControlFile {
     pub mesh: ControlMesh,
     pub scheme: SchemeOptions,
+    /// The texture coordinates (`vt`, `f v/vt`) as a face-varying channel.
+    pub uv: Option<FVarChannel>,
 }
 
 /// Reads a control mesh and, from an OBJ shape file, its sharpness tags
 /// and scheme options (see the `obj` module doc); other formats carry the
 /// default options.
 pub fn read_control_file(path: &Path) -> Result<ControlFile> {
-    let (soup, creases, corners, scheme) = read_control_parts(path)?;
+    let (soup, creases, corners, scheme, uv) = read_control_parts(path)?;
     let in_file = |e: Error| match e {
         Error::Topology { element, msg } => Error::invalid_mesh(path, element, msg),
         e => e,
@@ -208,5 +214,9 @@ pub fn read_control_file(path: &Path) -> Result<ControlFile> {
     for (v, s) in corners {
         mesh.set_corner(VertexId(v), s).map_err(in_file)?;
     }
-    Ok(ControlFile { mesh, scheme })
+    if let Some(ch) = &uv {
+        ch.check(&mesh)
+            .map_err(|e| Error::invalid_mesh(path, "texture coordinates", e.to_string()))?;
+    }
+    Ok(ControlFile { mesh, scheme, uv })
 }

@@ -4,8 +4,11 @@
 //! forms `v`, `v/vt`, `v//vn`, `v/vt/vn`, negative (relative) indices, `#`
 //! comments, CRLF line ends, `\` line continuation, a leading UTF-8 byte
 //! order mark. Non-finite coordinates are errors naming the vertex and the
-//! line. Ignored: `vt vn vp g o s usemtl mtllib l p` and
-//! unknown statements. OpenSubdiv's shape files (`regression/shapes/*.h`,
+//! line. Texture coordinates (`vt u v [w]`, the `vt` of `f v/vt` corners)
+//! become the face-varying channel [`ObjMesh::uv`] when every face has them
+//! (a file where only some faces do is an error naming the first face
+//! without). Ignored: `vn vp g o s usemtl mtllib l p` and unknown
+//! statements. OpenSubdiv's shape files (`regression/shapes/*.h`,
 //! parsed by `regression/common/shape_utils.cpp`) add tags
 //! `t <name> <nints>/<nfloats>/<nstrings> ints... floats... strings...` with
 //! **0-based** vertex and face indices. Every tag OpenSubdiv's regression
@@ -46,10 +49,10 @@ use crate::io::text::{
     bad_token, bom_len, non_finite, parse_f64, parse_i64, strip_comment, Tokens,
 };
 use crate::mesh::{
-    BoundaryInterpolation, CreaseMethod, FVarLinear, FaceId, PolySoup, SchemeOptions,
-    TriangleSubdivision,
+    BoundaryInterpolation, CreaseMethod, FVarChannel, FVarLinear, FaceId, PolySoup,
+    SchemeOptions, TriangleSubdivision,
 };
-use crate::DVec3;
+use crate::{DVec2, DVec3};
 
 /// An OBJ file: its polygons and the shape-file sharpness tags.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -62,6 +65,9 @@ pub struct ObjMesh {
     pub corners: Vec<(u32, f64)>,
     /// Scheme options and holes stated by the tags (defaults where none).
     pub scheme: SchemeOptions,
+    /// The texture coordinates as a face-varying channel (one index per
+    /// face corner, in the soup's corner order), when the faces have them.
+    pub uv: Option<FVarChannel>,
 }
 
 /// Reads an OBJ file.
@@ -85,6 +91,9 @@ pub fn parse_obj(bytes: &[u8], path: &Path) -> Result<ObjMesh> {
         tag_floats: Vec::new(),
         tag_strings: Vec::new(),
         hole_lines: Vec::new(),
+        uv_values: Vec::new(),
+        uv_indices: Vec::new(),
+        first_corner_without_uv: None,
         propagate_corners: None,
     };
     // A rough guess that avoids most reallocations: ~30 bytes per `v` line.
@@ -145,6 +154,11 @@ struct ObjState<'p> {
     tag_floats: Vec<f64>,
     tag_strings: Vec<String>,
     hole_lines: Vec<u32>,
+    /// `vt` records, and each corner's `vt` index (0-based; `u32::MAX`
+    /// where the corner has none) with the line of the first such corner.
+    uv_values: Vec<DVec2>,
+    uv_indices: Vec<u32>,
+    first_corner_without_uv: Option<(usize, usize)>,
     /// `facevaryingpropagatecorners` and its line, resolved at the end (the
     /// tag may come before or after `facevaryinginterpolateboundary`).
     propagate_corners: Option<(bool, usize)>,
@@ -159,6 +173,7 @@ impl ObjState<'_> {
         let mut toks = Tokens(line);
         match toks.next() {
             Some(b"v") => self.vertex(lineno, toks),
+            Some(b"vt") => self.texture_vertex(lineno, toks),
             Some(b"f") => self.face(lineno, toks),
             Some(b"t") => self.tag(lineno, toks),
             // Attributes, grouping and materials carry nothing we use.
@@ -192,12 +207,38 @@ impl ObjState<'_> {
         Ok(())
     }
 
-    fn face(&mut self, lineno: usize, toks: Tokens) -> Result<()> {
-        let soup = &mut self.out.soup;
-        let nv = soup.positions.len() as i64;
-        let start = soup.face_indices.len();
+    /// `vt u [v [w]]`: v defaults to 0 (OBJ spec); w is not used.
+    fn texture_vertex(&mut self, lineno: usize, toks: Tokens) -> Result<()> {
+        let mut c = [0.0f64; 3];
+        let mut n = 0;
         for t in toks {
-            let i = face_vertex(t).ok_or_else(|| {
+            if n == 3 {
+                return Err(self.err(lineno, "texture vertex has more than 3 coordinates"));
+            }
+            c[n] = parse_f64(t).ok_or_else(|| self.err(lineno, bad_token("texture coordinate", t)))?;
+            n += 1;
+        }
+        if n == 0 {
+            return Err(self.err(lineno, "texture vertex without coordinates"));
+        }
+        let uv = DVec2::new(c[0], c[1]);
+        if !uv.is_finite() {
+            let i = self.uv_values.len();
+            return Err(Error::invalid_mesh(
+                self.path,
+                format!("texture vertex {i} (line {lineno})"),
+                "non-finite coordinate",
+            ));
+        }
+        self.uv_values.push(uv);
+        Ok(())
+    }
+
+    fn face(&mut self, lineno: usize, toks: Tokens) -> Result<()> {
+        let nv = self.out.soup.positions.len() as i64;
+        let start = self.out.soup.face_indices.len();
+        for t in toks {
+            let (i, vt) = face_vertex(t).ok_or_else(|| {
                 Error::parse(
                     self.path,
                     format!("line {lineno}"),
@@ -223,19 +264,39 @@ impl ObjState<'_> {
                     format!("vertex index {i} out of range ({nv} vertices defined so far)"),
                 ));
             }
-            soup.face_indices.push(idx as u32);
+            self.out.soup.face_indices.push(idx as u32);
+            let uv = match vt {
+                Some(k) => {
+                    let nt = self.uv_values.len() as i64;
+                    let j = if k > 0 { k - 1 } else { nt + k };
+                    if k == 0 || !(0..nt).contains(&j) {
+                        return Err(Error::invalid_mesh(
+                            self.path,
+                            format!("face {} (line {lineno})", self.face_lines.len()),
+                            format!("texture index {k} out of range ({nt} `vt` defined so far)"),
+                        ));
+                    }
+                    j as u32
+                }
+                None => {
+                    self.first_corner_without_uv
+                        .get_or_insert((self.face_lines.len(), lineno));
+                    u32::MAX
+                }
+            };
+            self.uv_indices.push(uv);
         }
-        if soup.face_indices.len() == start {
+        if self.out.soup.face_indices.len() == start {
             return Err(self.err(lineno, "face without vertices"));
         }
-        let end = u32::try_from(soup.face_indices.len()).map_err(|_| {
+        let end = u32::try_from(self.out.soup.face_indices.len()).map_err(|_| {
             Error::parse(
                 self.path,
                 format!("line {lineno}"),
                 "more than 2^32 face corners",
             )
         })?;
-        soup.face_offsets.push(end);
+        self.out.soup.face_offsets.push(end);
         self.face_lines.push(lineno as u32);
         Ok(())
     }
@@ -492,6 +553,27 @@ impl ObjState<'_> {
     }
 
     /// Range checks that need the whole file (forward references).
+    /// The face-varying channel: all corners have a `vt`, or none is used.
+    fn finish_uv(&mut self) -> Result<()> {
+        let any = self.uv_indices.iter().any(|&i| i != u32::MAX);
+        match self.first_corner_without_uv {
+            Some((f, line)) if any => Err(Error::invalid_mesh(
+                self.path,
+                format!("face {f} (line {line})"),
+                "a corner without texture index, while other faces have them \
+                 (face-varying data needs one `vt` per corner of every face)",
+            )),
+            _ if any => {
+                self.out.uv = Some(FVarChannel {
+                    values: std::mem::take(&mut self.uv_values),
+                    indices: std::mem::take(&mut self.uv_indices),
+                });
+                Ok(())
+            }
+            _ => Ok(()),
+        }
+    }
+
     fn finish(mut self) -> Result<ObjMesh> {
         if let Some((true, line)) = self.propagate_corners {
             let fvar = &mut self.out.scheme.fvar;
@@ -522,6 +604,7 @@ impl ObjState<'_> {
                 ));
             }
         }
+        self.finish_uv()?;
         let holes = std::mem::take(&mut self.out.scheme.holes);
         self.out.scheme = std::mem::take(&mut self.out.scheme).with_holes(holes);
         let (out, path) = (&self.out, self.path);
@@ -562,20 +645,24 @@ impl ObjState<'_> {
     }
 }
 
-/// The vertex index of a face corner `v`, `v/vt`, `v//vn` or `v/vt/vn`.
-/// The texture and normal parts are unused but must be integers where the
-/// form has them: `1/` or `1//` is a record cut short, not a corner.
-fn face_vertex(t: &[u8]) -> Option<i64> {
+/// The vertex index of a face corner `v`, `v/vt`, `v//vn` or `v/vt/vn`, and
+/// its texture index where it has one. The normal part is unused but must
+/// be an integer where the form has it: `1/` or `1//` is a record cut
+/// short, not a corner.
+fn face_vertex(t: &[u8]) -> Option<(i64, Option<i64>)> {
     let mut parts = t.split(|&b| b == b'/');
     let v = parse_i64(parts.next()?)?;
     let int = |p: &[u8]| parse_i64(p).is_some();
-    let ok = match (parts.next(), parts.next(), parts.next()) {
-        (None, _, _) => true,
-        (Some(vt), None, _) => int(vt),
-        (Some(vt), Some(vn), None) => (vt.is_empty() || int(vt)) && int(vn),
-        _ => false,
-    };
-    ok.then_some(v)
+    match (parts.next(), parts.next(), parts.next()) {
+        (None, _, _) => Some((v, None)),
+        (Some(vt), None, _) => Some((v, Some(parse_i64(vt)?))),
+        (Some(vt), Some(vn), None) if vt.is_empty() => int(vn).then_some((v, None)),
+        (Some(vt), Some(vn), None) => {
+            let vt = parse_i64(vt)?;
+            int(vn).then_some((v, Some(vt)))
+        }
+        _ => None,
+    }
 }
 
 fn parse_tag_counts(t: &[u8]) -> Option<(usize, usize, usize)> {

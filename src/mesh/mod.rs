@@ -7,6 +7,7 @@ mod control;
 mod decimate;
 mod foreign;
 mod frame;
+mod fvar;
 mod manifold;
 mod report;
 mod scheme;
@@ -18,6 +19,7 @@ pub use control::{
 pub use decimate::{decimate, DecimateStats, Topology};
 pub use foreign::{control_from_foreign_soup, ForeignRepairs};
 pub use frame::Frame;
+pub use fvar::FVarChannel;
 pub use manifold::{split_non_manifold, split_non_manifold_polygons, SplitStats};
 pub(crate) use report::non_finite;
 pub use report::{validate_soup, MeshReport, ValidatedMesh};

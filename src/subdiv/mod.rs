@@ -27,6 +27,7 @@
 pub mod bilinear;
 pub mod catmark;
 pub mod diff;
+pub mod fvar;
 pub mod loop_scheme;
 pub mod osd;
 pub mod quadtri;

@@ -44,7 +44,7 @@ use crate::subdiv::{
     checked_holes, BoundaryInterpolation, CreaseMethod, EvalOptions, FVarLinear, LimitEvaluator,
     LimitPoint, LimitStencils, SchemeOptions, SubdivScheme, SurfaceLocation, TriangleSubdivision,
 };
-use crate::DVec3;
+use crate::{DVec2, DVec3};
 
 /// Locations per parallel chunk of [`LimitEvaluator::evaluate`]: large enough
 /// to amortise the bridge call, small enough to balance across threads.
@@ -585,6 +585,73 @@ pub fn osd_refine_uniform_with(
         levels: level_pts,
         parents,
         limits,
+    })
+}
+
+/// Result of [`osd_refine_uniform_fvar`]: a face-varying channel refined
+/// by OpenSubdiv.
+#[derive(Clone, Debug)]
+pub struct OsdFVarRefinement {
+    /// The last level's values (`PrimvarRefiner::InterpolateFaceVarying`).
+    pub values: Vec<DVec2>,
+    /// Their limits (`PrimvarRefiner::LimitFaceVarying`).
+    pub limits: Vec<DVec2>,
+    /// The last level's faces as value indices.
+    pub faces: Vec<Vec<u32>>,
+}
+
+/// Uniform refinement of the face-varying `channel` of `mesh` by
+/// OpenSubdiv to `levels` (1..=10), under every option of `options`
+/// (its scheme type included: Catmark, Loop or bilinear, and its
+/// face-varying linear interpolation): the reference of the face-varying
+/// differential tests.
+pub fn osd_refine_uniform_fvar(
+    mesh: &ControlMesh,
+    options: &SchemeOptions,
+    channel: &crate::mesh::FVarChannel,
+    levels: u32,
+) -> Result<OsdFVarRefinement> {
+    channel.check(mesh)?;
+    let nv = u32::try_from(mesh.num_vertices())
+        .map_err(|_| Error::InvalidArgument("too many control vertices".into()))?;
+    let creases = mesh.creases();
+    let crease_vertices: Vec<u32> = creases.iter().flat_map(|c| [c.0 .0, c.1 .0]).collect();
+    let crease_weights: Vec<f64> = creases.iter().map(|c| c.2).collect();
+    let corners = mesh.corners();
+    let corner_vertices: Vec<u32> = corners.iter().map(|c| c.0 .0).collect();
+    let corner_weights: Vec<f64> = corners.iter().map(|c| c.1).collect();
+    let values: Vec<f64> = channel.values.iter().flat_map(|v| v.to_array()).collect();
+    let r = bridge::uniform_refine_fvar(
+        match options.scheme {
+            SubdivScheme::Catmark => 0,
+            SubdivScheme::Loop => 1,
+            SubdivScheme::Bilinear => 2,
+        },
+        nv,
+        &mesh.face_sizes(),
+        &mesh.face_indices_flat(),
+        &crease_vertices,
+        &crease_weights,
+        &corner_vertices,
+        &corner_weights,
+        &scheme_desc(options),
+        &channel.indices,
+        &values,
+        levels,
+    )
+    .map_err(backend)?;
+    let pts = |x: &[f64]| -> Vec<DVec2> {
+        x.chunks_exact(2).map(|c| DVec2::new(c[0], c[1])).collect()
+    };
+    let faces = r
+        .face_offsets
+        .windows(2)
+        .map(|w| r.face_values[w[0] as usize..w[1] as usize].to_vec())
+        .collect();
+    Ok(OsdFVarRefinement {
+        values: pts(&r.values),
+        limits: pts(&r.limits),
+        faces,
     })
 }
 

@@ -1,0 +1,436 @@
+//! Face-varying data (UVs) evaluated exactly, under each of OpenSubdiv's
+//! six `Sdc::Options::FVarLinearInterpolation` modes.
+//!
+//! OpenSubdiv refines face-varying values on the vertex topology, with
+//! each value at a seam vertex (a vertex whose faces use more than one
+//! value, or that ends a seam) treated as a crease along the seam, or as a
+//! corner, by rules that depend on the mode (`Vtr::FVarLevel::
+//! completeTopologyFromFaceValues` and `gatherValueSpans`, 3.5). The same
+//! numbers come out of subdividing the *face-varying mesh* as if it were a
+//! control mesh of its own: one vertex per (vertex, value) pair, the faces
+//! of the control mesh (same ids, same corner order, so a location
+//! `(face, sub, u, v)` means the same point), seams as boundary edges, the
+//! interior edges keeping the control mesh's sharpness, and the vertex
+//! sharpness of each value set as OpenSubdiv sets its value tag:
+//!
+//! - a vertex whose values all match its faces (no seam, and not made a
+//!   seam by the mode, below) follows the vertex rules: its own sharpness,
+//!   and an "edge and corner" boundary's corners;
+//! - at a seam vertex every value is a corner if the mode is "boundaries"
+//!   (or "all"), if the vertex is infinitely sharp, if "corners +1" or "+2"
+//!   and it has more than two values, or if "corners +2" / "boundaries" and
+//!   it is an interior vertex with one value (the end of a seam, a dart);
+//!   with two values under "+1"/"+2", both are corners if either's faces are
+//!   not one fan (a "disjoint" span) and, under "+2", if either is in one
+//!   face only;
+//! - otherwise a value is a corner when its faces do not form one fan, or
+//!   contain an infinitely sharp edge, or (all modes but "none") it is in
+//!   one face only; any other value is a crease along its two seam edges
+//!   (the face-varying mesh's boundary rule), semi-sharp with the vertex's
+//!   own sharpness and its fan's semi-sharp edges;
+//! - geometric boundary vertices are seam vertices too under "boundaries",
+//!   and geometric corners under every mode but "none" when the boundary
+//!   interpolation leaves corners smooth.
+//!
+//! "All" and the bilinear scheme interpolate linearly: the face-varying mesh
+//! is evaluated as a bilinear one (Loop's triangles: barycentric).
+//!
+//! Two combinations OpenSubdiv handles by looking across a seam are refused
+//! with an error naming the vertex rather than answered approximately:
+//! Chaikin creasing with semi-sharp edges on both sides of a seam (its
+//! sharpness averaging sees all of them), and "corners +1/+2" with one of
+//! two values semi-sharp (the other's "dependent sharpness" follows it).
+
+use std::collections::HashMap;
+
+use crate::error::{Error, Result};
+use crate::mesh::{
+    split_non_manifold_polygons, BoundaryInterpolation, ControlMesh, CreaseMethod, FVarChannel,
+    FVarLinear, FaceId, PolySoup, SchemeOptions, SubdivScheme, VertexId, INFINITELY_SHARP,
+};
+use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitEvaluator, LimitPoint};
+use crate::subdiv::{check_locations_for, SurfaceLocation};
+use crate::DVec3;
+
+/// How the face-varying mesh is evaluated.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum FVarKind {
+    /// By the control mesh's scheme, with the value sharpness of the module
+    /// doc.
+    Smooth,
+    /// Linearly: bilinear patches (Catmark's and bilinear's faces).
+    Bilinear,
+    /// Linearly on Loop's triangles: barycentric.
+    Barycentric,
+}
+
+/// The face-varying mesh of a channel (module doc): positions `(u, v, 0)`.
+#[derive(Clone, Debug)]
+pub struct FVarMesh {
+    pub mesh: ControlMesh,
+    /// The rules it is evaluated with (the control mesh's, with boundary
+    /// "edge only" and the control mesh's holes as tags).
+    pub scheme: SchemeOptions,
+    pub kind: FVarKind,
+    /// Per vertex of `mesh`: the control-mesh vertex it is a value of.
+    pub vertex_of: Vec<u32>,
+}
+
+/// Per vertex of the face-varying mesh: what decides its sharpness.
+#[derive(Copy, Clone, Default)]
+struct ValueSpan {
+    /// Its faces are not one fan, or hold an infinitely sharp edge.
+    disjoint: bool,
+    faces: usize,
+    semi_sharp: bool,
+}
+
+/// Builds the face-varying mesh of `channel` on `mesh` under `scheme`.
+pub fn fvar_mesh(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    channel: &FVarChannel,
+) -> Result<FVarMesh> {
+    channel.check(mesh)?;
+    let (soup, pair_vertex) = pair_soup(mesh, channel);
+    let (split, _, origin) = split_non_manifold_polygons(&soup);
+    let mut copies = vec![0u32; soup.positions.len()];
+    for &o in &origin {
+        copies[o as usize] += 1;
+    }
+    let vertex_of: Vec<u32> = origin.iter().map(|&o| pair_vertex[o as usize]).collect();
+    let mut fm = ControlMesh::from_soup(&split)
+        .map_err(|e| Error::InvalidArgument(format!("face-varying mesh: {e}")))?;
+    let linear = scheme.scheme == SubdivScheme::Bilinear || scheme.fvar == FVarLinear::All;
+    let kind = match (linear, scheme.scheme) {
+        (false, _) => FVarKind::Smooth,
+        (true, SubdivScheme::Loop) => FVarKind::Barycentric,
+        (true, _) => FVarKind::Bilinear,
+    };
+    let holes: Vec<FaceId> = scheme
+        .effective_holes(mesh)
+        .iter()
+        .enumerate()
+        .filter(|(_, &h)| h)
+        .map(|(f, _)| FaceId(f as u32))
+        .collect();
+    let mut fscheme = scheme
+        .clone()
+        .with_boundary(BoundaryInterpolation::EdgeOnly)
+        .with_fvar(FVarLinear::All)
+        .with_holes(holes);
+    if kind != FVarKind::Smooth {
+        fscheme = fscheme.with_scheme(SubdivScheme::Bilinear);
+    } else {
+        copy_edge_sharpness(mesh, &mut fm)?;
+        set_value_sharpness(mesh, scheme, &mut fm, &vertex_of, &origin, &copies)?;
+    }
+    Ok(FVarMesh {
+        mesh: fm,
+        scheme: fscheme,
+        kind,
+        vertex_of,
+    })
+}
+
+/// The polygons of the (vertex, value) pairs, numbered in order of first
+/// use, and the control vertex of each pair.
+fn pair_soup(mesh: &ControlMesh, channel: &FVarChannel) -> (PolySoup, Vec<u32>) {
+    let mut ids: HashMap<(u32, u32), u32> = HashMap::new();
+    let mut soup = PolySoup::new();
+    let mut pair_vertex = Vec::new();
+    let mut c = 0;
+    for f in mesh.faces() {
+        for v in mesh.face_vertices(f) {
+            let value = channel.indices[c];
+            c += 1;
+            let id = *ids.entry((v.0, value)).or_insert_with(|| {
+                let uv = channel.values[value as usize];
+                soup.positions.push(DVec3::new(uv.x, uv.y, 0.0));
+                pair_vertex.push(v.0);
+                (soup.positions.len() - 1) as u32
+            });
+            soup.face_indices.push(id);
+        }
+        soup.face_offsets.push(soup.face_indices.len() as u32);
+    }
+    (soup, pair_vertex)
+}
+
+/// Interior edges of the face-varying mesh keep the control mesh's
+/// sharpness (OpenSubdiv refines face-varying values with the vertex
+/// topology's edge sharpness); seams are its boundary, infinitely sharp.
+fn copy_edge_sharpness(mesh: &ControlMesh, fm: &mut ControlMesh) -> Result<()> {
+    let mut tags = Vec::new();
+    for f in mesh.faces() {
+        for (h, g) in mesh.face_halfedges(f).zip(fm.face_halfedges(f)) {
+            let s = mesh.edge_sharpness(h.edge());
+            if s > 0.0 && !fm.is_boundary_edge(g.edge()) && fm.tail(g) < fm.head(g) {
+                tags.push((fm.tail(g), fm.head(g), s));
+            }
+        }
+    }
+    for (a, b, s) in tags {
+        fm.set_crease(a, b, s)?;
+    }
+    Ok(())
+}
+
+/// Whether control vertex `v` has a seam in the sense of OpenSubdiv's
+/// `vertexMismatch`: an interior edge whose two faces disagree on a value
+/// at either end, or a geometric boundary the mode linearises.
+fn is_seam_vertex(
+    mesh: &ControlMesh,
+    v: VertexId,
+    scheme: &SchemeOptions,
+    pair_edges_seam: &[bool],
+) -> bool {
+    let seam = mesh.outgoing(v).any(|h| pair_edges_seam[h.edge().idx()]);
+    if seam || !mesh.is_boundary_vertex(v) {
+        return seam;
+    }
+    let faces = mesh.vertex_faces(v).count();
+    let linear_boundaries = matches!(scheme.fvar, FVarLinear::Boundaries | FVarLinear::All);
+    let corners_smooth = scheme.boundary != BoundaryInterpolation::EdgeAndCorner;
+    (linear_boundaries && faces > 0)
+        || (faces == 1 && corners_smooth && scheme.fvar != FVarLinear::None)
+}
+
+/// Sets the vertex sharpness of every value (module doc). `pair[c]` is the
+/// (vertex, value) pair face-varying vertex `c` copies, `copies[p]` how
+/// many fans pair `p` was split into.
+fn set_value_sharpness(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    fm: &mut ControlMesh,
+    vertex_of: &[u32],
+    pair: &[u32],
+    copies: &[u32],
+) -> Result<()> {
+    // Per control edge: interior there but a boundary of the face-varying mesh.
+    let mut seam_edge = vec![false; mesh.num_edges()];
+    for f in mesh.faces() {
+        for (h, g) in mesh.face_halfedges(f).zip(fm.face_halfedges(f)) {
+            if !mesh.is_boundary_edge(h.edge()) && fm.is_boundary_edge(g.edge()) {
+                seam_edge[h.edge().idx()] = true;
+            }
+        }
+    }
+    let mut copies_of: Vec<Vec<u32>> = vec![Vec::new(); mesh.num_vertices()];
+    for (c, &v) in vertex_of.iter().enumerate() {
+        copies_of[v as usize].push(c as u32);
+    }
+    let spans: Vec<ValueSpan> = (0..fm.num_vertices())
+        .map(|c| value_span(fm, VertexId(c as u32), copies[pair[c] as usize] > 1))
+        .collect();
+    let mut sharp = vec![0.0f64; fm.num_vertices()];
+    for v in mesh.vertices() {
+        let own = mesh.vertex_sharpness(v);
+        let corner_rule = scheme.boundary == BoundaryInterpolation::EdgeAndCorner
+            && mesh.vertex_faces(v).count() == 1
+            && mesh.valence(v) == 2;
+        let vertex_sharp = if corner_rule { INFINITELY_SHARP } else { own };
+        let cs = &copies_of[v.idx()];
+        if !is_seam_vertex(mesh, v, scheme, &seam_edge) {
+            for &c in cs {
+                sharp[c as usize] = vertex_sharp;
+            }
+            continue;
+        }
+        // The values of `v`: its copies grouped by pair.
+        let mut values: Vec<(u32, ValueSpan)> = Vec::new();
+        for &c in cs {
+            let s = spans[c as usize];
+            match values.iter_mut().find(|(p, _)| *p == pair[c as usize]) {
+                Some((_, t)) => {
+                    t.faces += s.faces;
+                    t.semi_sharp |= s.semi_sharp;
+                }
+                None => values.push((pair[c as usize], s)),
+            }
+        }
+        let values: Vec<ValueSpan> = values.into_iter().map(|(_, s)| s).collect();
+        check_reproducible(mesh, fm, scheme, v, cs, &values)?;
+        let all = all_values_sharp(mesh, scheme, v, vertex_sharp, &values);
+        for &c in cs {
+            let s = &spans[c as usize];
+            let corner = all || s.disjoint || (s.faces == 1 && scheme.fvar != FVarLinear::None);
+            sharp[c as usize] = if corner { INFINITELY_SHARP } else { own };
+        }
+    }
+    for (c, &s) in sharp.iter().enumerate() {
+        if s > 0.0 {
+            fm.set_corner(VertexId(c as u32), s)?;
+        }
+    }
+    Ok(())
+}
+
+/// The span of one value: its faces, and whether an infinitely sharp or
+/// semi-sharp edge lies inside it (`gatherValueSpans`).
+fn value_span(fm: &ControlMesh, c: VertexId, split: bool) -> ValueSpan {
+    let mut s = ValueSpan {
+        disjoint: split,
+        faces: fm.vertex_faces(c).count(),
+        semi_sharp: false,
+    };
+    for h in fm.outgoing(c) {
+        if fm.is_boundary_edge(h.edge()) {
+            continue;
+        }
+        let e = fm.edge_sharpness(h.edge());
+        if e >= INFINITELY_SHARP {
+            s.disjoint = true;
+        } else if e > 0.0 {
+            s.semi_sharp = true;
+        }
+    }
+    s
+}
+
+/// OpenSubdiv's `allCornersAreSharp` for seam vertex `v` with `values`.
+fn all_values_sharp(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    v: VertexId,
+    vertex_sharp: f64,
+    values: &[ValueSpan],
+) -> bool {
+    let dependent = matches!(
+        scheme.fvar,
+        FVarLinear::CornersPlus1 | FVarLinear::CornersPlus2
+    );
+    let plus2 = scheme.fvar == FVarLinear::CornersPlus2;
+    let linear_boundaries = matches!(scheme.fvar, FVarLinear::Boundaries | FVarLinear::All);
+    let n = values.len();
+    if linear_boundaries
+        || vertex_sharp >= INFINITELY_SHARP
+        || (dependent && n > 2)
+        || ((plus2 || linear_boundaries) && n == 1 && !mesh.is_boundary_vertex(v))
+    {
+        return true;
+    }
+    if dependent && n == 2 {
+        let disjoint = values.iter().any(|s| s.disjoint);
+        let single = values.iter().any(|s| s.faces == 1);
+        return disjoint || (plus2 && single);
+    }
+    false
+}
+
+/// Refuses what the module doc says cannot be reproduced exactly.
+fn check_reproducible(
+    mesh: &ControlMesh,
+    fm: &ControlMesh,
+    scheme: &SchemeOptions,
+    v: VertexId,
+    cs: &[u32],
+    values: &[ValueSpan],
+) -> Result<()> {
+    let semi_at_vertex = mesh
+        .outgoing(v)
+        .filter(|h| {
+            let s = mesh.edge_sharpness(h.edge());
+            s > 0.0 && s < INFINITELY_SHARP
+        })
+        .count();
+    if scheme.crease_method == CreaseMethod::Chaikin {
+        for &c in cs {
+            let inside = fm
+                .outgoing(VertexId(c))
+                .filter(|h| {
+                    let s = fm.edge_sharpness(h.edge());
+                    !fm.is_boundary_edge(h.edge()) && s > 0.0 && s < INFINITELY_SHARP
+                })
+                .count();
+            if inside > 0 && inside != semi_at_vertex {
+                return Err(Error::InvalidArgument(format!(
+                    "face-varying data at vertex {}: Chaikin creasing with semi-sharp edges on \
+                     both sides of a face-varying seam (OpenSubdiv averages their sharpness \
+                     across the seam); not reproduced exactly, so not evaluated",
+                    v.0
+                )));
+            }
+        }
+    }
+    let dependent = matches!(
+        scheme.fvar,
+        FVarLinear::CornersPlus1 | FVarLinear::CornersPlus2
+    );
+    if dependent && values.len() == 2 {
+        let (a, b) = (&values[0], &values[1]);
+        let plus2 = scheme.fvar == FVarLinear::CornersPlus2;
+        let sharpened = a.disjoint || b.disjoint || (plus2 && (a.faces == 1 || b.faces == 1));
+        if !sharpened && a.semi_sharp != b.semi_sharp {
+            return Err(Error::InvalidArgument(format!(
+                "face-varying data at vertex {}: under {} one of its two values is semi-sharp \
+                 and the other follows it (OpenSubdiv's dependent sharpness); not reproduced \
+                 exactly, so not evaluated",
+                v.0,
+                scheme.fvar.name()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Evaluates a face-varying channel at surface locations: the `position`
+/// of each result is `(u, v, 0)` of the data, `du` and `dv` its
+/// derivatives with respect to the location's parameters.
+pub trait FVarEvaluator: Send + Sync {
+    fn evaluate(&self, locations: &[SurfaceLocation]) -> Result<Vec<LimitPoint>>;
+}
+
+/// The pure-Rust face-varying evaluator: the control mesh's evaluators on
+/// the face-varying mesh.
+pub struct RustFVarEvaluator {
+    fvar: FVarMesh,
+    /// `None` for [`FVarKind::Barycentric`].
+    eval: Option<Box<dyn LimitEvaluator>>,
+    face_sizes: Vec<u32>,
+    scheme: SchemeOptions,
+}
+
+impl RustFVarEvaluator {
+    pub fn new(mesh: &ControlMesh, options: &EvalOptions, channel: &FVarChannel) -> Result<Self> {
+        let fvar = fvar_mesh(mesh, &options.scheme, channel)?;
+        let eval = match fvar.kind {
+            FVarKind::Barycentric => None,
+            _ => {
+                let opts = options.clone().with_scheme(fvar.scheme.clone());
+                Some(make_evaluator(Backend::Rust, &fvar.mesh, &opts)?)
+            }
+        };
+        Ok(RustFVarEvaluator {
+            fvar,
+            eval,
+            face_sizes: mesh.face_sizes(),
+            scheme: options.scheme.clone(),
+        })
+    }
+
+    pub fn fvar_mesh(&self) -> &FVarMesh {
+        &self.fvar
+    }
+}
+
+impl FVarEvaluator for RustFVarEvaluator {
+    fn evaluate(&self, locations: &[SurfaceLocation]) -> Result<Vec<LimitPoint>> {
+        check_locations_for(self.scheme.scheme, &self.face_sizes, locations)?;
+        let m = &self.fvar.mesh;
+        match &self.eval {
+            Some(e) => e.evaluate(m.positions(), locations),
+            None => Ok(locations
+                .iter()
+                .map(|l| {
+                    let p: Vec<DVec3> = m.face_vertices(l.face).map(|v| m.position(v)).collect();
+                    LimitPoint {
+                        position: (1.0 - l.u - l.v) * p[0] + l.u * p[1] + l.v * p[2],
+                        du: p[1] - p[0],
+                        dv: p[2] - p[0],
+                    }
+                })
+                .collect()),
+        }
+    }
+}
