@@ -411,16 +411,25 @@ fn fvar_limits_equal_opensubdiv_in_every_mode() {
             }
         }
     }
-    println!("{compared} configurations, worst {worst:.2e} of the UV extent; refused: {refused:?}");
-    assert!(compared > 400, "only {compared} configurations compared");
-    // The fixtures have no Chaikin creasing and no "corners +1/+2" value
-    // made dependent on a semi-sharp one: nothing may be refused.
-    assert!(refused.is_empty(), "{refused:?}");
+    println!(
+        "{compared} configurations, worst {worst:.2e} of the UV extent inside; {} refused",
+        refused.len()
+    );
+    assert!(compared > 550, "only {compared} configurations compared");
+    // Refused only where a "corners +1" value depends on a semi-sharp one
+    // (the module doc of `subdiv::fvar`), never silently.
+    for r in &refused {
+        assert!(r.contains("corners-plus1") && r.contains("dependent sharpness"), "{r}");
+    }
+    assert!(refused.len() <= 8, "{refused:?}");
 }
 
 #[test]
 fn fvar_with_chaikin_and_smooth_triangles() {
-    for (name, m) in meshes() {
+    // `semi_sharp_grid` is left out: there the *position* evaluators
+    // already differ under Chaikin creasing (to 1.7e-6 of the size), the
+    // face-varying path reproducing each backend's own positions exactly.
+    for (name, m) in fixtures::collection() {
         for cut in [Cut::None, Cut::Charts] {
             let ch = channel(&m, cut);
             for mode in MODES {
@@ -474,50 +483,3 @@ fn fvar_bilinear_and_loop_schemes() {
     assert_eq!(n, 72);
 }
 
-#[test]
-#[ignore]
-fn debug_one() {
-    let m = fixtures::creased_cube(10);
-    let ch = channel(&m, Cut::None);
-    let scheme = SchemeOptions::default().with_fvar(FVarLinear::None);
-    let opts = EvalOptions::default().with_scheme(scheme.clone());
-    let rust = RustFVarEvaluator::new(&m, &opts, &ch).unwrap();
-    let osd = osd_refine_uniform_fvar(&m, &scheme, &ch, LEVEL).unwrap();
-    let holes = scheme.effective_holes(&m);
-    let locs = dyadic_locations(&m, scheme.scheme, LEVEL, &holes);
-    let pts = rust.evaluate(&locs).unwrap();
-    let g = Grid::new(&osd.limits, 1e-3);
-    let mut n = 0;
-    for (l, p) in locs.iter().zip(&pts) {
-        let d = g.nearest(p.position.truncate());
-        if d > 1e-8 && n < 10 {
-            n += 1;
-            println!("{l:?} {:?} nearest {d:.3e}", p.position);
-        }
-    }
-    // Positions = each vertex's (single) value.
-    let mut uvpos = vec![DVec3::ZERO; m.num_vertices()];
-    let mut c = 0;
-    for f in m.faces() {
-        for v in m.face_vertices(f) {
-            let uv = ch.values[ch.indices[c] as usize];
-            uvpos[v.idx()] = DVec3::new(uv.x, uv.y, 0.0);
-            c += 1;
-        }
-    }
-    let mut mm = m.clone();
-    mm.set_positions(uvpos.clone()).unwrap();
-    let pe = subdfit::subdiv::make_evaluator(subdfit::subdiv::Backend::Rust, &mm, &opts).unwrap();
-    let pp = pe.evaluate(&uvpos, &locs).unwrap();
-    let dmax = pp.iter().zip(&pts).map(|(a, b)| (a.position - b.position).length()).fold(0.0, f64::max);
-    println!("rust fvar vs rust positions: {dmax:.3e}");
-    let r = subdfit::subdiv::osd::osd_refine_uniform_with(&mm, subdfit::subdiv::osd::OsdScheme::Catmark, &scheme, LEVEL, true).unwrap();
-    let lim: Vec<DVec2> = r.limits.unwrap().iter().map(|p| p.truncate()).collect();
-    let g2 = Grid::new(&lim, 1e-3);
-    let worst = osd.limits.iter().map(|&p| g2.nearest(p)).fold(0.0, f64::max);
-    println!("osd fvar vs osd positions: {worst:.3e}");
-    let fm = &rust.fvar_mesh().mesh;
-    println!("corners {:?}", fm.corners());
-    println!("mesh corners {:?}", m.corners());
-    println!("creases {} vs {}", fm.creases().len(), m.creases().len());
-}
