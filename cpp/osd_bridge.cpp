@@ -734,4 +734,127 @@ FVarUniform uniform_refine_fvar(std::uint32_t scheme_type, std::uint32_t num_ver
   return out;
 }
 
+std::unique_ptr<OsdFVarTopology> new_osd_fvar_topology(
+    std::uint32_t num_vertices, rust::Slice<const std::uint32_t> face_sizes,
+    rust::Slice<const std::uint32_t> face_indices, rust::Slice<const std::uint32_t> crease_vertices,
+    rust::Slice<const double> crease_weights, rust::Slice<const std::uint32_t> corner_vertices,
+    rust::Slice<const double> corner_weights, const SchemeDesc& scheme, rust::Slice<const std::uint32_t> fvar_indices,
+    std::uint32_t num_values, std::uint32_t isolation_level) {
+  if (isolation_level < 1 || isolation_level > 10)
+    throw std::invalid_argument("isolation level " + std::to_string(isolation_level) + " outside 1..=10");
+  check_descriptor(num_vertices, face_sizes, face_indices, crease_vertices, crease_weights, corner_vertices,
+                   corner_weights);
+  if (fvar_indices.size() != face_indices.size())
+    throw std::invalid_argument("face-varying channel needs one index per face corner");
+  for (auto i : fvar_indices)
+    if (i >= num_values) throw std::invalid_argument("face-varying index " + std::to_string(i) + " out of range");
+  if (scheme.scheme_type > 2) throw std::invalid_argument("unknown scheme type");
+  auto t = std::make_unique<OsdFVarTopology>();
+  t->face_sizes_.assign(face_sizes.begin(), face_sizes.end());
+  t->face_indices_.assign(face_indices.begin(), face_indices.end());
+  t->crease_vertices_.assign(crease_vertices.begin(), crease_vertices.end());
+  t->crease_weights_.assign(crease_weights.begin(), crease_weights.end());
+  t->corner_vertices_.assign(corner_vertices.begin(), corner_vertices.end());
+  t->corner_weights_.assign(corner_weights.begin(), corner_weights.end());
+  t->fvar_indices_.assign(fvar_indices.begin(), fvar_indices.end());
+  t->holes_ = hole_indices(scheme, face_sizes.size());
+  t->num_values_ = num_values;
+
+  Far::TopologyDescriptor d;
+  d.numVertices = static_cast<int>(num_vertices);
+  d.numFaces = static_cast<int>(t->face_sizes_.size());
+  d.numVertsPerFace = t->face_sizes_.data();
+  d.vertIndicesPerFace = t->face_indices_.data();
+  d.numCreases = static_cast<int>(t->crease_weights_.size());
+  d.creaseVertexIndexPairs = t->crease_vertices_.data();
+  d.creaseWeights = t->crease_weights_.data();
+  d.numCorners = static_cast<int>(t->corner_weights_.size());
+  d.cornerVertexIndices = t->corner_vertices_.data();
+  d.cornerWeights = t->corner_weights_.data();
+  d.numHoles = static_cast<int>(t->holes_.size());
+  d.holeIndices = t->holes_.data();
+  Far::TopologyDescriptor::FVarChannel channel;
+  channel.numValues = static_cast<int>(num_values);
+  channel.valueIndices = t->fvar_indices_.data();
+  d.numFVarChannels = 1;
+  d.fvarChannels = &channel;
+
+  std::lock_guard<std::mutex> lock(g_construction_mutex);
+  ErrorScope errors;
+  using Factory = Far::TopologyRefinerFactory<Far::TopologyDescriptor>;
+  t->refiner_.reset(Factory::Create(
+      d, Factory::Options(static_cast<Sdc::SchemeType>(scheme.scheme_type), sdc_options(scheme))));
+  if (!t->refiner_) errors.fail("TopologyRefinerFactory<TopologyDescriptor>::Create");
+  // As `new_osd_topology`, plus face-varying patches that are not the
+  // legacy linear ones: then adaptive refinement isolates the channel's
+  // own features too (considerFVarChannels).
+  Far::PatchTableFactory::Options po(isolation_level);
+  po.SetEndCapType(Far::PatchTableFactory::Options::ENDCAP_GREGORY_BASIS);
+  po.SetPatchPrecision<double>();
+  po.SetFVarPatchPrecision<double>();
+  po.useInfSharpPatch = true;
+  po.generateVaryingTables = false;
+  po.generateFVarTables = true;
+  po.generateFVarLegacyLinearPatches = false;
+  t->refiner_->RefineAdaptive(po.GetRefineAdaptiveOptions());
+  errors.check("TopologyRefiner::RefineAdaptive");
+  t->patches_.reset(Far::PatchTableFactory::Create(*t->refiner_, po));
+  if (!t->patches_) errors.fail("PatchTableFactory::Create");
+  errors.check("PatchTableFactory::Create");
+  t->patch_map_ = std::make_unique<Far::PatchMap>(*t->patches_);
+  for (int l = 0; l <= t->refiner_->GetMaxLevel(); ++l)
+    t->num_refined_ += static_cast<std::size_t>(t->refiner_->GetLevel(l).GetNumFVarValues(0));
+  t->num_local_ = static_cast<std::size_t>(t->patches_->GetNumLocalPointsFaceVarying(0));
+  if (t->num_local_ > 0 && !t->patches_->GetLocalPointFaceVaryingStencilTable<double>(0))
+    throw std::logic_error("face-varying local points without double-precision stencils");
+  return t;
+}
+
+void OsdFVarTopology::evaluate(rust::Slice<const double> values, rust::Slice<const std::uint32_t> ptex,
+                               rust::Slice<const double> u, rust::Slice<const double> v,
+                               rust::Slice<double> out) const {
+  const std::size_t n = ptex.size();
+  if (values.size() != 2 * static_cast<std::size_t>(num_values_))
+    throw std::invalid_argument("expected " + std::to_string(num_values_) + " face-varying values");
+  if (u.size() != n || v.size() != n || out.size() != 6 * n)
+    throw std::invalid_argument("location arrays of different lengths");
+  // The values of every level in one buffer, then the end-cap local
+  // points: the index space of GetPatchFVarValues.
+  std::vector<P2> buf(num_refined_ + num_local_);
+  for (std::uint32_t i = 0; i < num_values_; ++i) buf[i] = P2{values[2 * i], values[2 * i + 1]};
+  Far::PrimvarRefinerReal<double> primvar(*refiner_);
+  P2* src = buf.data();
+  for (int level = 1; level <= refiner_->GetMaxLevel(); ++level) {
+    P2* dst = src + refiner_->GetLevel(level - 1).GetNumFVarValues(0);
+    primvar.InterpolateFaceVarying(level, src, dst, 0);
+    src = dst;
+  }
+  if (num_local_ > 0)
+    patches_->GetLocalPointFaceVaryingStencilTable<double>(0)->UpdateValues(buf.data(), buf.data() + num_refined_);
+  std::array<double, kMaxPatchPoints> wP, wDu, wDv;
+  for (std::size_t i = 0; i < n; ++i) {
+    const Far::PatchTable::PatchHandle* h = patch_map_->FindPatch(static_cast<int>(ptex[i]), u[i], v[i]);
+    if (!h)
+      throw std::runtime_error("no patch at ptex face " + std::to_string(ptex[i]) + ": a hole, no limit surface there");
+    Far::ConstIndexArray cvs = patches_->GetPatchFVarValues(*h, 0);
+    if (cvs.size() > kMaxPatchPoints) throw std::logic_error("face-varying patch with more than 20 points");
+    patches_->EvaluateBasisFaceVarying(*h, u[i], v[i], wP.data(), wDu.data(), wDv.data(), nullptr, nullptr,
+                                       nullptr, 0);
+    const double dscale = derivative_correction(patches_->GetPatchFVarPatchParam(*h, 0));
+    P2 p, du, dv;
+    for (int k = 0; k < cvs.size(); ++k) {
+      const P2& x = buf[static_cast<std::size_t>(cvs[k])];
+      p.AddWithWeight(x, wP[k]);
+      du.AddWithWeight(x, dscale * wDu[k]);
+      dv.AddWithWeight(x, dscale * wDv[k]);
+    }
+    out[6 * i] = p.x;
+    out[6 * i + 1] = p.y;
+    out[6 * i + 2] = du.x;
+    out[6 * i + 3] = du.y;
+    out[6 * i + 4] = dv.x;
+    out[6 * i + 5] = dv.y;
+  }
+}
+
 }  // namespace subdfit::osd

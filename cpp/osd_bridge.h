@@ -147,4 +147,38 @@ FVarUniform uniform_refine_fvar(std::uint32_t scheme_type, std::uint32_t num_ver
                                 rust::Slice<const std::uint32_t> fvar_indices, rust::Slice<const double> fvar_values,
                                 std::uint32_t levels);
 
+// A face-varying channel's limit by OpenSubdiv's patches: the control mesh
+// refined adaptively with the channel considered
+// (`considerFVarChannels`), face-varying patches in double precision and
+// non-linear (`generateFVarLegacyLinearPatches = false`). Immutable after
+// construction, so `evaluate` may be called from several threads.
+class OsdFVarTopology {
+ public:
+  OsdFVarTopology() = default;
+  OsdFVarTopology(const OsdFVarTopology&) = delete;
+  OsdFVarTopology& operator=(const OsdFVarTopology&) = delete;
+  // Values (2 doubles each, in the channel's order) at (ptex, u, v): 6
+  // doubles per location into `out` (value, d/du, d/dv).
+  void evaluate(rust::Slice<const double> values, rust::Slice<const std::uint32_t> ptex,
+                rust::Slice<const double> u, rust::Slice<const double> v, rust::Slice<double> out) const;
+
+  std::unique_ptr<OpenSubdiv::Far::TopologyRefiner> refiner_;
+  std::unique_ptr<const OpenSubdiv::Far::PatchTable> patches_;
+  std::unique_ptr<const OpenSubdiv::Far::PatchMap> patch_map_;
+  std::vector<int> face_sizes_, face_indices_, crease_vertices_, corner_vertices_, holes_, fvar_indices_;
+  std::vector<float> crease_weights_, corner_weights_;
+  std::uint32_t num_values_ = 0;
+  std::size_t num_refined_ = 0;  // face-varying values of all levels
+  std::size_t num_local_ = 0;    // face-varying end-cap local points
+};
+
+// Builds an OsdFVarTopology (arguments as `new_osd_topology`, plus one
+// face-varying index per face corner and the number of values).
+std::unique_ptr<OsdFVarTopology> new_osd_fvar_topology(
+    std::uint32_t num_vertices, rust::Slice<const std::uint32_t> face_sizes,
+    rust::Slice<const std::uint32_t> face_indices, rust::Slice<const std::uint32_t> crease_vertices,
+    rust::Slice<const double> crease_weights, rust::Slice<const std::uint32_t> corner_vertices,
+    rust::Slice<const double> corner_weights, const SchemeDesc& scheme, rust::Slice<const std::uint32_t> fvar_indices,
+    std::uint32_t num_values, std::uint32_t isolation_level);
+
 }  // namespace subdfit::osd

@@ -137,6 +137,34 @@ pub(crate) mod bridge {
             fvar_values: &[f64],
             levels: u32,
         ) -> Result<FVarUniform>;
+
+        type OsdFVarTopology;
+
+        /// Adaptive refinement considering one face-varying channel and its
+        /// non-linear double-precision patches.
+        #[allow(clippy::too_many_arguments)]
+        fn new_osd_fvar_topology(
+            num_vertices: u32,
+            face_sizes: &[u32],
+            face_indices: &[u32],
+            crease_vertices: &[u32],
+            crease_weights: &[f64],
+            corner_vertices: &[u32],
+            corner_weights: &[f64],
+            scheme: &SchemeDesc,
+            fvar_indices: &[u32],
+            num_values: u32,
+            isolation_level: u32,
+        ) -> Result<UniquePtr<OsdFVarTopology>>;
+        /// 6 doubles per location: value, d/du, d/dv.
+        fn evaluate(
+            self: &OsdFVarTopology,
+            values: &[f64],
+            ptex: &[u32],
+            u: &[f64],
+            v: &[f64],
+            out: &mut [f64],
+        ) -> Result<()>;
     }
 }
 
@@ -152,3 +180,8 @@ unsafe impl Send for bridge::OsdTopology {}
 // the object and never changed afterwards, and OpenSubdiv's process-wide
 // error callback writes to a per-thread buffer.
 unsafe impl Sync for bridge::OsdTopology {}
+// SAFETY: as `OsdTopology`: it owns its refiner, patch table and patch map;
+// `evaluate` only reads them (its buffers are local).
+unsafe impl Send for bridge::OsdFVarTopology {}
+// SAFETY: see `Send`; nothing is mutated after construction.
+unsafe impl Sync for bridge::OsdFVarTopology {}

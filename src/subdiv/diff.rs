@@ -557,6 +557,65 @@ pub fn compare_with(
     Ok(report)
 }
 
+/// Result of [`compare_fvar`]: face-varying values (UVs) of two evaluators.
+/// `position` is the UV deviation and `normal` the derivative deviation
+/// (`|Δ∂/∂u| + |Δ∂/∂v|`), both relative to the channel's UV extent.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct FVarDiffReport {
+    pub uv_extent: f64,
+    /// Away (by the margin) from irregular corners of the face-varying
+    /// mesh: seam junctions, extraordinary values, darts.
+    pub regular: Worst,
+    /// Near them, where OpenSubdiv's face-varying end caps approximate.
+    pub near_irregular: Worst,
+}
+
+/// Compares face-varying evaluators `a` and `b` at `locations`; the
+/// irregular corners are those of `fvar` (its [`is_irregular_vertex_with`]
+/// under `fvar`'s own rules), the face-varying mesh of the channel.
+pub fn compare_fvar(
+    fvar: &crate::subdiv::fvar::FVarMesh,
+    a: &dyn crate::subdiv::fvar::FVarEvaluator,
+    b: &dyn crate::subdiv::fvar::FVarEvaluator,
+    locations: &[SurfaceLocation],
+    margin: f64,
+) -> Result<FVarDiffReport> {
+    let m = &fvar.mesh;
+    let (lo, hi) = m.bbox();
+    let extent = (hi - lo).length().max(f64::MIN_POSITIVE);
+    let irregular: Vec<bool> = m
+        .vertices()
+        .map(|v| is_irregular_vertex_with(m, &fvar.scheme, v))
+        .collect();
+    let loop_tris = fvar.scheme.scheme == SubdivScheme::Loop
+        || (fvar.kind == crate::subdiv::fvar::FVarKind::Barycentric);
+    let (la, lb) = (a.evaluate(locations)?, b.evaluate(locations)?);
+    let mut r = FVarDiffReport {
+        uv_extent: extent,
+        ..Default::default()
+    };
+    for (i, loc) in locations.iter().enumerate() {
+        let (x, y) = (la[i], lb[i]);
+        let dp = (x.position - y.position).length() / extent;
+        let dd = ((x.du - y.du).length() + (x.dv - y.dv).length()) / extent;
+        let near = irregular_corners(m, &irregular, loc, loop_tris)
+            .iter()
+            .any(|&(cu, cv)| (loc.u - cu).abs() < margin && (loc.v - cv).abs() < margin);
+        let at = || {
+            format!(
+                "face {} sub {} (u, v) = ({:.6}, {:.6})",
+                loc.face.0, loc.sub, loc.u, loc.v
+            )
+        };
+        if near {
+            r.near_irregular.add(at, dp, dd);
+        } else {
+            r.regular.add(at, dp, dd);
+        }
+    }
+    Ok(r)
+}
+
 impl std::fmt::Display for DiffReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         writeln!(

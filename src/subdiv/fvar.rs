@@ -434,3 +434,18 @@ impl FVarEvaluator for RustFVarEvaluator {
         }
     }
 }
+
+/// Prepares the chosen face-varying evaluator for `channel` on `mesh`.
+pub fn make_fvar_evaluator(
+    backend: Backend,
+    mesh: &ControlMesh,
+    options: &EvalOptions,
+    channel: &FVarChannel,
+) -> Result<Box<dyn FVarEvaluator>> {
+    Ok(match backend {
+        Backend::Rust => Box::new(RustFVarEvaluator::new(mesh, options, channel)?),
+        Backend::Osd => Box::new(crate::subdiv::osd::OsdFVarEvaluator::new(
+            mesh, options, channel,
+        )?),
+    })
+}

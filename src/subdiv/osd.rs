@@ -588,6 +588,82 @@ pub fn osd_refine_uniform_with(
     })
 }
 
+/// OpenSubdiv's face-varying patches for one channel of a control mesh
+/// (`OsdFVarTopology`): the reference of the face-varying columns of
+/// `subdfit limit --backend osd` and `diff-limit`.
+pub struct OsdFVarEvaluator {
+    /// Locates the ptex faces (the same ptex numbering as the channel's
+    /// patch table: both come from the same control topology).
+    vertex: OsdEvaluator,
+    topo: UniquePtr<bridge::OsdFVarTopology>,
+    values: Vec<f64>,
+}
+
+impl OsdFVarEvaluator {
+    pub fn new(
+        mesh: &ControlMesh,
+        options: &EvalOptions,
+        channel: &crate::mesh::FVarChannel,
+    ) -> Result<Self> {
+        channel.check(mesh)?;
+        let vertex = OsdEvaluator::new(mesh, options)?;
+        let nv = mesh.num_vertices() as u32;
+        let creases = mesh.creases();
+        let crease_vertices: Vec<u32> = creases.iter().flat_map(|c| [c.0 .0, c.1 .0]).collect();
+        let crease_weights: Vec<f64> = creases.iter().map(|c| c.2).collect();
+        let corners = mesh.corners();
+        let corner_vertices: Vec<u32> = corners.iter().map(|c| c.0 .0).collect();
+        let corner_weights: Vec<f64> = corners.iter().map(|c| c.1).collect();
+        let topo = bridge::new_osd_fvar_topology(
+            nv,
+            &mesh.face_sizes(),
+            &mesh.face_indices_flat(),
+            &crease_vertices,
+            &crease_weights,
+            &corner_vertices,
+            &corner_weights,
+            &scheme_desc(&options.scheme),
+            &channel.indices,
+            channel.values.len() as u32,
+            options.isolation_level as u32,
+        )
+        .map_err(backend)?;
+        let values = channel.values.iter().flat_map(|v| v.to_array()).collect();
+        Ok(OsdFVarEvaluator {
+            vertex,
+            topo,
+            values,
+        })
+    }
+}
+
+impl crate::subdiv::fvar::FVarEvaluator for OsdFVarEvaluator {
+    fn evaluate(&self, locations: &[SurfaceLocation]) -> Result<Vec<LimitPoint>> {
+        let ptex = locations
+            .iter()
+            .map(|l| self.vertex.ptex_index(l))
+            .collect::<Result<Vec<u32>>>()?;
+        let u: Vec<f64> = locations.iter().map(|l| l.u).collect();
+        let v: Vec<f64> = locations.iter().map(|l| l.v).collect();
+        let mut out = vec![0.0; 6 * locations.len()];
+        let topo = self
+            .topo
+            .as_ref()
+            .ok_or_else(|| Error::backend("OpenSubdiv", "null face-varying topology"))?;
+        topo.evaluate(&self.values, &ptex, &u, &v, &mut out)
+            .map_err(backend)?;
+        let p2 = |x: &[f64]| DVec3::new(x[0], x[1], 0.0);
+        Ok(out
+            .chunks_exact(6)
+            .map(|c| LimitPoint {
+                position: p2(&c[0..2]),
+                du: p2(&c[2..4]),
+                dv: p2(&c[4..6]),
+            })
+            .collect())
+    }
+}
+
 /// Result of [`osd_refine_uniform_fvar`]: a face-varying channel refined
 /// by OpenSubdiv.
 #[derive(Clone, Debug)]
