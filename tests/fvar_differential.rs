@@ -156,7 +156,12 @@ fn channel_of(m: &ControlMesh, corner_vertex: &[VertexId], roots: &[usize]) -> F
 }
 
 /// The dyadic locations of level `level` on every face that is not a hole.
-fn dyadic_locations(m: &ControlMesh, scheme: SubdivScheme, level: u32, holes: &[bool]) -> Vec<SurfaceLocation> {
+fn dyadic_locations(
+    m: &ControlMesh,
+    scheme: SubdivScheme,
+    level: u32,
+    holes: &[bool],
+) -> Vec<SurfaceLocation> {
     let mut out = Vec::new();
     for f in m.faces().filter(|f| !holes[f.idx()]) {
         let n = m.face_size(f);
@@ -165,17 +170,31 @@ fn dyadic_locations(m: &ControlMesh, scheme: SubdivScheme, level: u32, holes: &[
             for i in 0..=k {
                 for j in 0..=(k - i) {
                     let (u, v) = (i as f64 / k as f64, j as f64 / k as f64);
-                    out.push(SurfaceLocation { face: f, sub: 0, u, v });
+                    out.push(SurfaceLocation {
+                        face: f,
+                        sub: 0,
+                        u,
+                        v,
+                    });
                 }
             }
             continue;
         }
-        let (subs, k) = if n == 4 { (1, 1u32 << level) } else { (n, 1u32 << (level - 1)) };
+        let (subs, k) = if n == 4 {
+            (1, 1u32 << level)
+        } else {
+            (n, 1u32 << (level - 1))
+        };
         for sub in 0..subs {
             for i in 0..=k {
                 for j in 0..=k {
                     let (u, v) = (i as f64 / k as f64, j as f64 / k as f64);
-                    out.push(SurfaceLocation { face: f, sub: sub as u16, u, v });
+                    out.push(SurfaceLocation {
+                        face: f,
+                        sub: sub as u16,
+                        u,
+                        v,
+                    });
                 }
             }
         }
@@ -290,7 +309,12 @@ struct Deviation {
 
 /// Compares the two on one mesh, channel and option set; returns the
 /// deviations or the Rust side's refusal.
-fn compare(m: &ControlMesh, ch: &FVarChannel, scheme: &SchemeOptions, level: u32) -> Result<Deviation, String> {
+fn compare(
+    m: &ControlMesh,
+    ch: &FVarChannel,
+    scheme: &SchemeOptions,
+    level: u32,
+) -> Result<Deviation, String> {
     let opts = EvalOptions::default().with_scheme(scheme.clone());
     let rust = match RustFVarEvaluator::new(m, &opts, ch) {
         Ok(r) => r,
@@ -328,7 +352,11 @@ fn compare(m: &ControlMesh, ch: &FVarChannel, scheme: &SchemeOptions, level: u32
     // values are on the limit; its `limitFVar` still applies the crease
     // limit mask to seam values (it only tests `FVarLevel::isLinear`), which
     // is no limit of that refinement: the values are the reference there.
-    let reference = if scheme.scheme == SubdivScheme::Bilinear { &osd.values } else { &osd.limits };
+    let reference = if scheme.scheme == SubdivScheme::Bilinear {
+        &osd.values
+    } else {
+        &osd.limits
+    };
     let g_osd = Grid::new(reference, cell);
     let mut d = Deviation::default();
     // The f32 defect scales with the values the mask weighs: per
@@ -398,10 +426,15 @@ fn fvar_limits_equal_opensubdiv_in_every_mode() {
                 .into_iter()
                 .take(if open { 3 } else { 1 })
                 {
-                    let scheme = SchemeOptions::default().with_fvar(mode).with_boundary(boundary);
+                    let scheme = SchemeOptions::default()
+                        .with_fvar(mode)
+                        .with_boundary(boundary);
                     match compare(&m, &ch, &scheme, LEVEL) {
                         Ok(d) => {
-                            check(d, &format!("{name}/{cut:?}/{}/{}", mode.name(), boundary.name()));
+                            check(
+                                d,
+                                &format!("{name}/{cut:?}/{}/{}", mode.name(), boundary.name()),
+                            );
                             worst = worst.max(d.interior);
                             compared += 1;
                         }
@@ -419,7 +452,10 @@ fn fvar_limits_equal_opensubdiv_in_every_mode() {
     // Refused only where a "corners +1" value depends on a semi-sharp one
     // (the module doc of `subdiv::fvar`), never silently.
     for r in &refused {
-        assert!(r.contains("corners-plus1") && r.contains("dependent sharpness"), "{r}");
+        assert!(
+            r.contains("corners-plus1") && r.contains("dependent sharpness"),
+            "{r}"
+        );
     }
     assert!(refused.len() <= 8, "{refused:?}");
 }
@@ -466,7 +502,11 @@ fn fvar_bilinear_and_loop_schemes() {
     for cut in [Cut::None, Cut::Charts, Cut::Scattered, Cut::Merged] {
         let ch = channel(&tri, cut);
         for mode in MODES {
-            for scheme in [SubdivScheme::Loop, SubdivScheme::Bilinear, SubdivScheme::Catmark] {
+            for scheme in [
+                SubdivScheme::Loop,
+                SubdivScheme::Bilinear,
+                SubdivScheme::Catmark,
+            ] {
                 let s = SchemeOptions::default().with_fvar(mode).with_scheme(scheme);
                 let d = compare(&tri, &ch, &s, LEVEL).expect("evaluated");
                 check(d, &format!("{cut:?}/{}/{}", mode.name(), scheme.name()));
@@ -482,7 +522,6 @@ fn fvar_bilinear_and_loop_schemes() {
     }
     assert_eq!(n, 72);
 }
-
 
 /// OpenSubdiv's face-varying *patches* (what `subdfit limit --backend osd`
 /// and `diff-limit` evaluate) against the Rust evaluator at random
@@ -524,4 +563,127 @@ fn fvar_patches_equal_rust_away_from_irregular_corners() {
     }
     println!("{n} locations: values {worst:.2e}, derivatives {worst_d:.2e} of the UV extent");
     assert!(n > 50_000, "{n}");
+}
+
+fn subdfit(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn data(name: &str) -> String {
+    format!("{}/tests/data/{name}", env!("CARGO_MANIFEST_DIR"))
+}
+
+fn uv_columns(csv: &str) -> Vec<[f64; 2]> {
+    let mut lines = csv.lines();
+    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let (s, t) = (
+        head.iter().position(|&c| c == "s").expect("s column"),
+        head.iter().position(|&c| c == "t").expect("t column"),
+    );
+    lines
+        .map(|l| {
+            let f: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            [f[s], f[t]]
+        })
+        .collect()
+}
+
+/// `subdfit limit --at` on a shape file with UVs adds the face-varying
+/// columns, the same from both backends; by symmetry each face centre maps
+/// to its chart's centre in every mode (each chart is a square of one face).
+#[test]
+fn limit_cli_writes_uvs_from_both_backends() {
+    let dir = tempfile::tempdir().unwrap();
+    let at = dir.path().join("at.csv");
+    let mut rows = String::from("face,u,v\n");
+    for f in 0..6 {
+        rows += &format!("{f},0.5,0.5\n{f},0.2,0.7\n");
+    }
+    std::fs::write(&at, rows).unwrap();
+    for mode in MODES {
+        let mut got = Vec::new();
+        for backend in ["rust", "osd"] {
+            let out = dir.path().join(format!("{backend}.csv"));
+            let o = subdfit(&[
+                "limit",
+                &data("cube_uv.obj"),
+                "--backend",
+                backend,
+                "--fvar",
+                mode.name(),
+                "--at",
+                at.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+            ]);
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            got.push(uv_columns(&std::fs::read_to_string(&out).unwrap()));
+        }
+        for (a, b) in got[0].iter().zip(&got[1]) {
+            assert!(
+                (a[0] - b[0]).abs() + (a[1] - b[1]).abs() < 1e-12,
+                "{}: {a:?} vs {b:?}",
+                mode.name()
+            );
+        }
+        for (f, c) in got[0].iter().step_by(2).enumerate() {
+            let want = [0.3 * f as f64 + 0.125, 0.125];
+            assert!(
+                (c[0] - want[0]).abs() < 1e-12 && (c[1] - want[1]).abs() < 1e-12,
+                "{}: {c:?}",
+                mode.name()
+            );
+        }
+    }
+}
+
+/// `diff-limit` compares the UVs too and passes on valid files in every
+/// mode; a file whose faces do not all have UVs is still evaluated (the
+/// positions), with a warning and without UV columns.
+#[test]
+fn diff_limit_compares_uvs_and_partial_uvs_warn() {
+    for mode in MODES {
+        let o = subdfit(&[
+            "diff-limit",
+            &data("cube_uv.obj"),
+            "--fvar",
+            mode.name(),
+            "--samples",
+            "500",
+            "--json",
+        ]);
+        assert!(
+            o.status.success(),
+            "{}: {}",
+            mode.name(),
+            String::from_utf8_lossy(&o.stdout)
+        );
+        let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert!(j["face_varying"]["regular"]["count"].as_u64().unwrap() > 100);
+        assert!(j["face_varying"]["regular"]["position"].as_f64().unwrap() < 1e-9);
+        assert_eq!(j["scheme"]["fvar"], mode.name());
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let at = dir.path().join("at.csv");
+    std::fs::write(&at, "face,u,v\n0,0.5,0.5\n").unwrap();
+    let out = dir.path().join("o.csv");
+    let o = subdfit(&[
+        "limit",
+        &data("cube_quads.obj"),
+        "--at",
+        at.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("texture coordinates not used") && err.contains("line"),
+        "{err}"
+    );
+    let csv = std::fs::read_to_string(&out).unwrap();
+    assert!(!csv.lines().next().unwrap().contains(",s,"), "{csv}");
 }

@@ -128,19 +128,21 @@ type ControlParts = (
     Vec<(u32, f64)>,
     SchemeOptions,
     Option<FVarChannel>,
+    Option<String>,
 );
 
 fn read_control_parts(path: &Path) -> Result<ControlParts> {
     Ok(match Format::from_path(path)? {
         Format::Obj => {
             let o = read_obj(path)?;
-            (o.soup, o.creases, o.corners, o.scheme, o.uv)
+            (o.soup, o.creases, o.corners, o.scheme, o.uv, o.uv_note)
         }
         _ => (
             read_soup(path)?,
             Vec::new(),
             Vec::new(),
             SchemeOptions::default(),
+            None,
             None,
         ),
     })
@@ -167,7 +169,7 @@ fn non_default_scheme(path: &Path, scheme: &SchemeOptions) -> Error {
 pub fn read_control_mesh_as_found(
     path: &Path,
 ) -> Result<(ControlMesh, crate::mesh::ForeignRepairs)> {
-    let (soup, creases, corners, scheme, _uv) = read_control_parts(path)?;
+    let (soup, creases, corners, scheme, _, _) = read_control_parts(path)?;
     if !scheme.is_default() {
         return Err(non_default_scheme(path, &scheme));
     }
@@ -195,13 +197,15 @@ pub struct ControlFile {
     pub scheme: SchemeOptions,
     /// The texture coordinates (`vt`, `f v/vt`) as a face-varying channel.
     pub uv: Option<FVarChannel>,
+    /// Why the file's texture coordinates were not kept, if it has some.
+    pub uv_note: Option<String>,
 }
 
 /// Reads a control mesh and, from an OBJ shape file, its sharpness tags
 /// and scheme options (see the `obj` module doc); other formats carry the
 /// default options.
 pub fn read_control_file(path: &Path) -> Result<ControlFile> {
-    let (soup, creases, corners, scheme, uv) = read_control_parts(path)?;
+    let (soup, creases, corners, scheme, uv, uv_note) = read_control_parts(path)?;
     let in_file = |e: Error| match e {
         Error::Topology { element, msg } => Error::invalid_mesh(path, element, msg),
         e => e,
@@ -218,5 +222,10 @@ pub fn read_control_file(path: &Path) -> Result<ControlFile> {
         ch.check(&mesh)
             .map_err(|e| Error::invalid_mesh(path, "texture coordinates", e.to_string()))?;
     }
-    Ok(ControlFile { mesh, scheme, uv })
+    Ok(ControlFile {
+        mesh,
+        scheme,
+        uv,
+        uv_note,
+    })
 }

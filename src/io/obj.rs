@@ -5,9 +5,9 @@
 //! comments, CRLF line ends, `\` line continuation, a leading UTF-8 byte
 //! order mark. Non-finite coordinates are errors naming the vertex and the
 //! line. Texture coordinates (`vt u v [w]`, the `vt` of `f v/vt` corners)
-//! become the face-varying channel [`ObjMesh::uv`] when every face has them
-//! (a file where only some faces do is an error naming the first face
-//! without). Ignored: `vn vp g o s usemtl mtllib l p` and unknown
+//! become the face-varying channel [`ObjMesh::uv`] when every face corner
+//! has one (when only some do, none is kept and [`ObjMesh::uv_note`] names
+//! the first corner without: the geometry is still good). Ignored: `vn vp g o s usemtl mtllib l p` and unknown
 //! statements. OpenSubdiv's shape files (`regression/shapes/*.h`,
 //! parsed by `regression/common/shape_utils.cpp`) add tags
 //! `t <name> <nints>/<nfloats>/<nstrings> ints... floats... strings...` with
@@ -49,8 +49,8 @@ use crate::io::text::{
     bad_token, bom_len, non_finite, parse_f64, parse_i64, strip_comment, Tokens,
 };
 use crate::mesh::{
-    BoundaryInterpolation, CreaseMethod, FVarChannel, FVarLinear, FaceId, PolySoup,
-    SchemeOptions, TriangleSubdivision,
+    BoundaryInterpolation, CreaseMethod, FVarChannel, FVarLinear, FaceId, PolySoup, SchemeOptions,
+    TriangleSubdivision,
 };
 use crate::{DVec2, DVec3};
 
@@ -68,6 +68,8 @@ pub struct ObjMesh {
     /// The texture coordinates as a face-varying channel (one index per
     /// face corner, in the soup's corner order), when the faces have them.
     pub uv: Option<FVarChannel>,
+    /// Why the file's texture coordinates were not kept, if it has some.
+    pub uv_note: Option<String>,
 }
 
 /// Reads an OBJ file.
@@ -94,6 +96,7 @@ pub fn parse_obj(bytes: &[u8], path: &Path) -> Result<ObjMesh> {
         uv_values: Vec::new(),
         uv_indices: Vec::new(),
         first_corner_without_uv: None,
+        uv_problem: None,
         propagate_corners: None,
     };
     // A rough guess that avoids most reallocations: ~30 bytes per `v` line.
@@ -159,6 +162,7 @@ struct ObjState<'p> {
     uv_values: Vec<DVec2>,
     uv_indices: Vec<u32>,
     first_corner_without_uv: Option<(usize, usize)>,
+    uv_problem: Option<String>,
     /// `facevaryingpropagatecorners` and its line, resolved at the end (the
     /// tag may come before or after `facevaryinginterpolateboundary`).
     propagate_corners: Option<(bool, usize)>,
@@ -207,28 +211,29 @@ impl ObjState<'_> {
         Ok(())
     }
 
-    /// `vt u [v [w]]`: v defaults to 0 (OBJ spec); w is not used.
+    /// `vt u [v [w]]`: v defaults to 0 (OBJ spec); w is not used. A
+    /// malformed record drops the UVs with a note (the geometry does not
+    /// depend on them); its place is kept so later indices stay right.
     fn texture_vertex(&mut self, lineno: usize, toks: Tokens) -> Result<()> {
         let mut c = [0.0f64; 3];
         let mut n = 0;
+        let mut bad = None;
         for t in toks {
-            if n == 3 {
-                return Err(self.err(lineno, "texture vertex has more than 3 coordinates"));
+            match parse_f64(t) {
+                Some(x) if n < 3 => c[n] = x,
+                _ => bad = Some(bad_token("texture coordinate (at most 3 numbers)", t)),
             }
-            c[n] = parse_f64(t).ok_or_else(|| self.err(lineno, bad_token("texture coordinate", t)))?;
             n += 1;
         }
-        if n == 0 {
-            return Err(self.err(lineno, "texture vertex without coordinates"));
-        }
         let uv = DVec2::new(c[0], c[1]);
-        if !uv.is_finite() {
-            let i = self.uv_values.len();
-            return Err(Error::invalid_mesh(
-                self.path,
-                format!("texture vertex {i} (line {lineno})"),
-                "non-finite coordinate",
-            ));
+        if n == 0 {
+            bad = Some("texture vertex without coordinates".to_string());
+        } else if bad.is_none() && !uv.is_finite() {
+            bad = Some("non-finite texture coordinate".to_string());
+        }
+        if let Some(b) = bad {
+            self.uv_problem
+                .get_or_insert_with(|| format!("line {lineno}: {b}"));
         }
         self.uv_values.push(uv);
         Ok(())
@@ -270,13 +275,19 @@ impl ObjState<'_> {
                     let nt = self.uv_values.len() as i64;
                     let j = if k > 0 { k - 1 } else { nt + k };
                     if k == 0 || !(0..nt).contains(&j) {
-                        return Err(Error::invalid_mesh(
-                            self.path,
-                            format!("face {} (line {lineno})", self.face_lines.len()),
-                            format!("texture index {k} out of range ({nt} `vt` defined so far)"),
-                        ));
+                        // The geometry does not depend on it: the UVs are
+                        // dropped with a note, the mesh is still read.
+                        self.uv_problem.get_or_insert_with(|| {
+                            format!(
+                                "face {} (line {lineno}) has texture index {k}, out of range \
+                                 ({nt} `vt` defined so far)",
+                                self.face_lines.len()
+                            )
+                        });
+                        u32::MAX
+                    } else {
+                        j as u32
                     }
-                    j as u32
                 }
                 None => {
                     self.first_corner_without_uv
@@ -553,24 +564,31 @@ impl ObjState<'_> {
     }
 
     /// Range checks that need the whole file (forward references).
-    /// The face-varying channel: all corners have a `vt`, or none is used.
-    fn finish_uv(&mut self) -> Result<()> {
+    /// The face-varying channel: kept when every corner has a `vt`.
+    fn finish_uv(&mut self) {
         let any = self.uv_indices.iter().any(|&i| i != u32::MAX);
+        if let Some(p) = self.uv_problem.take() {
+            self.out.uv_note = Some(format!(
+                "{}: texture coordinates not used: {p}",
+                self.path.display()
+            ));
+            return;
+        }
         match self.first_corner_without_uv {
-            Some((f, line)) if any => Err(Error::invalid_mesh(
-                self.path,
-                format!("face {f} (line {line})"),
-                "a corner without texture index, while other faces have them \
-                 (face-varying data needs one `vt` per corner of every face)",
-            )),
+            Some((f, line)) if any => {
+                self.out.uv_note = Some(format!(
+                    "{}: texture coordinates not used: face {f} (line {line}) has a corner \
+                     without one (face-varying data needs one per corner of every face)",
+                    self.path.display()
+                ))
+            }
             _ if any => {
                 self.out.uv = Some(FVarChannel {
                     values: std::mem::take(&mut self.uv_values),
                     indices: std::mem::take(&mut self.uv_indices),
                 });
-                Ok(())
             }
-            _ => Ok(()),
+            _ => {}
         }
     }
 
@@ -604,7 +622,7 @@ impl ObjState<'_> {
                 ));
             }
         }
-        self.finish_uv()?;
+        self.finish_uv();
         let holes = std::mem::take(&mut self.out.scheme.holes);
         self.out.scheme = std::mem::take(&mut self.out.scheme).with_holes(holes);
         let (out, path) = (&self.out, self.path);

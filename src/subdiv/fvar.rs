@@ -48,8 +48,8 @@ use crate::mesh::{
     split_non_manifold_polygons, BoundaryInterpolation, ControlMesh, CreaseMethod, FVarChannel,
     FVarLinear, FaceId, PolySoup, SchemeOptions, SubdivScheme, VertexId, INFINITELY_SHARP,
 };
-use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitEvaluator, LimitPoint};
 use crate::subdiv::{check_locations_for, SurfaceLocation};
+use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitEvaluator, LimitPoint};
 use crate::DVec3;
 
 /// How the face-varying mesh is evaluated.

@@ -716,9 +716,8 @@ pub fn osd_refine_uniform_fvar(
         levels,
     )
     .map_err(backend)?;
-    let pts = |x: &[f64]| -> Vec<DVec2> {
-        x.chunks_exact(2).map(|c| DVec2::new(c[0], c[1])).collect()
-    };
+    let pts =
+        |x: &[f64]| -> Vec<DVec2> { x.chunks_exact(2).map(|c| DVec2::new(c[0], c[1])).collect() };
     let faces = r
         .face_offsets
         .windows(2)

@@ -8,9 +8,10 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use subdfit::mesh::{
-    BoundaryInterpolation, ControlMesh, CreaseMethod, FVarLinear, FaceId, SchemeOptions,
-    SubdivScheme, TriangleSubdivision,
+    BoundaryInterpolation, ControlMesh, CreaseMethod, FVarChannel, FVarLinear, FaceId,
+    SchemeOptions, SubdivScheme, TriangleSubdivision,
 };
+use subdfit::subdiv::fvar::{make_fvar_evaluator, RustFVarEvaluator};
 use subdfit::subdiv::{diff, make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
@@ -138,8 +139,12 @@ impl SchemeArgs {
     }
 }
 
-/// Reads the control mesh and the scheme options in force (file, then flags).
-fn read_with_scheme(path: &Path, args: &SchemeArgs) -> Result<(ControlMesh, SchemeOptions)> {
+/// Reads the control mesh and the scheme options in force (file, then
+/// flags), and the file's texture coordinates.
+fn read_with_scheme(
+    path: &Path,
+    args: &SchemeArgs,
+) -> Result<(ControlMesh, SchemeOptions, Option<FVarChannel>)> {
     let file = subdfit::io::read_control_file(path).context("control mesh")?;
     let scheme = args.apply(file.scheme);
     if let Some(f) = scheme
@@ -154,7 +159,10 @@ fn read_with_scheme(path: &Path, args: &SchemeArgs) -> Result<(ControlMesh, Sche
             file.mesh.num_faces()
         );
     }
-    Ok((file.mesh, scheme))
+    if let Some(note) = &file.uv_note {
+        eprintln!("warning: {note}");
+    }
+    Ok((file.mesh, scheme, file.uv))
 }
 
 #[derive(Args)]
@@ -286,7 +294,7 @@ fn write_row(w: &mut dyn Write, prefix: &str, p: &LimitPoint) -> std::io::Result
 }
 
 pub fn limit(a: LimitArgs) -> Result<ExitCode> {
-    let (mesh, scheme) = read_with_scheme(&a.control, &a.scheme)?;
+    let (mesh, scheme, uv) = read_with_scheme(&a.control, &a.scheme)?;
     // State the rules the numbers follow: a file's tags change the surface.
     crate::emit(&format!("scheme: {scheme}"))?;
     let opts = EvalOptions::default()
@@ -312,10 +320,39 @@ pub fn limit(a: LimitArgs) -> Result<ExitCode> {
         Some(at) => {
             let locs = read_locations(at)?;
             let pts = eval.evaluate(mesh.positions(), &locs)?;
+            // Face-varying data is per face corner, so it has a value at a
+            // location, not at a control vertex: columns with `--at` only.
+            let uvs = match &uv {
+                Some(ch) => {
+                    Some(make_fvar_evaluator(a.backend.into(), &mesh, &opts, ch)?.evaluate(&locs)?)
+                }
+                None => None,
+            };
             subdfit::io::write_atomically(out, |w| {
-                writeln!(w, "face,u,v,x,y,z,nx,ny,nz").map_err(io)?;
-                for (l, p) in locs.iter().zip(&pts) {
-                    write_row(w, &format!("{},{},{}", l.face.0, l.u, l.v), p).map_err(io)?;
+                let uv_head = if uvs.is_some() {
+                    ",s,t,ds_du,dt_du,ds_dv,dt_dv"
+                } else {
+                    ""
+                };
+                writeln!(w, "face,u,v,x,y,z,nx,ny,nz{uv_head}").map_err(io)?;
+                for (k, (l, p)) in locs.iter().zip(&pts).enumerate() {
+                    let n = p.normal();
+                    write!(
+                        w,
+                        "{},{},{},{},{},{},{},{},{}",
+                        l.face.0, l.u, l.v, p.position.x, p.position.y, p.position.z, n.x, n.y, n.z
+                    )
+                    .map_err(io)?;
+                    if let Some(t) = &uvs {
+                        let q = &t[k];
+                        write!(
+                            w,
+                            ",{},{},{},{},{},{}",
+                            q.position.x, q.position.y, q.du.x, q.du.y, q.dv.x, q.dv.y
+                        )
+                        .map_err(io)?;
+                    }
+                    writeln!(w).map_err(io)?;
                 }
                 Ok(())
             })?;
@@ -324,8 +361,28 @@ pub fn limit(a: LimitArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The face-varying comparison of `diff-limit`, when the file has UVs.
+fn diff_uvs(
+    mesh: &ControlMesh,
+    opts: &EvalOptions,
+    uv: Option<&FVarChannel>,
+    locs: &[SurfaceLocation],
+    margin: f64,
+) -> Result<Option<diff::FVarDiffReport>> {
+    let Some(ch) = uv else { return Ok(None) };
+    let rust = RustFVarEvaluator::new(mesh, opts, ch)?;
+    let osd = make_fvar_evaluator(Backend::Osd, mesh, opts, ch)?;
+    Ok(Some(diff::compare_fvar(
+        rust.fvar_mesh(),
+        osd.as_ref(),
+        &rust,
+        locs,
+        margin,
+    )?))
+}
+
 pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
-    let (mesh, scheme) = read_with_scheme(&a.control, &a.scheme)?;
+    let (mesh, scheme, uv) = read_with_scheme(&a.control, &a.scheme)?;
     let opts = EvalOptions::default()
         .with_isolation_level(a.isolation)
         .with_scheme(scheme.clone());
@@ -344,6 +401,7 @@ pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
     // The size of OpenSubdiv's f32 sharpness: what it does to the surface.
     let (dp, dn) = diff::f32_sharpness_effect(&mesh, &rust_opts, &locs)?;
     report.set_f32_effect(dp, dn);
+    let uv_report = diff_uvs(&mesh, &rust_opts, uv.as_ref(), &locs, a.margin)?;
     let mut failures = Vec::new();
     let mut check = |what: &str, value: f64, tol: f64| {
         // NaN counts as a failure.
@@ -363,12 +421,31 @@ pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
     );
     check("position", report.regular.position, a.tolerance);
     check("normal", report.regular.normal, a.normal_tolerance);
+    if let Some(u) = &uv_report {
+        // UVs are held to the position tolerance, relative to their extent.
+        check("face-varying value", u.regular.position, a.tolerance);
+        check("face-varying derivative", u.regular.normal, a.tolerance);
+    }
     if a.json {
         let mut v = serde_json::to_value(&report)?;
+        v["face_varying"] = serde_json::to_value(&uv_report)?;
         v["failures"] = serde_json::to_value(&failures)?;
         crate::emit(&serde_json::to_string_pretty(&v)?)?;
     } else {
         let mut text = report.to_string();
+        if let Some(u) = &uv_report {
+            text += &format!(
+                "  face-varying (UV extent {:.6e}): n={} value {:.3e} derivative {:.3e} at {}; \
+                 near irregular n={} value {:.3e}\n",
+                u.uv_extent,
+                u.regular.count,
+                u.regular.position,
+                u.regular.normal,
+                u.regular.position_at,
+                u.near_irregular.count,
+                u.near_irregular.position
+            );
+        }
         if failures.is_empty() {
             text += "OK: within tolerance";
         } else {
