@@ -210,3 +210,15 @@ pub fn read_control_file(path: &Path) -> Result<ControlFile> {
     }
     Ok(ControlFile { mesh, scheme })
 }
+
+/// Reads a control mesh as OpenSubdiv takes it (issue 18): non-manifold
+/// edges and vertices and unused vertices accepted, with the file's scheme
+/// options ([`crate::mesh::SplitControl`]: the file's topology for
+/// OpenSubdiv, a manifold copy for the Rust evaluators; what neither can
+/// reproduce is refused, naming the element). A manifold file gives the
+/// mesh [`read_control_file`] reads.
+pub fn read_control_split(path: &Path) -> Result<(crate::mesh::SplitControl, SchemeOptions)> {
+    let (soup, creases, corners, scheme) = read_control_parts(path)?;
+    let sc = crate::mesh::SplitControl::new(&soup, &creases, &corners, path)?;
+    Ok((sc, scheme))
+}

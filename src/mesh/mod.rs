@@ -8,6 +8,7 @@ mod decimate;
 mod foreign;
 mod frame;
 mod manifold;
+mod nonmanifold;
 mod report;
 mod scheme;
 mod soup;
@@ -19,6 +20,7 @@ pub use decimate::{decimate, DecimateStats, Topology};
 pub use foreign::{control_from_foreign_soup, ForeignRepairs};
 pub use frame::Frame;
 pub use manifold::{split_non_manifold, split_non_manifold_polygons, SplitStats};
+pub use nonmanifold::{SplitControl, VertexKind};
 pub(crate) use report::non_finite;
 pub use report::{validate_soup, MeshReport, ValidatedMesh};
 pub use scheme::{

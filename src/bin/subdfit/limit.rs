@@ -8,10 +8,13 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use subdfit::mesh::{
-    BoundaryInterpolation, ControlMesh, CreaseMethod, FVarLinear, FaceId, SchemeOptions,
+    BoundaryInterpolation, CreaseMethod, FVarLinear, FaceId, SchemeOptions, SplitControl,
     SubdivScheme, TriangleSubdivision,
 };
-use subdfit::subdiv::{diff, make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
+use subdfit::subdiv::{
+    diff, file_vertex_limits, make_split_evaluator, split_known_differences, Backend, EvalOptions,
+    LimitPoint, SurfaceLocation,
+};
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
 pub enum BackendArg {
@@ -138,23 +141,21 @@ impl SchemeArgs {
     }
 }
 
-/// Reads the control mesh and the scheme options in force (file, then flags).
-fn read_with_scheme(path: &Path, args: &SchemeArgs) -> Result<(ControlMesh, SchemeOptions)> {
-    let file = subdfit::io::read_control_file(path).context("control mesh")?;
-    let scheme = args.apply(file.scheme);
-    if let Some(f) = scheme
-        .holes
-        .iter()
-        .find(|f| f.idx() >= file.mesh.num_faces())
-    {
+/// Reads the control mesh (non-manifold as OpenSubdiv takes it) and the
+/// scheme options in force (file, then flags).
+fn read_with_scheme(path: &Path, args: &SchemeArgs) -> Result<(SplitControl, SchemeOptions)> {
+    let (sc, scheme) = subdfit::io::read_control_split(path).context("control mesh")?;
+    let scheme = args.apply(scheme);
+    let faces = sc.face_sizes.len();
+    if let Some(f) = scheme.holes.iter().find(|f| f.idx() >= faces) {
         bail!(
-            "{}: hole face {} out of range (the mesh has {} faces)",
+            "{}: hole face {} out of range (the mesh has {faces} faces)",
             path.display(),
             f.0,
-            file.mesh.num_faces()
         );
     }
-    Ok((file.mesh, scheme))
+    sc.check_scheme(&scheme).context("control mesh")?;
+    Ok((sc, scheme))
 }
 
 #[derive(Args)]
@@ -286,13 +287,16 @@ fn write_row(w: &mut dyn Write, prefix: &str, p: &LimitPoint) -> std::io::Result
 }
 
 pub fn limit(a: LimitArgs) -> Result<ExitCode> {
-    let (mesh, scheme) = read_with_scheme(&a.control, &a.scheme)?;
+    let (sc, scheme) = read_with_scheme(&a.control, &a.scheme)?;
+    // Evaluators work over the manifold copy's vertices; vertex rows are
+    // the file's (`file_vertex_limits`).
+    let mesh = &sc.manifold;
     // State the rules the numbers follow: a file's tags change the surface.
     crate::emit(&format!("scheme: {scheme}"))?;
     let opts = EvalOptions::default()
         .with_isolation_level(a.isolation)
         .with_scheme(scheme);
-    let eval = make_evaluator(a.backend.into(), &mesh, &opts)?;
+    let eval = make_split_evaluator(a.backend.into(), &sc, &opts)?;
     let out = &a.output;
     let io = |e: std::io::Error| subdfit::Error::Io {
         path: out.clone(),
@@ -300,7 +304,7 @@ pub fn limit(a: LimitArgs) -> Result<ExitCode> {
     };
     match &a.at {
         None => {
-            let pts = eval.vertex_limits(mesh.positions())?;
+            let pts = file_vertex_limits(&sc, &eval.vertex_limits(mesh.positions())?);
             subdfit::io::write_atomically(out, |w| {
                 writeln!(w, "vertex,x,y,z,nx,ny,nz").map_err(io)?;
                 for (i, p) in pts.iter().enumerate() {
@@ -325,24 +329,33 @@ pub fn limit(a: LimitArgs) -> Result<ExitCode> {
 }
 
 pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
-    let (mesh, scheme) = read_with_scheme(&a.control, &a.scheme)?;
+    let (sc, scheme) = read_with_scheme(&a.control, &a.scheme)?;
+    // Compared over the manifold copy (same faces, a vertex per fan).
+    let mesh = &sc.manifold;
     let opts = EvalOptions::default()
         .with_isolation_level(a.isolation)
         .with_scheme(scheme.clone());
-    let osd = make_evaluator(Backend::Osd, &mesh, &opts)?;
+    let osd = make_split_evaluator(Backend::Osd, &sc, &opts)?;
     let rust_opts = match a.break_mask {
         Some(v) => opts.clone().with_broken_mask(v, 1e-3),
         None => opts,
     };
-    let rust = make_evaluator(Backend::Rust, &mesh, &rust_opts)?;
-    let mut locs = diff::random_locations_with(&mesh, &scheme, a.samples, a.seed);
+    let rust = make_split_evaluator(Backend::Rust, &sc, &rust_opts)?;
+    let mut locs = diff::random_locations_with(mesh, &scheme, a.samples, a.seed);
     locs.extend(diff::near_irregular_locations_with(
-        &mesh, &scheme, 8, a.margin, a.seed,
+        mesh, &scheme, 8, a.margin, a.seed,
     ));
-    let mut report =
-        diff::compare_with(&mesh, &scheme, osd.as_ref(), rust.as_ref(), &locs, a.margin)?;
+    let mut report = diff::compare_with_known(
+        mesh,
+        &scheme,
+        osd.as_ref(),
+        rust.as_ref(),
+        &locs,
+        a.margin,
+        split_known_differences(&sc),
+    )?;
     // The size of OpenSubdiv's f32 sharpness: what it does to the surface.
-    let (dp, dn) = diff::f32_sharpness_effect(&mesh, &rust_opts, &locs)?;
+    let (dp, dn) = diff::f32_sharpness_effect(mesh, &rust_opts, &locs)?;
     report.set_f32_effect(dp, dn);
     let mut failures = Vec::new();
     let mut check = |what: &str, value: f64, tol: f64| {
