@@ -233,6 +233,14 @@ fn cases(tris: bool) -> Vec<Case> {
     ];
     c.corners = vec![(b.id(p3(1.0, 0.0, 0.0)), 1.7), (end, 0.5)];
     out.push(c);
+
+    // An infinitely sharp edge in one sheet at a crease vertex of a chain:
+    // three sharp edges, OpenSubdiv's corner rule in every sheet.
+    let mut b = Builder::default();
+    b.fin(3, 2, 2, 2.0, tris);
+    let mut c = case("chain with a third sharp edge", &b);
+    c.creases = vec![(b.id(p3(1.0, 0.0, 0.0)), b.id(sheet0(0.5, 0.5)), 10.0)];
+    out.push(c);
     out
 }
 
@@ -398,7 +406,8 @@ fn catmark_on_non_manifold_triangles_matches_opensubdiv() {
 /// in one fan: the averaging sees the same edges in both.
 #[test]
 fn chaikin_with_semi_sharp_edges_in_one_fan_matches() {
-    let c = cases(false).pop().unwrap();
+    let c = cases(false).swap_remove(9);
+    assert_eq!(c.name, "chain with semi-sharp creases");
     let scheme = SchemeOptions::default().with_crease_method(CreaseMethod::Chaikin);
     let (dv, ds, _) = measure(&c, &scheme);
     assert!(dv <= 1e-9 && ds <= 1e-9, "{dv:e} {ds:e}");
@@ -459,23 +468,31 @@ fn what_splitting_cannot_reproduce_is_refused_by_name() {
     let msg = refusal(&b.soup(), &[(mid, n, 1.5)], &SchemeOptions::default());
     assert!(msg.contains(&format!("vertex {mid}")), "{msg}");
 
-    // Chaikin with semi-sharp edges in two fans of the fin's end.
-    let end = b.id(p3(0.0, 0.0, 0.0));
-    let fans: Vec<(u32, u32, f64)> = (0..2)
-        .map(|s| {
-            let t = 2.0 * std::f64::consts::PI * (s as f64 + 0.1) / 3.0;
-            (end, b.id(p3(0.0, 0.5 * t.cos(), 0.5 * t.sin())), 1.5)
-        })
-        .collect();
+    // Chaikin with semi-sharp edges in two fans of one vertex: two cubes
+    // touching at a corner, an edge of each creased there.
+    let mut b = Builder::default();
+    b.cube(DVec3::ZERO, 1.0, 1, false);
+    b.cube(p3(1.0, 1.0, 1.0), 1.0, 1, false);
+    let apex = b.id(p3(1.0, 1.0, 1.0));
+    let fans = [
+        (apex, b.id(p3(1.0, 1.0, 0.0)), 1.5),
+        (apex, b.id(p3(2.0, 1.0, 1.0)), 2.5),
+    ];
     let chaikin = SchemeOptions::default().with_crease_method(CreaseMethod::Chaikin);
     let msg = refusal(&b.soup(), &fans, &chaikin);
     assert!(
-        msg.contains(&format!("vertex {end}")) && msg.contains("Chaikin"),
+        msg.contains(&format!("vertex {apex}")) && msg.contains("Chaikin"),
         "{msg}"
     );
-    // ... which uniform creasing accepts.
-    let sc = SplitControl::new(&b.soup(), &fans, &[], Path::new("nm.obj")).unwrap();
-    sc.check_scheme(&SchemeOptions::default()).unwrap();
+    // ... which uniform creasing accepts, and matches; one fan's alone
+    // Chaikin accepts too.
+    let mut c = case("cubes on a vertex, creased", &b);
+    c.creases = fans.to_vec();
+    let (dv, ds, _) = measure(&c, &SchemeOptions::default());
+    assert!(dv <= 1e-9 && ds <= 1e-9, "{dv:e} {ds:e}");
+    c.creases.pop();
+    let (dv, ds, _) = measure(&c, &chaikin);
+    assert!(dv <= 1e-9 && ds <= 1e-9, "{dv:e} {ds:e}");
 
     // A bent chain a-b-c with three quads (a, b, c, x_k): b's copies have
     // one face each, sharpened corners under "edge and corner" only.

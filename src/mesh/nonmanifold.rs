@@ -88,9 +88,11 @@ pub struct SplitControl {
     /// Per file vertex: its vertices in `manifold` (none when unused).
     pub copies: Vec<Vec<u32>>,
     pub kinds: Vec<VertexKind>,
-    /// Per file vertex: its fans' copies that carry a semi-sharp edge.
+    /// Per file vertex: how many of its copies (fans) have a semi-sharp
+    /// edge other than a boundary one (Chaikin's refusal).
     semi_sharp_fans: Vec<usize>,
-    /// Crease vertices with a copy of one face (see the module docs).
+    /// The first crease vertex with a copy of one face ("edge and corner"'s
+    /// refusal).
     single_face_crease: Option<u32>,
 }
 
@@ -205,8 +207,7 @@ impl SplitControl {
         for &v in &self.face_indices {
             counts[v as usize][3] += 1;
         }
-        for v in 0..n {
-            let [nm_edges, boundary, edges, faces] = counts[v];
+        for (v, &[nm_edges, boundary, edges, faces]) in counts.iter().enumerate() {
             self.kinds[v] = if faces == 0 {
                 VertexKind::Unused
             } else if nm_edges == 0 && self.copies[v].len() == 1 {
@@ -217,11 +218,15 @@ impl SplitControl {
                 VertexKind::SharpCorner
             };
         }
-        // Non-manifold edges: every copy infinitely sharp, and distinct.
-        for (&(a, b), u) in uses {
-            if u.len() == 1 || manifold_edge(u) {
-                continue;
-            }
+        // Non-manifold edges: every copy infinitely sharp, and distinct
+        // (in edge order, so that an error names the same edge every run).
+        let mut nm_edges: Vec<(u32, u32)> = uses
+            .iter()
+            .filter(|(_, u)| u.len() != 1 && !manifold_edge(u))
+            .map(|(&e, _)| e)
+            .collect();
+        nm_edges.sort_unstable();
+        for (a, b) in nm_edges {
             let mut seen = Vec::new();
             for &x in &self.copies[a as usize] {
                 for &y in &self.copies[b as usize] {
@@ -246,13 +251,29 @@ impl SplitControl {
         }
         for v in 0..n {
             let copies = self.copies[v].clone();
-            let semi = |m: &ControlMesh, c: u32| {
+            // A copy's boundary edges are the file's boundary edges (always
+            // infinitely sharp in OpenSubdiv, whatever the tag) or copies
+            // of non-manifold ones: only its other edges count.
+            let sharp = |m: &ControlMesh, c: u32, semi: bool| {
                 m.outgoing(VertexId(c)).any(|h| {
                     let s = m.edge_sharpness(h.edge());
-                    s > 0.0 && s < INFINITELY_SHARP
+                    let wanted = if semi {
+                        s > 0.0 && s < INFINITELY_SHARP
+                    } else {
+                        s >= INFINITELY_SHARP
+                    };
+                    wanted && !m.is_boundary_edge(h.edge())
                 })
             };
-            self.semi_sharp_fans[v] = copies.iter().filter(|&&c| semi(&self.manifold, c)).count();
+            let m = &self.manifold;
+            self.semi_sharp_fans[v] = copies.iter().filter(|&&c| sharp(m, c, true)).count();
+            if self.kinds[v] == VertexKind::Crease && copies.iter().any(|&c| sharp(m, c, false)) {
+                // A third infinitely sharp edge: OpenSubdiv's rule is the
+                // corner's at every level (`DetermineVertexVertexRule` with
+                // three sharp edges), the surface of an infinitely sharp
+                // vertex.
+                self.kinds[v] = VertexKind::SharpCorner;
+            }
             match self.kinds[v] {
                 VertexKind::SharpCorner => {
                     for &c in &copies {
