@@ -14,7 +14,9 @@
 //!   non-manifold crease: exactly two non-manifold edges, no boundary edge
 //!   and more faces than edges (a fin); its rule is then
 //!   `DetermineVertexVertexRule(vSharpness, sharpEdgeCount)` over all its
-//!   sharp edges, i.e. a crease along the two non-manifold edges;
+//!   sharp edges, i.e. a crease along the two non-manifold edges (a third
+//!   infinitely sharp edge there makes it the corner rule at every level:
+//!   the copies get an infinitely sharp corner, the same surface);
 //! - holes of boundary interpolation "none" are decided before that
 //!   sharpening, from edges with exactly one face;
 //! - a vertex no face uses is refined as an isolated point.
