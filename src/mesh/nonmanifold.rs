@@ -361,3 +361,79 @@ impl SplitControl {
         Ok(out)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn soup(n: usize, faces: &[&[u32]]) -> PolySoup {
+        let mut s = PolySoup {
+            positions: (0..n)
+                .map(|i| DVec3::new(i as f64, (i * i % 5) as f64, (i % 3) as f64))
+                .collect(),
+            face_offsets: vec![0],
+            face_indices: Vec::new(),
+        };
+        for f in faces {
+            s.face_indices.extend_from_slice(f);
+            s.face_offsets.push(s.face_indices.len() as u32);
+        }
+        s
+    }
+
+    #[test]
+    fn opensubdiv_kinds_of_a_fin_chain_and_an_unused_vertex() {
+        // Three quads on each of the edges 0-1 and 1-2 (a chain), vertex
+        // 15 unused.
+        let mut faces: Vec<Vec<u32>> = Vec::new();
+        for k in 0..3u32 {
+            let (a, b, c) = (3 + 4 * k, 4 + 4 * k, 5 + 4 * k);
+            faces.push(vec![0, 1, b, a]);
+            faces.push(vec![1, 2, c, b]);
+        }
+        let f: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
+        let s = soup(16, &f);
+        let sc = SplitControl::new(&s, &[], &[], Path::new("fin.obj")).unwrap();
+        assert!(!sc.is_manifold());
+        assert_eq!(sc.kinds[0], VertexKind::SharpCorner);
+        assert_eq!(sc.kinds[1], VertexKind::Crease);
+        assert_eq!(sc.kinds[2], VertexKind::SharpCorner);
+        assert_eq!(sc.kinds[4], VertexKind::Manifold);
+        assert_eq!(sc.kinds[15], VertexKind::Unused);
+        assert_eq!(sc.copies[1].len(), 3);
+        assert!(sc.copies[15].is_empty());
+        // Every copy of the chain's edges is infinitely sharp, every copy
+        // of its ends an infinitely sharp corner, the crease vertex not.
+        let m = &sc.manifold;
+        for &c in &sc.copies[0] {
+            assert_eq!(m.vertex_sharpness(VertexId(c)), INFINITELY_SHARP);
+        }
+        for &c in &sc.copies[1] {
+            assert_eq!(m.vertex_sharpness(VertexId(c)), 0.0);
+        }
+        assert_eq!(
+            m.creases().len(),
+            6,
+            "two edges, three copies each: {:?}",
+            m.creases()
+        );
+        assert_eq!(m.num_faces(), 6);
+        // Positions round-trip; copies apart are refused.
+        let mut p = sc.split_positions(&s.positions);
+        assert_eq!(sc.file_positions(&p).unwrap(), s.positions);
+        p[sc.copies[1][1] as usize].x += 1.0;
+        assert!(sc.file_positions(&p).is_err());
+    }
+
+    #[test]
+    fn a_manifold_file_is_its_control_mesh() {
+        let s = soup(6, &[&[0, 1, 4, 3], &[1, 2, 5, 4]]);
+        let sc = SplitControl::new(&s, &[(1, 4, 2.0)], &[(0, 1.0)], Path::new("m.obj")).unwrap();
+        assert!(sc.is_manifold());
+        assert_eq!(sc.origin, (0..6).collect::<Vec<u32>>());
+        assert_eq!(sc.manifold.creases().len(), 1);
+        assert_eq!(sc.manifold.corners().len(), 1);
+        let e = SplitControl::new(&s, &[(0, 5, 1.0)], &[], Path::new("m.obj")).unwrap_err();
+        assert!(e.to_string().contains("edge (0, 5)"), "{e}");
+    }
+}
