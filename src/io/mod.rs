@@ -229,3 +229,36 @@ pub fn read_control_file(path: &Path) -> Result<ControlFile> {
         uv_note,
     })
 }
+
+/// Reads a control mesh as OpenSubdiv takes it (issue 18): non-manifold
+/// edges and vertices and unused vertices accepted, with the file's scheme
+/// options ([`crate::mesh::SplitControl`]: the file's topology for
+/// OpenSubdiv, a manifold copy for the Rust evaluators; what neither can
+/// reproduce is refused, naming the element). A manifold file gives the
+/// mesh [`read_control_file`] reads.
+pub fn read_control_split(path: &Path) -> Result<ControlSplitFile> {
+    let (soup, creases, corners, scheme, uv, uv_note) = read_control_parts(path)?;
+    let split = crate::mesh::SplitControl::new(&soup, &creases, &corners, path)?;
+    if let Some(ch) = &uv {
+        ch.check(&split.manifold)
+            .map_err(|e| Error::invalid_mesh(path, "texture coordinates", e.to_string()))?;
+    }
+    Ok(ControlSplitFile {
+        split,
+        scheme,
+        uv,
+        uv_note,
+    })
+}
+
+/// What [`read_control_split`] reads.
+#[derive(Clone, Debug)]
+pub struct ControlSplitFile {
+    pub split: crate::mesh::SplitControl,
+    pub scheme: SchemeOptions,
+    /// The texture coordinates, one index per face corner (the manifold
+    /// copy keeps the file's faces and corner order).
+    pub uv: Option<FVarChannel>,
+    /// Why the file's texture coordinates were not kept, if it has some.
+    pub uv_note: Option<String>,
+}

@@ -19,6 +19,7 @@ use std::collections::HashMap;
 
 use super::{split_non_manifold_polygons, ControlMesh, PolySoup, SplitStats, VertexId};
 use crate::error::Result;
+use crate::DVec3;
 
 /// What [`control_from_foreign_soup`] changed.
 #[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -98,55 +99,75 @@ pub fn control_from_foreign_soup(
         }
         faces.push(g);
     }
+    let copy = manifold_copy(&soup.positions, &faces, creases, corners)?;
+    r.unreferenced_vertices = copy.unreferenced_vertices;
+    (r.vertices_split, r.vertices_added) = (copy.stats.vertices_split, copy.stats.vertices_added);
+    let mesh = copy.mesh;
+    Ok((mesh, r))
+}
+
+/// A manifold control mesh made from polygons by steps 2–4 of the module
+/// docs, with the way back to the input's vertices.
+pub(crate) struct ManifoldCopy {
+    pub mesh: ControlMesh,
+    /// Per vertex of `mesh`: the input vertex it is (a copy of).
+    pub origin: Vec<u32>,
+    pub unreferenced_vertices: usize,
+    pub stats: SplitStats,
+}
+
+/// Steps 2–4 of the module docs on `faces` (each with three or more
+/// distinct corners, indices into `positions`): unreferenced vertices
+/// dropped, fans split, creases `(a, b, s)` and corners `(v, s)` (on input
+/// vertex ids) given to every copy. Face ids and each face's corner order
+/// are kept. Shared by `subdfit fit`'s repairs and by
+/// [`super::SplitControl`], OpenSubdiv's non-manifold input for the Rust
+/// evaluators.
+pub(crate) fn manifold_copy(
+    positions: &[DVec3],
+    faces: &[Vec<u32>],
+    creases: &[(u32, u32, f64)],
+    corners: &[(u32, f64)],
+) -> Result<ManifoldCopy> {
     // 2. Unreferenced vertices.
-    let n = soup.positions.len();
+    let n = positions.len();
     let mut new_id = vec![u32::MAX; n];
-    for f in &faces {
+    for f in faces {
         for &v in f {
             new_id[v as usize] = 0;
         }
     }
-    let mut positions = Vec::with_capacity(n);
+    let mut kept = Vec::with_capacity(n);
+    let mut kept_of = Vec::with_capacity(n);
     for (v, id) in new_id.iter_mut().enumerate() {
         if *id == 0 {
-            *id = positions.len() as u32;
-            positions.push(soup.positions[v]);
+            *id = kept.len() as u32;
+            kept.push(positions[v]);
+            kept_of.push(v as u32);
         }
     }
-    r.unreferenced_vertices = n - positions.len();
+    let unreferenced_vertices = n - kept.len();
     let mut compact = PolySoup {
-        positions,
+        positions: kept,
         face_offsets: vec![0],
         face_indices: Vec::new(),
     };
-    for f in &faces {
+    for f in faces {
         compact
             .face_indices
             .extend(f.iter().map(|&v| new_id[v as usize]));
         compact.face_offsets.push(compact.face_indices.len() as u32);
     }
     // 3. Fans.
-    let (
-        split,
-        SplitStats {
-            vertices_split,
-            vertices_added,
-        },
-        origin,
-    ) = split_non_manifold_polygons(&compact);
-    (r.vertices_split, r.vertices_added) = (vertices_split, vertices_added);
+    let (split, stats, split_origin) = split_non_manifold_polygons(&compact);
     let mut mesh = ControlMesh::from_soup(&split)?;
     // 4. Sharpness on every copy: input vertex → its vertices in `mesh`.
+    let origin: Vec<u32> = split_origin.iter().map(|&c| kept_of[c as usize]).collect();
     let mut copies: HashMap<u32, Vec<u32>> = HashMap::new();
     for (v, &o) in origin.iter().enumerate() {
         copies.entry(o).or_default().push(v as u32);
     }
-    let of = |v: u32| -> &[u32] {
-        new_id
-            .get(v as usize)
-            .and_then(|&c| copies.get(&c))
-            .map_or(&[], |c| c.as_slice())
-    };
+    let of = |v: u32| -> &[u32] { copies.get(&v).map_or(&[], |c| c.as_slice()) };
     // (A crease whose edge was only in dropped faces has nothing to
     // crease.)
     for &(a, b, s) in creases {
@@ -163,7 +184,12 @@ pub fn control_from_foreign_soup(
             mesh.set_corner(VertexId(x), s)?;
         }
     }
-    Ok((mesh, r))
+    Ok(ManifoldCopy {
+        mesh,
+        origin,
+        unreferenced_vertices,
+        stats,
+    })
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@ mod foreign;
 mod frame;
 mod fvar;
 mod manifold;
+mod nonmanifold;
 mod report;
 mod scheme;
 mod soup;
@@ -21,6 +22,7 @@ pub use foreign::{control_from_foreign_soup, ForeignRepairs};
 pub use frame::Frame;
 pub use fvar::FVarChannel;
 pub use manifold::{split_non_manifold, split_non_manifold_polygons, SplitStats};
+pub use nonmanifold::{SplitControl, VertexKind};
 pub(crate) use report::non_finite;
 pub use report::{validate_soup, MeshReport, ValidatedMesh};
 pub use scheme::{

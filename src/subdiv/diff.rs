@@ -480,14 +480,32 @@ pub fn compare_with(
     locations: &[SurfaceLocation],
     margin: f64,
 ) -> Result<DiffReport> {
+    compare_with_known(mesh, scheme, a, b, locations, margin, Vec::new())
+}
+
+/// [`compare_with`] with known differences besides
+/// [`known_differences_with`]'s (a non-manifold mesh's copies,
+/// [`crate::subdiv::split_known_differences`]).
+pub fn compare_with_known(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    a: &dyn LimitEvaluator,
+    b: &dyn LimitEvaluator,
+    locations: &[SurfaceLocation],
+    margin: f64,
+    extra_known: Vec<KnownDifference>,
+) -> Result<DiffReport> {
     let diag = mesh.bbox_diagonal().max(f64::MIN_POSITIVE);
-    let known = known_differences_with(mesh, scheme);
+    let mut known = known_differences_with(mesh, scheme);
+    known.extend(extra_known);
     let holes = scheme.effective_holes(mesh);
     let on_patches = crate::subdiv::osd::patch_evaluated_vertices(mesh, scheme);
     // 0: no known difference, 1: normal only, 2: position and normal.
     let mut is_known = vec![0u8; mesh.num_vertices()];
     for k in &known {
-        is_known[k.vertex as usize] = if k.normal_only { 1 } else { 2 };
+        let level = if k.normal_only { 1 } else { 2 };
+        let at = &mut is_known[k.vertex as usize];
+        *at = (*at).max(level);
     }
     let mut report = DiffReport {
         backends: [a.name().to_string(), b.name().to_string()],

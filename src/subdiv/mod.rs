@@ -29,10 +29,12 @@ pub mod catmark;
 pub mod diff;
 pub mod fvar;
 pub mod loop_scheme;
+pub mod nonmanifold;
 pub mod osd;
 pub mod quadtri;
 pub mod refine;
 
+pub use nonmanifold::{file_vertex_limits, make_split_evaluator, split_known_differences};
 pub use quadtri::{QuadTriEvaluator, QuadTriRefiner};
 
 use serde::Serialize;

@@ -39,7 +39,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::ffi::osd::bridge;
-use crate::mesh::{ControlMesh, INFINITELY_SHARP};
+use crate::mesh::{ControlMesh, SplitControl, INFINITELY_SHARP};
 use crate::subdiv::{
     checked_holes, BoundaryInterpolation, CreaseMethod, EvalOptions, FVarLinear, LimitEvaluator,
     LimitPoint, LimitStencils, SchemeOptions, SubdivScheme, SurfaceLocation, TriangleSubdivision,
@@ -114,6 +114,94 @@ pub fn patch_evaluated_vertices(mesh: &ControlMesh, scheme: &SchemeOptions) -> V
         .collect()
 }
 
+/// OpenSubdiv's `Far::TopologyDescriptor`: the arrays it is given.
+#[derive(Clone, Debug, Default)]
+pub struct OsdDescriptor {
+    pub num_vertices: usize,
+    pub face_sizes: Vec<u32>,
+    pub face_indices: Vec<u32>,
+    /// `(a, b, sharpness)`.
+    pub creases: Vec<(u32, u32, f64)>,
+    /// `(v, sharpness)`.
+    pub corners: Vec<(u32, f64)>,
+}
+
+impl OsdDescriptor {
+    pub fn of_mesh(mesh: &ControlMesh) -> Self {
+        OsdDescriptor {
+            num_vertices: mesh.num_vertices(),
+            face_sizes: mesh.face_sizes(),
+            face_indices: mesh.face_indices_flat(),
+            creases: mesh
+                .creases()
+                .iter()
+                .map(|c| (c.0 .0, c.1 .0, c.2))
+                .collect(),
+            corners: mesh.corners().iter().map(|c| (c.0 .0, c.1)).collect(),
+        }
+    }
+
+    /// The file's topology of a non-manifold mesh, untouched: OpenSubdiv
+    /// applies its own non-manifold rules.
+    pub fn of_split(sc: &SplitControl) -> Self {
+        OsdDescriptor {
+            num_vertices: sc.positions.len(),
+            face_sizes: sc.face_sizes.clone(),
+            face_indices: sc.face_indices.clone(),
+            creases: sc.creases.clone(),
+            corners: sc.corners.clone(),
+        }
+    }
+
+    fn tag_arrays(&self) -> (Vec<u32>, Vec<f64>, Vec<u32>, Vec<f64>) {
+        (
+            self.creases.iter().flat_map(|c| [c.0, c.1]).collect(),
+            self.creases.iter().map(|c| c.2).collect(),
+            self.corners.iter().map(|c| c.0).collect(),
+            self.corners.iter().map(|c| c.1).collect(),
+        )
+    }
+}
+
+/// The vertices [`OsdEvaluator`]'s `vertex_limits` evaluates on the patch
+/// table ([`patch_evaluated_vertices`]), each with a corner of one of its
+/// faces with a surface: the corner of that face's ptex face at the vertex
+/// (a vertex with only holes around keeps `Limit`'s value).
+pub fn patch_routes(
+    mesh: &ControlMesh,
+    options: &EvalOptions,
+) -> Result<Vec<(u32, SurfaceLocation)>> {
+    let loop_scheme = options.scheme.scheme == SubdivScheme::Loop;
+    let holes = checked_holes(mesh, &options.scheme)?;
+    let routed = patch_evaluated_vertices(mesh, &options.scheme);
+    Ok(mesh
+        .vertices()
+        .filter(|&v| routed[v.idx()])
+        .filter_map(|v| {
+            let h = mesh
+                .outgoing(v)
+                .find(|&h| mesh.face_of(h).is_some_and(|f| !holes[f.idx()]))?;
+            let f = mesh.face_of(h)?;
+            let k = mesh.face_halfedges(f).position(|g| g == h)?;
+            let loc = if loop_scheme {
+                let (u, w) = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)][k];
+                SurfaceLocation::quad(f, u, w)
+            } else if mesh.face_size(f) == 4 {
+                let (u, w) = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)][k];
+                SurfaceLocation::quad(f, u, w)
+            } else {
+                SurfaceLocation {
+                    face: f,
+                    sub: k as u16,
+                    u: 0.0,
+                    v: 0.0,
+                }
+            };
+            Some((v.0, loc))
+        })
+        .collect())
+}
+
 fn backend(e: cxx::Exception) -> Error {
     Error::backend("OpenSubdiv", e.what())
 }
@@ -148,6 +236,22 @@ impl OsdEvaluator {
     /// with [`Error::Backend`] carrying OpenSubdiv's message if it refuses
     /// the topology.
     pub fn new(mesh: &ControlMesh, options: &EvalOptions) -> Result<Self> {
+        if options.scheme.scheme == SubdivScheme::Loop {
+            crate::mesh::check_loop_triangles(mesh)?;
+        }
+        let routes = patch_routes(mesh, options)?;
+        Self::from_descriptor(&OsdDescriptor::of_mesh(mesh), routes, options)
+    }
+
+    /// [`Self::new`] on OpenSubdiv's arrays as they are (a non-manifold
+    /// mesh, `crate::mesh::SplitControl`), with the vertices whose limit
+    /// [`LimitEvaluator::vertex_limits`] takes from the patch table instead
+    /// of `Limit` and where (see [`patch_routes`]).
+    pub fn from_descriptor(
+        desc: &OsdDescriptor,
+        patch_route_vertices: Vec<(u32, SurfaceLocation)>,
+        options: &EvalOptions,
+    ) -> Result<Self> {
         let level = options.isolation_level;
         if !(1..=10).contains(&level) {
             return Err(Error::InvalidArgument(format!(
@@ -155,26 +259,22 @@ impl OsdEvaluator {
             )));
         }
         let loop_scheme = options.scheme.scheme == SubdivScheme::Loop;
-        if loop_scheme {
-            crate::mesh::check_loop_triangles(mesh)?;
+        if let Some(f) = desc.face_sizes.iter().position(|&n| loop_scheme && n != 3) {
+            return Err(Error::InvalidArgument(format!(
+                "face {f} has {} corners: Loop subdivision needs triangles",
+                desc.face_sizes[f]
+            )));
         }
-        let num_vertices = mesh.num_vertices();
+        let num_vertices = desc.num_vertices;
         let nv = u32::try_from(num_vertices).map_err(|_| {
             Error::InvalidArgument(format!("{num_vertices} control vertices are too many"))
         })?;
-        let face_sizes = mesh.face_sizes();
-        let face_indices = mesh.face_indices_flat();
-        let creases = mesh.creases();
-        let crease_vertices: Vec<u32> = creases.iter().flat_map(|c| [c.0 .0, c.1 .0]).collect();
-        let crease_weights: Vec<f64> = creases.iter().map(|c| c.2).collect();
-        let corners = mesh.corners();
-        let corner_vertices: Vec<u32> = corners.iter().map(|c| c.0 .0).collect();
-        let corner_weights: Vec<f64> = corners.iter().map(|c| c.1).collect();
-
+        let face_sizes = desc.face_sizes.clone();
+        let (crease_vertices, crease_weights, corner_vertices, corner_weights) = desc.tag_arrays();
         let topo = bridge::new_osd_topology(
             nv,
             &face_sizes,
-            &face_indices,
+            &desc.face_indices,
             &crease_vertices,
             &crease_weights,
             &corner_vertices,
@@ -194,38 +294,6 @@ impl OsdEvaluator {
                 "refined topology does not match the control mesh's vertex/face counts",
             ));
         }
-
-        let holes = checked_holes(mesh, &options.scheme)?;
-        let routed = patch_evaluated_vertices(mesh, &options.scheme);
-        let patch_route_vertices = mesh
-            .vertices()
-            .filter(|&v| routed[v.idx()])
-            .filter_map(|v| {
-                // Any face at v with a surface: the corner of its ptex face
-                // at v (a vertex with only holes around keeps Limit's value).
-                let h = mesh
-                    .outgoing(v)
-                    .find(|&h| mesh.face_of(h).is_some_and(|f| !holes[f.idx()]))?;
-                let f = mesh.face_of(h)?;
-                let k = mesh.face_halfedges(f).position(|g| g == h)?;
-                let loc = if loop_scheme {
-                    let (u, w) = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)][k];
-                    SurfaceLocation::quad(f, u, w)
-                } else if mesh.face_size(f) == 4 {
-                    let (u, w) = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)][k];
-                    SurfaceLocation::quad(f, u, w)
-                } else {
-                    SurfaceLocation {
-                        face: f,
-                        sub: k as u16,
-                        u: 0.0,
-                        v: 0.0,
-                    }
-                };
-                Some((v.0, loc))
-            })
-            .collect();
-
         Ok(OsdEvaluator {
             topo,
             num_vertices,
@@ -499,35 +567,57 @@ pub fn osd_refine_uniform_with(
     levels: u32,
     limits: bool,
 ) -> Result<OsdUniformRefinement> {
+    osd_refine_uniform_desc(
+        &OsdDescriptor::of_mesh(mesh),
+        mesh.positions(),
+        scheme,
+        options,
+        levels,
+        limits,
+    )
+}
+
+/// [`osd_refine_uniform_with`] on OpenSubdiv's arrays as they are (a
+/// non-manifold mesh's, [`OsdDescriptor::of_split`]) with `positions` over
+/// their vertices: the reference of `tests/nonmanifold_limit.rs`.
+pub fn osd_refine_uniform_desc(
+    desc: &OsdDescriptor,
+    positions: &[DVec3],
+    scheme: OsdScheme,
+    options: &SchemeOptions,
+    levels: u32,
+    limits: bool,
+) -> Result<OsdUniformRefinement> {
     if !(1..=10).contains(&levels) {
         return Err(Error::InvalidArgument(format!(
             "OpenSubdiv uniform refinement: {levels} levels requested, 1..=10 supported"
         )));
     }
-    let num_vertices = mesh.num_vertices();
+    let num_vertices = desc.num_vertices;
     let nv = u32::try_from(num_vertices).map_err(|_| {
         Error::InvalidArgument(format!("{num_vertices} control vertices are too many"))
     })?;
-    if let Some(i) = mesh.positions().iter().position(|p| !p.is_finite()) {
+    if positions.len() != num_vertices {
+        return Err(Error::InvalidArgument(format!(
+            "expected {num_vertices} control positions, got {}",
+            positions.len()
+        )));
+    }
+    if let Some(i) = positions.iter().position(|p| !p.is_finite()) {
         return Err(Error::InvalidArgument(format!(
             "control position of vertex {i} is not finite"
         )));
     }
-    let creases = mesh.creases();
-    let crease_vertices: Vec<u32> = creases.iter().flat_map(|c| [c.0 .0, c.1 .0]).collect();
-    let crease_weights: Vec<f64> = creases.iter().map(|c| c.2).collect();
-    let corners = mesh.corners();
-    let corner_vertices: Vec<u32> = corners.iter().map(|c| c.0 .0).collect();
-    let corner_weights: Vec<f64> = corners.iter().map(|c| c.1).collect();
-    let flat: Vec<f64> = mesh.positions().iter().flat_map(|p| p.to_array()).collect();
+    let (crease_vertices, crease_weights, corner_vertices, corner_weights) = desc.tag_arrays();
+    let flat: Vec<f64> = positions.iter().flat_map(|p| p.to_array()).collect();
     let r = bridge::uniform_refine(
         match scheme {
             OsdScheme::Catmark => 0,
             OsdScheme::Loop => 1,
         },
         nv,
-        &mesh.face_sizes(),
-        &mesh.face_indices_flat(),
+        &desc.face_sizes,
+        &desc.face_indices,
         &crease_vertices,
         &crease_weights,
         &corner_vertices,

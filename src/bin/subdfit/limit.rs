@@ -9,10 +9,13 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use subdfit::mesh::{
     BoundaryInterpolation, ControlMesh, CreaseMethod, FVarChannel, FVarLinear, FaceId,
-    SchemeOptions, SubdivScheme, TriangleSubdivision,
+    SchemeOptions, SplitControl, SubdivScheme, TriangleSubdivision,
 };
 use subdfit::subdiv::fvar::{make_fvar_evaluator, RustFVarEvaluator};
-use subdfit::subdiv::{diff, make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
+use subdfit::subdiv::{
+    diff, file_vertex_limits, make_split_evaluator, split_known_differences, Backend, EvalOptions,
+    LimitPoint, SurfaceLocation,
+};
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
 pub enum BackendArg {
@@ -139,30 +142,28 @@ impl SchemeArgs {
     }
 }
 
-/// Reads the control mesh and the scheme options in force (file, then
-/// flags), and the file's texture coordinates.
+/// Reads the control mesh (non-manifold as OpenSubdiv takes it), the
+/// scheme options in force (file, then flags) and the file's texture
+/// coordinates.
 fn read_with_scheme(
     path: &Path,
     args: &SchemeArgs,
-) -> Result<(ControlMesh, SchemeOptions, Option<FVarChannel>)> {
-    let file = subdfit::io::read_control_file(path).context("control mesh")?;
-    let scheme = args.apply(file.scheme);
-    if let Some(f) = scheme
-        .holes
-        .iter()
-        .find(|f| f.idx() >= file.mesh.num_faces())
-    {
+) -> Result<(SplitControl, SchemeOptions, Option<FVarChannel>)> {
+    let file = subdfit::io::read_control_split(path).context("control mesh")?;
+    let (sc, scheme) = (file.split, args.apply(file.scheme));
+    let faces = sc.face_sizes.len();
+    if let Some(f) = scheme.holes.iter().find(|f| f.idx() >= faces) {
         bail!(
-            "{}: hole face {} out of range (the mesh has {} faces)",
+            "{}: hole face {} out of range (the mesh has {faces} faces)",
             path.display(),
             f.0,
-            file.mesh.num_faces()
         );
     }
+    sc.check_scheme(&scheme).context("control mesh")?;
     if let Some(note) = &file.uv_note {
         eprintln!("warning: {note}");
     }
-    Ok((file.mesh, scheme, file.uv))
+    Ok((sc, scheme, file.uv))
 }
 
 #[derive(Args)]
@@ -294,13 +295,16 @@ fn write_row(w: &mut dyn Write, prefix: &str, p: &LimitPoint) -> std::io::Result
 }
 
 pub fn limit(a: LimitArgs) -> Result<ExitCode> {
-    let (mesh, scheme, uv) = read_with_scheme(&a.control, &a.scheme)?;
+    let (sc, scheme, uv) = read_with_scheme(&a.control, &a.scheme)?;
+    // Evaluators work over the manifold copy's vertices; vertex rows are
+    // the file's (`file_vertex_limits`).
+    let mesh = &sc.manifold;
     // State the rules the numbers follow: a file's tags change the surface.
     crate::emit(&format!("scheme: {scheme}"))?;
     let opts = EvalOptions::default()
         .with_isolation_level(a.isolation)
         .with_scheme(scheme);
-    let eval = make_evaluator(a.backend.into(), &mesh, &opts)?;
+    let eval = make_split_evaluator(a.backend.into(), &sc, &opts)?;
     let out = &a.output;
     let io = |e: std::io::Error| subdfit::Error::Io {
         path: out.clone(),
@@ -308,7 +312,7 @@ pub fn limit(a: LimitArgs) -> Result<ExitCode> {
     };
     match &a.at {
         None => {
-            let pts = eval.vertex_limits(mesh.positions())?;
+            let pts = file_vertex_limits(&sc, &eval.vertex_limits(mesh.positions())?);
             subdfit::io::write_atomically(out, |w| {
                 writeln!(w, "vertex,x,y,z,nx,ny,nz").map_err(io)?;
                 for (i, p) in pts.iter().enumerate() {
@@ -382,24 +386,33 @@ fn diff_uvs(
 }
 
 pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
-    let (mesh, scheme, uv) = read_with_scheme(&a.control, &a.scheme)?;
+    let (sc, scheme, uv) = read_with_scheme(&a.control, &a.scheme)?;
+    // Compared over the manifold copy (same faces, a vertex per fan).
+    let mesh = &sc.manifold;
     let opts = EvalOptions::default()
         .with_isolation_level(a.isolation)
         .with_scheme(scheme.clone());
-    let osd = make_evaluator(Backend::Osd, &mesh, &opts)?;
+    let osd = make_split_evaluator(Backend::Osd, &sc, &opts)?;
     let rust_opts = match a.break_mask {
         Some(v) => opts.clone().with_broken_mask(v, 1e-3),
         None => opts,
     };
-    let rust = make_evaluator(Backend::Rust, &mesh, &rust_opts)?;
-    let mut locs = diff::random_locations_with(&mesh, &scheme, a.samples, a.seed);
+    let rust = make_split_evaluator(Backend::Rust, &sc, &rust_opts)?;
+    let mut locs = diff::random_locations_with(mesh, &scheme, a.samples, a.seed);
     locs.extend(diff::near_irregular_locations_with(
-        &mesh, &scheme, 8, a.margin, a.seed,
+        mesh, &scheme, 8, a.margin, a.seed,
     ));
-    let mut report =
-        diff::compare_with(&mesh, &scheme, osd.as_ref(), rust.as_ref(), &locs, a.margin)?;
+    let mut report = diff::compare_with_known(
+        mesh,
+        &scheme,
+        osd.as_ref(),
+        rust.as_ref(),
+        &locs,
+        a.margin,
+        split_known_differences(&sc),
+    )?;
     // The size of OpenSubdiv's f32 sharpness: what it does to the surface.
-    let (dp, dn) = diff::f32_sharpness_effect(&mesh, &rust_opts, &locs)?;
+    let (dp, dn) = diff::f32_sharpness_effect(mesh, &rust_opts, &locs)?;
     report.set_f32_effect(dp, dn);
     let uv_report = diff_uvs(&mesh, &rust_opts, uv.as_ref(), &locs, a.margin)?;
     let mut failures = Vec::new();

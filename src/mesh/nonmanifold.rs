@@ -1,0 +1,439 @@
+//! Non-manifold control meshes as OpenSubdiv takes them (issue 18): edges
+//! of three or more faces (or two of the same orientation), vertices where
+//! several fans touch, vertices no face uses. OpenSubdiv refines such a
+//! mesh as it is; the half-edge [`ControlMesh`] cannot hold it, so a
+//! [`SplitControl`] keeps both: the file's topology for OpenSubdiv, and a
+//! manifold copy for the exact Rust evaluators, tagged so that it has the
+//! same limit surface.
+//!
+//! OpenSubdiv's rules (`far/topologyRefinerFactory.cpp`,
+//! `prepareComponentTagsAndSharpness`, with `sharpenNonManFeatures` always
+//! on):
+//! - every non-manifold edge is infinitely sharp;
+//! - every non-manifold vertex is infinitely sharp, except on an interior
+//!   non-manifold crease: exactly two non-manifold edges, no boundary edge
+//!   and more faces than edges (a fin); its rule is then
+//!   `DetermineVertexVertexRule(vSharpness, sharpEdgeCount)` over all its
+//!   sharp edges, i.e. a crease along the two non-manifold edges (a third
+//!   infinitely sharp edge there makes it the corner rule at every level:
+//!   the copies get an infinitely sharp corner, the same surface);
+//! - holes of boundary interpolation "none" are decided before that
+//!   sharpening, from edges with exactly one face;
+//! - a vertex no face uses is refined as an isolated point.
+//!
+//! The copy ([`super::foreign`]'s `manifold_copy`: one vertex copy per fan,
+//! an edge of three or more faces pulled apart) gets the split edges
+//! infinitely sharp and every copy of a sharpened vertex an infinitely
+//! sharp corner. Then each copy's vertex rule, each edge's and each face's
+//! are OpenSubdiv's, at every level: an infinitely sharp vertex keeps the
+//! corner rule, a crease vertex's mask reads only its two crease edges
+//! (whose copies run to copies at the same positions), and the split edges
+//! make no holes (they are infinitely sharp). Faces keep their ids and
+//! corner order, so surface locations mean the same in both.
+//!
+//! Where splitting cannot reproduce OpenSubdiv, [`SplitControl::new`] or
+//! [`SplitControl::check_scheme`] refuses, naming the element:
+//! - a face that visits a vertex twice (OpenSubdiv marks its edges and
+//!   vertex non-manifold and refines a degenerate face; no manifold copy
+//!   has that face);
+//! - a semi-sharp edge at a non-manifold crease vertex: OpenSubdiv counts
+//!   it with both crease edges (corner rule, then a transition as it runs
+//!   out) at the vertex every fan shares, while a copy in another fan
+//!   would keep the crease rule;
+//! - Chaikin creasing with semi-sharp edges in two fans of one non-manifold
+//!   vertex: Chaikin averages the sharpness of a vertex's semi-sharp edges
+//!   (`sdc/crease.cpp`, `SubdivideEdgeSharpnessesAroundVertex`) across all
+//!   of them in OpenSubdiv, within one fan in the copy;
+//! - boundary "edge and corner" with a crease vertex's copy left with one
+//!   face: the copy would be a sharpened topological corner, OpenSubdiv's
+//!   vertex (more faces, two edges) is not;
+//! - a non-manifold edge whose faces are joined around both its ends, so
+//!   that its copies would meet again as one manifold edge.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use super::foreign::manifold_copy;
+use super::{ControlMesh, CreaseMethod, PolySoup, SchemeOptions, VertexId, INFINITELY_SHARP};
+use crate::error::{Error, Result};
+use crate::DVec3;
+
+/// How OpenSubdiv treats one vertex of the file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum VertexKind {
+    /// One fan, no non-manifold edge: as in any manifold mesh.
+    Manifold,
+    /// Non-manifold and sharpened: an infinitely sharp corner.
+    SharpCorner,
+    /// On an interior non-manifold crease (two non-manifold edges, more
+    /// faces than edges): the crease rule along them.
+    Crease,
+    /// Used by no face: an isolated point, its limit itself.
+    Unused,
+}
+
+/// A control mesh in OpenSubdiv's terms (see the module docs).
+#[derive(Clone, Debug)]
+pub struct SplitControl {
+    /// The file, named in errors.
+    pub path: PathBuf,
+    /// The file's vertices, faces and tags, as OpenSubdiv gets them.
+    pub positions: Vec<DVec3>,
+    pub face_sizes: Vec<u32>,
+    pub face_indices: Vec<u32>,
+    pub creases: Vec<(u32, u32, f64)>,
+    pub corners: Vec<(u32, f64)>,
+    /// The manifold copy the Rust evaluators get; same faces, same order.
+    pub manifold: ControlMesh,
+    /// Per vertex of `manifold`: the file's vertex it copies.
+    pub origin: Vec<u32>,
+    /// Per file vertex: its vertices in `manifold` (none when unused).
+    pub copies: Vec<Vec<u32>>,
+    pub kinds: Vec<VertexKind>,
+    /// Per file vertex: how many of its copies (fans) have a semi-sharp
+    /// edge other than a boundary one (Chaikin's refusal).
+    semi_sharp_fans: Vec<usize>,
+    /// The first crease vertex with a copy of one face ("edge and corner"'s
+    /// refusal).
+    single_face_crease: Option<u32>,
+}
+
+/// Per undirected edge of the file: its uses `(face, forward)`.
+type EdgeUses = HashMap<(u32, u32), Vec<(u32, bool)>>;
+
+fn edge_uses(soup: &PolySoup) -> EdgeUses {
+    let mut uses: EdgeUses = HashMap::new();
+    for (f, face) in soup.faces().enumerate() {
+        for k in 0..face.len() {
+            let (a, b) = (face[k], face[(k + 1) % face.len()]);
+            uses.entry((a.min(b), a.max(b)))
+                .or_default()
+                .push((f as u32, a < b));
+        }
+    }
+    uses
+}
+
+/// Whether an edge joins its faces as a manifold (`vtr/level.cpp` tags the
+/// others non-manifold): exactly two, traversing it in opposite directions.
+fn manifold_edge(uses: &[(u32, bool)]) -> bool {
+    uses.len() == 2 && uses[0].1 != uses[1].1
+}
+
+impl SplitControl {
+    /// The file's polygons `soup` with creases `(a, b, s)` and corners
+    /// `(v, s)` on its vertex ids; `path` names the file in errors.
+    pub fn new(
+        soup: &PolySoup,
+        creases: &[(u32, u32, f64)],
+        corners: &[(u32, f64)],
+        path: &Path,
+    ) -> Result<Self> {
+        let bad = |element: String, msg: &str| Error::invalid_mesh(path, element, msg.to_string());
+        let n = soup.positions.len();
+        for (f, face) in soup.faces().enumerate() {
+            if let Some(&v) = face.iter().find(|&&v| v as usize >= n) {
+                return Err(bad(
+                    format!("face {f}"),
+                    &format!("vertex {v} out of range"),
+                ));
+            }
+            let mut s = face.to_vec();
+            s.sort_unstable();
+            if face.len() < 3 || s.windows(2).any(|w| w[0] == w[1]) {
+                return Err(bad(
+                    format!("face {f}"),
+                    "a face with fewer than three distinct corners or that visits a vertex \
+                     twice: OpenSubdiv refines it as a degenerate face, which a manifold copy \
+                     cannot reproduce",
+                ));
+            }
+        }
+        let uses = edge_uses(soup);
+        for &(a, b, _) in creases {
+            if !uses.contains_key(&(a.min(b), a.max(b))) {
+                return Err(bad(
+                    format!("edge ({a}, {b})"),
+                    "crease on an edge no face has",
+                ));
+            }
+        }
+        let faces: Vec<Vec<u32>> = soup.faces().map(|f| f.to_vec()).collect();
+        let copy =
+            manifold_copy(&soup.positions, &faces, creases, corners).map_err(|e| match e {
+                Error::Topology { element, msg } => Error::invalid_mesh(path, element, msg),
+                e => e,
+            })?;
+        let mut copies = vec![Vec::new(); n];
+        for (v, &o) in copy.origin.iter().enumerate() {
+            copies[o as usize].push(v as u32);
+        }
+        let mut sc = SplitControl {
+            path: path.to_path_buf(),
+            positions: soup.positions.clone(),
+            face_sizes: soup.faces().map(|f| f.len() as u32).collect(),
+            face_indices: soup.face_indices.clone(),
+            creases: creases.to_vec(),
+            corners: corners.to_vec(),
+            manifold: copy.mesh,
+            origin: copy.origin,
+            copies,
+            kinds: vec![VertexKind::Manifold; n],
+            semi_sharp_fans: vec![0; n],
+            single_face_crease: None,
+        };
+        sc.tag(&uses, path)?;
+        Ok(sc)
+    }
+
+    /// Whether the file is a manifold mesh without unused vertices (then
+    /// `manifold` is exactly the file's mesh).
+    pub fn is_manifold(&self) -> bool {
+        self.kinds.iter().all(|&k| k == VertexKind::Manifold)
+    }
+
+    /// Classifies the file's vertices as OpenSubdiv does and tags the copy
+    /// (module docs).
+    fn tag(&mut self, uses: &EdgeUses, path: &Path) -> Result<()> {
+        let n = self.positions.len();
+        // Per vertex: non-manifold edges, boundary edges, edges, faces.
+        let mut counts = vec![[0usize; 4]; n];
+        for (&(a, b), u) in uses {
+            for v in [a, b] {
+                let c = &mut counts[v as usize];
+                c[0] += usize::from(!manifold_edge(u) && u.len() != 1);
+                c[1] += usize::from(u.len() == 1);
+                c[2] += 1;
+            }
+        }
+        for &v in &self.face_indices {
+            counts[v as usize][3] += 1;
+        }
+        for (v, &[nm_edges, boundary, edges, faces]) in counts.iter().enumerate() {
+            self.kinds[v] = if faces == 0 {
+                VertexKind::Unused
+            } else if nm_edges == 0 && self.copies[v].len() == 1 {
+                VertexKind::Manifold
+            } else if nm_edges == 2 && boundary == 0 && faces > edges {
+                VertexKind::Crease
+            } else {
+                VertexKind::SharpCorner
+            };
+        }
+        // Non-manifold edges: every copy infinitely sharp, and distinct
+        // (in edge order, so that an error names the same edge every run).
+        let mut nm_edges: Vec<(u32, u32)> = uses
+            .iter()
+            .filter(|(_, u)| u.len() != 1 && !manifold_edge(u))
+            .map(|(&e, _)| e)
+            .collect();
+        nm_edges.sort_unstable();
+        for (a, b) in nm_edges {
+            let mut seen = Vec::new();
+            for &x in &self.copies[a as usize] {
+                for &y in &self.copies[b as usize] {
+                    let Some(h) = self.manifold.find_halfedge(VertexId(x), VertexId(y)) else {
+                        continue;
+                    };
+                    if !self.manifold.is_boundary_edge(h.edge()) {
+                        return Err(Error::invalid_mesh(
+                            path,
+                            format!("edge ({a}, {b})"),
+                            "a non-manifold edge whose faces are joined around both its ends: \
+                             no manifold copy pulls it apart",
+                        ));
+                    }
+                    seen.push((x, y));
+                }
+            }
+            for (x, y) in seen {
+                self.manifold
+                    .set_crease(VertexId(x), VertexId(y), INFINITELY_SHARP)?;
+            }
+        }
+        for v in 0..n {
+            let copies = self.copies[v].clone();
+            // A copy's boundary edges are the file's boundary edges (always
+            // infinitely sharp in OpenSubdiv, whatever the tag) or copies
+            // of non-manifold ones: only its other edges count.
+            let sharp = |m: &ControlMesh, c: u32, semi: bool| {
+                m.outgoing(VertexId(c)).any(|h| {
+                    let s = m.edge_sharpness(h.edge());
+                    let wanted = if semi {
+                        s > 0.0 && s < INFINITELY_SHARP
+                    } else {
+                        s >= INFINITELY_SHARP
+                    };
+                    wanted && !m.is_boundary_edge(h.edge())
+                })
+            };
+            let m = &self.manifold;
+            self.semi_sharp_fans[v] = copies.iter().filter(|&&c| sharp(m, c, true)).count();
+            if self.kinds[v] == VertexKind::Crease && copies.iter().any(|&c| sharp(m, c, false)) {
+                // A third infinitely sharp edge: OpenSubdiv's rule is the
+                // corner's at every level (`DetermineVertexVertexRule` with
+                // three sharp edges), the surface of an infinitely sharp
+                // vertex.
+                self.kinds[v] = VertexKind::SharpCorner;
+            }
+            match self.kinds[v] {
+                VertexKind::SharpCorner => {
+                    for &c in &copies {
+                        self.manifold.set_corner(VertexId(c), INFINITELY_SHARP)?;
+                    }
+                }
+                VertexKind::Crease => {
+                    if self.semi_sharp_fans[v] > 0 {
+                        return Err(Error::invalid_mesh(
+                            path,
+                            format!("vertex {v}"),
+                            "a semi-sharp edge at a non-manifold crease vertex: OpenSubdiv \
+                             counts it with the crease edges of every fan (corner rule), a \
+                             manifold copy only in its own",
+                        ));
+                    }
+                    let one_face = copies
+                        .iter()
+                        .any(|&c| self.manifold.vertex_faces(VertexId(c)).count() == 1);
+                    if one_face && self.single_face_crease.is_none() {
+                        self.single_face_crease = Some(v as u32);
+                    }
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
+    /// Refuses scheme options under which the copy departs from
+    /// OpenSubdiv (module docs).
+    pub fn check_scheme(&self, scheme: &SchemeOptions) -> Result<()> {
+        use super::BoundaryInterpolation;
+        let path = &self.path;
+        if scheme.crease_method == CreaseMethod::Chaikin {
+            if let Some(v) = (0..self.positions.len()).find(|&v| self.semi_sharp_fans[v] > 1) {
+                return Err(Error::invalid_mesh(
+                    path,
+                    format!("vertex {v}"),
+                    "Chaikin creasing with semi-sharp edges in two fans of a non-manifold \
+                     vertex: OpenSubdiv averages their sharpness across the fans, a manifold \
+                     copy within one",
+                ));
+            }
+        }
+        if scheme.boundary == BoundaryInterpolation::EdgeAndCorner {
+            if let Some(v) = self.single_face_crease {
+                return Err(Error::invalid_mesh(
+                    path,
+                    format!("vertex {v}"),
+                    "boundary \"edge and corner\" at a non-manifold crease vertex with a fan \
+                     of one face: the copy would be a sharpened corner, OpenSubdiv's vertex is \
+                     a crease",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Positions over `manifold`'s vertices of positions over the file's.
+    pub fn split_positions(&self, positions: &[DVec3]) -> Vec<DVec3> {
+        self.origin.iter().map(|&o| positions[o as usize]).collect()
+    }
+
+    /// Positions over the file's vertices of positions over `manifold`'s;
+    /// unused vertices keep the file's. Fails if two copies of a vertex
+    /// are apart (OpenSubdiv has one point for them).
+    pub fn file_positions(&self, split: &[DVec3]) -> Result<Vec<DVec3>> {
+        let mut out = self.positions.clone();
+        for (v, copies) in self.copies.iter().enumerate() {
+            let Some(&first) = copies.first() else {
+                continue;
+            };
+            let p = split[first as usize];
+            if copies.iter().any(|&c| split[c as usize] != p) {
+                return Err(Error::InvalidArgument(format!(
+                    "the copies of non-manifold vertex {v} are at different positions: \
+                     OpenSubdiv has one point for them"
+                )));
+            }
+            out[v] = p;
+        }
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn soup(n: usize, faces: &[&[u32]]) -> PolySoup {
+        let mut s = PolySoup {
+            positions: (0..n)
+                .map(|i| DVec3::new(i as f64, (i * i % 5) as f64, (i % 3) as f64))
+                .collect(),
+            face_offsets: vec![0],
+            face_indices: Vec::new(),
+        };
+        for f in faces {
+            s.face_indices.extend_from_slice(f);
+            s.face_offsets.push(s.face_indices.len() as u32);
+        }
+        s
+    }
+
+    #[test]
+    fn opensubdiv_kinds_of_a_fin_chain_and_an_unused_vertex() {
+        // Three quads on each of the edges 0-1 and 1-2 (a chain), vertex
+        // 15 unused.
+        let mut faces: Vec<Vec<u32>> = Vec::new();
+        for k in 0..3u32 {
+            let (a, b, c) = (3 + 4 * k, 4 + 4 * k, 5 + 4 * k);
+            faces.push(vec![0, 1, b, a]);
+            faces.push(vec![1, 2, c, b]);
+        }
+        let f: Vec<&[u32]> = faces.iter().map(|f| f.as_slice()).collect();
+        let s = soup(16, &f);
+        let sc = SplitControl::new(&s, &[], &[], Path::new("fin.obj")).unwrap();
+        assert!(!sc.is_manifold());
+        assert_eq!(sc.kinds[0], VertexKind::SharpCorner);
+        assert_eq!(sc.kinds[1], VertexKind::Crease);
+        assert_eq!(sc.kinds[2], VertexKind::SharpCorner);
+        assert_eq!(sc.kinds[4], VertexKind::Manifold);
+        assert_eq!(sc.kinds[15], VertexKind::Unused);
+        assert_eq!(sc.copies[1].len(), 3);
+        assert!(sc.copies[15].is_empty());
+        // Every copy of the chain's edges is infinitely sharp, every copy
+        // of its ends an infinitely sharp corner, the crease vertex not.
+        let m = &sc.manifold;
+        for &c in &sc.copies[0] {
+            assert_eq!(m.vertex_sharpness(VertexId(c)), INFINITELY_SHARP);
+        }
+        for &c in &sc.copies[1] {
+            assert_eq!(m.vertex_sharpness(VertexId(c)), 0.0);
+        }
+        assert_eq!(
+            m.creases().len(),
+            6,
+            "two edges, three copies each: {:?}",
+            m.creases()
+        );
+        assert_eq!(m.num_faces(), 6);
+        // Positions round-trip; copies apart are refused.
+        let mut p = sc.split_positions(&s.positions);
+        assert_eq!(sc.file_positions(&p).unwrap(), s.positions);
+        p[sc.copies[1][1] as usize].x += 1.0;
+        assert!(sc.file_positions(&p).is_err());
+    }
+
+    #[test]
+    fn a_manifold_file_is_its_control_mesh() {
+        let s = soup(6, &[&[0, 1, 4, 3], &[1, 2, 5, 4]]);
+        let sc = SplitControl::new(&s, &[(1, 4, 2.0)], &[(0, 1.0)], Path::new("m.obj")).unwrap();
+        assert!(sc.is_manifold());
+        assert_eq!(sc.origin, (0..6).collect::<Vec<u32>>());
+        assert_eq!(sc.manifold.creases().len(), 1);
+        assert_eq!(sc.manifold.corners().len(), 1);
+        let e = SplitControl::new(&s, &[(0, 5, 1.0)], &[], Path::new("m.obj")).unwrap_err();
+        assert!(e.to_string().contains("edge (0, 5)"), "{e}");
+    }
+}
