@@ -687,3 +687,27 @@ fn diff_limit_compares_uvs_and_partial_uvs_warn() {
     let csv = std::fs::read_to_string(&out).unwrap();
     assert!(!csv.lines().next().unwrap().contains(",s,"), "{csv}");
 }
+
+/// The same comparison against OpenSubdiv's refinement to level 8 (the
+/// issue's reference level), on the cube, where that stays cheap (6 base
+/// faces: ~4e5 values).
+#[test]
+fn fvar_limits_at_level_8() {
+    let mut n = 0;
+    for (name, m) in [("cube", fixtures::perturb(fixtures::cube(), 0.05, 3))] {
+        for cut in [Cut::Charts, Cut::Scattered] {
+            let ch = channel(&m, cut);
+            for mode in [
+                FVarLinear::None,
+                FVarLinear::CornersPlus1,
+                FVarLinear::Boundaries,
+            ] {
+                let s = SchemeOptions::default().with_fvar(mode);
+                let d = compare(&m, &ch, &s, 8).expect("evaluated");
+                check(d, &format!("{name}/{cut:?}/{}/level 8", mode.name()));
+                n += 1;
+            }
+        }
+    }
+    assert_eq!(n, 6);
+}

@@ -674,7 +674,7 @@ fn face_vertex(t: &[u8]) -> Option<(i64, Option<i64>)> {
     match (parts.next(), parts.next(), parts.next()) {
         (None, _, _) => Some((v, None)),
         (Some(vt), None, _) => Some((v, Some(parse_i64(vt)?))),
-        (Some(vt), Some(vn), None) if vt.is_empty() => int(vn).then_some((v, None)),
+        (Some(b""), Some(vn), None) => int(vn).then_some((v, None)),
         (Some(vt), Some(vn), None) => {
             let vt = parse_i64(vt)?;
             int(vn).then_some((v, Some(vt)))

@@ -306,7 +306,7 @@ fn all_values_sharp(
     if linear_boundaries
         || vertex_sharp >= INFINITELY_SHARP
         || (dependent && n > 2)
-        || ((plus2 || linear_boundaries) && n == 1 && !mesh.is_boundary_vertex(v))
+        || (plus2 && n == 1 && !mesh.is_boundary_vertex(v))
     {
         return true;
     }
@@ -389,6 +389,7 @@ pub struct RustFVarEvaluator {
     eval: Option<Box<dyn LimitEvaluator>>,
     face_sizes: Vec<u32>,
     scheme: SchemeOptions,
+    holes: Vec<bool>,
 }
 
 impl RustFVarEvaluator {
@@ -406,6 +407,7 @@ impl RustFVarEvaluator {
             eval,
             face_sizes: mesh.face_sizes(),
             scheme: options.scheme.clone(),
+            holes: crate::subdiv::checked_holes(mesh, &options.scheme)?,
         })
     }
 
@@ -417,6 +419,7 @@ impl RustFVarEvaluator {
 impl FVarEvaluator for RustFVarEvaluator {
     fn evaluate(&self, locations: &[SurfaceLocation]) -> Result<Vec<LimitPoint>> {
         check_locations_for(self.scheme.scheme, &self.face_sizes, locations)?;
+        crate::subdiv::check_not_holes(&self.holes, locations)?;
         let m = &self.fvar.mesh;
         match &self.eval {
             Some(e) => e.evaluate(m.positions(), locations),

@@ -328,7 +328,7 @@ pub fn limit(a: LimitArgs) -> Result<ExitCode> {
             // location, not at a control vertex: columns with `--at` only.
             let uvs = match &uv {
                 Some(ch) => {
-                    Some(make_fvar_evaluator(a.backend.into(), &mesh, &opts, ch)?.evaluate(&locs)?)
+                    Some(make_fvar_evaluator(a.backend.into(), mesh, &opts, ch)?.evaluate(&locs)?)
                 }
                 None => None,
             };
@@ -414,7 +414,7 @@ pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
     // The size of OpenSubdiv's f32 sharpness: what it does to the surface.
     let (dp, dn) = diff::f32_sharpness_effect(mesh, &rust_opts, &locs)?;
     report.set_f32_effect(dp, dn);
-    let uv_report = diff_uvs(&mesh, &rust_opts, uv.as_ref(), &locs, a.margin)?;
+    let uv_report = diff_uvs(mesh, &rust_opts, uv.as_ref(), &locs, a.margin)?;
     let mut failures = Vec::new();
     let mut check = |what: &str, value: f64, tol: f64| {
         // NaN counts as a failure.
