@@ -471,7 +471,7 @@ impl<P: Pt> Topo<P> {
         let (a, b) = adj.edges[e as usize];
         let s = self.edge_sharp(adj, e);
         let mid = comb(&[(0.5, &self.pts[a as usize]), (0.5, &self.pts[b as usize])]);
-        if s >= 1.0 || adj.edge_nfaces[e as usize] != 2 {
+        if adj.edge_nfaces[e as usize] != 2 || self.edge_child_is_crease(adj, e) {
             return mid;
         }
         let [f0, f1] = adj.edge_faces[e as usize];
@@ -498,6 +498,32 @@ impl<P: Pt> Topo<P> {
         } else {
             smooth
         }
+    }
+
+    /// Whether the edge point of sharp edge `e` follows the crease rule: Vtr
+    /// gives `ComputeEdgeVertexMask` the child vertex's rule, a crease when
+    /// both child edges are still sharp. Uniform creasing: `s > 1`. Chaikin:
+    /// each child edge's sharpness comes from the rule at its end vertex, so
+    /// an edge of sharpness above 1 can end smooth (then the smooth mask is
+    /// blended by the parent sharpness, above 1 too, as Sdc does without a
+    /// clamp) and one below 1 can stay a crease.
+    pub(crate) fn edge_child_is_crease(&self, adj: &Adj, e: u32) -> bool {
+        let s = self.edge_sharp(adj, e);
+        if s >= INF {
+            return true;
+        }
+        if !self.rules.chaikin {
+            return decrement(s) > 0.0;
+        }
+        let (a, b) = adj.edges[e as usize];
+        let at = |v: u32| -> Vec<f64> {
+            adj.vedges[v as usize]
+                .iter()
+                .map(|&g| self.edge_sharp(adj, g))
+                .collect()
+        };
+        child_edge_sharpness(self.rules, s, &at(a)) > 0.0
+            && child_edge_sharpness(self.rules, s, &at(b)) > 0.0
     }
 
     /// The child of vertex `v` (Sdc `ComputeVertexVertexMask`, shared by

@@ -81,14 +81,15 @@ impl<P: Pt> Topo<P> {
     }
 
     /// Loop edge point: smooth 3/8 of each end and 1/8 of each opposite
-    /// vertex, the midpoint when sharp, and for a sharpness in (0, 1) the
-    /// blend of the two (Sdc `ComputeEdgeVertexMask`).
+    /// vertex, the midpoint when its child vertex is a crease
+    /// (`Topo::edge_child_is_crease`), otherwise for a sharp edge the blend
+    /// of the two by its sharpness (Sdc `ComputeEdgeVertexMask`).
     fn loop_edge_point(&self, adj: &Adj, e: u32) -> P {
         let (a, b) = adj.edges[e as usize];
         let s = self.edge_sharp(adj, e);
         let (pa, pb) = (&self.pts[a as usize], &self.pts[b as usize]);
         let mid = comb(&[(0.5, pa), (0.5, pb)]);
-        if s >= 1.0 || adj.edge_nfaces[e as usize] != 2 {
+        if adj.edge_nfaces[e as usize] != 2 || self.edge_child_is_crease(adj, e) {
             return mid;
         }
         let opposite = |f: u32| {
