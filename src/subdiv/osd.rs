@@ -697,17 +697,12 @@ impl OsdFVarEvaluator {
     ) -> Result<Self> {
         channel.check(mesh)?;
         let vertex = OsdEvaluator::new(mesh, options)?;
-        let nv = mesh.num_vertices() as u32;
-        let creases = mesh.creases();
-        let crease_vertices: Vec<u32> = creases.iter().flat_map(|c| [c.0 .0, c.1 .0]).collect();
-        let crease_weights: Vec<f64> = creases.iter().map(|c| c.2).collect();
-        let corners = mesh.corners();
-        let corner_vertices: Vec<u32> = corners.iter().map(|c| c.0 .0).collect();
-        let corner_weights: Vec<f64> = corners.iter().map(|c| c.1).collect();
+        let desc = OsdDescriptor::of_mesh(mesh);
+        let (crease_vertices, crease_weights, corner_vertices, corner_weights) = desc.tag_arrays();
         let topo = bridge::new_osd_fvar_topology(
-            nv,
-            &mesh.face_sizes(),
-            &mesh.face_indices_flat(),
+            desc.num_vertices as u32,
+            &desc.face_sizes,
+            &desc.face_indices,
             &crease_vertices,
             &crease_weights,
             &corner_vertices,
@@ -780,12 +775,8 @@ pub fn osd_refine_uniform_fvar(
     channel.check(mesh)?;
     let nv = u32::try_from(mesh.num_vertices())
         .map_err(|_| Error::InvalidArgument("too many control vertices".into()))?;
-    let creases = mesh.creases();
-    let crease_vertices: Vec<u32> = creases.iter().flat_map(|c| [c.0 .0, c.1 .0]).collect();
-    let crease_weights: Vec<f64> = creases.iter().map(|c| c.2).collect();
-    let corners = mesh.corners();
-    let corner_vertices: Vec<u32> = corners.iter().map(|c| c.0 .0).collect();
-    let corner_weights: Vec<f64> = corners.iter().map(|c| c.1).collect();
+    let desc = OsdDescriptor::of_mesh(mesh);
+    let (crease_vertices, crease_weights, corner_vertices, corner_weights) = desc.tag_arrays();
     let values: Vec<f64> = channel.values.iter().flat_map(|v| v.to_array()).collect();
     let r = bridge::uniform_refine_fvar(
         match options.scheme {
@@ -794,8 +785,8 @@ pub fn osd_refine_uniform_fvar(
             SubdivScheme::Bilinear => 2,
         },
         nv,
-        &mesh.face_sizes(),
-        &mesh.face_indices_flat(),
+        &desc.face_sizes,
+        &desc.face_indices,
         &crease_vertices,
         &crease_weights,
         &corner_vertices,
