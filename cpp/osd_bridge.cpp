@@ -1,4 +1,5 @@
 #include "subdfit/cpp/osd_bridge.h"
+#include "subdfit/cpp/osd_limit.h"
 
 #include <opensubdiv/far/error.h>
 #include <opensubdiv/far/patchTableFactory.h>
@@ -384,9 +385,13 @@ void OsdTopology::vertex_limits(rust::Slice<const double> positions, rust::Slice
   P3 *dp = pos.data(), *dt1 = tan1.data(), *dt2 = tan2.data();
   primvar.Interpolate(1, src, l1);
   const P3* l1c = l1;
-  ErrorScope errors;  // Limit reports a missing full topology via the callback
-  primvar.Limit(l1c, dp, dt1, dt2);
-  errors.check("PrimvarRefiner::Limit");
+  if (limit_buffers_fit(r.GetLevel(1))) {
+    ErrorScope errors;  // Limit reports a missing full topology via the callback
+    primvar.Limit(l1c, dp, dt1, dt2);
+    errors.check("PrimvarRefiner::Limit");
+  } else {
+    limit_with_masks(r, l1c, dp, dt1, dt2);  // Limit would overrun (osd_limit.h)
+  }
   for (int i = 0; i < num_vertices_; ++i) {
     put(out, 9 * i, pos[i]);
     put(out, 9 * i + 3, tan1[i]);
@@ -667,9 +672,14 @@ UniformRefinement uniform_refine(std::uint32_t scheme_type, std::uint32_t num_ve
     std::vector<P3> lim(n);
     const P3* src = buf.data() + first[last];
     P3* dst = lim.data();
-    ErrorScope errors;  // Limit reports a missing full topology via the callback
-    primvar.Limit(src, dst);
-    errors.check("PrimvarRefiner::Limit");
+    if (limit_buffers_fit(r->GetLevel(last))) {
+      ErrorScope errors;  // Limit reports a missing full topology via the callback
+      primvar.Limit(src, dst);
+      errors.check("PrimvarRefiner::Limit");
+    } else {  // Limit would overrun its buffers (osd_limit.h)
+      std::vector<P3> t1(n), t2(n);
+      limit_with_masks(*r, src, dst, t1.data(), t2.data());
+    }
     out.limits.reserve(3 * n);
     for (const P3& p : lim) {
       out.limits.push_back(p.x);
@@ -711,6 +721,13 @@ FVarUniform uniform_refine_fvar(std::uint32_t scheme_type, std::uint32_t num_ver
   {
     const P2* src = last.data();
     P2* dst = lim.data();
+    // LimitFaceVarying sizes its buffers as Limit does (osd_limit.h); it is
+    // only ever given manifold copies, which cannot overrun them, but a
+    // refusal beats heap corruption if that changes.
+    if (!limit_buffers_fit(r->GetLevel(nlevels - 1)))
+      throw std::invalid_argument(
+          "PrimvarRefiner::LimitFaceVarying would overrun its mask buffers here (a vertex with more faces than "
+          "OpenSubdiv's recorded max valence)");
     ErrorScope errors;
     primvar.LimitFaceVarying(src, dst, 0);
     errors.check("PrimvarRefiner::LimitFaceVarying");
