@@ -1057,6 +1057,9 @@ impl<'a> Simplifier<'a> {
         progress: &mut dyn FnMut(Progress) -> bool,
     ) -> Result<()> {
         const SWEEP_CHUNK: usize = 2048;
+        // Every live face gets fresh entries (and a new version), so every
+        // entry in the heap now is stale: dropping them changes no pop.
+        self.heap.clear();
         let all: Vec<FaceId> = self.k.live_faces().collect();
         for c in all.chunks(SWEEP_CHUNK) {
             let _ = self.update_faces(c)?;
@@ -1086,6 +1089,7 @@ impl<'a> Simplifier<'a> {
             if pops % ASK_EVERY == 0 {
                 self.ask(stats, t0, progress)?;
             }
+            self.compact_heap();
             let Some(Reverse((_, fi, d, ver))) = self.heap.pop() else {
                 // The heap only re-evaluates faces around a refit region; a
                 // refused collapse whose blocking neighbour changed later
@@ -1231,6 +1235,22 @@ impl<'a> Simplifier<'a> {
         self.checkpoints.push_back(c);
         self.next_checkpoint = (n as f64 / CHECKPOINT_RATIO).floor() as usize;
         Ok(())
+    }
+
+    /// Drops stale entries (a face updated since, or deleted) once they
+    /// outnumber the live ones three to one: each refit re-pushes its
+    /// region, and a heap grown with dead entries made `pop` a tenth of
+    /// the run. Entries are unique (face, diagonal, version), so the live
+    /// ones pop in the same order after.
+    fn compact_heap(&mut self) {
+        let live = 2 * self.k.num_live_faces();
+        if self.heap.len() <= 4 * live + 1024 {
+            return;
+        }
+        let (k, version) = (&self.k, &self.version);
+        self.heap.retain(|Reverse((_, fi, _, ver))| {
+            !k.is_face_deleted(FaceId(*fi)) && version[*fi as usize] == *ver
+        });
     }
 
     fn block(&mut self, fi: u32, why: u8) {
