@@ -562,12 +562,13 @@ fn subdfit(args: &[&str]) -> std::process::Output {
 #[test]
 fn cli_diff_limit_accepts_non_manifold_files() {
     let dir = tempfile::tempdir().unwrap();
-    let quads = cases(false);
-    let tris = cases(true);
     for (c, scheme) in [
-        (&quads[8], "catmark"),
-        (&quads[9], "catmark"),
-        (&tris[4], "loop"),
+        (&case_named(false, "several components"), "catmark"),
+        (
+            &case_named(false, "chain with semi-sharp creases"),
+            "catmark",
+        ),
+        (&case_named(true, "two cubes sharing an edge"), "loop"),
     ] {
         let p = dir.path().join("nm.obj");
         write_obj(&p, c);

@@ -35,11 +35,17 @@
 //! "All" and the bilinear scheme interpolate linearly: the face-varying mesh
 //! is evaluated as a bilinear one (Loop's triangles: barycentric).
 //!
+//! - under "corners +1/+2", a seam vertex with two values of which only
+//!   one has semi-sharp edges: the other is "dependent sharp", a corner
+//!   while the first is semi-sharp and a crease after, blended by the
+//!   first's weight; under uniform creasing a vertex sharpness on it does
+//!   exactly that ([`dependent_sharpness`]).
+//!
 //! Two combinations OpenSubdiv handles by looking across a seam are refused
 //! with an error naming the vertex rather than answered approximately:
 //! Chaikin creasing with semi-sharp edges on both sides of a seam (its
-//! sharpness averaging sees all of them), and "corners +1/+2" with one of
-//! two values semi-sharp (the other's "dependent sharpness" follows it).
+//! sharpness averaging sees all of them), and dependent sharpness under
+//! Chaikin creasing (its timing follows Chaikin's averaged sharpness).
 
 use std::collections::HashMap;
 
@@ -257,6 +263,23 @@ fn set_value_sharpness(
             let corner = all || s.disjoint || (s.faces == 1 && scheme.fvar != FVarLinear::None);
             sharp[c as usize] = if corner { INFINITELY_SHARP } else { own };
         }
+        if !all && own == 0.0 && has_dependent_value(scheme, &values) {
+            // Two values, one copy each (a disjoint span would have made
+            // both corners): the one without semi-sharp edges follows.
+            let (s_copy, d_copy) = if spans[cs[0] as usize].semi_sharp {
+                (cs[0], cs[1])
+            } else {
+                (cs[1], cs[0])
+            };
+            let seams: Vec<f64> = mesh
+                .outgoing(v)
+                .filter(|h| seam_edge[h.edge().idx()])
+                .map(|h| mesh.edge_sharpness(h.edge()))
+                .collect();
+            if sharp[d_copy as usize] < INFINITELY_SHARP {
+                sharp[d_copy as usize] = dependent_sharpness(fm, v, VertexId(s_copy), &seams)?;
+            }
+        }
     }
     for (c, &s) in sharp.iter().enumerate() {
         if s > 0.0 {
@@ -353,25 +376,80 @@ fn check_reproducible(
             }
         }
     }
+    if scheme.crease_method == CreaseMethod::Chaikin && has_dependent_value(scheme, values) {
+        return Err(Error::InvalidArgument(format!(
+            "face-varying data at vertex {}: under {} with Chaikin creasing one of its two values \
+             is semi-sharp and the other follows it (OpenSubdiv's dependent sharpness, timed by \
+             Chaikin's averaged sharpness); not reproduced exactly, so not evaluated",
+            v.0,
+            scheme.fvar.name()
+        )));
+    }
+    Ok(())
+}
+
+/// Whether one of the two values of a seam vertex is "dependent sharp"
+/// (`FVarLevel::completeTopologyFromFaceValues`, corners +1/+2): neither
+/// span sharpened, exactly one with semi-sharp edges inside.
+fn has_dependent_value(scheme: &SchemeOptions, values: &[ValueSpan]) -> bool {
     let dependent = matches!(
         scheme.fvar,
         FVarLinear::CornersPlus1 | FVarLinear::CornersPlus2
     );
-    if dependent && values.len() == 2 {
-        let (a, b) = (&values[0], &values[1]);
-        let plus2 = scheme.fvar == FVarLinear::CornersPlus2;
-        let sharpened = a.disjoint || b.disjoint || (plus2 && (a.faces == 1 || b.faces == 1));
-        if !sharpened && a.semi_sharp != b.semi_sharp {
-            return Err(Error::InvalidArgument(format!(
-                "face-varying data at vertex {}: under {} one of its two values is semi-sharp \
-                 and the other follows it (OpenSubdiv's dependent sharpness); not reproduced \
-                 exactly, so not evaluated",
-                v.0,
-                scheme.fvar.name()
-            )));
-        }
+    if !dependent || values.len() != 2 {
+        return false;
     }
-    Ok(())
+    let (a, b) = (&values[0], &values[1]);
+    let plus2 = scheme.fvar == FVarLinear::CornersPlus2;
+    let sharpened = a.disjoint || b.disjoint || (plus2 && (a.faces == 1 || b.faces == 1));
+    !sharpened && a.semi_sharp != b.semi_sharp
+}
+
+/// The vertex sharpness that makes the dependent value D of seam vertex
+/// `v` behave as OpenSubdiv's, under uniform creasing: D is a corner while
+/// the other value S is semi-sharp, then a crease, the transition weighted
+/// by *S's* fractional weight (`PrimvarRefiner::interpFVarFromVerts`);
+/// if a seam edge is still semi-sharp when S's edges run out,
+/// `FVarRefinement::reclassifySemisharpValues` only clears D's dependency
+/// at that level and D turns to a crease one level later, unblended.
+///
+/// With S's span edges `s_i` (f32, as OpenSubdiv keeps them) S runs out at
+/// level L = ceil(max s_i); its weight is the mean of `s_i - (L - 1)` over
+/// the edges that run out then. A vertex sharpness σ with `σ - (L - 1)`
+/// equal to that weight gives D the corner rule up to L - 1 and the same
+/// blend (Sdc's fractional weight of a vertex whose own sharpness is the
+/// only one to run out is that sharpness); σ = L gives the later, unblended
+/// turn. Refuses the rare weights f32 cannot carry through σ exactly.
+fn dependent_sharpness(fm: &ControlMesh, v: VertexId, s: VertexId, seams: &[f64]) -> Result<f64> {
+    let semi = |x: f32| x > 0.0 && x < INFINITELY_SHARP as f32;
+    let edges: Vec<f32> = fm
+        .outgoing(s)
+        .filter(|h| !fm.is_boundary_edge(h.edge()))
+        .map(|h| fm.edge_sharpness(h.edge()) as f32)
+        .filter(|&x| semi(x))
+        .collect();
+    let last = edges.iter().copied().fold(0.0f32, f32::max).ceil();
+    if seams.iter().any(|&x| semi(x as f32) && x as f32 > last) {
+        return Ok(last as f64);
+    }
+    let dying: Vec<f32> = edges
+        .iter()
+        .filter(|&&x| x > last - 1.0)
+        .map(|&x| x - (last - 1.0))
+        .collect();
+    // Sdc sums in the vertex's edge order; two terms commute exactly.
+    let distinct = dying.iter().any(|&x| x != dying[0]);
+    let weight = (dying.iter().sum::<f32>() / dying.len() as f32).min(1.0);
+    let sigma = weight + (last - 1.0);
+    if (dying.len() > 2 && distinct) || sigma - (last - 1.0) != weight {
+        return Err(Error::InvalidArgument(format!(
+            "face-varying data at vertex {}: a value whose sharpness depends on the other's \
+             (OpenSubdiv's dependent sharpness) with a transition weight ({weight}) that f32 \
+             vertex sharpness cannot carry exactly; not evaluated",
+            v.0
+        )));
+    }
+    Ok(sigma as f64)
 }
 
 /// Evaluates a face-varying channel at surface locations: the `position`
