@@ -474,13 +474,17 @@ fn what_splitting_cannot_reproduce_is_refused_by_name() {
     let msg = refusal(&b.soup(), &[], &SchemeOptions::default());
     assert!(msg.contains("face 2"), "{msg}");
 
-    // A semi-sharp edge at a crease vertex of the fin.
+    // A semi-sharp edge at a crease vertex of the fin: Chaikin refuses it
+    // (the copies' sharpness follows uniform creasing's timing).
     let mut b = Builder::default();
     b.fin(3, 2, 2, 2.0, false);
     let mid = b.id(p3(1.0, 0.0, 0.0));
-    let t = 2.0 * std::f64::consts::PI * 0.1 / 3.0;
-    let n = b.id(p3(1.0, 0.5 * t.cos(), 0.5 * t.sin()));
-    let msg = refusal(&b.soup(), &[(mid, n, 1.5)], &SchemeOptions::default());
+    let spoke = |k: usize| {
+        let t = 2.0 * std::f64::consts::PI * (k as f64 + 0.1) / 3.0;
+        b.id(p3(1.0, 0.5 * t.cos(), 0.5 * t.sin()))
+    };
+    let chaikin = SchemeOptions::default().with_crease_method(CreaseMethod::Chaikin);
+    let msg = refusal(&b.soup(), &[(mid, spoke(0), 1.5)], &chaikin);
     assert!(msg.contains(&format!("vertex {mid}")), "{msg}");
 
     // Chaikin with semi-sharp edges in two fans of one vertex: two cubes
@@ -493,7 +497,6 @@ fn what_splitting_cannot_reproduce_is_refused_by_name() {
         (apex, b.id(p3(1.0, 1.0, 0.0)), 1.5),
         (apex, b.id(p3(2.0, 1.0, 1.0)), 2.5),
     ];
-    let chaikin = SchemeOptions::default().with_crease_method(CreaseMethod::Chaikin);
     let msg = refusal(&b.soup(), &fans, &chaikin);
     assert!(
         msg.contains(&format!("vertex {apex}")) && msg.contains("Chaikin"),
@@ -527,6 +530,70 @@ fn what_splitting_cannot_reproduce_is_refused_by_name() {
         &with_boundary(SubdivScheme::Catmark, BoundaryInterpolation::EdgeOnly),
     );
     assert!(dv <= 1e-9 && ds <= 1e-9, "{dv:e} {ds:e}");
+}
+
+/// Semi-sharp edges at the crease vertex of a fin (OpenSubdiv counts them
+/// with the crease edges of every fan): one edge, edges in two fans
+/// running out together with different weights, one outliving the other,
+/// with a corner sharpness on the vertex; each copy's vertex sharpness
+/// (`mesh::nonmanifold::crease_copy_sharpness`) reproduces the corner rule
+/// and its blend, to ≤ 1e-9 of the diagonal under every boundary rule.
+#[test]
+fn semi_sharp_edges_at_a_non_manifold_crease_vertex_match() {
+    let mut b = Builder::default();
+    b.fin(3, 2, 2, 2.0, false);
+    let mid = b.id(p3(1.0, 0.0, 0.0));
+    let spoke = |k: usize| {
+        let t = 2.0 * std::f64::consts::PI * (k as f64 + 0.1) / 3.0;
+        b.id(p3(1.0, 0.5 * t.cos(), 0.5 * t.sin()))
+    };
+    type Creases = Vec<(u32, u32, f64)>;
+    let configs: [(&str, Creases, f64); 4] = [
+        ("one edge", vec![(mid, spoke(0), 1.5)], 0.0),
+        (
+            "two fans, 1.3 and 1.7",
+            vec![(mid, spoke(0), 1.3), (mid, spoke(1), 1.7)],
+            0.0,
+        ),
+        (
+            "two fans, 1.3 and 2.6",
+            vec![(mid, spoke(0), 1.3), (mid, spoke(2), 2.6)],
+            0.0,
+        ),
+        (
+            "three fans and a corner",
+            vec![
+                (mid, spoke(0), 0.4),
+                (mid, spoke(1), 0.4),
+                (mid, spoke(2), 0.9),
+            ],
+            1.2,
+        ),
+    ];
+    let untagged = SplitControl::new(&b.soup(), &[], &[], Path::new("fin")).unwrap();
+    for (name, creases, corner) in configs {
+        let mut c = case(name, &b);
+        c.creases = creases;
+        if corner > 0.0 {
+            c.corners = vec![(mid, corner)];
+        }
+        for bnd in [
+            BoundaryInterpolation::EdgeOnly,
+            BoundaryInterpolation::EdgeAndCorner,
+        ] {
+            let (dv, ds, _) = measure(&c, &with_boundary(SubdivScheme::Catmark, bnd));
+            eprintln!("{name} {bnd:?}: vertices {dv:.2e}, surface {ds:.2e}");
+            assert!(dv <= 1e-9 && ds <= 1e-9, "{name}: {dv:e} {ds:e}");
+        }
+        // The copies do carry a sharpness the file does not have.
+        let sc = SplitControl::new(&c.soup, &c.creases, &c.corners, Path::new(name)).unwrap();
+        assert!(sc.copies[mid as usize]
+            .iter()
+            .all(|&k| sc.manifold.vertex_sharpness(VertexId(k)) > 0.0));
+        assert!(untagged.copies[mid as usize]
+            .iter()
+            .all(|&k| untagged.manifold.vertex_sharpness(VertexId(k)) == 0.0));
+    }
 }
 
 fn write_obj(path: &Path, c: &Case) {

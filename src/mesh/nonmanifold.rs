@@ -36,10 +36,13 @@
 //! - a face that visits a vertex twice (OpenSubdiv marks its edges and
 //!   vertex non-manifold and refines a degenerate face; no manifold copy
 //!   has that face);
-//! - a semi-sharp edge at a non-manifold crease vertex: OpenSubdiv counts
-//!   it with both crease edges (corner rule, then a transition as it runs
-//!   out) at the vertex every fan shares, while a copy in another fan
-//!   would keep the crease rule;
+//! - Chaikin creasing with semi-sharp edges at a non-manifold crease
+//!   vertex. (Under uniform creasing they are matched: OpenSubdiv counts
+//!   them with both crease edges at the vertex every fan shares, the corner
+//!   rule until the last runs out, then a transition blended over all of
+//!   them; each copy gets the vertex sharpness that gives it the same
+//!   timing and blend, [`crease_copy_sharpness`], refused in the rare case
+//!   no f32 sharpness carries the weight exactly);
 //! - Chaikin creasing with semi-sharp edges in two fans of one non-manifold
 //!   vertex: Chaikin averages the sharpness of a vertex's semi-sharp edges
 //!   (`sdc/crease.cpp`, `SubdivideEdgeSharpnessesAroundVertex`) across all
@@ -96,6 +99,71 @@ pub struct SplitControl {
     /// The first crease vertex with a copy of one face ("edge and corner"'s
     /// refusal).
     single_face_crease: Option<u32>,
+    /// The first crease vertex with semi-sharp edges (Chaikin's refusal).
+    semi_sharp_crease: Option<u32>,
+}
+
+/// Vertex sharpness for each copy (fan) of a non-manifold crease vertex
+/// with corner sharpness `own` and, per fan, the sharpness of its
+/// semi-sharp edges, under uniform creasing; `None` where no sharpness
+/// reproduces OpenSubdiv exactly.
+///
+/// OpenSubdiv counts every fan's semi-sharp edges with the two crease
+/// edges: the corner rule while any edge (or `own`) is still sharp, then
+/// the crease rule from level T = ceil(max), the step blended by Sdc's
+/// fractional weight w, the mean of `x - (T - 1)` over the sharpness that
+/// runs out at T (`Crease::ComputeFractionalWeightAtVertex`). A copy sees
+/// only its own fan. With vertex sharpness σ = T - 1 + f it also keeps the
+/// corner rule up to T, and its weight is the mean over its own dying
+/// edges and f: f = w for a fan with none, or whose dying edges have mean
+/// w; with one dying edge x, f = 2w - x when that lies in (0, 1]. All in
+/// f32, as OpenSubdiv keeps sharpness; more than two distinct terms in a
+/// mean are refused (their f32 sum depends on the order).
+pub fn crease_copy_sharpness(own: f64, fans: &[Vec<f64>]) -> Option<Vec<f64>> {
+    let semi = |x: f32| x > 0.0 && x < INFINITELY_SHARP as f32;
+    let own = own as f32;
+    let fans: Vec<Vec<f32>> = fans
+        .iter()
+        .map(|f| f.iter().map(|&x| x as f32).filter(|&x| semi(x)).collect())
+        .collect();
+    let mut all: Vec<f32> = fans.iter().flatten().copied().collect();
+    if semi(own) {
+        all.push(own);
+    }
+    let top = all.iter().copied().fold(0.0f32, f32::max).ceil();
+    let base = top - 1.0;
+    let dying = |xs: &[f32]| -> Vec<f32> {
+        xs.iter()
+            .filter(|&&x| x > base)
+            .map(|&x| x - base)
+            .collect()
+    };
+    let everywhere = dying(&all);
+    let distinct = |d: &[f32]| d.len() > 2 && d.iter().any(|&x| x != d[0]);
+    if everywhere.is_empty() || distinct(&everywhere) {
+        return None;
+    }
+    let w = (everywhere.iter().sum::<f32>() / everywhere.len() as f32).min(1.0);
+    fans.iter()
+        .map(|fan| {
+            let mine = dying(fan);
+            let f = if mine.iter().all(|&x| x == w) {
+                w
+            } else if mine.len() == 1 {
+                2.0 * w - mine[0]
+            } else {
+                return None;
+            };
+            let sigma = base + f;
+            let fits = f > 0.0 && f <= 1.0 && sigma - base == f;
+            let mean = if mine.is_empty() {
+                f
+            } else {
+                (mine.iter().sum::<f32>() + f) / (mine.len() + 1) as f32
+            };
+            (fits && mean == w).then_some(sigma as f64)
+        })
+        .collect()
 }
 
 /// Per undirected edge of the file: its uses `(face, forward)`.
@@ -181,6 +249,7 @@ impl SplitControl {
             kinds: vec![VertexKind::Manifold; n],
             semi_sharp_fans: vec![0; n],
             single_face_crease: None,
+            semi_sharp_crease: None,
         };
         sc.tag(&uses, path)?;
         Ok(sc)
@@ -284,13 +353,7 @@ impl SplitControl {
                 }
                 VertexKind::Crease => {
                     if self.semi_sharp_fans[v] > 0 {
-                        return Err(Error::invalid_mesh(
-                            path,
-                            format!("vertex {v}"),
-                            "a semi-sharp edge at a non-manifold crease vertex: OpenSubdiv \
-                             counts it with the crease edges of every fan (corner rule), a \
-                             manifold copy only in its own",
-                        ));
+                        self.tag_semi_sharp_crease(v, &copies, path)?;
                     }
                     let one_face = copies
                         .iter()
@@ -302,6 +365,37 @@ impl SplitControl {
                 _ => {}
             }
         }
+        Ok(())
+    }
+
+    /// Gives every copy of crease vertex `v`, which has semi-sharp edges,
+    /// the vertex sharpness [`crease_copy_sharpness`] finds (module docs).
+    fn tag_semi_sharp_crease(&mut self, v: usize, copies: &[u32], path: &Path) -> Result<()> {
+        let m = &self.manifold;
+        let own = m.vertex_sharpness(VertexId(copies[0]));
+        let fans: Vec<Vec<f64>> = copies
+            .iter()
+            .map(|&c| {
+                m.outgoing(VertexId(c))
+                    .filter(|h| !m.is_boundary_edge(h.edge()))
+                    .map(|h| m.edge_sharpness(h.edge()))
+                    .filter(|&s| s > 0.0 && s < INFINITELY_SHARP)
+                    .collect()
+            })
+            .collect();
+        let sigma = crease_copy_sharpness(own, &fans).ok_or_else(|| {
+            Error::invalid_mesh(
+                path,
+                format!("vertex {v}"),
+                "semi-sharp edges at a non-manifold crease vertex whose transition weight no \
+                 vertex sharpness on its copies carries exactly (OpenSubdiv blends over the \
+                 edges of every fan, a copy over its own)",
+            )
+        })?;
+        for (&c, s) in copies.iter().zip(sigma) {
+            self.manifold.set_corner(VertexId(c), s)?;
+        }
+        self.semi_sharp_crease.get_or_insert(v as u32);
         Ok(())
     }
 
@@ -320,6 +414,14 @@ impl SplitControl {
                      copy within one",
                 ));
             }
+        }
+        if let (CreaseMethod::Chaikin, Some(v)) = (scheme.crease_method, self.semi_sharp_crease) {
+            return Err(Error::invalid_mesh(
+                path,
+                format!("vertex {v}"),
+                "Chaikin creasing with semi-sharp edges at a non-manifold crease vertex: the \
+                 copies' vertex sharpness follows uniform creasing's timing",
+            ));
         }
         if scheme.boundary == BoundaryInterpolation::EdgeAndCorner {
             if let Some(v) = self.single_face_crease {
