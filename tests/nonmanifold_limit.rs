@@ -617,6 +617,96 @@ fn write_obj(path: &Path, c: &Case) {
     std::fs::write(path, s).unwrap();
 }
 
+/// `diff-limit` on non-manifold files with UVs (seams around every third
+/// face) under the smooth face-varying modes: OpenSubdiv evaluates them
+/// on the file's own topology, the Rust side on the manifold copy, and
+/// they agree.
+#[test]
+fn cli_diff_limit_compares_uvs_on_the_files_own_topology() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, tris) in [
+        ("chain with semi-sharp creases", false),
+        ("two cubes sharing a vertex", false),
+        ("several components", false),
+        ("two cubes sharing an edge", true),
+    ] {
+        let c = case_named(tris, name);
+        let n = c.soup.positions.len();
+        let p = dir.path().join("uv.obj");
+        write_obj(&p, &c);
+        let mut text = std::fs::read_to_string(&p).unwrap();
+        let mut vts = String::new();
+        for shift in [0.0, 0.37] {
+            for q in &c.soup.positions {
+                vts += &format!(
+                    "vt {} {}\n",
+                    0.7 * q.x + 0.2 * q.z + shift,
+                    0.6 * q.y - 0.3 * q.z
+                );
+            }
+        }
+        let mut faces = String::new();
+        for (f, face) in c.soup.faces().enumerate() {
+            let off = if f % 3 == 0 { n } else { 0 };
+            faces += "f";
+            for &v in face {
+                faces += &format!(" {}/{}", v + 1, v as usize + 1 + off);
+            }
+            faces += "\n";
+        }
+        let body: String = text
+            .lines()
+            .filter(|l| !l.starts_with("f "))
+            .map(|l| format!("{l}\n"))
+            .collect();
+        text = body + &vts + &faces;
+        std::fs::write(&p, text).unwrap();
+        let scheme = if tris { "loop" } else { "catmark" };
+        // (Loop with these seams under "none" and "corners only" is off by
+        // 2e-2 with OpenSubdiv given the copy too: a face-varying defect of
+        // its own, not of the non-manifold topology; open in issue 18.)
+        let modes: &[&str] = if tris {
+            &["corners-plus1", "corners-plus2", "boundaries"]
+        } else {
+            &[
+                "none",
+                "corners-only",
+                "corners-plus1",
+                "corners-plus2",
+                "boundaries",
+            ]
+        };
+        for &mode in modes {
+            let o = subdfit(&[
+                "diff-limit",
+                p.to_str().unwrap(),
+                "--scheme",
+                scheme,
+                "--fvar",
+                mode,
+                "--samples",
+                "1500",
+                "--json",
+            ]);
+            let err = String::from_utf8_lossy(&o.stderr);
+            if mode == "none" && o.status.code() == Some(2) && err.contains("bow-tie") {
+                // The one refusal of `subdiv::fvar` these layouts reach
+                // (values alternating around a vertex, under "none").
+                continue;
+            }
+            assert!(
+                o.status.success(),
+                "{name} {mode}: {err}\n{}",
+                String::from_utf8_lossy(&o.stdout)
+            );
+            let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+            let fv = &j["face_varying"]["regular"];
+            assert!(fv["count"].as_u64() > Some(500), "{name} {mode}: {j}");
+            assert!(fv["position"].as_f64() < Some(1e-9), "{name} {mode}: {fv}");
+        }
+    }
+}
+
 fn subdfit(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_subdfit"))
         .args(args)

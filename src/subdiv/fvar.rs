@@ -97,6 +97,19 @@ pub fn fvar_mesh(
     scheme: &SchemeOptions,
     channel: &FVarChannel,
 ) -> Result<FVarMesh> {
+    fvar_mesh_with(mesh, scheme, channel, &[])
+}
+
+/// [`fvar_mesh`] with every value of the control vertices flagged in
+/// `sharpened` an infinitely sharp corner (OpenSubdiv's rule for the
+/// values of a non-manifold vertex whose values do not all match,
+/// [`crate::subdiv::nonmanifold`]).
+pub fn fvar_mesh_with(
+    mesh: &ControlMesh,
+    scheme: &SchemeOptions,
+    channel: &FVarChannel,
+    sharpened: &[bool],
+) -> Result<FVarMesh> {
     channel.check(mesh)?;
     let (soup, pair_vertex) = pair_soup(mesh, channel);
     let (split, _, origin) = split_non_manifold_polygons(&soup);
@@ -130,6 +143,11 @@ pub fn fvar_mesh(
     } else {
         copy_edge_sharpness(mesh, &mut fm)?;
         set_value_sharpness(mesh, scheme, &mut fm, &vertex_of, &origin, &copies)?;
+        for (c, &v) in vertex_of.iter().enumerate() {
+            if sharpened.get(v as usize).copied().unwrap_or(false) {
+                fm.set_corner(VertexId(c as u32), INFINITELY_SHARP)?;
+            }
+        }
     }
     Ok(FVarMesh {
         mesh: fm,
@@ -256,6 +274,22 @@ fn set_value_sharpness(
             }
         }
         let values: Vec<ValueSpan> = values.into_iter().map(|(_, s)| s).collect();
+        // Under "none", a vertex all of whose values are split into
+        // several fans (UV bow-ties: values alternating around it) is not
+        // a corner in OpenSubdiv's refinement, though every value's tag
+        // says so; its rule there is not known here, so it is refused
+        // rather than answered wrongly (a single split value among others,
+        // as in the suite's merged seams, is matched).
+        if scheme.fvar == FVarLinear::None
+            && cs.iter().all(|&c| copies[pair[c as usize] as usize] > 1)
+        {
+            return Err(Error::InvalidArgument(format!(
+                "face-varying data at vertex {}: under \"none\" every value of the vertex is \
+                 split into several fans (a bow-tie in UV space); OpenSubdiv's refinement there \
+                 is not reproduced exactly, so not evaluated",
+                v.0
+            )));
+        }
         check_reproducible(mesh, fm, scheme, v, cs, &values)?;
         let all = all_values_sharp(mesh, scheme, v, vertex_sharp, &values);
         for &c in cs {
@@ -472,7 +506,18 @@ pub struct RustFVarEvaluator {
 
 impl RustFVarEvaluator {
     pub fn new(mesh: &ControlMesh, options: &EvalOptions, channel: &FVarChannel) -> Result<Self> {
-        let fvar = fvar_mesh(mesh, &options.scheme, channel)?;
+        Self::with_sharpened(mesh, options, channel, &[])
+    }
+
+    /// With the values of the vertices flagged in `sharpened` corners
+    /// ([`fvar_mesh_with`]).
+    pub fn with_sharpened(
+        mesh: &ControlMesh,
+        options: &EvalOptions,
+        channel: &FVarChannel,
+        sharpened: &[bool],
+    ) -> Result<Self> {
+        let fvar = fvar_mesh_with(mesh, &options.scheme, channel, sharpened)?;
         let eval = match fvar.kind {
             FVarKind::Barycentric => None,
             _ => {

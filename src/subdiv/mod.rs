@@ -34,7 +34,10 @@ pub mod osd;
 pub mod quadtri;
 pub mod refine;
 
-pub use nonmanifold::{file_vertex_limits, make_split_evaluator, split_known_differences};
+pub use nonmanifold::{
+    file_vertex_limits, make_split_evaluator, make_split_fvar_evaluator, rust_split_fvar_evaluator,
+    split_fvar_sharpened, split_known_differences,
+};
 pub use quadtri::{QuadTriEvaluator, QuadTriRefiner};
 
 use serde::Serialize;

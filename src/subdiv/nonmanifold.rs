@@ -142,3 +142,111 @@ pub fn split_known_differences(sc: &SplitControl) -> Vec<KnownDifference> {
         })
         .collect()
 }
+
+/// The face-varying evaluator of `backend` for a file read as `sc`: the
+/// Rust one on the manifold copy, OpenSubdiv's on the file's own topology
+/// (its non-manifold rules apply to face-varying values too). Faces keep
+/// their ids and corner order in the copy, so `channel` serves both.
+pub fn make_split_fvar_evaluator(
+    backend: Backend,
+    sc: &SplitControl,
+    options: &EvalOptions,
+    channel: &crate::mesh::FVarChannel,
+) -> Result<Box<dyn crate::subdiv::fvar::FVarEvaluator>> {
+    sc.check_scheme(&options.scheme)?;
+    if backend == Backend::Rust {
+        return Ok(Box::new(rust_split_fvar_evaluator(sc, options, channel)?));
+    }
+    if sc.is_manifold() {
+        return crate::subdiv::fvar::make_fvar_evaluator(backend, &sc.manifold, options, channel);
+    }
+    Ok(Box::new(super::osd::OsdFVarEvaluator::from_descriptor(
+        &OsdDescriptor::of_split(sc),
+        options,
+        channel,
+    )?))
+}
+
+/// The Rust face-varying evaluator for a file read as `sc`, on the manifold
+/// copy, with OpenSubdiv's rule for non-manifold vertices
+/// ([`split_fvar_sharpened`]).
+pub fn rust_split_fvar_evaluator(
+    sc: &SplitControl,
+    options: &EvalOptions,
+    channel: &crate::mesh::FVarChannel,
+) -> Result<crate::subdiv::fvar::RustFVarEvaluator> {
+    let sharpened = split_fvar_sharpened(sc, channel, &options.scheme);
+    crate::subdiv::fvar::RustFVarEvaluator::with_sharpened(
+        &sc.manifold,
+        options,
+        channel,
+        &sharpened,
+    )
+}
+
+/// Per vertex of `sc.manifold`: whether it copies a non-manifold vertex
+/// of the file whose face-varying values OpenSubdiv does not find matching
+/// (`FVarLevel::completeTopologyFromFaceValues`: more than one value, an
+/// edge whose faces disagree at either end, or a boundary the mode
+/// linearises or a smooth corner it sharpens). All values of such a vertex
+/// are sharp corners there (`allCornersAreSharp` for a non-manifold
+/// vertex), while the copy sees only its own fan's seams.
+pub fn split_fvar_sharpened(
+    sc: &SplitControl,
+    channel: &crate::mesh::FVarChannel,
+    scheme: &crate::mesh::SchemeOptions,
+) -> Vec<bool> {
+    use crate::mesh::{BoundaryInterpolation, FVarLinear};
+    use std::collections::HashMap;
+    let n = sc.positions.len();
+    let mut values: Vec<Vec<u32>> = vec![Vec::new(); n];
+    let mut faces = vec![0usize; n];
+    // Per undirected edge: the values at its (smaller, larger) ends, per use.
+    let mut edges: HashMap<(u32, u32), Vec<(u32, u32)>> = HashMap::new();
+    let mut k = 0usize;
+    for &size in &sc.face_sizes {
+        let size = size as usize;
+        for i in 0..size {
+            let (a, b) = (sc.face_indices[k + i], sc.face_indices[k + (i + 1) % size]);
+            let (va, vb) = (channel.indices[k + i], channel.indices[k + (i + 1) % size]);
+            values[a as usize].push(va);
+            faces[a as usize] += 1;
+            let entry = if a < b { (va, vb) } else { (vb, va) };
+            edges.entry((a.min(b), a.max(b))).or_default().push(entry);
+        }
+        k += size;
+    }
+    let mut mismatch: Vec<bool> = values
+        .iter_mut()
+        .map(|v| {
+            v.sort_unstable();
+            v.dedup();
+            v.len() > 1
+        })
+        .collect();
+    let mut boundary = vec![false; n];
+    for (&(a, b), uses) in &edges {
+        if uses.len() == 1 {
+            boundary[a as usize] = true;
+            boundary[b as usize] = true;
+        } else if uses.iter().any(|u| *u != uses[0]) {
+            mismatch[a as usize] = true;
+            mismatch[b as usize] = true;
+        }
+    }
+    let linear_boundaries = matches!(scheme.fvar, FVarLinear::Boundaries | FVarLinear::All);
+    let smooth_corners_sharp =
+        scheme.boundary != BoundaryInterpolation::EdgeAndCorner && scheme.fvar != FVarLinear::None;
+    for v in 0..n {
+        if boundary[v] && !mismatch[v] {
+            mismatch[v] =
+                (linear_boundaries && faces[v] > 0) || (faces[v] == 1 && smooth_corners_sharp);
+        }
+    }
+    let non_manifold =
+        |v: usize| matches!(sc.kinds[v], VertexKind::SharpCorner | VertexKind::Crease);
+    sc.origin
+        .iter()
+        .map(|&o| non_manifold(o as usize) && mismatch[o as usize])
+        .collect()
+}

@@ -696,8 +696,35 @@ impl OsdFVarEvaluator {
         channel: &crate::mesh::FVarChannel,
     ) -> Result<Self> {
         channel.check(mesh)?;
-        let vertex = OsdEvaluator::new(mesh, options)?;
-        let desc = OsdDescriptor::of_mesh(mesh);
+        Self::from_descriptor(&OsdDescriptor::of_mesh(mesh), options, channel)
+    }
+
+    /// On the arrays OpenSubdiv is given (a non-manifold file's own
+    /// topology, [`OsdDescriptor::of_split`]): `channel` has one index per
+    /// face corner of `desc`, in its order.
+    pub fn from_descriptor(
+        desc: &OsdDescriptor,
+        options: &EvalOptions,
+        channel: &crate::mesh::FVarChannel,
+    ) -> Result<Self> {
+        if channel.indices.len() != desc.face_indices.len() {
+            return Err(Error::InvalidArgument(format!(
+                "face-varying channel has {} indices for {} face corners",
+                channel.indices.len(),
+                desc.face_indices.len()
+            )));
+        }
+        if let Some(i) = channel
+            .indices
+            .iter()
+            .find(|&&i| i as usize >= channel.values.len())
+        {
+            return Err(Error::InvalidArgument(format!(
+                "face-varying index {i} out of range ({} values)",
+                channel.values.len()
+            )));
+        }
+        let vertex = OsdEvaluator::from_descriptor(desc, Vec::new(), options)?;
         let (crease_vertices, crease_weights, corner_vertices, corner_weights) = desc.tag_arrays();
         let topo = bridge::new_osd_fvar_topology(
             desc.num_vertices as u32,

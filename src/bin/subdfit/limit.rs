@@ -8,13 +8,13 @@ use std::process::ExitCode;
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use subdfit::mesh::{
-    BoundaryInterpolation, ControlMesh, CreaseMethod, FVarChannel, FVarLinear, FaceId,
-    SchemeOptions, SplitControl, SubdivScheme, TriangleSubdivision,
+    BoundaryInterpolation, CreaseMethod, FVarChannel, FVarLinear, FaceId, SchemeOptions,
+    SplitControl, SubdivScheme, TriangleSubdivision,
 };
-use subdfit::subdiv::fvar::{make_fvar_evaluator, RustFVarEvaluator};
 use subdfit::subdiv::{
-    diff, file_vertex_limits, make_split_evaluator, split_known_differences, Backend, EvalOptions,
-    LimitPoint, SurfaceLocation,
+    diff, file_vertex_limits, make_split_evaluator, make_split_fvar_evaluator,
+    rust_split_fvar_evaluator, split_known_differences, Backend, EvalOptions, LimitPoint,
+    SurfaceLocation,
 };
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
@@ -327,9 +327,9 @@ pub fn limit(a: LimitArgs) -> Result<ExitCode> {
             // Face-varying data is per face corner, so it has a value at a
             // location, not at a control vertex: columns with `--at` only.
             let uvs = match &uv {
-                Some(ch) => {
-                    Some(make_fvar_evaluator(a.backend.into(), mesh, &opts, ch)?.evaluate(&locs)?)
-                }
+                Some(ch) => Some(
+                    make_split_fvar_evaluator(a.backend.into(), &sc, &opts, ch)?.evaluate(&locs)?,
+                ),
                 None => None,
             };
             subdfit::io::write_atomically(out, |w| {
@@ -367,15 +367,15 @@ pub fn limit(a: LimitArgs) -> Result<ExitCode> {
 
 /// The face-varying comparison of `diff-limit`, when the file has UVs.
 fn diff_uvs(
-    mesh: &ControlMesh,
+    sc: &SplitControl,
     opts: &EvalOptions,
     uv: Option<&FVarChannel>,
     locs: &[SurfaceLocation],
     margin: f64,
 ) -> Result<Option<diff::FVarDiffReport>> {
     let Some(ch) = uv else { return Ok(None) };
-    let rust = RustFVarEvaluator::new(mesh, opts, ch)?;
-    let osd = make_fvar_evaluator(Backend::Osd, mesh, opts, ch)?;
+    let rust = rust_split_fvar_evaluator(sc, opts, ch)?;
+    let osd = make_split_fvar_evaluator(Backend::Osd, sc, opts, ch)?;
     Ok(Some(diff::compare_fvar(
         rust.fvar_mesh(),
         osd.as_ref(),
@@ -414,7 +414,7 @@ pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
     // The size of OpenSubdiv's f32 sharpness: what it does to the surface.
     let (dp, dn) = diff::f32_sharpness_effect(mesh, &rust_opts, &locs)?;
     report.set_f32_effect(dp, dn);
-    let uv_report = diff_uvs(mesh, &rust_opts, uv.as_ref(), &locs, a.margin)?;
+    let uv_report = diff_uvs(&sc, &rust_opts, uv.as_ref(), &locs, a.margin)?;
     let mut failures = Vec::new();
     let mut check = |what: &str, value: f64, tol: f64| {
         // NaN counts as a failure.
