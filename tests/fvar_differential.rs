@@ -788,3 +788,41 @@ fn dependent_sharpness_follows_the_semi_sharp_value() {
         }
     }
 }
+
+/// UV bow-ties: around the centre of a 2×2 grid the values alternate
+/// (A B A B, the diagonal faces sharing a chart corner). OpenSubdiv's
+/// sibling numbering (`subdiv::fvar`'s `osd_siblings`) makes A one
+/// disjoint value (a corner) and B's two spans two values (creases); the
+/// Rust limit follows it in every mode. Counted as two disjoint values,
+/// as the pairs alone say, "none" and "corners only" were 7e-2 away.
+#[test]
+fn alternating_values_around_a_vertex_follow_opensubdivs_numbering() {
+    for (name, m) in [
+        ("grid", fixtures::grid(2, 2, 3)),
+        ("grid 4x4", fixtures::grid(4, 4, 11)),
+    ] {
+        let n = m.num_vertices() as u32;
+        let mut ch = FVarChannel::default();
+        for s in [0.0, 0.37] {
+            for p in m.positions() {
+                ch.values
+                    .push(DVec2::new(0.7 * p.x + s, 0.6 * p.y - 0.1 * p.z));
+            }
+        }
+        // Faces in a checkerboard of two charts: every interior vertex
+        // sees its values alternate.
+        let faces: Vec<FaceId> = m.faces().collect();
+        let side = (faces.len() as f64).sqrt() as usize;
+        for (i, f) in faces.iter().enumerate() {
+            let shifted = (i / side + i % side) % 2 == 0;
+            for w in m.face_vertices(*f) {
+                ch.indices.push(if shifted { w.0 + n } else { w.0 });
+            }
+        }
+        for mode in MODES {
+            let d = compare(&m, &ch, &SchemeOptions::default().with_fvar(mode), LEVEL)
+                .unwrap_or_else(|e| panic!("{name} {}: {e}", mode.name()));
+            check(d, &format!("{name} / {}", mode.name()));
+        }
+    }
+}

@@ -662,21 +662,14 @@ fn cli_diff_limit_compares_uvs_on_the_files_own_topology() {
         text = body + &vts + &faces;
         std::fs::write(&p, text).unwrap();
         let scheme = if tris { "loop" } else { "catmark" };
-        // (Loop with these seams under "none" and "corners only" is off by
-        // 2e-2 with OpenSubdiv given the copy too: a face-varying defect of
-        // its own, not of the non-manifold topology; open in issue 18.)
-        let modes: &[&str] = if tris {
-            &["corners-plus1", "corners-plus2", "boundaries"]
-        } else {
-            &[
-                "none",
-                "corners-only",
-                "corners-plus1",
-                "corners-plus2",
-                "boundaries",
-            ]
-        };
-        for &mode in modes {
+        let modes = [
+            "none",
+            "corners-only",
+            "corners-plus1",
+            "corners-plus2",
+            "boundaries",
+        ];
+        for mode in modes {
             let o = subdfit(&[
                 "diff-limit",
                 p.to_str().unwrap(),
@@ -689,11 +682,6 @@ fn cli_diff_limit_compares_uvs_on_the_files_own_topology() {
                 "--json",
             ]);
             let err = String::from_utf8_lossy(&o.stderr);
-            if mode == "none" && o.status.code() == Some(2) && err.contains("bow-tie") {
-                // The one refusal of `subdiv::fvar` these layouts reach
-                // (values alternating around a vertex, under "none").
-                continue;
-            }
             assert!(
                 o.status.success(),
                 "{name} {mode}: {err}\n{}",

@@ -28,6 +28,10 @@
 //!   one face only; any other value is a crease along its two seam edges
 //!   (the face-varying mesh's boundary rule), semi-sharp with the vertex's
 //!   own sharpness and its fan's semi-sharp edges;
+//! - values are counted as OpenSubdiv numbers them ([`osd_siblings`]):
+//!   around a vertex whose values alternate (a UV bow-tie), the second
+//!   value's spans are two values, smooth creases, and only the first's
+//!   is one disjoint value, a corner;
 //! - geometric boundary vertices are seam vertices too under "boundaries",
 //!   and geometric corners under every mode but "none" when the boundary
 //!   interpolation leaves corners smooth.
@@ -113,10 +117,6 @@ pub fn fvar_mesh_with(
     channel.check(mesh)?;
     let (soup, pair_vertex) = pair_soup(mesh, channel);
     let (split, _, origin) = split_non_manifold_polygons(&soup);
-    let mut copies = vec![0u32; soup.positions.len()];
-    for &o in &origin {
-        copies[o as usize] += 1;
-    }
     let vertex_of: Vec<u32> = origin.iter().map(|&o| pair_vertex[o as usize]).collect();
     let mut fm = ControlMesh::from_soup(&split)
         .map_err(|e| Error::InvalidArgument(format!("face-varying mesh: {e}")))?;
@@ -142,7 +142,7 @@ pub fn fvar_mesh_with(
         fscheme = fscheme.with_scheme(SubdivScheme::Bilinear);
     } else {
         copy_edge_sharpness(mesh, &mut fm)?;
-        set_value_sharpness(mesh, scheme, &mut fm, &vertex_of, &origin, &copies)?;
+        set_value_sharpness(mesh, scheme, &mut fm, &vertex_of, &origin)?;
         for (c, &v) in vertex_of.iter().enumerate() {
             if sharpened.get(v as usize).copied().unwrap_or(false) {
                 fm.set_corner(VertexId(c as u32), INFINITELY_SHARP)?;
@@ -221,15 +221,13 @@ fn is_seam_vertex(
 }
 
 /// Sets the vertex sharpness of every value (module doc). `pair[c]` is the
-/// (vertex, value) pair face-varying vertex `c` copies, `copies[p]` how
-/// many fans pair `p` was split into.
+/// (vertex, value) pair face-varying vertex `c` copies.
 fn set_value_sharpness(
     mesh: &ControlMesh,
     scheme: &SchemeOptions,
     fm: &mut ControlMesh,
     vertex_of: &[u32],
     pair: &[u32],
-    copies: &[u32],
 ) -> Result<()> {
     // Per control edge: interior there but a boundary of the face-varying mesh.
     let mut seam_edge = vec![false; mesh.num_edges()];
@@ -244,9 +242,6 @@ fn set_value_sharpness(
     for (c, &v) in vertex_of.iter().enumerate() {
         copies_of[v as usize].push(c as u32);
     }
-    let spans: Vec<ValueSpan> = (0..fm.num_vertices())
-        .map(|c| value_span(fm, VertexId(c as u32), copies[pair[c] as usize] > 1))
-        .collect();
     let mut sharp = vec![0.0f64; fm.num_vertices()];
     for v in mesh.vertices() {
         let own = mesh.vertex_sharpness(v);
@@ -261,46 +256,38 @@ fn set_value_sharpness(
             }
             continue;
         }
-        // The values of `v`: its copies grouped by pair.
+        // The values of `v` as OpenSubdiv counts them: its copies grouped
+        // by the sibling its walk assigns ([`osd_siblings`]); a copy
+        // sharing its sibling with another is a disjoint span.
+        let sibling = osd_siblings(mesh, fm, v, pair, cs)?;
+        let mut spans_v = Vec::with_capacity(cs.len());
+        for (k, &c) in cs.iter().enumerate() {
+            let shared = sibling.iter().filter(|&&s| s == sibling[k]).count() > 1;
+            spans_v.push(value_span(fm, VertexId(c), shared));
+        }
         let mut values: Vec<(u32, ValueSpan)> = Vec::new();
-        for &c in cs {
-            let s = spans[c as usize];
-            match values.iter_mut().find(|(p, _)| *p == pair[c as usize]) {
+        for (k, _) in cs.iter().enumerate() {
+            let s = spans_v[k];
+            match values.iter_mut().find(|(p, _)| *p == sibling[k]) {
                 Some((_, t)) => {
                     t.faces += s.faces;
                     t.semi_sharp |= s.semi_sharp;
                 }
-                None => values.push((pair[c as usize], s)),
+                None => values.push((sibling[k], s)),
             }
         }
         let values: Vec<ValueSpan> = values.into_iter().map(|(_, s)| s).collect();
-        // Under "none", a vertex all of whose values are split into
-        // several fans (UV bow-ties: values alternating around it) is not
-        // a corner in OpenSubdiv's refinement, though every value's tag
-        // says so; its rule there is not known here, so it is refused
-        // rather than answered wrongly (a single split value among others,
-        // as in the suite's merged seams, is matched).
-        if scheme.fvar == FVarLinear::None
-            && cs.iter().all(|&c| copies[pair[c as usize] as usize] > 1)
-        {
-            return Err(Error::InvalidArgument(format!(
-                "face-varying data at vertex {}: under \"none\" every value of the vertex is \
-                 split into several fans (a bow-tie in UV space); OpenSubdiv's refinement there \
-                 is not reproduced exactly, so not evaluated",
-                v.0
-            )));
-        }
         check_reproducible(mesh, fm, scheme, v, cs, &values)?;
         let all = all_values_sharp(mesh, scheme, v, vertex_sharp, &values);
-        for &c in cs {
-            let s = &spans[c as usize];
+        for (k, &c) in cs.iter().enumerate() {
+            let s = &spans_v[k];
             let corner = all || s.disjoint || (s.faces == 1 && scheme.fvar != FVarLinear::None);
             sharp[c as usize] = if corner { INFINITELY_SHARP } else { own };
         }
         if !all && own == 0.0 && has_dependent_value(scheme, &values) {
             // Two values, one copy each (a disjoint span would have made
             // both corners): the one without semi-sharp edges follows.
-            let (s_copy, d_copy) = if spans[cs[0] as usize].semi_sharp {
+            let (s_copy, d_copy) = if spans_v[0].semi_sharp {
                 (cs[0], cs[1])
             } else {
                 (cs[1], cs[0])
@@ -321,6 +308,93 @@ fn set_value_sharpness(
         }
     }
     Ok(())
+}
+
+/// Per copy in `cs` (the face-varying vertices of control vertex `v`):
+/// the sibling OpenSubdiv gives its value (`FVarLevel::
+/// completeTopologyFromFaceValues`). OpenSubdiv walks `v`'s faces from its
+/// lowest-numbered one (the leading boundary face on a boundary) across
+/// each face's edge into `v` (`Level::orderVertexFacesAndEdges`), and
+/// numbers the values as they come; while it has seen two, a value other
+/// than the first is taken as new without comparing it with the second. So
+/// around a vertex whose values alternate (A B A B, a UV bow-tie) the
+/// second value gets two siblings: its two spans become two values (smooth
+/// creases), while the first value's spans stay one disjoint value (a
+/// corner). Copies whose faces get different siblings are refused.
+fn osd_siblings(
+    mesh: &ControlMesh,
+    fm: &ControlMesh,
+    v: VertexId,
+    pair: &[u32],
+    cs: &[u32],
+) -> Result<Vec<u32>> {
+    // The face-varying vertex at `v`'s corner of face `f`.
+    let copy_at = |f: FaceId| -> u32 {
+        let k = mesh.face_vertices(f).position(|w| w == v).unwrap_or(0);
+        fm.face_vertices(f).nth(k).map_or(u32::MAX, |c| c.0)
+    };
+    let out: Vec<_> = mesh
+        .outgoing(v)
+        .filter(|&h| mesh.face_of(h).is_some())
+        .collect();
+    let start = match out.iter().find(|&&h| mesh.face_of(h.twin()).is_none()) {
+        Some(&h) => h,
+        None => *out
+            .iter()
+            .min_by_key(|&&h| mesh.face_of(h).map_or(u32::MAX, |f| f.0))
+            .expect("a seam vertex has faces"),
+    };
+    let mut ring = Vec::new();
+    let mut h = start;
+    while let Some(f) = mesh.face_of(h) {
+        ring.push((f, copy_at(f)));
+        h = mesh.prev(h).twin();
+        if h == start || ring.len() > out.len() {
+            break;
+        }
+    }
+    let mut unique: Vec<u32> = Vec::new();
+    let mut sib: Vec<u32> = Vec::with_capacity(ring.len());
+    for (i, &(_, c)) in ring.iter().enumerate() {
+        let value = pair[c as usize];
+        if i > 0 && value == pair[ring[i - 1].1 as usize] {
+            sib.push(sib[i - 1]);
+            continue;
+        }
+        // (`value` differs from the previous face's: with one value seen it
+        // is new; with two, OpenSubdiv only compares it with the first.)
+        let found = match unique.len() {
+            1 => None,
+            2 if unique[0] != value => None,
+            _ => unique.iter().position(|&u| u == value),
+        };
+        match found {
+            Some(k) => sib.push(k as u32),
+            None => {
+                sib.push(unique.len() as u32);
+                unique.push(value);
+            }
+        }
+    }
+    cs.iter()
+        .map(|&c| {
+            let mut of = ring
+                .iter()
+                .zip(&sib)
+                .filter(|((_, k), _)| *k == c)
+                .map(|(_, &s)| s);
+            let first = of.next().unwrap_or(u32::MAX);
+            if of.all(|s| s == first) {
+                Ok(first)
+            } else {
+                Err(Error::InvalidArgument(format!(
+                    "face-varying data at vertex {}: a value span that OpenSubdiv's sibling \
+                     numbering splits in two; not reproduced exactly, so not evaluated",
+                    v.0
+                )))
+            }
+        })
+        .collect()
 }
 
 /// The span of one value: its faces, and whether an infinitely sharp or
