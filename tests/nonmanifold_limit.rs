@@ -282,6 +282,20 @@ fn osd_vertex_reference(sc: &SplitControl, scheme: &SchemeOptions, levels: u32) 
     at.iter().map(|&i| limits[i as usize]).collect()
 }
 
+/// A chain of two edges shared by three sheets: its middle vertex (a
+/// non-manifold crease vertex) and, per sheet, that vertex's neighbour
+/// inside it.
+fn fin_with_spokes() -> (Builder, u32, [u32; 3]) {
+    let mut b = Builder::default();
+    b.fin(3, 2, 2, 2.0, false);
+    let mid = b.id(p3(1.0, 0.0, 0.0));
+    let spoke = [0, 1, 2].map(|k| {
+        let t = 2.0 * std::f64::consts::PI * (k as f64 + 0.1) / 3.0;
+        b.id(p3(1.0, 0.5 * t.cos(), 0.5 * t.sin()))
+    });
+    (b, mid, spoke)
+}
+
 fn case_named(tris: bool, name: &str) -> Case {
     let mut all = cases(tris);
     let i = all
@@ -476,15 +490,9 @@ fn what_splitting_cannot_reproduce_is_refused_by_name() {
 
     // A semi-sharp edge at a crease vertex of the fin: Chaikin refuses it
     // (the copies' sharpness follows uniform creasing's timing).
-    let mut b = Builder::default();
-    b.fin(3, 2, 2, 2.0, false);
-    let mid = b.id(p3(1.0, 0.0, 0.0));
-    let spoke = |k: usize| {
-        let t = 2.0 * std::f64::consts::PI * (k as f64 + 0.1) / 3.0;
-        b.id(p3(1.0, 0.5 * t.cos(), 0.5 * t.sin()))
-    };
+    let (b, mid, spoke) = fin_with_spokes();
     let chaikin = SchemeOptions::default().with_crease_method(CreaseMethod::Chaikin);
-    let msg = refusal(&b.soup(), &[(mid, spoke(0), 1.5)], &chaikin);
+    let msg = refusal(&b.soup(), &[(mid, spoke[0], 1.5)], &chaikin);
     assert!(msg.contains(&format!("vertex {mid}")), "{msg}");
 
     // Chaikin with semi-sharp edges in two fans of one vertex: two cubes
@@ -540,32 +548,26 @@ fn what_splitting_cannot_reproduce_is_refused_by_name() {
 /// and its blend, to ≤ 1e-9 of the diagonal under every boundary rule.
 #[test]
 fn semi_sharp_edges_at_a_non_manifold_crease_vertex_match() {
-    let mut b = Builder::default();
-    b.fin(3, 2, 2, 2.0, false);
-    let mid = b.id(p3(1.0, 0.0, 0.0));
-    let spoke = |k: usize| {
-        let t = 2.0 * std::f64::consts::PI * (k as f64 + 0.1) / 3.0;
-        b.id(p3(1.0, 0.5 * t.cos(), 0.5 * t.sin()))
-    };
+    let (b, mid, spoke) = fin_with_spokes();
     type Creases = Vec<(u32, u32, f64)>;
     let configs: [(&str, Creases, f64); 4] = [
-        ("one edge", vec![(mid, spoke(0), 1.5)], 0.0),
+        ("one edge", vec![(mid, spoke[0], 1.5)], 0.0),
         (
             "two fans, 1.3 and 1.7",
-            vec![(mid, spoke(0), 1.3), (mid, spoke(1), 1.7)],
+            vec![(mid, spoke[0], 1.3), (mid, spoke[1], 1.7)],
             0.0,
         ),
         (
             "two fans, 1.3 and 2.6",
-            vec![(mid, spoke(0), 1.3), (mid, spoke(2), 2.6)],
+            vec![(mid, spoke[0], 1.3), (mid, spoke[2], 2.6)],
             0.0,
         ),
         (
             "three fans and a corner",
             vec![
-                (mid, spoke(0), 0.4),
-                (mid, spoke(1), 0.4),
-                (mid, spoke(2), 0.9),
+                (mid, spoke[0], 0.4),
+                (mid, spoke[1], 0.4),
+                (mid, spoke[2], 0.9),
             ],
             1.2,
         ),

@@ -468,45 +468,42 @@ pub fn known_differences_with(mesh: &ControlMesh, scheme: &SchemeOptions) -> Vec
     mesh.vertices()
         .filter(|&v| mesh.vertex_faces(v).any(|f| !holes[f.idx()]))
         .filter_map(|v: VertexId| {
-            if mesh.is_boundary_vertex(v) && scheme.scheme == SubdivScheme::Loop {
-                // Loop: OpenSubdiv's crease limit masks are exact at
-                // regular boundary vertices (three faces; both agree to
-                // round-off on `tests/loop_differential.rs`'s open grid).
-                // At any other smooth boundary vertex its tangent mask
-                // across the boundary is not the tangent plane of its own
-                // patches: on OpenSubdiv's loop_xord_boundary, a vertex of
-                // four faces gets a `Limit()` normal 0.197 rad away from
-                // the normal both evaluators' surfaces converge to there.
-                let faces = mesh.vertex_faces(v).count();
-                let smooth = mesh.vertex_sharpness(v) == 0.0
-                    && mesh
-                        .outgoing(v)
-                        .all(|h| mesh.is_boundary_edge(h.edge()) || mesh.edge_sharpness(h.edge()) == 0.0);
-                let corner = faces == 1 && scheme.boundary == BoundaryInterpolation::EdgeAndCorner;
-                return (faces != 3 && smooth && !corner).then_some(KnownDifference {
-                    vertex: v.0,
-                    normal_only: true,
-                    reason: "Loop boundary vertex without three faces: OpenSubdiv's limit tangent mask \
-                             across the boundary departs from its own limit surface's normal",
-                });
-            }
             if mesh.is_boundary_vertex(v) {
-                // Edge-and-corner rule: a boundary vertex with one face is a
-                // corner, with two regular. With more, OpenSubdiv's limit
-                // tangent mask across the boundary is not the tangent plane
-                // of its own limit surface: its patches at the corner and the
-                // exact evaluator agree to 1e-7 rad, its `Limit()` normal is
-                // 2.8e-4 rad away on `fixtures::open_fan3`.
+                // OpenSubdiv's limit tangent mask across the boundary is not
+                // the tangent plane of its own limit surface at a smooth
+                // boundary vertex of irregular valence.
+                // - Catmark (edge-and-corner: one face is a corner, two are
+                //   regular): with more faces its patches at the corner and
+                //   the exact evaluator agree to 1e-7 rad, its `Limit()`
+                //   normal is 2.8e-4 rad away on `fixtures::open_fan3`.
+                // - Loop: exact at regular boundary vertices (three faces;
+                //   both agree to round-off on `tests/loop_differential.rs`'s
+                //   open grid); on OpenSubdiv's loop_xord_boundary a vertex
+                //   of four faces gets a `Limit()` normal 0.197 rad away from
+                //   the normal both evaluators' surfaces converge to there.
                 let faces = mesh.vertex_faces(v).count();
                 let smooth = mesh.vertex_sharpness(v) == 0.0
                     && mesh
                         .outgoing(v)
                         .all(|h| mesh.is_boundary_edge(h.edge()) || mesh.edge_sharpness(h.edge()) == 0.0);
-                return (faces > 2 && smooth).then_some(KnownDifference {
+                let (irregular, reason) = if scheme.scheme == SubdivScheme::Loop {
+                    let corner = faces == 1 && scheme.boundary == BoundaryInterpolation::EdgeAndCorner;
+                    (
+                        faces != 3 && !corner,
+                        "Loop boundary vertex without three faces: OpenSubdiv's limit tangent mask \
+                         across the boundary departs from its own limit surface's normal",
+                    )
+                } else {
+                    (
+                        faces > 2,
+                        "boundary vertex with more than two faces: OpenSubdiv's limit tangent mask \
+                         across the boundary departs from its own limit surface's normal",
+                    )
+                };
+                return (irregular && smooth).then_some(KnownDifference {
                     vertex: v.0,
                     normal_only: true,
-                    reason: "boundary vertex with more than two faces: OpenSubdiv's limit tangent mask \
-                             across the boundary departs from its own limit surface's normal",
+                    reason,
                 });
             }
             if mesh.vertex_sharpness(v) >= INFINITELY_SHARP {
