@@ -406,6 +406,28 @@ fn loop_refuses_non_triangles_and_outside_locations() {
     }
 }
 
+/// Two triangles back to back (an interior vertex of two faces) are
+/// refused by the Rust evaluator, naming the vertex: one Loop step joins
+/// their edge points by two edges, which its local subdivision cannot hold
+/// (it would answer 2.6e-2 of the diagonal off OpenSubdiv, and off its own
+/// surface's continuity across the shared edges). OpenSubdiv evaluates it.
+#[test]
+fn loop_refuses_two_triangles_back_to_back() {
+    let p = vec![
+        DVec3::new(0.0, 0.0, 0.0),
+        DVec3::new(1.0, 0.0, 0.0),
+        DVec3::new(0.5, 0.0, 0.9),
+    ];
+    let pillow = mesh((p, vec![[0, 1, 2], [1, 0, 2]]));
+    let eo = EvalOptions::default()
+        .with_scheme(SchemeOptions::default().with_scheme(SubdivScheme::Loop));
+    let e = make_evaluator(Backend::Rust, &pillow, &eo)
+        .err()
+        .expect("a pillow must be refused");
+    assert!(e.to_string().contains("vertex 0"), "{e}");
+    assert!(make_evaluator(Backend::Osd, &pillow, &eo).is_ok());
+}
+
 /// The comparison can fail: a deliberately broken vertex mask in the Rust
 /// evaluator is caught at that vertex.
 #[test]

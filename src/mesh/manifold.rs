@@ -94,6 +94,18 @@ pub fn split_non_manifold_polygons(soup: &PolySoup) -> (PolySoup, SplitStats, Ve
     )
 }
 
+/// Whether corners `a` and `b` belong to one face.
+fn same_face(a: u32, b: u32, next: impl Fn(u32) -> u32) -> bool {
+    let mut c = next(a);
+    while c != a {
+        if c == b {
+            return true;
+        }
+        c = next(c);
+    }
+    false
+}
+
 /// What [`split_corners`] makes: per corner its (new) vertex, the
 /// positions with the copies appended, and each copy's original.
 struct CornerSplit {
@@ -122,7 +134,11 @@ fn split_corners(positions: &[DVec3], corners: &[u32], next: impl Fn(u32) -> u32
     }
     for uses in edges.values() {
         if let [(c0, d0), (c1, d1)] = uses[..] {
-            if d0 != d1 {
+            // One face running along an edge both ways (a face that visits a
+            // vertex twice) is not joined to itself: OpenSubdiv gives the
+            // second run its own edge (`vtr/level.cpp`,
+            // `completeTopologyFromFaceVertices`), non-manifold.
+            if d0 != d1 && !same_face(c0, c1, &next) {
                 // c0 runs a→b, c1 runs b→a: a's corners are c0 and next(c1),
                 // b's are next(c0) and c1.
                 union(&mut parent, c0, next(c1));

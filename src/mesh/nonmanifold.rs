@@ -19,10 +19,18 @@
 //!   the copies get an infinitely sharp corner, the same surface);
 //! - holes of boundary interpolation "none" are decided before that
 //!   sharpening, from edges with exactly one face;
-//! - a vertex no face uses is refined as an isolated point.
+//! - a vertex no face uses is refined as an isolated point;
+//! - a face that repeats a corner (a triangle written as a quad, `f 4 3 5
+//!   5`) gets a degenerate edge of its own, and a face that runs along an
+//!   edge twice gets a second edge there (`vtr/level.cpp`,
+//!   `completeTopologyFromFaceVertices`): both non-manifold, each with one
+//!   face, so their ends are infinitely sharp corners; the degenerate
+//!   edge's point is the vertex itself at every level.
 //!
 //! The copy ([`super::foreign`]'s `manifold_copy`: one vertex copy per fan,
-//! an edge of three or more faces pulled apart) gets the split edges
+//! an edge of three or more faces pulled apart, a face's repeated corners
+//! separate copies, so a degenerate edge becomes a zero-length boundary
+//! edge between two copies at one position) gets the split edges
 //! infinitely sharp and every copy of a sharpened vertex an infinitely
 //! sharp corner. Then each copy's vertex rule, each edge's and each face's
 //! are OpenSubdiv's, at every level: an infinitely sharp vertex keeps the
@@ -33,9 +41,8 @@
 //!
 //! Where splitting cannot reproduce OpenSubdiv, [`SplitControl::new`] or
 //! [`SplitControl::check_scheme`] refuses, naming the element:
-//! - a face that visits a vertex twice (OpenSubdiv marks its edges and
-//!   vertex non-manifold and refines a degenerate face; no manifold copy
-//!   has that face);
+//! - a face whose repeated corners lie in one fan of faces joined by
+//!   manifold edges (no copy separates them);
 //! - Chaikin creasing with semi-sharp edges at a non-manifold crease
 //!   vertex. (Under uniform creasing they are matched: OpenSubdiv counts
 //!   them with both crease edges at the vertex every fan shares, the corner
@@ -46,12 +53,7 @@
 //! - Chaikin creasing with semi-sharp edges in two fans of one non-manifold
 //!   vertex: Chaikin averages the sharpness of a vertex's semi-sharp edges
 //!   (`sdc/crease.cpp`, `SubdivideEdgeSharpnessesAroundVertex`) across all
-//!   of them in OpenSubdiv, within one fan in the copy;
-//! - boundary "edge and corner" with a crease vertex's copy left with one
-//!   face: the copy would be a sharpened topological corner, OpenSubdiv's
-//!   vertex (more faces, two edges) is not;
-//! - a non-manifold edge whose faces are joined around both its ends, so
-//!   that its copies would meet again as one manifold edge.
+//!   of them in OpenSubdiv, within one fan in the copy.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -101,6 +103,10 @@ pub struct SplitControl {
     single_face_crease: Option<u32>,
     /// The first crease vertex with semi-sharp edges (Chaikin's refusal).
     semi_sharp_crease: Option<u32>,
+    /// Per file vertex: whether OpenSubdiv counts it a boundary vertex with
+    /// an edge of one face not infinitely sharp by its own tag (boundary
+    /// "none" makes all its faces holes, in every fan).
+    soft_boundary: Vec<bool>,
 }
 
 /// Vertex sharpness for each copy (fan) of a non-manifold crease vertex
@@ -185,7 +191,33 @@ fn edge_uses(soup: &PolySoup) -> EdgeUses {
 /// Whether an edge joins its faces as a manifold (`vtr/level.cpp` tags the
 /// others non-manifold): exactly two, traversing it in opposite directions.
 fn manifold_edge(uses: &[(u32, bool)]) -> bool {
-    uses.len() == 2 && uses[0].1 != uses[1].1
+    uses.len() == 2 && uses[0].1 != uses[1].1 && !runs_twice(uses)
+}
+
+/// Per use of an edge (in `uses`' face order): whether OpenSubdiv puts it
+/// on the edge's first instance. `findEdge` returns the first instance, and
+/// a face that finds itself already there gets a new instance of its own
+/// (`completeTopologyFromFaceVertices`); every other use joins the first.
+fn on_first_instance(uses: &[(u32, bool)]) -> Vec<bool> {
+    let mut last = None;
+    uses.iter()
+        .map(|&(f, _)| {
+            let first = last != Some(f);
+            if first {
+                last = Some(f);
+            }
+            first
+        })
+        .collect()
+}
+
+/// Whether one face runs along the edge more than once. OpenSubdiv then
+/// gives each further run an edge of its own, tagged non-manifold with the
+/// first (`completeTopologyFromFaceVertices`: "if the edge already occurs
+/// in this face, create a new instance"), so its ends are non-manifold
+/// vertices with a boundary edge: infinitely sharp corners.
+fn runs_twice(uses: &[(u32, bool)]) -> bool {
+    uses.windows(2).any(|w| w[0].0 == w[1].0)
 }
 
 impl SplitControl {
@@ -206,14 +238,10 @@ impl SplitControl {
                     &format!("vertex {v} out of range"),
                 ));
             }
-            let mut s = face.to_vec();
-            s.sort_unstable();
-            if face.len() < 3 || s.windows(2).any(|w| w[0] == w[1]) {
+            if face.len() < 3 {
                 return Err(bad(
                     format!("face {f}"),
-                    "a face with fewer than three distinct corners or that visits a vertex \
-                     twice: OpenSubdiv refines it as a degenerate face, which a manifold copy \
-                     cannot reproduce",
+                    "a face with fewer than three corners",
                 ));
             }
         }
@@ -229,7 +257,27 @@ impl SplitControl {
         let faces: Vec<Vec<u32>> = soup.faces().map(|f| f.to_vec()).collect();
         let copy =
             manifold_copy(&soup.positions, &faces, creases, corners).map_err(|e| match e {
-                Error::Topology { element, msg } => Error::invalid_mesh(path, element, msg),
+                Error::Topology { element, msg } => {
+                    // The copy keeps a face's repeated corners apart unless
+                    // manifold edges join them around the vertex.
+                    let folded = element
+                        .strip_prefix("face ")
+                        .and_then(|f| faces.get(f.parse::<usize>().ok()?))
+                        .is_some_and(|f| {
+                            let mut s = f.clone();
+                            s.sort_unstable();
+                            s.windows(2).any(|w| w[0] == w[1])
+                        });
+                    let msg = if folded {
+                        "a face whose repeated corners lie in one fan of faces joined by \
+                         manifold edges: no manifold copy keeps them apart, as OpenSubdiv's \
+                         separate edge instances do"
+                            .to_string()
+                    } else {
+                        msg
+                    };
+                    Error::invalid_mesh(path, element, msg)
+                }
                 e => e,
             })?;
         let mut copies = vec![Vec::new(); n];
@@ -250,6 +298,7 @@ impl SplitControl {
             semi_sharp_fans: vec![0; n],
             single_face_crease: None,
             semi_sharp_crease: None,
+            soft_boundary: vec![false; n],
         };
         sc.tag(&uses, path)?;
         Ok(sc)
@@ -278,9 +327,21 @@ impl SplitControl {
         for &v in &self.face_indices {
             counts[v as usize][3] += 1;
         }
+        // Ends of an edge one face runs along twice, and of a degenerate
+        // edge (a face repeating a corner: always an edge of its own, with
+        // one face), are infinitely sharp (`runs_twice`).
+        let mut forced = vec![false; n];
+        for (&(a, b), u) in uses {
+            if a == b || runs_twice(u) {
+                forced[a as usize] = true;
+                forced[b as usize] = true;
+            }
+        }
         for (v, &[nm_edges, boundary, edges, faces]) in counts.iter().enumerate() {
             self.kinds[v] = if faces == 0 {
                 VertexKind::Unused
+            } else if forced[v] {
+                VertexKind::SharpCorner
             } else if nm_edges == 0 && self.copies[v].len() == 1 {
                 VertexKind::Manifold
             } else if nm_edges == 2 && boundary == 0 && faces > edges {
@@ -289,37 +350,67 @@ impl SplitControl {
                 VertexKind::SharpCorner
             };
         }
-        // Non-manifold edges: every copy infinitely sharp, and distinct
-        // (in edge order, so that an error names the same edge every run).
-        let mut nm_edges: Vec<(u32, u32)> = uses
+        // Non-manifold edges: every copy infinitely sharp. A copy can join
+        // two faces again where their fans close around both its ends (two
+        // faces back to back on an edge of four): infinitely sharp between
+        // infinitely sharp or crease vertices, it keeps their surfaces as
+        // apart as OpenSubdiv's non-manifold edge does; so do degenerate
+        // edges, whose copies can meet again too. The further instances a
+        // face that runs along an edge twice gets, and degenerate edges,
+        // are boundary edges of one face in OpenSubdiv (infinitely sharp
+        // like every boundary edge there): `soft` records them for the
+        // holes of boundary "none" ([`SplitControl::with_file_holes`]).
+        let mut first_use: HashMap<(u32, u32), (Vec<bool>, usize)> = HashMap::new();
+        let mut soft = vec![false; n];
+        let crease_of: HashMap<(u32, u32), f64> = self
+            .creases
             .iter()
-            .filter(|(_, u)| u.len() != 1 && !manifold_edge(u))
-            .map(|(&e, _)| e)
+            .map(|&(a, b, s)| ((a.min(b), a.max(b)), s))
             .collect();
-        nm_edges.sort_unstable();
-        for (a, b) in nm_edges {
-            let mut seen = Vec::new();
-            for &x in &self.copies[a as usize] {
-                for &y in &self.copies[b as usize] {
-                    let Some(h) = self.manifold.find_halfedge(VertexId(x), VertexId(y)) else {
-                        continue;
-                    };
-                    if !self.manifold.is_boundary_edge(h.edge()) {
-                        return Err(Error::invalid_mesh(
-                            path,
-                            format!("edge ({a}, {b})"),
-                            "a non-manifold edge whose faces are joined around both its ends: \
-                             no manifold copy pulls it apart",
-                        ));
-                    }
-                    seen.push((x, y));
+        let offsets: Vec<usize> = std::iter::once(0)
+            .chain(self.face_sizes.iter().scan(0usize, |o, &k| {
+                *o += k as usize;
+                Some(*o)
+            }))
+            .collect();
+        for f in 0..self.face_sizes.len() {
+            let face = &self.face_indices[offsets[f]..offsets[f + 1]];
+            let copy: Vec<u32> = self
+                .manifold
+                .face_vertices(super::FaceId(f as u32))
+                .map(|v| v.0)
+                .collect();
+            for k in 0..face.len() {
+                let (a, b) = (face[k], face[(k + 1) % face.len()]);
+                let key = (a.min(b), a.max(b));
+                let u = &uses[&key];
+                let (firsts, next) = first_use
+                    .entry(key)
+                    .or_insert_with(|| (on_first_instance(u), 0));
+                let first = a != b && firsts[*next];
+                *next += 1;
+                let one_face = if first {
+                    firsts.iter().filter(|&&x| x).count() == 1
+                } else {
+                    true
+                };
+                let tagged = if first {
+                    crease_of.get(&key).copied()
+                } else {
+                    None
+                };
+                if one_face && tagged.unwrap_or(0.0) < INFINITELY_SHARP {
+                    soft[a as usize] = true;
+                    soft[b as usize] = true;
+                }
+                if a == b || (u.len() != 1 && !manifold_edge(u)) {
+                    let (x, y) = (copy[k], copy[(k + 1) % copy.len()]);
+                    self.manifold
+                        .set_crease(VertexId(x), VertexId(y), INFINITELY_SHARP)?;
                 }
             }
-            for (x, y) in seen {
-                self.manifold
-                    .set_crease(VertexId(x), VertexId(y), INFINITELY_SHARP)?;
-            }
         }
+        self.soft_boundary = soft;
         for v in 0..n {
             let copies = self.copies[v].clone();
             // A copy's boundary edges are the file's boundary edges (always
@@ -402,7 +493,6 @@ impl SplitControl {
     /// Refuses scheme options under which the copy departs from
     /// OpenSubdiv (module docs).
     pub fn check_scheme(&self, scheme: &SchemeOptions) -> Result<()> {
-        use super::BoundaryInterpolation;
         let path = &self.path;
         if scheme.crease_method == CreaseMethod::Chaikin {
             if let Some(v) = (0..self.positions.len()).find(|&v| self.semi_sharp_fans[v] > 1) {
@@ -423,18 +513,84 @@ impl SplitControl {
                  copies' vertex sharpness follows uniform creasing's timing",
             ));
         }
-        if scheme.boundary == BoundaryInterpolation::EdgeAndCorner {
-            if let Some(v) = self.single_face_crease {
-                return Err(Error::invalid_mesh(
-                    path,
-                    format!("vertex {v}"),
-                    "boundary \"edge and corner\" at a non-manifold crease vertex with a fan \
-                     of one face: the copy would be a sharpened corner, OpenSubdiv's vertex is \
-                     a crease",
-                ));
+        Ok(())
+    }
+
+    /// The copy and scheme the exact evaluators get under `scheme`, where
+    /// they differ from `manifold` and `scheme`: boundary "edge and corner"
+    /// with a crease vertex's copy of one face. Corner sharpening is
+    /// topological (one face, two edges), and that copy would be sharpened
+    /// while OpenSubdiv's vertex (more faces than edges) keeps the crease
+    /// rule. OpenSubdiv decides it once on the file
+    /// (`prepareComponentTagsAndSharpness`: a boundary vertex of one face
+    /// and two edges gets infinite sharpness), so the copy gets that
+    /// decision as tags instead: an infinitely sharp corner on every copy
+    /// of the file's topological corners, under "edge only", which
+    /// differs from "edge and corner" by nothing else.
+    pub fn exact_copy_for(&self, scheme: &SchemeOptions) -> Option<(ControlMesh, SchemeOptions)> {
+        use super::BoundaryInterpolation;
+        if scheme.boundary != BoundaryInterpolation::EdgeAndCorner
+            || self.single_face_crease.is_none()
+        {
+            return None;
+        }
+        let mut faces = vec![0usize; self.positions.len()];
+        for &v in &self.face_indices {
+            faces[v as usize] += 1;
+        }
+        let mut edges = vec![0usize; self.positions.len()];
+        let mut seen = std::collections::HashSet::new();
+        let mut at = 0usize;
+        for &k in &self.face_sizes {
+            let face = &self.face_indices[at..at + k as usize];
+            at += k as usize;
+            for i in 0..face.len() {
+                let (a, b) = (face[i], face[(i + 1) % face.len()]);
+                if a != b && seen.insert((a.min(b), a.max(b))) {
+                    edges[a as usize] += 1;
+                    edges[b as usize] += 1;
+                }
             }
         }
-        Ok(())
+        let mut copy = self.manifold.clone();
+        for v in 0..self.positions.len() {
+            if faces[v] == 1 && edges[v] == 2 {
+                for &c in &self.copies[v] {
+                    copy.set_corner(VertexId(c), INFINITELY_SHARP).ok()?;
+                }
+            }
+        }
+        Some((
+            copy,
+            scheme
+                .clone()
+                .with_boundary(BoundaryInterpolation::EdgeOnly),
+        ))
+    }
+
+    /// `scheme` with the holes boundary interpolation "none" makes on the
+    /// file added to its hole list: every face at a vertex OpenSubdiv finds
+    /// on a soft boundary (`makeBoundaryFacesHoles`), in all of its fans,
+    /// where the copy alone would hole only the fan with the boundary edge.
+    /// Other schemes come back unchanged.
+    pub fn with_file_holes(&self, scheme: SchemeOptions) -> SchemeOptions {
+        use super::{BoundaryInterpolation, FaceId, SubdivScheme};
+        if scheme.boundary != BoundaryInterpolation::None
+            || scheme.scheme == SubdivScheme::Bilinear
+            || self.is_manifold()
+        {
+            return scheme;
+        }
+        let mut holes = scheme.holes.clone();
+        let mut at = 0usize;
+        for (f, &k) in self.face_sizes.iter().enumerate() {
+            let face = &self.face_indices[at..at + k as usize];
+            at += k as usize;
+            if face.iter().any(|&v| self.soft_boundary[v as usize]) {
+                holes.push(FaceId(f as u32));
+            }
+        }
+        scheme.with_holes(holes)
     }
 
     /// Positions over `manifold`'s vertices of positions over the file's.

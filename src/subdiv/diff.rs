@@ -67,6 +67,9 @@ pub struct DiffReport {
     pub regular: Worst,
     /// At locations within `margin` of an irregular corner.
     pub near_irregular: Worst,
+    /// At locations where the surface has no tangent plane in either
+    /// evaluator ([`singular_at`]): positions compared, normals not.
+    pub singular: Worst,
     pub margin: f64,
     /// Normals at control vertices OpenSubdiv evaluates on its patches
     /// ([`crate::subdiv::osd::patch_evaluated_vertices`]); their positions
@@ -206,6 +209,18 @@ pub fn f32_sharpness_effect(
             dn.max(angle_between(x.normal(), y.normal())),
         )
     }))
+}
+
+/// Whether the surface at `x` has no tangent plane: the parallelogram of
+/// its derivatives is narrower than 1e-12 of the bounding-box diagonal
+/// (`|∂u × ∂v| / max(|∂u|, |∂v|)`). That is where a face collapses to a
+/// point or a curve (OpenSubdiv's shapes have a quad whose four corners are
+/// one vertex, and quads of two repeated corners): the derivative across
+/// is rounding noise there, 1e-16 of the diagonal or less, while a sample
+/// a relative 1e-6 away from a degenerate edge still has a width near 1e-6.
+pub fn singular_at(x: &LimitPoint, diag: f64) -> bool {
+    let longest = x.du.length().max(x.dv.length());
+    x.du.cross(x.dv).length() <= 1e-12 * diag * longest
 }
 
 /// Angle between two vectors' directions (0 when both are zero).
@@ -561,6 +576,11 @@ pub fn compare_with_known(
     for (i, loc) in locations.iter().enumerate() {
         let (x, y) = (la[i], lb[i]);
         let dp = (x.position - y.position).length() / diag;
+        if singular_at(&x, diag) && singular_at(&y, diag) {
+            let at = || format!("face {} sub {}", loc.face.0, loc.sub);
+            report.singular.add(at, dp, 0.0);
+            continue;
+        }
         let dn = angle_between(x.normal(), y.normal());
         let near = irregular_corners(mesh, &irregular, loc, scheme.scheme == SubdivScheme::Loop)
             .iter()
@@ -663,6 +683,9 @@ impl std::fmt::Display for DiffReport {
         let near = format!("near irregular (< {})", self.margin);
         line(f, &near, &self.near_irregular)?;
         line(f, "patch-evaluated vertices", &self.patch_vertices)?;
+        if self.singular.count > 0 {
+            line(f, "no tangent plane", &self.singular)?;
+        }
         if !self.known_differences.is_empty() {
             line(f, "known differences", &self.known)?;
             for k in &self.known_differences {

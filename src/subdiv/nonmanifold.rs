@@ -33,6 +33,14 @@ pub fn make_split_evaluator(
     options: &EvalOptions,
 ) -> Result<Box<dyn LimitEvaluator>> {
     sc.check_scheme(&options.scheme)?;
+    let options = &options
+        .clone()
+        .with_scheme(sc.with_file_holes(options.scheme.clone()));
+    if backend == Backend::Rust {
+        if let Some((copy, scheme)) = sc.exact_copy_for(&options.scheme) {
+            return make_evaluator(backend, &copy, &options.clone().with_scheme(scheme));
+        }
+    }
     if backend == Backend::Rust || sc.is_manifold() {
         return make_evaluator(backend, &sc.manifold, options);
     }

@@ -160,6 +160,10 @@ fn read_with_scheme(
         );
     }
     sc.check_scheme(&scheme).context("control mesh")?;
+    // Boundary "none" holes every face at a soft boundary vertex, in all of
+    // its fans: stated with the other holes, so both backends and the
+    // sampling agree.
+    let scheme = sc.with_file_holes(scheme);
     if let Some(note) = &file.uv_note {
         eprintln!("warning: {note}");
     }
@@ -434,6 +438,11 @@ pub fn diff_limit(a: DiffArgs) -> Result<ExitCode> {
     );
     check("position", report.regular.position, a.tolerance);
     check("normal", report.regular.normal, a.normal_tolerance);
+    check(
+        "position without a tangent plane",
+        report.singular.position,
+        a.tolerance,
+    );
     if let Some(u) = &uv_report {
         // UVs are held to the position tolerance, relative to their extent.
         check("face-varying value", u.regular.position, a.tolerance);

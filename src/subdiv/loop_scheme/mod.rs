@@ -527,12 +527,36 @@ pub(crate) fn vertex_limit<P: Pt>(t0: &Topo<P>, adj0: &Adj, c0: u32) -> (P, P, P
     (apply(&p), apply(&a), apply(&b))
 }
 
+/// Refuses an interior vertex of two triangles. In a manifold triangle
+/// mesh that is two triangles back to back (a pillow: both faces on the
+/// same three vertices). One Loop step gives each of them a child edge
+/// between the same two edge points, so the refined mesh has two edges
+/// joining one pair of vertices; OpenSubdiv's `Vtr` keeps them apart, but
+/// the local subdivision here (`Topo`) knows an edge by its two vertices
+/// and would merge them, a wrong surface (2.6e-2 of the diagonal on
+/// OpenSubdiv's `loop_val2_interior`).
+fn check_no_pillow(mesh: &ControlMesh) -> Result<()> {
+    match mesh
+        .vertices()
+        .find(|&v| !mesh.is_boundary_vertex(v) && mesh.vertex_faces(v).count() == 2)
+    {
+        Some(v) => Err(crate::error::Error::InvalidArgument(format!(
+            "Loop: vertex {} is an interior vertex of two triangles (two triangles back to \
+             back): one Loop step joins their edge points twice, which the exact evaluator \
+             does not model; not evaluated",
+            v.0
+        ))),
+        None => Ok(()),
+    }
+}
+
 impl LoopEvaluator {
     /// Prepares the evaluator: the mesh must be all triangles
     /// ([`check_loop_triangles`]) and valid.
     pub fn new(mesh: &ControlMesh, options: &EvalOptions) -> Result<Self> {
         mesh.validate()?;
         check_loop_triangles(mesh)?;
+        check_no_pillow(mesh)?;
         let holes = checked_holes(mesh, &options.scheme)?;
         let sdc = Rules {
             f32_sharpness: !options.exact_sharpness,
