@@ -516,6 +516,15 @@ impl SplitControl {
         Ok(())
     }
 
+    /// Per vertex of `manifold`: whether it copies a non-manifold crease
+    /// vertex ([`VertexKind::Crease`]).
+    pub fn crease_copies(&self) -> Vec<bool> {
+        self.origin
+            .iter()
+            .map(|&o| self.kinds[o as usize] == VertexKind::Crease)
+            .collect()
+    }
+
     /// The copy and scheme the exact evaluators get under `scheme`, where
     /// they differ from `manifold` and `scheme`: boundary "edge and corner"
     /// with a crease vertex's copy of one face. Corner sharpening is

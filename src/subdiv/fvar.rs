@@ -101,18 +101,23 @@ pub fn fvar_mesh(
     scheme: &SchemeOptions,
     channel: &FVarChannel,
 ) -> Result<FVarMesh> {
-    fvar_mesh_with(mesh, scheme, channel, &[])
+    fvar_mesh_with(mesh, scheme, channel, &[], &[])
 }
 
 /// [`fvar_mesh`] with every value of the control vertices flagged in
 /// `sharpened` an infinitely sharp corner (OpenSubdiv's rule for the
 /// values of a non-manifold vertex whose values do not all match,
-/// [`crate::subdiv::nonmanifold`]).
+/// [`crate::subdiv::nonmanifold`]), and the control vertices flagged in
+/// `spanning` taken as OpenSubdiv takes the vertex they copy, a
+/// non-manifold crease vertex: interior (its non-manifold edges are
+/// boundaries of the copy only) and never a corner by its face count (it
+/// has more faces than edges; a copy can have one).
 pub fn fvar_mesh_with(
     mesh: &ControlMesh,
     scheme: &SchemeOptions,
     channel: &FVarChannel,
     sharpened: &[bool],
+    spanning: &[bool],
 ) -> Result<FVarMesh> {
     channel.check(mesh)?;
     let (soup, pair_vertex) = pair_soup(mesh, channel);
@@ -142,7 +147,7 @@ pub fn fvar_mesh_with(
         fscheme = fscheme.with_scheme(SubdivScheme::Bilinear);
     } else {
         copy_edge_sharpness(mesh, &mut fm)?;
-        set_value_sharpness(mesh, scheme, &mut fm, &vertex_of, &origin)?;
+        set_value_sharpness(mesh, scheme, &mut fm, &vertex_of, &origin, spanning)?;
         for (c, &v) in vertex_of.iter().enumerate() {
             if sharpened.get(v as usize).copied().unwrap_or(false) {
                 fm.set_corner(VertexId(c as u32), INFINITELY_SHARP)?;
@@ -208,16 +213,29 @@ fn is_seam_vertex(
     v: VertexId,
     scheme: &SchemeOptions,
     pair_edges_seam: &[bool],
+    spanning: bool,
 ) -> bool {
     let seam = mesh.outgoing(v).any(|h| pair_edges_seam[h.edge().idx()]);
-    if seam || !mesh.is_boundary_vertex(v) {
+    if seam || spanning || !mesh.is_boundary_vertex(v) {
         return seam;
     }
-    let faces = mesh.vertex_faces(v).count();
+    let faces = face_count(mesh, v, spanning);
     let linear_boundaries = matches!(scheme.fvar, FVarLinear::Boundaries | FVarLinear::All);
     let corners_smooth = scheme.boundary != BoundaryInterpolation::EdgeAndCorner;
     (linear_boundaries && faces > 0)
         || (faces == 1 && corners_smooth && scheme.fvar != FVarLinear::None)
+}
+
+/// Faces at `v` as OpenSubdiv counts them for its corner rules: at least
+/// two for a vertex `spanning` more faces than its own (see
+/// [`fvar_mesh_with`]).
+fn face_count(mesh: &ControlMesh, v: VertexId, spanning: bool) -> usize {
+    let n = mesh.vertex_faces(v).count();
+    if spanning {
+        n.max(2)
+    } else {
+        n
+    }
 }
 
 /// Sets the vertex sharpness of every value (module doc). `pair[c]` is the
@@ -228,6 +246,7 @@ fn set_value_sharpness(
     fm: &mut ControlMesh,
     vertex_of: &[u32],
     pair: &[u32],
+    spanning: &[bool],
 ) -> Result<()> {
     // Per control edge: interior there but a boundary of the face-varying mesh.
     let mut seam_edge = vec![false; mesh.num_edges()];
@@ -245,12 +264,13 @@ fn set_value_sharpness(
     let mut sharp = vec![0.0f64; fm.num_vertices()];
     for v in mesh.vertices() {
         let own = mesh.vertex_sharpness(v);
+        let spans_more = spanning.get(v.idx()).copied().unwrap_or(false);
         let corner_rule = scheme.boundary == BoundaryInterpolation::EdgeAndCorner
-            && mesh.vertex_faces(v).count() == 1
+            && face_count(mesh, v, spans_more) == 1
             && mesh.valence(v) == 2;
         let vertex_sharp = if corner_rule { INFINITELY_SHARP } else { own };
         let cs = &copies_of[v.idx()];
-        if !is_seam_vertex(mesh, v, scheme, &seam_edge) {
+        if !is_seam_vertex(mesh, v, scheme, &seam_edge, spans_more) {
             for &c in cs {
                 sharp[c as usize] = vertex_sharp;
             }
@@ -263,7 +283,11 @@ fn set_value_sharpness(
         let mut spans_v = Vec::with_capacity(cs.len());
         for (k, &c) in cs.iter().enumerate() {
             let shared = sibling.iter().filter(|&&s| s == sibling[k]).count() > 1;
-            spans_v.push(value_span(fm, VertexId(c), shared));
+            let mut span = value_span(fm, VertexId(c), shared);
+            if spans_more {
+                span.faces = span.faces.max(2);
+            }
+            spans_v.push(span);
         }
         let mut values: Vec<(u32, ValueSpan)> = Vec::new();
         for (k, _) in cs.iter().enumerate() {
@@ -580,18 +604,20 @@ pub struct RustFVarEvaluator {
 
 impl RustFVarEvaluator {
     pub fn new(mesh: &ControlMesh, options: &EvalOptions, channel: &FVarChannel) -> Result<Self> {
-        Self::with_sharpened(mesh, options, channel, &[])
+        Self::with_sharpened(mesh, options, channel, &[], &[])
     }
 
-    /// With the values of the vertices flagged in `sharpened` corners
+    /// With the values of the vertices flagged in `sharpened` corners and
+    /// those flagged in `spanning` counted with more faces
     /// ([`fvar_mesh_with`]).
     pub fn with_sharpened(
         mesh: &ControlMesh,
         options: &EvalOptions,
         channel: &FVarChannel,
         sharpened: &[bool],
+        spanning: &[bool],
     ) -> Result<Self> {
-        let fvar = fvar_mesh_with(mesh, &options.scheme, channel, sharpened)?;
+        let fvar = fvar_mesh_with(mesh, &options.scheme, channel, sharpened, spanning)?;
         let eval = match fvar.kind {
             FVarKind::Barycentric => None,
             _ => {

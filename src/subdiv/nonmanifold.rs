@@ -184,11 +184,25 @@ pub fn rust_split_fvar_evaluator(
     channel: &crate::mesh::FVarChannel,
 ) -> Result<crate::subdiv::fvar::RustFVarEvaluator> {
     let sharpened = split_fvar_sharpened(sc, channel, &options.scheme);
+    // OpenSubdiv sees a non-manifold crease vertex as one interior vertex
+    // with more faces than edges: its copies are not on a face-varying
+    // boundary ("boundaries" would sharpen them), and a fan of one face is
+    // no corner, neither by the boundary's corner rule
+    // (`SplitControl::exact_copy_for`, as for positions) nor by the
+    // face-varying rules that count faces.
+    let spanning = sc.crease_copies();
+    if let Some((copy, scheme)) = sc.exact_copy_for(&options.scheme) {
+        let options = options.clone().with_scheme(scheme);
+        return crate::subdiv::fvar::RustFVarEvaluator::with_sharpened(
+            &copy, &options, channel, &sharpened, &spanning,
+        );
+    }
     crate::subdiv::fvar::RustFVarEvaluator::with_sharpened(
         &sc.manifold,
         options,
         channel,
         &sharpened,
+        &spanning,
     )
 }
 
