@@ -44,6 +44,7 @@ pub fn refine_uniform_with(
         fv: ids.fv,
         esharp: ids.esharp,
         rules: ids.rules,
+        fe: Vec::new(),
     };
     for _ in 0..levels {
         let adj = t.adjacency();

@@ -539,6 +539,7 @@ fn fan_matrix<P: Clone>(t: &Topo<P>, adj: &Adj, c: u32, e: &[u32], f: &[u32]) ->
         fv: t.fv.clone(),
         esharp: t.esharp.clone(),
         rules: t.rules,
+        fe: Vec::new(),
     };
     let r = local.refine(adj);
     let radj = r.adjacency();

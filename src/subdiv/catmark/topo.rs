@@ -270,6 +270,14 @@ pub(crate) struct Topo<P> {
     /// Non-zero crease sharpness by sorted vertex pair.
     pub esharp: HashMap<(u32, u32), f64>,
     pub rules: Rules,
+    /// Per face corner (parallel to `fv`): the id of the edge from it to
+    /// the next corner, where refinement knows it; empty when an edge is
+    /// its pair of vertices. One Loop step of two triangles on the same
+    /// three vertices (back to back) joins their edge points by two
+    /// distinct edges, which OpenSubdiv's `Vtr` keeps apart and a pair key
+    /// would merge. (Such doubled edges are never sharp: they are children
+    /// of face interiors, and of such children.)
+    pub fe: Vec<u32>,
 }
 
 /// Adjacency derived from a [`Topo`].
@@ -278,8 +286,12 @@ pub(crate) struct Adj {
     pub edge_id: HashMap<(u32, u32), u32>,
     pub edge_faces: Vec<[u32; 2]>,
     pub edge_nfaces: Vec<u8>,
-    /// Directed edge `a -> b` to the face that contains it.
+    /// Directed edge `a -> b` to the face that contains it (one of them,
+    /// for a doubled edge: walk with `corner_edge` there).
     pub directed: HashMap<(u32, u32), u32>,
+    /// Per face corner (parallel to `Topo::fv`): the edge from it to the
+    /// next corner.
+    pub corner_edge: Vec<u32>,
     pub vedges: Vec<Vec<u32>>,
     pub vfaces: Vec<Vec<u32>>,
 }
@@ -303,23 +315,47 @@ impl<P> Topo<P> {
             directed: HashMap::default(),
             vedges: vec![Vec::new(); nv],
             vfaces: vec![Vec::new(); nv],
+            corner_edge: Vec::with_capacity(self.fv.len()),
         };
+        // Explicit edge ids (`fe`): slot `e` is edge `e`, made on its first
+        // use, as the pair keys make theirs.
+        let mut made: Vec<bool> = Vec::new();
         for f in 0..self.num_faces() as u32 {
             let fv = self.face(f);
             let n = fv.len();
+            let base = self.foff[f as usize] as usize;
             for k in 0..n {
                 let (p, q) = (fv[k], fv[(k + 1) % n]);
                 a.vfaces[p as usize].push(f);
                 a.directed.insert((p, q), f);
                 let kk = key(p, q);
-                let e = *a.edge_id.entry(kk).or_insert_with(|| {
-                    a.edges.push(kk);
-                    a.edge_faces.push([u32::MAX; 2]);
-                    a.edge_nfaces.push(0);
-                    a.vedges[p as usize].push(a.edges.len() as u32 - 1);
-                    a.vedges[q as usize].push(a.edges.len() as u32 - 1);
-                    a.edges.len() as u32 - 1
-                }) as usize;
+                let e = if self.fe.is_empty() {
+                    *a.edge_id.entry(kk).or_insert_with(|| {
+                        a.edges.push(kk);
+                        a.edge_faces.push([u32::MAX; 2]);
+                        a.edge_nfaces.push(0);
+                        a.vedges[p as usize].push(a.edges.len() as u32 - 1);
+                        a.vedges[q as usize].push(a.edges.len() as u32 - 1);
+                        a.edges.len() as u32 - 1
+                    }) as usize
+                } else {
+                    let e = self.fe[base + k] as usize;
+                    if e >= made.len() {
+                        made.resize(e + 1, false);
+                        a.edges.resize(e + 1, (u32::MAX, u32::MAX));
+                        a.edge_faces.resize(e + 1, [u32::MAX; 2]);
+                        a.edge_nfaces.resize(e + 1, 0);
+                    }
+                    if !made[e] {
+                        made[e] = true;
+                        a.edges[e] = kk;
+                        a.edge_id.entry(kk).or_insert(e as u32);
+                        a.vedges[p as usize].push(e as u32);
+                        a.vedges[q as usize].push(e as u32);
+                    }
+                    e
+                };
+                a.corner_edge.push(e as u32);
                 let c = a.edge_nfaces[e] as usize;
                 if c < 2 {
                     a.edge_faces[e][c] = f;
@@ -386,15 +422,23 @@ impl<P> Topo<P> {
             fv: Vec::new(),
             esharp: HashMap::default(),
             rules: self.rules,
+            fe: Vec::new(),
         };
+        // Explicit edges keep their identity, renumbered densely.
+        let mut emap: HashMap<u32, u32> = HashMap::default();
         for &f in &faces {
-            for &v in self.face(f) {
+            let base = self.foff[f as usize] as usize;
+            for (k, &v) in self.face(f).iter().enumerate() {
                 if map[v as usize] == u32::MAX {
                     map[v as usize] = t.pts.len() as u32;
                     t.pts.push(self.pts[v as usize].clone());
                     t.vsharp.push(self.vsharp[v as usize]);
                 }
                 t.fv.push(map[v as usize]);
+                if !self.fe.is_empty() {
+                    let next = emap.len() as u32;
+                    t.fe.push(*emap.entry(self.fe[base + k]).or_insert(next));
+                }
             }
             t.foff.push(t.fv.len() as u32);
         }
@@ -674,6 +718,7 @@ impl<P: Pt> Topo<P> {
             fv,
             esharp,
             rules: self.rules,
+            fe: Vec::new(),
         }
     }
 }
@@ -705,6 +750,7 @@ pub(crate) fn topo_from_mesh(
         fv: Vec::new(),
         esharp: HashMap::default(),
         rules,
+        fe: Vec::new(),
     };
     if whole {
         t.pts = (0..mesh.num_vertices() as u32).collect();
@@ -771,6 +817,7 @@ impl Topo<u32> {
             fv: self.fv,
             esharp: self.esharp,
             rules: self.rules,
+            fe: self.fe,
         }
     }
 }

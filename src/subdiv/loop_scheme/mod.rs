@@ -127,19 +127,27 @@ impl<P: Pt> Topo<P> {
             pts.push(self.loop_edge_point(adj, e));
         }
         let mut fv = Vec::with_capacity(4 * self.fv.len());
+        let mut fe = Vec::with_capacity(4 * self.fv.len());
         let mut foff = Vec::with_capacity(4 * self.num_faces() + 1);
         foff.push(0u32);
         for f in 0..self.num_faces() as u32 {
             let c = self.face(f);
-            let ep = |p: u32, q: u32| nv as u32 + adj.edge_id[&key(p, q)];
-            let (e01, e12, e20) = (ep(c[0], c[1]), ep(c[1], c[2]), ep(c[2], c[0]));
-            for tri in [
-                [c[0], e01, e20],
-                [e01, c[1], e12],
-                [e20, e12, c[2]],
-                [e12, e20, e01],
+            let base = self.foff[f as usize] as usize;
+            let pe = [0, 1, 2].map(|k| adj.corner_edge[base + k]);
+            let [e01, e12, e20] = pe.map(|e| nv as u32 + e);
+            // The child edges by identity, not by their ends: parent edge
+            // e's half at its first vertex is 2e, at its second 2e + 1; the
+            // three inside face f are 2ne + 3f + 0..3.
+            let half = |k: usize, at: u32| 2 * pe[k] + u32::from(adj.edges[pe[k] as usize].0 != at);
+            let inner = |j: u32| 2 * ne as u32 + 3 * f + j;
+            for (tri, edges) in [
+                ([c[0], e01, e20], [half(0, c[0]), inner(0), half(2, c[0])]),
+                ([e01, c[1], e12], [half(0, c[1]), half(1, c[1]), inner(1)]),
+                ([e20, e12, c[2]], [inner(2), half(1, c[2]), half(2, c[2])]),
+                ([e12, e20, e01], [inner(2), inner(0), inner(1)]),
             ] {
                 fv.extend_from_slice(&tri);
+                fe.extend_from_slice(&edges);
                 foff.push(fv.len() as u32);
             }
         }
@@ -157,6 +165,7 @@ impl<P: Pt> Topo<P> {
             fv,
             esharp,
             rules: self.rules,
+            fe,
         }
     }
 }
@@ -527,36 +536,12 @@ pub(crate) fn vertex_limit<P: Pt>(t0: &Topo<P>, adj0: &Adj, c0: u32) -> (P, P, P
     (apply(&p), apply(&a), apply(&b))
 }
 
-/// Refuses an interior vertex of two triangles. In a manifold triangle
-/// mesh that is two triangles back to back (a pillow: both faces on the
-/// same three vertices). One Loop step gives each of them a child edge
-/// between the same two edge points, so the refined mesh has two edges
-/// joining one pair of vertices; OpenSubdiv's `Vtr` keeps them apart, but
-/// the local subdivision here (`Topo`) knows an edge by its two vertices
-/// and would merge them, a wrong surface (2.6e-2 of the diagonal on
-/// OpenSubdiv's `loop_val2_interior`).
-fn check_no_pillow(mesh: &ControlMesh) -> Result<()> {
-    match mesh
-        .vertices()
-        .find(|&v| !mesh.is_boundary_vertex(v) && mesh.vertex_faces(v).count() == 2)
-    {
-        Some(v) => Err(crate::error::Error::InvalidArgument(format!(
-            "Loop: vertex {} is an interior vertex of two triangles (two triangles back to \
-             back): one Loop step joins their edge points twice, which the exact evaluator \
-             does not model; not evaluated",
-            v.0
-        ))),
-        None => Ok(()),
-    }
-}
-
 impl LoopEvaluator {
     /// Prepares the evaluator: the mesh must be all triangles
     /// ([`check_loop_triangles`]) and valid.
     pub fn new(mesh: &ControlMesh, options: &EvalOptions) -> Result<Self> {
         mesh.validate()?;
         check_loop_triangles(mesh)?;
-        check_no_pillow(mesh)?;
         let holes = checked_holes(mesh, &options.scheme)?;
         let sdc = Rules {
             f32_sharpness: !options.exact_sharpness,

@@ -190,7 +190,14 @@ pub(crate) fn box_spline_weights(u: f64, v: f64) -> [[f64; 12]; 3] {
 /// faces and no sharpness, or on a boundary/infinitely sharp crease (two
 /// such edges, every other edge smooth, no corner sharpness) with three
 /// faces on this side — the two directions beyond it are phantoms.
-fn vertex_dirs<P>(t: &Topo<P>, adj: &Adj, c: u32, n0: u32, d0: usize) -> Option<[Slot; 6]> {
+fn vertex_dirs<P>(
+    t: &Topo<P>,
+    adj: &Adj,
+    f0: u32,
+    c: u32,
+    n0: u32,
+    d0: usize,
+) -> Option<[Slot; 6]> {
     if t.vert_sharp(adj, c) != 0.0 {
         return None;
     }
@@ -218,14 +225,27 @@ fn vertex_dirs<P>(t: &Topo<P>, adj: &Adj, c: u32, n0: u32, d0: usize) -> Option<
     }
     let mut res: [Option<Slot>; 6] = [None; 6];
     res[d0] = Some(Slot::Real(n0));
-    // Counter-clockwise from n0 to the first wall (or all the way round).
-    let (mut cur, mut d, mut ccw_end) = (n0, d0, None);
+    // The walks go from face to face across edges (`Adj::corner_edge`),
+    // not by vertex pairs: two edges can join one pair of vertices.
+    let across = |f: u32, k: usize| -> Option<u32> {
+        let e = adj.corner_edge[t.foff[f as usize] as usize + k] as usize;
+        let [a, b] = adj.edge_faces[e];
+        (adj.edge_nfaces[e] == 2).then_some(if a == f { b } else { a })
+    };
+    // Counter-clockwise from n0 to the first wall (or all the way round):
+    // `f` holds the edge c → cur.
+    let (mut cur, mut d, mut ccw_end, mut f) = (n0, d0, None, f0);
     for step in 0..6 {
         if walls > 0 && wall(cur)? && step > 0 {
             ccw_end = Some(d);
             break;
         }
-        let f = *adj.directed.get(&(c, cur))?;
+        if step > 0 {
+            // The face across the previous face's edge cur → c.
+            let fv = t.face(f);
+            let p = fv.iter().position(|&x| x == c)?;
+            f = across(f, (p + 2) % 3)?;
+        }
         let fv = t.face(f);
         let p = fv.iter().position(|&x| x == c)?;
         let next = fv[(p + 2) % 3];
@@ -240,13 +260,17 @@ fn vertex_dirs<P>(t: &Topo<P>, adj: &Adj, c: u32, n0: u32, d0: usize) -> Option<
         cur = next;
     }
     let a = ccw_end.or_else(|| (walls > 0 && wall(cur) == Some(true)).then_some(d))?;
-    // Clockwise from n0 to the other wall (n0 may be it).
-    let (mut cur, mut d) = (n0, d0);
+    // Clockwise from n0 to the other wall (n0 may be it): `g` holds the
+    // edge cur → c, the face across `f`'s edge c → cur.
+    let (mut cur, mut d, mut f) = (n0, d0, f0);
     while !wall(cur)? {
-        let f = *adj.directed.get(&(cur, c))?;
         let fv = t.face(f);
         let p = fv.iter().position(|&x| x == c)?;
+        let g = across(f, p)?;
+        let fv = t.face(g);
+        let p = fv.iter().position(|&x| x == c)?;
         let prev = fv[(p + 1) % 3];
+        f = g;
         d = (d + 5) % 6;
         if res[d].is_some() {
             return None;
@@ -272,7 +296,7 @@ fn vertex_dirs<P>(t: &Topo<P>, adj: &Adj, c: u32, n0: u32, d0: usize) -> Option<
 /// that face (see [`regular_patch`]).
 pub(crate) fn corner_is_regular<P>(t: &Topo<P>, adj: &Adj, f: u32, k: usize) -> bool {
     let fv = t.face(f);
-    vertex_dirs(t, adj, fv[k], fv[(k + 1) % 3], 2 * k).is_some()
+    vertex_dirs(t, adj, f, fv[k], fv[(k + 1) % 3], 2 * k).is_some()
 }
 
 /// The 12 control points of face `f` of `t` (corners in the face's order
@@ -289,7 +313,7 @@ pub(crate) fn regular_patch<P>(t: &Topo<P>, adj: &Adj, f: u32) -> Option<[Slot; 
     ];
     let mut slots: [Option<Slot>; 12] = [None; 12];
     for ((ci, cj), c, n0, d0) in corners {
-        let dirs = vertex_dirs(t, adj, c, n0, d0)?;
+        let dirs = vertex_dirs(t, adj, f, c, n0, d0)?;
         let mut put = |pos: (i32, i32), s: Slot| -> Option<()> {
             let k = LATTICE.iter().position(|&l| l == pos)?;
             match (slots[k], s) {

@@ -335,6 +335,7 @@ pub(crate) fn refine_step(p: &Level) -> Step {
         fv,
         esharp,
         rules: Rules::default(),
+        fe: Vec::new(),
     });
 
     // Averaging.
@@ -410,6 +411,7 @@ impl QuadTriRefiner {
             fv: t0.fv,
             esharp: t0.esharp,
             rules: t0.rules,
+            fe: Vec::new(),
         });
         let mut r = QuadTriRefiner {
             levels: Vec::new(),
