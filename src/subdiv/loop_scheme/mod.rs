@@ -314,28 +314,48 @@ fn settled_ring<P: Pt>(t0: &Topo<P>, adj0: &Adj, c0: u32) -> (Topo<P>, Adj, u32)
 /// The neighbours of `c` counter-clockwise, from the leading boundary edge
 /// when there is one; `closed` when the fan goes all the way round.
 fn loop_fan<P>(t: &Topo<P>, adj: &Adj, c: u32) -> (Vec<u32>, bool) {
+    // Face to face across edges (`Adj::corner_edge`), not by vertex pairs:
+    // two edges can join one pair of vertices (`Topo::fe`).
+    let at = |f: u32| t.face(f).iter().position(|&x| x == c);
+    let across = |f: u32, k: usize| -> Option<u32> {
+        let e = adj.corner_edge[t.foff[f as usize] as usize + k] as usize;
+        let [a, b] = adj.edge_faces[e];
+        (adj.edge_nfaces[e] == 2).then_some(if a == f { b } else { a })
+    };
+    // The face of edge `e` that runs c → x along it.
+    let leaving = |e: u32| -> Option<u32> {
+        let n = adj.edge_nfaces[e as usize].min(2) as usize;
+        adj.edge_faces[e as usize][..n]
+            .iter()
+            .copied()
+            .find(|&f| at(f).is_some_and(|p| adj.corner_edge[t.foff[f as usize] as usize + p] == e))
+    };
     let ci = c as usize;
-    let bstart = adj.vedges[ci].iter().find_map(|&e| {
-        let x = t.other(adj, e, c);
-        (adj.edge_nfaces[e as usize] == 1 && adj.directed.contains_key(&(c, x))).then_some(x)
-    });
-    let first = bstart.unwrap_or_else(|| t.other(adj, adj.vedges[ci][0], c));
-    let mut e = Vec::new();
-    let mut cur = first;
+    let bstart = adj.vedges[ci]
+        .iter()
+        .copied()
+        .find(|&e| adj.edge_nfaces[e as usize] == 1 && leaving(e).is_some());
+    let Some(&e0) = adj.vedges[ci].first() else {
+        return (Vec::new(), false);
+    };
+    let e_first = bstart.unwrap_or(e0);
+    let first = t.other(adj, e_first, c);
+    let mut fan = Vec::new();
+    let (mut cur, mut g) = (first, leaving(e_first));
     for _ in 0..=adj.vedges[ci].len() {
-        e.push(cur);
-        let Some(&g) = adj.directed.get(&(c, cur)) else {
-            return (e, false);
+        fan.push(cur);
+        let Some(f) = g else {
+            return (fan, false);
         };
-        let gv = t.face(g);
-        let p = gv.iter().position(|&x| x == c).unwrap_or(0);
-        let next = gv[(p + 2) % 3];
+        let p = at(f).unwrap_or(0);
+        let next = t.face(f)[(p + 2) % 3];
         if next == first {
-            return (e, true);
+            return (fan, true);
         }
+        g = across(f, (p + 2) % 3);
         cur = next;
     }
-    (e, true)
+    (fan, true)
 }
 
 /// The one-level subdivision matrix of the settled one-ring of `c` (points
