@@ -304,6 +304,15 @@ impl SplitControl {
         Ok(sc)
     }
 
+    /// The file's faces, in order, as its vertex ids.
+    pub fn file_faces(&self) -> impl Iterator<Item = &[u32]> + '_ {
+        self.face_sizes.iter().scan(0usize, |at, &k| {
+            let face = &self.face_indices[*at..*at + k as usize];
+            *at += k as usize;
+            Some(face)
+        })
+    }
+
     /// Whether the file is a manifold mesh without unused vertices (then
     /// `manifold` is exactly the file's mesh).
     pub fn is_manifold(&self) -> bool {
@@ -367,14 +376,8 @@ impl SplitControl {
             .iter()
             .map(|&(a, b, s)| ((a.min(b), a.max(b)), s))
             .collect();
-        let offsets: Vec<usize> = std::iter::once(0)
-            .chain(self.face_sizes.iter().scan(0usize, |o, &k| {
-                *o += k as usize;
-                Some(*o)
-            }))
-            .collect();
-        for f in 0..self.face_sizes.len() {
-            let face = &self.face_indices[offsets[f]..offsets[f + 1]];
+        let faces: Vec<Vec<u32>> = self.file_faces().map(|f| f.to_vec()).collect();
+        for (f, face) in faces.iter().enumerate() {
             let copy: Vec<u32> = self
                 .manifold
                 .face_vertices(super::FaceId(f as u32))
@@ -549,10 +552,7 @@ impl SplitControl {
         }
         let mut edges = vec![0usize; self.positions.len()];
         let mut seen = std::collections::HashSet::new();
-        let mut at = 0usize;
-        for &k in &self.face_sizes {
-            let face = &self.face_indices[at..at + k as usize];
-            at += k as usize;
+        for face in self.file_faces() {
             for i in 0..face.len() {
                 let (a, b) = (face[i], face[(i + 1) % face.len()]);
                 if a != b && seen.insert((a.min(b), a.max(b))) {
@@ -591,10 +591,7 @@ impl SplitControl {
             return scheme;
         }
         let mut holes = scheme.holes.clone();
-        let mut at = 0usize;
-        for (f, &k) in self.face_sizes.iter().enumerate() {
-            let face = &self.face_indices[at..at + k as usize];
-            at += k as usize;
+        for (f, face) in self.file_faces().enumerate() {
             if face.iter().any(|&v| self.soft_boundary[v as usize]) {
                 holes.push(FaceId(f as u32));
             }

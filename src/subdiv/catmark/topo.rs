@@ -387,6 +387,15 @@ impl<P> Topo<P> {
             self.vsharp[vi]
         }
     }
+    /// The face across the edge from corner `k` of face `f` to the next
+    /// corner (`None` on a boundary): walks go face to face this way, not
+    /// by vertex pairs, since two edges can join one pair (`fe`).
+    pub fn across(&self, adj: &Adj, f: u32, k: usize) -> Option<u32> {
+        let e = adj.corner_edge[self.foff[f as usize] as usize + k] as usize;
+        let [a, b] = adj.edge_faces[e];
+        (adj.edge_nfaces[e] == 2).then_some(if a == f { b } else { a })
+    }
+
     pub fn other(&self, adj: &Adj, e: u32, v: u32) -> u32 {
         let (p, q) = adj.edges[e as usize];
         if p == v {

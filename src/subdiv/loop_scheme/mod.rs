@@ -317,11 +317,6 @@ fn loop_fan<P>(t: &Topo<P>, adj: &Adj, c: u32) -> (Vec<u32>, bool) {
     // Face to face across edges (`Adj::corner_edge`), not by vertex pairs:
     // two edges can join one pair of vertices (`Topo::fe`).
     let at = |f: u32| t.face(f).iter().position(|&x| x == c);
-    let across = |f: u32, k: usize| -> Option<u32> {
-        let e = adj.corner_edge[t.foff[f as usize] as usize + k] as usize;
-        let [a, b] = adj.edge_faces[e];
-        (adj.edge_nfaces[e] == 2).then_some(if a == f { b } else { a })
-    };
     // The face of edge `e` that runs c → x along it.
     let leaving = |e: u32| -> Option<u32> {
         let n = adj.edge_nfaces[e as usize].min(2) as usize;
@@ -352,7 +347,7 @@ fn loop_fan<P>(t: &Topo<P>, adj: &Adj, c: u32) -> (Vec<u32>, bool) {
         if next == first {
             return (fan, true);
         }
-        g = across(f, (p + 2) % 3);
+        g = t.across(adj, f, (p + 2) % 3);
         cur = next;
     }
     (fan, true)

@@ -227,11 +227,6 @@ fn vertex_dirs<P>(
     res[d0] = Some(Slot::Real(n0));
     // The walks go from face to face across edges (`Adj::corner_edge`),
     // not by vertex pairs: two edges can join one pair of vertices.
-    let across = |f: u32, k: usize| -> Option<u32> {
-        let e = adj.corner_edge[t.foff[f as usize] as usize + k] as usize;
-        let [a, b] = adj.edge_faces[e];
-        (adj.edge_nfaces[e] == 2).then_some(if a == f { b } else { a })
-    };
     // Counter-clockwise from n0 to the first wall (or all the way round):
     // `f` holds the edge c → cur.
     let (mut cur, mut d, mut ccw_end, mut f) = (n0, d0, None, f0);
@@ -244,7 +239,7 @@ fn vertex_dirs<P>(
             // The face across the previous face's edge cur → c.
             let fv = t.face(f);
             let p = fv.iter().position(|&x| x == c)?;
-            f = across(f, (p + 2) % 3)?;
+            f = t.across(adj, f, (p + 2) % 3)?;
         }
         let fv = t.face(f);
         let p = fv.iter().position(|&x| x == c)?;
@@ -266,7 +261,7 @@ fn vertex_dirs<P>(
     while !wall(cur)? {
         let fv = t.face(f);
         let p = fv.iter().position(|&x| x == c)?;
-        let g = across(f, p)?;
+        let g = t.across(adj, f, p)?;
         let fv = t.face(g);
         let p = fv.iter().position(|&x| x == c)?;
         let prev = fv[(p + 1) % 3];
