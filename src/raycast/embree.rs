@@ -15,7 +15,8 @@ use crate::error::{Error, Result};
 use crate::ffi::embree::bridge;
 use crate::mesh::TriMesh;
 use crate::raycast::{
-    check_max_dist, closest_on_triangle, surface_triangles, ClosestPoint, Hit, Ray, RayCaster,
+    check_max_dist, closest_on_triangle, in_spatial_order, surface_triangles, ClosestPoint, Hit,
+    Ray, RayCaster,
 };
 use crate::DVec3;
 
@@ -205,11 +206,17 @@ impl RayCaster for EmbreeCaster {
     }
 
     fn first_hits(&self, rays: &[Ray]) -> Result<Vec<Option<Hit>>> {
-        let chunks: Vec<Vec<Option<Hit>>> = rays
-            .par_chunks(CHUNK)
-            .map(|c| self.trace_chunk(c))
-            .collect::<Result<_>>()?;
-        Ok(chunks.into_iter().flatten().collect())
+        in_spatial_order(
+            rays,
+            |r| r.origin,
+            |rays| {
+                let chunks: Vec<Vec<Option<Hit>>> = rays
+                    .par_chunks(CHUNK)
+                    .map(|c| self.trace_chunk(c))
+                    .collect::<Result<_>>()?;
+                Ok(chunks.into_iter().flatten().collect())
+            },
+        )
     }
 
     fn lines_blocked(&self, rays: &[Ray], out: &mut Vec<bool>) -> Result<()> {
@@ -236,10 +243,16 @@ impl RayCaster for EmbreeCaster {
 
     fn closest_points(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>> {
         check_max_dist(max_dist)?;
-        let chunks: Vec<Vec<Option<ClosestPoint>>> = points
-            .par_chunks(CHUNK)
-            .map(|c| self.closest_chunk(c, max_dist))
-            .collect::<Result<_>>()?;
-        Ok(chunks.into_iter().flatten().collect())
+        in_spatial_order(
+            points,
+            |p| *p,
+            |points| {
+                let chunks: Vec<Vec<Option<ClosestPoint>>> = points
+                    .par_chunks(CHUNK)
+                    .map(|c| self.closest_chunk(c, max_dist))
+                    .collect::<Result<_>>()?;
+                Ok(chunks.into_iter().flatten().collect())
+            },
+        )
     }
 }

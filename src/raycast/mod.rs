@@ -168,6 +168,84 @@ pub trait RayCaster: Send + Sync {
     fn closest_points(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>>;
 }
 
+/// Answers `queries` (located at `at(query)`) in the Z-order (Morton
+/// order) of their locations and returns the answers in input order.
+///
+/// Why: on a mesh of a million triangles the BVH and the triangles it
+/// visits no longer fit in the caches, and the batches the pipeline makes
+/// (quadrature points in triangle order, grid samples patch by patch) jump
+/// across the mesh; neighbouring queries in Z-order visit the same nodes
+/// and leaves. The answers do not change: each query is answered on its
+/// own (module docs), so only the time does. Batches too small to gain are
+/// answered as they come.
+pub(crate) fn in_spatial_order<Q: Copy + Send + Sync, A: Copy + Send>(
+    queries: &[Q],
+    at: impl Fn(&Q) -> DVec3 + Sync,
+    answer: impl FnOnce(&[Q]) -> Result<Vec<A>>,
+) -> Result<Vec<A>> {
+    use rayon::prelude::*;
+    const MIN_BATCH: usize = 1 << 14;
+    if queries.len() < MIN_BATCH {
+        return answer(queries);
+    }
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for q in queries {
+        let p = at(q);
+        if p.is_finite() {
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+    }
+    if !(lo.cmple(hi).all()) {
+        return answer(queries);
+    }
+    let scale =
+        DVec3::splat((1u64 << 21) as f64 - 1.0) / (hi - lo).max(DVec3::splat(f64::MIN_POSITIVE));
+    let mut keyed: Vec<(u64, u32)> = queries
+        .par_iter()
+        .enumerate()
+        .map(|(i, q)| {
+            let p = at(q);
+            let key = if p.is_finite() {
+                let c = ((p - lo) * scale).as_uvec3();
+                morton3(c.x) | (morton3(c.y) << 1) | (morton3(c.z) << 2)
+            } else {
+                u64::MAX
+            };
+            (key, i as u32)
+        })
+        .collect();
+    // Ties by index: the order (and so every chunk's content) is the same
+    // on every run.
+    keyed.par_sort_unstable();
+    let sorted: Vec<Q> = keyed.iter().map(|&(_, i)| queries[i as usize]).collect();
+    let answers = answer(&sorted)?;
+    drop(sorted);
+    if answers.len() != queries.len() {
+        return Err(Error::backend(
+            "ray caster",
+            "a batch returned too few answers",
+        ));
+    }
+    // rank[i]: where query i went in the sorted batch.
+    let mut rank = vec![0u32; queries.len()];
+    for (k, &(_, i)) in keyed.iter().enumerate() {
+        rank[i as usize] = k as u32;
+    }
+    drop(keyed);
+    Ok(rank.into_iter().map(|k| answers[k as usize]).collect())
+}
+
+/// The 21 low bits of `x` spread to every third bit (Morton code).
+fn morton3(x: u32) -> u64 {
+    let mut x = u64::from(x) & 0x1f_ffff;
+    x = (x | x << 32) & 0x1f00000000ffff;
+    x = (x | x << 16) & 0x1f0000ff0000ff;
+    x = (x | x << 8) & 0x100f00f00f00f00f;
+    x = (x | x << 4) & 0x10c30c30c30c30c3;
+    (x | x << 2) & 0x1249249249249249
+}
+
 /// Builds the chosen ray caster over `mesh`.
 pub fn make_raycaster(backend: RayBackend, mesh: &TriMesh) -> Result<Box<dyn RayCaster>> {
     Ok(match backend {
@@ -335,6 +413,46 @@ pub(crate) mod tests_support {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn spatial_order_answers_every_query_in_input_order() {
+        // Large enough to be sorted, with duplicates and non-finite points.
+        let n = 3 * (1 << 14) + 7;
+        let q: Vec<DVec3> = (0..n)
+            .map(|i| match i % 1000 {
+                0 => DVec3::splat(f64::NAN),
+                1 => DVec3::new(f64::INFINITY, 0.0, 0.0),
+                _ => DVec3::new(
+                    ((i * 7919) % 1013) as f64,
+                    ((i * 104729) % 997) as f64 * 1e-3,
+                    (i % 5) as f64,
+                ),
+            })
+            .collect();
+        let mut seen_sorted = false;
+        let out = in_spatial_order(
+            &q,
+            |p| *p,
+            |s| {
+                seen_sorted = s.iter().zip(&q).any(|(a, b)| a.to_array() != b.to_array());
+                Ok(s.to_vec())
+            },
+        )
+        .unwrap();
+        assert!(
+            seen_sorted,
+            "a batch this large is answered in another order"
+        );
+        assert_eq!(out.len(), n);
+        for (a, b) in out.iter().zip(&q) {
+            assert_eq!(
+                a.to_array().map(f64::to_bits),
+                b.to_array().map(f64::to_bits)
+            );
+        }
+        // An answer missing is an error, not a short result.
+        assert!(in_spatial_order(&q, |p| *p, |s| Ok(s[1..].to_vec())).is_err());
+    }
 
     #[test]
     fn nan_vertex_is_rejected_naming_the_triangle() {

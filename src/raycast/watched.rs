@@ -1,6 +1,6 @@
 //! A ray caster that a [`Watch`] can stop between chunks of queries.
 
-use super::{ClosestPoint, Hit, Ray, RayCaster};
+use super::{in_spatial_order, ClosestPoint, Hit, Ray, RayCaster};
 use crate::error::Result;
 use crate::watch::Watch;
 use crate::DVec3;
@@ -47,8 +47,14 @@ impl RayCaster for Watched<'_> {
         self.inner.name()
     }
 
+    // Whole batches are put in spatial order before they are chunked (the
+    // chunks would be too small for the inner caster to gain by it).
     fn first_hits(&self, rays: &[Ray]) -> Result<Vec<Option<Hit>>> {
-        self.chunked(rays, |c| self.inner.first_hits(c))
+        in_spatial_order(
+            rays,
+            |r| r.origin,
+            |rays| self.chunked(rays, |c| self.inner.first_hits(c)),
+        )
     }
 
     fn line_hits(&self, origins: &[DVec3], dirs: &[DVec3], max_t: f64) -> Result<Vec<Option<Hit>>> {
@@ -56,12 +62,18 @@ impl RayCaster for Watched<'_> {
             // The inner caster names the mismatch.
             return self.inner.line_hits(origins, dirs, max_t);
         }
-        let mut start = 0;
-        self.chunked(origins, |c| {
-            let d = &dirs[start..start + c.len()];
-            start += c.len();
-            self.inner.line_hits(c, d, max_t)
-        })
+        let lines: Vec<(DVec3, DVec3)> =
+            origins.iter().copied().zip(dirs.iter().copied()).collect();
+        in_spatial_order(
+            &lines,
+            |l| l.0,
+            |lines| {
+                self.chunked(lines, |c| {
+                    let (o, d): (Vec<DVec3>, Vec<DVec3>) = c.iter().copied().unzip();
+                    self.inner.line_hits(&o, &d, max_t)
+                })
+            },
+        )
     }
 
     fn lines_blocked(&self, rays: &[Ray], out: &mut Vec<bool>) -> Result<()> {
@@ -75,6 +87,10 @@ impl RayCaster for Watched<'_> {
     }
 
     fn closest_points(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>> {
-        self.chunked(points, |c| self.inner.closest_points(c, max_dist))
+        in_spatial_order(
+            points,
+            |p| *p,
+            |points| self.chunked(points, |c| self.inner.closest_points(c, max_dist)),
+        )
     }
 }
