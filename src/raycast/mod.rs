@@ -179,16 +179,18 @@ pub trait RayCaster: Send + Sync {
 /// and leaves (1.1M-triangle ladder rung: 15 % less CPU time). The answers
 /// do not change: each query is answered on its own (module docs), so only
 /// the time does. Memory: 8 bytes per query for the order, and one
-/// sub-batch of copies (the answers go straight to their place). Batches
-/// too small to gain are answered as they come.
+/// sub-batch of copies (the answers go straight to their place). A batch
+/// of at most one sub-batch is answered as it comes: it is too small to
+/// gain, and a sub-batch handed on to a caster that orders its own
+/// batches again (the watched wrapper around Embree, a caller ordering
+/// before either) is not sorted twice.
 pub(crate) fn in_spatial_order<Q: Copy + Send + Sync, A: Copy + Default + Send>(
     queries: &[Q],
     at: impl Fn(&Q) -> DVec3 + Sync,
     mut answer: impl FnMut(&[Q]) -> Result<Vec<A>>,
 ) -> Result<Vec<A>> {
     use rayon::prelude::*;
-    const MIN_BATCH: usize = 1 << 14;
-    if queries.len() < MIN_BATCH || queries.len() > u32::MAX as usize {
+    if queries.len() <= SUB_BATCH || queries.len() > u32::MAX as usize {
         return answer(queries);
     }
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
@@ -242,8 +244,8 @@ pub(crate) fn in_spatial_order<Q: Copy + Send + Sync, A: Copy + Default + Send>(
 }
 
 /// Queries per call of [`in_spatial_order`]'s `answer`: enough for both
-/// cores (64 chunks of Embree's 1024), little memory.
-pub(crate) const SUB_BATCH: usize = 1 << 16;
+/// cores (16 chunks of Embree's 1024), little memory.
+pub(crate) const SUB_BATCH: usize = 1 << 14;
 
 /// The 10 low bits of `x` spread to every third bit (Morton code).
 fn morton3(x: u32) -> u64 {
@@ -425,7 +427,7 @@ mod tests {
     #[test]
     fn spatial_order_answers_every_query_in_input_order() {
         // Large enough to be sorted, with duplicates and non-finite points.
-        let n = 3 * (1 << 14) + 7;
+        let n = 3 * SUB_BATCH + 7;
         let q: Vec<DVec3> = (0..n)
             .map(|i| match i % 1000 {
                 0 => DVec3::splat(f64::NAN),
@@ -442,6 +444,7 @@ mod tests {
             &q,
             |p| *p,
             |s| {
+                assert!(s.len() <= SUB_BATCH, "sub-batches of at most SUB_BATCH");
                 seen_sorted |= s.iter().zip(&q).any(|(a, b)| a.to_array() != b.to_array());
                 Ok(s.to_vec())
             },

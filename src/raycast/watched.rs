@@ -49,30 +49,12 @@ impl RayCaster for Watched<'_> {
 
     // Whole batches are put in spatial order before they are chunked (the
     // chunks would be too small for the inner caster to gain by it).
+    // `line_hits` is the trait's default, two rays per line through here.
     fn first_hits(&self, rays: &[Ray]) -> Result<Vec<Option<Hit>>> {
         in_spatial_order(
             rays,
             |r| r.origin,
             |rays| self.chunked(rays, |c| self.inner.first_hits(c)),
-        )
-    }
-
-    fn line_hits(&self, origins: &[DVec3], dirs: &[DVec3], max_t: f64) -> Result<Vec<Option<Hit>>> {
-        if origins.len() != dirs.len() {
-            // The inner caster names the mismatch.
-            return self.inner.line_hits(origins, dirs, max_t);
-        }
-        let lines: Vec<(DVec3, DVec3)> =
-            origins.iter().copied().zip(dirs.iter().copied()).collect();
-        in_spatial_order(
-            &lines,
-            |l| l.0,
-            |lines| {
-                self.chunked(lines, |c| {
-                    let (o, d): (Vec<DVec3>, Vec<DVec3>) = c.iter().copied().unzip();
-                    self.inner.line_hits(&o, &d, max_t)
-                })
-            },
         )
     }
 
