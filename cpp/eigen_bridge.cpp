@@ -162,4 +162,38 @@ rust::Vec<double> sparse_least_squares(std::size_t rows_a, std::size_t cols, rus
   return out;
 }
 
+rust::Vec<double> spd_conjugate_gradients(std::size_t n, rust::Slice<const int32_t> outer,
+                                          rust::Slice<const int32_t> inner, rust::Slice<const double> vals,
+                                          rust::Slice<const double> b, double tolerance) {
+  if (n == 0) throw std::runtime_error("no unknowns");
+  if (outer.size() != n + 1 || b.size() != n) throw std::runtime_error("matrix and right-hand side disagree in size");
+  const std::size_t nnz = std::size_t(outer[n]);
+  if (inner.size() != nnz || vals.size() != nnz) throw std::runtime_error("compressed rows have the wrong length");
+  // N is symmetric, so its compressed rows are the compressed columns of
+  // N^T = N: the column-major map needs no copy.
+  const Eigen::Map<const SpMat> N{Eigen::Index(n), Eigen::Index(n), Eigen::Index(nnz), outer.data(), inner.data(),
+                                  vals.data()};
+  Eigen::Map<const Eigen::VectorXd> rhs(b.data(), Eigen::Index(n));
+  // The solver keeps a Ref to the map (no copy of N).
+  Eigen::ConjugateGradient<SpMat, Eigen::Lower | Eigen::Upper, Eigen::DiagonalPreconditioner<double>> cg;
+  cg.setTolerance(tolerance);
+  cg.setMaxIterations(2000);
+  cg.compute(N);
+  if (cg.info() != Eigen::Success) throw std::runtime_error("conjugate gradients: set-up failed");
+  Eigen::VectorXd x = cg.solve(rhs);
+  if (cg.info() != Eigen::Success) {
+    std::ostringstream s;
+    s << "conjugate gradients did not converge in " << cg.iterations() << " iterations (residual " << cg.error()
+      << ", tolerance " << tolerance << ")";
+    throw std::runtime_error(s.str());
+  }
+  rust::Vec<double> out;
+  out.reserve(n);
+  for (Eigen::Index i = 0; i < x.size(); ++i) {
+    if (!std::isfinite(x[i])) throw std::runtime_error("solution is not finite (ill-conditioned system)");
+    out.push_back(x[i]);
+  }
+  return out;
+}
+
 }  // namespace subdfit::eigen

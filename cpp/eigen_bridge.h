@@ -18,4 +18,13 @@ rust::Vec<double> sparse_least_squares(std::size_t rows_a, std::size_t cols, rus
                                        rust::Slice<const uint32_t> r_cols, rust::Slice<const double> r_vals,
                                        double lambda, rust::Slice<const double> b, std::size_t nrhs, uint32_t method,
                                        double tolerance);
+
+// Solves N x = b for a symmetric positive definite N given whole (both
+// triangles) in compressed rows: row i's columns are inner[outer[i]..outer[i+1]]
+// (sorted), its values vals[...]. Jacobi-preconditioned conjugate gradients to
+// a relative residual of `tolerance`; throws when it does not converge or the
+// solution is not finite.
+rust::Vec<double> spd_conjugate_gradients(std::size_t n, rust::Slice<const int32_t> outer,
+                                          rust::Slice<const int32_t> inner, rust::Slice<const double> vals,
+                                          rust::Slice<const double> b, double tolerance);
 }  // namespace subdfit::eigen

@@ -40,13 +40,20 @@
 //! minimised. A small ridge `λ|δ|²` keeps samples that no point reaches
 //! where they are. The solve is repeated while the objective falls (at most
 //! [`LsqOffsetOptions::rounds`] times); a round that raises it is undone.
+//!
+//! The rows are never stored: each is summed into the normal equations as
+//! its closest point arrives ([`NormalEquations`], pattern: D's edges),
+//! the points visited in Z-order in sub-batches. On the 4.4M-triangle
+//! ladder rung (13.6M rows, 1.4M offsets) the triplet list, Eigen's copy
+//! of A and AᵀA, and the closest points of whole batches had taken the
+//! stage's peak to 9 GB; now the conversion peaks at 5.2 GB.
 
 use serde::Serialize;
 
 use crate::error::Result;
 use crate::mesh::TriMesh;
 use crate::raycast::{make_raycaster, ClosestPoint, RayBackend, RayCaster};
-use crate::solve::{least_squares, LsqMethod, LsqOptions, Triplets};
+use crate::solve::NormalEquations;
 use crate::DVec3;
 
 use super::Displacement;
@@ -58,11 +65,7 @@ use super::Displacement;
 /// solve most of the stage on large inputs (567k offsets: 5.6 s).
 /// 1e-10 of the residual is far below the Gauss–Newton linearisation's own
 /// error.
-const CG: LsqOptions = LsqOptions {
-    method: LsqMethod::ConjugateGradient,
-    rank_tolerance: 1e-12,
-    cg_tolerance: 1e-10,
-};
+const CG_TOLERANCE: f64 = 1e-10;
 
 /// Options of [`refine_offsets`].
 #[derive(Clone, Debug, Serialize)]
@@ -115,27 +118,98 @@ const CHECK_STRIDE: usize = 4;
 /// Ridge of the unprojectable samples relative to the others'.
 const FIXED_RIDGE: f64 = 1e4;
 
-/// A mesh's edge midpoints with weights (a third of the area of each
-/// triangle of the edge) and end points, in first-seen order of the edges.
-fn edge_midpoints(mesh: &TriMesh) -> (Vec<DVec3>, Vec<f64>, Vec<[u32; 2]>) {
-    let mut index = std::collections::HashMap::with_capacity(3 * mesh.triangles.len() / 2);
-    let (mut p, mut w, mut ends) = (Vec::new(), Vec::new(), Vec::new());
-    for (t, tri) in mesh.triangles.iter().enumerate() {
-        let [x, y, z] = mesh.triangle(t);
-        let area = 0.5 * (y - x).cross(z - x).length();
-        for k in 0..3 {
-            let (a, b) = (tri[k], tri[(k + 1) % 3]);
-            let key = (a.min(b), a.max(b));
-            let i = *index.entry(key).or_insert_with(|| {
-                p.push(0.5 * (mesh.positions[a as usize] + mesh.positions[b as usize]));
-                w.push(0.0);
-                ends.push([a, b]);
-                p.len() - 1
-            });
-            w[i] += area / 3.0;
+/// A mesh's edges, each once, in increasing order of their ends (which
+/// makes the order, and every sum taken in it, independent of the thread
+/// count), with the fitting weight of their midpoint (a third of the area
+/// of each triangle of the edge) and how many triangles they have.
+struct Edges {
+    ends: Vec<[u32; 2]>,
+    weight: Vec<f64>,
+    /// Triangles of the edge, saturating at 255.
+    faces: Vec<u8>,
+}
+
+impl Edges {
+    fn of(mesh: &TriMesh) -> Edges {
+        use rayon::prelude::*;
+        let sides = mesh.sorted_sides();
+        let area: Vec<f64> = (0..mesh.triangles.len())
+            .into_par_iter()
+            .map(|t| {
+                let [x, y, z] = mesh.triangle(t);
+                0.5 * (y - x).cross(z - x).length()
+            })
+            .collect();
+        let mut e = Edges {
+            ends: Vec::new(),
+            weight: Vec::new(),
+            faces: Vec::new(),
+        };
+        let mut last = u64::MAX;
+        for &(key, t) in &sides {
+            if key != last {
+                e.ends.push([(key >> 32) as u32, key as u32]);
+                e.weight.push(0.0);
+                e.faces.push(0);
+                last = key;
+            }
+            *e.weight.last_mut().unwrap() += area[t as usize] / 3.0;
+            let f = e.faces.last_mut().unwrap();
+            *f = f.saturating_add(1);
+        }
+        e
+    }
+
+    fn len(&self) -> usize {
+        self.ends.len()
+    }
+
+    fn midpoint(&self, positions: &[DVec3], k: usize) -> DVec3 {
+        let [a, b] = self.ends[k];
+        0.5 * (positions[a as usize] + positions[b as usize])
+    }
+
+    /// The edges' indices in the Z-order of their midpoints (every one when
+    /// `stride` is 1, else those whose index is a multiple of it): the
+    /// order the queries are answered and the rows summed in
+    /// ([`crate::raycast::spatial_order`]'s reason).
+    fn visit_order(&self, positions: &[DVec3], stride: usize) -> Vec<u32> {
+        let mut order: Vec<u32> =
+            match crate::raycast::spatial_order(self.len(), |k| self.midpoint(positions, k)) {
+                Some(o) => o.into_iter().map(|k| k as u32).collect(),
+                None => (0..self.len() as u32).collect(),
+            };
+        if stride > 1 {
+            order.retain(|&k| k as usize % stride == 0);
+        }
+        order
+    }
+}
+
+/// The closest point on `caster` of each edge midpoint of `edges` over
+/// `positions`, in `order`, handed to `each(edge, midpoint, hit)` in that
+/// order. Sub-batches of [`crate::raycast::SUB_BATCH`] queries: the caster
+/// answers them as they come (already in Z-order), and only one
+/// sub-batch of answers is held, not one per query.
+fn closest_in_order(
+    edges: &Edges,
+    positions: &[DVec3],
+    order: &[u32],
+    caster: &dyn RayCaster,
+    mut each: impl FnMut(usize, DVec3, &ClosestPoint) -> Result<()>,
+) -> Result<()> {
+    let mut pts = Vec::with_capacity(crate::raycast::SUB_BATCH);
+    for part in order.chunks(crate::raycast::SUB_BATCH) {
+        pts.clear();
+        pts.extend(part.iter().map(|&k| edges.midpoint(positions, k as usize)));
+        let hits = caster.closest_points(&pts, f64::INFINITY)?;
+        for ((&k, &p), c) in part.iter().zip(&pts).zip(&hits) {
+            if let Some(c) = c {
+                each(k as usize, p, c)?;
+            }
         }
     }
-    (p, w, ends)
+    Ok(())
 }
 
 fn unit_normal([a, b, c]: [DVec3; 3]) -> DVec3 {
@@ -145,6 +219,11 @@ fn unit_normal([a, b, c]: [DVec3; 3]) -> DVec3 {
 /// Replaces the offsets of `disp` by least-squares ones (module docs).
 /// `mesh_caster` is built over `mesh`; `diag` is M's bounding-box
 /// diagonal (the unit of the stats).
+///
+/// Memory: the rows (one per edge midpoint of M and of D, 13.6M on a
+/// 4.4M-triangle input) are summed into the normal equations as their
+/// closest points arrive ([`NormalEquations`]), so what is held is D's
+/// neighbour pattern and one sub-batch of queries, not the rows.
 pub fn refine_offsets(
     mesh: &TriMesh,
     mesh_caster: &dyn RayCaster,
@@ -153,81 +232,22 @@ pub fn refine_offsets(
     opts: &LsqOffsetOptions,
 ) -> Result<LsqOffsetStats> {
     let n = disp.offsets.len();
-    let normals: Vec<DVec3> = disp.directions.clone();
-    let (mp, mw, _) = edge_midpoints(mesh);
-    let total_m: f64 = mw.iter().sum();
+    let m_edges = Edges::of(mesh);
+    let total_m: f64 = m_edges.weight.iter().sum();
     let mut stats = LsqOffsetStats::default();
-    let fixed = border_samples(mesh, mesh_caster, disp)?;
+    let fixed = border_samples(mesh, &m_edges, mesh_caster, disp)?;
     let mut current = disp.offsets.clone();
     let mut current_obj = f64::INFINITY;
     // The objective on every CHECK_STRIDE-th point of each list: what the
     // last round (which only checks the previous update) measures.
     let mut current_sub = f64::INFINITY;
     for round in 0..=opts.rounds {
-        let positions = disp.displaced_positions();
-        let tris = disp.grid.triangles_shorter_diagonal(&positions);
-        let dmesh = TriMesh {
-            positions,
-            triangles: tris,
-        };
         // The last round only decides whether the previous update is kept:
         // it measures the objective on a fixed subsample (every
         // CHECK_STRIDE-th point of both lists, compared with the same
         // subsample's value before the update) instead of all points.
         let check_only = round > 0 && round == opts.rounds;
-        let stride = if check_only { CHECK_STRIDE } else { 1 };
-        let d_caster = make_raycaster(RayBackend::Embree, &dmesh)?;
-        let mut a = Triplets::new(0, n);
-        let mut rhs = Vec::new();
-        let mut score = Score::default();
-        // M → D rows.
-        let mq: Vec<DVec3> = mp.iter().step_by(stride).copied().collect();
-        let m_hits = d_caster.closest_points(&mq, f64::INFINITY)?;
-        for (k, (c, &w)) in m_hits.iter().zip(mw.iter().step_by(stride)).enumerate() {
-            let Some(c) = c else { continue };
-            score.add(w, c.distance, (k * stride) % CHECK_STRIDE == 0);
-            if check_only {
-                continue;
-            }
-            let tri = dmesh.triangles[c.triangle as usize];
-            let nt = unit_normal(dmesh.triangle(c.triangle as usize));
-            let e = nt.dot(mq[k] - c.point);
-            if e.abs() < NORMAL_COS * c.distance {
-                continue;
-            }
-            push_row(&mut a, &mut rhs, w.sqrt(), &tri, &bary(c), nt, &normals, e);
-        }
-        // D → M rows, at D's edge midpoints.
-        let (dq, dw, dends) = edge_midpoints(&dmesh);
-        let total_d: f64 = dw.iter().sum();
-        let dq: Vec<DVec3> = dq.into_iter().step_by(stride).collect();
-        let d_hits = mesh_caster.closest_points(&dq, f64::INFINITY)?;
-        // Both integrals weigh the same whatever the areas' ratio.
-        let scale_d = total_m / total_d.max(f64::MIN_POSITIVE);
-        for (k, (c, &w)) in d_hits.iter().zip(dw.iter().step_by(stride)).enumerate() {
-            let Some(c) = c else { continue };
-            let w = w * scale_d;
-            score.add(w, c.distance, (k * stride) % CHECK_STRIDE == 0);
-            if check_only {
-                continue;
-            }
-            let nt = unit_normal(mesh.triangle(c.triangle as usize));
-            let e = nt.dot(c.point - dq[k]);
-            if e.abs() < NORMAL_COS * c.distance {
-                continue;
-            }
-            let [s0, s1] = dends[k];
-            push_row(
-                &mut a,
-                &mut rhs,
-                w.sqrt(),
-                &[s0, s1, s1],
-                &[0.5, 0.5, 0.0],
-                nt,
-                &normals,
-                e,
-            );
-        }
+        let (score, ne) = round_rows(mesh, mesh_caster, &m_edges, total_m, disp, check_only)?;
         let (obj, sub) = score.rms();
         // The stats are the subsample's, the one figure every round has.
         if round == 0 {
@@ -250,28 +270,114 @@ pub fn refine_offsets(
         current.clone_from(&disp.offsets);
         stats.rms_after_permille = 1000.0 * sub / diag;
         stats.rounds = round;
-        if round == opts.rounds || a.rows == 0 {
+        let Some(mut ne) = ne.filter(|ne| ne.rows > 0 && round < opts.rounds) else {
             break;
-        }
-        let mut ridge = Triplets::new(n, n);
+        };
+        let lambda = opts.ridge * total_m / n.max(1) as f64;
         for (i, &f) in fixed.iter().enumerate() {
             // Unprojectable samples over a hole or past M's border keep
             // their inpainted offsets (module docs).
-            ridge.push(i, i, if f { FIXED_RIDGE } else { 1.0 });
+            ne.add_diagonal(i, lambda * if f { FIXED_RIDGE } else { 1.0 })?;
         }
-        let lambda = opts.ridge * total_m / n.max(1) as f64;
-        let delta = least_squares(&a, &[rhs], Some((&ridge, lambda)), &CG)?;
-        for (d, dd) in disp.offsets.iter_mut().zip(&delta[0]) {
+        let delta = ne.solve_cg(CG_TOLERANCE)?;
+        for (d, dd) in disp.offsets.iter_mut().zip(&delta) {
             *d += dd;
         }
     }
     Ok(stats)
 }
 
+/// One round of [`refine_offsets`] at the current offsets: the objective
+/// (both directions) and, unless `check_only` (which measures the
+/// subsample only), the linearised rows summed into normal equations.
+fn round_rows(
+    mesh: &TriMesh,
+    mesh_caster: &dyn RayCaster,
+    m_edges: &Edges,
+    total_m: f64,
+    disp: &Displacement,
+    check_only: bool,
+) -> Result<(Score, Option<NormalEquations>)> {
+    let normals = &disp.directions;
+    let stride = if check_only { CHECK_STRIDE } else { 1 };
+    let positions = disp.displaced_positions();
+    let tris = disp.grid.triangles_shorter_diagonal(&positions);
+    let dmesh = TriMesh {
+        positions,
+        triangles: tris,
+    };
+    let d_caster = make_raycaster(RayBackend::Embree, &dmesh)?;
+    let d_edges = Edges::of(&dmesh);
+    let mut ne = if check_only {
+        None
+    } else {
+        Some(NormalEquations::with_pairs(
+            disp.offsets.len(),
+            d_edges.ends.iter().copied(),
+        )?)
+    };
+    let mut score = Score::default();
+    let mut row = Vec::with_capacity(3);
+    // M → D rows: a point p of M moves D's closest point q in triangle t.
+    let order = m_edges.visit_order(&mesh.positions, stride);
+    closest_in_order(
+        m_edges,
+        &mesh.positions,
+        &order,
+        d_caster.as_ref(),
+        |k, p, c| {
+            let w = m_edges.weight[k];
+            score.add(w, c.distance, k % CHECK_STRIDE == 0);
+            let Some(ne) = ne.as_mut() else { return Ok(()) };
+            let tri = dmesh.triangles[c.triangle as usize];
+            let nt = unit_normal(dmesh.triangle(c.triangle as usize));
+            let e = nt.dot(p - c.point);
+            if e.abs() < NORMAL_COS * c.distance {
+                return Ok(());
+            }
+            let sw = w.sqrt();
+            row.clear();
+            for (&s, b) in tri.iter().zip(bary(c)) {
+                row.push((s, sw * b * nt.dot(normals[s as usize])));
+            }
+            ne.add_row(&row, sw * e)
+        },
+    )?;
+    drop(order);
+    drop(d_caster);
+    // D → M rows, at D's edge midpoints; both integrals weigh the same
+    // whatever the areas' ratio.
+    let total_d: f64 = d_edges.weight.iter().sum();
+    let scale_d = total_m / total_d.max(f64::MIN_POSITIVE);
+    let order = d_edges.visit_order(&dmesh.positions, stride);
+    closest_in_order(
+        &d_edges,
+        &dmesh.positions,
+        &order,
+        mesh_caster,
+        |k, q, c| {
+            let w = d_edges.weight[k] * scale_d;
+            score.add(w, c.distance, k % CHECK_STRIDE == 0);
+            let Some(ne) = ne.as_mut() else { return Ok(()) };
+            let nt = unit_normal(mesh.triangle(c.triangle as usize));
+            let e = nt.dot(c.point - q);
+            if e.abs() < NORMAL_COS * c.distance {
+                return Ok(());
+            }
+            let sw = w.sqrt();
+            let [s0, s1] = d_edges.ends[k];
+            let a = |s: u32| (s, 0.5 * sw * nt.dot(normals[s as usize]));
+            ne.add_row(&[a(s0), a(s1)], sw * e)
+        },
+    )?;
+    Ok((score, ne))
+}
+
 /// The unprojectable samples of `disp` whose closest point of M lies in a
 /// triangle with a boundary vertex of M (over a hole, past M's border).
 fn border_samples(
     mesh: &TriMesh,
+    m_edges: &Edges,
     mesh_caster: &dyn RayCaster,
     disp: &Displacement,
 ) -> Result<Vec<bool>> {
@@ -281,15 +387,8 @@ fn border_samples(
     if lost.is_empty() {
         return Ok(fixed);
     }
-    let mut uses = std::collections::HashMap::new();
-    for tri in &mesh.triangles {
-        for k in 0..3 {
-            let (a, b) = (tri[k], tri[(k + 1) % 3]);
-            *uses.entry((a.min(b), a.max(b))).or_insert(0u32) += 1;
-        }
-    }
     let mut border_vertex = vec![false; mesh.positions.len()];
-    for (&(a, b), &c) in &uses {
+    for (&[a, b], &c) in m_edges.ends.iter().zip(&m_edges.faces) {
         if c == 1 {
             border_vertex[a as usize] = true;
             border_vertex[b as usize] = true;
@@ -311,29 +410,6 @@ fn border_samples(
 /// corners `a`, `b`, `c` (point `(1-u-v) a + u b + v c`).
 fn bary(c: &ClosestPoint) -> [f64; 3] {
     [1.0 - c.u - c.v, c.u, c.v]
-}
-
-/// One linearised point-to-plane row, weighted by `sw`: the point of D at
-/// barycentrics `beta` of `tri` moves along `nt` by `Σ β_k (nt·n_k) δ_k`,
-/// which should equal `e`.
-#[allow(clippy::too_many_arguments)]
-fn push_row(
-    a: &mut Triplets,
-    rhs: &mut Vec<f64>,
-    sw: f64,
-    tri: &[u32; 3],
-    beta: &[f64; 3],
-    nt: DVec3,
-    normals: &[DVec3],
-    e: f64,
-) {
-    let row = a.rows;
-    for k in 0..3 {
-        let s = tri[k] as usize;
-        a.push(row, s, sw * beta[k] * nt.dot(normals[s]));
-    }
-    a.rows += 1;
-    rhs.push(sw * e);
 }
 
 /// Weighted mean squared distance over every measured point (`obj`) and

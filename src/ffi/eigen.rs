@@ -23,5 +23,15 @@ pub(crate) mod bridge {
             method: u32,
             tolerance: f64,
         ) -> Result<Vec<f64>>;
+
+        /// See `cpp/eigen_bridge.h`.
+        fn spd_conjugate_gradients(
+            n: usize,
+            outer: &[i32],
+            inner: &[i32],
+            vals: &[f64],
+            b: &[f64],
+            tolerance: f64,
+        ) -> Result<Vec<f64>>;
     }
 }

@@ -189,41 +189,12 @@ pub(crate) fn in_spatial_order<Q: Copy + Send + Sync, A: Copy + Default + Send>(
     at: impl Fn(&Q) -> DVec3 + Sync,
     mut answer: impl FnMut(&[Q]) -> Result<Vec<A>>,
 ) -> Result<Vec<A>> {
-    use rayon::prelude::*;
     if queries.len() <= SUB_BATCH || queries.len() > u32::MAX as usize {
         return answer(queries);
     }
-    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-    for q in queries {
-        let p = at(q);
-        if p.is_finite() {
-            lo = lo.min(p);
-            hi = hi.max(p);
-        }
-    }
-    if !(lo.cmple(hi).all()) {
+    let Some(order) = spatial_order(queries.len(), |i| at(&queries[i])) else {
         return answer(queries);
-    }
-    // 10 bits per axis: cells of a thousandth of the extent, finer than
-    // the cache can tell apart, and a 30-bit key that packs with the index.
-    let scale = DVec3::splat(1023.0) / (hi - lo).max(DVec3::splat(f64::MIN_POSITIVE));
-    let mut order: Vec<u64> = queries
-        .par_iter()
-        .enumerate()
-        .map(|(i, q)| {
-            let p = at(q);
-            let key = if p.is_finite() {
-                let c = ((p - lo) * scale).as_uvec3().min(glam::UVec3::splat(1023));
-                morton3(c.x) | (morton3(c.y) << 1) | (morton3(c.z) << 2)
-            } else {
-                1 << 30
-            };
-            (key << 32) | i as u64
-        })
-        .collect();
-    // Keys tie-broken by index: the order (and so every sub-batch) is the
-    // same on every run.
-    order.par_sort_unstable();
+    };
     let mut out = vec![A::default(); queries.len()];
     let mut batch = Vec::with_capacity(SUB_BATCH);
     for part in order.chunks(SUB_BATCH) {
@@ -241,6 +212,51 @@ pub(crate) fn in_spatial_order<Q: Copy + Send + Sync, A: Copy + Default + Send>(
         }
     }
     Ok(out)
+}
+
+/// The Z-order (Morton order) of `n` points (`at(i)`), as `(key << 32) |
+/// i` sorted (the index is the low 32 bits): keys tie-broken by index, so
+/// the order is the same on every run. `None` when no point is finite or
+/// `n` does not fit 32 bits. Non-finite points come last.
+pub(crate) fn spatial_order(n: usize, at: impl Fn(usize) -> DVec3 + Sync) -> Option<Vec<u64>> {
+    use rayon::prelude::*;
+    if n > u32::MAX as usize {
+        return None;
+    }
+    let (lo, hi) = (0..n)
+        .into_par_iter()
+        .with_min_len(1 << 12)
+        .map(&at)
+        .filter(|p| p.is_finite())
+        .fold(
+            || (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), p| (lo.min(p), hi.max(p)),
+        )
+        .reduce(
+            || (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |a, b| (a.0.min(b.0), a.1.max(b.1)),
+        );
+    if !(lo.cmple(hi).all()) {
+        return None;
+    }
+    // 10 bits per axis: cells of a thousandth of the extent, finer than
+    // the cache can tell apart, and a 30-bit key that packs with the index.
+    let scale = DVec3::splat(1023.0) / (hi - lo).max(DVec3::splat(f64::MIN_POSITIVE));
+    let mut order: Vec<u64> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let p = at(i);
+            let key = if p.is_finite() {
+                let c = ((p - lo) * scale).as_uvec3().min(glam::UVec3::splat(1023));
+                morton3(c.x) | (morton3(c.y) << 1) | (morton3(c.z) << 2)
+            } else {
+                1 << 30
+            };
+            (key << 32) | i as u64
+        })
+        .collect();
+    order.par_sort_unstable();
+    Some(order)
 }
 
 /// Queries per call of [`in_spatial_order`]'s `answer`: enough for both
