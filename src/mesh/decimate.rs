@@ -40,10 +40,16 @@ const SMALL_COMPONENT: usize = 256;
 /// cut in two halves decimated side by side.
 const SPLIT_ABOVE: usize = 200_000;
 
-/// `mesh` decimated to about `target_triangles` triangles. Boundary
-/// vertices are locked (the quadrics carry no boundary planes, so a free
-/// boundary would be pulled inwards and holes would grow), and the
-/// surviving vertices are M's own, bit for bit: an edge collapse keeps one
+/// `mesh` decimated to about `target_triangles` triangles. M's boundary is
+/// decimated like the rest: meshoptimizer (1.3) collapses a border vertex
+/// only along its border and adds a plane through each border edge,
+/// perpendicular to its triangle, to the quadrics, so the holes keep their
+/// shape. Locking the border instead (as until session 17) kept every
+/// boundary vertex of M in M′, and the control mesh inherited them: the
+/// bunny ladder's rung 3 (1,784 boundary edges) ended with 692 boundary
+/// control vertices for 684 patches, rung 2 with 260 for 434 (free: 66 for
+/// 351, 42 for 330; the full-resolution layout of rung 2 keeps 60 for 451).
+/// The surviving vertices are M's own, bit for bit: an edge collapse keeps one
 /// of its two vertices where it is, so M′ lies on M's vertices. Pillows are
 /// removed; a non-manifold vertex the simplifier leaves is split
 /// ([`super::split_non_manifold`]), as every later stage needs one fan per
@@ -51,9 +57,10 @@ const SPLIT_ABOVE: usize = 200_000;
 ///
 /// Both cores: above [`SPLIT_ABOVE`] triangles the mesh is cut at the
 /// median of the triangle centroids along its longest box axis, each half
-/// is decimated to its share of twice the target with the cut locked (it
-/// is a border of each half), and a final pass over the union, where the
-/// cut is interior again, reaches the target. Deterministic: the cut is a
+/// is decimated to its share of twice the target with its borders locked
+/// (the cut is a border of each half and must stay where it is for the
+/// halves to meet), and a final pass over the union, where the cut is
+/// interior again and M's own border free, reaches the target. Deterministic: the cut is a
 /// sort with the triangle index as tie-break, and meshoptimizer draws no
 /// random numbers (each pass is sequential: one global priority queue).
 pub fn decimate(mesh: &TriMesh, target_triangles: usize) -> Result<(TriMesh, DecimateStats)> {
@@ -84,15 +91,15 @@ pub fn decimate(mesh: &TriMesh, target_triangles: usize) -> Result<(TriMesh, Dec
         let (a, b) = halves(mesh, &big);
         let share = |n: usize| (2 * target * n / big.len()).max(4);
         let (ia, ib) = rayon::join(
-            || simplify(&pos, &indices(mesh, &a), share(a.len())),
-            || simplify(&pos, &indices(mesh, &b), share(b.len())),
+            || simplify(&pos, &indices(mesh, &a), share(a.len()), true),
+            || simplify(&pos, &indices(mesh, &b), share(b.len()), true),
         );
         let mut union = ia?;
         union.extend(ib?);
-        simplify(&pos, &union, target)?
+        simplify(&pos, &union, target, false)?
     } else {
         stats.parts = 1;
-        simplify(&pos, &indices(mesh, &big), target)?
+        simplify(&pos, &indices(mesh, &big), target, false)?
     };
     let decimated = kept.len() / 3;
     kept.extend(keep);
@@ -191,7 +198,7 @@ const POCKET: usize = 16;
 
 /// One meshoptimizer pass over `indices` (into all of `pos`) to about
 /// `target` triangles, borders locked.
-fn simplify(pos: &[f32], indices: &[u32], target: usize) -> Result<Vec<u32>> {
+fn simplify(pos: &[f32], indices: &[u32], target: usize, lock_border: bool) -> Result<Vec<u32>> {
     // f32 is meshoptimizer's only position type; it only steers the
     // collapse order (positions are taken back from M in f64), and the
     // pipeline runs at a unit diagonal, where f32 resolves 1e-7.
@@ -202,7 +209,11 @@ fn simplify(pos: &[f32], indices: &[u32], target: usize) -> Result<Vec<u32>> {
         &adapter,
         3 * target,
         f32::MAX,
-        meshopt::SimplifyOptions::LockBorder,
+        if lock_border {
+            meshopt::SimplifyOptions::LockBorder
+        } else {
+            meshopt::SimplifyOptions::None
+        },
         None,
     ))
 }
