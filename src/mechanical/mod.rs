@@ -212,16 +212,36 @@ pub struct Built {
 
 /// Share of M's interior edges that are sharp, and share that are flat
 /// (dihedral below [`FLAT_DIHEDRAL_DEG`]).
+///
+/// The same counts as [`Topology`]'s edges (interior: exactly two
+/// triangles; the dihedral is the angle between their normals) from M's
+/// sorted sides, without building the topology: `--mode auto` asks this
+/// of every input, and a full [`Topology`] of a million triangles is a
+/// second on one core.
 pub fn edge_shares(mesh: &TriMesh) -> (f64, f64) {
-    let topo = Topology::new(mesh);
-    let interior = topo.edges.iter().filter(|e| e.is_interior()).count();
-    let sharp = topo.sharp_edges().iter().filter(|&&s| s).count();
-    let flat_t = FLAT_DIHEDRAL_DEG.to_radians();
-    let flat = topo
-        .edges
-        .iter()
-        .filter(|e| e.is_interior() && e.beta.abs() < flat_t)
-        .count();
+    use rayon::prelude::*;
+    let normals: Vec<DVec3> = (0..mesh.triangles.len())
+        .into_par_iter()
+        .map(|t| {
+            let [a, b, c] = mesh.triangle(t);
+            (b - a).cross(c - a).normalize_or_zero()
+        })
+        .collect();
+    let sides = mesh.sorted_sides();
+    let (sharp_t, flat_t) = (
+        SHARP_DIHEDRAL_DEG.to_radians(),
+        FLAT_DIHEDRAL_DEG.to_radians(),
+    );
+    let (mut interior, mut sharp, mut flat) = (0usize, 0usize, 0usize);
+    for run in sides.chunk_by(|a, b| a.0 == b.0) {
+        if let [(_, f0), (_, f1)] = run {
+            let (n0, n1) = (normals[*f0 as usize], normals[*f1 as usize]);
+            let angle = n0.dot(n1).clamp(-1.0, 1.0).acos();
+            interior += 1;
+            sharp += usize::from(angle > sharp_t);
+            flat += usize::from(angle < flat_t);
+        }
+    }
     let n = interior.max(1) as f64;
     (sharp as f64 / n, flat as f64 / n)
 }
