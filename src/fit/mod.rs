@@ -349,32 +349,48 @@ fn fit_both_starts(
 ) -> Result<Fitted> {
     let t0 = Instant::now();
     opts.check()?;
+    let facts = MeshFacts::of(mesh);
     let rim_moves = if mesh.positions.is_empty() || mesh.triangles.is_empty() {
         Vec::new()
     } else {
-        rim::fit_rims(mesh, &control).moved
+        rim::fit_rims(mesh, &facts.rim, &control).moved
     };
     if rim_moves.is_empty() {
-        return fit_from(mesh, control, caster, opts, progress, &[], t0);
+        return fit_from(mesh, &facts, control, caster, opts, progress, &[], t0);
     }
-    let with = fit_from(
-        mesh,
-        control.clone(),
-        caster,
-        opts,
-        &mut |s: &str, f: f64| progress(s, 0.5 * f),
-        &rim_moves,
-        t0,
-    )?;
-    let without = fit_from(
-        mesh,
-        control,
-        caster,
-        opts,
-        &mut |s: &str, f: f64| progress(s, 0.5 + 0.5 * f),
-        &[],
-        t0,
-    )?;
+    // The two starts side by side: each round's Eigen solve is serial
+    // (~40 % of a round on a million triangles), so one start's solve
+    // overlaps the other's ray queries. Each is a pure function of its
+    // inputs: the same result whatever the thread count. The rim start
+    // reports the progress (the other's cancellation is still checked by
+    // the watched caster's chunks).
+    let (with, without) = rayon::join(
+        || {
+            fit_from(
+                mesh,
+                &facts,
+                control.clone(),
+                caster,
+                opts,
+                progress,
+                &rim_moves,
+                t0,
+            )
+        },
+        || {
+            fit_from(
+                mesh,
+                &facts,
+                control.clone(),
+                caster,
+                opts,
+                &mut |_: &str, _: f64| true,
+                &[],
+                t0,
+            )
+        },
+    );
+    let (with, without) = (with?, without?);
     let score = |f: &Fitted| f.report.iterations[f.report.best_iteration].score_permille;
     let mut best = if score(&without) < score(&with) {
         without
@@ -383,6 +399,22 @@ fn fit_both_starts(
     };
     best.report.seconds = t0.elapsed().as_secs_f64();
     Ok(best)
+}
+
+/// What every start of a fit asks of M (computed once per fit; on a
+/// 4.4M-triangle input each took about a second).
+struct MeshFacts {
+    /// [`TriMesh::boundary_edge_masks`].
+    rim: Vec<u8>,
+    /// Area-weighted vertex normals of M.
+    normals: Vec<DVec3>,
+}
+
+impl MeshFacts {
+    fn of(mesh: &TriMesh) -> MeshFacts {
+        let (rim, normals) = rayon::join(|| mesh.boundary_edge_masks(), || vertex_normals(mesh));
+        MeshFacts { rim, normals }
+    }
 }
 
 /// One global fit from `control` with the boundary vertices of
@@ -394,8 +426,10 @@ fn fit_both_starts(
 /// [`FitSystem::targets`], its error from [`FitSystem::round_error`] and
 /// its update from [`FitSystem::solve`], so that each step can be read
 /// against the module docs on its own.
+#[allow(clippy::too_many_arguments)]
 fn fit_from(
     mesh: &TriMesh,
+    facts: &MeshFacts,
     mut control: ControlMesh,
     caster: &dyn RayCaster,
     opts: &FitOptions,
@@ -406,7 +440,7 @@ fn fit_from(
     let diag = checked_diagonal(mesh)?;
     let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));
     report_progress(progress, "fit", 0.0)?;
-    let sys = FitSystem::build(mesh, &mut control, opts, rim_moves)?;
+    let sys = FitSystem::build(mesh, facts, &mut control, opts, rim_moves)?;
 
     let nv = control.num_vertices();
     let mut positions = control.positions().to_vec();
@@ -606,6 +640,7 @@ impl FitSystem {
     /// the border-curve samples; then builds the stencils and operators.
     fn build(
         mesh: &TriMesh,
+        facts: &MeshFacts,
         control: &mut ControlMesh,
         opts: &FitOptions,
         rim_moves: &[(VertexId, DVec3)],
@@ -621,7 +656,7 @@ impl FitSystem {
         // Boundary fit (see the module docs): samples on the border curves of
         // the limit surface and the limit points of the boundary vertices take
         // the closest point of M's rim as their target.
-        let rim = mesh.boundary_edge_masks();
+        let rim = facts.rim.clone();
         let rim_segments = rim_segments(mesh, &rim);
         let mut rim_sample = vec![false; locations.len()];
         if !rim_segments.is_empty() {
@@ -652,7 +687,7 @@ impl FitSystem {
         let face: Vec<u32> = locations.iter().map(|l| l.face.0).collect();
         let stencils = evaluator.stencils(&locations)?;
         let laplacian = umbrella(control);
-        let m_normals = vertex_normals(mesh);
+        let m_normals = facts.normals.clone();
         let sdm = match (opts.objective, opts.final_sdm_rounds) {
             (Objective::Point, 0) => None,
             _ => {

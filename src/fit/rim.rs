@@ -48,14 +48,13 @@ pub(crate) struct RimFit {
 /// (`None` when the boundary is not a set of simple closed loops, e.g. a
 /// non-manifold vertex with two outgoing boundary edges: the curve fit is
 /// then skipped and the surface fit keeps its closest-point rim rows).
-fn rim_loops(mesh: &TriMesh) -> Option<Vec<Vec<DVec3>>> {
+fn rim_loops(mesh: &TriMesh, rim: &[u8]) -> Option<Vec<Vec<DVec3>>> {
     use std::collections::HashMap;
-    let rim = mesh.boundary_edge_masks();
     // The outer half-edge of a boundary edge (a, b) runs b → a, as the
     // control mesh's boundary half-edges run against their face.
     let mut next: HashMap<u32, u32> = HashMap::new();
     let mut starts: Vec<u32> = Vec::new();
-    for (t, &m) in mesh.triangles.iter().zip(&rim) {
+    for (t, &m) in mesh.triangles.iter().zip(rim) {
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
             if m & (1 << k) != 0 {
@@ -568,9 +567,10 @@ fn fit_loop_with_corners(
 /// face, which the "edge and corner" rule sharpens) makes the limit border
 /// interpolate it: loops with corners are fitted chain by chain
 /// ([`fit_loop_with_corners`]), the others as closed curves ([`fit_loop`]).
-pub(crate) fn fit_rims(mesh: &TriMesh, control: &ControlMesh) -> RimFit {
+/// `rim` is [`TriMesh::boundary_edge_masks`] of `mesh`.
+pub(crate) fn fit_rims(mesh: &TriMesh, rim: &[u8], control: &ControlMesh) -> RimFit {
     let mut out = RimFit::default();
-    let Some(rims) = rim_loops(mesh) else {
+    let Some(rims) = rim_loops(mesh, rim) else {
         return out;
     };
     if rims.is_empty() {
