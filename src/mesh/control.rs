@@ -1259,22 +1259,32 @@ impl ControlMesh {
     /// deleted slots, and returns the renumbering. Crease and corner
     /// sharpness follow their elements.
     pub fn compact(&mut self) -> Result<Compaction> {
+        let (polys, compaction) = self.live_polygons();
+        *self = polys.build()?;
+        Ok(compaction)
+    }
+
+    /// The live part of the mesh as plain polygons, densely renumbered as
+    /// [`Self::compact`] does, without building its half-edges
+    /// ([`LivePolygons::build`] does): a pass over the live elements, for
+    /// copies that may never be used (the simplification's checkpoints).
+    pub fn live_polygons(&self) -> (LivePolygons, Compaction) {
         let mut vertex_map = vec![None; self.num_vertices()];
         let mut positions = Vec::with_capacity(self.num_live_vertices());
-        let mut vsharp = Vec::with_capacity(self.num_live_vertices());
+        let mut vertex_sharpness = Vec::with_capacity(self.num_live_vertices());
         for v in self.vertices() {
             if !self.is_vertex_deleted(v) {
                 vertex_map[v.idx()] = Some(VertexId(positions.len() as u32));
                 positions.push(self.position(v));
-                vsharp.push(self.vertex_sharpness(v));
+                vertex_sharpness.push(self.vertex_sharpness(v));
             }
         }
         let mut face_map = vec![None; self.num_faces()];
-        let mut polys: Vec<Vec<u32>> = Vec::with_capacity(self.num_live_faces());
+        let mut polygons: Vec<Vec<u32>> = Vec::with_capacity(self.num_live_faces());
         for f in self.faces() {
             if !self.is_face_deleted(f) {
-                face_map[f.idx()] = Some(FaceId(polys.len() as u32));
-                polys.push(
+                face_map[f.idx()] = Some(FaceId(polygons.len() as u32));
+                polygons.push(
                     self.face_vertices(f)
                         .map(|v| vertex_map[v.idx()].expect("live face uses live vertices").0)
                         .collect(),
@@ -1293,16 +1303,45 @@ impl ControlMesh {
                 )
             })
             .collect();
-        let mut m = ControlMesh::from_polygons(positions, &polys)?;
-        m.vertex_sharpness = vsharp;
-        for (a, b, s) in creases {
+        (
+            LivePolygons {
+                positions,
+                vertex_sharpness,
+                polygons,
+                creases,
+            },
+            Compaction {
+                vertex_map,
+                face_map,
+            },
+        )
+    }
+}
+
+/// A control mesh as plain polygons ([`ControlMesh::live_polygons`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LivePolygons {
+    pub positions: Vec<DVec3>,
+    pub vertex_sharpness: Vec<f64>,
+    pub polygons: Vec<Vec<u32>>,
+    /// `(a, b, sharpness)` of every edge with a positive sharpness.
+    pub creases: Vec<(u32, u32, f64)>,
+}
+
+impl LivePolygons {
+    /// Faces.
+    pub fn num_faces(&self) -> usize {
+        self.polygons.len()
+    }
+
+    /// The half-edge mesh of these polygons, with their sharpness.
+    pub fn build(self) -> Result<ControlMesh> {
+        let mut m = ControlMesh::from_polygons(self.positions, &self.polygons)?;
+        m.vertex_sharpness = self.vertex_sharpness;
+        for (a, b, s) in self.creases {
             m.set_crease(VertexId(a), VertexId(b), s)?;
         }
-        *self = m;
-        Ok(Compaction {
-            vertex_map,
-            face_map,
-        })
+        Ok(m)
     }
 }
 

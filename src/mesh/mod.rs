@@ -15,7 +15,7 @@ mod scheme;
 mod soup;
 
 pub use control::{
-    Compaction, ControlMesh, EdgeId, FaceId, HalfedgeId, VertexId, INFINITELY_SHARP,
+    Compaction, ControlMesh, EdgeId, FaceId, HalfedgeId, LivePolygons, VertexId, INFINITELY_SHARP,
 };
 pub use decimate::{decimate, DecimateStats, Topology};
 pub use foreign::{control_from_foreign_soup, ForeignRepairs};

@@ -677,7 +677,7 @@ struct Simplifier<'a> {
     kappa: f64,
     /// The last [`SimplifyOptions::checkpoints`] checkpoints, oldest
     /// (most faces) first, and the face count that takes the next one.
-    checkpoints: std::collections::VecDeque<ControlMesh>,
+    checkpoints: std::collections::VecDeque<crate::mesh::LivePolygons>,
     next_checkpoint: usize,
     /// The relaxation of the halting tests ([`RELAX_STEP`]), 1 unless
     /// `target_faces` asked for fewer faces than the natural end.
@@ -1227,8 +1227,10 @@ impl<'a> Simplifier<'a> {
         if self.opts.checkpoints == 0 || n > self.next_checkpoint {
             return Ok(());
         }
-        let mut c = self.k.clone();
-        c.compact()?;
+        // Plain polygons: the ring drops the oldest (largest) checkpoints,
+        // ~90 % of those taken on bunny, so the half-edges are built only
+        // for the ones kept, at the end.
+        let (c, _) = self.k.live_polygons();
         if self.checkpoints.len() == self.opts.checkpoints {
             self.checkpoints.pop_front();
         }
@@ -1314,7 +1316,8 @@ impl<'a> Simplifier<'a> {
             .into_iter()
             .rev()
             .filter(|c| c.num_faces() as f64 >= floor)
-            .collect();
+            .map(crate::mesh::LivePolygons::build)
+            .collect::<Result<_>>()?;
         Ok(Simplified {
             mesh: k,
             stats,
