@@ -115,7 +115,9 @@ const NORMAL_COS: f64 = std::f64::consts::FRAC_1_SQRT_2;
 /// decides.
 const CHECK_STRIDE: usize = 4;
 
-/// Ridge of the unprojectable samples relative to the others'.
+/// Ridge of the unprojectable samples relative to the others'. (Until
+/// session 17 Eigen's `λ RᵀR` squared it to 10⁸; at 10⁴ bunny τ = 1 %
+/// ends at RMS D 0.413‰ instead of 0.434‰, gargoyle is unchanged.)
 const FIXED_RIDGE: f64 = 1e4;
 
 /// A mesh's edges, each once, in increasing order of their ends (which
