@@ -118,3 +118,68 @@ fn no_proxy_below_the_bound_or_when_asked() {
         r["options"]["run"]
     );
 }
+
+#[test]
+fn fit_computes_the_fitmap_of_a_large_mesh_on_the_proxy() {
+    // 327 680 triangles, above `--proxy auto`'s bound of 100 000: `fit`'s
+    // fitmap.ply comes from a Fitmap of M′ carried to M's vertices (a
+    // full-resolution Fitmap of a 1.1M-triangle scan took 47 s).
+    let dir = tempfile::tempdir().unwrap();
+    let sphere = common::icosphere(7, subdfit::DVec3::ZERO, 1.0);
+    let m = dir.path().join("sphere.ply");
+    subdfit::io::write_ply(&m, &sphere.positions, &sphere.triangles, &[], None).unwrap();
+    let out = dir.path().join("out");
+    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .arg("fit")
+        .arg(&m)
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/cube_quads.obj"))
+        .args(["-o", out.to_str().unwrap(), "--quiet", "--json"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let p = &r["options"]["run"]["fitmap_proxy"];
+    assert_eq!(p["used"], true, "{p}");
+    let stages: Vec<&str> = r["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["stage"].as_str().unwrap())
+        .collect();
+    assert!(stages.contains(&"fitmap transfer"), "{stages:?}");
+    // One Fitmap value per vertex of M, and on a sphere of radius 1 (a
+    // constant-curvature surface) every F_M is a positive radius no larger
+    // than the largest (a quarter of the diagonal) and F_S is positive.
+    let fm = fitmap_values(&out.join("fitmap.ply"));
+    assert_eq!(fm.len(), sphere.positions.len());
+    let r_max = 0.25 * sphere.bbox_diagonal();
+    for (i, v) in fm.iter().enumerate() {
+        assert!(v[0] > 0.0 && v[0].is_finite(), "vertex {i}: F_S {}", v[0]);
+        let m = f64::from(v[1]);
+        assert!(m > 0.0 && m <= r_max * 1.0001, "vertex {i}: F_M {m}");
+    }
+}
+
+/// `(s, m)` of every vertex of a fitmap.ply (binary little-endian, vertex
+/// properties exactly `x y z s m` as float, as `subdfit` writes it).
+fn fitmap_values(path: &Path) -> Vec<[f32; 2]> {
+    let bytes = std::fs::read(path).unwrap();
+    let end = b"end_header\n";
+    let at = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
+    let header = std::str::from_utf8(&bytes[..at]).unwrap();
+    let props: Vec<&str> = header
+        .lines()
+        .take_while(|l| !l.starts_with("element face"))
+        .filter_map(|l| l.strip_prefix("property float "))
+        .collect();
+    assert_eq!(props, ["x", "y", "z", "s", "m"], "{header}");
+    let n: usize = header
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .unwrap()
+        .trim()
+        .parse()
+        .unwrap();
+    let f = |k: usize| f32::from_le_bytes(bytes[at + 4 * k..at + 4 * k + 4].try_into().unwrap());
+    (0..n).map(|i| [f(5 * i + 3), f(5 * i + 4)]).collect()
+}
