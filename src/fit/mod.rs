@@ -364,31 +364,13 @@ fn fit_both_starts(
     // inputs: the same result whatever the thread count. The rim start
     // reports the progress (the other's cancellation is still checked by
     // the watched caster's chunks).
+    let start = |control: ControlMesh, moves: &[(VertexId, DVec3)], progress: &mut Progress<'_>| {
+        fit_from(mesh, &facts, control, caster, opts, progress, moves, t0)
+    };
+    let for_rim = control.clone();
     let (with, without) = rayon::join(
-        || {
-            fit_from(
-                mesh,
-                &facts,
-                control.clone(),
-                caster,
-                opts,
-                progress,
-                &rim_moves,
-                t0,
-            )
-        },
-        || {
-            fit_from(
-                mesh,
-                &facts,
-                control.clone(),
-                caster,
-                opts,
-                &mut |_: &str, _: f64| true,
-                &[],
-                t0,
-            )
-        },
+        || start(for_rim, &rim_moves, progress),
+        || start(control, &[], &mut |_: &str, _: f64| true),
     );
     let (with, without) = (with?, without?);
     let score = |f: &Fitted| f.report.iterations[f.report.best_iteration].score_permille;
