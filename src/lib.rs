@@ -3,7 +3,7 @@
 //! Two published systems define it: *Fitmaps* (Panozzo et al., TVCG 2011) for
 //! organic shapes — [`analysis`] (§3.1), [`quad`] (§3.2–3.3), [`fit`] (§3.4),
 //! [`displace`] (§3.5) — and Lavoué et al. (CGF 2007) for mechanical parts,
-//! [`mechanical`]. [`pipeline`] runs either end to end, [`report`] measures
+//! [`mechanical`]. [`convert`] runs either end to end, [`report`] measures
 //! and writes the result, [`render`] draws it, [`embed`] is the API of the
 //! C++ package.
 //!
@@ -21,7 +21,7 @@
 //! | 3 | [`project`], [`analysis`] | projecting a limit surface onto M; the Fitmaps |
 //! | 4 | [`quad`], [`fit`], [`displace`] | layout, fitting, displacement |
 //! | 5 | [`mechanical`], [`report`] | Lavoué et al.'s pipeline; metrics and outputs |
-//! | 6 | [`pipeline`], [`render`] | conversion end to end; pictures and `report.html` |
+//! | 6 | [`convert`], [`render`] | conversion end to end; pictures and `report.html` |
 //! | 7 | [`embed`] | the library API of the C++ package, with its `extern "Rust"` bridge |
 //!
 //! The binary (`src/bin/subdfit`) sits on top. [`subdiv`] and [`raycast`]
@@ -50,7 +50,7 @@ pub mod quad;
 pub mod mechanical;
 pub mod report;
 
-pub mod pipeline;
+pub mod convert;
 pub mod render;
 
 pub mod embed;

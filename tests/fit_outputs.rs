@@ -7,13 +7,12 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use fit_support::*;
+use subdfit::convert::{fit_and_write, PipelineOptions};
 use subdfit::displace::{read_exr, read_exr_channels, Atlas, DEFAULT_GUTTER};
 use subdfit::fit::FitOptions;
 use subdfit::mesh::ValidatedMesh;
 use subdfit::raycast::{make_raycaster, RayBackend};
-use subdfit::report::{
-    evaluate_surfaces, fit_and_write, MetricsOptions, PipelineOptions, StageTimer, OUTPUT_NAMES,
-};
+use subdfit::report::{evaluate_surfaces, MetricsOptions, StageTimer, OUTPUT_NAMES};
 
 fn input() -> ValidatedMesh {
     ValidatedMesh {

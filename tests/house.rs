@@ -10,6 +10,13 @@
 //!    more than [`MAX_FN_LINES`] lines unless a comment starting
 //!    `Kept whole:` directly above it (among its doc comment and
 //!    attributes) says why.
+//! 3. **A conversion runs in one place.** `src/convert/` fits; nothing
+//!    under `src/report/` runs the fit or the Fitmap ([`FIT_RUNNERS`]):
+//!    it measures and writes.
+//! 4. **One type per choice.** One mode enum and one fit-objective enum in
+//!    the whole crate, binary and Python binding included (no `ModeArg`,
+//!    `FitArg`, `FitMethod` copies to drift apart): every host maps to
+//!    `crate::convert::Mode` and `crate::fit::Objective`.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -34,7 +41,7 @@ const ORDER: &[(&str, u32)] = &[
     ("displace", 4),
     ("mechanical", 5),
     ("report", 5),
-    ("pipeline", 6),
+    ("convert", 6),
     ("render", 6),
     ("embed", 7),
 ];
@@ -370,4 +377,89 @@ fn the_checks_catch_what_they_are_for() {
     assert_eq!(char_literal_len("'a' x"), Some(3));
     assert_eq!(char_literal_len("'\\n' x"), Some(4));
     assert_eq!(char_literal_len("'static"), None);
+}
+
+/// Names that run the fit (Fitmaps §3.4–3.5) or the Fitmap analysis
+/// (§3.1): none of them may appear in `src/report/`'s code.
+const FIT_RUNNERS: &[&str] = &[
+    "fit_with_progress",
+    "fit::fit",
+    "fit_and_measure",
+    "measure_fitted",
+    "FitOptions",
+    "compute_fitmap",
+    "compute_fitmap_cancellable",
+];
+
+/// Whether `name` occurs in `code` as a whole path (not inside a longer
+/// identifier).
+fn mentions(code: &str, name: &str) -> bool {
+    let ident = |c: char| c.is_alphanumeric() || c == '_';
+    code.match_indices(name).any(|(k, _)| {
+        !code[..k].chars().last().is_some_and(ident)
+            && !code[k + name.len()..].chars().next().is_some_and(ident)
+    })
+}
+
+#[test]
+fn nothing_under_report_runs_the_fit() {
+    let mut files = Vec::new();
+    rust_files(&src_dir().join("report"), &mut files);
+    assert!(!files.is_empty());
+    let mut bad = Vec::new();
+    for f in &files {
+        let code = without_test_items(&strip(&std::fs::read_to_string(f).unwrap()).0);
+        for name in FIT_RUNNERS {
+            if mentions(&code, name) {
+                bad.push(format!("{}: {name}", f.display()));
+            }
+        }
+    }
+    assert!(
+        bad.is_empty(),
+        "src/report/ runs the fit (that is src/convert/'s):\n{}",
+        bad.join("\n")
+    );
+}
+
+/// `enum NAME` definitions in the code of `files`, as `file: NAME`.
+fn enum_definitions(files: &[PathBuf], names: &[&str]) -> Vec<String> {
+    let mut out = Vec::new();
+    for f in files {
+        let code = without_test_items(&strip(&std::fs::read_to_string(f).unwrap()).0);
+        for name in names {
+            if mentions(&code, &format!("enum {name}")) {
+                out.push(format!("{}: {name}", f.display()));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn one_mode_type_and_one_objective_type() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    rust_files(&src_dir(), &mut files);
+    rust_files(&root.join("python/src"), &mut files);
+    let modes = enum_definitions(&files, &["Mode"]);
+    assert_eq!(modes.len(), 1, "mode enums: {modes:?}");
+    assert!(modes[0].contains("convert"), "{modes:?}");
+    let objectives = enum_definitions(&files, &["Objective"]);
+    assert_eq!(objectives.len(), 1, "objective enums: {objectives:?}");
+    assert!(objectives[0].contains("fit"), "{objectives:?}");
+    let copies = enum_definitions(&files, &["ModeArg", "FitArg", "FitMethod"]);
+    assert!(
+        copies.is_empty(),
+        "copies of the mode or objective: {copies:?}"
+    );
+}
+
+#[test]
+fn the_new_checks_catch_what_they_are_for() {
+    assert!(mentions("let f = crate::fit::fit(m);", "fit::fit"));
+    assert!(!mentions("use crate::fit::FitReport;", "fit::fit"));
+    assert!(!mentions("x.fit_with_progress_more()", "fit_with_progress"));
+    assert!(mentions("pub enum Mode {", "enum Mode"));
+    assert!(!mentions("pub enum ModeArg {", "enum Mode"));
 }

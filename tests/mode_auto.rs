@@ -10,8 +10,8 @@
 
 use std::path::Path;
 
+use subdfit::convert::{convert_in_memory, ConvertOptions, Mode};
 use subdfit::mesh::TriMesh;
-use subdfit::pipeline::{convert_in_memory, ConvertOptions, Mode};
 
 fn split_1_to_4(m: &TriMesh) -> TriMesh {
     let mut positions = m.positions.clone();

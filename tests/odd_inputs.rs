@@ -174,16 +174,16 @@ fn a_tetrahedron_becomes_its_own_creased_control_mesh() {
 
 /// Converts spot at unit scale and at `f` (library API, default options)
 /// and returns (unit-scale result, scaled result).
-fn convert_spot_scaled(factors: &[f64]) -> Vec<subdfit::report::Converted> {
+fn convert_spot_scaled(factors: &[f64]) -> Vec<subdfit::convert::Converted> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/spot.ply");
-    let opts = subdfit::pipeline::ConvertOptions::default();
+    let opts = subdfit::convert::ConvertOptions::default();
     factors
         .iter()
         .map(|&f| {
             let mut soup = subdfit::io::read_soup(&path).unwrap();
             soup.positions.iter_mut().for_each(|p| *p *= f);
             let m = subdfit::mesh::validate_soup(soup, &path).unwrap();
-            subdfit::pipeline::convert_in_memory(&m, &opts, serde_json::json!({}), &mut |_, _| true)
+            subdfit::convert::convert_in_memory(&m, &opts, serde_json::json!({}), &mut |_, _| true)
                 .unwrap()
         })
         .collect()
@@ -220,7 +220,7 @@ fn spot_at_1e20_and_1e_minus_20_gives_the_scaled_result() {
         );
         // Everything else that has a length scales too, and report.json
         // (‰ of the diagonal) is unchanged to round-off.
-        let du = |c: &subdfit::report::Converted| c.surfaces.displacement.offsets.clone();
+        let du = |c: &subdfit::convert::Converted| c.surfaces.displacement.offsets.clone();
         for (o, p) in du(unit).iter().zip(du(scaled)) {
             assert!((p / f - o).abs() <= 1e-9 * diag);
         }

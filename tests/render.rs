@@ -287,9 +287,9 @@ fn report_html_loads_in_headless_chromium() {
     let mesh_path = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply"));
     let input = subdfit::io::read_mesh(&mesh_path).unwrap();
     let extra = serde_json::json!({"command": "convert", "mesh": mesh_path.display().to_string()});
-    subdfit::pipeline::convert(
+    subdfit::convert::convert(
         &input,
-        &subdfit::pipeline::ConvertOptions::default(),
+        &subdfit::convert::ConvertOptions::default(),
         extra,
         &out,
         &mut |_, _| true,
@@ -383,9 +383,9 @@ fn convert_spot(dir: &Path) -> PathBuf {
     let mesh_path = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply"));
     let input = subdfit::io::read_mesh(&mesh_path).unwrap();
     let extra = serde_json::json!({"command": "convert", "mesh": mesh_path.display().to_string()});
-    subdfit::pipeline::convert(
+    subdfit::convert::convert(
         &input,
-        &subdfit::pipeline::ConvertOptions::default(),
+        &subdfit::convert::ConvertOptions::default(),
         extra,
         &out,
         &mut |_, _| true,

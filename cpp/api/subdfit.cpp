@@ -87,6 +87,10 @@ ffi::FfiOptions ffi_options(const Options& o) {
   r.mode = o.mode == Mode::Organic ? 0 : o.mode == Mode::Mechanical ? 1 : 2;
   r.fit_method = o.fit_method == FitMethod::Sdm ? 1 : 0;
   r.displacement_resolution = o.displacement_resolution;
+  r.max_error = o.max_error;
+  r.m_fitmap = o.m_fitmap;
+  r.tessellation = o.tessellation;
+  r.proxy = o.proxy;
   r.threads = o.threads;
   // Lossy: a name that is not UTF-8 must not make the call fail.
   r.source_name = rust::String::lossy(o.source_name);

@@ -127,6 +127,20 @@ struct Options {
   FitMethod fit_method = FitMethod::Point;
   // --displacement-res: samples per patch side; 0 = automatic.
   std::uint32_t displacement_resolution = 0;
+  // --max-error, a fraction of the bounding-box diagonal: mechanical mode's
+  // RMS bound per control face, organic mode's bound on the limit surface's
+  // RMS distance; 0 = the mode's default, infinity = organic mode's natural
+  // end of the simplification.
+  double max_error = 0.0;
+  // false = --no-mfitmap: the projectability test lifted.
+  bool m_fitmap = true;
+  // --tessellation: cells per patch side of the limit and displaced
+  // tessellations (1-1024); 0 = automatic.
+  std::uint32_t tessellation = 0;
+  // --proxy: the mesh the organic layout runs on. -1 = auto (a 50 000
+  // triangle decimation for inputs above 100 000), 0 = none (the input
+  // itself), N = about N triangles (at least 100) when the input has more.
+  std::int64_t proxy = -1;
   // Worker threads for this call; 0 = all cores (a shared pool).
   std::uint32_t threads = 0;
   // Name of the input in error messages ("input mesh" if empty); pass the

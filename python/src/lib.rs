@@ -21,7 +21,7 @@ use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 use pyo3::types::PyBytes;
 use subdfit::embed::batch::{self, Asset, AssetOutcome};
-use subdfit::embed::{self, ControlArrays, FitMethod, MeshArrays, Mode, Options, Progress};
+use subdfit::embed::{self, ControlArrays, MeshArrays, Options, Progress};
 use subdfit::mesh::FaceId;
 use subdfit::subdiv::{Backend, LimitPoint, SurfaceLocation};
 
@@ -166,7 +166,8 @@ struct PyOptions(Options);
 impl PyOptions {
     #[new]
     #[pyo3(signature = (*, tolerance=None, mode="auto", max_error=None, faces_target=0,
-        fit="point", displacement_res=0, m_fitmap=true, threads=0, name=None))]
+        fit="point", displacement_res=0, m_fitmap=true, tessellation=0, proxy="auto",
+        threads=0, name=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         tolerance: Option<f64>,
@@ -176,36 +177,41 @@ impl PyOptions {
         fit: &str,
         displacement_res: u32,
         m_fitmap: bool,
+        tessellation: u32,
+        proxy: &str,
         threads: u32,
         name: Option<String>,
     ) -> PyResult<Self> {
+        // The library's own types and words (`subdfit::convert::Mode`,
+        // `subdfit::fit::Objective`, `Proxy`): one definition for every host.
         let mut o = Options::default();
-        if let Some(t) = tolerance {
-            o.tolerance = t;
-        }
-        o.mode = match mode {
-            "auto" => Mode::Auto,
-            "organic" => Mode::Organic,
-            "mechanical" => Mode::Mechanical,
-            m => {
-                return Err(InvalidInput::new_err(format!(
-                    "unknown mode {m:?}: auto, organic or mechanical"
-                )))
-            }
+        let positive = |n: u32| (n > 0).then_some(n as usize);
+        let c = o.convert.clone();
+        let c = match tolerance {
+            Some(t) => c.with_tolerance(Some(t)),
+            None => c,
         };
-        o.fit_method = match fit {
-            "point" => FitMethod::Point,
-            "sdm" => FitMethod::Sdm,
-            m => {
-                return Err(InvalidInput::new_err(format!(
-                    "unknown fit {m:?}: point or sdm"
-                )))
-            }
-        };
-        o.max_error = max_error;
-        o.target_faces = faces_target;
-        o.displacement_resolution = displacement_res;
-        o.m_fitmap = m_fitmap;
+        o.convert = c
+            .with_mode(mode.parse().map_err(|_| {
+                InvalidInput::new_err(format!(
+                    "unknown mode {mode:?}: auto, organic or mechanical"
+                ))
+            })?)
+            .with_objective(
+                fit.parse().map_err(|_| {
+                    InvalidInput::new_err(format!("unknown fit {fit:?}: point or sdm"))
+                })?,
+            )
+            .with_max_error(max_error)
+            .with_target_faces(positive(faces_target))
+            .with_displacement_res(positive(displacement_res))
+            .with_m_fitmap(m_fitmap)
+            .with_tessellation(positive(tessellation))
+            .with_proxy(
+                proxy
+                    .parse()
+                    .map_err(|e: String| InvalidInput::new_err(format!("proxy: {e}")))?,
+            );
         o.threads = threads;
         if let Some(n) = name {
             o.source_name = n;
@@ -216,7 +222,10 @@ impl PyOptions {
 
     #[getter]
     fn tolerance(&self) -> f64 {
-        self.0.tolerance
+        self.0
+            .convert
+            .tolerance
+            .unwrap_or(subdfit::analysis::fitmap::DEFAULT_TOLERANCE)
     }
 
     #[getter]

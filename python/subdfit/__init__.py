@@ -268,6 +268,8 @@ def convert(
     fit: str = "point",
     displacement_res: int = 0,
     m_fitmap: bool = True,
+    tessellation: int = 0,
+    proxy: str = "auto",
     threads: int = 0,
     name: str | None = None,
     progress: Progress | None = None,
@@ -281,7 +283,10 @@ def convert(
     (RMS bound, fraction of the diagonal: mechanical E_limit per face,
     organic RMS L, default 5e-3; ``math.inf``: natural end), ``faces_target`` (``--faces``; 0: τ decides),
     ``fit`` (``"point"``/``"sdm"``), ``displacement_res`` (0: automatic),
-    ``m_fitmap`` (False: ``--no-mfitmap``), ``threads`` (0: all cores).
+    ``m_fitmap`` (False: ``--no-mfitmap``), ``tessellation`` (cells per
+    patch side of limit.ply / displaced.ply; 0: automatic), ``proxy``
+    (``"auto"``, ``"none"`` or a triangle count, as a string),
+    ``threads`` (0: all cores).
     ``name`` names the input in errors and report.json (the CLI uses the
     path). Raises :class:`InvalidInput` (with the CLI's message),
     :class:`Cancelled` or ``KeyboardInterrupt``.
@@ -289,7 +294,7 @@ def convert(
     mesh, name = _mesh_args(vertices, faces, face_sizes, name)
     o = _options(name, tolerance=tolerance, mode=mode, max_error=max_error,
                  faces_target=faces_target, fit=fit, displacement_res=displacement_res,
-                 m_fitmap=m_fitmap, threads=threads)
+                 m_fitmap=m_fitmap, tessellation=tessellation, proxy=proxy, threads=threads)
     return Conversion(_subdfit.convert(mesh, o, progress))
 
 

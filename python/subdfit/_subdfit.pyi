@@ -41,6 +41,8 @@ class Options:
         fit: str = "point",
         displacement_res: int = 0,
         m_fitmap: bool = True,
+        tessellation: int = 0,
+        proxy: str = "auto",
         threads: int = 0,
         name: str | None = None,
     ) -> None: ...

@@ -1794,15 +1794,24 @@ pub fn compute_fitmap_cancellable(
     fitmap_from_results(&results, ctx.radii, opts, stats)
 }
 
+/// τ's valid range, the one definition every host checks against: a
+/// fraction in (0, 1] (§3.1.3: the share of a neighbourhood's area allowed
+/// to be unreachable; τ = 1 accepts every radius the other tests allow).
+/// The error says what is wrong, without a prefix.
+pub fn check_tolerance(tau: f64) -> std::result::Result<(), String> {
+    if tau > 0.0 && tau <= 1.0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "tolerance τ = {tau} must be in (0, 1] (a fraction: 0.01 = 1 %)"
+        ))
+    }
+}
+
 /// The input checks of [`compute_fitmap_cancellable`]: τ a fraction in
 /// (0, 1], finite coordinates, triangle indices in range.
 fn check_fitmap_input(mesh: &TriMesh, opts: &FitmapOptions) -> Result<()> {
-    if !(opts.tolerance > 0.0 && opts.tolerance <= 1.0) {
-        return Err(Error::InvalidArgument(format!(
-            "fitmap: tolerance τ = {} must be in (0, 1] (a fraction: 0.01 = 1 %)",
-            opts.tolerance
-        )));
-    }
+    check_tolerance(opts.tolerance).map_err(|e| Error::InvalidArgument(format!("fitmap: {e}")))?;
     if let Some(v) = mesh.positions.iter().position(|p| !p.is_finite()) {
         return Err(Error::InvalidArgument(format!(
             "fitmap: vertex {v} has a non-finite coordinate"

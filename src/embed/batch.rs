@@ -216,17 +216,29 @@ pub fn plan(inputs: &[String], out_root: &Path) -> Result<Vec<Asset>> {
 // ---- one asset ----------------------------------------------------------------
 
 /// What an asset's outputs depend on besides the input bytes, as one line.
+/// The options a batch had before the proxy and the tessellation reached
+/// it keep their line (so finished assets stay finished); those two are
+/// added only when they are not the defaults.
 fn options_key(o: &Options, source_name: &str) -> String {
+    let c = &o.convert;
+    let mut later = String::new();
+    if c.proxy != crate::convert::Proxy::Auto {
+        later += &format!(" proxy={:?}", c.proxy);
+    }
+    if let Some(n) = c.tessellation {
+        later += &format!(" tessellation={n}");
+    }
     format!(
         "tolerance={:?} faces={} mode={:?} fit={:?} displacement_res={} max_error={:?} \
-         m_fitmap={} name={source_name}",
-        o.tolerance,
-        o.target_faces,
-        o.mode,
-        o.fit_method,
-        o.displacement_resolution,
-        o.max_error,
-        o.m_fitmap
+         m_fitmap={}{later} name={source_name}",
+        c.tolerance
+            .unwrap_or(crate::analysis::fitmap::DEFAULT_TOLERANCE),
+        c.target_faces.unwrap_or(0),
+        c.mode,
+        c.objective,
+        c.displacement_res.unwrap_or(0),
+        c.max_error,
+        !c.no_m_fitmap
     )
 }
 

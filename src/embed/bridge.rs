@@ -26,6 +26,13 @@ pub(crate) mod api {
         /// 0 point, 1 sdm.
         fit_method: u8,
         displacement_resolution: u32,
+        /// 0: the mode's default; infinity: organic mode's natural end.
+        max_error: f64,
+        m_fitmap: bool,
+        /// 0: automatic.
+        tessellation: u32,
+        /// -1 auto, 0 none, N: about N triangles.
+        proxy: i64,
         threads: u32,
         source_name: String,
     }
@@ -213,30 +220,45 @@ fn backend(b: u8) -> crate::Result<Backend> {
 }
 
 fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
-    let bad = |what: &str, v: u8| crate::Error::InvalidArgument(format!("unknown {what} {v}"));
+    use crate::convert::{Mode, Proxy};
+    use crate::fit::Objective;
+    let bad = |what: &str, v: i64| crate::Error::InvalidArgument(format!("unknown {what} {v}"));
     let defaults = embed::Options::default();
+    let positive = |n: u32| (n > 0).then_some(n as usize);
+    let convert = defaults
+        .convert
+        .clone()
+        .with_tolerance(Some(o.tolerance))
+        .with_target_faces(positive(o.target_faces))
+        .with_mode(match o.mode {
+            0 => Mode::Organic,
+            1 => Mode::Mechanical,
+            2 => Mode::Auto,
+            m => return Err(bad("mode", m.into())),
+        })
+        .with_objective(match o.fit_method {
+            0 => Objective::Point,
+            1 => Objective::Sdm,
+            m => return Err(bad("fit method", m.into())),
+        })
+        .with_displacement_res(positive(o.displacement_resolution))
+        .with_max_error((o.max_error != 0.0).then_some(o.max_error))
+        .with_m_fitmap(o.m_fitmap)
+        .with_tessellation(positive(o.tessellation))
+        .with_proxy(match o.proxy {
+            -1 => Proxy::Auto,
+            0 => Proxy::None,
+            n if n > 0 => Proxy::Triangles(n as usize),
+            n => return Err(bad("proxy", n)),
+        });
     Ok(embed::Options {
-        tolerance: o.tolerance,
-        target_faces: o.target_faces,
-        mode: match o.mode {
-            0 => embed::Mode::Organic,
-            1 => embed::Mode::Mechanical,
-            2 => embed::Mode::Auto,
-            m => return Err(bad("mode", m)),
-        },
-        fit_method: match o.fit_method {
-            0 => embed::FitMethod::Point,
-            1 => embed::FitMethod::Sdm,
-            m => return Err(bad("fit method", m)),
-        },
-        displacement_resolution: o.displacement_resolution,
+        convert,
         threads: o.threads,
         source_name: if o.source_name.is_empty() {
             defaults.source_name.clone()
         } else {
             o.source_name.to_string()
         },
-        ..defaults
     })
 }
 

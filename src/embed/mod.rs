@@ -34,14 +34,15 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crate::analysis::FitmapOptions;
+use crate::convert::{
+    convert_in_memory, fit_in_memory, write_converted, ConvertOptions, Converted, PipelineOptions,
+};
 use crate::displace::Atlas;
 use crate::error::{Error, Result};
-use crate::fit::{FitOptions, Objective};
+use crate::fit::FitOptions;
 use crate::io::control_obj_with_uvs;
 use crate::mesh::{validate_soup, ControlMesh, PolySoup, ValidatedMesh, VertexId};
-use crate::pipeline::fit_in_memory;
-use crate::pipeline::{convert_in_memory, ConvertOptions};
-use crate::report::{write_converted, Converted, MetricsOptions, PipelineOptions, StageTimer};
+use crate::report::{MetricsOptions, StageTimer};
 use crate::subdiv::{make_evaluator, Backend, EvalOptions, LimitPoint, SurfaceLocation};
 use crate::{DVec2, DVec3};
 
@@ -54,52 +55,22 @@ pub mod batch;
 
 // ---- options ------------------------------------------------------------------
 
-/// Which pipeline `convert` runs (the CLI's `--mode`).
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Default)]
-pub enum Mode {
-    /// Smooth organic shapes (Fitmaps, Panozzo et al.).
-    Organic,
-    /// CAD-like shapes with sharp features kept as creases (Lavoué et al.).
-    Mechanical,
-    /// Picks one from the share of sharp feature edges (the CLI's default).
-    #[default]
-    Auto,
-}
+/// The choices of a conversion, as every host spells them: one mode enum
+/// and one objective enum for the CLI, this API, C++ and Python.
+pub use crate::convert::{Mode, Proxy};
+pub use crate::fit::Objective;
 
-/// How the control points are fitted (the CLI's `--fit`).
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Default)]
-pub enum FitMethod {
-    /// Point distance (Fitmaps §3.5).
-    #[default]
-    Point,
-    /// Squared-distance minimisation (Pottmann and Leopoldseder).
-    Sdm,
-}
-
-/// Options of [`convert`] and [`fit`], mirroring the CLI's flags.
+/// Options of [`convert`] and [`fit`]: `subdfit convert`'s options
+/// ([`ConvertOptions`], the one options type every host maps to, so that
+/// an option added there reaches every host) and how this call runs.
 #[derive(Clone, Debug)]
 #[non_exhaustive]
 pub struct Options {
-    /// `--tolerance`: τ of the M-fitmap (Fitmaps §3.1.3), the share of a
-    /// neighbourhood allowed to be unreachable by normal projection (the
-    /// paper's Table 1 uses 0.01 and 0.1); larger τ, fewer patches.
-    pub tolerance: f64,
-    /// `--faces`: target number of control faces; 0 lets τ decide.
-    pub target_faces: u32,
-    /// `--mode`.
-    pub mode: Mode,
-    /// `--fit`.
-    pub fit_method: FitMethod,
-    /// `--displacement-res`: samples per patch side; 0 picks it so the total
-    /// roughly matches the input's vertex count (Fitmaps Table 1).
-    pub displacement_resolution: u32,
-    /// `--max-error`, a fraction of the bounding-box diagonal: mechanical
-    /// mode's E_limit (RMS per control face; `None` is the paper's 3e-3),
-    /// organic mode's bound on RMS L (`None`: 5e-3 unless a face target is
-    /// given; infinity: the simplification's natural end).
-    pub max_error: Option<f64>,
-    /// `false` is `--no-mfitmap`: the projectability test lifted.
-    pub m_fitmap: bool,
+    /// τ, `--faces`, `--mode`, `--fit`, `--displacement-res`,
+    /// `--max-error`, `--no-mfitmap`, `--tessellation`, `--proxy`. τ is set
+    /// (to the CLI's default, [`crate::analysis::fitmap::DEFAULT_TOLERANCE`])
+    /// so that `report.json` states it as the CLI's does.
+    pub convert: ConvertOptions,
     /// Worker threads; 0 uses rayon's global pool (all cores). A non-zero
     /// value runs the call on a pool of its own that ends with the call.
     pub threads: u32,
@@ -111,13 +82,8 @@ pub struct Options {
 impl Default for Options {
     fn default() -> Self {
         Options {
-            tolerance: crate::analysis::fitmap::DEFAULT_TOLERANCE,
-            target_faces: 0,
-            mode: Mode::Auto,
-            fit_method: FitMethod::Point,
-            displacement_resolution: 0,
-            max_error: None,
-            m_fitmap: true,
+            convert: ConvertOptions::default()
+                .with_tolerance(Some(crate::analysis::fitmap::DEFAULT_TOLERANCE)),
             threads: 0,
             source_name: "input mesh".to_owned(),
         }
@@ -125,28 +91,10 @@ impl Default for Options {
 }
 
 impl Options {
-    /// Rejects values no stage could use, before any work starts.
+    /// Rejects values no stage could use, before any work starts
+    /// ([`ConvertOptions::check`]).
     pub fn check(&self) -> Result<()> {
-        if !(self.tolerance.is_finite() && self.tolerance > 0.0 && self.tolerance < 1.0) {
-            return Err(Error::InvalidArgument(format!(
-                "tolerance {} out of range: it is a fraction in (0, 1), e.g. 0.01 for 1%",
-                self.tolerance
-            )));
-        }
-        if let Some(e) = self.max_error {
-            if e.is_nan() || e <= 0.0 {
-                return Err(Error::InvalidArgument(format!(
-                    "max error {e} out of range: it is a positive fraction of the diagonal, e.g. 3e-3 (or infinity)"
-                )));
-            }
-        }
-        if self.displacement_resolution > 4096 {
-            return Err(Error::InvalidArgument(format!(
-                "displacement resolution {} too large (at most 4096 samples per patch side)",
-                self.displacement_resolution
-            )));
-        }
-        Ok(())
+        self.convert.check()
     }
 }
 
@@ -615,36 +563,14 @@ fn convert_validated(
     options: &Options,
     progress: &Progress,
 ) -> Result<Conversion> {
-    let opts = ConvertOptions::default()
-        .with_mode(match options.mode {
-            Mode::Auto => crate::pipeline::Mode::Auto,
-            Mode::Organic => crate::pipeline::Mode::Organic,
-            Mode::Mechanical => crate::pipeline::Mode::Mechanical,
-        })
-        .with_tolerance(Some(options.tolerance))
-        .with_m_fitmap(options.m_fitmap)
-        .with_max_error(options.max_error)
-        .with_target_faces((options.target_faces > 0).then_some(options.target_faces as usize))
-        .with_objective(objective(options.fit_method))
-        .with_displacement_res(
-            (options.displacement_resolution > 0)
-                .then_some(options.displacement_resolution as usize),
-        );
     let c = convert_in_memory(
         &mesh,
-        &opts,
+        &options.convert,
         run_info("convert", options),
         &mut sink(progress),
     )
     .map_err(|e| with_source(e, options))?;
     Conversion::from_converted(mesh, c)
-}
-
-fn objective(m: FitMethod) -> Objective {
-    match m {
-        FitMethod::Point => Objective::Point,
-        FitMethod::Sdm => Objective::Sdm,
-    }
 }
 
 /// The CLI prefixes pipeline errors with the input's name; so does the API,
@@ -670,17 +596,17 @@ pub fn fit(
         let control = control.to_control_mesh()?;
         progress.report("read", 1.0)?;
         let timer = StageTimer::default();
+        let o = &options.convert;
         let po = PipelineOptions::default()
-            .with_fit(FitOptions::default().with_objective(objective(options.fit_method)))
+            .with_fit(FitOptions::default().with_objective(o.objective))
             .with_metrics(
-                MetricsOptions::default().with_displacement_res(
-                    (options.displacement_resolution > 0)
-                        .then_some(options.displacement_resolution as usize),
-                ),
+                MetricsOptions::default()
+                    .with_displacement_res(o.displacement_res)
+                    .with_output_tessellation(o.tessellation),
             )
-            .with_fitmap(Some(
-                FitmapOptions::default().with_tolerance(options.tolerance),
-            ));
+            .with_fitmap(Some(o.tolerance.map_or_else(FitmapOptions::default, |t| {
+                FitmapOptions::default().with_tolerance(t)
+            })));
         let c = fit_in_memory(
             &mesh,
             control,

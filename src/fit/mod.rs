@@ -104,15 +104,41 @@ use crate::DVec3;
 
 pub use crate::watch::{report_progress, Progress};
 
-/// The distance minimised by the global fit.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize)]
+/// The distance a fit minimises: the one fit-objective type of the crate,
+/// for the global fit, the mechanical geometry step
+/// ([`crate::mechanical::optimize`]) and every host (the CLI's `--fit` by
+/// clap's derive, [`crate::embed`], C++, Python).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum Objective {
-    /// Point distance to φ(s) (Fitmaps §3.5).
+    /// Point distance to the normal projection φ(s) (Fitmaps §3.5).
     #[default]
     Point,
     /// Squared-distance minimisation (Pottmann–Leopoldseder, Lavoué §7.1).
     Sdm,
+}
+
+/// The CLI's words (`point`, `sdm`), for hosts that take the objective as
+/// a string.
+impl std::str::FromStr for Objective {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Objective, String> {
+        <Objective as clap::ValueEnum>::from_str(s, false)
+    }
+}
+
+impl Objective {
+    /// Serialises as the variant's name (`"Point"`, `"Sdm"`): the form
+    /// `report.json`'s mechanical options have always had.
+    pub fn serialize_variant_name<S: serde::Serializer>(
+        o: &Objective,
+        s: S,
+    ) -> std::result::Result<S::Ok, S::Error> {
+        s.serialize_str(match o {
+            Objective::Point => "Point",
+            Objective::Sdm => "Sdm",
+        })
+    }
 }
 
 /// Options of [`fit`]; defaults documented on each field.

@@ -104,7 +104,9 @@ pub struct MechanicalOptions {
     /// Umbrella fairness weight of the geometry step: 0.01 (see
     /// [`crate::fit`]).
     pub fairness: f64,
-    /// Objective of the geometry step: SDM, the paper's (§7.1).
+    /// Objective of the geometry step: SDM, the paper's (§7.1). Written
+    /// by its variant name in `report.json` (`"Sdm"`), as it always was.
+    #[serde(serialize_with = "crate::fit::Objective::serialize_variant_name")]
     pub objective: optimize::Objective,
 }
 

@@ -135,16 +135,13 @@ pub struct Round {
     pub region_faces: Vec<usize>,
 }
 
-/// Objective of the geometry step (§7.1).
-#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
-pub enum Objective {
-    /// Point distance `|s − f|²`: x, y, z separate.
-    Point,
-    /// Squared-distance minimisation (Pottmann & Leopoldseder, the paper's
-    /// choice, §7.1 eq. 4): `x₃² + w₁x₁² + w₂x₂²` in the frame of the foot
-    /// triangle (see [`TriFrame`]).
-    Sdm,
-}
+/// Objective of the geometry step (§7.1): the crate's one fit objective.
+/// [`Objective::Point`] is the point distance `|s − f|²` (x, y, z
+/// separate); [`Objective::Sdm`] the squared-distance minimisation
+/// (Pottmann & Leopoldseder, the paper's choice, §7.1 eq. 4):
+/// `x₃² + w₁x₁² + w₂x₂²` in the frame of the foot triangle (see
+/// [`TriFrame`]).
+pub use crate::fit::Objective;
 
 /// Normal, principal directions and curvatures of one triangle of M, for
 /// the SDM objective.

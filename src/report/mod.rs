@@ -1,5 +1,6 @@
 //! Quality figures of a fitted surface (Fitmaps §4, Table 1) and the
-//! `report.json` of a run.
+//! `report.json` of a run. This module measures and writes; the run that
+//! fits the surface is [`crate::convert`]'s.
 //!
 //! Units: every distance is in ‰ (thousandths) of M's bounding-box
 //! diagonal, as in Table 1; percentages are of M's area or of samples, as
@@ -51,7 +52,6 @@
 
 mod floor;
 mod output;
-mod pipeline;
 pub mod tessellate;
 
 pub use floor::resampling_floor;
@@ -59,9 +59,6 @@ pub use floor::resampling_floor;
 pub use output::{
     is_known_name, remove_staging_folders, write_outputs, write_outputs_with, ExtraFiles,
     OutputFiles, OutputOptions, KNOWN_NAMES, OUTPUT_NAMES,
-};
-pub use pipeline::{
-    fit_and_measure, fit_and_write, measure_fitted, write_converted, Converted, PipelineOptions,
 };
 
 use std::collections::BTreeMap;

@@ -9,10 +9,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use subdfit::analysis::fitmap::DEFAULT_TOLERANCE;
 use subdfit::embed::batch::{self, Event, Status};
-use subdfit::embed::{FitMethod, Mode, Options, Progress};
-
-use crate::convert::ModeArg;
-use crate::fit::FitArg;
+use subdfit::embed::{Mode, Objective, Options, Progress};
 
 #[derive(Args)]
 pub struct BatchArgs {
@@ -39,8 +36,8 @@ pub struct BatchArgs {
     #[arg(long)]
     faces: Option<u32>,
     /// As `subdfit convert --fit`.
-    #[arg(long, value_enum, default_value_t = FitArg::Point)]
-    fit: FitArg,
+    #[arg(long, value_enum, default_value_t = Objective::Point)]
+    fit: Objective,
     /// As `subdfit convert --displacement-res`.
     #[arg(long)]
     displacement_res: Option<u32>,
@@ -48,8 +45,8 @@ pub struct BatchArgs {
     #[arg(long)]
     no_mfitmap: bool,
     /// As `subdfit convert --mode`.
-    #[arg(long, value_enum, default_value_t = ModeArg::Auto)]
-    mode: ModeArg,
+    #[arg(long, value_enum, default_value_t = Mode::Auto)]
+    mode: Mode,
     /// As `subdfit convert --max-error`.
     #[arg(long, value_parser = crate::convert::parse_max_error)]
     max_error: Option<f64>,
@@ -60,20 +57,16 @@ pub struct BatchArgs {
 
 fn options(a: &BatchArgs) -> Options {
     let mut o = Options::default();
-    o.tolerance = a.tolerance;
-    o.target_faces = a.faces.unwrap_or(0);
-    o.fit_method = match a.fit {
-        FitArg::Point => FitMethod::Point,
-        FitArg::Sdm => FitMethod::Sdm,
-    };
-    o.displacement_resolution = a.displacement_res.unwrap_or(0);
-    o.m_fitmap = !a.no_mfitmap;
-    o.mode = match a.mode {
-        ModeArg::Auto => Mode::Auto,
-        ModeArg::Organic => Mode::Organic,
-        ModeArg::Mechanical => Mode::Mechanical,
-    };
-    o.max_error = a.max_error;
+    o.convert = o
+        .convert
+        .clone()
+        .with_tolerance(Some(a.tolerance))
+        .with_target_faces(a.faces.filter(|&n| n > 0).map(|n| n as usize))
+        .with_objective(a.fit)
+        .with_displacement_res(a.displacement_res.filter(|&r| r > 0).map(|r| r as usize))
+        .with_m_fitmap(!a.no_mfitmap)
+        .with_mode(a.mode)
+        .with_max_error(a.max_error);
     o
 }
 

@@ -6,18 +6,10 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::Args;
 use subdfit::analysis::fitmap::DEFAULT_TOLERANCE;
+use subdfit::convert::{convert_in_memory, write_converted, ConvertOptions, Mode, Proxy};
 use subdfit::fit::Objective;
-use subdfit::pipeline::{convert_in_memory, ConvertOptions, Mode, Proxy};
-use subdfit::report::write_converted;
 
-#[derive(Copy, Clone, Debug, clap::ValueEnum)]
-pub enum ModeArg {
-    Auto,
-    Organic,
-    Mechanical,
-}
-
-use crate::fit::{progress_bars, FitArg};
+use crate::fit::progress_bars;
 
 #[derive(Args)]
 pub struct ConvertArgs {
@@ -48,8 +40,8 @@ pub struct ConvertArgs {
     #[arg(long)]
     faces: Option<usize>,
     /// Global fit objective.
-    #[arg(long, value_enum, default_value_t = FitArg::Point)]
-    fit: FitArg,
+    #[arg(long, value_enum, default_value_t = Objective::Point)]
+    fit: Objective,
     /// Displacement samples per patch side (default: total ≈ M's vertices).
     #[arg(long)]
     displacement_res: Option<usize>,
@@ -63,8 +55,8 @@ pub struct ConvertArgs {
     /// enriches in at most 8 rounds (5 geometry iterations each), then runs
     /// at most 10 more geometry iterations while they still lower the
     /// error, and stops at 20 000 faces, so it always terminates.
-    #[arg(long, value_enum, default_value_t = ModeArg::Auto)]
-    mode: ModeArg,
+    #[arg(long, value_enum, default_value_t = Mode::Auto)]
+    mode: Mode,
     /// An RMS distance bound, as a fraction of the bounding-box diagonal.
     /// Mechanical mode: E_limit per control face (default 3e-3, Lavoué et
     /// al.'s). Organic mode: RMS L of the whole limit surface, met with the
@@ -88,7 +80,7 @@ pub struct ConvertArgs {
     /// when the input has more). The proxy is used only if it keeps the
     /// input's topology (components, boundary loops, Euler characteristic);
     /// report.json's `layout_proxy` says what was tried.
-    #[arg(long, default_value = "auto", value_parser = parse_proxy)]
+    #[arg(long, default_value = "auto", value_parser = clap::value_parser!(Proxy))]
     proxy: Proxy,
     /// No progress bars.
     #[arg(long)]
@@ -150,20 +142,6 @@ pub(crate) fn parse_max_error(s: &str) -> std::result::Result<f64, String> {
     }
 }
 
-/// `--proxy auto|none|N`.
-fn parse_proxy(s: &str) -> std::result::Result<Proxy, String> {
-    match s {
-        "auto" => Ok(Proxy::Auto),
-        "none" => Ok(Proxy::None),
-        n => match n.parse::<usize>() {
-            Ok(n) if n >= 100 => Ok(Proxy::Triangles(n)),
-            _ => Err(format!(
-                "expected auto, none or a triangle count of at least 100, got '{n}'"
-            )),
-        },
-    }
-}
-
 /// `--units`: a unit name or metres per unit.
 fn parse_units(s: &str) -> std::result::Result<f64, String> {
     let m = match s {
@@ -212,16 +190,9 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
         .with_tolerance(Some(a.tolerance))
         .with_target_faces(a.faces)
         .with_m_fitmap(!a.no_mfitmap)
-        .with_objective(match a.fit {
-            FitArg::Point => Objective::Point,
-            FitArg::Sdm => Objective::Sdm,
-        })
+        .with_objective(a.fit)
         .with_displacement_res(a.displacement_res)
-        .with_mode(match a.mode {
-            ModeArg::Auto => Mode::Auto,
-            ModeArg::Organic => Mode::Organic,
-            ModeArg::Mechanical => Mode::Mechanical,
-        })
+        .with_mode(a.mode)
         .with_max_error(a.max_error)
         .with_tessellation(a.files.tessellation.map(|n| n as usize))
         .with_proxy(a.proxy);
@@ -254,11 +225,11 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
         &mut |_, _| true,
     )
     .map_err(|e| anyhow::anyhow!("{}: {e}", a.output.display()))?;
-    let report = converted.report;
+    let report = &converted.report;
     if a.json {
-        crate::emit(&serde_json::to_string_pretty(&report)?)?;
+        crate::emit(&serde_json::to_string_pretty(report)?)?;
     } else if !a.quiet {
-        crate::fit::print_summary(&report, &written)?;
+        crate::fit::print_summary(report, &written)?;
         if let Some(n) = a.faces {
             if report.control.faces > n {
                 crate::emit(&format!(
@@ -276,21 +247,15 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
             t.outcome
         );
     }
-    if let Some(second) = report.options["mode"].get("second_opinion") {
-        if !a.quiet {
-            eprintln!(
-                "subdfit: note: {}: {}; organic RMS {:.3}‰, mechanical {:.3}‰: kept {}",
-                a.mesh.display(),
-                second["why"].as_str().unwrap_or(""),
-                second["organic"]["rms_limit_permille"]
-                    .as_f64()
-                    .unwrap_or(f64::NAN),
-                second["mechanical"]["rms_limit_permille"]
-                    .as_f64()
-                    .unwrap_or(f64::NAN),
-                second["kept"].as_str().unwrap_or("")
-            );
-        }
+    if let Some(second) = converted.second_opinion.as_ref().filter(|_| !a.quiet) {
+        eprintln!(
+            "subdfit: note: {}: {}; organic RMS {:.3}‰, mechanical {:.3}‰: kept {}",
+            a.mesh.display(),
+            second.why,
+            second.organic.rms_limit_permille,
+            second.mechanical.rms_limit_permille,
+            second.kept
+        );
     }
     Ok(if a.strict && !report.targets_met {
         ExitCode::from(1)

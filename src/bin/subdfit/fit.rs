@@ -6,19 +6,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, Result};
-use clap::{Args, ValueEnum};
+use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
+use subdfit::convert::{fit_in_memory, measure, write_converted, PipelineOptions};
 use subdfit::fit::{FitOptions, Objective};
-use subdfit::pipeline::{fit_in_memory, measure};
-use subdfit::report::{write_converted, MetricsOptions, PipelineOptions, StageTimer};
-
-#[derive(Copy, Clone, Debug, ValueEnum)]
-pub enum FitArg {
-    /// Point distance to the normal projection (Fitmaps §3.5).
-    Point,
-    /// Squared-distance minimisation (Pottmann–Leopoldseder, Lavoué §7.1).
-    Sdm,
-}
+use subdfit::report::{MetricsOptions, StageTimer};
 
 #[derive(Args)]
 pub struct FitArgs {
@@ -30,8 +22,8 @@ pub struct FitArgs {
     /// Output folder (created; existing files of the same names replaced).
     #[arg(short, long)]
     output: PathBuf,
-    #[arg(long, value_enum, default_value_t = FitArg::Point)]
-    fit: FitArg,
+    #[arg(long, value_enum, default_value_t = Objective::Point)]
+    fit: Objective,
     /// Displacement samples per patch side (default: total ≈ M's vertices).
     #[arg(long)]
     displacement_res: Option<usize>,
@@ -106,10 +98,7 @@ pub fn fit(a: FitArgs) -> Result<ExitCode> {
         .context("input mesh")?;
     let (control, repairs) = crate::read_layout(&a.control, a.quiet)?;
     let notes = repairs.notes();
-    let objective = match a.fit {
-        FitArg::Point => Objective::Point,
-        FitArg::Sdm => Objective::Sdm,
-    };
+    let objective = a.fit;
     let opts = PipelineOptions::default()
         .with_fit(
             FitOptions::default()

@@ -1,6 +1,8 @@
 //! The tail of every conversion, shared by `subdfit fit` and `convert`:
-//! global fit of a given control mesh, displacement, metrics, Fitmap, and
-//! the all-or-nothing write of the outputs.
+//! global fit of a given control mesh (Fitmaps §3.4–3.5), displacement and
+//! metrics ([`crate::report::evaluate_surfaces`], §4), the Fitmap for
+//! `fitmap.ply`, and the all-or-nothing write of the outputs
+//! ([`crate::report::write_outputs_with`]).
 
 use std::path::{Path, PathBuf};
 
@@ -12,7 +14,7 @@ use crate::fit::{fit_with_progress, FitOptions, Progress};
 use crate::mesh::{ControlMesh, Frame, ValidatedMesh};
 use crate::raycast::RayCaster;
 
-use super::{
+use crate::report::{
     evaluate_surfaces, write_outputs_with, ExtraFiles, MetricsOptions, OutputFiles, OutputOptions,
     Report, StageTimer, Surfaces,
 };
@@ -59,6 +61,9 @@ pub struct Converted {
     /// How [`write_converted`] writes the files (units, atlas layout,
     /// texel type); the defaults unless the caller sets them.
     pub outputs: OutputOptions,
+    /// `--mode auto`: what its second opinion compared and kept, when it
+    /// ran one.
+    pub second_opinion: Option<super::auto::SecondOpinion>,
 }
 
 impl Converted {
@@ -187,7 +192,7 @@ pub fn measure_fitted(
         timer.stages,
         options,
     );
-    report.control_written = quads.as_ref().map(super::control_stats);
+    report.control_written = quads.as_ref().map(crate::report::control_stats);
     Ok(Converted {
         control: fitted.control,
         quad_control: quads,
@@ -195,11 +200,12 @@ pub fn measure_fitted(
         report,
         fitmap,
         outputs: OutputOptions::default(),
+        second_opinion: None,
     })
 }
 
 /// Writes a conversion into `dir` as one set with `extra`'s files (all or
-/// nothing, see [`super::write_outputs`]). Stage for `progress`: `"write"`.
+/// nothing, see [`crate::report::write_outputs`]). Stage for `progress`: `"write"`.
 pub fn write_converted(
     input: &ValidatedMesh,
     c: &Converted,
@@ -249,4 +255,56 @@ pub fn fit_and_write(
     )?;
     let written = write_converted(input, &c, dir, None, progress)?;
     Ok((c.report, written))
+}
+
+/// The tail of a layout that fitted its control mesh itself (mechanical
+/// mode, Lavoué et al. §7.1): displacement and metrics, no fit.
+///
+/// The mechanical control mesh mixes triangles, quads and larger faces,
+/// while the displacement atlas and the tessellations need quads: they are
+/// computed on its Catmull-Clark refinement by one level (infinitely sharp
+/// creases and corners re-tagged as infinitely sharp), which has *exactly*
+/// the same limit surface. That refined mesh is the one written
+/// (`control.obj`, `control.usda`, with the atlas UVs and the creases and
+/// corners), so that a USD or Blender pipeline can apply the displacement;
+/// `report.json`'s `control` counts the compact mesh (Lavoué et al.'s
+/// Table 2 figures) and `control_written` the refined one. `options` is
+/// `report.json`'s `options` as it stands.
+pub(super) fn measure_as_fitted(
+    run: &mut super::Run<'_, '_>,
+    control: ControlMesh,
+    metrics: &MetricsOptions,
+    options: serde_json::Value,
+) -> Result<Converted> {
+    let mut timer = run.take_timer();
+    let (input, caster) = (run.input, run.caster.as_ref());
+    let quads = timer.run("refine", || {
+        if control.is_all_quads() {
+            return Ok(control.clone());
+        }
+        crate::subdiv::refine::refine_once_keeping_infinite(&control)
+    })?;
+    let surfaces = timer.run("displacement+metrics", || {
+        evaluate_surfaces(&input.mesh, &quads, caster, metrics, run.progress)
+    })?;
+    let mut report = Report::new(
+        input.report.clone(),
+        &control,
+        None,
+        &surfaces.metrics,
+        timer.stages,
+        options,
+    );
+    if !control.is_all_quads() {
+        report.control_written = Some(crate::report::control_stats(&quads));
+    }
+    Ok(Converted {
+        quad_control: (!control.is_all_quads()).then_some(quads),
+        control,
+        surfaces,
+        report,
+        fitmap: None,
+        outputs: Default::default(),
+        second_opinion: None,
+    })
 }

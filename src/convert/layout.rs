@@ -1,0 +1,286 @@
+//! The layouts: the control mesh of a conversion, before the tail fits
+//! and measures it ([`super::tail`]).
+//!
+//! - [`Layout::OrganicGreedy`]: the Fitmaps pipeline's layout (§3.1–3.3):
+//!   the Fitmap, then the greedy simplification of the quadrangulated
+//!   input, on the layout proxy M′ for big inputs (§4).
+//! - [`Layout::Mechanical`]: Lavoué et al. 2007's segmentation and
+//!   enrichment ([`crate::mechanical`]), which also fits the control mesh
+//!   (§7.1's geometry step).
+//! - [`Layout::Coarse`]: an input coarser than the Fitmap's radii, its own
+//!   faces refined into quads.
+//!
+//! An organic field-aligned layout (`crate::quad::field::field_layout(mesh,
+//! fitmap, opts)`, the quad-dominant layout of issue 17) becomes one more
+//! variant here: it takes the Fitmap [`Layout::OrganicGreedy`] computes and
+//! returns a control mesh with its own [`LayoutRecord`], which the same
+//! tail fits.
+
+use crate::analysis::{Fitmap, FitmapOptions};
+use crate::error::{Error, Result};
+use crate::mesh::ControlMesh;
+use crate::quad::{simplify_with_progress, SimplifyOptions, SimplifyStats};
+use crate::raycast::{make_raycaster, RayBackend};
+use crate::report::StageTimer;
+
+use super::options::{ConvertOptions, Proxy};
+use super::run::Run;
+use super::search::ERROR_SEARCH_CHECKPOINTS;
+
+/// Which layout makes the control mesh.
+pub enum Layout {
+    /// Fitmaps §3.1–3.3 with the Fitmap of `fitmap`; `checkpoints`: keep
+    /// the simplification's intermediate meshes for the `--max-error`
+    /// search ([`super::search`]).
+    OrganicGreedy {
+        fitmap: FitmapOptions,
+        checkpoints: bool,
+    },
+    /// Lavoué et al. 2007 with these options.
+    Mechanical(crate::mechanical::MechanicalOptions),
+    /// The input's own faces (no Fitmap: `why`, the error of
+    /// [`crate::analysis::fitmap::fitmap_radii`]).
+    Coarse { why: Error },
+}
+
+/// A layout's control mesh and what made it.
+pub struct Laid {
+    /// The control mesh: the organic simplification's natural end, the
+    /// mechanical mesh (fitted already), or the coarse input refined once.
+    pub control: ControlMesh,
+    /// Organic with checkpoints: the simplification's intermediate meshes,
+    /// fewest faces first (the `--max-error` search's candidates).
+    pub checkpoints: Vec<ControlMesh>,
+    /// The Fitmap on M's own vertices, when the layout computed one.
+    pub fitmap: Option<Fitmap>,
+    pub record: LayoutRecord,
+}
+
+/// What a layout did, for `report.json`.
+pub enum LayoutRecord {
+    OrganicGreedy {
+        /// `layout_proxy`: the proxy tried and used (see [`Proxy`]).
+        proxy: Option<serde_json::Value>,
+        simplification: SimplifyStats,
+    },
+    Mechanical {
+        options: crate::mechanical::MechanicalOptions,
+        stats: crate::mechanical::MechanicalStats,
+    },
+    Coarse {
+        why: Error,
+    },
+}
+
+impl Layout {
+    /// Runs the layout on `run`'s input (stages into `run.timer`).
+    pub fn lay(self, run: &mut Run<'_, '_>, opts: &ConvertOptions) -> Result<Laid> {
+        match self {
+            Layout::OrganicGreedy {
+                fitmap,
+                checkpoints,
+            } => organic_greedy(run, opts, &fitmap, checkpoints),
+            Layout::Mechanical(mo) => mechanical(run, mo),
+            Layout::Coarse { why } => {
+                let mesh = run.mesh();
+                if !(mesh.bbox_diagonal().is_finite() && mesh.bbox_diagonal() > 0.0) {
+                    return Err(why);
+                }
+                let control = run.timer.run("control", || coarse_control(mesh))?;
+                Ok(Laid {
+                    control,
+                    checkpoints: Vec::new(),
+                    fitmap: None,
+                    record: LayoutRecord::Coarse { why },
+                })
+            }
+        }
+    }
+}
+
+/// The organic layout (Fitmaps §3.1–3.3): the Fitmap and the simplified
+/// control mesh, on the layout proxy M′ when there is one (§4; the Fitmap
+/// then transferred to M's vertices for fitmap.ply and the pictures), with
+/// the proxy's record for the report.
+fn organic_greedy(
+    run: &mut Run<'_, '_>,
+    opts: &ConvertOptions,
+    fo: &FitmapOptions,
+    checkpoints: bool,
+) -> Result<Laid> {
+    let mesh = run.mesh();
+    let (proxy, proxy_stats) = layout_proxy(mesh, opts.proxy, &mut run.timer, run.progress)?;
+    let (layout, layout_caster) = match &proxy {
+        Some((m, c)) => (m, c.as_ref()),
+        None => (mesh, run.caster.as_ref()),
+    };
+    let (timer, progress) = (&mut run.timer, &mut *run.progress);
+    let stage = crate::fit::report_progress;
+    stage(progress, "fitmap", 0.0)?;
+    let fitmap = timer.run("fitmap", || {
+        fitmap_reporting(layout, layout_caster, fo, &mut *progress)
+    })?;
+    stage(progress, "fitmap", 1.0)?;
+    let so = SimplifyOptions::default()
+        .with_target_faces(opts.target_faces)
+        .with_m_fitmap(!opts.no_m_fitmap)
+        .with_checkpoints(if checkpoints {
+            ERROR_SEARCH_CHECKPOINTS
+        } else {
+            0
+        });
+    stage(progress, "simplify", 0.0)?;
+    let simplified = timer.run("simplify", || {
+        simplify_with_progress(layout, &fitmap, layout_caster, &so, &mut |p| {
+            let goal = p
+                .initial_faces
+                .saturating_sub(opts.target_faces.unwrap_or(0))
+                .max(1);
+            let done = p.initial_faces.saturating_sub(p.faces) as f64 / goal as f64;
+            progress("simplify", done.min(0.99))
+        })
+    })?;
+    stage(progress, "simplify", 1.0)?;
+    // fitmap.ply and the pictures show the Fitmap on M's own vertices.
+    let fitmap = match &proxy {
+        Some((m, c)) => timer.run("fitmap transfer", || {
+            fitmap.transferred(m, c.as_ref(), mesh)
+        })?,
+        None => fitmap,
+    };
+    Ok(Laid {
+        control: simplified.mesh,
+        checkpoints: simplified.checkpoints,
+        fitmap: Some(fitmap),
+        record: LayoutRecord::OrganicGreedy {
+            proxy: proxy_stats,
+            simplification: simplified.stats,
+        },
+    })
+}
+
+/// The mechanical layout (Lavoué et al. 2007, see [`crate::mechanical`]):
+/// segmentation, enrichment and its own fit (§7.1's geometry step).
+fn mechanical(run: &mut Run<'_, '_>, mo: crate::mechanical::MechanicalOptions) -> Result<Laid> {
+    let (mesh, caster) = (run.mesh(), run.caster.as_ref());
+    crate::fit::report_progress(run.progress, "mechanical", 0.0)?;
+    let built = run.timer.run("mechanical", || {
+        crate::mechanical::build_control(mesh, caster, &mo)
+    })?;
+    crate::fit::report_progress(run.progress, "mechanical", 1.0)?;
+    Ok(Laid {
+        control: built.control,
+        checkpoints: Vec::new(),
+        fitmap: None,
+        record: LayoutRecord::Mechanical {
+            options: mo,
+            stats: built.stats,
+        },
+    })
+}
+
+/// The layout proxy M′ for `proxy` (see [`Proxy`]) with an Embree caster
+/// over it, or `None` when the layout runs on M; and what was done, for
+/// the report. M′ is used only when it has M's [`Topology`] (components,
+/// boundary loops, Euler characteristic): the control mesh inherits the
+/// layout mesh's topology, so a decimation that closed a handle or pinched
+/// a part off would give a wrong surface, not just a coarser one. A failed
+/// check retries at twice the triangles, up to [`PROXY_ATTEMPTS`] times,
+/// then falls back to M (the report says why).
+pub(super) fn layout_proxy(
+    mesh: &crate::mesh::TriMesh,
+    proxy: Proxy,
+    timer: &mut StageTimer,
+    progress: &mut crate::watch::Progress<'_>,
+) -> Result<(Option<LayoutProxy>, Option<serde_json::Value>)> {
+    use crate::mesh::Topology;
+    let Some(mut triangles) = proxy.target(mesh.triangles.len()) else {
+        return Ok((None, None));
+    };
+    crate::fit::report_progress(progress, "proxy", 0.0)?;
+    let found = timer.run("proxy", || -> Result<_> {
+        let want = Topology::of(mesh);
+        let mut tried = Vec::new();
+        for _ in 0..PROXY_ATTEMPTS {
+            if 2 * triangles > mesh.triangles.len() {
+                break;
+            }
+            let (m, stats) = crate::mesh::decimate(mesh, triangles)?;
+            let got = Topology::of(&m);
+            tried.push(serde_json::json!({
+                "target_triangles": triangles,
+                "triangles": m.triangles.len(),
+                "topology": got,
+                "decimation": stats,
+            }));
+            if got == want {
+                let c = make_raycaster(RayBackend::Embree, &m)?;
+                return Ok((Some((m, c)), tried, want));
+            }
+            triangles *= 2;
+        }
+        Ok((None, tried, want))
+    })?;
+    crate::fit::report_progress(progress, "proxy", 1.0)?;
+    let (m, tried, want) = found;
+    let stats = serde_json::json!({
+        "used": m.is_some(),
+        "input_triangles": mesh.triangles.len(),
+        "input_topology": want,
+        "attempts": tried,
+    });
+    Ok((m, Some(stats)))
+}
+
+/// M′ and a ray caster over it.
+type LayoutProxy = (crate::mesh::TriMesh, Box<dyn crate::raycast::RayCaster>);
+
+/// Decimations tried for a layout proxy with M's topology (targets 1×, 2×,
+/// 4× the bound) before the layout runs on M.
+const PROXY_ATTEMPTS: usize = 3;
+
+/// [`Layout::Coarse`]'s control mesh: M's triangles with its sharp edges
+/// as infinitely sharp creases and the vertices where three or more meet
+/// as corners (so a tetrahedron or a box is reproduced exactly: each face's
+/// limit patch is the planar face), refined once into quads.
+fn coarse_control(mesh: &crate::mesh::TriMesh) -> Result<crate::mesh::ControlMesh> {
+    use crate::mesh::{ControlMesh, VertexId, INFINITELY_SHARP};
+    let mut base = ControlMesh::from_polygons(mesh.positions.clone(), &mesh.triangles)?;
+    let topo = crate::mechanical::Topology::new(mesh);
+    let mut sharp_degree = vec![0u32; mesh.positions.len()];
+    for (e, sharp) in topo.edges.iter().zip(topo.sharp_edges()) {
+        if sharp {
+            base.set_crease(VertexId(e.v[0]), VertexId(e.v[1]), INFINITELY_SHARP)?;
+            for v in e.v {
+                sharp_degree[v as usize] += 1;
+            }
+        }
+    }
+    for (v, &d) in sharp_degree.iter().enumerate() {
+        if d >= 3 {
+            base.set_corner(VertexId(v as u32), INFINITELY_SHARP)?;
+        }
+    }
+    crate::subdiv::refine::refine_once_keeping_infinite(&base)
+}
+
+/// The Fitmap (§3.1) with progress and cancellation, watched
+/// ([`crate::watch::watched`]): the workers count their analysed vertices
+/// and stop within one vertex each once the host said stop.
+pub(super) fn fitmap_reporting(
+    mesh: &crate::mesh::TriMesh,
+    caster: &dyn crate::raycast::RayCaster,
+    fo: &FitmapOptions,
+    progress: &mut crate::watch::Progress<'_>,
+) -> Result<crate::analysis::Fitmap> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let done = AtomicUsize::new(0);
+    let total = mesh.positions.len().max(1) as f64;
+    crate::watch::watched(progress, |w| {
+        w.report("fitmap", 0.0)?;
+        crate::analysis::compute_fitmap_cancellable(mesh, caster, fo, &|k| {
+            let d = done.fetch_add(k, Ordering::Relaxed) + k;
+            w.report("fitmap", (d as f64 / total).min(0.99)).is_ok()
+        })
+    })
+}

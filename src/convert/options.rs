@@ -1,0 +1,228 @@
+//! [`ConvertOptions`]: every choice of a conversion, one type for every host
+//! (the CLI's flags, [`crate::embed::Options`], the C++ and Python APIs).
+
+use serde::Serialize;
+
+use crate::error::{Error, Result};
+use crate::fit::Objective;
+
+/// Options of [`convert`], mirroring `subdfit convert`.
+#[derive(Clone, Debug, Serialize)]
+#[non_exhaustive]
+pub struct ConvertOptions {
+    /// τ of the M-fitmap (§3.1.3), a fraction: the only parameter of the
+    /// method. `None`: the Fitmap's default.
+    pub tolerance: Option<f64>,
+    /// Stop the simplification at this many faces (the paper's "*" rows).
+    pub target_faces: Option<usize>,
+    /// Lift the projectability test (the paper's Fig. 7 experiment).
+    pub no_m_fitmap: bool,
+    pub objective: Objective,
+    /// Displacement samples per patch side; `None`: total ≈ M's vertices.
+    pub displacement_res: Option<usize>,
+    /// Which pipeline: Fitmaps (organic), Lavoué et al. (mechanical), or
+    /// chosen from the share of sharp edges (auto, the default).
+    pub mode: Mode,
+    /// An RMS distance bound, fraction of the diagonal. Mechanical mode:
+    /// Lavoué et al.'s `E_limit` per control face; `None`:
+    /// [`crate::mechanical::DEFAULT_MAX_ERROR`]. Organic mode: RMS L of
+    /// the whole surface, met with the fewest patches the simplification
+    /// passed through (see [`DEFAULT_ORGANIC_MAX_ERROR`]); `None`: that
+    /// default, unless `target_faces` is given; infinity: the natural end.
+    pub max_error: Option<f64>,
+    /// Cells per patch side of `limit.ply` / `displaced.ply`; `None`: the
+    /// default of [`crate::report::tessellate`].
+    pub tessellation: Option<usize>,
+    /// The mesh the layout stages (Fitmap, quadrangulation,
+    /// simplification) run on; see [`Proxy`].
+    pub proxy: Proxy,
+}
+
+/// `convert --proxy`: the layout proxy M′ of the Fitmaps paper's §4 (its
+/// Armadillo runs compute the control mesh from a simplified copy of the
+/// input while every fit, projection and measurement refers to M). The
+/// Fitmap, the quadrangulation and the simplification cost ~50 and ~150 µs
+/// per vertex they see, the fit and the metrics scale with M's size
+/// only through ray casting; so the layout runs on M′ (meshoptimizer's quadric
+/// simplification, [`crate::mesh::decimate`]) and the rest on M.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Proxy {
+    /// M′ of [`PROXY_AUTO_TRIANGLES`] triangles when M has more than
+    /// [`PROXY_AUTO_ABOVE`].
+    #[default]
+    Auto,
+    /// The layout runs on M itself.
+    None,
+    /// M′ of about this many triangles when M has more.
+    Triangles(usize),
+}
+
+/// The size of [`Proxy::Auto`]'s M′, in triangles: the final control
+/// meshes of the paper's τ range have 10²–10³ patches, and 50k triangles
+/// still give every patch dozens of M′ vertices to choose its corners from,
+/// while the layout stages (Fitmap, quadrangulation, simplification: ~200
+/// µs per triangle they see on this 2-core machine) then cost ~10 s
+/// whatever the size of M.
+pub const PROXY_AUTO_TRIANGLES: usize = 50_000;
+
+/// [`Proxy::Auto`] decimates only inputs above this many triangles: below
+/// it the full-resolution layout costs under ~20 s and stays the reference
+/// (the papers' meshes, 50–70k triangles, convert as before).
+pub const PROXY_AUTO_ABOVE: usize = 100_000;
+
+/// `auto`, `none` or a triangle count of at least 100: `--proxy`, and the
+/// same words in every host.
+impl std::str::FromStr for Proxy {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Proxy, String> {
+        match s {
+            "auto" => Ok(Proxy::Auto),
+            "none" => Ok(Proxy::None),
+            n => match n.parse::<usize>() {
+                Ok(n) if n >= 100 => Ok(Proxy::Triangles(n)),
+                _ => Err(format!(
+                    "expected auto, none or a triangle count of at least 100, got '{n}'"
+                )),
+            },
+        }
+    }
+}
+
+impl Proxy {
+    /// The triangle count M′ should have for a mesh of `triangles`, or
+    /// `None` when the layout runs on M.
+    pub fn target(self, triangles: usize) -> Option<usize> {
+        let (above, size) = match self {
+            Proxy::Auto => (PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES),
+            Proxy::None => return None,
+            Proxy::Triangles(n) => (n, n),
+        };
+        (triangles > above).then_some(size)
+    }
+}
+
+/// Organic mode's default RMS L bound (5‰ of the diagonal; issue 17: "no
+/// input ends above RMS L 5‰ unless asked"). The simplification's natural
+/// end is set by projectability and the Fitmap's predicted error
+/// (§3.3.1), which ends small, smooth inputs coarser than that (spot at
+/// τ = 5 %: 79 patches, 6.7‰); the bound then takes the fewest patches
+/// along the simplification's own path that meet it ([`super::search`]).
+pub const DEFAULT_ORGANIC_MAX_ERROR: f64 = 5e-3;
+
+/// Which pipeline a conversion runs: `convert --mode`, and the same enum
+/// in every host (`embed`, C++, Python). The CLI parses it by clap's
+/// derive; `report.json` writes it in lower case.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// Picks one from the share of sharp feature edges
+    /// ([`crate::mechanical::choose_mode`]).
+    #[default]
+    Auto,
+    /// Smooth organic shapes (Fitmaps, Panozzo et al.).
+    Organic,
+    /// CAD-like shapes with sharp features kept as creases (Lavoué et al.).
+    Mechanical,
+}
+
+/// The CLI's words (`auto`, `organic`, `mechanical`), for hosts that take
+/// the mode as a string.
+impl std::str::FromStr for Mode {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Mode, String> {
+        <Mode as clap::ValueEnum>::from_str(s, false)
+    }
+}
+
+impl Default for ConvertOptions {
+    fn default() -> Self {
+        ConvertOptions {
+            tolerance: None,
+            target_faces: None,
+            no_m_fitmap: false,
+            objective: Objective::Point,
+            displacement_res: None,
+            mode: Mode::Auto,
+            max_error: None,
+            tessellation: None,
+            proxy: Proxy::Auto,
+        }
+    }
+}
+
+impl ConvertOptions {
+    /// Rejects values no stage could use, before any work starts: τ out of
+    /// its range ([`crate::analysis::fitmap::check_tolerance`]), a
+    /// non-positive `max_error`, more than 4096 displacement samples per
+    /// patch side, a tessellation outside 1–1024 cells, a proxy below 100
+    /// triangles (the ranges the CLI's parsers enforce).
+    pub fn check(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::InvalidArgument(m));
+        if let Some(t) = self.tolerance {
+            crate::analysis::fitmap::check_tolerance(t).map_err(Error::InvalidArgument)?;
+        }
+        if let Some(e) = self.max_error {
+            if e.is_nan() || e <= 0.0 {
+                return bad(format!(
+                    "max error {e} out of range: it is a positive fraction of the diagonal, e.g. 3e-3 (or infinity)"
+                ));
+            }
+        }
+        if let Some(r) = self.displacement_res.filter(|&r| r > 4096) {
+            return bad(format!(
+                "displacement resolution {r} too large (at most 4096 samples per patch side)"
+            ));
+        }
+        if let Some(n) = self.tessellation.filter(|n| !(1..=1024).contains(n)) {
+            return bad(format!(
+                "tessellation {n} out of range: 1 to 1024 cells per patch side"
+            ));
+        }
+        if let Proxy::Triangles(n) = self.proxy {
+            if n < 100 {
+                return bad(format!(
+                    "proxy of {n} triangles: give at least 100 (or auto, none)"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    pub fn with_tolerance(mut self, t: Option<f64>) -> Self {
+        self.tolerance = t;
+        self
+    }
+    pub fn with_target_faces(mut self, n: Option<usize>) -> Self {
+        self.target_faces = n;
+        self
+    }
+    pub fn with_m_fitmap(mut self, on: bool) -> Self {
+        self.no_m_fitmap = !on;
+        self
+    }
+    pub fn with_objective(mut self, o: Objective) -> Self {
+        self.objective = o;
+        self
+    }
+    pub fn with_displacement_res(mut self, r: Option<usize>) -> Self {
+        self.displacement_res = r;
+        self
+    }
+    pub fn with_mode(mut self, m: Mode) -> Self {
+        self.mode = m;
+        self
+    }
+    pub fn with_tessellation(mut self, n: Option<usize>) -> Self {
+        self.tessellation = n;
+        self
+    }
+    pub fn with_max_error(mut self, e: Option<f64>) -> Self {
+        self.max_error = e;
+        self
+    }
+    pub fn with_proxy(mut self, p: Proxy) -> Self {
+        self.proxy = p;
+        self
+    }
+}
