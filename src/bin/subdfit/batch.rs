@@ -7,9 +7,8 @@ use std::process::ExitCode;
 use anyhow::Result;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use subdfit::analysis::fitmap::DEFAULT_TOLERANCE;
 use subdfit::embed::batch::{self, Event, Status};
-use subdfit::embed::{Mode, Objective, Options, Progress};
+use subdfit::embed::{Options, Progress};
 
 #[derive(Args)]
 pub struct BatchArgs {
@@ -29,27 +28,9 @@ pub struct BatchArgs {
     /// unchanged since they were converted.
     #[arg(long)]
     force: bool,
-    /// As `subdfit convert --tolerance`.
-    #[arg(long, default_value_t = DEFAULT_TOLERANCE)]
-    tolerance: f64,
-    /// As `subdfit convert --faces`.
-    #[arg(long)]
-    faces: Option<u32>,
-    /// As `subdfit convert --fit`.
-    #[arg(long, value_enum, default_value_t = Objective::Point)]
-    fit: Objective,
-    /// As `subdfit convert --displacement-res`.
-    #[arg(long)]
-    displacement_res: Option<u32>,
-    /// As `subdfit convert --no-mfitmap`.
-    #[arg(long)]
-    no_mfitmap: bool,
-    /// As `subdfit convert --mode`.
-    #[arg(long, value_enum, default_value_t = Mode::Auto)]
-    mode: Mode,
-    /// As `subdfit convert --max-error`.
-    #[arg(long, value_parser = crate::convert::parse_max_error)]
-    max_error: Option<f64>,
+    /// The options of each conversion, as `subdfit convert`'s.
+    #[command(flatten)]
+    conversion: crate::convert::ConversionArgs,
     /// No progress bar and no table (the summary files are still written).
     #[arg(long)]
     quiet: bool,
@@ -57,16 +38,7 @@ pub struct BatchArgs {
 
 fn options(a: &BatchArgs) -> Options {
     let mut o = Options::default();
-    o.convert = o
-        .convert
-        .clone()
-        .with_tolerance(Some(a.tolerance))
-        .with_target_faces(a.faces.filter(|&n| n > 0).map(|n| n as usize))
-        .with_objective(a.fit)
-        .with_displacement_res(a.displacement_res.filter(|&r| r > 0).map(|r| r as usize))
-        .with_m_fitmap(!a.no_mfitmap)
-        .with_mode(a.mode)
-        .with_max_error(a.max_error);
+    o.convert = a.conversion.options();
     o
 }
 

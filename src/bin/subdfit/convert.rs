@@ -24,6 +24,32 @@ pub struct ConvertArgs {
     /// kept, a sub-folder in it is an error.
     #[arg(short, long)]
     output: PathBuf,
+    #[command(flatten)]
+    conversion: ConversionArgs,
+    #[command(flatten)]
+    files: OutputArgs,
+    /// No progress bars.
+    #[arg(long)]
+    quiet: bool,
+    /// Print report.json to stdout.
+    #[arg(long)]
+    json: bool,
+    /// Also write OUTDIR/report.html: pictures and Table 1 in one
+    /// self-contained page.
+    #[arg(long)]
+    report: bool,
+    /// Exit with status 1 when the result misses a target it was given
+    /// (`--max-error`, `--faces`; report.json's `targets`). Without it a
+    /// miss is a warning on stderr and `"targets_met": false`.
+    #[arg(long)]
+    strict: bool,
+}
+
+/// The options of one conversion, shared by `convert` and `batch`: one
+/// flag per field of [`ConvertOptions`] (the library's one options type,
+/// which `embed`, C++ and Python map to as well).
+#[derive(Args)]
+pub struct ConversionArgs {
     /// τ, the only parameter of the method (Fitmaps §3.1.3): the share of a
     /// neighbourhood allowed to be unreachable by normal projection, as a
     /// fraction (0.01 = the paper's 1 %, 0.1 = its 10 %); larger τ, fewer
@@ -68,8 +94,6 @@ pub struct ConvertArgs {
     /// patches, 4.6‰); `inf` keeps the natural end.
     #[arg(long, value_parser = parse_max_error)]
     max_error: Option<f64>,
-    #[command(flatten)]
-    files: OutputArgs,
     /// Organic mode's layout proxy M' (Fitmaps §4): the Fitmap,
     /// quadrangulation and simplification run on a quadric decimation of
     /// the input to this many triangles, while the fit, displacement and
@@ -82,21 +106,28 @@ pub struct ConvertArgs {
     /// report.json's `layout_proxy` says what was tried.
     #[arg(long, default_value = "auto", value_parser = clap::value_parser!(Proxy))]
     proxy: Proxy,
-    /// No progress bars.
-    #[arg(long)]
-    quiet: bool,
-    /// Print report.json to stdout.
-    #[arg(long)]
-    json: bool,
-    /// Also write OUTDIR/report.html: pictures and Table 1 in one
-    /// self-contained page.
-    #[arg(long)]
-    report: bool,
-    /// Exit with status 1 when the result misses a target it was given
-    /// (`--max-error`, `--faces`; report.json's `targets`). Without it a
-    /// miss is a warning on stderr and `"targets_met": false`.
-    #[arg(long)]
-    strict: bool,
+    /// Cells per patch side of limit.ply and displaced.ply (1-1024).
+    /// Default: the smallest power of two from 16 to 64 whose RMS chord
+    /// error (against the exact limit surface) is below a tenth of the
+    /// fit's RMS distance and whose largest is below that distance;
+    /// report.json's `tessellation` gives the figures.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    tessellation: Option<u64>,
+}
+
+impl ConversionArgs {
+    pub fn options(&self) -> ConvertOptions {
+        ConvertOptions::default()
+            .with_tolerance(Some(self.tolerance))
+            .with_target_faces(self.faces)
+            .with_m_fitmap(!self.no_mfitmap)
+            .with_objective(self.fit)
+            .with_displacement_res(self.displacement_res)
+            .with_mode(self.mode)
+            .with_max_error(self.max_error)
+            .with_tessellation(self.tessellation.map(|n| n as usize))
+            .with_proxy(self.proxy)
+    }
 }
 
 /// `--atlas`.
@@ -123,13 +154,6 @@ pub struct OutputArgs {
     /// Write the EXR texels as 16-bit half floats (default 32-bit float).
     #[arg(long)]
     half: bool,
-    /// Cells per patch side of limit.ply and displaced.ply (1-1024).
-    /// Default: the smallest power of two from 16 to 64 whose RMS chord
-    /// error (against the exact limit surface) is below a tenth of the
-    /// fit's RMS distance and whose largest is below that distance;
-    /// report.json's `tessellation` gives the figures.
-    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
-    tessellation: Option<u64>,
 }
 
 /// `--max-error`: a positive fraction (or `inf`).
@@ -186,16 +210,7 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
     let input = crate::read_input(&a.mesh)?
         .into_manifold(&a.mesh)
         .context("input mesh")?;
-    let opts = ConvertOptions::default()
-        .with_tolerance(Some(a.tolerance))
-        .with_target_faces(a.faces)
-        .with_m_fitmap(!a.no_mfitmap)
-        .with_objective(a.fit)
-        .with_displacement_res(a.displacement_res)
-        .with_mode(a.mode)
-        .with_max_error(a.max_error)
-        .with_tessellation(a.files.tessellation.map(|n| n as usize))
-        .with_proxy(a.proxy);
+    let opts = a.conversion.options();
     let extra = serde_json::json!({
         "command": "convert",
         "mesh": a.mesh.display().to_string(),
@@ -230,7 +245,7 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
         crate::emit(&serde_json::to_string_pretty(report)?)?;
     } else if !a.quiet {
         crate::fit::print_summary(report, &written)?;
-        if let Some(n) = a.faces {
+        if let Some(n) = a.conversion.faces {
             if report.control.faces > n {
                 crate::emit(&format!(
                     "note: simplification ended at {} faces, above --faces {n}",
