@@ -13,7 +13,8 @@ use std::path::Path;
 
 use subdfit::convert::{convert_in_memory, ConvertOptions, Mode};
 
-/// Every node's path in `v` below `prefix` (as `jq 'paths'` lists them).
+/// Every node's path in `v` below `prefix`, null and `false` leaves
+/// included (as `jq paths` lists them).
 fn key_paths(v: &serde_json::Value, prefix: &str, out: &mut BTreeSet<String>) {
     let join = |k: &str| {
         if prefix.is_empty() {
