@@ -114,13 +114,13 @@ fn lattice_graph(s: &Surface, dirs: &[DVec3], o: &[DVec3], scale: &[f64]) -> Gra
     let mut id = vec![u32::MAX; n];
     let mut count = 0u32;
     let mut cluster = vec![0u32; n];
-    for v in 0..n {
+    for (v, cl) in cluster.iter_mut().enumerate() {
         let r = uf.find(v);
         if id[r] == u32::MAX {
             id[r] = count;
             count += 1;
         }
-        cluster[v] = id[r];
+        *cl = id[r];
     }
     let c = count as usize;
     let (mut pos, mut nrm, mut w) = (vec![DVec3::ZERO; c], vec![DVec3::ZERO; c], vec![0.0; c]);

@@ -132,10 +132,7 @@ pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Res
     let mut stats = FieldStats::default();
     let t = Instant::now();
     let dirs = cross::cross_field(&surf, opts)?;
-    let sing = cross::singularities(&surf, &dirs);
-    stats.singularities_plus = sing.iter().filter(|s| s.1 == 1).count();
-    stats.singularities_minus = sing.iter().filter(|s| s.1 == 3).count();
-    stats.singularities_half = sing.iter().filter(|s| s.1 == 2).count();
+    count_singularities(&surf, &dirs, &mut stats);
     stats.seconds_cross = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
@@ -155,17 +152,63 @@ pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Res
     stats.alpha = alpha;
     stats.predicted_faces = predicted;
     stats.seconds_sizing = t.elapsed().as_secs_f64();
+    layout_sized(&surf, mesh, &dirs, &h, opts, stats)
+}
 
+/// [`field_layout`] with a given target edge length per vertex of `mesh`
+/// instead of the Fitmap's (the cross field and the last two steps as
+/// there).
+pub fn field_layout_sized(mesh: &TriMesh, h: &[f64], opts: &FieldOptions) -> Result<FieldLayout> {
+    if h.len() != mesh.positions.len() {
+        return Err(Error::InvalidArgument(format!(
+            "field layout: {} sizes for {} vertices",
+            h.len(),
+            mesh.positions.len()
+        )));
+    }
+    if let Some(i) = h.iter().position(|x| !(x.is_finite() && *x > 0.0)) {
+        return Err(Error::InvalidArgument(format!(
+            "field layout: vertex {i}: size {} must be finite and > 0",
+            h[i]
+        )));
+    }
+    let surf = Surface::new(mesh)?;
+    let mut stats = FieldStats::default();
+    let t = Instant::now();
+    let dirs = cross::cross_field(&surf, opts)?;
+    count_singularities(&surf, &dirs, &mut stats);
+    stats.seconds_cross = t.elapsed().as_secs_f64();
+    stats.alpha = 1.0;
+    stats.predicted_faces = sizing::predicted_faces(&surf, h);
+    layout_sized(&surf, mesh, &dirs, h, opts, stats)
+}
+
+fn count_singularities(surf: &Surface, dirs: &[DVec3], stats: &mut FieldStats) {
+    let sing = cross::singularities(surf, dirs);
+    stats.singularities_plus = sing.iter().filter(|s| s.1 == 1).count();
+    stats.singularities_minus = sing.iter().filter(|s| s.1 == 3).count();
+    stats.singularities_half = sing.iter().filter(|s| s.1 == 2).count();
+}
+
+/// Steps 3 and 4 on a sizing field.
+fn layout_sized(
+    surf: &Surface,
+    mesh: &TriMesh,
+    dirs: &[DVec3],
+    h: &[f64],
+    opts: &FieldOptions,
+    mut stats: FieldStats,
+) -> Result<FieldLayout> {
     // The lattice is solved at twice the target length and split once
     // (Instant Meshes' pure-quad output: every raw face of n sides becomes
     // n quads of about the target size).
     let t = Instant::now();
     let scale: Vec<f64> = h.iter().map(|x| 2.0 * x).collect();
-    let lattice = position::position_field(&surf, &dirs, &scale, opts.position_sweeps)?;
+    let lattice = position::position_field(surf, dirs, &scale, opts.position_sweeps)?;
     stats.seconds_position = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    let (control, raw_non_quads) = extract::extract(&surf, mesh, &dirs, &lattice, &scale)?;
+    let (control, raw_non_quads) = extract::extract(surf, mesh, dirs, &lattice, &scale)?;
     stats.seconds_extract = t.elapsed().as_secs_f64();
     stats.raw_non_quads = raw_non_quads;
     stats.vertices = control.num_vertices();

@@ -205,9 +205,9 @@ fn coarsen(l: &Level) -> (Vec<u32>, Level) {
             groups.push(vec![i, j]);
         }
     }
-    for i in 0..n {
-        if parent[i] == u32::MAX {
-            parent[i] = groups.len() as u32;
+    for (i, p) in parent.iter_mut().enumerate() {
+        if *p == u32::MAX {
+            *p = groups.len() as u32;
             groups.push(vec![i as u32]);
         }
     }
