@@ -325,3 +325,25 @@ fn thin_handle_keeps_the_genus() {
     let t = control_topology(&out.control);
     assert_eq!((t.components, t.boundary_loops, t.euler), (1, 0, 0));
 }
+
+#[test]
+fn too_coarse_a_lattice_is_an_error_or_keeps_the_topology() {
+    // A tube of circumference 0.94 under a lattice of 2 × 0.6: the
+    // extraction cannot resolve the handle at the first sizes; the retries
+    // refine h (×0.8 each) and the result either has M's topology or is a
+    // topology error — never another topology, never a panic.
+    let m = torus(1.0, 0.15, 160, 24);
+    let fm = flat_fitmap(m.positions.len());
+    let opts = FieldOptions::default().with_uniform_size(Some(0.6));
+    match field_layout(&m, &fm, &opts) {
+        Ok(out) => {
+            let t = control_topology(&out.control);
+            assert_eq!((t.components, t.boundary_loops, t.euler), (1, 0, 0));
+            assert!(out.stats.retries > 0);
+        }
+        Err(e) => assert!(
+            matches!(e, subdfit::Error::Topology { .. }),
+            "unexpected error {e}"
+        ),
+    }
+}

@@ -159,7 +159,11 @@ const POWER_STEPS: usize = 3;
 pub fn cross_field(s: &Surface, opts: &FieldOptions) -> Result<Vec<DVec3>> {
     let n = s.len();
     let bases = tangent_bases(s);
-    let guide = curvature_guide(s, &bases, 1.0 / s.diagonal.max(1e-300));
+    let mut guide = curvature_guide(s, &bases, 1.0 / s.diagonal.max(1e-300));
+    for g in &mut guide {
+        g[0] *= opts.alignment_weight;
+        g[1] *= opts.alignment_weight;
+    }
     let ell = (opts.alignment_length * s.diagonal).max(s.mean_edge);
     let t = 1.0 / (ell * ell);
     let weights = cotan_weights(s);

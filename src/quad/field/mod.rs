@@ -54,6 +54,10 @@ pub struct FieldOptions {
     /// Length (fraction of the bbox diagonal) above which the cross field
     /// follows the curvature guide rather than its own smoothness.
     pub alignment_length: f64,
+    /// Weight of the curvature guide against the field's own smoothness
+    /// (the guide is the relative anisotropy in [0, 1], see
+    /// [`cross::cross_field`]).
+    pub alignment_weight: f64,
     /// Gauss–Seidel sweeps of the position field per hierarchy level.
     pub position_sweeps: usize,
 }
@@ -67,6 +71,7 @@ impl Default for FieldOptions {
             m_fitmap_scale: 1.0,
             gradation: 0.25,
             alignment_length: 1.0,
+            alignment_weight: 1.0,
             position_sweeps: 8,
         }
     }
@@ -79,6 +84,10 @@ impl FieldOptions {
     }
     pub fn with_uniform_size(mut self, h: Option<f64>) -> Self {
         self.uniform_size = h;
+        self
+    }
+    pub fn with_alignment_weight(mut self, w: f64) -> Self {
+        self.alignment_weight = w;
         self
     }
     pub fn with_gradation(mut self, g: f64) -> Self {
@@ -105,6 +114,13 @@ pub struct FieldStats {
     /// The sizing scale α used and the face count it predicted.
     pub alpha: f64,
     pub predicted_faces: f64,
+    /// The factor on F_M's bound a face target needed (1: F_M kept), see
+    /// [`sizing::m_relaxation_for_faces`].
+    pub m_fitmap_relaxed: f64,
+    /// Refinements of the sizing field after failed extractions, and the
+    /// factor on h they left ([`RETRY_FACTOR`]^retries).
+    pub retries: usize,
+    pub size_factor: f64,
     pub seconds_cross: f64,
     pub seconds_sizing: f64,
     pub seconds_position: f64,
@@ -136,11 +152,11 @@ pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Res
     stats.seconds_cross = t.elapsed().as_secs_f64();
 
     let t = Instant::now();
-    let (h, alpha, predicted) = match opts.uniform_size {
+    let (h, alpha, relaxed, predicted) = match opts.uniform_size {
         Some(u) if u > 0.0 && u.is_finite() => {
             let h = vec![u; surf.len()];
             let n = sizing::predicted_faces(&surf, &h);
-            (h, 1.0, n)
+            (h, 1.0, 1.0, n)
         }
         Some(u) => {
             return Err(Error::InvalidArgument(format!(
@@ -150,6 +166,7 @@ pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Res
         None => sizing::sizing_for(&surf, mesh, fitmap, opts)?,
     };
     stats.alpha = alpha;
+    stats.m_fitmap_relaxed = relaxed;
     stats.predicted_faces = predicted;
     stats.seconds_sizing = t.elapsed().as_secs_f64();
     layout_sized(&surf, mesh, &dirs, &h, opts, stats)
@@ -179,6 +196,7 @@ pub fn field_layout_sized(mesh: &TriMesh, h: &[f64], opts: &FieldOptions) -> Res
     count_singularities(&surf, &dirs, &mut stats);
     stats.seconds_cross = t.elapsed().as_secs_f64();
     stats.alpha = 1.0;
+    stats.m_fitmap_relaxed = 1.0;
     stats.predicted_faces = sizing::predicted_faces(&surf, h);
     layout_sized(&surf, mesh, &dirs, h, opts, stats)
 }
@@ -201,21 +219,43 @@ fn layout_sized(
 ) -> Result<FieldLayout> {
     // The lattice is solved at twice the target length and split once
     // (Instant Meshes' pure-quad output: every raw face of n sides becomes
-    // n quads of about the target size).
-    let t = Instant::now();
-    let scale: Vec<f64> = h.iter().map(|x| 2.0 * x).collect();
-    let lattice = position::position_field(surf, dirs, &scale, opts.position_sweeps)?;
-    stats.seconds_position = t.elapsed().as_secs_f64();
-
-    let t = Instant::now();
-    let (control, raw_non_quads) = extract::extract(surf, mesh, dirs, &lattice, &scale)?;
-    stats.seconds_extract = t.elapsed().as_secs_f64();
-    stats.raw_non_quads = raw_non_quads;
-    stats.vertices = control.num_vertices();
-    stats.faces = control.num_faces();
-    stats.irregular_vertices = irregular_vertices(&control);
-    Ok(FieldLayout { control, stats })
+    // n quads of about the target size). When the extraction does not have
+    // M's topology (a lattice too coarse for a thin part tears or pinches),
+    // the whole field is refined by [`RETRY_FACTOR`] and solved again, at
+    // most [`RETRIES`] times: never another topology, an error instead.
+    let mut factor = 1.0;
+    let mut last_error = None;
+    for attempt in 0..=RETRIES {
+        let t = Instant::now();
+        let scale: Vec<f64> = h.iter().map(|x| 2.0 * factor * x).collect();
+        let lattice = position::position_field(surf, dirs, &scale, opts.position_sweeps)?;
+        stats.seconds_position += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let extracted = extract::extract(surf, mesh, dirs, &lattice, &scale);
+        stats.seconds_extract += t.elapsed().as_secs_f64();
+        match extracted {
+            Ok((control, raw_non_quads)) => {
+                stats.retries = attempt;
+                stats.size_factor = factor;
+                stats.raw_non_quads = raw_non_quads;
+                stats.vertices = control.num_vertices();
+                stats.faces = control.num_faces();
+                stats.irregular_vertices = irregular_vertices(&control);
+                return Ok(FieldLayout { control, stats });
+            }
+            Err(e @ Error::Topology { .. }) => last_error = Some(e),
+            Err(e) => return Err(e),
+        }
+        factor *= RETRY_FACTOR;
+    }
+    Err(last_error.expect("at least one attempt"))
 }
+
+/// Refinements of the whole sizing field after a failed extraction.
+pub const RETRIES: usize = 4;
+
+/// Each refinement's factor on h (about 1.5× the faces).
+pub const RETRY_FACTOR: f64 = 0.8;
 
 /// Interior vertices of valence ≠ 4 and boundary vertices of valence
 /// other than 2 or 3.
