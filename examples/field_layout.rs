@@ -9,6 +9,9 @@
 //! `OUT_natural.obj` / `OUT_<FACES>.obj`, so that
 //! `subdfit fit MESH OUT_natural.obj -o DIR` fits it. Prints one JSON line
 //! per run: the layout's stats and M's topology against the result's.
+//! `FIELD_ALIGN` and `FIELD_SWEEPS` override
+//! [`FieldOptions::alignment_weight`] and [`FieldOptions::position_sweeps`]
+//! (for measuring them).
 
 use std::time::Instant;
 
@@ -47,9 +50,12 @@ fn main() -> anyhow::Result<()> {
     for target in targets {
         let t1 = Instant::now();
         let weight: f64 = std::env::var("FIELD_ALIGN").map_or(Ok(1.0), |v| v.parse())?;
-        let opts = FieldOptions::default()
+        let mut opts = FieldOptions::default()
             .with_target_faces(target)
             .with_alignment_weight(weight);
+        if let Ok(v) = std::env::var("FIELD_SWEEPS") {
+            opts.position_sweeps = v.parse()?;
+        }
         let result = field_layout(&mesh, &fitmap, &opts);
         let layout_seconds = t1.elapsed().as_secs_f64();
         let name = target.map_or("natural".to_string(), |n| n.to_string());

@@ -250,6 +250,8 @@ fn layout_sized(
     // M's topology (a lattice too coarse for a thin part tears or pinches),
     // the whole field is refined by [`RETRY_FACTOR`] and solved again, at
     // most [`RETRIES`] times: never another topology, an error instead.
+    let mut h = h.to_vec();
+    sizing::cap_at_boundaries(surf, &mut h, opts.gradation);
     let mut factor = 1.0;
     let mut last_error = None;
     for attempt in 0..=RETRIES {
