@@ -4,6 +4,7 @@
 //! so that the Catmull-Clark limit surface interpolates M's vertices
 //! ([`interpolate_limit`], system (1) `L V_K = V_M`).
 
+pub mod field;
 mod interpolate;
 mod matching;
 pub mod ops;

@@ -1,0 +1,329 @@
+//! Step 4: the control mesh from the position field, after Instant Meshes
+//! §6 ("mesh extraction"): every edge of M is classified by the integer
+//! lattice offset between its two vertices' lattice points. Offset 0: the
+//! two vertices sample the same lattice point and are merged (union-find);
+//! a unit offset: the two lattice points are joined by an edge of the
+//! output; anything else (diagonals, jumps across a defect) is dropped.
+//! The faces are walked in the graph of lattice points, each directed edge
+//! once, turning to the next edge clockwise at every vertex (the face on
+//! the left, counter-clockwise about the normal as M's triangles are).
+//!
+//! M's boundary is kept, never filled: a lattice edge produced by a
+//! boundary edge of M has the surface on one side only, and a walked face
+//! that uses its other side is the hole, not a face. The raw faces are
+//! made pure quad by one Catmull-Clark split (each n-gon into n quads;
+//! the lattice was solved at twice the target length for this), the new
+//! points are put on M's closest points, and the result must have M's
+//! components, boundary loops and Euler characteristic, else an error.
+
+use crate::error::{Error, Result};
+use crate::mesh::{ControlMesh, TriMesh};
+use crate::raycast::bvh::BvhCaster;
+use crate::raycast::RayCaster;
+use crate::DVec3;
+
+use super::cross::match_arm;
+use super::position::compat_position;
+use super::{control_topology, Surface, UnionFind};
+
+/// Longest walk followed: every walk closes (each directed edge has one
+/// successor), this only bounds the work on a torn lattice.
+const MAX_FACE: usize = 1 << 16;
+
+/// The lattice graph: points and their neighbour rings (sorted by angle),
+/// and the directed edges that face a hole of M.
+struct Graph {
+    pos: Vec<DVec3>,
+    ring: Vec<Vec<u32>>,
+    hole_side: std::collections::HashSet<(u32, u32)>,
+}
+
+/// Extracts the pure-quad control mesh; also returns the number of raw
+/// faces that were not quads.
+pub fn extract(
+    s: &Surface,
+    mesh: &TriMesh,
+    dirs: &[DVec3],
+    o: &[DVec3],
+    scale: &[f64],
+) -> Result<(ControlMesh, usize)> {
+    let mut g = lattice_graph(s, dirs, o, scale);
+    let faces = clean_faces(&mut g);
+    let non_quads = faces.iter().filter(|f| f.len() != 4).count();
+    let (positions, quads) = split_to_quads(&g, &faces);
+    let caster = BvhCaster::new(mesh)?;
+    let hits = caster.closest_points(&positions, f64::INFINITY)?;
+    let positions: Vec<DVec3> = positions
+        .iter()
+        .zip(&hits)
+        .map(|(p, h)| h.as_ref().map_or(*p, |h| h.point))
+        .collect();
+    let control = ControlMesh::from_polygons(positions, &quads).map_err(|e| Error::Topology {
+        element: "field layout".into(),
+        msg: format!("the extracted quads are not a manifold mesh ({e})"),
+    })?;
+    let got = control_topology(&control);
+    if got != s.topology {
+        return Err(Error::Topology {
+            element: "field layout".into(),
+            msg: format!(
+                "the extracted mesh has {} components, {} boundary loops, Euler characteristic {}; \
+                 M has {}, {}, {}",
+                got.components,
+                got.boundary_loops,
+                got.euler,
+                s.topology.components,
+                s.topology.boundary_loops,
+                s.topology.euler
+            ),
+        });
+    }
+    Ok((control, non_quads))
+}
+
+/// Merges zero-offset edges, joins unit-offset ones (see the module docs).
+fn lattice_graph(s: &Surface, dirs: &[DVec3], o: &[DVec3], scale: &[f64]) -> Graph {
+    let n = s.len();
+    let mut uf = UnionFind::new(n);
+    let mut unit: Vec<(u32, u32)> = Vec::new();
+    let offset = |i: usize, j: usize| {
+        let (qj, _) = match_arm(dirs[i], dirs[j], s.normals[j]);
+        let sc = 0.5 * (scale[i] + scale[j]);
+        let (_, _, c0, c1) = compat_position(
+            s.positions[i],
+            s.normals[i],
+            dirs[i],
+            o[i],
+            s.positions[j],
+            s.normals[j],
+            qj,
+            o[j],
+            sc,
+        );
+        [c0[0] - c1[0], c0[1] - c1[1]]
+    };
+    for &[a, b] in &s.edges {
+        let d = offset(a as usize, b as usize);
+        match d[0].abs() + d[1].abs() {
+            0 => uf.union(a as usize, b as usize),
+            1 => unit.push((a, b)),
+            _ => {}
+        }
+    }
+    // Clusters numbered by their smallest vertex (deterministic).
+    let mut id = vec![u32::MAX; n];
+    let mut count = 0u32;
+    let mut cluster = vec![0u32; n];
+    for (v, cl) in cluster.iter_mut().enumerate() {
+        let r = uf.find(v);
+        if id[r] == u32::MAX {
+            id[r] = count;
+            count += 1;
+        }
+        *cl = id[r];
+    }
+    let c = count as usize;
+    let (mut pos, mut nrm, mut w) = (vec![DVec3::ZERO; c], vec![DVec3::ZERO; c], vec![0.0; c]);
+    for v in 0..n {
+        let k = cluster[v] as usize;
+        let a = s.areas[v].max(1e-300);
+        pos[k] += a * o[v];
+        nrm[k] += a * s.normals[v];
+        w[k] += a;
+    }
+    for k in 0..c {
+        pos[k] /= w[k];
+        nrm[k] = nrm[k].normalize_or(DVec3::Z);
+    }
+    let mut pairs: Vec<(u32, u32)> = unit
+        .iter()
+        .map(|&(a, b)| (cluster[a as usize], cluster[b as usize]))
+        .filter(|(a, b)| a != b)
+        .flat_map(|(a, b)| [(a, b), (b, a)])
+        .collect();
+    pairs.sort_unstable();
+    pairs.dedup();
+    let mut ring: Vec<Vec<u32>> = vec![Vec::new(); c];
+    for &(a, b) in &pairs {
+        ring[a as usize].push(b);
+    }
+    for (k, r) in ring.iter_mut().enumerate() {
+        let nk = nrm[k];
+        let e1 = nk.any_orthonormal_vector();
+        let e2 = nk.cross(e1);
+        let angle = |b: u32| {
+            let d = pos[b as usize] - pos[k];
+            d.dot(e2).atan2(d.dot(e1))
+        };
+        r.sort_by(|&x, &y| angle(x).total_cmp(&angle(y)).then(x.cmp(&y)));
+    }
+    let mut hole_side = std::collections::HashSet::new();
+    for &[a, b] in &s.boundary_edges {
+        let (ca, cb) = (cluster[a as usize], cluster[b as usize]);
+        if ca != cb {
+            hole_side.insert((cb, ca));
+        }
+    }
+    Graph {
+        pos,
+        ring,
+        hole_side,
+    }
+}
+
+/// The faces of the lattice graph after removing what cannot bound a
+/// face: dangling edges (a lattice point with one neighbour, pruned
+/// repeatedly) and bridges (an edge a face walks both ways), then each
+/// walk that still visits a point twice cut there into simple loops.
+fn clean_faces(g: &mut Graph) -> Vec<Vec<u32>> {
+    let mut faces = Vec::new();
+    for _ in 0..16 {
+        prune_dangling(g);
+        faces = walk_faces(g);
+        let mut bridges = Vec::new();
+        for f in &faces {
+            let k = f.len();
+            let mut seen = std::collections::HashSet::new();
+            for i in 0..k {
+                seen.insert((f[i], f[(i + 1) % k]));
+            }
+            for i in 0..k {
+                let (a, b) = (f[i], f[(i + 1) % k]);
+                if a < b && seen.contains(&(b, a)) {
+                    bridges.push((a, b));
+                }
+            }
+        }
+        if bridges.is_empty() {
+            break;
+        }
+        for (a, b) in bridges {
+            g.ring[a as usize].retain(|&x| x != b);
+            g.ring[b as usize].retain(|&x| x != a);
+        }
+    }
+    faces.into_iter().flat_map(simple_loops).collect()
+}
+
+/// Removes lattice points with fewer than two neighbours until none is left.
+fn prune_dangling(g: &mut Graph) {
+    let mut stack: Vec<usize> = (0..g.ring.len())
+        .filter(|&v| g.ring[v].len() == 1)
+        .collect();
+    while let Some(v) = stack.pop() {
+        if g.ring[v].len() != 1 {
+            continue;
+        }
+        let w = g.ring[v][0] as usize;
+        g.ring[v].clear();
+        g.ring[w].retain(|&x| x as usize != v);
+        if g.ring[w].len() == 1 {
+            stack.push(w);
+        }
+    }
+}
+
+/// A closed walk cut at its repeated points into simple loops (each of at
+/// least 3 points; shorter pieces are dropped).
+fn simple_loops(face: Vec<u32>) -> Vec<Vec<u32>> {
+    let mut out = Vec::new();
+    let mut stack: Vec<u32> = Vec::new();
+    for &v in face.iter().chain(face.first()) {
+        if let Some(p) = stack.iter().position(|&x| x == v) {
+            let piece: Vec<u32> = stack.drain(p..).collect();
+            if piece.len() >= 3 {
+                out.push(piece);
+            }
+        }
+        stack.push(v);
+    }
+    out
+}
+
+/// Faces of the lattice graph: each directed edge walked once, the face on
+/// its left; walks shorter than 3 or along a hole of M are dropped. Long
+/// walks are kept: they are where the lattice has a defect (a pair of
+/// singularities the position field did not resolve), and dropping them
+/// would open a hole M does not have.
+fn walk_faces(g: &Graph) -> Vec<Vec<u32>> {
+    let c = g.ring.len();
+    let mut used: Vec<Vec<bool>> = g.ring.iter().map(|r| vec![false; r.len()]).collect();
+    let mut faces = Vec::new();
+    for a0 in 0..c {
+        for k0 in 0..g.ring[a0].len() {
+            if used[a0][k0] {
+                continue;
+            }
+            let mut face = Vec::new();
+            let (mut a, mut k) = (a0, k0);
+            let mut hole = false;
+            let closed = loop {
+                if used[a][k] {
+                    break a == a0 && k == k0;
+                }
+                used[a][k] = true;
+                face.push(a as u32);
+                let b = g.ring[a][k] as usize;
+                hole |= g.hole_side.contains(&(a as u32, b as u32));
+                // At b, the edge just clockwise of b → a.
+                let back = g.ring[b]
+                    .iter()
+                    .position(|&x| x as usize == a)
+                    .expect("the lattice graph is symmetric");
+                let deg = g.ring[b].len();
+                (a, k) = (b, (back + deg - 1) % deg);
+                if face.len() > MAX_FACE {
+                    break false;
+                }
+            };
+            if std::env::var("FIELD_DEBUG").is_ok() && (!closed || hole || face.len() < 3) {
+                eprintln!(
+                    "dropped face closed {closed} hole {hole} len {}",
+                    face.len()
+                );
+            }
+            if closed && !hole && face.len() >= 3 {
+                faces.push(face);
+            }
+        }
+    }
+    faces
+}
+
+/// One Catmull-Clark split of the raw faces, topologically (face points
+/// at the corners' mean, edge points at midpoints; both projected onto M
+/// by the caller). Lattice points used by no face are dropped.
+fn split_to_quads(g: &Graph, faces: &[Vec<u32>]) -> (Vec<DVec3>, Vec<[u32; 4]>) {
+    let mut index = vec![u32::MAX; g.pos.len()];
+    let mut positions = Vec::new();
+    for f in faces {
+        for &v in f {
+            if index[v as usize] == u32::MAX {
+                index[v as usize] = positions.len() as u32;
+                positions.push(g.pos[v as usize]);
+            }
+        }
+    }
+    let mut edge_point = std::collections::HashMap::new();
+    let mut quads = Vec::new();
+    for f in faces {
+        let fp = positions.len() as u32;
+        let centre = f.iter().map(|&v| g.pos[v as usize]).sum::<DVec3>() / f.len() as f64;
+        positions.push(centre);
+        let k = f.len();
+        let mut mids = Vec::with_capacity(k);
+        for i in 0..k {
+            let (a, b) = (f[i], f[(i + 1) % k]);
+            let key = (a.min(b), a.max(b));
+            let m = *edge_point.entry(key).or_insert_with(|| {
+                positions.push(0.5 * (g.pos[a as usize] + g.pos[b as usize]));
+                positions.len() as u32 - 1
+            });
+            mids.push(m);
+        }
+        for i in 0..k {
+            quads.push([index[f[i] as usize], mids[i], fp, mids[(i + k - 1) % k]]);
+        }
+    }
+    (positions, quads)
+}

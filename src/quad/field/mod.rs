@@ -1,0 +1,542 @@
+//! A field-aligned, adaptive layout (issue 40): a quad control mesh whose
+//! edges follow a smooth cross field and whose density follows the Fitmap.
+//!
+//! The steps, one file each:
+//! 1. [`cross`]: a curvature-aligned 4-RoSy field by one sparse linear solve
+//!    (Knöppel, Crane, Pinkall, Schröder, "Globally optimal direction
+//!    fields", SIGGRAPH 2013), aligned to the boundary tangent on M's
+//!    boundary.
+//! 2. [`sizing`]: the target edge length per vertex from the Fitmap (the
+//!    S-fitmap radius at the simplifier's κ, capped by the M-fitmap radius),
+//!    graded so it changes slowly, with its scale chosen for a face count.
+//! 3. [`position`]: the extrinsic 4-PoSy position field of Instant Meshes
+//!    (Jakob, Tarini, Panozzo, Sorkine-Hornung, SIGGRAPH Asia 2015, §4–5)
+//!    with a per-vertex scale (QuadriFlow's adaptive mode, Huang et al.
+//!    2018), smoothed coarse to fine on a pairwise-merge hierarchy.
+//! 4. [`extract`]: the lattice graph of the position field (Instant Meshes
+//!    §6), its faces, made pure quad by one Catmull-Clark split, with M's
+//!    components, boundary loops and Euler characteristic checked.
+
+pub mod cross;
+pub mod extract;
+pub mod position;
+pub mod sizing;
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::analysis::Fitmap;
+use crate::error::{Error, Result};
+use crate::mesh::{edge_key, ControlMesh, TriMesh};
+use crate::DVec3;
+
+/// Options of [`field_layout`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[non_exhaustive]
+pub struct FieldOptions {
+    /// Aim at this many quads (the sizing field's scale α is bisected so
+    /// that `∫ dA / h² ≈ N`, [`sizing::alpha_for_faces`]); `None`: α = 1,
+    /// the sizes the greedy simplifier's S- and M-fitmap tests accept.
+    pub target_faces: Option<usize>,
+    /// A uniform target edge length instead of the Fitmap's (tests, and
+    /// the torus/sphere checks of the design note).
+    pub uniform_size: Option<f64>,
+    /// The S-fitmap bound κ in units of κ₀ (as
+    /// [`crate::quad::SimplifyOptions::s_fitmap_scale`], same default so the
+    /// two layouts aim at the same patch radii).
+    pub s_fitmap_scale: f64,
+    /// β: the edge length allowed by the M-fitmap, in units of
+    /// `√2 · F_M` (a quad of edge h has centre-to-corner radius h/√2).
+    pub m_fitmap_scale: f64,
+    /// γ of the gradation `h_i ≤ h_j + γ |x_i − x_j|`.
+    pub gradation: f64,
+    /// Length (fraction of the bbox diagonal) above which the cross field
+    /// follows the curvature guide rather than its own smoothness.
+    pub alignment_length: f64,
+    /// Weight of the curvature guide against the field's own smoothness
+    /// (the guide is the relative anisotropy in [0, 1], see
+    /// [`cross::cross_field`]).
+    pub alignment_weight: f64,
+    /// Gauss–Seidel sweeps of the position field per hierarchy level.
+    pub position_sweeps: usize,
+}
+
+impl Default for FieldOptions {
+    fn default() -> Self {
+        FieldOptions {
+            target_faces: None,
+            uniform_size: None,
+            s_fitmap_scale: crate::quad::simplify::DEFAULT_S_FITMAP_SCALE,
+            m_fitmap_scale: 1.0,
+            gradation: 0.25,
+            alignment_length: 1.0,
+            alignment_weight: 1.0,
+            position_sweeps: 8,
+        }
+    }
+}
+
+impl FieldOptions {
+    pub fn with_target_faces(mut self, n: Option<usize>) -> Self {
+        self.target_faces = n;
+        self
+    }
+    pub fn with_uniform_size(mut self, h: Option<f64>) -> Self {
+        self.uniform_size = h;
+        self
+    }
+    pub fn with_alignment_weight(mut self, w: f64) -> Self {
+        self.alignment_weight = w;
+        self
+    }
+    pub fn with_gradation(mut self, g: f64) -> Self {
+        self.gradation = g;
+        self
+    }
+}
+
+/// Figures of one [`field_layout`] run.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct FieldStats {
+    pub vertices: usize,
+    pub faces: usize,
+    /// Interior vertices of valence ≠ 4 and boundary vertices of valence
+    /// ≠ 3 (boundary corners of valence 2 count as regular).
+    pub irregular_vertices: usize,
+    /// Triangles of M where the cross field turns by +¼ / −¼ / ±½.
+    pub singularities_plus: usize,
+    pub singularities_minus: usize,
+    pub singularities_half: usize,
+    /// Faces of the raw lattice extraction that were not quads (each
+    /// turns into an irregular vertex by the pure-quad split).
+    pub raw_non_quads: usize,
+    /// The sizing scale α used and the face count it predicted.
+    pub alpha: f64,
+    pub predicted_faces: f64,
+    /// The factor on F_M's bound a face target needed (1: F_M kept), see
+    /// [`sizing::m_relaxation_for_faces`].
+    pub m_fitmap_relaxed: f64,
+    /// Refinements of the sizing field after failed extractions, and the
+    /// factor on h they left ([`RETRY_FACTOR`]^retries).
+    pub retries: usize,
+    pub size_factor: f64,
+    pub seconds_cross: f64,
+    pub seconds_sizing: f64,
+    pub seconds_position: f64,
+    pub seconds_extract: f64,
+}
+
+/// The result of [`field_layout`].
+#[derive(Clone, Debug)]
+pub struct FieldLayout {
+    pub control: ControlMesh,
+    pub stats: FieldStats,
+}
+
+/// Runs the four steps of the module on `mesh` (M or the layout proxy M′,
+/// with `fitmap` on its vertices).
+pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Result<FieldLayout> {
+    if fitmap.s.len() != mesh.positions.len() || fitmap.m.len() != mesh.positions.len() {
+        return Err(Error::InvalidArgument(format!(
+            "field layout: the Fitmap has {} values for {} vertices",
+            fitmap.s.len(),
+            mesh.positions.len()
+        )));
+    }
+    let surf = Surface::new(mesh)?;
+    let mut stats = FieldStats::default();
+    let t = Instant::now();
+    let dirs = cross::cross_field(&surf, opts)?;
+    count_singularities(&surf, &dirs, &mut stats);
+    stats.seconds_cross = t.elapsed().as_secs_f64();
+
+    let t = Instant::now();
+    let (h, alpha, relaxed, predicted) = match opts.uniform_size {
+        Some(u) if u > 0.0 && u.is_finite() => {
+            let h = vec![u; surf.len()];
+            let n = sizing::predicted_faces(&surf, &h);
+            (h, 1.0, 1.0, n)
+        }
+        Some(u) => {
+            return Err(Error::InvalidArgument(format!(
+                "field layout: uniform size {u} must be finite and > 0"
+            )))
+        }
+        None => sizing::sizing_for(&surf, mesh, fitmap, opts)?,
+    };
+    stats.alpha = alpha;
+    stats.m_fitmap_relaxed = relaxed;
+    stats.predicted_faces = predicted;
+    stats.seconds_sizing = t.elapsed().as_secs_f64();
+    let mut out = layout_sized(&surf, mesh, &dirs, &h, opts, stats.clone())?;
+    // ∫ dA / h² predicts the lattice's cells only roughly (measured: the
+    // position field settles on 0.55–0.95 of them on coarse lattices), so
+    // a face target rescales h by √(faces / N) and solves steps 3–4 again,
+    // at most [`COUNT_PASSES`] times, keeping the result nearest N.
+    if let Some(n) = opts.target_faces {
+        let mut h = h;
+        for _ in 0..COUNT_PASSES {
+            let got = out.stats.faces as f64;
+            if (got - n as f64).abs() <= 0.02 * n as f64 {
+                break;
+            }
+            let f = (got / n as f64).sqrt();
+            for x in &mut h {
+                *x *= f;
+            }
+            let Ok(next) = layout_sized(&surf, mesh, &dirs, &h, opts, stats.clone()) else {
+                break;
+            };
+            if (next.stats.faces as f64 - n as f64).abs() < (got - n as f64).abs() {
+                out = next;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Passes of the face-count correction of [`field_layout`].
+pub const COUNT_PASSES: usize = 2;
+
+/// [`field_layout`] with a given target edge length per vertex of `mesh`
+/// instead of the Fitmap's (the cross field and the last two steps as
+/// there).
+pub fn field_layout_sized(mesh: &TriMesh, h: &[f64], opts: &FieldOptions) -> Result<FieldLayout> {
+    if h.len() != mesh.positions.len() {
+        return Err(Error::InvalidArgument(format!(
+            "field layout: {} sizes for {} vertices",
+            h.len(),
+            mesh.positions.len()
+        )));
+    }
+    if let Some(i) = h.iter().position(|x| !(x.is_finite() && *x > 0.0)) {
+        return Err(Error::InvalidArgument(format!(
+            "field layout: vertex {i}: size {} must be finite and > 0",
+            h[i]
+        )));
+    }
+    let surf = Surface::new(mesh)?;
+    let mut stats = FieldStats::default();
+    let t = Instant::now();
+    let dirs = cross::cross_field(&surf, opts)?;
+    count_singularities(&surf, &dirs, &mut stats);
+    stats.seconds_cross = t.elapsed().as_secs_f64();
+    stats.alpha = 1.0;
+    stats.m_fitmap_relaxed = 1.0;
+    stats.predicted_faces = sizing::predicted_faces(&surf, h);
+    layout_sized(&surf, mesh, &dirs, h, opts, stats)
+}
+
+fn count_singularities(surf: &Surface, dirs: &[DVec3], stats: &mut FieldStats) {
+    let sing = cross::singularities(surf, dirs);
+    stats.singularities_plus = sing.iter().filter(|s| s.1 == 1).count();
+    stats.singularities_minus = sing.iter().filter(|s| s.1 == 3).count();
+    stats.singularities_half = sing.iter().filter(|s| s.1 == 2).count();
+}
+
+/// Steps 3 and 4 on a sizing field.
+fn layout_sized(
+    surf: &Surface,
+    mesh: &TriMesh,
+    dirs: &[DVec3],
+    h: &[f64],
+    opts: &FieldOptions,
+    mut stats: FieldStats,
+) -> Result<FieldLayout> {
+    // The lattice is solved at twice the target length and split once
+    // (Instant Meshes' pure-quad output: every raw face of n sides becomes
+    // n quads of about the target size). When the extraction does not have
+    // M's topology (a lattice too coarse for a thin part tears or pinches),
+    // the whole field is refined by [`RETRY_FACTOR`] and solved again, at
+    // most [`RETRIES`] times: never another topology, an error instead.
+    let mut h = h.to_vec();
+    sizing::cap_at_boundaries(surf, &mut h, opts.gradation);
+    let mut factor = 1.0;
+    let mut last_error = None;
+    for attempt in 0..=RETRIES {
+        let t = Instant::now();
+        let scale: Vec<f64> = h.iter().map(|x| 2.0 * factor * x).collect();
+        let lattice = position::position_field(surf, dirs, &scale, opts.position_sweeps)?;
+        stats.seconds_position += t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let extracted = extract::extract(surf, mesh, dirs, &lattice, &scale);
+        stats.seconds_extract += t.elapsed().as_secs_f64();
+        match extracted {
+            Ok((control, raw_non_quads)) => {
+                stats.retries = attempt;
+                stats.size_factor = factor;
+                stats.raw_non_quads = raw_non_quads;
+                stats.vertices = control.num_vertices();
+                stats.faces = control.num_faces();
+                stats.irregular_vertices = irregular_vertices(&control);
+                return Ok(FieldLayout { control, stats });
+            }
+            Err(e @ Error::Topology { .. }) => last_error = Some(e),
+            Err(e) => return Err(e),
+        }
+        factor *= RETRY_FACTOR;
+    }
+    Err(last_error.expect("at least one attempt"))
+}
+
+/// Refinements of the whole sizing field after a failed extraction.
+pub const RETRIES: usize = 4;
+
+/// Each refinement's factor on h (about 1.5× the faces).
+pub const RETRY_FACTOR: f64 = 0.8;
+
+/// Interior vertices of valence ≠ 4 and boundary vertices of valence
+/// other than 2 or 3.
+pub fn irregular_vertices(k: &ControlMesh) -> usize {
+    k.vertices()
+        .filter(|&v| {
+            let n = k.valence(v);
+            if k.is_boundary_vertex(v) {
+                n != 3 && n != 2
+            } else {
+                n != 4
+            }
+        })
+        .count()
+}
+
+/// M's topology: components, boundary loops, Euler characteristic.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct TopologySummary {
+    pub components: usize,
+    pub boundary_loops: usize,
+    pub euler: i64,
+}
+
+/// The [`TopologySummary`] of a control mesh.
+pub fn control_topology(k: &ControlMesh) -> TopologySummary {
+    TopologySummary {
+        components: k.num_components(),
+        boundary_loops: k.num_boundary_loops(),
+        euler: k.num_vertices() as i64 - k.num_edges() as i64 + k.num_faces() as i64,
+    }
+}
+
+/// The triangle mesh M as the fields see it: per-vertex normals, areas and
+/// neighbours, its edges, and its boundary.
+pub struct Surface {
+    pub positions: Vec<DVec3>,
+    pub normals: Vec<DVec3>,
+    /// A third of the incident triangles' areas.
+    pub areas: Vec<f64>,
+    /// Neighbours of vertex i: `nbr[start[i]..start[i + 1]]`, sorted.
+    pub start: Vec<usize>,
+    pub nbr: Vec<u32>,
+    /// Undirected edges `(a, b)`, a < b, sorted.
+    pub edges: Vec<[u32; 2]>,
+    /// Boundary edges oriented with their triangle on the left.
+    pub boundary_edges: Vec<[u32; 2]>,
+    /// Per vertex: the unit boundary tangent (`None` inside).
+    pub boundary_tangent: Vec<Option<DVec3>>,
+    pub triangles: Vec<[u32; 3]>,
+    pub topology: TopologySummary,
+    pub mean_edge: f64,
+    pub diagonal: f64,
+}
+
+impl Surface {
+    /// Builds the fields' view of `mesh`; an error on an edge with more
+    /// than two triangles, a vertex on more than one boundary fan, or no
+    /// triangles.
+    pub fn new(mesh: &TriMesh) -> Result<Surface> {
+        let n = mesh.positions.len();
+        if mesh.triangles.is_empty() || n == 0 {
+            return Err(Error::InvalidArgument("field layout: empty mesh".into()));
+        }
+        let normals = crate::analysis::normals::vertex_normals(mesh);
+        let tri_areas = crate::analysis::normals::triangle_areas(mesh);
+        let mut areas = vec![0.0; n];
+        for (t, a) in mesh.triangles.iter().zip(&tri_areas) {
+            for &v in t {
+                areas[v as usize] += a / 3.0;
+            }
+        }
+        let counts = mesh.edge_counts();
+        if let Some(&(k, c)) = counts.iter().find(|e| e.1 > 2) {
+            return Err(Error::Topology {
+                element: format!("edge ({}, {})", k >> 32, k & 0xffff_ffff),
+                msg: format!("shared by {c} triangles; the field layout needs a manifold"),
+            });
+        }
+        let edges: Vec<[u32; 2]> = counts
+            .iter()
+            .map(|&(k, _)| [(k >> 32) as u32, (k & 0xffff_ffff) as u32])
+            .collect();
+        let boundary_keys: std::collections::HashSet<u64> =
+            counts.iter().filter(|e| e.1 == 1).map(|e| e.0).collect();
+        let mut boundary_edges = Vec::new();
+        for t in &mesh.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                if boundary_keys.contains(&edge_key(a, b)) {
+                    boundary_edges.push([a, b]);
+                }
+            }
+        }
+        boundary_edges.sort_unstable();
+        let mut deg = vec![0usize; n];
+        for e in &edges {
+            deg[e[0] as usize] += 1;
+            deg[e[1] as usize] += 1;
+        }
+        let mut start = vec![0usize; n + 1];
+        for i in 0..n {
+            start[i + 1] = start[i] + deg[i];
+        }
+        let mut fill = start.clone();
+        let mut nbr = vec![0u32; start[n]];
+        for e in &edges {
+            nbr[fill[e[0] as usize]] = e[1];
+            fill[e[0] as usize] += 1;
+            nbr[fill[e[1] as usize]] = e[0];
+            fill[e[1] as usize] += 1;
+        }
+        for i in 0..n {
+            nbr[start[i]..start[i + 1]].sort_unstable();
+        }
+        let boundary_tangent = boundary_tangents(mesh, &boundary_edges, &normals)?;
+        let mean_edge = edges
+            .iter()
+            .map(|e| (mesh.positions[e[0] as usize] - mesh.positions[e[1] as usize]).length())
+            .sum::<f64>()
+            / edges.len().max(1) as f64;
+        let topology = tri_topology(n, &mesh.triangles, &edges, &boundary_edges);
+        Ok(Surface {
+            positions: mesh.positions.clone(),
+            normals,
+            areas,
+            start,
+            nbr,
+            edges,
+            boundary_edges,
+            boundary_tangent,
+            triangles: mesh.triangles.clone(),
+            topology,
+            mean_edge,
+            diagonal: mesh.bbox_diagonal(),
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    #[inline]
+    pub fn neighbours(&self, i: usize) -> &[u32] {
+        &self.nbr[self.start[i]..self.start[i + 1]]
+    }
+}
+
+/// The tangent of the boundary at each boundary vertex (its two boundary
+/// edges' directions averaged, projected on the tangent plane); an error
+/// at a vertex with more than two boundary edges (two boundary fans).
+fn boundary_tangents(
+    mesh: &TriMesh,
+    boundary_edges: &[[u32; 2]],
+    normals: &[DVec3],
+) -> Result<Vec<Option<DVec3>>> {
+    let n = mesh.positions.len();
+    let mut sum = vec![DVec3::ZERO; n];
+    let mut count = vec![0u8; n];
+    for &[a, b] in boundary_edges {
+        let d = (mesh.positions[b as usize] - mesh.positions[a as usize]).normalize_or_zero();
+        for v in [a, b] {
+            sum[v as usize] += d;
+            count[v as usize] += 1;
+        }
+    }
+    let mut out = vec![None; n];
+    for v in 0..n {
+        if count[v] > 2 {
+            return Err(Error::Topology {
+                element: format!("vertex {v}"),
+                msg: "on two boundary fans; the field layout needs a manifold".into(),
+            });
+        }
+        if count[v] > 0 {
+            let nv = normals[v];
+            let t = (sum[v] - nv * nv.dot(sum[v])).normalize_or_zero();
+            out[v] = Some(if t == DVec3::ZERO {
+                nv.any_orthonormal_vector()
+            } else {
+                t
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// Components (by union-find over the edges), boundary loops (boundary
+/// edges chained head to tail) and V − E + F of a triangle mesh.
+fn tri_topology(
+    n: usize,
+    triangles: &[[u32; 3]],
+    edges: &[[u32; 2]],
+    boundary_edges: &[[u32; 2]],
+) -> TopologySummary {
+    let used: Vec<bool> = {
+        let mut u = vec![false; n];
+        for t in triangles {
+            for &v in t {
+                u[v as usize] = true;
+            }
+        }
+        u
+    };
+    let mut uf = UnionFind::new(n);
+    for e in edges {
+        uf.union(e[0] as usize, e[1] as usize);
+    }
+    let components = (0..n).filter(|&v| used[v] && uf.find(v) == v).count();
+    let mut bf = UnionFind::new(n);
+    for e in boundary_edges {
+        bf.union(e[0] as usize, e[1] as usize);
+    }
+    let mut on_boundary = vec![false; n];
+    for e in boundary_edges {
+        on_boundary[e[0] as usize] = true;
+    }
+    let boundary_loops = (0..n)
+        .filter(|&v| on_boundary[v] && bf.find(v) == v)
+        .count();
+    let vertices = used.iter().filter(|&&u| u).count() as i64;
+    TopologySummary {
+        components,
+        boundary_loops,
+        euler: vertices - edges.len() as i64 + triangles.len() as i64,
+    }
+}
+
+/// Union-find with path halving; the smaller index becomes the root, so
+/// the result does not depend on the order of the unions.
+pub(crate) struct UnionFind(Vec<usize>);
+
+impl UnionFind {
+    pub(crate) fn new(n: usize) -> Self {
+        UnionFind((0..n).collect())
+    }
+    pub(crate) fn find(&mut self, mut x: usize) -> usize {
+        while self.0[x] != x {
+            self.0[x] = self.0[self.0[x]];
+            x = self.0[x];
+        }
+        x
+    }
+    pub(crate) fn union(&mut self, a: usize, b: usize) {
+        let (ra, rb) = (self.find(a), self.find(b));
+        if ra != rb {
+            let (lo, hi) = (ra.min(rb), ra.max(rb));
+            self.0[hi] = lo;
+        }
+    }
+}

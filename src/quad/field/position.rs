@@ -1,0 +1,270 @@
+//! Step 3: the position field (Jakob, Tarini, Panozzo, Sorkine-Hornung,
+//! "Instant field-aligned meshes", SIGGRAPH Asia 2015, §5): per vertex a
+//! point o_i of a local square lattice with axes (q_i, n_i × q_i) and
+//! spacing s_i (the per-vertex scale of QuadriFlow's adaptive mode; an edge
+//! compares its two lattices at the mean of their spacings). Smoothing
+//! moves o_i to the average of its neighbours' nearest lattice points
+//! (the extrinsic 4-PoSy rule of §5.2: lattice points compared near the
+//! point of the two tangent planes closest to the edge's midpoint), then
+//! rounds it to the lattice point nearest p_i.
+//!
+//! Convergence over many rings needs a hierarchy (§5.3, "multi-resolution
+//! hierarchy"): vertices are merged in pairs along edges until few are
+//! left, the coarsest level is smoothed first and each level starts from
+//! its parent's lattice. Sweeps are sequential Gauss–Seidel in vertex
+//! order: the result does not depend on the thread count.
+//!
+//! Boundary vertices keep a lattice line on M's boundary (Instant Meshes'
+//! position constraint): after each update, o_i is moved across the
+//! boundary tangent onto the line through p_i, so the extracted boundary
+//! follows M's.
+
+use crate::error::Result;
+use crate::DVec3;
+
+use super::cross::match_arm;
+use super::Surface;
+
+/// One level of the hierarchy.
+struct Level {
+    p: Vec<DVec3>,
+    n: Vec<DVec3>,
+    area: Vec<f64>,
+    q: Vec<DVec3>,
+    s: Vec<f64>,
+    /// A point and tangent of M's boundary the lattice keeps a line on.
+    constraint: Vec<Option<(DVec3, DVec3)>>,
+    start: Vec<usize>,
+    nbr: Vec<u32>,
+    /// Index of the parent in the next coarser level.
+    parent: Vec<u32>,
+}
+
+impl Level {
+    fn neighbours(&self, i: usize) -> &[u32] {
+        &self.nbr[self.start[i]..self.start[i + 1]]
+    }
+}
+
+/// The point nearest the midpoint of `p0`, `p1` on both tangent planes
+/// (minimum-norm correction of the midpoint, a 2×2 system; nearly
+/// parallel planes are regularised toward the midpoint).
+#[inline]
+pub fn middle(p0: DVec3, n0: DVec3, p1: DVec3, n1: DVec3) -> DVec3 {
+    let m = 0.5 * (p0 + p1);
+    let d = n0.dot(n1);
+    let (r0, r1) = (n0.dot(m - p0), n1.dot(m - p1));
+    let det = 1.0 - d * d + 1e-4;
+    let l0 = (r0 - d * r1) / det;
+    let l1 = (r1 - d * r0) / det;
+    m - l0 * n0 - l1 * n1
+}
+
+/// The nearest pair of lattice points of two vertices (`q1` already the
+/// arm matching `q0`), compared at spacing `s`: `(P0, P1, c0, c1)` with
+/// `P = o + s (c.x q + c.y (n × q))`. The candidates are the corners of
+/// each lattice's cell around [`middle`] (§5.2).
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub fn compat_position(
+    p0: DVec3,
+    n0: DVec3,
+    q0: DVec3,
+    o0: DVec3,
+    p1: DVec3,
+    n1: DVec3,
+    q1: DVec3,
+    o1: DVec3,
+    s: f64,
+) -> (DVec3, DVec3, [i64; 2], [i64; 2]) {
+    let (t0, t1) = (n0.cross(q0), n1.cross(q1));
+    let m = middle(p0, n0, p1, n1);
+    let floor = |o: DVec3, q: DVec3, t: DVec3| {
+        let d = m - o;
+        [(q.dot(d) / s).floor() as i64, (t.dot(d) / s).floor() as i64]
+    };
+    let (b0, b1) = (floor(o0, q0, t0), floor(o1, q1, t1));
+    let mut best = (f64::INFINITY, DVec3::ZERO, DVec3::ZERO, b0, b1);
+    for k0 in 0..4 {
+        let c0 = [b0[0] + (k0 & 1), b0[1] + (k0 >> 1)];
+        let x0 = o0 + s * (c0[0] as f64 * q0 + c0[1] as f64 * t0);
+        for k1 in 0..4 {
+            let c1 = [b1[0] + (k1 & 1), b1[1] + (k1 >> 1)];
+            let x1 = o1 + s * (c1[0] as f64 * q1 + c1[1] as f64 * t1);
+            let d = (x0 - x1).length_squared();
+            if d < best.0 {
+                best = (d, x0, x1, c0, c1);
+            }
+        }
+    }
+    (best.1, best.2, best.3, best.4)
+}
+
+/// The lattice point of (o, q, n, s) nearest `p` (§5.2's rounding).
+#[inline]
+pub fn round_to(o: DVec3, q: DVec3, n: DVec3, s: f64, p: DVec3) -> DVec3 {
+    let t = n.cross(q);
+    let d = p - o;
+    o + s * ((q.dot(d) / s).round() * q + (t.dot(d) / s).round() * t)
+}
+
+/// The position field: per vertex of M a lattice point near it.
+pub fn position_field(
+    surf: &Surface,
+    dirs: &[DVec3],
+    scale: &[f64],
+    sweeps: usize,
+) -> Result<Vec<DVec3>> {
+    let mut levels = vec![Level {
+        p: surf.positions.clone(),
+        n: surf.normals.clone(),
+        area: surf.areas.clone(),
+        q: dirs.to_vec(),
+        s: scale.to_vec(),
+        constraint: (0..surf.len())
+            .map(|i| surf.boundary_tangent[i].map(|t| (surf.positions[i], t)))
+            .collect(),
+        start: surf.start.clone(),
+        nbr: surf.nbr.clone(),
+        parent: Vec::new(),
+    }];
+    while levels.last().map_or(0, |l| l.p.len()) > 64 {
+        let (parent, coarse) = coarsen(levels.last().expect("one level"));
+        if coarse.p.len() as f64 > 0.9 * levels.last().expect("one level").p.len() as f64 {
+            break;
+        }
+        levels.last_mut().expect("one level").parent = parent;
+        levels.push(coarse);
+    }
+    let top = levels.len() - 1;
+    let mut o = levels[top].p.clone();
+    for l in (0..=top).rev() {
+        if l < top {
+            let fine = &levels[l];
+            let coarse_o = o;
+            o = (0..fine.p.len())
+                .map(|i| {
+                    let po = coarse_o[fine.parent[i] as usize];
+                    let po = po - fine.n[i] * fine.n[i].dot(po - fine.p[i]);
+                    round_to(po, fine.q[i], fine.n[i], fine.s[i], fine.p[i])
+                })
+                .collect();
+        }
+        for _ in 0..sweeps.max(1) {
+            sweep(&levels[l], &mut o);
+        }
+    }
+    Ok(o)
+}
+
+/// One Gauss–Seidel sweep of the position rule over a level.
+fn sweep(l: &Level, o: &mut [DVec3]) {
+    for i in 0..l.p.len() {
+        let (pi, ni, qi) = (l.p[i], l.n[i], l.q[i]);
+        let mut sum = o[i];
+        let mut weight = 0.0;
+        for &j in l.neighbours(i) {
+            let j = j as usize;
+            let (qj, _) = match_arm(qi, l.q[j], l.n[j]);
+            let s = 0.5 * (l.s[i] + l.s[j]);
+            let (xi, xj, _, _) = compat_position(pi, ni, qi, sum, l.p[j], l.n[j], qj, o[j], s);
+            // Running mean in i's shifted lattice (Instant Meshes §5.2).
+            sum = (xi * weight + xj) / (weight + 1.0);
+            weight += 1.0;
+            sum -= ni * ni.dot(sum - pi);
+        }
+        if let Some((c, t)) = l.constraint[i] {
+            let side = ni.cross(t);
+            sum -= side * side.dot(sum - c);
+        }
+        o[i] = round_to(sum, qi, ni, l.s[i], pi);
+    }
+}
+
+/// Pairs of neighbours merged into one coarse vertex (greedy matching by
+/// normal agreement, then smaller combined area; deterministic order),
+/// unmatched vertices copied. Returns the parent map and the coarse level.
+fn coarsen(l: &Level) -> (Vec<u32>, Level) {
+    let n = l.p.len();
+    let mut cand: Vec<(f64, u32, u32)> = Vec::new();
+    for i in 0..n {
+        for &j in l.neighbours(i) {
+            if (j as usize) > i {
+                let score = l.n[i].dot(l.n[j as usize]) / (l.area[i] + l.area[j as usize] + 1e-300);
+                cand.push((score, i as u32, j));
+            }
+        }
+    }
+    cand.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let mut parent = vec![u32::MAX; n];
+    let mut groups: Vec<Vec<u32>> = Vec::new();
+    for &(_, i, j) in &cand {
+        if parent[i as usize] == u32::MAX && parent[j as usize] == u32::MAX {
+            parent[i as usize] = groups.len() as u32;
+            parent[j as usize] = groups.len() as u32;
+            groups.push(vec![i, j]);
+        }
+    }
+    for (i, p) in parent.iter_mut().enumerate() {
+        if *p == u32::MAX {
+            *p = groups.len() as u32;
+            groups.push(vec![i as u32]);
+        }
+    }
+    let mut c = Level {
+        p: Vec::with_capacity(groups.len()),
+        n: Vec::with_capacity(groups.len()),
+        area: Vec::with_capacity(groups.len()),
+        q: Vec::with_capacity(groups.len()),
+        s: Vec::with_capacity(groups.len()),
+        constraint: Vec::with_capacity(groups.len()),
+        start: Vec::new(),
+        nbr: Vec::new(),
+        parent: Vec::new(),
+    };
+    for g in &groups {
+        let (mut a, mut p, mut nn, mut s) = (0.0, DVec3::ZERO, DVec3::ZERO, 0.0);
+        for &v in g {
+            let v = v as usize;
+            let w = l.area[v].max(1e-300);
+            a += w;
+            p += w * l.p[v];
+            nn += w * l.n[v];
+            s += w * l.s[v];
+        }
+        let nn = nn.normalize_or(l.n[g[0] as usize]);
+        let q0 = l.q[g[0] as usize];
+        let mut q = q0;
+        for &v in &g[1..] {
+            q += match_arm(q0, l.q[v as usize], l.n[v as usize]).0;
+        }
+        let q = (q - nn * nn.dot(q)).normalize_or(nn.any_orthonormal_vector());
+        c.p.push(p / a);
+        c.n.push(nn);
+        c.area.push(a);
+        c.q.push(q);
+        c.s.push(s / a);
+        c.constraint
+            .push(g.iter().find_map(|&v| l.constraint[v as usize]));
+    }
+    let mut pairs: Vec<(u32, u32)> = Vec::new();
+    for i in 0..n {
+        for &j in l.neighbours(i) {
+            let (a, b) = (parent[i], parent[j as usize]);
+            if a != b {
+                pairs.push((a, b));
+            }
+        }
+    }
+    pairs.sort_unstable();
+    pairs.dedup();
+    c.start = vec![0; groups.len() + 1];
+    for &(a, _) in &pairs {
+        c.start[a as usize + 1] += 1;
+    }
+    for k in 0..groups.len() {
+        c.start[k + 1] += c.start[k];
+    }
+    c.nbr = pairs.iter().map(|&(_, b)| b).collect();
+    (parent, c)
+}
