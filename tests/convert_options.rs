@@ -20,7 +20,10 @@ fn tau_range_is_the_fitmaps_own() {
     }
     for bad in [0.0, -0.01, 1.0 + 1e-12, 2.0, f64::NAN, f64::INFINITY] {
         let e = with_tau(bad).unwrap_err().to_string();
-        assert!(e.contains("tolerance") && e.contains("(0, 1]"), "{bad}: {e}");
+        assert!(
+            e.contains("tolerance") && e.contains("(0, 1]"),
+            "{bad}: {e}"
+        );
         assert!(subdfit::analysis::fitmap::check_tolerance(bad).is_err());
     }
 }
@@ -32,7 +35,10 @@ fn out_of_range_options_are_rejected_before_any_work() {
     let cases = [
         (d.clone().with_max_error(Some(0.0)), "max error"),
         (d.clone().with_max_error(Some(f64::NAN)), "max error"),
-        (d.clone().with_displacement_res(Some(4097)), "displacement resolution"),
+        (
+            d.clone().with_displacement_res(Some(4097)),
+            "displacement resolution",
+        ),
         (d.clone().with_tessellation(Some(0)), "tessellation"),
         (d.clone().with_tessellation(Some(1025)), "tessellation"),
         (d.clone().with_proxy(Proxy::Triangles(99)), "proxy"),
@@ -41,7 +47,10 @@ fn out_of_range_options_are_rejected_before_any_work() {
         let e = o.check().unwrap_err().to_string();
         assert!(e.contains(what), "{what}: {e}");
     }
-    d.clone().with_max_error(Some(f64::INFINITY)).check().unwrap();
+    d.clone()
+        .with_max_error(Some(f64::INFINITY))
+        .check()
+        .unwrap();
     d.clone().with_tessellation(Some(1024)).check().unwrap();
     d.with_proxy(Proxy::Triangles(100)).check().unwrap();
 }
@@ -60,6 +69,9 @@ fn hosts_parse_the_clis_words() {
     assert_eq!("20000".parse::<Proxy>(), Ok(Proxy::Triangles(20000)));
     assert!("99".parse::<Proxy>().is_err());
     // report.json spells them in lower case, as before.
-    assert_eq!(serde_json::to_string(&Mode::Mechanical).unwrap(), "\"mechanical\"");
+    assert_eq!(
+        serde_json::to_string(&Mode::Mechanical).unwrap(),
+        "\"mechanical\""
+    );
     assert_eq!(serde_json::to_string(&Objective::Sdm).unwrap(), "\"sdm\"");
 }

@@ -110,6 +110,23 @@ def test_bad_arrays_raise_subdfit_error(case):
         assert w in str(e.value), str(e.value)
 
 
+def test_every_convert_option_reaches_python():
+    # One options type (subdfit::convert::ConvertOptions) behind every host:
+    # the proxy and the tessellation are checked and applied as the CLI's.
+    v, f = icosphere(3, bumps=0.1)
+    c = subdfit.convert(v, f, tessellation=4, proxy="none", mode="organic")
+    r = c.report
+    assert r["tessellation"]["segments_per_patch_side"] == 4 and r["tessellation"]["given"]
+    assert r["options"]["run"]["convert"]["proxy"] == "none"
+    assert r["options"]["run"]["convert"]["tessellation"] == 4
+    with pytest.raises(subdfit.InvalidInput, match="proxy"):
+        subdfit.convert(v, f, proxy="99")
+    with pytest.raises(subdfit.InvalidInput, match="tessellation"):
+        subdfit.convert(v, f, tessellation=2000)
+    # τ's range is the Fitmap's own, (0, 1].
+    assert subdfit._subdfit.Options(tolerance=1.0).tolerance == 1.0
+
+
 def test_bad_sizes_and_options_raise_subdfit_error():
     v, f = icosphere(2)
     with pytest.raises(subdfit.InvalidInput, match="add up to"):

@@ -16,9 +16,11 @@
 //! returns a control mesh with its own [`LayoutRecord`], which the same
 //! tail fits.
 
+use serde::Serialize;
+
 use crate::analysis::{Fitmap, FitmapOptions};
 use crate::error::{Error, Result};
-use crate::mesh::ControlMesh;
+use crate::mesh::{ControlMesh, Topology};
 use crate::quad::{simplify_with_progress, SimplifyOptions, SimplifyStats};
 use crate::raycast::{make_raycaster, RayBackend};
 use crate::report::StageTimer;
@@ -60,7 +62,7 @@ pub struct Laid {
 pub enum LayoutRecord {
     OrganicGreedy {
         /// `layout_proxy`: the proxy tried and used (see [`Proxy`]).
-        proxy: Option<serde_json::Value>,
+        proxy: Option<ProxyRecord>,
         simplification: SimplifyStats,
     },
     Mechanical {
@@ -192,8 +194,7 @@ pub(super) fn layout_proxy(
     proxy: Proxy,
     timer: &mut StageTimer,
     progress: &mut crate::watch::Progress<'_>,
-) -> Result<(Option<LayoutProxy>, Option<serde_json::Value>)> {
-    use crate::mesh::Topology;
+) -> Result<(Option<LayoutProxy>, Option<ProxyRecord>)> {
     let Some(mut triangles) = proxy.target(mesh.triangles.len()) else {
         return Ok((None, None));
     };
@@ -207,12 +208,12 @@ pub(super) fn layout_proxy(
             }
             let (m, stats) = crate::mesh::decimate(mesh, triangles)?;
             let got = Topology::of(&m);
-            tried.push(serde_json::json!({
-                "target_triangles": triangles,
-                "triangles": m.triangles.len(),
-                "topology": got,
-                "decimation": stats,
-            }));
+            tried.push(ProxyAttempt {
+                target_triangles: triangles,
+                triangles: m.triangles.len(),
+                topology: got,
+                decimation: stats,
+            });
             if got == want {
                 let c = make_raycaster(RayBackend::Embree, &m)?;
                 return Ok((Some((m, c)), tried, want));
@@ -223,13 +224,33 @@ pub(super) fn layout_proxy(
     })?;
     crate::fit::report_progress(progress, "proxy", 1.0)?;
     let (m, tried, want) = found;
-    let stats = serde_json::json!({
-        "used": m.is_some(),
-        "input_triangles": mesh.triangles.len(),
-        "input_topology": want,
-        "attempts": tried,
-    });
-    Ok((m, Some(stats)))
+    let record = ProxyRecord {
+        used: m.is_some(),
+        input_triangles: mesh.triangles.len(),
+        input_topology: want,
+        attempts: tried,
+    };
+    Ok((m, Some(record)))
+}
+
+/// What [`layout_proxy`] tried (`report.json`'s `layout_proxy`, and `fit`'s
+/// `fitmap_proxy`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ProxyRecord {
+    /// Whether the layout ran on M′ (one attempt kept M's topology).
+    pub used: bool,
+    pub input_triangles: usize,
+    pub input_topology: Topology,
+    pub attempts: Vec<ProxyAttempt>,
+}
+
+/// One decimation [`layout_proxy`] tried.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ProxyAttempt {
+    pub target_triangles: usize,
+    pub triangles: usize,
+    pub topology: Topology,
+    pub decimation: crate::mesh::DecimateStats,
 }
 
 /// M′ and a ray caster over it.

@@ -15,6 +15,8 @@
 
 use std::path::{Path, PathBuf};
 
+use serde::Serialize;
+
 use crate::analysis::FitmapOptions;
 use crate::error::{Error, Result};
 use crate::fit::FitOptions;
@@ -30,7 +32,7 @@ pub mod search;
 pub mod tail;
 
 pub use auto::{Candidate, SecondOpinion};
-pub use layout::{Laid, Layout, LayoutRecord};
+pub use layout::{Laid, Layout, LayoutRecord, ProxyAttempt, ProxyRecord};
 pub use options::{
     ConvertOptions, Mode, Proxy, DEFAULT_ORGANIC_MAX_ERROR, PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES,
 };
@@ -126,7 +128,7 @@ fn proxied_fitmap(
 ) -> Result<Option<crate::analysis::Fitmap>> {
     let (proxy, stats) = layout::layout_proxy(mesh, Proxy::Auto, timer, progress)?;
     if let (Some(stats), Some(obj)) = (stats, extra_options.as_object_mut()) {
-        obj.insert("fitmap_proxy".into(), stats);
+        obj.insert("fitmap_proxy".into(), serde_json::json!(stats));
     }
     let Some((m, c)) = proxy else {
         return Ok(None);
@@ -300,29 +302,35 @@ fn convert_as(
         fitmap,
         record,
     } = laid;
-    // `report.json`'s `options` (organic and coarse: its `options.run`):
-    // the mode choice, the options, the layout's record and the host's.
-    let mut options = serde_json::json!({
-        "mode": choice,
-        "convert": opts,
-        "run": run_extra,
-    });
     let fit = FitOptions::default().with_objective(opts.objective);
     let metrics = MetricsOptions::default()
         .with_displacement_res(opts.displacement_res)
         .with_output_tessellation(opts.tessellation);
-    match record {
+    let branch = |layout: BranchLayout<'_>| {
+        BranchRecord {
+            mode: &choice,
+            convert: opts,
+            run: &run_extra,
+            layout,
+        }
+        .to_json()
+    };
+    match &record {
         LayoutRecord::Mechanical { options: mo, stats } => {
-            options["mechanical"] = serde_json::json!({ "options": mo, "stats": stats });
+            let options = branch(BranchLayout::Mechanical {
+                mechanical: MechanicalRecord { options: mo, stats },
+            });
             let mut c = tail::measure_as_fitted(run, control, &metrics, options)?;
-            c.report.add_target(max_error_target(&mo, &stats));
+            c.report.add_target(max_error_target(mo, stats));
             Ok(c)
         }
         LayoutRecord::Coarse { why } => {
-            options["coarse_input"] = serde_json::json!(format!(
-                "no Fitmap ({why}): the input's own faces, refined once into quads, are the control mesh, its sharp edges (dihedral > {}°) infinitely sharp creases",
-                crate::mechanical::SHARP_DIHEDRAL_DEG
-            ));
+            let options = branch(BranchLayout::Coarse {
+                coarse_input: format!(
+                    "no Fitmap ({why}): the input's own faces, refined once into quads, are the control mesh, its sharp edges (dihedral > {}°) infinitely sharp creases",
+                    crate::mechanical::SHARP_DIHEDRAL_DEG
+                ),
+            });
             let po = PipelineOptions::default()
                 .with_fit(fit)
                 .with_metrics(metrics);
@@ -342,8 +350,6 @@ fn convert_as(
             proxy,
             simplification,
         } => {
-            options["layout_proxy"] = serde_json::json!(proxy);
-            options["simplification"] = serde_json::json!(simplification);
             let fitmap = fitmap.ok_or_else(|| {
                 Error::InvalidArgument("organic layout without a Fitmap (a bug)".into())
             })?;
@@ -352,9 +358,11 @@ fn convert_as(
                 .with_metrics(metrics)
                 .with_fitmap(Some(fitmap_options(opts)));
             let with_search = |search: Option<&ErrorSearch>| {
-                let mut o = options.clone();
-                o["max_error_search"] = serde_json::json!(search);
-                o
+                branch(BranchLayout::OrganicGreedy {
+                    layout_proxy: proxy.as_ref(),
+                    simplification,
+                    max_error_search: search,
+                })
             };
             if let Some(e) = organic_max_error(opts) {
                 return search::fit_fewest_within(
@@ -383,10 +391,55 @@ fn convert_as(
             )?;
             if let Some(n) = opts.target_faces {
                 c.report
-                    .add_target(faces_target(n, &simplification, &c.report));
+                    .add_target(faces_target(n, simplification, &c.report));
             }
             Ok(c)
         }
+    }
+}
+
+/// `report.json`'s record of one branch of a conversion: its `options`
+/// (mechanical), or `options.run` beside the tail's `pipeline` (organic,
+/// coarse). Written through [`serde_json::Value`], whose maps keep their
+/// keys sorted: the file's bytes do not depend on the field order here.
+#[derive(Serialize)]
+struct BranchRecord<'a> {
+    /// `--mode`'s choice and why.
+    mode: &'a crate::mechanical::ModeChoice,
+    convert: &'a ConvertOptions,
+    /// The host's own record (command, input path, …).
+    run: &'a serde_json::Value,
+    #[serde(flatten)]
+    layout: BranchLayout<'a>,
+}
+
+/// The layout's keys of a [`BranchRecord`].
+#[derive(Serialize)]
+#[serde(untagged)]
+enum BranchLayout<'a> {
+    OrganicGreedy {
+        layout_proxy: Option<&'a layout::ProxyRecord>,
+        simplification: &'a crate::quad::SimplifyStats,
+        max_error_search: Option<&'a ErrorSearch>,
+    },
+    Mechanical {
+        mechanical: MechanicalRecord<'a>,
+    },
+    Coarse {
+        coarse_input: String,
+    },
+}
+
+/// Lavoué et al.'s options and statistics of a mechanical branch.
+#[derive(Serialize)]
+struct MechanicalRecord<'a> {
+    options: &'a crate::mechanical::MechanicalOptions,
+    stats: &'a crate::mechanical::MechanicalStats,
+}
+
+impl BranchRecord<'_> {
+    fn to_json(&self) -> serde_json::Value {
+        serde_json::json!(self)
     }
 }
 
