@@ -167,7 +167,7 @@ impl PyOptions {
     #[new]
     #[pyo3(signature = (*, tolerance=None, mode="auto", max_error=None, faces_target=0,
         fit="point", displacement_res=0, m_fitmap=true, tessellation=0, proxy="auto",
-        threads=0, name=None))]
+        layout="greedy", threads=0, name=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         tolerance: Option<f64>,
@@ -179,6 +179,7 @@ impl PyOptions {
         m_fitmap: bool,
         tessellation: u32,
         proxy: &str,
+        layout: &str,
         threads: u32,
         name: Option<String>,
     ) -> PyResult<Self> {
@@ -211,7 +212,10 @@ impl PyOptions {
                 proxy
                     .parse()
                     .map_err(|e: String| InvalidInput::new_err(format!("proxy: {e}")))?,
-            );
+            )
+            .with_layout(layout.parse().map_err(|_| {
+                InvalidInput::new_err(format!("unknown layout {layout:?}: greedy or field"))
+            })?);
         o.threads = threads;
         if let Some(n) = name {
             o.source_name = n;

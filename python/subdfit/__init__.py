@@ -270,6 +270,7 @@ def convert(
     m_fitmap: bool = True,
     tessellation: int = 0,
     proxy: str = "auto",
+    layout: str = "greedy",
     threads: int = 0,
     name: str | None = None,
     progress: Progress | None = None,
@@ -285,7 +286,8 @@ def convert(
     ``fit`` (``"point"``/``"sdm"``), ``displacement_res`` (0: automatic),
     ``m_fitmap`` (False: ``--no-mfitmap``), ``tessellation`` (cells per
     patch side of limit.ply / displaced.ply; 0: automatic), ``proxy``
-    (``"auto"``, ``"none"`` or a triangle count, as a string),
+    (``"auto"``, ``"none"`` or a triangle count, as a string), ``layout``
+    (``"greedy"`` or the experimental ``"field"``),
     ``threads`` (0: all cores).
     ``name`` names the input in errors and report.json (the CLI uses the
     path). Raises :class:`InvalidInput` (with the CLI's message),
@@ -294,7 +296,8 @@ def convert(
     mesh, name = _mesh_args(vertices, faces, face_sizes, name)
     o = _options(name, tolerance=tolerance, mode=mode, max_error=max_error,
                  faces_target=faces_target, fit=fit, displacement_res=displacement_res,
-                 m_fitmap=m_fitmap, tessellation=tessellation, proxy=proxy, threads=threads)
+                 m_fitmap=m_fitmap, tessellation=tessellation, proxy=proxy, layout=layout,
+                 threads=threads)
     return Conversion(_subdfit.convert(mesh, o, progress))
 
 

@@ -43,6 +43,7 @@ class Options:
         m_fitmap: bool = True,
         tessellation: int = 0,
         proxy: str = "auto",
+        layout: str = "greedy",
         threads: int = 0,
         name: str | None = None,
     ) -> None: ...

@@ -10,11 +10,10 @@
 //! - [`Layout::Coarse`]: an input coarser than the Fitmap's radii, its own
 //!   faces refined into quads.
 //!
-//! An organic field-aligned layout (`crate::quad::field::field_layout(mesh,
-//! fitmap, opts)`, the quad-dominant layout of issue 17) becomes one more
-//! variant here: it takes the Fitmap [`Layout::OrganicGreedy`] computes and
-//! returns a control mesh with its own [`LayoutRecord`], which the same
-//! tail fits.
+//! - [`Layout::OrganicField`]: the same Fitmap, then the field-aligned
+//!   layout of [`crate::quad::field`] (`--layout field`): a cross field and
+//!   a position field sized by the Fitmap, extracted into a pure-quad mesh
+//!   with M's topology. The same tail fits it.
 
 use serde::Serialize;
 
@@ -38,6 +37,9 @@ pub enum Layout {
         fitmap: FitmapOptions,
         checkpoints: bool,
     },
+    /// The field-aligned layout ([`crate::quad::field::field_layout`])
+    /// sized by the Fitmap of `fitmap` (and `--faces` when given).
+    OrganicField { fitmap: FitmapOptions },
     /// Lavoué et al. 2007 with these options.
     Mechanical(crate::mechanical::MechanicalOptions),
     /// The input's own faces (no Fitmap: `why`, the error of
@@ -69,9 +71,24 @@ pub enum LayoutRecord {
         options: crate::mechanical::MechanicalOptions,
         stats: crate::mechanical::MechanicalStats,
     },
+    OrganicField {
+        /// `layout_proxy`, as for the greedy layout.
+        proxy: Option<ProxyRecord>,
+        field: crate::quad::field::FieldStats,
+        /// The layout mesh and its Fitmap, kept so that `--max-error` can
+        /// lay the field out again at another size without a new Fitmap.
+        relayout: Box<FieldRelayout>,
+    },
     Coarse {
         why: Error,
     },
+}
+
+/// What [`Layout::OrganicField`] needs to run the field layout again: the
+/// mesh it ran on (M or M′) and the Fitmap on that mesh's vertices.
+pub struct FieldRelayout {
+    pub mesh: crate::mesh::TriMesh,
+    pub fitmap: Fitmap,
 }
 
 impl Layout {
@@ -82,6 +99,7 @@ impl Layout {
                 fitmap,
                 checkpoints,
             } => organic_greedy(run, opts, &fitmap, checkpoints),
+            Layout::OrganicField { fitmap } => organic_field(run, opts, &fitmap),
             Layout::Mechanical(mo) => mechanical(run, mo),
             Layout::Coarse { why } => {
                 let mesh = run.mesh();
@@ -157,6 +175,52 @@ fn organic_greedy(
         record: LayoutRecord::OrganicGreedy {
             proxy: proxy_stats,
             simplification: simplified.stats,
+        },
+    })
+}
+
+/// The field-aligned organic layout: the layout proxy and the Fitmap as in
+/// [`organic_greedy`], then [`crate::quad::field::field_layout`] on the
+/// same mesh, aiming at `--faces` when given (the sizing field's scale is
+/// set before meshing, issue 40), else at the sizes the Fitmap's tests
+/// accept.
+fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOptions) -> Result<Laid> {
+    let mesh = run.mesh();
+    let (proxy, proxy_stats) = layout_proxy(mesh, opts.proxy, &mut run.timer, run.progress)?;
+    let (layout, layout_caster) = match &proxy {
+        Some((m, c)) => (m, c.as_ref()),
+        None => (mesh, run.caster.as_ref()),
+    };
+    let (timer, progress) = (&mut run.timer, &mut *run.progress);
+    let stage = crate::fit::report_progress;
+    stage(progress, "fitmap", 0.0)?;
+    let fitmap = timer.run("fitmap", || {
+        fitmap_reporting(layout, layout_caster, fo, &mut *progress)
+    })?;
+    stage(progress, "fitmap", 1.0)?;
+    let field_opts = crate::quad::field::FieldOptions::default().with_target_faces(opts.target_faces);
+    stage(progress, "field layout", 0.0)?;
+    let laid = timer.run("field layout", || {
+        crate::quad::field::field_layout(layout, &fitmap, &field_opts)
+    })?;
+    stage(progress, "field layout", 1.0)?;
+    let on_m = match &proxy {
+        Some((m, c)) => timer.run("fitmap transfer", || {
+            fitmap.transferred(m, c.as_ref(), mesh)
+        })?,
+        None => fitmap.clone(),
+    };
+    Ok(Laid {
+        control: laid.control,
+        checkpoints: Vec::new(),
+        fitmap: Some(on_m),
+        record: LayoutRecord::OrganicField {
+            proxy: proxy_stats,
+            field: laid.stats,
+            relayout: Box::new(FieldRelayout {
+                mesh: layout.clone(),
+                fitmap,
+            }),
         },
     })
 }

@@ -25,6 +25,7 @@ use crate::raycast::{make_raycaster, RayBackend};
 use crate::report::{MetricsOptions, Report, StageTimer, TargetCheck};
 
 pub mod auto;
+mod field;
 pub mod layout;
 mod options;
 pub mod run;
@@ -32,9 +33,9 @@ pub mod search;
 pub mod tail;
 
 pub use auto::{Candidate, SecondOpinion};
-pub use layout::{Laid, Layout, LayoutRecord, ProxyAttempt, ProxyRecord};
+pub use layout::{FieldRelayout, Laid, Layout, LayoutRecord, ProxyAttempt, ProxyRecord};
 pub use options::{
-    ConvertOptions, Mode, Proxy, DEFAULT_ORGANIC_MAX_ERROR, PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES,
+    ConvertOptions, LayoutKind, Mode, Proxy, DEFAULT_ORGANIC_MAX_ERROR, PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES,
 };
 pub use run::Run;
 pub use search::ErrorSearch;
@@ -280,6 +281,9 @@ fn layout_for(
     }
     match crate::analysis::fitmap::fitmap_radii(mesh) {
         Err(why) => Layout::Coarse { why },
+        Ok(_) if opts.layout == LayoutKind::Field => Layout::OrganicField {
+            fitmap: fitmap_options(opts),
+        },
         Ok(_) => Layout::OrganicGreedy {
             fitmap: fitmap_options(opts),
             checkpoints: organic_max_error(opts).is_some(),
@@ -344,6 +348,38 @@ fn convert_as(
                 options,
                 None,
                 run.progress,
+            )
+        }
+        LayoutRecord::OrganicField {
+            proxy,
+            field,
+            relayout,
+        } => {
+            let fitmap = fitmap.ok_or_else(|| {
+                Error::InvalidArgument("organic layout without a Fitmap (a bug)".into())
+            })?;
+            let po = PipelineOptions::default()
+                .with_fit(fit)
+                .with_metrics(metrics)
+                .with_fitmap(Some(fitmap_options(opts)));
+            let record = |rounds: &[field::FieldRound]| {
+                branch(BranchLayout::OrganicField {
+                    layout_proxy: proxy.as_ref(),
+                    field_layout: field::FieldRecord {
+                        first: field,
+                        rounds,
+                    },
+                })
+            };
+            field::fit_field(
+                run,
+                opts,
+                control,
+                relayout,
+                &po,
+                fitmap,
+                organic_max_error(opts),
+                record,
             )
         }
         LayoutRecord::OrganicGreedy {
@@ -421,6 +457,10 @@ enum BranchLayout<'a> {
         layout_proxy: Option<&'a layout::ProxyRecord>,
         simplification: &'a crate::quad::SimplifyStats,
         max_error_search: Option<&'a ErrorSearch>,
+    },
+    OrganicField {
+        layout_proxy: Option<&'a layout::ProxyRecord>,
+        field_layout: field::FieldRecord<'a>,
     },
     Mechanical {
         mechanical: MechanicalRecord<'a>,

@@ -36,6 +36,23 @@ pub struct ConvertOptions {
     /// The mesh the layout stages (Fitmap, quadrangulation,
     /// simplification) run on; see [`Proxy`].
     pub proxy: Proxy,
+    /// Organic mode's layout: the greedy simplification of the
+    /// quadrangulated input (Fitmaps §3.2–3.3, the default) or the
+    /// field-aligned layout ([`crate::quad::field`], issue 40).
+    pub layout: LayoutKind,
+}
+
+/// `convert --layout`: which organic layout makes the control mesh.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum LayoutKind {
+    /// Fitmaps §3.2–3.3: M′'s triangle pairs, then diagonal collapses,
+    /// edge rotations and doublet removals under the Fitmap's tests.
+    #[default]
+    Greedy,
+    /// A cross field and a position field sized by the Fitmap, extracted
+    /// into a pure-quad mesh with M's topology ([`crate::quad::field`]).
+    Field,
 }
 
 /// `convert --proxy`: the layout proxy M′ of the Fitmaps paper's §4 (its
@@ -135,6 +152,15 @@ impl std::str::FromStr for Mode {
     }
 }
 
+/// The CLI's words (`greedy`, `field`), for hosts that take the layout as
+/// a string.
+impl std::str::FromStr for LayoutKind {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<LayoutKind, String> {
+        <LayoutKind as clap::ValueEnum>::from_str(s, false)
+    }
+}
+
 impl Default for ConvertOptions {
     fn default() -> Self {
         ConvertOptions {
@@ -147,6 +173,7 @@ impl Default for ConvertOptions {
             max_error: None,
             tessellation: None,
             proxy: Proxy::Auto,
+            layout: LayoutKind::Greedy,
         }
     }
 }
@@ -223,6 +250,10 @@ impl ConvertOptions {
     }
     pub fn with_proxy(mut self, p: Proxy) -> Self {
         self.proxy = p;
+        self
+    }
+    pub fn with_layout(mut self, l: LayoutKind) -> Self {
+        self.layout = l;
         self
     }
 }

@@ -228,6 +228,9 @@ fn options_key(o: &Options, source_name: &str) -> String {
     if let Some(n) = c.tessellation {
         later += &format!(" tessellation={n}");
     }
+    if c.layout != crate::convert::LayoutKind::Greedy {
+        later += &format!(" layout={:?}", c.layout);
+    }
     format!(
         "tolerance={:?} faces={} mode={:?} fit={:?} displacement_res={} max_error={:?} \
          m_fitmap={}{later} name={source_name}",

@@ -6,7 +6,9 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::Args;
 use subdfit::analysis::fitmap::DEFAULT_TOLERANCE;
-use subdfit::convert::{convert_in_memory, write_converted, ConvertOptions, Mode, Proxy};
+use subdfit::convert::{
+    convert_in_memory, write_converted, ConvertOptions, LayoutKind, Mode, Proxy,
+};
 use subdfit::fit::Objective;
 
 use crate::fit::progress_bars;
@@ -113,6 +115,14 @@ pub struct ConversionArgs {
     /// report.json's `tessellation` gives the figures.
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..=1024))]
     tessellation: Option<u64>,
+    /// Organic mode's layout: `greedy` (Fitmaps §3.2-3.3: the input's
+    /// triangle pairs simplified by collapses, rotations and doublet
+    /// removals under the Fitmap's tests) or `field` (a curvature-aligned
+    /// cross field and a position field sized by the Fitmap, extracted into
+    /// a pure-quad mesh with the input's topology; experimental: see
+    /// docs/status.md). report.json's `options.convert.layout` says which ran.
+    #[arg(long, value_enum, default_value_t = LayoutKind::Greedy)]
+    layout: LayoutKind,
 }
 
 impl ConversionArgs {
@@ -127,6 +137,7 @@ impl ConversionArgs {
             .with_max_error(self.max_error)
             .with_tessellation(self.tessellation.map(|n| n as usize))
             .with_proxy(self.proxy)
+            .with_layout(self.layout)
     }
 }
 
