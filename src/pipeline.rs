@@ -32,6 +32,10 @@ pub struct ConvertOptions {
     pub objective: Objective,
     /// Displacement samples per patch side; `None`: total ≈ M's vertices.
     pub displacement_res: Option<usize>,
+    /// Per-patch displacement resolution under this many samples in all
+    /// (`--displacement-samples`); `None`: the uniform grid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub displacement_samples: Option<usize>,
     /// Which pipeline: Fitmaps (organic), Lavoué et al. (mechanical), or
     /// chosen from the share of sharp edges (auto, the default).
     pub mode: Mode,
@@ -127,6 +131,7 @@ impl Default for ConvertOptions {
             no_m_fitmap: false,
             objective: Objective::Point,
             displacement_res: None,
+            displacement_samples: None,
             mode: Mode::Auto,
             max_error: None,
             tessellation: None,
@@ -154,6 +159,10 @@ impl ConvertOptions {
     }
     pub fn with_displacement_res(mut self, r: Option<usize>) -> Self {
         self.displacement_res = r;
+        self
+    }
+    pub fn with_displacement_samples(mut self, n: Option<usize>) -> Self {
+        self.displacement_samples = n;
         self
     }
     pub fn with_mode(mut self, m: Mode) -> Self {
@@ -486,6 +495,7 @@ fn convert_organic(
         .with_metrics(
             MetricsOptions::default()
                 .with_displacement_res(opts.displacement_res)
+                .with_displacement_samples(opts.displacement_samples)
                 .with_output_tessellation(opts.tessellation),
         )
         .with_fitmap(Some(fo));
@@ -906,6 +916,7 @@ fn convert_coarse(
         .with_metrics(
             MetricsOptions::default()
                 .with_displacement_res(opts.displacement_res)
+                .with_displacement_samples(opts.displacement_samples)
                 .with_output_tessellation(opts.tessellation),
         );
     let extra = serde_json::json!({
@@ -1007,6 +1018,7 @@ fn convert_mechanical(
     })?;
     let mopts = MetricsOptions::default()
         .with_displacement_res(opts.displacement_res)
+        .with_displacement_samples(opts.displacement_samples)
         .with_output_tessellation(opts.tessellation);
     let surfaces = timer.run("displacement+metrics", || {
         crate::report::evaluate_surfaces(&input.mesh, &quads, caster, &mopts, progress)

@@ -53,6 +53,11 @@ pub struct ConvertArgs {
     /// Displacement samples per patch side (default: total ≈ M's vertices).
     #[arg(long)]
     displacement_res: Option<usize>,
+    /// Per-patch displacement resolution (2^k + 1 per side, where the
+    /// detail is) under this many samples in all, each shared sample
+    /// counted once; --displacement-res overrides it.
+    #[arg(long)]
+    displacement_samples: Option<usize>,
     /// Lift the projectability (M-fitmap) test (the paper's Fig. 7).
     #[arg(long)]
     no_mfitmap: bool,
@@ -217,6 +222,7 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
             FitArg::Sdm => Objective::Sdm,
         })
         .with_displacement_res(a.displacement_res)
+        .with_displacement_samples(a.displacement_samples)
         .with_mode(match a.mode {
             ModeArg::Auto => Mode::Auto,
             ModeArg::Organic => Mode::Organic,
