@@ -35,7 +35,10 @@ fn main() -> anyhow::Result<()> {
         let (mp, mw) = quadrature_points(&input.mesh);
         let dc = make_raycaster(RayBackend::Embree, &s.mesh)?;
         let st = distance_stats(&mp, &mw, dc.as_ref(), input.mesh.bbox_diagonal())?;
-        println!("{}", serde_json::json!({ "m_to_file": st.rms_permille, "max": st.max_permille }));
+        println!(
+            "{}",
+            serde_json::json!({ "m_to_file": st.rms_permille, "max": st.max_permille })
+        );
         return Ok(());
     }
     let control = subdfit::io::read_control_mesh(args[2].as_ref())?;
@@ -57,10 +60,19 @@ fn main() -> anyhow::Result<()> {
         let r = ((r0 - 1) as f64 * m.sqrt()).round() as usize + 1;
         let budget = (m * nv as f64).round() as usize;
         for (name, opts) in [
-            ("uniform", MetricsOptions::default().with_displacement_res(Some(r))),
+            (
+                "uniform",
+                MetricsOptions::default().with_displacement_res(Some(r)),
+            ),
             (
                 "adaptive",
-                MetricsOptions::default().with_displacement_samples(Some(budget)),
+                MetricsOptions::default()
+                    .with_displacement_samples(Some(budget))
+                    .with_offsets(if std::env::var("SD_HIT").is_ok() {
+                        subdfit::displace::OffsetMode::Hit
+                    } else {
+                        subdfit::displace::OffsetMode::LeastSquares
+                    }),
             ),
         ] {
             let t0 = Instant::now();
@@ -83,6 +95,7 @@ fn main() -> anyhow::Result<()> {
                     "m_to_displaced_ply": harness.rms_permille,
                     "displaced_ply_vertices": s.displaced.positions.len(),
                     "histogram": s.metrics.displacement.adaptive.as_ref().map(|a| &a.resolution_histogram),
+                    "lsq": s.metrics.displacement.least_squares,
                     "seconds": seconds,
                 })
             );

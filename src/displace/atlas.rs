@@ -234,7 +234,10 @@ impl Atlas {
         let mut order: Vec<usize> = (0..res.len()).collect();
         order.sort_by(|&a, &b| res[b].cmp(&res[a]).then(a.cmp(&b)));
         let max_pitch = pitch_of(res[order[0]]);
-        let area: f64 = res.iter().map(|&r| (pitch_of(r) * pitch_of(r)) as f64).sum();
+        let area: f64 = res
+            .iter()
+            .map(|&r| (pitch_of(r) * pitch_of(r)) as f64)
+            .sum();
         // A near-square image (or UDIM tile, at most UDIM_PATCHES of the
         // largest tiles per side), in whole alignment blocks.
         let mut side = (area.sqrt().ceil() as usize).div_ceil(align) * align;

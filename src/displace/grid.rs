@@ -299,7 +299,10 @@ impl PatchGrid {
 
     /// Number of distinct (welded) samples, dependent ones included.
     pub fn num_samples(&self) -> usize {
-        *self.face_start.last().unwrap_or(&(self.num_vertices as u32)) as usize
+        *self
+            .face_start
+            .last()
+            .unwrap_or(&(self.num_vertices as u32)) as usize
     }
 
     /// Number of independent samples: each shared sample counted once,
@@ -320,7 +323,8 @@ impl PatchGrid {
         T: Copy + std::ops::Mul<f64, Output = T> + std::ops::Add<Output = T>,
     {
         for d in &self.dependents {
-            values[d.sample as usize] = values[d.a as usize] * (1.0 - d.w) + values[d.b as usize] * d.w;
+            values[d.sample as usize] =
+                values[d.a as usize] * (1.0 - d.w) + values[d.b as usize] * d.w;
         }
     }
 
@@ -567,7 +571,10 @@ mod tests {
         let mut used = vec![false; g.num_samples()];
         let mut directed = std::collections::HashMap::new();
         for t in tris {
-            assert!(t[0] != t[1] && t[1] != t[2] && t[0] != t[2], "{what}: degenerate {t:?}");
+            assert!(
+                t[0] != t[1] && t[1] != t[2] && t[0] != t[2],
+                "{what}: degenerate {t:?}"
+            );
             for k in 0..3 {
                 used[t[k] as usize] = true;
                 *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
@@ -576,15 +583,27 @@ mod tests {
         assert!(used.iter().all(|&u| u), "{what}: unused sample");
         for (&(a, b), &c) in &directed {
             assert_eq!(c, 1, "{what}: directed edge ({a},{b}) used {c} times");
-            assert_eq!(directed.get(&(b, a)), Some(&1), "{what}: edge ({a},{b}) open");
+            assert_eq!(
+                directed.get(&(b, a)),
+                Some(&1),
+                "{what}: edge ({a},{b}) open"
+            );
         }
         let e = directed.len() / 2;
-        assert_eq!(g.num_samples() as i64 - e as i64 + tris.len() as i64, 2, "{what}");
+        assert_eq!(
+            g.num_samples() as i64 - e as i64 + tris.len() as i64,
+            2,
+            "{what}"
+        );
     }
 
     /// Mixed levels on the cube: every pair of neighbours differs by 0 to
     /// 3 levels, both ways round.
-    const MIXED: [[usize; 6]; 3] = [[3, 5, 9, 3, 17, 5], [9, 3, 3, 17, 5, 33], [5, 5, 5, 5, 5, 9]];
+    const MIXED: [[usize; 6]; 3] = [
+        [3, 5, 9, 3, 17, 5],
+        [9, 3, 3, 17, 5, 33],
+        [5, 5, 5, 5, 5, 9],
+    ];
 
     #[test]
     fn adaptive_welded_grid_on_a_closed_mesh_is_a_closed_manifold() {
@@ -687,7 +706,10 @@ mod tests {
                             .unwrap()[0]
                             .position;
                         let s = d.sample as usize;
-                        assert!(here.distance(pos[s]) < 1e-9, "{res:?} patch {f}: sample {s}");
+                        assert!(
+                            here.distance(pos[s]) < 1e-9,
+                            "{res:?} patch {f}: sample {s}"
+                        );
                         let lin = (1.0 - w) * vals[a as usize] + w * vals[b as usize];
                         assert!((vals[s] - lin).abs() < 1e-12, "{res:?}: sample {s}");
                         checked += 1;

@@ -4,6 +4,16 @@
 //! live on a welded [`PatchGrid`], so a sample on a patch edge is computed
 //! once and stored identically in both tiles of the atlas.
 //!
+//! `R` is the same for every patch (`--displacement-res`, or
+//! [`auto_resolution`]), or chosen per patch under a total of samples
+//! (`--displacement-samples`, [`allocate_resolutions`]): `R_f = 2^k + 1`,
+//! where the displacement has detail, with the in-between samples of an
+//! edge between resolutions interpolating the coarser side's (see
+//! [`PatchGrid`]), so every host's bilinear lookup reads the same function
+//! along the edge from both tiles. The reconstruction is that bilinear
+//! lookup in both cases: what `displaced.ply` is built with and what
+//! hosts do with the written maps.
+//!
 //! Every sample gets φ's offset: the nearest intersection of its normal
 //! line with M, in either direction. A sample is *unprojectable* when the
 //! line meets M nowhere within the search distance, or only on another
