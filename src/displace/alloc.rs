@@ -342,8 +342,8 @@ mod tests {
         let nf = m.num_faces();
         let mut errors = vec![[0.0; MAX_LEVEL as usize + 1]; nf];
         for (f, e) in errors.iter_mut().enumerate() {
-            for k in 1..=MAX_LEVEL as usize {
-                e[k] = if f == 0 { 100.0 } else { 1.0 } * 16f64.powi(-(k as i32));
+            for (k, ek) in e.iter_mut().enumerate().skip(1) {
+                *ek = if f == 0 { 100.0 } else { 1.0 } * 16f64.powi(-(k as i32));
             }
         }
         for budget in [1500, 4000, 12000] {

@@ -566,3 +566,41 @@ pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, Vec<Channel>)> {
         .collect();
     Ok((layer.size.0, layer.size.1, channels))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn packed_tiles_of_mixed_sizes_do_not_overlap_and_stay_aligned() {
+        // Sizes as the allocation makes them (2^k + 1), in a scrambled
+        // order; both layouts.
+        let res: Vec<usize> = (0..70).map(|k| [3, 17, 5, 33, 9, 65, 3][k % 7]).collect();
+        for layout in [AtlasLayout::Single, AtlasLayout::Udim] {
+            let a = Atlas::packed(&res, DEFAULT_GUTTER, layout).unwrap();
+            let align = 1usize << MIP_LEVELS;
+            let boxes: Vec<(usize, usize, usize, usize)> = a
+                .tiles
+                .iter()
+                .map(|t| (t.image, t.x0 - a.gutter, t.y0 - a.gutter, t.pitch))
+                .collect();
+            for (f, &(img, x, y, p)) in boxes.iter().enumerate() {
+                assert_eq!(a.tile_res(f), res[f]);
+                // The pitch box holds the tile and its gutter on every side,
+                // starts on the mip alignment and lies inside its image.
+                assert!(p >= res[f] + 2 * a.gutter && p % align == 0);
+                assert!(x % align == 0 && y % align == 0, "{layout:?} tile {f}");
+                assert!(img < a.images && x + p <= a.width && y + p <= a.height);
+                for (g, &(img2, x2, y2, p2)) in boxes.iter().enumerate().skip(f + 1) {
+                    let apart =
+                        img != img2 || x + p <= x2 || x2 + p2 <= x || y + p <= y2 || y2 + p2 <= y;
+                    assert!(apart, "{layout:?}: tiles {f} and {g} overlap");
+                }
+                // Corner UVs sit on the corner texels' centres.
+                let uv = a.corner_uvs(f);
+                let local = uv[0] - DVec2::new((img % 10) as f64, (img / 10) as f64);
+                assert!((local.x * a.width as f64 - (x + a.gutter) as f64 - 0.5).abs() < 1e-9);
+            }
+        }
+    }
+}

@@ -515,10 +515,13 @@ impl HostSurface {
     /// Cells per side of a patch sampled at `res` per side: twice its
     /// sample cells (so the bilinear patches bend between samples, and
     /// the limit surface's own curvature is followed within a cell), at
-    /// least 8, at most 64 unless the tile is finer. A power of two when
-    /// `res − 1` is one, so neighbours nest.
+    /// least 16 (the least tessellation of `displaced.ply`: with 8, a
+    /// coarse tile's tessellation cut the limit surface's curvature by a
+    /// chord that the offsets then compensated, and the written surface
+    /// has no such chord), at most 64 unless the tile is finer. A power of
+    /// two when `res − 1` is one, so neighbours nest.
     pub fn cells(res: usize) -> usize {
-        (2 * (res - 1)).clamp(8, 64).max(res - 1)
+        (2 * (res - 1)).clamp(16, 64).max(res - 1)
     }
 
     /// The host surface of `disp` on `control` (its limit surface from

@@ -41,6 +41,12 @@
 //! ones ([`crate::displace::refine_offsets`], fitted on M's edge midpoints
 //! and D's triangle centroids, not on the quadrature points measured here). Unprojectable samples carry their
 //! inpainted offsets ([`crate::displace`]), so D is measured as written.
+//! With per-patch resolutions (`--displacement-samples`) a coarse tile's
+//! sample grid is far from the limit surface between its samples, so D is
+//! instead the host's surface ([`crate::displace::HostSurface`]: the limit
+//! point plus the bilinear lookup of the displacement vectors on a
+//! tessellation twice as fine as each tile), which is also what the
+//! offsets are fitted to and what `displaced.ply` holds.
 //!
 //! Projectability (Table 1, "Unp."): the percentage of M's area not reached
 //! correctly by the normal projection φ from L. For each triangle of M, its
