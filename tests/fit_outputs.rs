@@ -376,3 +376,87 @@ print("ok")
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+#[test]
+fn adaptive_atlas_reads_the_same_function_along_every_shared_edge() {
+    // Per-patch resolutions (`--displacement-samples`): tiles of different
+    // sizes. A host's bilinear lookup of the written image, through the
+    // per-corner UVs, must give the same value along a shared edge from
+    // both tiles (the finer tile's in-between texels interpolate the
+    // coarser's), and `displaced.ply` must stay a closed manifold.
+    let input = input();
+    let control = initial_control(&input.mesh);
+    let caster = make_raycaster(RayBackend::Embree, &input.mesh).unwrap();
+    // Halfway between every patch at 5² and every patch at 9²: whatever
+    // the errors, some tiles are finer than others.
+    let at = |r: usize| {
+        subdfit::displace::PatchGrid::new(&control, r)
+            .unwrap()
+            .num_independent()
+    };
+    let budget = (at(5) + at(9)) / 2;
+    let opts = MetricsOptions::default().with_displacement_samples(Some(budget));
+    let s = evaluate_surfaces(
+        &input.mesh,
+        &control,
+        caster.as_ref(),
+        &opts,
+        &mut |_, _| true,
+    )
+    .unwrap();
+    let d = &s.displacement;
+    assert!(
+        !d.grid.is_uniform(),
+        "a budget between levels gives mixed tiles"
+    );
+    let st = d.stats.adaptive.as_ref().unwrap();
+    assert!(st.samples <= budget && st.samples as f64 >= 0.95 * budget as f64);
+    assert_closed_manifold("displaced (adaptive)", &s.displaced.triangles);
+    let atlas = Atlas::for_grid(&d.grid, subdfit::displace::AtlasLayout::Single).unwrap();
+    let img = atlas.bake(d).unwrap();
+    let (w, h) = (atlas.width, atlas.height);
+    // Bilinear filtering between texel centres at patch parameter (u, v).
+    let lookup = |f: usize, u: f64, v: f64| -> f64 {
+        let [c0, _, c2, _] = atlas.corner_uvs(f);
+        let uv = c0 + (c2 - c0) * subdfit::DVec2::new(u, v);
+        let (px, py) = (uv.x * w as f64 - 0.5, (1.0 - uv.y) * h as f64 - 0.5);
+        let (x0, y0) = (px.floor(), py.floor());
+        let (fx, fy) = (px - x0, py - y0);
+        let t = |x: f64, y: f64| img[y as usize * w + x as usize] as f64;
+        (t(x0, y0) * (1.0 - fx) + t(x0 + 1.0, y0) * fx) * (1.0 - fy)
+            + (t(x0, y0 + 1.0) * (1.0 - fx) + t(x0 + 1.0, y0 + 1.0) * fx) * fy
+    };
+    let on_side = |side: usize, t: f64| match side {
+        0 => (t, 0.0),
+        1 => (1.0, t),
+        2 => (1.0 - t, 1.0),
+        _ => (0.0, 1.0 - t),
+    };
+    let scale = d.offsets.iter().fold(0.0f64, |m, o| m.max(o.abs()));
+    let mut edges: HashMap<(u32, u32), (usize, usize)> = HashMap::new();
+    let (mut checked, mut mixed) = (0, 0);
+    for f in 0..d.grid.num_patches() {
+        let v = d.grid.patch_vertices(f);
+        for side in 0..4 {
+            let (a, b) = (v[side], v[(side + 1) % 4]);
+            if let Some(&(g, gside)) = edges.get(&(b, a)) {
+                mixed += usize::from(d.grid.patch_res(f) != d.grid.patch_res(g));
+                for k in 0..=64 {
+                    let t = k as f64 / 64.0;
+                    let (u, v) = on_side(side, t);
+                    let (ug, vg) = on_side(gside, 1.0 - t);
+                    let (x, y) = (lookup(f, u, v), lookup(g, ug, vg));
+                    // f32 texels; the interpolation weights are exact.
+                    assert!(
+                        (x - y).abs() <= 1e-6 * scale,
+                        "patch {f} side {side} / patch {g} side {gside} at {t}: {x} vs {y}"
+                    );
+                }
+                checked += 1;
+            }
+            edges.insert((a, b), (f, side));
+        }
+    }
+    assert_eq!(checked, control.num_edges());
+    assert!(mixed > 0, "no edge between different resolutions");
+}

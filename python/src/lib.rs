@@ -167,7 +167,7 @@ impl PyOptions {
     #[new]
     #[pyo3(signature = (*, tolerance=None, mode="auto", max_error=None, faces_target=0,
         fit="point", displacement_res=0, m_fitmap=true, tessellation=0, proxy="auto",
-        layout="greedy", threads=0, name=None))]
+        layout="greedy", displacement_samples=0, threads=0, name=None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         tolerance: Option<f64>,
@@ -180,6 +180,7 @@ impl PyOptions {
         tessellation: u32,
         proxy: &str,
         layout: &str,
+        displacement_samples: u32,
         threads: u32,
         name: Option<String>,
     ) -> PyResult<Self> {
@@ -206,6 +207,7 @@ impl PyOptions {
             .with_max_error(max_error)
             .with_target_faces(positive(faces_target))
             .with_displacement_res(positive(displacement_res))
+            .with_displacement_samples(positive(displacement_samples))
             .with_m_fitmap(m_fitmap)
             .with_tessellation(positive(tessellation))
             .with_proxy(

@@ -271,6 +271,7 @@ def convert(
     tessellation: int = 0,
     proxy: str = "auto",
     layout: str = "greedy",
+    displacement_samples: int = 0,
     threads: int = 0,
     name: str | None = None,
     progress: Progress | None = None,
@@ -287,7 +288,8 @@ def convert(
     ``m_fitmap`` (False: ``--no-mfitmap``), ``tessellation`` (cells per
     patch side of limit.ply / displaced.ply; 0: automatic), ``proxy``
     (``"auto"``, ``"none"`` or a triangle count, as a string), ``layout``
-    (``"greedy"`` or the experimental ``"field"``),
+    (``"greedy"`` or the experimental ``"field"``), ``displacement_samples``
+    (per-patch displacement resolution under this total; 0: uniform),
     ``threads`` (0: all cores).
     ``name`` names the input in errors and report.json (the CLI uses the
     path). Raises :class:`InvalidInput` (with the CLI's message),
@@ -297,7 +299,7 @@ def convert(
     o = _options(name, tolerance=tolerance, mode=mode, max_error=max_error,
                  faces_target=faces_target, fit=fit, displacement_res=displacement_res,
                  m_fitmap=m_fitmap, tessellation=tessellation, proxy=proxy, layout=layout,
-                 threads=threads)
+                 displacement_samples=displacement_samples, threads=threads)
     return Conversion(_subdfit.convert(mesh, o, progress))
 
 

@@ -44,6 +44,7 @@ class Options:
         tessellation: int = 0,
         proxy: str = "auto",
         layout: str = "greedy",
+        displacement_samples: int = 0,
         threads: int = 0,
         name: str | None = None,
     ) -> None: ...

@@ -309,6 +309,7 @@ fn convert_as(
     let fit = FitOptions::default().with_objective(opts.objective);
     let metrics = MetricsOptions::default()
         .with_displacement_res(opts.displacement_res)
+        .with_displacement_samples(opts.displacement_samples)
         .with_output_tessellation(opts.tessellation);
     let branch = |layout: BranchLayout<'_>| {
         BranchRecord {

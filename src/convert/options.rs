@@ -20,6 +20,12 @@ pub struct ConvertOptions {
     pub objective: Objective,
     /// Displacement samples per patch side; `None`: total ≈ M's vertices.
     pub displacement_res: Option<usize>,
+    /// Per-patch displacement resolution under this many samples in all
+    /// (`--displacement-samples`, [`crate::displace`]'s adaptive grid);
+    /// `None`: the uniform grid. Left out of `report.json`'s options when
+    /// `None`, so uniform runs keep their bytes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub displacement_samples: Option<usize>,
     /// Which pipeline: Fitmaps (organic), Lavoué et al. (mechanical), or
     /// chosen from the share of sharp edges (auto, the default).
     pub mode: Mode,
@@ -169,6 +175,7 @@ impl Default for ConvertOptions {
             no_m_fitmap: false,
             objective: Objective::Point,
             displacement_res: None,
+            displacement_samples: None,
             mode: Mode::Auto,
             max_error: None,
             tessellation: None,
@@ -234,6 +241,10 @@ impl ConvertOptions {
     }
     pub fn with_displacement_res(mut self, r: Option<usize>) -> Self {
         self.displacement_res = r;
+        self
+    }
+    pub fn with_displacement_samples(mut self, n: Option<usize>) -> Self {
+        self.displacement_samples = n;
         self
     }
     pub fn with_mode(mut self, m: Mode) -> Self {

@@ -32,6 +32,17 @@
 //! (1/8 resolution, e.g. a `.tx` made by `maketx`); beyond it, bleeding
 //! starts.
 //!
+//! **Tiles of different sizes** (a grid of per-patch resolutions,
+//! [`Atlas::for_grid`]): each tile's pitch box (its texels plus the
+//! gutter, rounded up to a multiple of `2^MIP_LEVELS`) is placed by shelf
+//! packing, largest first (ties by patch index, so the layout is
+//! deterministic): shelves as tall as their first tile, filled left to
+//! right, stacked top to bottom, a new UDIM image when the next shelf no
+//! longer fits. Every box starts on a multiple of `2^MIP_LEVELS` texels
+//! and keeps its gutter, so the mip-map promise above holds per tile. The
+//! per-corner UVs point at each tile's corner texels as before, so hosts
+//! (USD, the Blender add-on) read the atlas unchanged.
+//!
 //! Orientation: EXR rows run top to bottom; texture coordinates follow the
 //! OBJ / USD convention with `v = 0` at the bottom row, i.e.
 //! `v = 1 - (row + 0.5) / height` (plus the UDIM tile's offset).
@@ -79,10 +90,23 @@ pub enum TexelType {
     Half,
 }
 
+/// Where one patch's tile lies.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+struct Tile {
+    image: usize,
+    /// The texel of the patch's grid point (0, 0).
+    x0: usize,
+    y0: usize,
+    /// Texels per side, and the side of its pitch box.
+    res: usize,
+    pitch: usize,
+}
+
 /// Layout of the atlas.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Atlas {
-    /// Texels per patch side (the grid resolution R).
+    /// Texels per patch side (the grid resolution R; the largest tile's
+    /// with tiles of different sizes).
     pub res: usize,
     /// Gutter on the left and top of each tile (the right and bottom
     /// ones are at least as wide: see `pitch`).
@@ -99,6 +123,8 @@ pub struct Atlas {
     /// Number of images (1 unless UDIM).
     pub images: usize,
     pub layout: AtlasLayout,
+    /// Per patch, its tile.
+    tiles: Vec<Tile>,
 }
 
 impl Atlas {
@@ -151,12 +177,20 @@ impl Atlas {
             }
         };
         let (width, height) = (columns * pitch, rows * pitch);
-        // EXR stores sizes as i32; keep well inside.
-        if width > 1 << 16 || height > 1 << 16 {
-            return Err(Error::InvalidArgument(format!(
-                "atlas: {width} × {height} texels is too large; lower the displacement resolution"
-            )));
-        }
+        check_size(width, height)?;
+        let per_image = columns * rows;
+        let tiles = (0..patches)
+            .map(|patch| {
+                let (image, k) = (patch / per_image, patch % per_image);
+                Tile {
+                    image,
+                    x0: (k % columns) * pitch + gutter,
+                    y0: (k / columns) * pitch + gutter,
+                    res,
+                    pitch,
+                }
+            })
+            .collect();
         Ok(Atlas {
             res,
             gutter,
@@ -167,18 +201,118 @@ impl Atlas {
             height,
             images,
             layout,
+            tiles,
+        })
+    }
+
+    /// The layout of the outputs for `grid`: [`Atlas::for_outputs`] when
+    /// it is uniform, else tiles of each patch's resolution, shelf-packed
+    /// (module docs), [`DEFAULT_GUTTER`].
+    pub fn for_grid(grid: &super::PatchGrid, layout: AtlasLayout) -> Result<Atlas> {
+        if grid.is_uniform() {
+            return Atlas::for_outputs(grid.num_patches(), grid.res(), layout);
+        }
+        let res: Vec<usize> = (0..grid.num_patches()).map(|f| grid.patch_res(f)).collect();
+        Atlas::packed(&res, DEFAULT_GUTTER, layout)
+    }
+
+    /// Tiles of `res[f]` texels per patch, shelf-packed (module docs).
+    /// `columns` and `rows` are those of the largest tile's pitch that the
+    /// image would hold.
+    pub fn packed(res: &[usize], gutter: usize, layout: AtlasLayout) -> Result<Atlas> {
+        if res.is_empty() || res.iter().any(|&r| r < 2) {
+            return Err(Error::InvalidArgument(
+                "atlas: need at least one patch, each of at least 2 texels".into(),
+            ));
+        }
+        let align = if gutter >= DEFAULT_GUTTER {
+            1usize << MIP_LEVELS
+        } else {
+            1
+        };
+        let pitch_of = |r: usize| (r + 2 * gutter).div_ceil(align) * align;
+        let mut order: Vec<usize> = (0..res.len()).collect();
+        order.sort_by(|&a, &b| res[b].cmp(&res[a]).then(a.cmp(&b)));
+        let max_pitch = pitch_of(res[order[0]]);
+        let area: f64 = res
+            .iter()
+            .map(|&r| (pitch_of(r) * pitch_of(r)) as f64)
+            .sum();
+        // A near-square image (or UDIM tile, at most UDIM_PATCHES of the
+        // largest tiles per side), in whole alignment blocks.
+        let mut side = (area.sqrt().ceil() as usize).div_ceil(align) * align;
+        if layout == AtlasLayout::Udim {
+            side = side.min(UDIM_PATCHES * max_pitch);
+        }
+        let width = side.max(max_pitch);
+        let mut tiles = vec![
+            Tile {
+                image: 0,
+                x0: 0,
+                y0: 0,
+                res: 0,
+                pitch: 0
+            };
+            res.len()
+        ];
+        let (mut image, mut x, mut y, mut shelf) = (0, 0, 0, 0);
+        let mut height = 0;
+        for &f in &order {
+            let p = pitch_of(res[f]);
+            if x + p > width {
+                (x, y) = (0, y + shelf);
+                shelf = 0;
+            }
+            if layout == AtlasLayout::Udim && shelf == 0 && y + p > width {
+                (image, x, y) = (image + 1, 0, 0);
+            }
+            shelf = shelf.max(p);
+            tiles[f] = Tile {
+                image,
+                x0: x + gutter,
+                y0: y + gutter,
+                res: res[f],
+                pitch: p,
+            };
+            x += p;
+            height = height.max(y + shelf);
+        }
+        let height = if layout == AtlasLayout::Udim {
+            width
+        } else {
+            height
+        };
+        if image >= 1000 {
+            return Err(Error::InvalidArgument(format!(
+                "atlas: {} patches need {} UDIM tiles (max 1000)",
+                res.len(),
+                image + 1
+            )));
+        }
+        check_size(width, height)?;
+        Ok(Atlas {
+            res: res[order[0]],
+            gutter,
+            pitch: max_pitch,
+            columns: width / max_pitch,
+            rows: height / max_pitch,
+            width,
+            height,
+            images: image + 1,
+            layout,
+            tiles,
         })
     }
 
     /// Image of `patch` and the texel of its grid point (0, 0) there.
     fn tile_origin(&self, patch: usize) -> (usize, usize, usize) {
-        let per_image = self.columns * self.rows;
-        let (image, k) = (patch / per_image, patch % per_image);
-        (
-            image,
-            (k % self.columns) * self.pitch + self.gutter,
-            (k / self.columns) * self.pitch + self.gutter,
-        )
+        let t = &self.tiles[patch];
+        (t.image, t.x0, t.y0)
+    }
+
+    /// Texels per side of `patch`'s tile.
+    pub fn tile_res(&self, patch: usize) -> usize {
+        self.tiles[patch].res
     }
 
     /// The UDIM number of image `k` (1001, 1002, …).
@@ -226,7 +360,7 @@ impl Atlas {
     /// The UVs of the four corners of `patch`, in the face's corner order
     /// (`(u, v)` = (0,0), (1,0), (1,1), (0,1)).
     pub fn corner_uvs(&self, patch: usize) -> [DVec2; 4] {
-        let r1 = self.res - 1;
+        let r1 = self.tiles[patch].res - 1;
         [
             self.uv(patch, 0, 0),
             self.uv(patch, r1, 0),
@@ -252,7 +386,8 @@ impl Atlas {
     /// The three channels (x, y, z) of every image of the vector map: at
     /// each sample its displacement `offset · direction` (module docs).
     pub fn bake_vector_images(&self, d: &Displacement) -> Result<Vec<[Vec<f32>; 3]>> {
-        let component = |c: usize| self.bake_images_of(d, |s| d.offsets[s] * d.directions[s][c]);
+        let v = d.vectors();
+        let component = |c: usize| self.bake_images_of(d, |s| v[s][c]);
         let (x, y, z) = (component(0)?, component(1)?, component(2)?);
         Ok(x.into_iter()
             .zip(y)
@@ -267,19 +402,22 @@ impl Atlas {
         d: &Displacement,
         value: impl Fn(usize) -> f64,
     ) -> Result<Vec<Vec<f32>>> {
-        if d.grid.res() != self.res {
+        let patches = d.grid.num_patches();
+        if let Some(f) = (0..patches.min(self.tiles.len()))
+            .find(|&f| d.grid.patch_res(f) != self.tiles[f].res)
+            .or((patches > self.tiles.len()).then_some(self.tiles.len()))
+        {
             return Err(Error::InvalidArgument(format!(
-                "atlas: resolution {} does not match the displacement's {}",
-                self.res,
-                d.grid.res()
+                "atlas: the tile of patch {f} does not match the displacement's resolution {}",
+                d.grid.patch_res(f)
             )));
         }
         let mut imgs = vec![vec![0.0f32; self.width * self.height]; self.images];
         let g = self.gutter as isize;
-        let far = (self.pitch - self.gutter) as isize - 1;
-        let r1 = self.res as isize - 1;
-        for f in 0..d.grid.num_patches() {
+        for f in 0..patches {
             let (image, x0, y0) = self.tile_origin(f);
+            let far = (self.tiles[f].pitch - self.gutter) as isize - 1;
+            let r1 = self.tiles[f].res as isize - 1;
             let img = imgs.get_mut(image).ok_or_else(|| {
                 Error::InvalidArgument(format!("atlas: patch {f} beyond the layout"))
             })?;
@@ -375,6 +513,16 @@ pub enum AtlasMap {
     Vector,
 }
 
+/// EXR stores sizes as i32; keep well inside.
+fn check_size(width: usize, height: usize) -> Result<()> {
+    if width > 1 << 16 || height > 1 << 16 {
+        return Err(Error::InvalidArgument(format!(
+            "atlas: {width} × {height} texels is too large; lower the displacement resolution"
+        )));
+    }
+    Ok(())
+}
+
 impl AtlasMap {
     fn stem(self) -> &'static str {
         match self {
@@ -417,4 +565,42 @@ pub fn read_exr_channels(path: &Path) -> Result<(usize, usize, Vec<Channel>)> {
         .map(|c| (c.name.to_string(), c.sample_data.values_as_f32().collect()))
         .collect();
     Ok((layer.size.0, layer.size.1, channels))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn packed_tiles_of_mixed_sizes_do_not_overlap_and_stay_aligned() {
+        // Sizes as the allocation makes them (2^k + 1), in a scrambled
+        // order; both layouts.
+        let res: Vec<usize> = (0..70).map(|k| [3, 17, 5, 33, 9, 65, 3][k % 7]).collect();
+        for layout in [AtlasLayout::Single, AtlasLayout::Udim] {
+            let a = Atlas::packed(&res, DEFAULT_GUTTER, layout).unwrap();
+            let align = 1usize << MIP_LEVELS;
+            let boxes: Vec<(usize, usize, usize, usize)> = a
+                .tiles
+                .iter()
+                .map(|t| (t.image, t.x0 - a.gutter, t.y0 - a.gutter, t.pitch))
+                .collect();
+            for (f, &(img, x, y, p)) in boxes.iter().enumerate() {
+                assert_eq!(a.tile_res(f), res[f]);
+                // The pitch box holds the tile and its gutter on every side,
+                // starts on the mip alignment and lies inside its image.
+                assert!(p >= res[f] + 2 * a.gutter && p % align == 0);
+                assert!(x % align == 0 && y % align == 0, "{layout:?} tile {f}");
+                assert!(img < a.images && x + p <= a.width && y + p <= a.height);
+                for (g, &(img2, x2, y2, p2)) in boxes.iter().enumerate().skip(f + 1) {
+                    let apart =
+                        img != img2 || x + p <= x2 || x2 + p2 <= x || y + p <= y2 || y2 + p2 <= y;
+                    assert!(apart, "{layout:?}: tiles {f} and {g} overlap");
+                }
+                // Corner UVs sit on the corner texels' centres.
+                let uv = a.corner_uvs(f);
+                let local = uv[0] - DVec2::new((img % 10) as f64, (img / 10) as f64);
+                assert!((local.x * a.width as f64 - (x + a.gutter) as f64 - 0.5).abs() < 1e-9);
+            }
+        }
+    }
 }

@@ -120,6 +120,9 @@ const CHECK_STRIDE: usize = 4;
 /// ends at RMS D 0.413‰ instead of 0.434‰, gargoyle is unchanged.)
 const FIXED_RIDGE: f64 = 1e4;
 
+/// Halvings of a rejected step on the host surface (see [`refine_offsets_on`]).
+const HOST_HALVINGS: i32 = 3;
+
 /// A mesh's edges, each once, in increasing order of their ends (which
 /// makes the order, and every sum taken in it, independent of the thread
 /// count), with the fitting weight of their midpoint (a third of the area
@@ -233,6 +236,23 @@ pub fn refine_offsets(
     diag: f64,
     opts: &LsqOffsetOptions,
 ) -> Result<LsqOffsetStats> {
+    refine_offsets_on(mesh, mesh_caster, disp, None, diag, opts)
+}
+
+/// [`refine_offsets`] with D either the sample grid itself (`host` is
+/// `None`, each cell two flat triangles) or `host`, the surface a host
+/// reconstructs from the maps ([`HostSurface`]), which the displacement
+/// of per-patch resolutions fits: there a coarse patch's sample grid is a
+/// poor stand-in for the limit surface between its samples, and offsets
+/// fitted to it would correct a chord error the host does not make.
+pub fn refine_offsets_on(
+    mesh: &TriMesh,
+    mesh_caster: &dyn RayCaster,
+    disp: &mut Displacement,
+    host: Option<&HostSurface>,
+    diag: f64,
+    opts: &LsqOffsetOptions,
+) -> Result<LsqOffsetStats> {
     let n = disp.offsets.len();
     let m_edges = Edges::of(mesh);
     let total_m: f64 = m_edges.weight.iter().sum();
@@ -243,13 +263,21 @@ pub fn refine_offsets(
     // The objective on every CHECK_STRIDE-th point of each list: what the
     // last round (which only checks the previous update) measures.
     let mut current_sub = f64::INFINITY;
-    for round in 0..=opts.rounds {
+    // On the host surface a rejected Gauss–Newton step is halved and
+    // checked again, up to HOST_HALVINGS times: the full step overshoots
+    // where a tile's bilinear patch carries much detail (measured on bunny
+    // τ = 1 % at the default budget, the full step was rejected and RMS
+    // M → displaced.ply stayed at φ's 0.134‰).
+    let mut last_delta: Option<Vec<f64>> = None;
+    let mut halvings = 0;
+    let mut round = 0;
+    while round <= opts.rounds {
         // The last round only decides whether the previous update is kept:
         // it measures the objective on a fixed subsample (every
         // CHECK_STRIDE-th point of both lists, compared with the same
         // subsample's value before the update) instead of all points.
         let check_only = round > 0 && round == opts.rounds;
-        let (score, ne) = round_rows(mesh, mesh_caster, &m_edges, total_m, disp, check_only)?;
+        let (score, ne) = round_rows(mesh, mesh_caster, &m_edges, total_m, disp, host, check_only)?;
         let (obj, sub) = score.rms();
         // The stats are the subsample's, the one figure every round has.
         if round == 0 {
@@ -262,6 +290,18 @@ pub fn refine_offsets(
         } else {
             obj >= current_obj
         };
+        if worse && host.is_some() && halvings < HOST_HALVINGS {
+            if let Some(delta) = &last_delta {
+                halvings += 1;
+                let scale = 0.5f64.powi(halvings);
+                for ((d, &c), dd) in disp.offsets.iter_mut().zip(&current).zip(delta) {
+                    *d = c + scale * dd;
+                }
+                disp.grid.clone().apply_dependents(&mut disp.offsets);
+                // The same round again, at the shorter step.
+                continue;
+            }
+        }
         current_sub = sub;
         if worse {
             // The last update did not help: undo it and stop.
@@ -275,6 +315,7 @@ pub fn refine_offsets(
         let Some(mut ne) = ne.filter(|ne| ne.rows > 0 && round < opts.rounds) else {
             break;
         };
+        halvings = 0;
         let lambda = opts.ridge * total_m / n.max(1) as f64;
         for (i, &f) in fixed.iter().enumerate() {
             // Unprojectable samples over a hole or past M's border keep
@@ -285,6 +326,14 @@ pub fn refine_offsets(
         for (d, dd) in disp.offsets.iter_mut().zip(&delta) {
             *d += dd;
         }
+        // Dependent samples carry no unknown of their own (their rows
+        // went to their coarse neighbours): they follow them.
+        let grid = disp.grid.clone();
+        grid.apply_dependents(&mut disp.offsets);
+        if host.is_some() {
+            last_delta = Some(delta);
+        }
+        round += 1;
     }
     Ok(stats)
 }
@@ -298,24 +347,40 @@ fn round_rows(
     m_edges: &Edges,
     total_m: f64,
     disp: &Displacement,
+    host: Option<&HostSurface>,
     check_only: bool,
 ) -> Result<(Score, Option<NormalEquations>)> {
     let normals = &disp.directions;
     let stride = if check_only { CHECK_STRIDE } else { 1 };
-    let positions = disp.displaced_positions();
-    let tris = disp.grid.triangles_shorter_diagonal(&positions);
-    let dmesh = TriMesh {
-        positions,
-        triangles: tris,
+    let dmesh = match host {
+        None => {
+            let positions = disp.displaced_positions();
+            let tris = disp.grid.triangles_shorter_diagonal(&positions);
+            TriMesh {
+                positions,
+                triangles: tris,
+            }
+        }
+        Some(h) => h.mesh(disp),
     };
     let d_caster = make_raycaster(RayBackend::Embree, &dmesh)?;
     let d_edges = Edges::of(&dmesh);
+    let deps = match host {
+        None => Basis::Samples(Dependents::of(disp)),
+        Some(h) => Basis::Host(h),
+    };
     let mut ne = if check_only {
         None
-    } else {
+    } else if deps.is_identity() {
         Some(NormalEquations::with_pairs(
             disp.offsets.len(),
             d_edges.ends.iter().copied(),
+        )?)
+    } else {
+        let pairs = deps.pairs(&d_edges.ends);
+        Some(NormalEquations::with_pairs(
+            disp.offsets.len(),
+            pairs.iter().copied(),
         )?)
     };
     let mut score = Score::default();
@@ -340,7 +405,7 @@ fn round_rows(
             let sw = w.sqrt();
             row.clear();
             for (&s, b) in tri.iter().zip(bary(c)) {
-                row.push((s, sw * b * nt.dot(normals[s as usize])));
+                deps.push(&mut row, normals, s, sw * b, nt);
             }
             ne.add_row(&row, sw * e)
         },
@@ -367,12 +432,270 @@ fn round_rows(
                 return Ok(());
             }
             let sw = w.sqrt();
-            let [s0, s1] = d_edges.ends[k];
-            let a = |s: u32| (s, 0.5 * sw * nt.dot(normals[s as usize]));
-            ne.add_row(&[a(s0), a(s1)], sw * e)
+            row.clear();
+            for s in d_edges.ends[k] {
+                deps.push(&mut row, normals, s, 0.5 * sw, nt);
+            }
+            ne.add_row(&row, sw * e)
         },
     )?;
     Ok((score, ne))
+}
+
+/// How D's vertices move with the offsets: one sample each (the sample
+/// grid, through [`Dependents`]), or a host surface's bilinear weights.
+enum Basis<'a> {
+    Samples(Dependents<'a>),
+    Host(&'a HostSurface),
+}
+
+impl Basis<'_> {
+    /// Every vertex is its own sample with weight 1.
+    fn is_identity(&self) -> bool {
+        matches!(self, Basis::Samples(d) if d.list.is_empty())
+    }
+
+    fn push(&self, row: &mut Vec<(u32, f64)>, normals: &[DVec3], v: u32, scale: f64, nt: DVec3) {
+        match self {
+            Basis::Samples(d) => d.push(row, normals, v, scale, nt),
+            Basis::Host(h) => {
+                for &(s, w) in h.terms(v) {
+                    let a = scale * w * nt.dot(normals[s as usize]);
+                    match row.iter_mut().find(|e| e.0 == s) {
+                        Some(e) => e.1 += a,
+                        None => row.push((s, a)),
+                    }
+                }
+            }
+        }
+    }
+
+    fn pairs(&self, edges: &[[u32; 2]]) -> Vec<[u32; 2]> {
+        match self {
+            Basis::Samples(d) => d.pairs(edges),
+            Basis::Host(h) => {
+                let mut pairs = Vec::new();
+                let mut support = Vec::new();
+                for &[x, y] in edges {
+                    support.clear();
+                    support.extend(h.terms(x).iter().chain(h.terms(y)).map(|t| t.0));
+                    for (k, &a) in support.iter().enumerate() {
+                        for &b in &support[k + 1..] {
+                            pairs.push([a.min(b), a.max(b)]);
+                        }
+                    }
+                }
+                pairs.sort_unstable();
+                pairs.dedup();
+                pairs
+            }
+        }
+    }
+}
+
+/// The surface a host reconstructs from the written maps, as a mesh whose
+/// vertices are linear in the offsets: a welded tessellation of every
+/// patch at [`HostSurface::cells`] cells per side, each vertex the exact
+/// limit point plus the bilinear interpolation, in its patch's tile, of
+/// the samples' displacement vectors `d_s·n_s` (dependent samples
+/// expanded into their coarse neighbours) — what `displaced.ply` and a
+/// renderer's lookup of `displacement_vector.exr` compute.
+pub struct HostSurface {
+    grid: super::PatchGrid,
+    base: Vec<DVec3>,
+    /// Per vertex, its range in `terms`.
+    start: Vec<u32>,
+    /// `(sample, weight)`: independent samples only.
+    terms: Vec<(u32, f64)>,
+    /// Per vertex: every sample it reads was projected.
+    pub projected: Vec<bool>,
+}
+
+impl HostSurface {
+    /// Cells per side of a patch sampled at `res` per side: twice its
+    /// sample cells (so the bilinear patches bend between samples, and
+    /// the limit surface's own curvature is followed within a cell), at
+    /// least 16 (the least tessellation of `displaced.ply`: with 8, a
+    /// coarse tile's tessellation cut the limit surface's curvature by a
+    /// chord that the offsets then compensated, and the written surface
+    /// has no such chord), at most 64 unless the tile is finer. A power of
+    /// two when `res − 1` is one, so neighbours nest.
+    pub fn cells(res: usize) -> usize {
+        (2 * (res - 1)).clamp(16, 64).max(res - 1)
+    }
+
+    /// The host surface of `disp` on `control` (its limit surface from
+    /// `evaluator`).
+    pub fn new(
+        control: &crate::mesh::ControlMesh,
+        evaluator: &dyn crate::subdiv::LimitEvaluator,
+        disp: &Displacement,
+    ) -> Result<HostSurface> {
+        let g = &disp.grid;
+        let res: Vec<usize> = (0..g.num_patches())
+            .map(|f| HostSurface::cells(g.patch_res(f)) + 1)
+            .collect();
+        let grid = super::PatchGrid::with_resolutions(control, &res)?;
+        let base: Vec<DVec3> = evaluator
+            .evaluate(control.positions(), grid.locations())?
+            .iter()
+            .map(|p| p.position)
+            .collect();
+        let mut dep = vec![u32::MAX; g.num_samples()];
+        for (k, d) in g.dependents().iter().enumerate() {
+            dep[d.sample as usize] = k as u32;
+        }
+        let mut start = Vec::with_capacity(base.len() + 1);
+        let mut terms: Vec<(u32, f64)> = Vec::new();
+        let mut projected = Vec::with_capacity(base.len());
+        for l in grid.locations() {
+            start.push(terms.len() as u32);
+            let first = terms.len();
+            let f = l.face.idx();
+            let r1 = g.patch_res(f) - 1;
+            let at = |x: f64| {
+                let x = x.clamp(0.0, 1.0) * r1 as f64;
+                let i = (x.floor() as usize).min(r1 - 1);
+                (i, x - i as f64)
+            };
+            let ((i, s), (j, t)) = (at(l.u), at(l.v));
+            let mut ok = true;
+            for (dj, wj) in [(0, 1.0 - t), (1, t)] {
+                for (di, wi) in [(0, 1.0 - s), (1, s)] {
+                    let w = wi * wj;
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let smp = g.sample(f, i + di, j + dj);
+                    ok &= disp.projected[smp as usize];
+                    let mut add =
+                        |c: u32, a: f64| match terms[first..].iter_mut().find(|e| e.0 == c) {
+                            Some(e) => e.1 += a,
+                            None => terms.push((c, a)),
+                        };
+                    match dep[smp as usize] {
+                        u32::MAX => add(smp, w),
+                        k => {
+                            let d = &g.dependents()[k as usize];
+                            add(d.a, w * (1.0 - d.w));
+                            add(d.b, w * d.w);
+                        }
+                    }
+                }
+            }
+            projected.push(ok);
+        }
+        start.push(terms.len() as u32);
+        Ok(HostSurface {
+            grid,
+            base,
+            start,
+            terms,
+            projected,
+        })
+    }
+
+    fn terms(&self, v: u32) -> &[(u32, f64)] {
+        &self.terms[self.start[v as usize] as usize..self.start[v as usize + 1] as usize]
+    }
+
+    /// The tessellation's grid (its triangles' patches).
+    pub fn grid(&self) -> &super::PatchGrid {
+        &self.grid
+    }
+
+    /// The surface at `disp`'s current offsets, each cell split along its
+    /// shorter displaced diagonal.
+    pub fn mesh(&self, disp: &Displacement) -> TriMesh {
+        let vectors: Vec<DVec3> = disp
+            .offsets
+            .iter()
+            .zip(&disp.directions)
+            .map(|(&d, &n)| d * n)
+            .collect();
+        let positions: Vec<DVec3> = (0..self.base.len())
+            .map(|v| {
+                self.terms(v as u32)
+                    .iter()
+                    .fold(self.base[v], |p, &(s, w)| p + w * vectors[s as usize])
+            })
+            .collect();
+        TriMesh {
+            triangles: self.grid.triangles_shorter_diagonal(&positions),
+            positions,
+        }
+    }
+}
+
+/// The dependent samples of an adaptive grid ([`super::PatchGrid::dependents`])
+/// as the rows see them: a dependent sample's displaced point moves with
+/// its two coarse neighbours' offsets (weights `1 − w`, `w`, along their
+/// directions, as [`Displacement::vectors`] interpolates), so its row
+/// coefficients go to them and it has no unknown of its own.
+struct Dependents<'a> {
+    list: &'a [super::Dependent],
+    /// Per sample, its index in `list`, or `u32::MAX`.
+    index: Vec<u32>,
+}
+
+impl<'a> Dependents<'a> {
+    fn of(disp: &'a Displacement) -> Dependents<'a> {
+        let list = disp.grid.dependents();
+        let mut index = Vec::new();
+        if !list.is_empty() {
+            index = vec![u32::MAX; disp.offsets.len()];
+            for (k, d) in list.iter().enumerate() {
+                index[d.sample as usize] = k as u32;
+            }
+        }
+        Dependents { list, index }
+    }
+
+    /// Adds sample `s`'s coefficient `scale · (n_t · ∂x_s/∂d)` to `row`,
+    /// through its coarse neighbours if it is dependent; a column already
+    /// in the row is summed into (rows take distinct columns).
+    fn push(&self, row: &mut Vec<(u32, f64)>, normals: &[DVec3], s: u32, scale: f64, nt: DVec3) {
+        let mut add = |c: u32, a: f64| match row.iter_mut().find(|e| e.0 == c) {
+            Some(e) => e.1 += a,
+            None => row.push((c, a)),
+        };
+        match self
+            .index
+            .get(s as usize)
+            .copied()
+            .filter(|&k| k != u32::MAX)
+        {
+            None => add(s, scale * nt.dot(normals[s as usize])),
+            Some(k) => {
+                let d = &self.list[k as usize];
+                add(d.a, scale * (1.0 - d.w) * nt.dot(normals[d.a as usize]));
+                add(d.b, scale * d.w * nt.dot(normals[d.b as usize]));
+            }
+        }
+    }
+
+    /// The unknowns' pattern: `edges` with their dependent ends replaced
+    /// by their neighbours, plus each dependent's two neighbours together.
+    fn pairs(&self, edges: &[[u32; 2]]) -> Vec<[u32; 2]> {
+        let ends = |s: u32| -> [u32; 2] {
+            match self.index[s as usize] {
+                u32::MAX => [s, s],
+                k => [self.list[k as usize].a, self.list[k as usize].b],
+            }
+        };
+        let mut pairs = Vec::with_capacity(edges.len() + self.list.len());
+        for &[x, y] in edges {
+            for a in ends(x) {
+                for b in ends(y) {
+                    pairs.push([a, b]);
+                }
+            }
+        }
+        pairs.extend(self.list.iter().map(|d| [d.a, d.b]));
+        pairs.sort_unstable();
+        pairs.dedup();
+        pairs
+    }
 }
 
 /// The unprojectable samples of `disp` whose closest point of M lies in a

@@ -4,6 +4,16 @@
 //! live on a welded [`PatchGrid`], so a sample on a patch edge is computed
 //! once and stored identically in both tiles of the atlas.
 //!
+//! `R` is the same for every patch (`--displacement-res`, or
+//! [`auto_resolution`]), or chosen per patch under a total of samples
+//! (`--displacement-samples`, [`allocate_resolutions`]): `R_f = 2^k + 1`,
+//! where the displacement has detail, with the in-between samples of an
+//! edge between resolutions interpolating the coarser side's (see
+//! [`PatchGrid`]), so every host's bilinear lookup reads the same function
+//! along the edge from both tiles. The reconstruction is that bilinear
+//! lookup in both cases: what `displaced.ply` is built with and what
+//! hosts do with the written maps.
+//!
 //! Every sample gets φ's offset: the nearest intersection of its normal
 //! line with M, in either direction. A sample is *unprojectable* when the
 //! line meets M nowhere within the search distance, or only on another
@@ -32,16 +42,19 @@
 //! distance between D and M in both directions (see its module), which
 //! the report's pipeline does by default ([`OffsetMode`]).
 
+mod alloc;
 mod atlas;
 mod grid;
 mod lsq;
+
+pub use alloc::{allocate_resolutions, AdaptiveStats, Allocation};
 
 pub use atlas::{
     read_exr, read_exr_channels, Atlas, AtlasLayout, AtlasMap, TexelType, DEFAULT_GUTTER,
     MIP_LEVELS, UDIM_PATCHES,
 };
-pub use grid::PatchGrid;
-pub use lsq::{refine_offsets, LsqOffsetOptions, LsqOffsetStats};
+pub use grid::{Dependent, PatchGrid};
+pub use lsq::{refine_offsets, refine_offsets_on, HostSurface, LsqOffsetOptions, LsqOffsetStats};
 
 use serde::Serialize;
 
@@ -100,6 +113,11 @@ pub struct DisplacementStats {
     /// Set when the offsets were refined by least squares
     /// ([`refine_offsets`]) instead of kept at φ's hits.
     pub least_squares: Option<LsqOffsetStats>,
+    /// Set for a per-patch resolution under a sample budget
+    /// (`--displacement-samples`); absent for a uniform grid, whose
+    /// report is unchanged.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub adaptive: Option<AdaptiveStats>,
 }
 
 /// Displacement samples on a welded grid: limit point, offset along the
@@ -124,13 +142,29 @@ impl Displacement {
         self.limit.iter().map(|p| p.position).collect()
     }
 
-    /// Positions of the displaced surface `s + d·n` at the samples.
+    /// The displacement vector at each sample: `d·n` at the independent
+    /// samples, and at a dependent one (on an edge between resolutions,
+    /// [`PatchGrid::dependents`]) the linear interpolation of its coarse
+    /// neighbours' vectors, the value the coarser tile's bilinear lookup
+    /// gives there (what `displacement_vector.exr` holds in both tiles).
+    pub fn vectors(&self) -> Vec<DVec3> {
+        let mut v: Vec<DVec3> = self
+            .offsets
+            .iter()
+            .zip(&self.directions)
+            .map(|(&d, &n)| d * n)
+            .collect();
+        self.grid.apply_dependents(&mut v);
+        v
+    }
+
+    /// Positions of the displaced surface `s + d·n` at the samples (at the
+    /// dependent ones, `s` plus their interpolated vector, [`Self::vectors`]).
     pub fn displaced_positions(&self) -> Vec<DVec3> {
         self.limit
             .iter()
-            .zip(&self.offsets)
-            .zip(&self.directions)
-            .map(|((p, &d), &n)| p.position + d * n)
+            .zip(self.vectors())
+            .map(|(p, v)| p.position + v)
             .collect()
     }
 }
@@ -168,6 +202,22 @@ pub fn compute_displacement(
     slack: f64,
 ) -> Result<Displacement> {
     let grid = PatchGrid::new(control, res)?;
+    displacement_on(grid, control, evaluator, caster, max_dist, diag, slack)
+}
+
+/// [`compute_displacement`] on a given `grid` (uniform or adaptive, see
+/// [`allocate_resolutions`]). The offsets of dependent samples are the
+/// interpolation of their coarse neighbours' ([`PatchGrid::apply_dependents`]),
+/// and they count as projected when both neighbours are.
+pub fn displacement_on(
+    grid: PatchGrid,
+    control: &ControlMesh,
+    evaluator: &dyn LimitEvaluator,
+    caster: &dyn RayCaster,
+    max_dist: f64,
+    diag: f64,
+    slack: f64,
+) -> Result<Displacement> {
     let limit = evaluator.evaluate(control.positions(), grid.locations())?;
     let directions = sample_directions(control, evaluator, &grid, &limit)?;
     let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
@@ -185,19 +235,24 @@ pub fn compute_displacement(
             other_sheet += 1;
         }
     }
-    let projected: Vec<bool> = hits.iter().map(Option::is_some).collect();
+    let mut projected: Vec<bool> = hits.iter().map(Option::is_some).collect();
+    for d in grid.dependents() {
+        projected[d.sample as usize] = projected[d.a as usize] && projected[d.b as usize];
+    }
     let mut offsets: Vec<f64> = hits.iter().map(|h| h.map_or(0.0, |h| h.offset)).collect();
     inpaint(&grid, &mut offsets, &projected);
+    grid.apply_dependents(&mut offsets);
     let max_abs = offsets.iter().fold(0.0f64, |m, d| m.max(d.abs()));
     let stats = DisplacementStats {
-        resolution: res,
+        resolution: grid.res(),
         patches: grid.num_patches(),
-        samples: grid.num_samples(),
+        samples: grid.num_independent(),
         unprojectable: pstats.unprojectable,
         other_sheet,
         unprojectable_percent: 100.0 * pstats.unprojectable_fraction(),
         max_abs_offset_permille: 1000.0 * max_abs / diag.max(f64::MIN_POSITIVE),
         least_squares: None,
+        adaptive: None,
     };
     Ok(Displacement {
         grid,
@@ -237,9 +292,9 @@ pub fn sample_directions(
     if sharp_edges.is_empty() && !sharp_vertex.iter().any(|&s| s) {
         return Ok(dirs);
     }
-    let r1 = grid.res() - 1;
     let (mut locs, mut ids) = (Vec::new(), Vec::new());
     for f in 0..grid.num_patches() {
+        let r1 = grid.patch_res(f) - 1;
         let vs = grid.patch_vertices(f);
         let on_sharp_edge = |k: usize| {
             let (a, b) = (vs[k], vs[(k + 1) % 4]);

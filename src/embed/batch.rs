@@ -228,6 +228,9 @@ fn options_key(o: &Options, source_name: &str) -> String {
     if let Some(n) = c.tessellation {
         later += &format!(" tessellation={n}");
     }
+    if let Some(n) = c.displacement_samples {
+        later += &format!(" displacement_samples={n}");
+    }
     if c.layout != crate::convert::LayoutKind::Greedy {
         later += &format!(" layout={:?}", c.layout);
     }

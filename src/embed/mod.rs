@@ -368,8 +368,8 @@ impl Conversion {
         // tiles apply to the mesh it holds (the CLI's control.obj).
         let control = c.quad_control.as_ref().unwrap_or(&c.control).clone();
         let d = &c.surfaces.displacement;
-        let (patches, res) = (d.grid.num_patches(), d.grid.res());
-        let atlas = Atlas::for_outputs(patches, res, c.outputs.atlas)?;
+        let patches = d.grid.num_patches();
+        let atlas = Atlas::for_grid(&d.grid, c.outputs.atlas)?;
         let quads: Vec<[DVec2; 4]> = (0..patches).map(|f| atlas.corner_uvs(f)).collect();
         let control_obj = control_obj_with_uvs(&control, &quads)?;
         // One `vt` per face corner, as in control.obj.
@@ -377,6 +377,7 @@ impl Conversion {
         let uv_indices = (0..uvs.len() as u32).collect();
         let tiles = (0..patches)
             .map(|f| {
+                let res = d.grid.patch_res(f);
                 let mut values = Vec::with_capacity(res * res);
                 for j in 0..res {
                     for i in 0..res {

@@ -344,7 +344,7 @@ type Job<'a> = (String, Box<dyn Fn(&Path) -> Result<()> + Send + Sync + 'a>);
 fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<String>> {
     use rayon::prelude::*;
     let d = &out.surfaces.displacement;
-    let atlas = Atlas::for_outputs(d.grid.num_patches(), d.grid.res(), out.options.atlas)?;
+    let atlas = Atlas::for_grid(&d.grid, out.options.atlas)?;
     let uvs: Vec<_> = (0..d.grid.num_patches())
         .map(|f| atlas.corner_uvs(f))
         .collect();

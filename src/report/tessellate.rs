@@ -125,16 +125,37 @@ pub fn tessellate(
         }
         n *= 2;
     };
+    // A displacement of per-patch resolutions: each patch tessellated at
+    // least as finely as its tile (N·2^j cells, nested across edges, so
+    // the grid stays welded and watertight), so that no sample of a fine
+    // tile falls between the vertices.
+    let (grid, limit) = if d.grid.is_uniform() {
+        (grid, limit)
+    } else {
+        let res: Vec<usize> = (0..control.num_faces())
+            .map(|f| {
+                let mut cells = n;
+                while cells + 1 < d.grid.patch_res(f) {
+                    cells *= 2;
+                }
+                cells + 1
+            })
+            .collect();
+        let grid = PatchGrid::with_resolutions(control, &res)?;
+        let limit = evaluator.evaluate(control.positions(), grid.locations())?;
+        (grid, limit)
+    };
     let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
     let (offsets, projected): (Vec<f64>, Vec<bool>) = grid
         .locations()
         .iter()
         .map(|l| bilinear(d, l, |s| d.offsets[s]))
         .unzip();
+    let vectors = d.vectors();
     let displaced_positions: Vec<DVec3> = positions
         .iter()
         .zip(grid.locations())
-        .map(|(&p, l)| p + bilinear(d, l, |s| d.offsets[s] * d.directions[s]).0)
+        .map(|(&p, l)| p + bilinear(d, l, |s| vectors[s]).0)
         .collect();
     Ok(Tessellations {
         limit: TriMesh {
@@ -167,8 +188,8 @@ where
     T: std::ops::Mul<f64, Output = T> + std::ops::Add<Output = T>,
 {
     let g = &d.grid;
-    let r1 = g.res() - 1;
     let f = loc.face.idx();
+    let r1 = g.patch_res(f) - 1;
     let at = |x: f64| {
         let x = x.clamp(0.0, 1.0) * r1 as f64;
         let i = (x.floor() as usize).min(r1 - 1);
@@ -197,11 +218,11 @@ fn chord_error(
     grid: &PatchGrid,
     pos: &[DVec3],
 ) -> Result<(f64, f64)> {
-    let r1 = grid.res() - 1;
-    let h = 1.0 / r1 as f64;
     let mut locs = Vec::new();
     let mut linear = Vec::new();
     for f in 0..grid.num_patches() {
+        let r1 = grid.patch_res(f) - 1;
+        let h = 1.0 / r1 as f64;
         let p = |i: usize, j: usize| pos[grid.sample(f, i, j) as usize];
         let face = FaceId(f as u32);
         for j in 0..=r1 {

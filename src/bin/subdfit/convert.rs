@@ -73,6 +73,11 @@ pub struct ConversionArgs {
     /// Displacement samples per patch side (default: total ≈ M's vertices).
     #[arg(long)]
     displacement_res: Option<usize>,
+    /// Per-patch displacement resolution (2^k + 1 per side, where the
+    /// detail is) under this many samples in all, each shared sample
+    /// counted once; --displacement-res overrides it.
+    #[arg(long)]
+    displacement_samples: Option<usize>,
     /// Lift the projectability (M-fitmap) test (the paper's Fig. 7).
     #[arg(long)]
     no_mfitmap: bool,
@@ -133,6 +138,7 @@ impl ConversionArgs {
             .with_m_fitmap(!self.no_mfitmap)
             .with_objective(self.fit)
             .with_displacement_res(self.displacement_res)
+            .with_displacement_samples(self.displacement_samples)
             .with_mode(self.mode)
             .with_max_error(self.max_error)
             .with_tessellation(self.tessellation.map(|n| n as usize))
