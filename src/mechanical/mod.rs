@@ -208,6 +208,8 @@ pub struct MechanicalStats {
 pub struct Built {
     pub control: ControlMesh,
     pub stats: MechanicalStats,
+    /// The segmentation region (§4) of each face of `control`.
+    pub face_region: Vec<u32>,
 }
 
 /// Share of M's interior edges that are sharp, and share that are flat
@@ -801,6 +803,7 @@ fn build_with(
     let (curve_max_error_permille, pieces) = piece_stats(&net, &stage, diag);
     Ok(Built {
         control,
+        face_region: polys.face_region.clone(),
         stats: MechanicalStats {
             sharp_edges: seg.sharp_edges,
             sharp_edges_inside_regions: seg.sharp_edges_inside - slit_edges,
