@@ -628,7 +628,10 @@ fn fandisk_sweep() {
             s.planar_regions, s.star_fallback
         );
         if std::env::var("SUBDFIT_DUMP").is_ok() {
-            let w = v[0].0 as u32;
+            let w = std::env::var("SUBDFIT_REGION")
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(v[0].0 as u32);
             for (f, &r) in built.face_region.iter().enumerate() {
                 if r == w {
                     let fv = built.control.face_vertices(subdfit::mesh::FaceId(f as u32));

@@ -479,8 +479,8 @@ struct RegionBook {
     enriched: Vec<bool>,
     /// Enrichments of the region that bought less than 2 % of its RMS.
     strikes: Vec<usize>,
-    /// The region was rebuilt once (see [`RegionBook::freeze_or_rebuild`]).
-    rebuilt: Vec<bool>,
+    /// Times the region was rebuilt (see [`RegionBook::freeze_or_rebuild`]).
+    rebuilt: Vec<usize>,
     /// The region is to be rebuilt this round.
     rebuild_now: Vec<bool>,
 }
@@ -491,6 +491,10 @@ struct RegionBook {
 /// everywhere they are cut; past that the error sits where no new point
 /// reaches it.
 const MAX_STRIKES: usize = 3;
+
+/// Rebuilds of a region before it is frozen (see
+/// [`RegionBook::freeze_or_rebuild`]).
+const MAX_REBUILDS: usize = 1;
 
 /// The largest valence enrichment may give a new point (case 1's merged
 /// fan, a fan around a face closed by creases): a fan point joined to
@@ -508,7 +512,7 @@ impl RegionBook {
             self.last_rms.resize(nreg, None);
             self.enriched.resize(nreg, false);
             self.strikes.resize(nreg, 0);
-            self.rebuilt.resize(nreg, false);
+            self.rebuilt.resize(nreg, 0);
             self.rebuild_now.resize(nreg, false);
         }
     }
@@ -571,12 +575,12 @@ impl RegionBook {
     /// faces split by case 2 (points everywhere, not only where the error
     /// peaks: on a half-pipe between two crease arcs the error of one face
     /// is often the fold of its neighbour), and enriched as before from
-    /// there; the second time it is frozen at its best state.
+    /// there; past [`MAX_REBUILDS`] it is frozen at its best state.
     fn freeze_or_rebuild(&mut self, r: usize) {
-        if self.rebuilt[r] {
+        if self.rebuilt[r] >= MAX_REBUILDS {
             self.frozen[r] = true;
         } else {
-            self.rebuilt[r] = true;
+            self.rebuilt[r] += 1;
             self.rebuild_now[r] = true;
             self.strikes[r] = 0;
         }
