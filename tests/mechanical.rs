@@ -627,6 +627,24 @@ fn fandisk_sweep() {
             "their initial faces {init:?}; planar regions {}, star {}",
             s.planar_regions, s.star_fallback
         );
+        if std::env::var("SUBDFIT_DUMP").is_ok() {
+            let w = std::env::var("SUBDFIT_REGION")
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(v[0].0 as u32);
+            for (f, &r) in built.face_region.iter().enumerate() {
+                if r == w {
+                    let fv = built.control.face_vertices(subdfit::mesh::FaceId(f as u32));
+                    let pts: Vec<String> = fv
+                        .map(|x| {
+                            let p = built.control.position(x);
+                            format!("({:.3},{:.3},{:.3})", p.x, p.y, p.z)
+                        })
+                        .collect();
+                    println!("region {w} face {f}: {}", pts.join(" "));
+                }
+            }
+        }
     }
     let (total, far, worst) = features_far(&mesh, &built);
     let (mean, rms, max) = output_error(&mesh, &built);

@@ -73,13 +73,25 @@ fn auto_mode_keeps_a_result_near_the_best_of_both_pipelines() {
         rms(&organic),
         organic.control.faces
     );
-    // Mechanical on this shape misses its own per-face target, so auto
-    // must have compared it with the organic result and said so.
-    assert!(
-        second.is_object(),
-        "no second opinion recorded: {}",
-        auto.options["mode"]
-    );
+    // Mechanical on this shape either misses its own per-face target, and
+    // then auto must have compared it with the organic result and said
+    // so, or (since mechanical mode enriches each region until it meets
+    // the target, issue 38) meets it, and then it needs no second opinion
+    // but must still be at least as close to M as the organic result.
+    if !second.is_object() {
+        assert!(
+            auto.targets_met && auto.projectability.unprojectable_area_percent <= 1.0,
+            "a mechanical result that missed its target kept without a second opinion: {}",
+            auto.options["mode"]
+        );
+        assert!(
+            rms(&auto) <= rms(&organic),
+            "auto kept RMS {:.3}‰, organic alone {:.3}‰",
+            rms(&auto),
+            rms(&organic)
+        );
+        return;
+    }
     let mech_rms = second["mechanical"]["rms_limit_permille"].as_f64().unwrap();
     let best = mech_rms.min(rms(&organic));
     // The kept result is the better of the two (the organic run repeats

@@ -24,12 +24,11 @@
 //! rounded to it, as OpenMesh did, so that meshes read before keep
 //! byte-identical outputs.
 
-use std::collections::HashMap;
 use std::path::Path;
 
 use crate::error::{Error, Result};
 use crate::io::text::{bom_len, non_finite, parse_f64, to_f32, SpanTokens};
-use crate::mesh::PolySoup;
+use crate::mesh::{weld_identical, PolySoup};
 use crate::DVec3;
 
 /// Reads an STL file, ascii or binary.
@@ -48,7 +47,7 @@ pub fn parse_stl(bytes: &[u8], path: &Path) -> Result<PolySoup> {
     } else {
         return Err(neither(bytes, path));
     }
-    Ok(w.soup)
+    Ok(w.into_soup())
 }
 
 /// `84 + 50 n` for the triangle count `n` of a binary header.
@@ -90,44 +89,33 @@ fn neither(bytes: &[u8], path: &Path) -> Error {
     Error::parse(path, format!("byte {}", len.min(84)), msg)
 }
 
-/// Merges corners with the same coordinates into one vertex.
+/// The corners as read, three per facet, welded at the end by the one weld
+/// every reader path shares ([`crate::mesh::weld_identical`]: identical
+/// coordinates, `-0` = `+0`, numbered in order of first appearance).
 #[derive(Default)]
 struct Welder {
-    soup: PolySoup,
-    index: HashMap<[u32; 3], u32>,
+    corners: Vec<DVec3>,
 }
 
 impl Welder {
-    fn corner(&mut self, p: [f32; 3]) -> u32 {
-        // `+ 0.0` turns -0 into +0 so that both weld (they are one point).
-        let key = p.map(|x| (x + 0.0).to_bits());
-        let next = self.soup.positions.len() as u32;
-        let soup = &mut self.soup;
-        *self.index.entry(key).or_insert_with(|| {
-            soup.positions
-                .push(DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64));
-            next
-        })
+    fn triangle(&mut self, c: [[f32; 3]; 3]) {
+        self.corners
+            .extend(c.map(|p| DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)));
     }
 
-    fn triangle(&mut self, c: [[f32; 3]; 3]) {
-        if self.soup.face_offsets.is_empty() {
-            self.soup.face_offsets.push(0);
+    fn into_soup(self) -> PolySoup {
+        let weld = weld_identical(&self.corners);
+        PolySoup {
+            positions: weld.positions,
+            face_offsets: (0..=self.corners.len() as u32 / 3).map(|f| 3 * f).collect(),
+            face_indices: weld.remap,
         }
-        for p in c {
-            let i = self.corner(p);
-            self.soup.face_indices.push(i);
-        }
-        self.soup
-            .face_offsets
-            .push(self.soup.face_indices.len() as u32);
     }
 }
 
 fn read_binary(bytes: &[u8], path: &Path, w: &mut Welder) -> Result<()> {
     let n = (bytes.len() - 84) / 50;
-    w.soup.face_offsets.reserve(n + 1);
-    w.soup.face_indices.reserve(3 * n);
+    w.corners.reserve(3 * n);
     for k in 0..n {
         let rec = &bytes[84 + 50 * k..84 + 50 * (k + 1)];
         let f = |i: usize| f32::from_le_bytes(rec[4 * i..4 * i + 4].try_into().unwrap());

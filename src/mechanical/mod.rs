@@ -210,6 +210,8 @@ pub struct MechanicalStats {
 pub struct Built {
     pub control: ControlMesh,
     pub stats: MechanicalStats,
+    /// The segmentation region (§4) of each face of `control`.
+    pub face_region: Vec<u32>,
 }
 
 /// Share of M's interior edges that are sharp, and share that are flat
@@ -779,7 +781,25 @@ fn build_with(
     };
     let star_fallback = polys.to_control().is_err();
     if star_fallback {
-        star_layout(mesh, &region_tris, &polygons, &ctl.positions, &mut polys);
+        star_layout(
+            mesh,
+            &region_tris,
+            &polygons,
+            &ctl.positions,
+            &mut polys,
+            true,
+        );
+        if polys.to_control().is_err() {
+            // A ladder chord doubling an edge of a neighbour: plain stars.
+            star_layout(
+                mesh,
+                &region_tris,
+                &polygons,
+                &ctl.positions,
+                &mut polys,
+                false,
+            );
+        }
         polys.to_control()?;
     }
     let initial_faces = polys.faces.len();
@@ -803,6 +823,7 @@ fn build_with(
     let (curve_max_error_permille, pieces) = piece_stats(&net, &stage, diag);
     Ok(Built {
         control,
+        face_region: polys.face_region.clone(),
         stats: MechanicalStats {
             sharp_edges: seg.sharp_edges,
             sharp_edges_inside_regions: seg.sharp_edges_inside - slit_edges,
@@ -1140,19 +1161,41 @@ fn cut_facets(
 /// The fallback of §6 when the facets do not make a valid control mesh:
 /// every region a star, one free centre (its triangles' mean centroid)
 /// joined to each edge of its polygon. Crude, but always valid, and §7's
-/// enrichment refines it where the error asks.
+/// enrichment refines it where the error asks. With `bounded`, a polygon
+/// longer than [`optimize::MAX_FAN_VALENCE`] is cut into a ladder of quads
+/// between its two sides instead (each corner gains at most two chords):
+/// a star centre joined to 49 boundary points was one control vertex of
+/// valence 49 carrying a whole face of a casting.
 fn star_layout(
     mesh: &TriMesh,
     region_tris: &[Vec<u32>],
     polygons: &[Option<Vec<polyhedron::PolyVertex>>],
     positions: &[DVec3],
     polys: &mut optimize::Polys,
+    bounded: bool,
 ) {
     let mut pos = positions.to_vec();
     let mut faces = Vec::new();
     let mut face_region = Vec::new();
     for (r, poly) in polygons.iter().enumerate() {
         let Some(poly) = poly else { continue };
+        if bounded && poly.len() > optimize::MAX_FAN_VALENCE {
+            // Rungs from both ends of the loop towards its far side.
+            let (mut l, mut h) = (0usize, poly.len() - 1);
+            while h - l >= 3 {
+                faces.push(vec![poly[l].id, poly[l + 1].id, poly[h - 1].id, poly[h].id]);
+                face_region.push(r as u32);
+                l += 1;
+                h -= 1;
+            }
+            // Two corners left are the last rung's chord; three, a
+            // triangle.
+            if h - l == 2 {
+                faces.push((l..=h).map(|k| poly[k].id).collect());
+                face_region.push(r as u32);
+            }
+            continue;
+        }
         let c = region_tris[r]
             .iter()
             .map(|&tr| {
@@ -1270,4 +1313,72 @@ fn piece_stats(net: &network::Network, stage: &PieceFits, diag: f64) -> (f64, Ve
         })
         .collect();
     (worst, pieces)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bounded star of a long loop (2 regions sharing a 25-gon: a
+    /// sphere cut at its equator) is a
+    /// valid control mesh whose valences stay small, where the plain star
+    /// has two centres of valence 25.
+    #[test]
+    fn bounded_star_layout_keeps_valences_small() {
+        let n = 25u32;
+        let positions: Vec<DVec3> = (0..n)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / n as f64;
+                DVec3::new(a.cos(), a.sin(), 0.0)
+            })
+            .collect();
+        let up: Vec<polyhedron::PolyVertex> = (0..n)
+            .map(|id| polyhedron::PolyVertex { id, anchor: 0 })
+            .collect();
+        // The other side runs the loop backwards from another start, so
+        // that its chords are not the first side's.
+        let down: Vec<polyhedron::PolyVertex> = (0..n)
+            .map(|k| polyhedron::PolyVertex {
+                id: (6 + n - k) % n,
+                anchor: 0,
+            })
+            .collect();
+        let polygons = vec![Some(up), Some(down)];
+        // One triangle of M per region for the plain star's centres.
+        let mesh = TriMesh {
+            positions: vec![DVec3::Z, DVec3::X, DVec3::Y, -DVec3::Z],
+            triangles: vec![[0, 1, 2], [3, 2, 1]],
+        };
+        let region_tris = vec![vec![0], vec![1]];
+        let mut polys = optimize::Polys {
+            positions: positions.clone(),
+            faces: Vec::new(),
+            fixed: n as usize,
+            creases: HashSet::new(),
+            corners: Vec::new(),
+            face_region: Vec::new(),
+        };
+        let max_valence = |polys: &optimize::Polys| {
+            let c = polys.to_control().unwrap();
+            c.validate().unwrap();
+            (0..c.num_vertices() as u32)
+                .map(|v| c.vertex_faces(crate::mesh::VertexId(v)).count())
+                .max()
+                .unwrap()
+        };
+        star_layout(
+            &mesh,
+            &region_tris,
+            &polygons,
+            &positions,
+            &mut polys,
+            false,
+        );
+        assert_eq!(max_valence(&polys), n as usize);
+        star_layout(&mesh, &region_tris, &polygons, &positions, &mut polys, true);
+        // Each corner: its two boundary edges and at most two chords per
+        // side.
+        assert!(max_valence(&polys) <= 6, "{}", max_valence(&polys));
+        assert_eq!(polys.positions.len(), n as usize, "no centre added");
+    }
 }

@@ -293,27 +293,25 @@ pub fn optimize(
         let any_regressed = regressed.iter().any(|&x| x);
         let over_all = (0..nf).filter(|&f| err.frms[f] > limit).count();
         let over: Vec<usize> = (0..nf)
-            .filter(|&f| face_over[f] && !regressed[polys.face_region[f] as usize])
+            .filter(|&f| {
+                let r = polys.face_region[f] as usize;
+                face_over[f] && !regressed[r] && !book.frozen[r]
+            })
             .collect();
         let mut rec = round_record(polys, &report, &err, iters, over_all, diag);
-        // A round of enrichment that bought less than 2 % of RMS will not
-        // buy more next time (the remaining error sits where enrichment
-        // cannot reach it, e.g. faces spanned by curve control points
-        // only): stop rather than add faces for nothing.
-        // A regression is answered by the restore below (and case 2 from
-        // then on), not by stopping.
-        let stalled = !any_regressed
-            && rounds
-                .last()
-                .is_some_and(|p: &Round| rec.rms_permille > 0.98 * p.rms_permille);
+        // Progress is judged per region (`RegionBook::record`): a region
+        // whose enrichment bought less than 2 % of its RMS is enriched
+        // differently, then frozen, while the others go on. A regression
+        // is answered by the restore below (and case 2 from then on).
         // Nothing left to enrich: every face over the limit lies in a
         // frozen region.
         let idle = over.is_empty()
             && (0..nreg).all(|r| !regressed[r] || book.frozen[r] || book.best[r].is_none());
-        if over_all == 0 || stalled || idle || round == o.max_rounds || nf >= o.max_faces {
+        if over_all == 0 || idle || round == o.max_rounds || nf >= o.max_faces {
             rounds.push(rec);
             break;
         }
+        book.mark_enriched(polys, &over, &regressed);
         if !over.is_empty() {
             let (local, diffuse) =
                 enrich(polys, &over, &locs_faces(&locs), &dists, &book.allow_local);
@@ -468,10 +466,39 @@ struct RegionBook {
     best: Vec<Option<RegionState>>,
     /// Case 1 (merge and insert) still allowed.
     allow_local: Vec<bool>,
-    /// Regions that regressed after a case-2 enrichment: left at their
-    /// best state, never enriched again.
+    /// Regions that regressed after a case-2 enrichment, or that case 2
+    /// failed to improve [`MAX_STRIKES`] − 1 times: left at their best
+    /// state, never enriched again.
     frozen: Vec<bool>,
+    /// Each region's RMS at the last round and whether that round
+    /// enriched it: the per-region progress test of [`RegionBook::record`].
+    last_rms: Vec<Option<f64>>,
+    enriched: Vec<bool>,
+    /// Enrichments of the region that bought less than 2 % of its RMS.
+    strikes: Vec<usize>,
+    /// Times the region was rebuilt (see [`RegionBook::freeze_or_rebuild`]).
+    rebuilt: Vec<usize>,
+    /// The region is to be rebuilt this round.
+    rebuild_now: Vec<bool>,
 }
+
+/// Enrichments without progress after which a region is frozen (see
+/// [`RegionBook::record`]): the first bars case 1, the next ones are
+/// case 2 refinements of its faces over the limit, which add points
+/// everywhere they are cut; past that the error sits where no new point
+/// reaches it.
+const MAX_STRIKES: usize = 3;
+
+/// Rebuilds of a region before it is frozen (see
+/// [`RegionBook::freeze_or_rebuild`]).
+const MAX_REBUILDS: usize = 1;
+
+/// The largest valence enrichment may give a new point (case 1's merged
+/// fan, a fan around a face closed by creases): a fan point joined to
+/// every corner of a long loop is one vertex carrying a whole region (an
+/// extraordinary vertex of valence 49 was seen on a casting), which
+/// neither fits a curved region (the fan folds) nor evaluates well.
+pub const MAX_FAN_VALENCE: usize = 12;
 
 impl RegionBook {
     fn grow(&mut self, nreg: usize) {
@@ -479,6 +506,11 @@ impl RegionBook {
             self.best.resize(nreg, None);
             self.allow_local.resize(nreg, true);
             self.frozen.resize(nreg, false);
+            self.last_rms.resize(nreg, None);
+            self.enriched.resize(nreg, false);
+            self.strikes.resize(nreg, 0);
+            self.rebuilt.resize(nreg, 0);
+            self.rebuild_now.resize(nreg, false);
         }
     }
 
@@ -486,6 +518,14 @@ impl RegionBook {
     /// (with its faces over the limit), a worse one by more than 2 % marks
     /// the region regressed (returned per region), which bars case 1 for
     /// it and, the second time, freezes it.
+    ///
+    /// An enriched region that did not improve by 2 % either is no more a
+    /// reason to stop the whole loop (one stuck region used to end it for
+    /// all, and a casting ended at 10‰ with 54 faces over the limit): it
+    /// takes a strike. The first bars case 1 (a field's merged fan can be
+    /// the very fan it was built from, so case 1 may repeat itself
+    /// forever); the next ones leave it to case 2, which always adds
+    /// points; at [`MAX_STRIKES`] it is frozen at its best state.
     fn record(&mut self, polys: &Polys, err: &SampleErrors, face_over: &[bool]) -> Vec<bool> {
         let nreg = err.rsum.len();
         let mut regressed = vec![false; nreg];
@@ -501,15 +541,59 @@ impl RegionBook {
                     *worse = true;
                     // A second regression: case 2 failed too (after the
                     // first one the region is enriched by case 2 only).
-                    // More faces will not help; keep its best state.
-                    self.frozen[r] = !self.allow_local[r];
+                    // Faces added where the error is will not help.
+                    if !self.allow_local[r] {
+                        self.freeze_or_rebuild(r);
+                    }
                     self.allow_local[r] = false;
                 }
                 Some(b) if e >= b.rms => {}
                 _ => self.best[r] = Some(region_state(polys, r as u32, e, face_over)),
             }
+            let stuck = self.enriched[r] && self.last_rms[r].is_some_and(|p| e > 0.98 * p);
+            if stuck && !*worse {
+                self.strikes[r] += 1;
+                self.allow_local[r] = false;
+                if self.strikes[r] >= MAX_STRIKES {
+                    self.freeze_or_rebuild(r);
+                }
+            }
+            self.last_rms[r] = Some(e);
+            self.enriched[r] = false;
+            // A region rebuilt this round is put back to its best state
+            // first, as a regressed one is.
+            *worse |= self.rebuild_now[r];
         }
         regressed
+    }
+
+    /// A region whose enrichment where the error is failed: the first
+    /// time it is *rebuilt*, its best state put back and every one of its
+    /// faces split by case 2 (points everywhere, not only where the error
+    /// peaks: on a half-pipe between two crease arcs the error of one face
+    /// is often the fold of its neighbour), and enriched as before from
+    /// there; past [`MAX_REBUILDS`] it is frozen at its best state.
+    fn freeze_or_rebuild(&mut self, r: usize) {
+        if self.rebuilt[r] >= MAX_REBUILDS {
+            self.frozen[r] = true;
+        } else {
+            self.rebuilt[r] += 1;
+            self.rebuild_now[r] = true;
+            self.strikes[r] = 0;
+        }
+    }
+
+    /// Notes which regions the faces `over` (and the restored ones) put
+    /// through enrichment this round.
+    fn mark_enriched(&mut self, polys: &Polys, over: &[usize], regressed: &[bool]) {
+        for &f in over {
+            self.enriched[polys.face_region[f] as usize] = true;
+        }
+        for (r, &x) in regressed.iter().enumerate() {
+            if x && !self.frozen[r] {
+                self.enriched[r] = true;
+            }
+        }
     }
 
     /// A restored region is enriched at once, by case 2, where its best
@@ -519,7 +603,7 @@ impl RegionBook {
     /// only the restored regions change) and end the loop with faces still
     /// over the limit and nothing refined ("over 25, local 0, diffuse 0"
     /// on fandisk at 1.1 × 10⁻³). Returns the diffuse fields enriched.
-    fn enrich_restored(&self, polys: &mut Polys, regressed: &[bool]) -> usize {
+    fn enrich_restored(&mut self, polys: &mut Polys, regressed: &[bool]) -> usize {
         let nreg = regressed.len();
         let mut again = Vec::new();
         let mut k = vec![0usize; nreg];
@@ -527,13 +611,14 @@ impl RegionBook {
             let r = r as usize;
             if regressed[r] && !self.frozen[r] {
                 if let Some(Some(b)) = self.best.get(r) {
-                    if b.over.get(k[r]).copied().unwrap_or(false) {
+                    if self.rebuild_now[r] || b.over.get(k[r]).copied().unwrap_or(false) {
                         again.push(f);
                     }
                 }
                 k[r] += 1;
             }
         }
+        self.rebuild_now.iter_mut().for_each(|x| *x = false);
         if again.is_empty() {
             return 0;
         }
@@ -984,7 +1069,10 @@ fn classify_fields(
                 .get(polys.face_region[comp[0]] as usize)
                 .copied()
                 .unwrap_or(true);
-        if local && merge_loop(&polys.faces, comp, edge_faces).is_some() {
+        if local
+            && merge_loop(&polys.faces, comp, edge_faces)
+                .is_some_and(|lp| lp.len() <= MAX_FAN_VALENCE)
+        {
             out.merges.push(comp.clone());
             out.local += 1;
         } else {
@@ -1096,7 +1184,19 @@ fn split_faces(
             continue;
         }
         // No cut edge (a face closed by creases): a fan of triangles
-        // around the centre, the only split left.
+        // around the centre, the only split left, while the centre's
+        // valence stays bounded; a longer face is cut in two along the
+        // chord between opposite corners instead (no new point: the chord
+        // is an edge the next round can cut).
+        if m > MAX_FAN_VALENCE {
+            positions.pop();
+            let h = m / 2;
+            faces.push((0..=h).map(|k| seq[k].0).collect());
+            regions.push(reg);
+            faces.push((h..=m).map(|k| seq[k % m].0).collect());
+            regions.push(reg);
+            continue;
+        }
         for i in 0..m {
             faces.push(vec![seq[i].0, seq[(i + 1) % m].0, ci]);
             regions.push(reg);

@@ -15,7 +15,8 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use super::{validate_soup, MeshReport, PolySoup, TriMesh, ValidatedMesh};
+use super::report::validate_soup_unwelded;
+use super::{MeshReport, PolySoup, TriMesh, ValidatedMesh};
 use crate::error::Result;
 use crate::DVec3;
 
@@ -199,12 +200,14 @@ impl ValidatedMesh {
             face_offsets: (0..=mesh.triangles.len() as u32).map(|f| 3 * f).collect(),
             face_indices: mesh.triangles.iter().flatten().copied().collect(),
         };
-        let ValidatedMesh { mesh, report: new } = validate_soup(soup, path)?;
+        // Unwelded: the copies sit at their vertex's position on purpose.
+        let ValidatedMesh { mesh, report: new } = validate_soup_unwelded(soup, path)?;
         let mut report = MeshReport {
             input_vertices: old.input_vertices,
             input_faces: old.input_faces,
             face_sizes: old.face_sizes.clone(),
             unreferenced_vertices: old.unreferenced_vertices,
+            welded_vertices: old.welded_vertices,
             repeated_index_faces: old.repeated_index_faces,
             duplicate_faces: old.duplicate_faces,
             notes: old.notes.clone(),

@@ -29,4 +29,4 @@ pub use scheme::{
     check_loop_triangles, BoundaryInterpolation, CreaseMethod, FVarLinear, SchemeOptions,
     SubdivScheme, TriangleSubdivision,
 };
-pub use soup::{edge_key, PolySoup, TriMesh};
+pub use soup::{edge_key, weld_identical, PolySoup, TriMesh, Weld};

@@ -25,7 +25,7 @@ use std::path::Path;
 use serde::Serialize;
 
 use crate::error::{Error, Result};
-use crate::mesh::soup::bbox;
+use crate::mesh::soup::{bbox, weld_identical};
 use crate::mesh::{PolySoup, TriMesh};
 use crate::DVec3;
 
@@ -53,6 +53,10 @@ pub struct MeshReport {
     pub edges: usize,
     /// Vertices used by no face, dropped.
     pub unreferenced_vertices: usize,
+    /// Vertices at the bit-identical position of an earlier one, merged
+    /// into it before anything else (a triangle soup, a mesh split along
+    /// its UV seams; see [`crate::mesh::Weld`]).
+    pub welded_vertices: usize,
     /// Faces repeating a vertex index, dropped.
     pub repeated_index_faces: usize,
     /// Kept faces with (numerically) zero area: area below
@@ -116,13 +120,46 @@ pub fn zero_area_threshold(diag: f64) -> f64 {
 }
 
 /// Validates `soup` read from `path` (named in errors).
+///
+/// Vertices at identical positions are welded first
+/// ([`crate::mesh::weld_identical`]), so a triangle soup or a mesh split
+/// along its seams is read as the surface it describes; faces the weld
+/// collapsed (two corners merged) are then dropped with the other faces
+/// that repeat a vertex. A mesh without area, or whose vertices all lie on
+/// one line, is refused ([`check_extent`]).
 pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
+    validate(soup, path, true)
+}
+
+/// [`validate_soup`] without the weld: for a mesh whose coincident
+/// vertices are copies made on purpose (the manifold split of
+/// [`ValidatedMesh::into_manifold`], which the weld would undo).
+pub(crate) fn validate_soup_unwelded(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
+    validate(soup, path, false)
+}
+
+fn validate(mut soup: PolySoup, path: &Path, weld: bool) -> Result<ValidatedMesh> {
     let mut report = MeshReport {
         input_vertices: soup.positions.len(),
         input_faces: soup.num_faces(),
         ..MeshReport::default()
     };
     check_faces(&soup, path, &mut report)?;
+    // A non-finite coordinate is an error even on an unreferenced vertex:
+    // it means the file is corrupt, and the rest of it cannot be trusted.
+    // The readers already reject them with the line; this guards soups
+    // built in memory (and comes before the weld, so it names the file's
+    // vertex index).
+    if let Some(i) = soup.positions.iter().position(|p| !p.is_finite()) {
+        return Err(Error::invalid_mesh(
+            path,
+            format!("vertex {i}"),
+            non_finite(soup.positions[i]).unwrap_or_default(),
+        ));
+    }
+    if weld {
+        weld_soup(&mut soup, &mut report);
+    }
     let keep = drop_bad_faces(&soup, &mut report);
     if keep.is_empty() {
         let nf_in = soup.num_faces();
@@ -137,8 +174,9 @@ pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
         ));
     }
     report.faces = keep.len();
-    let (positions, remap) = used_vertices(&soup, &keep, path, &mut report)?;
+    let (positions, remap) = used_vertices(&soup, &keep, &mut report);
     let triangles = triangulate(&soup, &keep, &positions, &remap, &mut report);
+    check_extent(&positions, &triangles, &report, path)?;
     topology(&positions, &triangles, &mut report);
     Ok(ValidatedMesh {
         mesh: TriMesh {
@@ -147,6 +185,102 @@ pub fn validate_soup(soup: PolySoup, path: &Path) -> Result<ValidatedMesh> {
         },
         report,
     })
+}
+
+/// Merges the vertices of `soup` at identical positions (see
+/// [`crate::mesh::Weld`] for why identical and not close); notes the count.
+fn weld_soup(soup: &mut PolySoup, report: &mut MeshReport) {
+    let weld = weld_identical(&soup.positions);
+    report.welded_vertices = weld.merged();
+    if report.welded_vertices == 0 {
+        return;
+    }
+    for i in soup.face_indices.iter_mut() {
+        *i = weld.remap[*i as usize];
+    }
+    soup.positions = weld.positions;
+    report.notes.push(format!(
+        "welded {} vertices at the identical position of an earlier one (a triangle soup or seams split in the file); vertices that are only close are left apart",
+        report.welded_vertices
+    ));
+}
+
+/// Refuses a mesh that spans no surface: every face of (numerically) zero
+/// area, or every vertex within rounding of one line. Both thresholds are
+/// the input's own resolution: `f32` coordinates at the model's scale are
+/// resolved to about `f32::EPSILON * diag` ([`zero_area_threshold`]), so a
+/// mesh whose faces are all below that area, or whose vertices all lie
+/// within that distance of one line, has its second dimension made of
+/// rounding noise, and no surface (no normal, no fit) can be built on it.
+/// A flat plate passes: it has area, and it needs no third dimension.
+fn check_extent(
+    positions: &[DVec3],
+    triangles: &[[u32; 3]],
+    report: &MeshReport,
+    path: &Path,
+) -> Result<()> {
+    let diag = report.bbox_diagonal;
+    if diag == 0.0 {
+        return Err(Error::invalid_mesh(
+            path,
+            "mesh",
+            format!(
+                "has no extent: all {} vertices are at one point",
+                positions.len()
+            ),
+        ));
+    }
+    let resolution = f32::EPSILON as f64 * diag;
+    // The line through the two vertices farthest apart along the longest
+    // bounding-box axis: if any vertex is off it by more than the
+    // resolution, the mesh spans two directions.
+    let axis = {
+        let d = DVec3::from(report.bbox_max) - DVec3::from(report.bbox_min);
+        if d.x >= d.y && d.x >= d.z {
+            0
+        } else if d.y >= d.z {
+            1
+        } else {
+            2
+        }
+    };
+    let by = |p: &&DVec3| p[axis];
+    let lo = *positions
+        .iter()
+        .min_by(|a, b| by(a).total_cmp(&by(b)))
+        .unwrap();
+    let hi = *positions
+        .iter()
+        .max_by(|a, b| by(a).total_cmp(&by(b)))
+        .unwrap();
+    let dir = (hi - lo).normalize();
+    let off_line = positions
+        .iter()
+        .map(|&p| (p - lo).reject_from_normalized(dir).length())
+        .fold(0.0, f64::max);
+    if off_line <= resolution {
+        return Err(Error::invalid_mesh(
+            path,
+            "mesh",
+            format!(
+                "has no area: all {} vertices lie on one line (within {resolution:.3e}, the coordinates' resolution at its size {diag:.3e}); a surface needs two directions",
+                positions.len()
+            ),
+        ));
+    }
+    if report.zero_area_faces == report.faces {
+        return Err(Error::invalid_mesh(
+            path,
+            "mesh",
+            format!(
+                "has no area: all {} of its faces ({} triangles) have zero area (below {:.3e})",
+                report.faces,
+                triangles.len(),
+                zero_area_threshold(diag)
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Hard errors on the faces: inconsistent offsets, fewer than 3 corners, an
@@ -246,8 +380,13 @@ fn drop_bad_faces(soup: &PolySoup, report: &mut MeshReport) -> Vec<u32> {
     }
     if let Some(f) = first_repeated {
         report.notes.push(format!(
-            "dropped {} face(s) that repeat a vertex index (first: face {f})",
-            report.repeated_index_faces
+            "dropped {} face(s) that repeat a vertex index (first: face {f}){}",
+            report.repeated_index_faces,
+            if report.welded_vertices > 0 {
+                ", counting those the weld collapsed"
+            } else {
+                ""
+            }
         ));
     }
     if let Some((f, g)) = first_duplicate {
@@ -263,12 +402,7 @@ fn drop_bad_faces(soup: &PolySoup, report: &mut MeshReport) -> Vec<u32> {
 
 /// The vertices used by the kept faces, in their original order, and the
 /// old-to-new index map (`u32::MAX` for dropped ones). Sets the bounding box.
-fn used_vertices(
-    soup: &PolySoup,
-    keep: &[u32],
-    path: &Path,
-    report: &mut MeshReport,
-) -> Result<(Vec<DVec3>, Vec<u32>)> {
+fn used_vertices(soup: &PolySoup, keep: &[u32], report: &mut MeshReport) -> (Vec<DVec3>, Vec<u32>) {
     let nv_in = soup.positions.len();
     const UNUSED: u32 = u32::MAX;
     let mut remap = vec![UNUSED; nv_in];
@@ -276,17 +410,6 @@ fn used_vertices(
         for &i in soup.face(f as usize) {
             remap[i as usize] = 0;
         }
-    }
-    // A non-finite coordinate is an error even on an unreferenced vertex:
-    // it means the file is corrupt, and the rest of it cannot be trusted.
-    // The readers already reject them with the line; this guards soups
-    // built in memory.
-    if let Some(i) = soup.positions.iter().position(|p| !p.is_finite()) {
-        return Err(Error::invalid_mesh(
-            path,
-            format!("vertex {i}"),
-            non_finite(soup.positions[i]).unwrap_or_default(),
-        ));
     }
     let mut positions = Vec::with_capacity(nv_in);
     for (i, r) in remap.iter_mut().enumerate() {
@@ -309,7 +432,7 @@ fn used_vertices(
     report.bbox_min = lo.to_array();
     report.bbox_max = hi.to_array();
     report.bbox_diagonal = (hi - lo).length();
-    Ok((positions, remap))
+    (positions, remap)
 }
 
 /// Fan-triangulates the kept faces; counts zero-area faces and polygons.
@@ -584,8 +707,8 @@ impl fmt::Display for MeshReport {
         let yn = |b: bool| if b { "yes" } else { "no" };
         writeln!(
             f,
-            "vertices        {} ({} in the file, {} unreferenced dropped)",
-            self.vertices, self.input_vertices, self.unreferenced_vertices
+            "vertices        {} ({} in the file, {} welded, {} unreferenced dropped)",
+            self.vertices, self.input_vertices, self.welded_vertices, self.unreferenced_vertices
         )?;
         let sizes: Vec<String> = self
             .face_sizes
@@ -654,4 +777,92 @@ pub(crate) fn non_finite(p: DVec3) -> Option<String> {
     }
     let what = if p.is_nan() { "NaN" } else { "infinite" };
     Some(format!("non-finite coordinate ({what}): {p}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn quad_soup(positions: Vec<DVec3>, faces: &[[u32; 3]]) -> Result<ValidatedMesh> {
+        validate_soup(PolySoup::from_faces(positions, faces), Path::new("mem.obj"))
+    }
+
+    #[test]
+    fn identical_vertices_weld_close_ones_do_not() {
+        let (a, b, c, d) = (DVec3::ZERO, DVec3::X, DVec3::Y, DVec3::new(1.0, 1.0, 0.0));
+        // Two triangles as a soup (six vertices), a seventh vertex a hair
+        // off `c` used by a third triangle, and `-0` beside `+0`.
+        let near_c = c + DVec3::new(0.0, 1e-12, 0.0);
+        let neg_a = DVec3::new(-0.0, 0.0, -0.0);
+        let v = quad_soup(
+            vec![a, b, d, neg_a, d, c, near_c, b, d],
+            &[[0, 1, 2], [3, 4, 5], [6, 7, 8]],
+        )
+        .unwrap();
+        assert_eq!(v.report.welded_vertices, 4, "{:?}", v.report.notes);
+        assert_eq!(v.mesh.positions, vec![a, b, d, c, near_c]);
+        assert_eq!(v.mesh.triangles, vec![[0, 1, 2], [0, 2, 3], [4, 1, 2]]);
+        assert!(
+            v.report.notes[0].contains("welded 4 vertices"),
+            "{:?}",
+            v.report.notes
+        );
+    }
+
+    #[test]
+    fn triangles_collapsed_by_the_weld_are_dropped_and_counted() {
+        // A triangle whose corners 0 and 2 are at one position: after the
+        // weld it repeats a vertex.
+        let v = quad_soup(
+            vec![
+                DVec3::ZERO,
+                DVec3::X,
+                DVec3::Y,
+                DVec3::ZERO,
+                DVec3::X,
+                DVec3::ZERO,
+            ],
+            &[[0, 1, 2], [3, 4, 5]],
+        )
+        .unwrap();
+        assert_eq!(v.report.repeated_index_faces, 1);
+        assert_eq!(v.mesh.triangles.len(), 1);
+        assert!(
+            v.report
+                .notes
+                .iter()
+                .any(|n| n.contains("the weld collapsed")),
+            "{:?}",
+            v.report.notes
+        );
+    }
+
+    #[test]
+    fn meshes_without_area_are_refused() {
+        // Colinear, with positive face "areas" only from rounding: all
+        // vertices on the line through (1, 2, 3) scaled by thirds.
+        let line: Vec<DVec3> = (0..9)
+            .map(|i| DVec3::new(1.0, 2.0, 3.0) * (i as f64 / 3.0))
+            .collect();
+        let faces: Vec<[u32; 3]> = (0..7).map(|i| [i, i + 1, i + 2]).collect();
+        let e = quad_soup(line, &faces).unwrap_err().to_string();
+        assert!(e.contains("mem.obj") && e.contains("one line"), "{e}");
+        // Spanning a plane, every triangle flat.
+        let p: Vec<DVec3> = (0..9)
+            .map(|i| DVec3::new((i % 3) as f64, (i / 3) as f64, 0.0))
+            .collect();
+        let e = quad_soup(p.clone(), &[[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("all 3 of its faces"), "{e}");
+        // One point.
+        let e = quad_soup(vec![DVec3::ONE; 3], &[[0, 1, 2]])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("mem.obj"), "{e}");
+        // A flat plate has area: accepted, and so is one good triangle
+        // among the flat ones.
+        quad_soup(p.clone(), &[[0, 1, 4], [0, 4, 3]]).unwrap();
+        quad_soup(p, &[[0, 1, 2], [3, 4, 5], [0, 1, 4]]).unwrap();
+    }
 }

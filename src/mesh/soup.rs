@@ -170,3 +170,91 @@ pub(crate) fn bbox(p: &[DVec3]) -> (DVec3, DVec3) {
         |(lo, hi), &q| (lo.min(q), hi.max(q)),
     )
 }
+
+/// Points at bit-identical positions merged into one: the shared weld of
+/// every reader path (STL's corners, and [`crate::mesh::validate_soup`] for
+/// OBJ, PLY, OFF and meshes handed over in memory).
+///
+/// Only *identical* coordinates are merged (`-0` and `+0` count as one),
+/// never merely close ones: scans and CAD exports hold vertices that are
+/// legitimately a hair apart across thin parts (the two faces of a sheet,
+/// the lips of a slot, a crack that is really there), and any tolerance
+/// would fuse them into one surface and change the topology. A writer that
+/// split a vertex along a UV or normal seam, or wrote a triangle soup,
+/// copied the coordinates verbatim, so equality finds every such copy.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Weld {
+    /// The distinct positions, in the order of their first occurrence.
+    pub positions: Vec<DVec3>,
+    /// For each input point, the index of its position in `positions`.
+    pub remap: Vec<u32>,
+}
+
+impl Weld {
+    /// Input points merged into an earlier one.
+    pub fn merged(&self) -> usize {
+        self.remap.len() - self.positions.len()
+    }
+}
+
+/// Welds `points` (see [`Weld`]). A sort of the coordinate bits, not a
+/// hash map: O(n log n) on both cores, the same numbering at any thread
+/// count (the keys are unique once the index is part of them), and
+/// positions numbered in order of first occurrence so that a mesh without
+/// copies keeps its numbering.
+pub fn weld_identical(points: &[DVec3]) -> Weld {
+    use rayon::prelude::*;
+    // `+ 0.0` turns -0 into +0 so that both weld (they are one point).
+    let key = |p: DVec3| {
+        [
+            (p.x + 0.0).to_bits(),
+            (p.y + 0.0).to_bits(),
+            (p.z + 0.0).to_bits(),
+        ]
+    };
+    let mut order: Vec<([u64; 3], u32)> = points
+        .par_iter()
+        .enumerate()
+        .map(|(i, &p)| (key(p), i as u32))
+        .collect();
+    order.par_sort_unstable();
+    // Each run of equal keys starts with its smallest index: every member
+    // points at that first occurrence.
+    let mut first = vec![0u32; points.len()];
+    for run in order.chunk_by(|a, b| a.0 == b.0) {
+        for &(_, i) in run {
+            first[i as usize] = run[0].1;
+        }
+    }
+    drop(order);
+    let mut positions = Vec::with_capacity(points.len());
+    let mut remap = vec![0u32; points.len()];
+    for i in 0..points.len() {
+        let f = first[i] as usize;
+        remap[i] = if f == i {
+            positions.push(points[i]);
+            (positions.len() - 1) as u32
+        } else {
+            // `f < i`, so its new index is already set.
+            remap[f]
+        };
+    }
+    Weld { positions, remap }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weld_keeps_first_occurrence_order_and_is_idempotent() {
+        let (a, b) = (DVec3::new(1.0, 2.0, 3.0), DVec3::new(-1.0, 0.5, 0.0));
+        let w = weld_identical(&[b, a, b, a, DVec3::new(-1.0, 0.5, -0.0)]);
+        assert_eq!(w.positions, vec![b, a]);
+        assert_eq!(w.remap, vec![0, 1, 0, 1, 0]);
+        assert_eq!(w.merged(), 3);
+        let again = weld_identical(&w.positions);
+        assert_eq!(again.merged(), 0);
+        assert_eq!(again.remap, vec![0, 1]);
+    }
+}

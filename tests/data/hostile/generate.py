@@ -306,9 +306,9 @@ case(
 )
 case(
     "off_overflow.off",
-    off(points=[P[0], P[1], (0, "1e39", 0), P[3]]),
+    off(points=[P[0], ("1e39", 0, 0), (0, "1e39", 0), (0, 0, "1e39")]),
     "ok 4 4 2=0,1e39,0",
-    "a coordinate beyond single precision: kept, OFF is read in double precision",
+    "coordinates beyond single precision (a tetrahedron of size 1e39; at size 1 with one such coordinate it would be a needle without area, refused): kept, OFF is read in double precision",
 )
 case(
     "off_overflow_double.off",
