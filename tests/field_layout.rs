@@ -384,7 +384,9 @@ fn convert_with_the_field_layout() {
     );
     assert_eq!(v - e + f, 2, "spot is a sphere: V − E + F = 2");
     assert!(control.edges().all(|e| !control.is_boundary_edge(e)));
-    let rms = report["accuracy"]["limit"]["rms_permille"].as_f64().unwrap();
+    let rms = report["accuracy"]["limit"]["rms_permille"]
+        .as_f64()
+        .unwrap();
     assert!(rms < 15.0, "RMS L {rms}‰ on spot");
     let met = report["targets"]
         .as_array()

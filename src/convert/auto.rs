@@ -1,8 +1,18 @@
-//! `--mode auto`'s second opinion: a combinator over two branches of a
-//! conversion. The first (mechanical, when the share of sharp edges chose
-//! it) is kept unless it misses its own target or leaves part of M
-//! unprojectable; then the second (organic) runs too and the one with the
-//! lower RMS distance is kept.
+//! The second opinion: a combinator over two branches of a conversion.
+//! The first (mechanical) is kept unless [`Doubt`] doubts it; then the
+//! second (organic) runs too and the one with the lower RMS distance is
+//! kept.
+//!
+//! - `--mode auto` doubts a mechanical result that misses its own target
+//!   or leaves more than 1 % of M unprojectable ([`Doubt::Missed`]).
+//! - An explicit `--mode mechanical` is the user's choice, so a near miss
+//!   stays (a few faces over E_limit is still Lavoué et al.'s answer); but
+//!   a result *far* over its target is never the answer: when the RMS
+//!   distance of the whole limit surface exceeds the per-face bound itself
+//!   (every face within E would keep it below), or more than 1 % of M is
+//!   unprojectable, the organic conversion runs too ([`Doubt::FarOver`]).
+//!   Issue 38's genus-9 casting ended at RMS 9.95‰ against E = 3‰ with
+//!   10 % unprojectable: that is the case this rule catches.
 
 use serde::Serialize;
 
@@ -12,16 +22,32 @@ use crate::report::Report;
 use super::run::Run;
 use super::tail::Converted;
 
-/// Runs `first`; when [`second_opinion_reason`] doubts its result, runs
-/// `second` with the reason (on a fresh stage timer: `first` took the
-/// stages so far) and keeps the better ([`keep_better`]).
+/// When a mechanical result is doubted (see the module docs).
+#[derive(Copy, Clone, Debug, PartialEq)]
+pub enum Doubt {
+    /// `--mode auto`: any missed target, or > 1 % unprojectable.
+    Missed,
+    /// `--mode mechanical`: RMS L of the whole surface above the per-face
+    /// bound `max_error` (a fraction of the diagonal), or > 1 %
+    /// unprojectable.
+    FarOver { max_error: f64 },
+}
+
+/// Runs `first`; when `doubt` doubts its result, runs `second` with the
+/// reason (on a fresh stage timer: `first` took the stages so far) and
+/// keeps the better ([`keep_better`]).
 pub fn with_second_opinion<'a, 'p>(
     run: &mut Run<'a, 'p>,
+    doubt: Doubt,
     first: impl FnOnce(&mut Run<'a, 'p>) -> Result<Converted>,
     second: impl FnOnce(&mut Run<'a, 'p>, &str) -> Result<Converted>,
 ) -> Result<Converted> {
     let first = first(run)?;
-    let Some(why) = second_opinion_reason(&first.report) else {
+    let why = match doubt {
+        Doubt::Missed => second_opinion_reason(&first.report),
+        Doubt::FarOver { max_error } => far_over_reason(&first.report, max_error),
+    };
+    let Some(why) = why else {
         return Ok(first);
     };
     run.take_timer();
@@ -44,6 +70,25 @@ fn second_opinion_reason(r: &Report) -> Option<String> {
         Some(format!(
             "the mechanical result missed its target ({})",
             missed.join("; ")
+        ))
+    } else if unproj > 1.0 {
+        Some(format!(
+            "the mechanical result leaves {unproj:.2} % of the input unprojectable"
+        ))
+    } else {
+        None
+    }
+}
+
+/// Why an explicit `--mode mechanical` result needs the organic one beside
+/// it, or `None` ([`Doubt::FarOver`]).
+fn far_over_reason(r: &Report, max_error: f64) -> Option<String> {
+    let rms = r.accuracy.limit.rms_permille;
+    let e = 1000.0 * max_error;
+    let unproj = r.projectability.unprojectable_area_percent;
+    if rms > e {
+        Some(format!(
+            "the mechanical result is far over its target: RMS L {rms:.3}‰ of the whole surface exceeds the per-face bound {e:.3}‰"
         ))
     } else if unproj > 1.0 {
         Some(format!(
@@ -110,4 +155,47 @@ fn keep_better(mechanical: Converted, organic: Converted, why: &str) -> Converte
     kept.report.options["mode"]["second_opinion"] = serde_json::json!(note);
     kept.second_opinion = Some(note);
     kept
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A report of `rms` ‰ RMS L and `unproj` % unprojectable, with one
+    /// missed per-face target (a few faces over E), as mechanical mode
+    /// writes them.
+    fn report(rms: f64, unproj: f64) -> Report {
+        let metrics = crate::report::Metrics::default();
+        let mut r = Report::new(
+            Default::default(),
+            &crate::fixtures::cube(),
+            None,
+            &metrics,
+            Vec::new(),
+            serde_json::json!({}),
+        );
+        r.accuracy.limit.rms_permille = rms;
+        r.projectability.unprojectable_area_percent = unproj;
+        r.add_target(crate::report::TargetCheck {
+            option: "max_error",
+            target: "every face within 3‰".into(),
+            met: false,
+            outcome: "8 of 1007 faces over".into(),
+        });
+        r
+    }
+
+    #[test]
+    fn explicit_mechanical_is_doubted_only_far_over_its_target() {
+        let e = 3e-3;
+        // A near miss (issue 38's casting_4x3: RMS 0.65‰, 8 faces over)
+        // stays the answer to `--mode mechanical`; `auto` doubts it.
+        assert!(far_over_reason(&report(0.65, 0.0), e).is_none());
+        assert!(second_opinion_reason(&report(0.65, 0.0)).is_some());
+        // The broken casting (RMS 9.95‰, 10 % unprojectable) is doubted by
+        // both, and so is each of its two symptoms alone.
+        assert!(far_over_reason(&report(9.95, 10.0), e).is_some());
+        assert!(far_over_reason(&report(3.2, 0.0), e).is_some());
+        assert!(far_over_reason(&report(0.65, 1.5), e).is_some());
+    }
 }

@@ -107,7 +107,8 @@ pub fn fit_field(
     )?;
     let rms_l = c.report.accuracy.limit.rms_permille;
     if let Some(e) = max_error.filter(|e| e.is_finite()) {
-        c.report.add_target(max_error_target(1000.0 * e, rms_l, &rounds));
+        c.report
+            .add_target(max_error_target(1000.0 * e, rms_l, &rounds));
     }
     if let Some(n) = opts.target_faces.filter(|_| max_error.is_none()) {
         c.report.add_target(faces_target(n, c.report.control.faces));

@@ -198,7 +198,8 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
         fitmap_reporting(layout, layout_caster, fo, &mut *progress)
     })?;
     stage(progress, "fitmap", 1.0)?;
-    let field_opts = crate::quad::field::FieldOptions::default().with_target_faces(opts.target_faces);
+    let field_opts =
+        crate::quad::field::FieldOptions::default().with_target_faces(opts.target_faces);
     stage(progress, "field layout", 0.0)?;
     let laid = timer.run("field layout", || {
         crate::quad::field::field_layout(layout, &fitmap, &field_opts)

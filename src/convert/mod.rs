@@ -35,7 +35,8 @@ pub mod tail;
 pub use auto::{Candidate, SecondOpinion};
 pub use layout::{FieldRelayout, Laid, Layout, LayoutRecord, ProxyAttempt, ProxyRecord};
 pub use options::{
-    ConvertOptions, LayoutKind, Mode, Proxy, DEFAULT_ORGANIC_MAX_ERROR, PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES,
+    ConvertOptions, LayoutKind, Mode, Proxy, DEFAULT_ORGANIC_MAX_ERROR, PROXY_AUTO_ABOVE,
+    PROXY_AUTO_TRIANGLES,
 };
 pub use run::Run;
 pub use search::ErrorSearch;
@@ -206,15 +207,27 @@ fn convert_at_unit_scale(
 ) -> Result<Converted> {
     let choice = mode_choice(&input.mesh, opts.mode);
     let mut run = Run::start(input, frame, StageTimer::default(), progress)?;
-    if choice.mode == "organic" || choice.how != "auto" {
+    if choice.mode == "organic" {
         return convert_as(&mut run, opts, choice, extra_options);
     }
     // `--mode auto` ends with the pipeline that fits: a CAD-looking mesh
     // whose mechanical result misses its own target (an isotropically
     // remeshed statue with flat parts and a few sharp edges) is converted
-    // by the organic pipeline too, and the lower RMS distance is kept.
+    // by the organic pipeline too, and the lower RMS distance is kept. An
+    // explicit `--mode mechanical` gets the same second opinion only when
+    // its result is far over its target (see [`auto::Doubt`]).
+    let doubt = if choice.how == "auto" {
+        auto::Doubt::Missed
+    } else {
+        auto::Doubt::FarOver {
+            max_error: opts
+                .max_error
+                .unwrap_or(crate::mechanical::DEFAULT_MAX_ERROR),
+        }
+    };
     auto::with_second_opinion(
         &mut run,
+        doubt,
         |run| convert_as(run, opts, choice.clone(), extra_options.clone()),
         |run, why| {
             let mut organic = choice.clone();
