@@ -14,7 +14,8 @@
 //!    with a per-vertex scale (QuadriFlow's adaptive mode, Huang et al.
 //!    2018), smoothed coarse to fine on a pairwise-merge hierarchy.
 //! 4. [`extract`]: the lattice graph of the position field (Instant Meshes
-//!    §6), its faces, made pure quad by one Catmull-Clark split, with M's
+//!    §6), its faces (adjacent non-quads merged where that saves irregular
+//!    vertices), made pure quad by one Catmull-Clark split, with M's
 //!    components, boundary loops and Euler characteristic checked.
 
 pub mod cross;
@@ -108,8 +109,9 @@ pub struct FieldStats {
     pub singularities_plus: usize,
     pub singularities_minus: usize,
     pub singularities_half: usize,
-    /// Faces of the raw lattice extraction that were not quads (each
-    /// turns into an irregular vertex by the pure-quad split).
+    /// Faces of the raw lattice extraction that were not quads, before
+    /// adjacent ones are merged (each face left a non-quad turns into an
+    /// irregular vertex by the pure-quad split).
     pub raw_non_quads: usize,
     /// The sizing scale α used and the face count it predicted.
     pub alpha: f64,
