@@ -9,8 +9,9 @@
 //! `rms` over a bound `e` asks for `faces · (rms / e)^½` patches, with a
 //! margin of [`FIELD_MARGIN`] because the lattice lands below its
 //! predicted count (issue 40's measurements: 0.55–0.95 of it). At most
-//! [`FIELD_ROUNDS`] layouts are fitted; the last is kept whatever its
-//! error, and `report.json`'s target says whether it met the bound.
+//! [`FIELD_ROUNDS`] layouts are fitted, and fewer when a finer sizing no
+//! longer grows the mesh; the one with the lowest fitted RMS is kept, and
+//! `report.json`'s target says whether it met the bound.
 
 use serde::Serialize;
 
@@ -68,7 +69,10 @@ pub fn fit_field(
     let (mesh, caster) = (run.mesh(), run.caster.as_ref());
     let mut rounds: Vec<FieldRound> = Vec::new();
     let (mut control, mut target) = (control, opts.target_faces);
-    let fitted = loop {
+    // The best fit so far by its own RMS: a finer layout that fits worse
+    // (or a sizing that did not grow the mesh) is not kept.
+    let mut best: Option<crate::fit::Fitted> = None;
+    loop {
         let faces = control.num_faces();
         let irregular = crate::quad::field::irregular_vertices(&control);
         let fitted = timer.run("fit", || {
@@ -81,11 +85,18 @@ pub fn fit_field(
             irregular_vertices: irregular,
             fit_rms_permille: rms,
         });
+        let better = match &best {
+            Some(b) => rms < b.report.final_rms_permille,
+            None => true,
+        };
+        if better {
+            best = Some(fitted);
+        }
         let Some(e) = max_error.map(|e| 1000.0 * e) else {
-            break fitted;
+            break;
         };
         if rms <= e || rounds.len() >= FIELD_ROUNDS {
-            break fitted;
+            break;
         }
         let next = (faces as f64 * (rms / e).sqrt() * FIELD_MARGIN).ceil() as usize;
         target = Some(next.max(faces + 1));
@@ -93,8 +104,16 @@ pub fn fit_field(
         let laid = timer.run("field layout", || {
             field_layout(&relayout.mesh, &relayout.fitmap, &fo)
         })?;
+        if laid.control.num_faces() <= faces {
+            // The sizing could not grow the mesh (the lattice settled at
+            // or below the last count): more rounds would repeat it.
+            break;
+        }
         control = laid.control;
-    };
+    }
+    let fitted = best.ok_or_else(|| {
+        crate::Error::InvalidArgument("field layout: no round was fitted (a bug)".into())
+    })?;
     let mut c = measure_fitted(
         run.input,
         fitted,
@@ -107,8 +126,9 @@ pub fn fit_field(
     )?;
     let rms_l = c.report.accuracy.limit.rms_permille;
     if let Some(e) = max_error.filter(|e| e.is_finite()) {
+        let kept = c.report.control.faces;
         c.report
-            .add_target(max_error_target(1000.0 * e, rms_l, &rounds));
+            .add_target(max_error_target(1000.0 * e, rms_l, kept, &rounds));
     }
     if let Some(n) = opts.target_faces.filter(|_| max_error.is_none()) {
         c.report.add_target(faces_target(n, c.report.control.faces));
@@ -118,15 +138,14 @@ pub fn fit_field(
 
 /// `--max-error`'s target for the field layout, judged on the metrics'
 /// RMS L.
-fn max_error_target(e: f64, rms_l: f64, rounds: &[FieldRound]) -> TargetCheck {
+fn max_error_target(e: f64, rms_l: f64, kept: usize, rounds: &[FieldRound]) -> TargetCheck {
     let faces: Vec<String> = rounds.iter().map(|r| r.faces.to_string()).collect();
     TargetCheck {
         option: "max_error",
         target: format!("RMS L within {e:.3}‰ of the diagonal, the field laid out finer while the fit misses it"),
         met: rms_l <= e,
         outcome: format!(
-            "{} patches after {} layout(s) ({}), RMS L {rms_l:.3}‰",
-            rounds.last().map_or(0, |r| r.faces),
+            "{kept} patches kept of {} layout(s) fitted ({}), RMS L {rms_l:.3}‰",
             rounds.len(),
             faces.join(" → ")
         ),
