@@ -10,7 +10,8 @@
 # D (‰ of the diagonal), unprojectable area (%), topology kept, seconds.
 # Installs pyquadriflow, pyinstantmeshes and trimesh into .venv-peers
 # (PyPI) the first time. subdfit's rows use the paper's protocol (τ alone,
-# `--max-error inf`), so the counts are the layouts' own.
+# `--max-error inf`), so the counts are the layouts' own; `subdfit-field` is
+# the experimental `--layout field` at its natural size (FIELD=0 skips it).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${1:-../shared/data}
@@ -38,6 +39,21 @@ import json; r=json.load(open('$dir/subdfit/report.json'))
 print(r['control']['faces'], r['control']['irregular_vertices'], round(r['accuracy']['limit']['rms_permille'],3),
       round(r['accuracy']['displaced']['rms_permille'],3), round(r['projectability']['unprojectable_area_percent'],3))")
     printf '%-12s %-5s %-15s %7s %5s %7s %7s %7s %5s %.1f\n' "$m" "$tau" subdfit "$P" "$irr" "$L" "$D" "$U" yes "$secs"
+    # The field-aligned layout (--layout field, issue 40) under the same
+    # protocol, at its own natural size.
+    if [ "${FIELD:-1}" = 1 ]; then
+      s=$(date +%s.%N)
+      if "$BIN" convert "$mesh" -o "$dir/subdfit-field" --tolerance "$tau" --max-error inf --mode organic --layout field --quiet; then
+        secs=$(echo "$(date +%s.%N) - $s" | bc)
+        read -r Pf irrf Lf Df Uf < <(python3 -c "
+import json; r=json.load(open('$dir/subdfit-field/report.json'))
+print(r['control']['faces'], r['control']['irregular_vertices'], round(r['accuracy']['limit']['rms_permille'],3),
+      round(r['accuracy']['displaced']['rms_permille'],3), round(r['projectability']['unprojectable_area_percent'],3))")
+        printf '%-12s %-5s %-15s %7s %5s %7s %7s %7s %5s %.1f\n' "$m" "$tau" subdfit-field "$Pf" "$irrf" "$Lf" "$Df" "$Uf" yes "$secs"
+      else
+        printf '%-12s %-5s %-15s %s\n' "$m" "$tau" subdfit-field "convert --layout field failed"
+      fi
+    fi
     .venv-peers/bin/python bench/peers.py "$mesh" "$P" "$dir" "$BIN" | python3 -c "
 import json, sys
 for line in sys.stdin:
