@@ -136,11 +136,7 @@ fn organic_greedy(
     };
     let (timer, progress) = (&mut run.timer, &mut *run.progress);
     let stage = crate::fit::report_progress;
-    stage(progress, "fitmap", 0.0)?;
-    let fitmap = timer.run("fitmap", || {
-        fitmap_reporting(layout, layout_caster, fo, &mut *progress)
-    })?;
-    stage(progress, "fitmap", 1.0)?;
+    let fitmap = layout_fitmap(layout, layout_caster, fo, timer, progress)?;
     let so = SimplifyOptions::default()
         .with_target_faces(opts.target_faces)
         .with_m_fitmap(!opts.no_m_fitmap)
@@ -161,13 +157,7 @@ fn organic_greedy(
         })
     })?;
     stage(progress, "simplify", 1.0)?;
-    // fitmap.ply and the pictures show the Fitmap on M's own vertices.
-    let fitmap = match &proxy {
-        Some((m, c)) => timer.run("fitmap transfer", || {
-            fitmap.transferred(m, c.as_ref(), mesh)
-        })?,
-        None => fitmap,
-    };
+    let fitmap = fitmap_on_m(&proxy, fitmap, mesh, timer)?;
     Ok(Laid {
         control: simplified.mesh,
         checkpoints: simplified.checkpoints,
@@ -193,11 +183,7 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
     };
     let (timer, progress) = (&mut run.timer, &mut *run.progress);
     let stage = crate::fit::report_progress;
-    stage(progress, "fitmap", 0.0)?;
-    let fitmap = timer.run("fitmap", || {
-        fitmap_reporting(layout, layout_caster, fo, &mut *progress)
-    })?;
-    stage(progress, "fitmap", 1.0)?;
+    let fitmap = layout_fitmap(layout, layout_caster, fo, timer, progress)?;
     let field_opts =
         crate::quad::field::FieldOptions::default().with_target_faces(opts.target_faces);
     stage(progress, "field layout", 0.0)?;
@@ -205,12 +191,7 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
         crate::quad::field::field_layout(layout, &fitmap, &field_opts)
     })?;
     stage(progress, "field layout", 1.0)?;
-    let on_m = match &proxy {
-        Some((m, c)) => timer.run("fitmap transfer", || {
-            fitmap.transferred(m, c.as_ref(), mesh)
-        })?,
-        None => fitmap.clone(),
-    };
+    let on_m = fitmap_on_m(&proxy, fitmap.clone(), mesh, timer)?;
     Ok(Laid {
         control: laid.control,
         checkpoints: Vec::new(),
@@ -224,6 +205,40 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
             }),
         },
     })
+}
+
+/// The Fitmap (§3.1) of the mesh the organic layouts run on (M or M′), as
+/// the `"fitmap"` stage.
+fn layout_fitmap(
+    layout: &crate::mesh::TriMesh,
+    caster: &dyn crate::raycast::RayCaster,
+    fo: &FitmapOptions,
+    timer: &mut StageTimer,
+    progress: &mut crate::watch::Progress<'_>,
+) -> Result<Fitmap> {
+    let stage = crate::fit::report_progress;
+    stage(progress, "fitmap", 0.0)?;
+    let fitmap = timer.run("fitmap", || {
+        fitmap_reporting(layout, caster, fo, &mut *progress)
+    })?;
+    stage(progress, "fitmap", 1.0)?;
+    Ok(fitmap)
+}
+
+/// `fitmap` (on the layout mesh) on M's own vertices, which fitmap.ply and
+/// the pictures show: carried over from M′ when the layout ran there.
+fn fitmap_on_m(
+    proxy: &Option<LayoutProxy>,
+    fitmap: Fitmap,
+    mesh: &crate::mesh::TriMesh,
+    timer: &mut StageTimer,
+) -> Result<Fitmap> {
+    match proxy {
+        Some((m, c)) => timer.run("fitmap transfer", || {
+            fitmap.transferred(m, c.as_ref(), mesh)
+        }),
+        None => Ok(fitmap),
+    }
 }
 
 /// The mechanical layout (Lavoué et al. 2007, see [`crate::mechanical`]):

@@ -369,13 +369,7 @@ fn convert_as(
             field,
             relayout,
         } => {
-            let fitmap = fitmap.ok_or_else(|| {
-                Error::InvalidArgument("organic layout without a Fitmap (a bug)".into())
-            })?;
-            let po = PipelineOptions::default()
-                .with_fit(fit)
-                .with_metrics(metrics)
-                .with_fitmap(Some(fitmap_options(opts)));
+            let (fitmap, po) = organic_tail(fitmap, opts, fit, metrics)?;
             let record = |rounds: &[field::FieldRound]| {
                 branch(BranchLayout::OrganicField {
                     layout_proxy: proxy.as_ref(),
@@ -400,13 +394,7 @@ fn convert_as(
             proxy,
             simplification,
         } => {
-            let fitmap = fitmap.ok_or_else(|| {
-                Error::InvalidArgument("organic layout without a Fitmap (a bug)".into())
-            })?;
-            let po = PipelineOptions::default()
-                .with_fit(fit)
-                .with_metrics(metrics)
-                .with_fitmap(Some(fitmap_options(opts)));
+            let (fitmap, po) = organic_tail(fitmap, opts, fit, metrics)?;
             let with_search = |search: Option<&ErrorSearch>| {
                 branch(BranchLayout::OrganicGreedy {
                     layout_proxy: proxy.as_ref(),
@@ -446,6 +434,22 @@ fn convert_as(
             Ok(c)
         }
     }
+}
+
+/// The Fitmap an organic layout computed and the tail's options for it.
+fn organic_tail(
+    fitmap: Option<crate::analysis::Fitmap>,
+    opts: &ConvertOptions,
+    fit: FitOptions,
+    metrics: MetricsOptions,
+) -> Result<(crate::analysis::Fitmap, PipelineOptions)> {
+    let fitmap = fitmap
+        .ok_or_else(|| Error::InvalidArgument("organic layout without a Fitmap (a bug)".into()))?;
+    let po = PipelineOptions::default()
+        .with_fit(fit)
+        .with_metrics(metrics)
+        .with_fitmap(Some(fitmap_options(opts)));
+    Ok((fitmap, po))
 }
 
 /// `report.json`'s record of one branch of a conversion: its `options`
