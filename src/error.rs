@@ -42,9 +42,24 @@ pub enum Error {
     /// A least-squares system has no unique solution.
     #[error("least squares: the system is rank deficient ({msg}); add a regularisation term or more rows")]
     RankDeficient { msg: String },
-    /// A caller passed an argument out of its domain.
+    /// A caller passed an argument out of its domain (a value handed to a
+    /// library function that is neither an option nor a mesh).
     #[error("{0}")]
     InvalidArgument(String),
+    /// An option out of its domain: `option` names it as the CLI spells
+    /// it (`tolerance`, `max_error`, …); the message says the valid range.
+    #[error("{msg}")]
+    InvalidOption { option: String, msg: String },
+    /// A numerical stage did not produce a usable result on a valid input
+    /// (a solve that diverged, a field with no consistent sizing, …).
+    #[error("{stage}: {msg}")]
+    Numerical { stage: String, msg: String },
+    /// An invariant of the library itself broke: a bug in subdfit, never
+    /// the caller's fault.
+    #[error(
+        "internal error (a bug in subdfit, please report it with the input and the command): {msg}"
+    )]
+    Internal { msg: String },
     /// The caller's progress callback asked to stop (CLI, library, C++
     /// embedding); nothing was written and no state is left behind.
     #[error("cancelled by the caller during stage '{stage}'")]
@@ -59,7 +74,118 @@ pub enum Error {
     },
 }
 
+/// What kind of failure an [`Error`] is, for hosts that act on it: the
+/// CLI's exit code, the C++ API's `subdfit::Error::kind()`, the Python
+/// exception class.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum ErrorKind {
+    /// Bad input: a file that cannot be read or parsed, a mesh that cannot
+    /// be used, an argument out of its domain.
+    Input,
+    /// An option out of its domain.
+    Option,
+    /// A numerical stage failed on a valid input (or a backend did).
+    Numerical,
+    /// A bug in subdfit.
+    Internal,
+    /// The caller's progress callback cancelled the run.
+    Cancelled,
+}
+
+impl ErrorKind {
+    /// The kind's stable code across the C++ bridge (`subdfit::ErrorKind`
+    /// in `include/subdfit/subdfit.hpp` spells the same numbers).
+    pub fn code(self) -> u8 {
+        match self {
+            ErrorKind::Input => 1,
+            ErrorKind::Option => 2,
+            ErrorKind::Numerical => 3,
+            ErrorKind::Internal => 4,
+            ErrorKind::Cancelled => 5,
+        }
+    }
+
+    /// The kind of [`ErrorKind::code`] `c` (`Internal` for an unknown one).
+    pub fn from_code(c: u8) -> Self {
+        match c {
+            1 => ErrorKind::Input,
+            2 => ErrorKind::Option,
+            3 => ErrorKind::Numerical,
+            5 => ErrorKind::Cancelled,
+            _ => ErrorKind::Internal,
+        }
+    }
+}
+
 impl Error {
+    /// What kind of failure this is (a [`Error::Role`] is its source's).
+    pub fn kind(&self) -> ErrorKind {
+        match self {
+            Error::Io { .. }
+            | Error::Parse { .. }
+            | Error::InvalidMesh { .. }
+            | Error::Topology { .. }
+            | Error::InvalidArgument(_) => ErrorKind::Input,
+            Error::InvalidOption { .. } => ErrorKind::Option,
+            Error::Backend { .. } | Error::RankDeficient { .. } | Error::Numerical { .. } => {
+                ErrorKind::Numerical
+            }
+            Error::Internal { .. } => ErrorKind::Internal,
+            Error::Cancelled { .. } => ErrorKind::Cancelled,
+            Error::Role { source, .. } => source.kind(),
+        }
+    }
+
+    /// An option out of its domain (see [`Error::InvalidOption`]).
+    pub fn option(option: impl Into<String>, msg: impl Into<String>) -> Self {
+        Error::InvalidOption {
+            option: option.into(),
+            msg: msg.into(),
+        }
+    }
+
+    /// A numerical failure of `stage` (see [`Error::Numerical`]).
+    pub fn numerical(stage: impl Into<String>, msg: impl Into<String>) -> Self {
+        Error::Numerical {
+            stage: stage.into(),
+            msg: msg.into(),
+        }
+    }
+
+    /// A broken invariant of the library (see [`Error::Internal`]).
+    pub fn internal(msg: impl Into<String>) -> Self {
+        Error::Internal { msg: msg.into() }
+    }
+
+    /// The same error with its message prefixed by `context` (`"{context}:
+    /// {msg}"`), keeping its kind: what a host adds to say which of its
+    /// calls failed (e.g. the output folder a write went to).
+    pub fn context(self, context: impl std::fmt::Display) -> Self {
+        match self {
+            Error::Cancelled { .. } => self,
+            Error::InvalidOption { option, msg } => Error::InvalidOption {
+                option,
+                msg: format!("{context}: {msg}"),
+            },
+            Error::Internal { msg } => Error::Internal {
+                msg: format!("{context}: {msg}"),
+            },
+            e => match e.kind() {
+                ErrorKind::Numerical => Error::Numerical {
+                    stage: context.to_string(),
+                    msg: e.to_string(),
+                },
+                ErrorKind::Option => Error::InvalidOption {
+                    option: String::new(),
+                    msg: format!("{context}: {e}"),
+                },
+                ErrorKind::Internal => Error::internal(format!("{context}: {e}")),
+                _ => Error::InvalidArgument(format!("{context}: {e}")),
+            },
+        }
+    }
+
     /// This error, said of the mesh in `role` (see [`Error::Role`]).
     pub fn in_role(self, role: &'static str) -> Self {
         Error::Role {

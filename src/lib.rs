@@ -55,7 +55,7 @@ pub mod render;
 
 pub mod embed;
 
-pub use error::{Error, Result};
+pub use error::{Error, ErrorKind, Result};
 
 /// Vector types used across the crate: double precision everywhere (only
 /// Embree's copy of the triangles is `f32`; hits are recomputed in `f64`).

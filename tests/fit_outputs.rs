@@ -28,7 +28,7 @@ fn opts() -> PipelineOptions {
         .with_fitmap(Some(subdfit::analysis::FitmapOptions::default()))
 }
 
-fn run(dir: &Path) -> subdfit::Result<subdfit::report::Report> {
+fn run(dir: &Path) -> subdfit::Result<subdfit::convert::Report> {
     let input = input();
     let control = initial_control(&input.mesh);
     let caster = make_raycaster(RayBackend::Embree, &input.mesh).unwrap();
@@ -38,7 +38,7 @@ fn run(dir: &Path) -> subdfit::Result<subdfit::report::Report> {
         caster.as_ref(),
         &opts(),
         StageTimer::default(),
-        serde_json::json!({}),
+        subdfit::convert::FittedRun::Host(Default::default()),
         None,
         dir,
         &mut |_, _| true,
@@ -295,7 +295,7 @@ fn a_failed_or_cancelled_run_leaves_no_partial_output() {
             caster.as_ref(),
             &opts(),
             StageTimer::default(),
-            serde_json::json!({}),
+            subdfit::convert::FittedRun::Host(Default::default()),
             None,
             &dir,
             &mut |stage, _| stage != stop_at,

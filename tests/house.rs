@@ -17,6 +17,12 @@
 //!    the whole crate, binary and Python binding included (no `ModeArg`,
 //!    `FitArg`, `FitMethod` copies to drift apart): every host maps to
 //!    `crate::convert::Mode` and `crate::fit::Objective`.
+//! 5. **A typed run record.** No `serde_json::Value` nor `json!` in the
+//!    library outside `src/report/` (which writes `report.json` and reads
+//!    it back for `report.html`): what a run records is a serde struct the
+//!    compiler checks ([`subdfit::convert::RunOptions`]), and hosts read
+//!    results from it, not from JSON. (The binary, `src/bin/`, may print
+//!    JSON of its own.)
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -455,8 +461,63 @@ fn one_mode_type_and_one_objective_type() {
     );
 }
 
+/// Untyped JSON in `code`: `serde_json::Value` (also imported in a
+/// `serde_json::{…}` group), or the `json!` macro.
+fn untyped_json(code: &str) -> Vec<&'static str> {
+    let mut out = Vec::new();
+    if mentions(code, "serde_json::Value") {
+        out.push("serde_json::Value");
+    }
+    let grouped = code.match_indices("serde_json::{").any(|(k, m)| {
+        let rest = &code[k + m.len()..];
+        let group = &rest[..rest.find('}').unwrap_or(rest.len())];
+        mentions(group, "Value")
+    });
+    if grouped {
+        out.push("use serde_json::{.., Value}");
+    }
+    if code.contains("json!") {
+        out.push("json!");
+    }
+    out
+}
+
+#[test]
+fn no_untyped_json_outside_report() {
+    let src = src_dir();
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut bad = Vec::new();
+    for f in &files {
+        let rel = f.strip_prefix(&src).unwrap();
+        if rel.starts_with("report") || rel.starts_with("bin") {
+            continue;
+        }
+        let code = without_test_items(&strip(&std::fs::read_to_string(f).unwrap()).0);
+        for what in untyped_json(&code) {
+            bad.push(format!("{}: {what}", f.display()));
+        }
+    }
+    assert!(
+        bad.is_empty(),
+        "untyped JSON in the library (type the record instead, see src/convert/record.rs):\n{}",
+        bad.join("\n")
+    );
+}
+
 #[test]
 fn the_new_checks_catch_what_they_are_for() {
+    assert_eq!(
+        untyped_json("fn f(v: &serde_json::Value) {}"),
+        ["serde_json::Value"]
+    );
+    assert_eq!(
+        untyped_json("use serde_json::{Map, Value};"),
+        ["use serde_json::{.., Value}"]
+    );
+    assert_eq!(untyped_json("let v = serde_json::json!({});"), ["json!"]);
+    assert!(untyped_json("let s = serde_json::to_string(&r)?;").is_empty());
+    assert!(untyped_json("use serde_json::{to_string, ValueKind};").is_empty());
     assert!(mentions("let f = crate::fit::fit(m);", "fit::fit"));
     assert!(!mentions("use crate::fit::FitReport;", "fit::fit"));
     assert!(!mentions("x.fit_with_progress_more()", "fit_with_progress"));

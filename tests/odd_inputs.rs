@@ -183,7 +183,7 @@ fn convert_spot_scaled(factors: &[f64]) -> Vec<subdfit::convert::Converted> {
             let mut soup = subdfit::io::read_soup(&path).unwrap();
             soup.positions.iter_mut().for_each(|p| *p *= f);
             let m = subdfit::mesh::validate_soup(soup, &path).unwrap();
-            subdfit::convert::convert_in_memory(&m, &opts, serde_json::json!({}), &mut |_, _| true)
+            subdfit::convert::convert_in_memory(&m, &opts, Default::default(), &mut |_, _| true)
                 .unwrap()
         })
         .collect()

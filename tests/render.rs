@@ -286,7 +286,7 @@ fn report_html_loads_in_headless_chromium() {
     let out = dir.path().join("out");
     let mesh_path = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply"));
     let input = subdfit::io::read_mesh(&mesh_path).unwrap();
-    let extra = serde_json::json!({"command": "convert", "mesh": mesh_path.display().to_string()});
+    let extra = subdfit::convert::HostRecord::convert(mesh_path.display().to_string());
     subdfit::convert::convert(
         &input,
         &subdfit::convert::ConvertOptions::default(),
@@ -382,7 +382,7 @@ fn convert_spot(dir: &Path) -> PathBuf {
     let out = dir.join("out");
     let mesh_path = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply"));
     let input = subdfit::io::read_mesh(&mesh_path).unwrap();
-    let extra = serde_json::json!({"command": "convert", "mesh": mesh_path.display().to_string()});
+    let extra = subdfit::convert::HostRecord::convert(mesh_path.display().to_string());
     subdfit::convert::convert(
         &input,
         &subdfit::convert::ConvertOptions::default(),

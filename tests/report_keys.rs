@@ -50,7 +50,7 @@ fn check(mesh: &str, mode: Mode, golden: &str) {
         .and_then(|m| m.into_manifold(&path))
         .unwrap();
     // The `run` record the CLI writes.
-    let extra = serde_json::json!({ "command": "convert", "mesh": path.display().to_string() });
+    let extra = subdfit::convert::HostRecord::convert(path.display().to_string());
     let c = convert_in_memory(
         &input,
         &ConvertOptions::default()

@@ -16,8 +16,8 @@
 
 use serde::Serialize;
 
+use super::Report;
 use crate::error::Result;
-use crate::report::Report;
 
 use super::run::Run;
 use super::tail::Converted;
@@ -152,7 +152,7 @@ fn keep_better(mechanical: Converted, organic: Converted, why: &str) -> Converte
         },
     };
     let mut kept = if organic_wins { organic } else { mechanical };
-    kept.report.options["mode"]["second_opinion"] = serde_json::json!(note);
+    kept.report.options.note_second_opinion(note.clone());
     kept.second_opinion = Some(note);
     kept
 }
@@ -172,7 +172,11 @@ mod tests {
             None,
             &metrics,
             Vec::new(),
-            serde_json::json!({}),
+            super::super::RunOptions::Fitted {
+                pipeline: Default::default(),
+                run: super::super::FittedRun::Host(Default::default()),
+                mode: None,
+            },
         );
         r.accuracy.limit.rms_permille = rms;
         r.projectability.unprojectable_area_percent = unproj;

@@ -46,10 +46,10 @@ pub struct FieldRound {
 
 /// `report.json`'s record of the field layout: the first layout's figures
 /// and every round fitted.
-#[derive(Serialize)]
-pub struct FieldRecord<'a> {
-    pub first: &'a FieldStats,
-    pub rounds: &'a [FieldRound],
+#[derive(Clone, Debug, Serialize)]
+pub struct FieldRecord {
+    pub first: FieldStats,
+    pub rounds: Vec<FieldRound>,
 }
 
 /// Fits `control` (the field layout's first mesh) and, with `max_error`,
@@ -63,7 +63,7 @@ pub fn fit_field(
     po: &PipelineOptions,
     fitmap: Fitmap,
     max_error: Option<f64>,
-    record: impl Fn(&[FieldRound]) -> serde_json::Value,
+    record: impl Fn(&[FieldRound]) -> super::FittedRun,
 ) -> Result<Converted> {
     let mut timer = run.take_timer();
     let (mesh, caster) = (run.mesh(), run.caster.as_ref());

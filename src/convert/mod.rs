@@ -11,23 +11,28 @@
 //! - for `--mode auto`, a second opinion ([`auto`]): a mechanical result
 //!   that misses its target is converted organically too, the better kept.
 //!
-//! [`crate::report`] measures and writes; nothing there fits.
+//! [`crate::report`] measures and writes; nothing there fits. What the run
+//! was given and did goes to `report.json` as a typed [`RunOptions`]
+//! ([`record`]).
 
 use std::path::{Path, PathBuf};
-
-use serde::Serialize;
 
 use crate::analysis::FitmapOptions;
 use crate::error::{Error, Result};
 use crate::fit::FitOptions;
 use crate::mesh::{Frame, ValidatedMesh};
 use crate::raycast::{make_raycaster, RayBackend};
-use crate::report::{MetricsOptions, Report, StageTimer, TargetCheck};
+use crate::report::{MetricsOptions, StageTimer, TargetCheck};
+
+/// `report.json` of a conversion (or of `fit`): the measurements and the
+/// run's typed record.
+pub type Report = crate::report::Report<RunOptions>;
 
 pub mod auto;
-mod field;
+pub mod field;
 pub mod layout;
 mod options;
+pub mod record;
 pub mod run;
 pub mod search;
 pub mod tail;
@@ -37,6 +42,10 @@ pub use layout::{FieldRelayout, Laid, Layout, LayoutRecord, ProxyAttempt, ProxyR
 pub use options::{
     ConvertOptions, LayoutKind, Mode, Proxy, DEFAULT_ORGANIC_MAX_ERROR, PROXY_AUTO_ABOVE,
     PROXY_AUTO_TRIANGLES,
+};
+pub use record::{
+    BranchLayout, BranchRecord, FitInputs, FittedRun, HostRecord, MechanicalRecord, ModeRecord,
+    RunOptions, SecondOpinionNote,
 };
 pub use run::Run;
 pub use search::ErrorSearch;
@@ -52,11 +61,11 @@ pub use tail::{
 pub fn convert(
     input: &ValidatedMesh,
     opts: &ConvertOptions,
-    extra_options: serde_json::Value,
+    host: HostRecord,
     dir: &Path,
     progress: &mut crate::watch::Progress<'_>,
 ) -> Result<(Report, Vec<PathBuf>)> {
-    let c = convert_in_memory(input, opts, extra_options, progress)?;
+    let c = convert_in_memory(input, opts, host, progress)?;
     let written = write_converted(input, &c, dir, None, progress)?;
     Ok((c.report, written))
 }
@@ -67,11 +76,11 @@ pub fn convert(
 pub fn convert_in_memory(
     input: &ValidatedMesh,
     opts: &ConvertOptions,
-    extra_options: serde_json::Value,
+    host: HostRecord,
     progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
     at_unit_scale(input, |m, frame| {
-        convert_at_unit_scale(m, *frame, opts, extra_options, progress)
+        convert_at_unit_scale(m, *frame, opts, host, progress)
     })
 }
 
@@ -84,21 +93,14 @@ pub fn fit_in_memory(
     mut control: crate::mesh::ControlMesh,
     opts: &PipelineOptions,
     timer: StageTimer,
-    extra_options: serde_json::Value,
+    host: HostRecord,
     progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
     at_unit_scale(input, |m, frame| {
         frame.points_to_unit(control.positions_mut());
         let mut run = Run::start(m, *frame, timer, progress)?;
-        let mut extra_options = extra_options;
         let fitmap = match &opts.fitmap {
-            Some(fo) => proxied_fitmap(
-                run.mesh(),
-                fo,
-                &mut run.timer,
-                &mut extra_options,
-                run.progress,
-            )?,
+            Some(fo) => proxied_fitmap(run.mesh(), fo, &mut run.timer, run.progress)?,
             None => None,
         };
         let timer = run.take_timer();
@@ -108,7 +110,7 @@ pub fn fit_in_memory(
             run.caster.as_ref(),
             opts,
             timer,
-            extra_options,
+            FittedRun::Host(host),
             fitmap,
             run.progress,
         )
@@ -120,18 +122,15 @@ pub fn fit_in_memory(
 /// as `convert` does (a full-resolution Fitmap of a 1.1M-triangle scan
 /// took 47 s, twice the whole fit); `None` below the bound or when no
 /// proxy keeps M's topology (the Fitmap is then computed on M after the
-/// fit). What was tried goes to `report.json` as `options.run.fitmap_proxy`.
+/// fit). (The proxy's record is not kept: `fit`'s `options.run` is the
+/// host's record alone.)
 fn proxied_fitmap(
     mesh: &crate::mesh::TriMesh,
     fo: &FitmapOptions,
     timer: &mut StageTimer,
-    extra_options: &mut serde_json::Value,
     progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Option<crate::analysis::Fitmap>> {
-    let (proxy, stats) = layout::layout_proxy(mesh, Proxy::Auto, timer, progress)?;
-    if let (Some(stats), Some(obj)) = (stats, extra_options.as_object_mut()) {
-        obj.insert("fitmap_proxy".into(), serde_json::json!(stats));
-    }
+    let (proxy, _) = layout::layout_proxy(mesh, Proxy::Auto, timer, progress)?;
     let Some((m, c)) = proxy else {
         return Ok(None);
     };
@@ -202,13 +201,13 @@ fn convert_at_unit_scale(
     input: &ValidatedMesh,
     frame: Frame,
     opts: &ConvertOptions,
-    extra_options: serde_json::Value,
+    host: HostRecord,
     progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
     let choice = mode_choice(&input.mesh, opts.mode);
     let mut run = Run::start(input, frame, StageTimer::default(), progress)?;
     if choice.mode == "organic" {
-        return convert_as(&mut run, opts, choice, extra_options);
+        return convert_as(&mut run, opts, choice, host);
     }
     // `--mode auto` ends with the pipeline that fits: a CAD-looking mesh
     // whose mechanical result misses its own target (an isotropically
@@ -228,12 +227,12 @@ fn convert_at_unit_scale(
     auto::with_second_opinion(
         &mut run,
         doubt,
-        |run| convert_as(run, opts, choice.clone(), extra_options.clone()),
+        |run| convert_as(run, opts, choice.clone(), host.clone()),
         |run, why| {
             let mut organic = choice.clone();
             organic.mode = "organic";
             organic.reason = format!("{}; {why}", choice.reason);
-            convert_as(run, opts, organic, extra_options.clone())
+            convert_as(run, opts, organic, host.clone())
         },
     )
 }
@@ -305,12 +304,12 @@ fn layout_for(
 }
 
 /// One branch of a conversion: `choice`'s layout, then its tail.
-/// `run_extra` (the host's `"run"` record) goes into `report.json`.
+/// `host` (the host's `"run"` record) goes into `report.json`.
 fn convert_as(
     run: &mut Run<'_, '_>,
     opts: &ConvertOptions,
     choice: crate::mechanical::ModeChoice,
-    run_extra: serde_json::Value,
+    host: HostRecord,
 ) -> Result<Converted> {
     let laid = layout_for(run.mesh(), opts, &choice).lay(run, opts)?;
     let Laid {
@@ -324,26 +323,28 @@ fn convert_as(
         .with_displacement_res(opts.displacement_res)
         .with_displacement_samples(opts.displacement_samples)
         .with_output_tessellation(opts.tessellation);
-    let branch = |layout: BranchLayout<'_>| {
-        BranchRecord {
-            mode: &choice,
-            convert: opts,
-            run: &run_extra,
-            layout,
-        }
-        .to_json()
+    let branch = |layout: BranchLayout| BranchRecord {
+        mode: ModeRecord {
+            choice: choice.clone(),
+            second_opinion: None,
+        },
+        convert: opts.clone(),
+        run: host.clone(),
+        layout,
     };
-    match &record {
+    let fitted = |layout: BranchLayout| FittedRun::Convert(Box::new(branch(layout)));
+    match record {
         LayoutRecord::Mechanical { options: mo, stats } => {
-            let options = branch(BranchLayout::Mechanical {
+            let target = max_error_target(&mo, &stats);
+            let options = RunOptions::Mechanical(Box::new(branch(BranchLayout::Mechanical {
                 mechanical: MechanicalRecord { options: mo, stats },
-            });
+            })));
             let mut c = tail::measure_as_fitted(run, control, &metrics, options)?;
-            c.report.add_target(max_error_target(mo, stats));
+            c.report.add_target(target);
             Ok(c)
         }
         LayoutRecord::Coarse { why } => {
-            let options = branch(BranchLayout::Coarse {
+            let options = fitted(BranchLayout::Coarse {
                 coarse_input: format!(
                     "no Fitmap ({why}): the input's own faces, refined once into quads, are the control mesh, its sharp edges (dihedral > {}°) infinitely sharp creases",
                     crate::mechanical::SHARP_DIHEDRAL_DEG
@@ -371,11 +372,11 @@ fn convert_as(
         } => {
             let (fitmap, po) = organic_tail(fitmap, opts, fit, metrics)?;
             let record = |rounds: &[field::FieldRound]| {
-                branch(BranchLayout::OrganicField {
-                    layout_proxy: proxy.as_ref(),
+                fitted(BranchLayout::OrganicField {
+                    layout_proxy: proxy.clone(),
                     field_layout: field::FieldRecord {
-                        first: field,
-                        rounds,
+                        first: field.clone(),
+                        rounds: rounds.to_vec(),
                     },
                 })
             };
@@ -383,7 +384,7 @@ fn convert_as(
                 run,
                 opts,
                 control,
-                relayout,
+                &relayout,
                 &po,
                 fitmap,
                 organic_max_error(opts),
@@ -396,10 +397,10 @@ fn convert_as(
         } => {
             let (fitmap, po) = organic_tail(fitmap, opts, fit, metrics)?;
             let with_search = |search: Option<&ErrorSearch>| {
-                branch(BranchLayout::OrganicGreedy {
-                    layout_proxy: proxy.as_ref(),
-                    simplification,
-                    max_error_search: search,
+                fitted(BranchLayout::OrganicGreedy {
+                    layout_proxy: proxy.clone(),
+                    simplification: simplification.clone(),
+                    max_error_search: search.cloned(),
                 })
             };
             if let Some(e) = organic_max_error(opts) {
@@ -429,7 +430,7 @@ fn convert_as(
             )?;
             if let Some(n) = opts.target_faces {
                 c.report
-                    .add_target(faces_target(n, simplification, &c.report));
+                    .add_target(faces_target(n, &simplification, &c.report));
             }
             Ok(c)
         }
@@ -450,55 +451,6 @@ fn organic_tail(
         .with_metrics(metrics)
         .with_fitmap(Some(fitmap_options(opts)));
     Ok((fitmap, po))
-}
-
-/// `report.json`'s record of one branch of a conversion: its `options`
-/// (mechanical), or `options.run` beside the tail's `pipeline` (organic,
-/// coarse). Written through [`serde_json::Value`], whose maps keep their
-/// keys sorted: the file's bytes do not depend on the field order here.
-#[derive(Serialize)]
-struct BranchRecord<'a> {
-    /// `--mode`'s choice and why.
-    mode: &'a crate::mechanical::ModeChoice,
-    convert: &'a ConvertOptions,
-    /// The host's own record (command, input path, …).
-    run: &'a serde_json::Value,
-    #[serde(flatten)]
-    layout: BranchLayout<'a>,
-}
-
-/// The layout's keys of a [`BranchRecord`].
-#[derive(Serialize)]
-#[serde(untagged)]
-enum BranchLayout<'a> {
-    OrganicGreedy {
-        layout_proxy: Option<&'a layout::ProxyRecord>,
-        simplification: &'a crate::quad::SimplifyStats,
-        max_error_search: Option<&'a ErrorSearch>,
-    },
-    OrganicField {
-        layout_proxy: Option<&'a layout::ProxyRecord>,
-        field_layout: field::FieldRecord<'a>,
-    },
-    Mechanical {
-        mechanical: MechanicalRecord<'a>,
-    },
-    Coarse {
-        coarse_input: String,
-    },
-}
-
-/// Lavoué et al.'s options and statistics of a mechanical branch.
-#[derive(Serialize)]
-struct MechanicalRecord<'a> {
-    options: &'a crate::mechanical::MechanicalOptions,
-    stats: &'a crate::mechanical::MechanicalStats,
-}
-
-impl BranchRecord<'_> {
-    fn to_json(&self) -> serde_json::Value {
-        serde_json::json!(self)
-    }
 }
 
 /// `--faces N`'s target: within ±2 % of `n` (issue 17), with what

@@ -28,7 +28,7 @@ pub(super) fn fit_fewest_within(
     max_error: f64,
     po: &PipelineOptions,
     fitmap: &Fitmap,
-    extra: impl Fn(Option<&ErrorSearch>) -> serde_json::Value,
+    extra: impl Fn(Option<&ErrorSearch>) -> super::FittedRun,
 ) -> Result<Converted> {
     let (input, caster, timer) = (run.input, run.caster.as_ref(), &mut run.timer);
     let progress = &mut *run.progress;

@@ -16,8 +16,11 @@ use crate::raycast::RayCaster;
 
 use crate::report::{
     evaluate_surfaces, write_outputs_with, ExtraFiles, MetricsOptions, OutputFiles, OutputOptions,
-    Report, StageTimer, Surfaces,
+    StageTimer, Surfaces,
 };
+
+use super::record::{FittedRun, RunOptions};
+use super::Report;
 
 /// Options of [`fit_and_write`].
 #[derive(Clone, Debug, Default, Serialize)]
@@ -114,7 +117,7 @@ impl Converted {
 
 /// Fits `control` to `input.mesh` (`caster` built over it) and measures the
 /// result. `timer` carries the stages run before (reading, simplification
-/// …) into the report; `extra_options` is stored in `report.json` beside the
+/// …) into the report; `run` is stored in `report.json` beside the
 /// pipeline's own options. `precomputed_fitmap` (e.g. the one the
 /// simplification used) is kept for `fitmap.ply` instead of computing one.
 /// Stages for `progress`: `"fit"`, `"displacement"`, `"metrics"`,
@@ -126,7 +129,7 @@ pub fn fit_and_measure(
     caster: &dyn RayCaster,
     opts: &PipelineOptions,
     mut timer: StageTimer,
-    extra_options: serde_json::Value,
+    run: FittedRun,
     precomputed_fitmap: Option<Fitmap>,
     progress: &mut Progress<'_>,
 ) -> Result<Converted> {
@@ -139,7 +142,7 @@ pub fn fit_and_measure(
         caster,
         opts,
         timer,
-        extra_options,
+        run,
         precomputed_fitmap,
         progress,
     )
@@ -154,7 +157,7 @@ pub fn measure_fitted(
     caster: &dyn RayCaster,
     opts: &PipelineOptions,
     mut timer: StageTimer,
-    extra_options: serde_json::Value,
+    run: FittedRun,
     precomputed_fitmap: Option<Fitmap>,
     progress: &mut Progress<'_>,
 ) -> Result<Converted> {
@@ -183,7 +186,11 @@ pub fn measure_fitted(
         })?),
         (None, None) => None,
     };
-    let options = serde_json::json!({ "pipeline": opts, "run": extra_options });
+    let options = RunOptions::Fitted {
+        pipeline: Box::new(opts.clone()),
+        run,
+        mode: None,
+    };
     let mut report = Report::new(
         input.report.clone(),
         &fitted.control,
@@ -238,7 +245,7 @@ pub fn fit_and_write(
     caster: &dyn RayCaster,
     opts: &PipelineOptions,
     timer: StageTimer,
-    extra_options: serde_json::Value,
+    run: FittedRun,
     precomputed_fitmap: Option<Fitmap>,
     dir: &Path,
     progress: &mut Progress<'_>,
@@ -249,7 +256,7 @@ pub fn fit_and_write(
         caster,
         opts,
         timer,
-        extra_options,
+        run,
         precomputed_fitmap,
         progress,
     )?;
@@ -274,7 +281,7 @@ pub(super) fn measure_as_fitted(
     run: &mut super::Run<'_, '_>,
     control: ControlMesh,
     metrics: &MetricsOptions,
-    options: serde_json::Value,
+    options: RunOptions,
 ) -> Result<Converted> {
     let mut timer = run.take_timer();
     let (input, caster) = (run.input, run.caster.as_ref());

@@ -22,7 +22,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use super::{convert_file, error_message, flatten_metrics, Options, Progress};
+use super::{convert_file, error_message, Options, Progress};
 use crate::error::{Error, Result};
 use crate::io::Format;
 
@@ -268,14 +268,13 @@ struct Stamp {
 }
 
 /// The figures of a finished asset, when its stamp matches `print`.
-fn finished(asset: &Asset, print: &str) -> Option<serde_json::Value> {
+fn finished(asset: &Asset, print: &str) -> Option<crate::report::WrittenReport> {
     let stamp = std::fs::read_to_string(asset.output.join(STAMP)).ok()?;
     let stamp: Stamp = serde_json::from_str(&stamp).ok()?;
     if stamp.fingerprint != print {
         return None;
     }
-    let report = std::fs::read_to_string(asset.output.join("report.json")).ok()?;
-    serde_json::from_str(&report).ok()
+    crate::report::WrittenReport::read(&asset.output.join("report.json")).ok()
 }
 
 fn write_stamp(asset: &Asset, options: &Options, print: String) -> Result<()> {
@@ -292,23 +291,6 @@ fn write_stamp(asset: &Asset, options: &Options, print: String) -> Result<()> {
     let path = asset.output.join(STAMP);
     std::fs::write(&tmp, text + "\n").map_err(|e| Error::io(&tmp, e))?;
     std::fs::rename(&tmp, &path).map_err(|e| Error::io(&path, e))
-}
-
-/// The pipeline `report.json` says made the result.
-fn mode_of(report: &serde_json::Value) -> Option<String> {
-    // The organic pipeline nests its options under `options.run`, the
-    // mechanical one does not; the second opinion (auto mode) says which
-    // of the two pipelines' results was kept.
-    let o = &report["options"];
-    let mode = if o["run"]["mode"].is_object() {
-        &o["run"]["mode"]
-    } else {
-        &o["mode"]
-    };
-    mode["second_opinion"]["kept"]
-        .as_str()
-        .or_else(|| mode["mode"].as_str())
-        .map(str::to_owned)
 }
 
 /// Converts one asset as `subdfit convert INPUT -o OUTPUT` would (the
@@ -330,7 +312,10 @@ pub fn convert_asset(
         error: None,
         figures: BTreeMap::new(),
     };
-    let run = || -> Result<(Status, serde_json::Value)> {
+    // (status, pipeline, figures): a skipped asset's from its written
+    // report.json, a converted one's from the typed result.
+    type Done = (Status, Option<String>, Vec<(String, f64)>);
+    let run = || -> Result<Done> {
         let options = Options {
             source_name: asset.input.display().to_string(),
             ..options.clone()
@@ -338,21 +323,21 @@ pub fn convert_asset(
         let print = fingerprint(&asset.input, &options)?;
         if !force {
             if let Some(report) = finished(asset, &print) {
-                return Ok((Status::Skipped, report));
+                let mode = report.mode().map(str::to_owned);
+                return Ok((Status::Skipped, mode, report.figures));
             }
         }
         let c = convert_file(&asset.input, &options, progress)?;
         c.write(&asset.output, progress)?;
         write_stamp(asset, &options, print)?;
-        let report = serde_json::from_str(&c.report_json)
-            .map_err(|e| Error::InvalidArgument(format!("report.json: {e}")))?;
-        Ok((Status::Converted, report))
+        let mode = c.mode().map(str::to_owned);
+        Ok((Status::Converted, mode, c.metrics))
     };
     match catch_unwind(AssertUnwindSafe(run)) {
-        Ok(Ok((status, report))) => {
+        Ok(Ok((status, mode, figures))) => {
             outcome.status = status;
-            outcome.mode = mode_of(&report);
-            outcome.figures = flatten_metrics(&report).into_iter().collect();
+            outcome.mode = mode;
+            outcome.figures = figures.into_iter().collect();
         }
         Ok(Err(e)) => outcome.error = Some(error_message(&e)),
         Err(payload) => {

@@ -334,7 +334,8 @@ pub struct Conversion {
     pub uv_indices: Vec<u32>,
     pub tiles: Vec<DisplacementTile>,
     /// The numeric leaves of `report.json`, keys as dotted paths
-    /// (`"limit.rms_permille"`), in the file's order.
+    /// (`"accuracy.limit.rms_permille"`), in key order
+    /// ([`crate::report::Report::figures`]).
     pub metrics: Vec<(String, f64)>,
     /// `report.json`, byte for byte what the CLI writes (timings differ
     /// from run to run).
@@ -391,13 +392,11 @@ impl Conversion {
                 }
             })
             .collect();
-        let value = serde_json::to_value(&c.report)
-            .map_err(|e| Error::InvalidArgument(format!("report.json: {e}")))?;
         let mut report_json = serde_json::to_string_pretty(&c.report)
-            .map_err(|e| Error::InvalidArgument(format!("report.json: {e}")))?;
+            .map_err(|e| Error::internal(format!("report.json: {e}")))?;
         report_json.push('\n');
         Ok(Conversion {
-            metrics: flatten_metrics(&value),
+            metrics: c.report.figures()?,
             control,
             uvs,
             uv_indices,
@@ -411,6 +410,13 @@ impl Conversion {
         })
     }
 
+    /// The pipeline whose result this is (`"organic"`, `"mechanical"`;
+    /// `None` for `fit`), from the typed run record
+    /// ([`crate::convert::RunOptions::mode`]).
+    pub fn mode(&self) -> Option<&'static str> {
+        self.outputs.converted.report.options.mode()
+    }
+
     /// Writes the CLI's output set (`control.obj`, `control.usda`,
     /// `limit.ply`, `displaced.ply`, `displacement.exr`, `fitmap.ply`,
     /// `report.json`, …) into `dir` as `subdfit convert` / `subdfit fit`
@@ -421,7 +427,7 @@ impl Conversion {
         write_converted(&o.input, &o.converted, dir, None, &mut sink(progress)).map_err(|e| match e
         {
             Error::Cancelled { .. } => e,
-            e => Error::InvalidArgument(format!("{}: {e}", dir.display())),
+            e => e.context(dir.display()),
         })
     }
 }
@@ -449,43 +455,6 @@ pub fn read_input(path: &Path) -> Result<ValidatedMesh> {
     crate::io::read_mesh(path)
         .and_then(|m| m.into_manifold(path))
         .map_err(|e| e.in_role("input mesh"))
-}
-
-/// Flattens the numeric leaves of a JSON report into dotted keys, so a C++
-/// host gets the metrics without a JSON parser.
-pub fn flatten_metrics(report: &serde_json::Value) -> Vec<(String, f64)> {
-    fn walk(v: &serde_json::Value, key: &mut String, out: &mut Vec<(String, f64)>) {
-        match v {
-            serde_json::Value::Number(n) => {
-                if let Some(x) = n.as_f64() {
-                    out.push((key.clone(), x));
-                }
-            }
-            serde_json::Value::Object(m) => {
-                for (k, v) in m {
-                    let len = key.len();
-                    if !key.is_empty() {
-                        key.push('.');
-                    }
-                    key.push_str(k);
-                    walk(v, key, out);
-                    key.truncate(len);
-                }
-            }
-            serde_json::Value::Array(a) => {
-                for (i, v) in a.iter().enumerate() {
-                    let len = key.len();
-                    key.push_str(&format!("[{i}]"));
-                    walk(v, key, out);
-                    key.truncate(len);
-                }
-            }
-            _ => {}
-        }
-    }
-    let mut out = Vec::new();
-    walk(report, &mut String::new(), &mut out);
-    out
 }
 
 // ---- entry points -------------------------------------------------------------
@@ -531,8 +500,12 @@ fn sink<'p>(progress: &'p Progress<'p>) -> impl FnMut(&str, f64) -> bool + 'p {
 
 /// The `"run"` part of `report.json`, as the CLI writes it for a file
 /// called `source_name`.
-fn run_info(command: &str, options: &Options) -> serde_json::Value {
-    serde_json::json!({ "command": command, "mesh": options.source_name })
+fn run_info(command: &str, options: &Options) -> crate::convert::HostRecord {
+    use crate::convert::HostRecord;
+    match command {
+        "fit" => HostRecord::fit(&options.source_name, None),
+        _ => HostRecord::convert(&options.source_name),
+    }
 }
 
 /// Dense mesh → control mesh + displacement + metrics: `subdfit convert`.
@@ -579,7 +552,7 @@ fn convert_validated(
 fn with_source(e: Error, options: &Options) -> Error {
     match e {
         Error::Cancelled { .. } => e,
-        e => Error::InvalidArgument(format!("{}: {e}", options.source_name)),
+        e => e.context(&options.source_name),
     }
 }
 

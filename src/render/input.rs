@@ -90,14 +90,8 @@ impl Sources {
 
     fn report_mesh_path(&self) -> Result<PathBuf> {
         let p = self.file("report.json")?;
-        let text = std::fs::read_to_string(&p).map_err(|e| Error::io(&p, e))?;
-        let v: serde_json::Value = serde_json::from_str(&text)
-            .map_err(|e| Error::parse(&p, format!("line {}", e.line()), e.to_string()))?;
-        // `convert` stores `{run: {run: {mesh}}}`, `fit` `{run: {mesh}}`.
-        let run = &v["options"]["run"];
-        run["run"]["mesh"]
-            .as_str()
-            .or_else(|| run["mesh"].as_str())
+        crate::report::WrittenReport::read(&p)?
+            .input_mesh()
             .map(PathBuf::from)
             .ok_or_else(|| {
                 Error::InvalidArgument(format!(

@@ -9,7 +9,7 @@
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use serde_json::Value;
+use crate::report::WrittenReport;
 
 use super::{panels, render_panels, Image, RenderOptions, Sources, View, What};
 use crate::error::{Error, Result};
@@ -56,27 +56,30 @@ fn img_tag(img: &Image, alt: &str) -> Result<String> {
     ))
 }
 
-fn num(v: &Value, digits: usize) -> String {
-    v.as_f64()
-        .map(|x| format!("{x:.digits$}"))
+fn num(v: Option<f64>, digits: usize) -> String {
+    v.map(|x| format!("{x:.digits$}"))
         .unwrap_or_else(|| "–".into())
 }
 
 /// Table 1 of the Fitmaps paper for this run: mesh (triangles), algorithm
 /// (τ), patches □K, irregular vertices, unprojectable %, RMS error of the
 /// limit L and displaced D surface in ‰ of the diagonal.
-pub fn table1_html(report: &Value, mesh_name: &str) -> String {
-    let tris = report["input"]["triangles"].as_u64().unwrap_or(0);
+pub fn table1_html(report: &WrittenReport, mesh_name: &str) -> String {
+    let tris = report.input.triangles.unwrap_or(0);
     let tris_k = if tris >= 1000 {
         format!("{}k", (tris as f64 / 1000.0).round())
     } else {
         tris.to_string()
     };
-    let tau = report["options"]["pipeline"]["fitmap"]["tolerance"]
-        .as_f64()
+    let tau = report
+        .options
+        .pipeline
+        .as_ref()
+        .and_then(|p| p.fitmap.as_ref())
+        .and_then(|f| f.tolerance)
         .map(|t| format!("τ = {}%", super::colormap::format_tick(100.0 * t)))
         .unwrap_or_else(|| "given K".into());
-    let target = !report["options"]["run"]["convert"]["target_faces"].is_null();
+    let target = report.had_target_faces();
     let alg = if target { format!("{tau} *") } else { tau };
     let mut s = String::new();
     s += "<table class=\"t1\">\n<thead>\n<tr><th rowspan=\"2\">Mesh (Δ)</th><th rowspan=\"2\">Alg.</th>\
@@ -88,11 +91,11 @@ pub fn table1_html(report: &Value, mesh_name: &str) -> String {
         esc(mesh_name),
         tris_k,
         esc(&alg),
-        report["control"]["faces"].as_u64().unwrap_or(0),
-        report["control"]["irregular_vertices"].as_u64().unwrap_or(0),
-        num(&report["projectability"]["unprojectable_area_percent"], 1),
-        num(&report["accuracy"]["limit"]["rms_permille"], 2),
-        num(&report["accuracy"]["displaced"]["rms_permille"], 2),
+        report.control.faces.unwrap_or(0),
+        report.control.irregular_vertices.unwrap_or(0),
+        num(report.projectability.unprojectable_area_percent, 1),
+        num(report.accuracy.limit.rms_permille, 2),
+        num(report.accuracy.displaced.rms_permille, 2),
     );
     s += "</tbody>\n</table>\n<p class=\"cap\">As Table 1 of Fitmaps (Panozzo et al. 2011): \
           number of patches □K of the control mesh, irregular vertices, portion of the input \
@@ -112,9 +115,7 @@ pub fn write_report_html(
     progress: &mut dyn FnMut(f64) -> bool,
 ) -> Result<PathBuf> {
     let report_path = dir.join("report.json");
-    let text = std::fs::read_to_string(&report_path).map_err(|e| Error::io(&report_path, e))?;
-    let report: Value = serde_json::from_str(&text)
-        .map_err(|e| Error::parse(&report_path, format!("line {}", e.line()), e.to_string()))?;
+    let report = WrittenReport::read(&report_path)?;
     let mut sources = Sources::new(dir, input)?;
     if !sources.is_dir {
         return Err(Error::InvalidArgument(format!(
@@ -122,9 +123,8 @@ pub fn write_report_html(
             dir.display()
         )));
     }
-    let mesh_name = report["options"]["run"]["run"]["mesh"]
-        .as_str()
-        .or_else(|| report["options"]["run"]["mesh"].as_str())
+    let mesh_name = report
+        .input_mesh()
         .and_then(|p| {
             Path::new(p)
                 .file_stem()

@@ -59,8 +59,10 @@
 mod floor;
 mod output;
 pub mod tessellate;
+pub mod written;
 
 pub use floor::resampling_floor;
+pub use written::WrittenReport;
 
 pub use output::{
     is_known_name, remove_staging_folders, write_outputs, write_outputs_with, ExtraFiles,
@@ -907,9 +909,12 @@ impl StageTimer {
     }
 }
 
-/// `report.json`.
+/// `report.json`: what was measured here, and `options`, the run's own
+/// typed record of what it was given and did (`O`, written by the layer
+/// that ran it: [`crate::convert::RunOptions`] for every conversion).
 #[derive(Clone, Debug, Serialize)]
-pub struct Report {
+#[serde(bound(serialize = "O: Serialize"))]
+pub struct Report<O> {
     /// `subdfit x.y.z` and the linked C++ libraries.
     pub version: BTreeMap<String, String>,
     pub input: crate::mesh::MeshReport,
@@ -925,8 +930,10 @@ pub struct Report {
     /// `limit.ply` / `displaced.ply`: cells per patch side, chord error.
     pub tessellation: tessellate::TessellationStats,
     pub stages: Vec<StageStat>,
-    /// The options of the run, as given.
-    pub options: serde_json::Value,
+    /// The options of the run, as given. Written with its keys sorted at
+    /// every level (see [`sorted`]), as the file always had them.
+    #[serde(serialize_with = "sorted")]
+    pub options: O,
     /// Whether every target the run was given (see [`Report::targets`])
     /// was met; `true` when it had none. `subdfit convert` warns when not,
     /// and exits 1 with `--strict`.
@@ -974,7 +981,17 @@ pub fn versions() -> BTreeMap<String, String> {
     v
 }
 
-impl Report {
+/// Serializes `value` with the keys of its maps sorted at every level: a
+/// typed record's fields are written in declaration order, `report.json`'s
+/// `options` were always in key order (through [`serde_json::Value`],
+/// whose maps sort), and stay so byte for byte.
+fn sorted<O: Serialize, S: serde::Serializer>(value: &O, s: S) -> Result<S::Ok, S::Error> {
+    serde_json::to_value(value)
+        .map_err(serde::ser::Error::custom)?
+        .serialize(s)
+}
+
+impl<O> Report<O> {
     /// Records a target's outcome (and clears [`Report::targets_met`] when
     /// it was missed).
     pub fn add_target(&mut self, t: TargetCheck) {
@@ -988,8 +1005,8 @@ impl Report {
         fit: Option<crate::fit::FitReport>,
         metrics: &Metrics,
         stages: Vec<StageStat>,
-        options: serde_json::Value,
-    ) -> Report {
+        options: O,
+    ) -> Report<O> {
         Report {
             version: versions(),
             input,

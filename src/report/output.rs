@@ -34,6 +34,8 @@ use crate::io::{
 };
 use crate::mesh::{ControlMesh, TriMesh};
 
+use serde::Serialize;
+
 use super::{Report, Surfaces};
 
 /// Writes more files into a staging folder (its argument) before the set is
@@ -42,7 +44,7 @@ use super::{Report, Surfaces};
 pub type ExtraFiles<'a> = &'a mut dyn FnMut(&Path) -> Result<Vec<String>>;
 
 /// What [`write_outputs`] writes.
-pub struct OutputFiles<'a> {
+pub struct OutputFiles<'a, O> {
     /// M, for `fitmap.ply`.
     pub mesh: &'a TriMesh,
     /// The control mesh `control.obj` and `control.usda` carry, with UVs
@@ -53,7 +55,7 @@ pub struct OutputFiles<'a> {
     pub surfaces: &'a Surfaces,
     /// `fitmap.ply` is written when given.
     pub fitmap: Option<&'a Fitmap>,
-    pub report: &'a Report,
+    pub report: &'a Report<O>,
     pub options: &'a OutputOptions,
 }
 
@@ -130,14 +132,17 @@ pub fn remove_staging_folders() {
 /// `limit.ply`, `displaced.ply`, `displacement.exr`, `fitmap.ply` (when a
 /// Fitmap is given) and `report.json` into `dir` (created if missing) as
 /// one set, all or nothing (module docs). Returns the paths written.
-pub fn write_outputs(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<PathBuf>> {
+pub fn write_outputs<O: Serialize + Sync>(
+    dir: &Path,
+    out: &OutputFiles<'_, O>,
+) -> Result<Vec<PathBuf>> {
     write_outputs_with(dir, out, None)
 }
 
 /// [`write_outputs`] with `extra`'s files in the same set.
-pub fn write_outputs_with(
+pub fn write_outputs_with<O: Serialize + Sync>(
     dir: &Path,
-    out: &OutputFiles<'_>,
+    out: &OutputFiles<'_, O>,
     mut extra: Option<ExtraFiles<'_>>,
 ) -> Result<Vec<PathBuf>> {
     static COUNTER: AtomicU64 = AtomicU64::new(0);
@@ -341,7 +346,7 @@ fn pause_for_tests() {
 /// One output file: its name and the code that writes it to a path.
 type Job<'a> = (String, Box<dyn Fn(&Path) -> Result<()> + Send + Sync + 'a>);
 
-fn write_all(dir: &Path, out: &OutputFiles<'_>) -> Result<Vec<String>> {
+fn write_all<O: Serialize + Sync>(dir: &Path, out: &OutputFiles<'_, O>) -> Result<Vec<String>> {
     use rayon::prelude::*;
     let d = &out.surfaces.displacement;
     let atlas = Atlas::for_grid(&d.grid, out.options.atlas)?;

@@ -228,10 +228,7 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
         .into_manifold(&a.mesh)
         .context("input mesh")?;
     let opts = a.conversion.options();
-    let extra = serde_json::json!({
-        "command": "convert",
-        "mesh": a.mesh.display().to_string(),
-    });
+    let extra = subdfit::convert::HostRecord::convert(a.mesh.display().to_string());
     let mut progress = progress_bars(a.quiet || a.json);
     let mut converted = convert_in_memory(&input, &opts, extra, &mut progress)
         .map_err(|e| anyhow::anyhow!("{}: {e}", a.mesh.display()))?;

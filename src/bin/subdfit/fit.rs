@@ -107,13 +107,14 @@ pub fn fit(a: FitArgs) -> Result<ExitCode> {
         )
         .with_metrics(MetricsOptions::default().with_displacement_res(a.displacement_res))
         .with_fitmap((!a.no_fitmap).then(subdfit::analysis::FitmapOptions::default));
-    let extra = serde_json::json!({
-        "command": "fit",
-        "mesh": a.mesh.display().to_string(),
-        "control": a.control.display().to_string(),
-        "control_repairs": repairs,
-        "control_notes": notes,
-    });
+    let extra = subdfit::convert::HostRecord::fit(
+        a.mesh.display().to_string(),
+        Some(subdfit::convert::FitInputs {
+            control: a.control.display().to_string(),
+            control_repairs: repairs,
+            control_notes: notes,
+        }),
+    );
     let mut progress = progress_bars(a.quiet || a.json);
     let c = fit_in_memory(&input, control, &opts, timer, extra, &mut progress)?;
     let written = write_converted(&input, &c, &a.output, None, &mut progress)?;
@@ -127,7 +128,7 @@ pub fn fit(a: FitArgs) -> Result<ExitCode> {
 }
 
 /// The one-paragraph summary `fit` and `convert` print.
-pub fn print_summary(report: &subdfit::report::Report, written: &[PathBuf]) -> Result<()> {
+pub fn print_summary(report: &subdfit::convert::Report, written: &[PathBuf]) -> Result<()> {
     let m = &report.accuracy;
     crate::emit(&format!(
         "{} patches, {} irregular vertices; RMS L {:.3}‰, RMS D {:.3}‰ of the diagonal; \
