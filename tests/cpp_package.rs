@@ -185,6 +185,24 @@ fn cpp_package_builds_installs_and_matches_the_cli() {
         stderr(&out)
     );
 
+    // --- error kinds: the malformed mesh is bad input, a τ out of (0, 1] a
+    // bad option; subdfit::Error::kind() tells them apart as the library's
+    // ErrorKind does (the CLI exits 2 on both; a host may not).
+    assert!(
+        stderr(&out).contains("convert: error kind: input"),
+        "{}",
+        stderr(&out)
+    );
+    let spot_in = root.join("data/spot.ply");
+    let out = run(Command::new(example("convert"))
+        .arg(&spot_in)
+        .arg(tmp.path().join("x.obj"))
+        .args(["--tolerance", "5"]));
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("tolerance"), "{err}");
+    assert!(err.contains("convert: error kind: option"), "{err}");
+
     // --- a panic inside the library is an error, never an abort --------------
     for hook in ["panic", "panic-in-worker"] {
         let out = run(Command::new(example("convert")).args(["-", "-", "--self-test", hook]));
@@ -192,6 +210,10 @@ fn cpp_package_builds_installs_and_matches_the_cli() {
         assert_eq!(out.status.code(), Some(1), "{hook}: {err}");
         assert!(
             err.contains("convert: error: internal error: subdfit panicked (self-test panic"),
+            "{hook}: {err}"
+        );
+        assert!(
+            err.contains("convert: error kind: internal"),
             "{hook}: {err}"
         );
     }

@@ -6,7 +6,9 @@
 #include "subdfit/subdfit.hpp"
 
 #include <algorithm>
+#include <cstdlib>
 #include <exception>
+#include <string>
 #include <utility>
 
 #include "subdfit/cpp/api/progress_sink.h"
@@ -77,7 +79,7 @@ std::uint8_t backend_code(Backend b) {
     case Backend::Rust:
       return 1;
   }
-  throw Error("unknown backend");
+  throw Error("unknown backend", ErrorKind::Option);
 }
 
 ffi::FfiOptions ffi_options(const Options& o) {
@@ -130,15 +132,30 @@ Result result(ffi::FfiConversion&& c) {
   return r;
 }
 
+// The message of a bridge error and its kind: `guard` in
+// src/embed/bridge.rs sends "subdfit-error-kind:N:" ahead of the message.
+Error bridge_error(const char* what) {
+  static constexpr char tag[] = "subdfit-error-kind:";
+  const std::string s = what;
+  constexpr std::size_t n = sizeof(tag) - 1;
+  if (s.compare(0, n, tag) != 0) return Error(s, ErrorKind::Internal);
+  const std::size_t colon = s.find(':', n);
+  if (colon == std::string::npos) return Error(s, ErrorKind::Internal);
+  const int code = std::atoi(s.substr(n, colon - n).c_str());
+  const ErrorKind kind =
+      code >= 1 && code <= 5 ? static_cast<ErrorKind>(code) : ErrorKind::Internal;
+  return Error(s.substr(colon + 1), kind);
+}
+
 // Every bridge call goes through here: rust::Error (an Err from Rust, panics
 // included, see `guard` in embed.rs) becomes subdfit::Error with the same
-// message.
+// message and its kind.
 template <class F>
 auto call(F&& f) -> decltype(f()) {
   try {
     return f();
   } catch (const rust::Error& e) {
-    throw Error(e.what());
+    throw bridge_error(e.what());
   }
 }
 

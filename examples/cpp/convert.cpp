@@ -1,7 +1,8 @@
 // convert INPUT OUTPUT.obj [--tolerance T] [--faces N] [--threads N]
 //         [--report REPORT.json] [--cancel-at STAGE:FRACTION] [--self-test WHAT]
 // Reads a mesh with OpenMesh, converts it with a progress bar on stderr and
-// writes the control mesh. Any error: the message on stderr, exit status 1.
+// writes the control mesh. Any error: the message on stderr, then its kind
+// (`convert: error kind: option`), exit status 1.
 // (--self-test runs one of the library's test hooks instead of converting.)
 
 #include <chrono>
@@ -11,6 +12,18 @@
 #include <string>
 
 #include "mesh_io.h"
+
+// subdfit::ErrorKind in words.
+static const char* kind_name(subdfit::ErrorKind k) {
+  switch (k) {
+    case subdfit::ErrorKind::Input: return "input";
+    case subdfit::ErrorKind::Option: return "option";
+    case subdfit::ErrorKind::Numerical: return "numerical";
+    case subdfit::ErrorKind::Internal: return "internal";
+    case subdfit::ErrorKind::Cancelled: return "cancelled";
+  }
+  return "unknown";
+}
 
 int main(int argc, char** argv) {
   if (argc < 3) {
@@ -69,6 +82,8 @@ int main(int argc, char** argv) {
   } catch (const std::exception& e) {
     if (!last_stage.empty()) std::fputc('\n', stderr);
     std::fprintf(stderr, "convert: error: %s\n", e.what());
+    if (const auto* se = dynamic_cast<const subdfit::Error*>(&e))
+      std::fprintf(stderr, "convert: error kind: %s\n", kind_name(se->kind()));
     if (cancelled_at != Clock::time_point{})
       std::fprintf(stderr, "cancel latency: %.1f ms\n",
                    std::chrono::duration<double, std::milli>(Clock::now() - cancelled_at).count());

@@ -20,8 +20,10 @@
 //
 // Errors: every function throws `subdfit::Error` (and only that, besides
 // std::bad_alloc), whose what() is the message `subdfit` prints for the same
-// input. A bug inside the library (a Rust panic) is also reported as
-// `subdfit::Error`; it never terminates the host.
+// input and whose kind() says what failed (`ErrorKind`: bad input, a bad
+// option, a numerical failure, a bug, a cancel). A bug inside the library (a
+// Rust panic) is also reported as `subdfit::Error` of kind Internal; it never
+// terminates the host.
 //
 // Threads: every function may be called from several host threads at once;
 // no state survives a call.
@@ -36,9 +38,26 @@
 
 namespace subdfit {
 
+// What kind of failure a `subdfit::Error` is (the library's
+// `subdfit::ErrorKind`, same numbers; the CLI exits 2 on Input and Option).
+enum class ErrorKind : int {
+  Input = 1,      // a mesh, an array or a file that cannot be used
+  Option = 2,     // an option out of its range (Options' fields)
+  Numerical = 3,  // a numerical stage or a C++ backend failed on valid input
+  Internal = 4,   // a bug in subdfit: please report it
+  Cancelled = 5,  // the progress callback returned false
+};
+
 class Error : public std::runtime_error {
  public:
-  using std::runtime_error::runtime_error;
+  explicit Error(const std::string& what, ErrorKind kind = ErrorKind::Input)
+      : std::runtime_error(what), kind_(kind) {}
+  explicit Error(const char* what, ErrorKind kind = ErrorKind::Input)
+      : std::runtime_error(what), kind_(kind) {}
+  ErrorKind kind() const noexcept { return kind_; }
+
+ private:
+  ErrorKind kind_;
 };
 
 // A read-only view of `size` contiguous `T`s (what std::span<const T> is in

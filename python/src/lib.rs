@@ -34,15 +34,33 @@ create_exception!(
 );
 create_exception!(
     subdfit,
+    InvalidOption,
+    InvalidInput,
+    "An option out of its range (subdfit::ErrorKind::Option); the message names the option."
+);
+create_exception!(
+    subdfit,
     FileError,
     Error,
     "A file that cannot be opened, read or written."
 );
 create_exception!(
     subdfit,
-    BackendError,
+    NumericalError,
     Error,
+    "A numerical stage failed on a valid input (subdfit::ErrorKind::Numerical)."
+);
+create_exception!(
+    subdfit,
+    BackendError,
+    NumericalError,
     "A C++ backend (OpenSubdiv, Embree, Eigen) or a solver failed."
+);
+create_exception!(
+    subdfit,
+    InternalError,
+    Error,
+    "A bug in subdfit (subdfit::ErrorKind::Internal): please report it."
 );
 create_exception!(
     subdfit,
@@ -56,18 +74,23 @@ create_exception!(
 /// told to stop (its own reports come at least every 20-50 ms).
 const POLL: Duration = Duration::from_millis(5);
 
-/// The CLI's message, in the exception class that fits the error.
+/// The CLI's message, in the exception class of the error's kind
+/// ([`subdfit::ErrorKind`]; files and C++ backends get their own
+/// subclasses).
 fn to_py(e: &subdfit::Error) -> PyErr {
-    use subdfit::Error as E;
+    use subdfit::{Error as E, ErrorKind as K};
     let mut inner = e;
     while let E::Role { source, .. } = inner {
         inner = &**source;
     }
     let msg = embed::error_message(e);
-    match inner {
-        E::Io { .. } => FileError::new_err(msg),
-        E::Cancelled { .. } => Cancelled::new_err(msg),
-        E::Backend { .. } | E::RankDeficient { .. } => BackendError::new_err(msg),
+    match (inner, e.kind()) {
+        (E::Io { .. }, _) => FileError::new_err(msg),
+        (E::Backend { .. } | E::RankDeficient { .. }, _) => BackendError::new_err(msg),
+        (_, K::Cancelled) => Cancelled::new_err(msg),
+        (_, K::Option) => InvalidOption::new_err(msg),
+        (_, K::Numerical) => NumericalError::new_err(msg),
+        (_, K::Internal) => InternalError::new_err(msg),
         _ => InvalidInput::new_err(msg),
     }
 }
@@ -195,15 +218,13 @@ impl PyOptions {
         };
         o.convert = c
             .with_mode(mode.parse().map_err(|_| {
-                InvalidInput::new_err(format!(
+                InvalidOption::new_err(format!(
                     "unknown mode {mode:?}: auto, organic or mechanical"
                 ))
             })?)
-            .with_objective(
-                fit.parse().map_err(|_| {
-                    InvalidInput::new_err(format!("unknown fit {fit:?}: point or sdm"))
-                })?,
-            )
+            .with_objective(fit.parse().map_err(|_| {
+                InvalidOption::new_err(format!("unknown fit {fit:?}: point or sdm"))
+            })?)
             .with_max_error(max_error)
             .with_target_faces(positive(faces_target))
             .with_displacement_res(positive(displacement_res))
@@ -213,10 +234,10 @@ impl PyOptions {
             .with_proxy(
                 proxy
                     .parse()
-                    .map_err(|e: String| InvalidInput::new_err(format!("proxy: {e}")))?,
+                    .map_err(|e: String| InvalidOption::new_err(format!("proxy: {e}")))?,
             )
             .with_layout(layout.parse().map_err(|_| {
-                InvalidInput::new_err(format!("unknown layout {layout:?}: greedy or field"))
+                InvalidOption::new_err(format!("unknown layout {layout:?}: greedy or field"))
             })?);
         o.threads = threads;
         if let Some(n) = name {
@@ -657,8 +678,11 @@ fn _subdfit(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
     m.add("Error", py.get_type::<Error>())?;
     m.add("InvalidInput", py.get_type::<InvalidInput>())?;
+    m.add("InvalidOption", py.get_type::<InvalidOption>())?;
     m.add("FileError", py.get_type::<FileError>())?;
+    m.add("NumericalError", py.get_type::<NumericalError>())?;
     m.add("BackendError", py.get_type::<BackendError>())?;
+    m.add("InternalError", py.get_type::<InternalError>())?;
     m.add("Cancelled", py.get_type::<Cancelled>())?;
     m.add_class::<PyOptions>()?;
     m.add_class::<PyConversion>()?;

@@ -31,10 +31,20 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from . import _subdfit
-from ._subdfit import BackendError, Cancelled, Error, FileError, InvalidInput
+from ._subdfit import (
+    BackendError,
+    Cancelled,
+    Error,
+    FileError,
+    InternalError,
+    InvalidInput,
+    InvalidOption,
+    NumericalError,
+)
 
 __all__ = [
-    "Error", "InvalidInput", "FileError", "BackendError", "Cancelled",
+    "Error", "InvalidInput", "InvalidOption", "FileError", "NumericalError", "BackendError",
+    "InternalError", "Cancelled",
     "Mesh", "ControlMesh", "Conversion", "LimitPoints",
     "read", "read_control", "convert", "convert_file", "fit", "limit", "batch",
     "DEFAULT_TOLERANCE", "__version__",

@@ -21,11 +21,20 @@ class Error(Exception):
 class InvalidInput(Error):
     """A mesh, an array or an option that cannot be used."""
 
+class InvalidOption(InvalidInput):
+    """An option out of its range; the message names the option."""
+
 class FileError(Error):
     """A file that cannot be opened, read or written."""
 
-class BackendError(Error):
+class NumericalError(Error):
+    """A numerical stage failed on a valid input."""
+
+class BackendError(NumericalError):
     """A C++ backend or a solver failed."""
+
+class InternalError(Error):
+    """A bug in subdfit: please report it."""
 
 class Cancelled(Error):
     """The progress callback returned False."""

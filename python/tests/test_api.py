@@ -139,6 +139,24 @@ def test_bad_sizes_and_options_raise_subdfit_error():
         subdfit.convert(v)
 
 
+def test_option_and_input_errors_have_distinct_kinds():
+    # subdfit::ErrorKind reaches Python: an option out of its range is an
+    # InvalidOption (a kind of InvalidInput, so older handlers still catch
+    # it), a mesh that cannot be used an InvalidInput that is not one.
+    v, f = icosphere(2)
+    with pytest.raises(subdfit.InvalidOption, match="tolerance"):
+        subdfit.convert(v, f, tolerance=2.0)
+    with pytest.raises(subdfit.InvalidOption, match="mode"):
+        subdfit.convert(v, f, mode="cad")
+    bad = f.copy()
+    bad[0, 0] = len(v) + 5
+    with pytest.raises(subdfit.InvalidInput) as e:
+        subdfit.convert(v, bad)
+    assert not isinstance(e.value, subdfit.InvalidOption), repr(e.value)
+    assert issubclass(subdfit.BackendError, subdfit.NumericalError)
+    assert not issubclass(subdfit.InternalError, subdfit.InvalidInput)
+
+
 def test_errors_carry_the_clis_message(cli, tmp_path):
     bad = tmp_path / "bad.off"
     bad.write_text("OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n3 0 2 9\n")

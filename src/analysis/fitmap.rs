@@ -1811,7 +1811,8 @@ pub fn check_tolerance(tau: f64) -> std::result::Result<(), String> {
 /// The input checks of [`compute_fitmap_cancellable`]: τ a fraction in
 /// (0, 1], finite coordinates, triangle indices in range.
 fn check_fitmap_input(mesh: &TriMesh, opts: &FitmapOptions) -> Result<()> {
-    check_tolerance(opts.tolerance).map_err(|e| Error::InvalidArgument(format!("fitmap: {e}")))?;
+    check_tolerance(opts.tolerance)
+        .map_err(|e| Error::option("tolerance", format!("fitmap: {e}")))?;
     if let Some(v) = mesh.positions.iter().position(|p| !p.is_finite()) {
         return Err(Error::InvalidArgument(format!(
             "fitmap: vertex {v} has a non-finite coordinate"

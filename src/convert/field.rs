@@ -111,9 +111,7 @@ pub fn fit_field(
         }
         control = laid.control;
     }
-    let fitted = best.ok_or_else(|| {
-        crate::Error::InvalidArgument("field layout: no round was fitted (a bug)".into())
-    })?;
+    let fitted = best.ok_or_else(|| crate::Error::internal("field layout: no round was fitted"))?;
     let mut c = measure_fitted(
         run.input,
         fitted,

@@ -444,8 +444,7 @@ fn organic_tail(
     fit: FitOptions,
     metrics: MetricsOptions,
 ) -> Result<(crate::analysis::Fitmap, PipelineOptions)> {
-    let fitmap = fitmap
-        .ok_or_else(|| Error::InvalidArgument("organic layout without a Fitmap (a bug)".into()))?;
+    let fitmap = fitmap.ok_or_else(|| Error::internal("organic layout without a Fitmap"))?;
     let po = PipelineOptions::default()
         .with_fit(fit)
         .with_metrics(metrics)

@@ -192,32 +192,38 @@ impl ConvertOptions {
     /// patch side, a tessellation outside 1–1024 cells, a proxy below 100
     /// triangles (the ranges the CLI's parsers enforce).
     pub fn check(&self) -> Result<()> {
-        let bad = |m: String| Err(Error::InvalidArgument(m));
+        let bad = |option: &str, m: String| Err(Error::option(option, m));
         if let Some(t) = self.tolerance {
-            crate::analysis::fitmap::check_tolerance(t).map_err(Error::InvalidArgument)?;
+            crate::analysis::fitmap::check_tolerance(t)
+                .map_err(|m| Error::option("tolerance", m))?;
         }
         if let Some(e) = self.max_error {
             if e.is_nan() || e <= 0.0 {
-                return bad(format!(
+                return bad("max_error", format!(
                     "max error {e} out of range: it is a positive fraction of the diagonal, e.g. 3e-3 (or infinity)"
                 ));
             }
         }
         if let Some(r) = self.displacement_res.filter(|&r| r > 4096) {
-            return bad(format!(
-                "displacement resolution {r} too large (at most 4096 samples per patch side)"
-            ));
+            return bad(
+                "displacement_res",
+                format!(
+                    "displacement resolution {r} too large (at most 4096 samples per patch side)"
+                ),
+            );
         }
         if let Some(n) = self.tessellation.filter(|n| !(1..=1024).contains(n)) {
-            return bad(format!(
-                "tessellation {n} out of range: 1 to 1024 cells per patch side"
-            ));
+            return bad(
+                "tessellation",
+                format!("tessellation {n} out of range: 1 to 1024 cells per patch side"),
+            );
         }
         if let Proxy::Triangles(n) = self.proxy {
             if n < 100 {
-                return bad(format!(
-                    "proxy of {n} triangles: give at least 100 (or auto, none)"
-                ));
+                return bad(
+                    "proxy",
+                    format!("proxy of {n} triangles: give at least 100 (or auto, none)"),
+                );
             }
         }
         Ok(())

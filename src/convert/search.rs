@@ -164,9 +164,9 @@ impl ErrorSearcher {
         if let Some(f) = &self.fits[i] {
             return Ok(f.report.final_rms_permille);
         }
-        let c = self.candidates[i].take().ok_or_else(|| {
-            Error::InvalidArgument(format!("max_error search: candidate {i} lost"))
-        })?;
+        let c = self.candidates[i]
+            .take()
+            .ok_or_else(|| Error::internal(format!("max_error search: candidate {i} lost")))?;
         let f = crate::fit::fit_with_progress(mesh, c, caster, fo, progress)?;
         let rms = f.report.final_rms_permille;
         self.record.tried.push((self.faces[i], rms));
@@ -237,7 +237,7 @@ impl ErrorSearcher {
         self.record.kept_faces = self.faces[i];
         let f = self.fits[i]
             .clone()
-            .ok_or_else(|| Error::InvalidArgument(format!("max_error search: {i} unfitted")))?;
+            .ok_or_else(|| Error::internal(format!("max_error search: {i} unfitted")))?;
         Ok((i, f))
     }
 }

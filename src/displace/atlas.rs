@@ -407,7 +407,7 @@ impl Atlas {
             .find(|&f| d.grid.patch_res(f) != self.tiles[f].res)
             .or((patches > self.tiles.len()).then_some(self.tiles.len()))
         {
-            return Err(Error::InvalidArgument(format!(
+            return Err(Error::internal(format!(
                 "atlas: the tile of patch {f} does not match the displacement's resolution {}",
                 d.grid.patch_res(f)
             )));
@@ -418,9 +418,9 @@ impl Atlas {
             let (image, x0, y0) = self.tile_origin(f);
             let far = (self.tiles[f].pitch - self.gutter) as isize - 1;
             let r1 = self.tiles[f].res as isize - 1;
-            let img = imgs.get_mut(image).ok_or_else(|| {
-                Error::InvalidArgument(format!("atlas: patch {f} beyond the layout"))
-            })?;
+            let img = imgs
+                .get_mut(image)
+                .ok_or_else(|| Error::internal(format!("atlas: patch {f} beyond the layout")))?;
             for y in -g..=far {
                 for x in -g..=far {
                     let (i, j) = (x.clamp(0, r1) as usize, y.clamp(0, r1) as usize);

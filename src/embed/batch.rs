@@ -285,7 +285,7 @@ fn write_stamp(asset: &Asset, options: &Options, print: String) -> Result<()> {
         version: env!("CARGO_PKG_VERSION").into(),
     };
     let text = serde_json::to_string_pretty(&stamp)
-        .map_err(|e| Error::InvalidArgument(format!("{STAMP}: {e}")))?;
+        .map_err(|e| Error::internal(format!("{STAMP}: {e}")))?;
     // Written aside and renamed, so a stamp is never half there.
     let tmp = asset.output.join(format!("{STAMP}.tmp"));
     let path = asset.output.join(STAMP);
@@ -519,7 +519,7 @@ pub fn summary_csv(outcomes: &[AssetOutcome]) -> String {
 pub fn write_summary(out_root: &Path, outcomes: &[AssetOutcome]) -> Result<Vec<PathBuf>> {
     std::fs::create_dir_all(out_root).map_err(|e| Error::io(out_root, e))?;
     let json = serde_json::to_string_pretty(outcomes)
-        .map_err(|e| Error::InvalidArgument(format!("{SUMMARY_JSON}: {e}")))?;
+        .map_err(|e| Error::internal(format!("{SUMMARY_JSON}: {e}")))?;
     let mut written = Vec::new();
     for (name, text) in [
         (SUMMARY_CSV, summary_csv(outcomes)),

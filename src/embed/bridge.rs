@@ -5,7 +5,8 @@
 //! shared structs of `rust::Vec`s that the C++ side moves into plain `std`
 //! types. Every function here returns `Result`: cxx turns an `Err` into a
 //! `rust::Error` exception carrying its message, which `subdfit.cpp` rethrows
-//! as `subdfit::Error`. Panics are caught here ([`guard`]) so that unwinding
+//! as `subdfit::Error`, with the error's [`crate::ErrorKind`] (sent ahead of
+//! the message as [`KIND_TAG`]`N:`, which `subdfit.cpp` strips). Panics are caught here ([`guard`]) so that unwinding
 //! never reaches a C++ frame, which would abort the host.
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -149,20 +150,37 @@ use api::{FfiControlMesh, FfiConversion, FfiMetric, FfiOptions, FfiTile, Progres
 // documents that it may run on a worker thread.
 unsafe impl Sync for ProgressSink {}
 
+/// What precedes an error's message across the bridge: the tag, the
+/// [`crate::ErrorKind::code`], a colon (`subdfit.cpp`'s `call` reads it
+/// into `subdfit::Error::kind()`; a cxx exception carries only a string).
+pub(crate) const KIND_TAG: &str = "subdfit-error-kind:";
+
+/// `msg` with its kind ahead, as `subdfit.cpp` reads it.
+fn tagged(kind: crate::ErrorKind, msg: impl std::fmt::Display) -> String {
+    format!("{KIND_TAG}{}:{msg}", kind.code())
+}
+
 /// Runs `f`, turning a panic into an `Err` so that unwinding stops here, and
-/// formats errors like the CLI does (`anyhow`'s `{:#}`: the whole chain).
+/// formats errors like the CLI does (`anyhow`'s `{:#}`: the whole chain),
+/// tagged with their kind.
 fn guard<T>(f: impl FnOnce() -> crate::Result<T>) -> Result<T, String> {
     match catch_unwind(AssertUnwindSafe(f)) {
         Ok(Ok(v)) => Ok(v),
-        Ok(Err(e)) => Err(format!("{:#}", anyhow::Error::from(e))),
+        Ok(Err(e)) => Err(tagged(
+            e.kind(),
+            format_args!("{:#}", anyhow::Error::from(e)),
+        )),
         Err(payload) => {
             let msg = payload
                 .downcast_ref::<&str>()
                 .map(|s| s.to_string())
                 .or_else(|| payload.downcast_ref::<String>().cloned())
                 .unwrap_or_else(|| "(no message)".to_owned());
-            Err(format!(
-                "internal error: subdfit panicked ({msg}); this is a bug, please report it"
+            Err(tagged(
+                crate::ErrorKind::Internal,
+                format_args!(
+                    "internal error: subdfit panicked ({msg}); this is a bug, please report it"
+                ),
             ))
         }
     }
@@ -213,16 +231,17 @@ fn backend(b: u8) -> crate::Result<Backend> {
     match b {
         0 => Ok(Backend::Osd),
         1 => Ok(Backend::Rust),
-        _ => Err(crate::Error::InvalidArgument(format!(
-            "unknown backend {b}"
-        ))),
+        _ => Err(crate::Error::option(
+            "backend",
+            format!("unknown backend {b}"),
+        )),
     }
 }
 
 fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
     use crate::convert::{Mode, Proxy};
     use crate::fit::Objective;
-    let bad = |what: &str, v: i64| crate::Error::InvalidArgument(format!("unknown {what} {v}"));
+    let bad = |what: &str, v: i64| crate::Error::option(what, format!("unknown {what} {v}"));
     let defaults = embed::Options::default();
     let positive = |n: u32| (n > 0).then_some(n as usize);
     let convert = defaults

@@ -488,7 +488,7 @@ fn with_threads<T: Send>(threads: u32, f: impl FnOnce() -> Result<T> + Send) -> 
         .num_threads(threads as usize)
         .thread_name(|i| format!("subdfit-{i}"))
         .build()
-        .map_err(|e| Error::InvalidArgument(format!("cannot start {threads} threads: {e}")))?;
+        .map_err(|e| Error::option("threads", format!("cannot start {threads} threads: {e}")))?;
     pool.install(f)
 }
 

@@ -246,7 +246,7 @@ impl FitOptions {
     }
 
     fn check(&self) -> Result<()> {
-        let bad = |m: String| Err(Error::InvalidArgument(format!("fit: {m}")));
+        let bad = |m: String| Err(Error::option("fit", format!("fit: {m}")));
         if !(1..=10).contains(&self.isolation_level) {
             return bad(format!(
                 "isolation level {} not in 1..=10",

@@ -67,11 +67,14 @@ pub fn write_usda_with(
     opts: &UsdOptions,
 ) -> Result<()> {
     if !(opts.meters_per_unit.is_finite() && opts.meters_per_unit > 0.0) {
-        return Err(Error::InvalidArgument(format!(
-            "{}: metersPerUnit {} must be finite and > 0",
-            path.display(),
-            opts.meters_per_unit
-        )));
+        return Err(Error::option(
+            "units",
+            format!(
+                "{}: metersPerUnit {} must be finite and > 0",
+                path.display(),
+                opts.meters_per_unit
+            ),
+        ));
     }
     if opts.texture.is_some() && uvs.is_none() {
         return Err(Error::InvalidArgument(format!(

@@ -158,7 +158,7 @@ impl MechanicalOptions {
             || !ok(self.feature_tolerance)
             || !ok(self.smooth_curve_tolerance)
         {
-            return Err(Error::InvalidArgument(format!(
+            return Err(Error::option("max_error", format!(
                 "mechanical: max_error {} and curve_tolerance {} must be in (0, 1) (fractions of the diagonal)",
                 self.max_error, self.curve_tolerance
             )));

@@ -391,10 +391,13 @@ pub(crate) fn interpolate_limit_polled(
     }
     let converged = res <= tol;
     if !converged {
-        return Err(Error::InvalidArgument(format!(
-            "limit interpolation did not converge: residual {:.3e} of the diagonal after {iterations} sweeps",
-            res / diag
-        )));
+        return Err(Error::numerical(
+            "limit interpolation",
+            format!(
+                "did not converge: residual {:.3e} of the diagonal after {iterations} sweeps",
+                res / diag
+            ),
+        ));
     }
     control.set_positions(p)?;
     Ok(InterpolationReport {

@@ -227,9 +227,10 @@ pub fn text_scale(width: usize, height: usize) -> usize {
 
 fn check_size(width: usize, height: usize) -> Result<()> {
     if width < 16 || height < 16 || width > MAX_SIDE || height > MAX_SIDE {
-        return Err(Error::InvalidArgument(format!(
-            "render: picture size {width}x{height} outside 16..={MAX_SIDE} per side"
-        )));
+        return Err(Error::option(
+            "size",
+            format!("render: picture size {width}x{height} outside 16..={MAX_SIDE} per side"),
+        ));
     }
     Ok(())
 }
@@ -326,8 +327,12 @@ pub fn render_laid_out(
 
 /// Parses `WxH` (e.g. `1024x768`).
 pub fn parse_size(s: &str) -> Result<(usize, usize)> {
-    let bad =
-        || Error::InvalidArgument(format!("size '{s}': expected WIDTHxHEIGHT, e.g. 1024x768"));
+    let bad = || {
+        Error::option(
+            "size",
+            format!("size '{s}': expected WIDTHxHEIGHT, e.g. 1024x768"),
+        )
+    };
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
     let w: usize = w.trim().parse().map_err(|_| bad())?;
     let h: usize = h.trim().parse().map_err(|_| bad())?;

@@ -107,9 +107,10 @@ pub fn tessellate_limit(
     backend: Backend,
 ) -> Result<LimitTessellation> {
     if !(2..=256).contains(&res) {
-        return Err(Error::InvalidArgument(format!(
-            "limit tessellation: {res} samples per patch side, expected 2..=256"
-        )));
+        return Err(Error::option(
+            "tessellation",
+            format!("limit tessellation: {res} samples per patch side, expected 2..=256"),
+        ));
     }
     let eval = make_evaluator(backend, control, &EvalOptions::default())?;
     let mut patches = Vec::new();

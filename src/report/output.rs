@@ -436,7 +436,7 @@ fn write_all<O: Serialize + Sync>(dir: &Path, out: &OutputFiles<'_, O>) -> Resul
         "report.json".into(),
         Box::new(move |p| {
             let json = serde_json::to_string_pretty(out.report)
-                .map_err(|e| Error::InvalidArgument(format!("report.json: {e}")))?;
+                .map_err(|e| Error::internal(format!("report.json: {e}")))?;
             write_atomically(p, |w| {
                 w.write_all(json.as_bytes())
                     .and_then(|_| w.write_all(b"\n"))

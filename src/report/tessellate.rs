@@ -105,9 +105,10 @@ pub fn tessellate(
 ) -> Result<Tessellations> {
     if let Some(n) = segments {
         if n == 0 || n > MAX_GIVEN_SEGMENTS {
-            return Err(Error::InvalidArgument(format!(
-                "tessellation: {n} cells per patch side; give 1 to {MAX_GIVEN_SEGMENTS}"
-            )));
+            return Err(Error::option(
+                "tessellation",
+                format!("tessellation: {n} cells per patch side; give 1 to {MAX_GIVEN_SEGMENTS}"),
+            ));
         }
     }
     let target = 0.1 * rms_l_permille;

@@ -147,7 +147,7 @@ impl NormalEquations {
 
     fn entry(&self, i: u32, j: u32) -> Result<usize> {
         let missing = || {
-            Error::InvalidArgument(format!(
+            Error::internal(format!(
                 "normal equations: ({i}, {j}) is not in the sparsity pattern"
             ))
         };

@@ -254,9 +254,10 @@ impl OsdEvaluator {
     ) -> Result<Self> {
         let level = options.isolation_level;
         if !(1..=10).contains(&level) {
-            return Err(Error::InvalidArgument(format!(
-                "OpenSubdiv isolation level {level} outside 1..=10 (10 is OpenSubdiv's maximum)"
-            )));
+            return Err(Error::option(
+                "isolation_level",
+                format!("OpenSubdiv isolation level {level} outside 1..=10 (10 is OpenSubdiv's maximum)"),
+            ));
         }
         let loop_scheme = options.scheme.scheme == SubdivScheme::Loop;
         if let Some(f) = desc.face_sizes.iter().position(|&n| loop_scheme && n != 3) {

@@ -231,7 +231,7 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
     let extra = subdfit::convert::HostRecord::convert(a.mesh.display().to_string());
     let mut progress = progress_bars(a.quiet || a.json);
     let mut converted = convert_in_memory(&input, &opts, extra, &mut progress)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", a.mesh.display()))?;
+        .with_context(|| a.mesh.display().to_string())?;
     converted.outputs = a.files.options();
     // report.html is drawn from the staged files, so it belongs to the set.
     let mut html = |staging: &std::path::Path| -> subdfit::Result<Vec<String>> {
@@ -253,7 +253,7 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
         Some(&mut html),
         &mut |_, _| true,
     )
-    .map_err(|e| anyhow::anyhow!("{}: {e}", a.output.display()))?;
+    .with_context(|| a.output.display().to_string())?;
     let report = &converted.report;
     if a.json {
         crate::emit(&serde_json::to_string_pretty(report)?)?;

@@ -1,5 +1,8 @@
 //! The `subdfit` command line. Exit status: 0 success, 1 a check failed
-//! (e.g. `diff-limit` above tolerance), 2 an error (bad input, I/O, ...).
+//! (e.g. `diff-limit` above tolerance), 2 bad input or a bad option (a file
+//! that cannot be read or used, I/O, an option out of range), 3 a numerical
+//! failure on a valid input (a solver, a C++ backend), 70 an internal error
+//! (a bug in subdfit; sysexits' `EX_SOFTWARE`): see [`exit_code`].
 
 mod batch;
 mod convert;
@@ -136,6 +139,23 @@ pub(crate) fn emit(text: &str) -> Result<()> {
 
 /// The error and its causes, `: `-separated, skipping a cause whose text the
 /// message before it already contains (our typed errors print their source).
+/// The exit status of an error, by the kind of the library error in its
+/// chain ([`subdfit::ErrorKind`]); 2 for the command line's own errors.
+fn exit_code(e: &anyhow::Error) -> ExitCode {
+    use subdfit::ErrorKind;
+    let kind = e
+        .chain()
+        .find_map(|c| c.downcast_ref::<subdfit::Error>())
+        .map(subdfit::Error::kind);
+    ExitCode::from(match kind {
+        Some(ErrorKind::Numerical) => 3,
+        Some(ErrorKind::Internal) => 70,
+        // Cancelled: the staging is gone and nothing was written; only a
+        // signal cancels the CLI, which exits 128 + signal before this.
+        _ => 2,
+    })
+}
+
 fn error_chain(e: &anyhow::Error) -> String {
     let mut out = String::new();
     for cause in e.chain() {
@@ -180,7 +200,7 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("subdfit: error: {}", error_chain(&e));
-            ExitCode::from(2)
+            exit_code(&e)
         }
     }
 }

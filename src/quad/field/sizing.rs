@@ -34,9 +34,10 @@ pub fn fitmap_limits(
     let mut hm = Vec::with_capacity(fitmap.m.len());
     for (i, (&s, &m)) in fitmap.s.iter().zip(&fitmap.m).enumerate() {
         if !(m.is_finite() && m > 0.0) {
-            return Err(Error::InvalidArgument(format!(
-                "field layout: vertex {i}: F_M = {m} is not a positive radius"
-            )));
+            return Err(Error::numerical(
+                "field layout",
+                format!("vertex {i}: F_M = {m} is not a positive radius"),
+            ));
         }
         hs.push(if kappa > 0.0 && s > 0.0 && s.is_finite() {
             sqrt2 * kappa / s
@@ -135,9 +136,7 @@ pub fn alpha_for_faces(
     opts: &FieldOptions,
 ) -> Result<f64> {
     if n == 0 {
-        return Err(Error::InvalidArgument(
-            "field layout: a target of 0 faces".into(),
-        ));
+        return Err(Error::option("faces", "field layout: a target of 0 faces"));
     }
     let target = n as f64;
     let count = |a: f64| predicted_faces(s, &sizing_at(s, hs, hm, a, opts));
