@@ -190,7 +190,7 @@ impl PyOptions {
     #[new]
     #[pyo3(signature = (*, tolerance=None, mode="auto", max_error=None, faces_target=0,
         fit="point", displacement_res=0, m_fitmap=true, tessellation=0, proxy="auto",
-        layout="greedy", displacement_samples=0, threads=0, name=None))]
+        layout="greedy", displacement_samples=0, threads=0, name=None, exact_metrics=false))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         tolerance: Option<f64>,
@@ -206,6 +206,7 @@ impl PyOptions {
         displacement_samples: u32,
         threads: u32,
         name: Option<String>,
+        exact_metrics: bool,
     ) -> PyResult<Self> {
         // The library's own types and words (`subdfit::convert::Mode`,
         // `subdfit::fit::Objective`, `Proxy`): one definition for every host.
@@ -230,6 +231,7 @@ impl PyOptions {
             .with_displacement_res(positive(displacement_res))
             .with_displacement_samples(positive(displacement_samples))
             .with_m_fitmap(m_fitmap)
+            .with_exact_metrics(exact_metrics)
             .with_tessellation(positive(tessellation))
             .with_proxy(
                 proxy

@@ -285,6 +285,7 @@ def convert(
     threads: int = 0,
     name: str | None = None,
     progress: Progress | None = None,
+    exact_metrics: bool = False,
 ) -> Conversion:
     """Dense mesh → control mesh + displacement + metrics (``subdfit convert``).
 
@@ -300,7 +301,9 @@ def convert(
     (``"auto"``, ``"none"`` or a triangle count, as a string), ``layout``
     (``"greedy"`` or the experimental ``"field"``), ``displacement_samples``
     (per-patch displacement resolution under this total; 0: uniform),
-    ``threads`` (0: all cores).
+    ``threads`` (0: all cores), ``exact_metrics`` (``--exact-metrics``:
+    measure every point; by default a direction of more than 300 000 points
+    is sampled and the report gives its 95 % confidence interval).
     ``name`` names the input in errors and report.json (the CLI uses the
     path). Raises :class:`InvalidInput` (with the CLI's message),
     :class:`Cancelled` or ``KeyboardInterrupt``.
@@ -309,7 +312,8 @@ def convert(
     o = _options(name, tolerance=tolerance, mode=mode, max_error=max_error,
                  faces_target=faces_target, fit=fit, displacement_res=displacement_res,
                  m_fitmap=m_fitmap, tessellation=tessellation, proxy=proxy, layout=layout,
-                 displacement_samples=displacement_samples, threads=threads)
+                 displacement_samples=displacement_samples, threads=threads,
+                 exact_metrics=exact_metrics)
     return Conversion(_subdfit.convert(mesh, o, progress))
 
 

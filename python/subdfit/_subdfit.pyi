@@ -56,6 +56,7 @@ class Options:
         displacement_samples: int = 0,
         threads: int = 0,
         name: str | None = None,
+        exact_metrics: bool = False,
     ) -> None: ...
     @property
     def tolerance(self) -> float: ...

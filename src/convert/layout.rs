@@ -20,7 +20,7 @@ use serde::Serialize;
 use crate::analysis::{Fitmap, FitmapOptions};
 use crate::error::{Error, Result};
 use crate::mesh::{ControlMesh, Topology};
-use crate::quad::{simplify_with_progress, SimplifyOptions, SimplifyStats};
+use crate::quad::{simplify_prepared, SimplifyOptions, SimplifyStats};
 use crate::raycast::{make_raycaster, RayBackend};
 use crate::report::StageTimer;
 
@@ -136,7 +136,22 @@ fn organic_greedy(
     };
     let (timer, progress) = (&mut run.timer, &mut *run.progress);
     let stage = crate::fit::report_progress;
-    let fitmap = layout_fitmap(layout, layout_caster, fo, timer, progress)?;
+    // The quadrangulation and interpolation read M′ only: they run on a
+    // thread of their own beside the Fitmap, whose two rayon workers they
+    // share the cores with (their ~0.3 s on bunny is mostly sequential, so
+    // after the Fitmap it left a core idle). A plain scoped thread, since
+    // the Fitmap's progress callback is not `Send`; neither result depends
+    // on the other or on the thread count.
+    let (fitmap, start) = std::thread::scope(|s| {
+        let start = s.spawn(|| crate::quad::prepare(layout));
+        let fitmap = layout_fitmap(layout, layout_caster, fo, timer, progress);
+        // A panic there is re-raised here, as if it had run inline.
+        let start = start
+            .join()
+            .unwrap_or_else(|e| std::panic::resume_unwind(e));
+        (fitmap, start)
+    });
+    let (fitmap, start) = (fitmap?, start?);
     let so = SimplifyOptions::default()
         .with_target_faces(opts.target_faces)
         .with_m_fitmap(!opts.no_m_fitmap)
@@ -147,7 +162,7 @@ fn organic_greedy(
         });
     stage(progress, "simplify", 0.0)?;
     let simplified = timer.run("simplify", || {
-        simplify_with_progress(layout, &fitmap, layout_caster, &so, &mut |p| {
+        simplify_prepared(layout, &fitmap, layout_caster, &so, start, &mut |p| {
             let goal = p
                 .initial_faces
                 .saturating_sub(opts.target_faces.unwrap_or(0))

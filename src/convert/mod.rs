@@ -322,7 +322,8 @@ fn convert_as(
     let metrics = MetricsOptions::default()
         .with_displacement_res(opts.displacement_res)
         .with_displacement_samples(opts.displacement_samples)
-        .with_output_tessellation(opts.tessellation);
+        .with_output_tessellation(opts.tessellation)
+        .with_exact(opts.exact_metrics);
     let branch = |layout: BranchLayout| BranchRecord {
         mode: ModeRecord {
             choice: choice.clone(),

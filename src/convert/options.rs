@@ -46,6 +46,13 @@ pub struct ConvertOptions {
     /// quadrangulated input (Fitmaps §3.2–3.3, the default) or the
     /// field-aligned layout ([`crate::quad::field`], issue 40).
     pub layout: LayoutKind,
+    /// Measure every point of every direction of the metrics
+    /// (`--exact-metrics`); off: directions of more than
+    /// [`crate::report::METRIC_SAMPLES`] points are measured on a sample,
+    /// with the confidence interval in `report.json`. Left out of
+    /// `report.json`'s options when off.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub exact_metrics: bool,
 }
 
 /// `convert --layout`: which organic layout makes the control mesh.
@@ -181,6 +188,7 @@ impl Default for ConvertOptions {
             tessellation: None,
             proxy: Proxy::Auto,
             layout: LayoutKind::Greedy,
+            exact_metrics: false,
         }
     }
 }
@@ -267,6 +275,10 @@ impl ConvertOptions {
     }
     pub fn with_proxy(mut self, p: Proxy) -> Self {
         self.proxy = p;
+        self
+    }
+    pub fn with_exact_metrics(mut self, on: bool) -> Self {
+        self.exact_metrics = on;
         self
     }
     pub fn with_layout(mut self, l: LayoutKind) -> Self {

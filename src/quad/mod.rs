@@ -20,6 +20,7 @@ pub use quadrangulate::{
     QuadrangulateOptions, Quadrangulation, QuadrangulationReport, QualityStats,
 };
 pub use simplify::{
-    face_centre_limit, s_fitmap_kappa, simplify, simplify_control, simplify_with_progress,
-    Progress, Simplified, SimplifyOptions, SimplifyStats, StopReason,
+    face_centre_limit, prepare, s_fitmap_kappa, simplify, simplify_control, simplify_prepared,
+    simplify_with_progress, Prepared, Progress, Simplified, SimplifyOptions, SimplifyStats,
+    StopReason,
 };

@@ -432,10 +432,6 @@ pub fn simplify_with_progress(
             fitmap.s.len()
         )));
     }
-    let mut stats = SimplifyStats {
-        input_triangles: mesh.triangles.len(),
-        ..Default::default()
-    };
     // Between the set-up steps too, so that a cancellation waits for one
     // step (each well under a second on a million triangles), not all.
     let t_all = Instant::now();
@@ -454,16 +450,82 @@ pub fn simplify_with_progress(
             })
         }
     };
+    let start = prepare_polled(mesh, &mut ask)?;
+    simplify_prepared(mesh, fitmap, caster, opts, start, progress)
+}
+
+/// The simplification's start, which does not need the Fitmap: M
+/// quadrangulated (§3.2) and interpolated by the limit surface (system
+/// (1)). See [`prepare`].
+pub struct Prepared {
+    mesh: ControlMesh,
+    seconds_quadrangulate: f64,
+    seconds_interpolate: f64,
+}
+
+/// The first half of [`simplify_with_progress`]: quadrangulation and
+/// interpolation, which read M only, so a caller can run them beside the
+/// Fitmap (`convert` does: bunny's 0.3 s of sequential work then shares
+/// the Fitmap's two cores instead of following it). Deterministic.
+pub fn prepare(mesh: &TriMesh) -> Result<Prepared> {
+    prepare_polled(mesh, &mut || Ok(()))
+}
+
+fn prepare_polled(mesh: &TriMesh, ask: &mut dyn FnMut() -> Result<()>) -> Result<Prepared> {
     let t = Instant::now();
     let Quadrangulation { mesh: mut k, .. } =
-        quadrangulate_polled(mesh, &QuadrangulateOptions::default(), &mut ask)?;
-    stats.seconds_quadrangulate = t.elapsed().as_secs_f64();
+        quadrangulate_polled(mesh, &QuadrangulateOptions::default(), ask)?;
+    let seconds_quadrangulate = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let targets = k.positions().to_vec();
-    interpolate_limit_polled(&mut k, &targets, &InterpolationOptions::default(), &mut ask)?;
-    stats.seconds_interpolate = t.elapsed().as_secs_f64();
+    interpolate_limit_polled(&mut k, &targets, &InterpolationOptions::default(), ask)?;
+    Ok(Prepared {
+        mesh: k,
+        seconds_quadrangulate,
+        seconds_interpolate: t.elapsed().as_secs_f64(),
+    })
+}
+
+/// The second half of [`simplify_with_progress`]: the greedy loop from a
+/// [`prepare`]d start of the same `mesh`.
+pub fn simplify_prepared(
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    caster: &dyn RayCaster,
+    opts: &SimplifyOptions,
+    start: Prepared,
+    progress: &mut dyn FnMut(Progress) -> bool,
+) -> Result<Simplified> {
+    let nv = mesh.positions.len();
+    if fitmap.s.len() != nv || fitmap.m.len() != nv {
+        return Err(Error::InvalidArgument(format!(
+            "simplify: the Fitmap has {} values, the mesh {nv} vertices",
+            fitmap.s.len()
+        )));
+    }
+    let mut stats = SimplifyStats {
+        input_triangles: mesh.triangles.len(),
+        seconds_quadrangulate: start.seconds_quadrangulate,
+        seconds_interpolate: start.seconds_interpolate,
+        ..Default::default()
+    };
     let t = Instant::now();
-    let mut s = Simplifier::new(mesh, fitmap, caster, opts, k, &mut ask)?;
+    let mut poll = || {
+        let p = Progress {
+            faces: 0,
+            initial_faces: 0,
+            collapses: 0,
+            seconds: t.elapsed().as_secs_f64(),
+        };
+        if progress(p) {
+            Ok(())
+        } else {
+            Err(Error::Cancelled {
+                stage: "simplification".into(),
+            })
+        }
+    };
+    let mut s = Simplifier::new(mesh, fitmap, caster, opts, start.mesh, &mut poll)?;
     s.run(&mut stats, progress)?;
     s.finish(stats, t)
 }
@@ -756,6 +818,34 @@ fn phi_line(bvh: &BvhCaster, o: DVec3, n: DVec3, max_t: f64) -> Option<Projected
     })
 }
 
+/// φ of a batch of `(origin, unit direction, search distance)` lines, in
+/// order. From [`PHI_PAR_MIN`] lines on (the sweeps over every face) they
+/// are split over the rayon pool; the map keeps input order, so the result
+/// does not depend on the threads.
+fn phi_batch(bvh: &BvhCaster, lines: &[(DVec3, DVec3, f64)]) -> Vec<Option<Projected>> {
+    let one = |&(o, n, t): &(DVec3, DVec3, f64)| phi_line(bvh, o, n, t);
+    if lines.len() >= PHI_PAR_MIN {
+        use rayon::prelude::*;
+        lines
+            .par_iter()
+            .with_min_len(PHI_PAR_MIN / 2)
+            .map(one)
+            .collect()
+    } else {
+        lines.iter().map(one).collect()
+    }
+}
+
+/// Lines from which [`phi_batch`] forks. A collapse's refit and face
+/// updates ask for a few dozen lines at a time (bunny: 60 per collapse,
+/// about 28 % of the loop's time), and those stay on the loop's thread:
+/// forking them from 16 lines on was measured (bunny, 2026-12-05, this
+/// 2-core machine shared with other jobs) at 15.1 s wall / 7.4 CPU s for
+/// the loop against 8.5 s / 4.3 s sequential. Each fork/join wakes a
+/// worker (30k collapses, ~100k wake-ups), and when the OS has preempted
+/// the worker that stole half a batch the loop waits for it.
+const PHI_PAR_MIN: usize = 512;
+
 /// Search distance of φ around a feature of size `scale` (a ring's or a
 /// face's extent): a point of the limit surface further than twice that
 /// from M along its normal has no meaningful projection there, and a short
@@ -867,21 +957,25 @@ impl<'a> Simplifier<'a> {
             .copied()
             .filter(|&f| !self.k.is_face_deleted(f))
             .collect();
-        let (k, bvh, max_dist) = (&self.k, &self.bvh, self.max_dist);
+        let (k, max_dist) = (&self.k, self.max_dist);
         let one = |f: FaceId| {
             let l = face_centre_limit(k, f);
             let q = super::ops::quad_positions(k, f);
             let scale = (q[2] - q[0]).length().max((q[3] - q[1]).length());
-            let p = phi_line(bvh, l.position, l.normal(), local_reach(scale, max_dist));
-            (l.position, p, l.normal())
+            (l.position, l.normal(), local_reach(scale, max_dist))
         };
         // Map order is input order: the same result whatever the threads.
-        let proj: Vec<(DVec3, Option<Projected>, DVec3)> = if faces.len() > 512 {
+        let lines: Vec<(DVec3, DVec3, f64)> = if faces.len() > 512 {
             use rayon::prelude::*;
             faces.par_iter().map(|&f| one(f)).collect()
         } else {
             faces.iter().map(|&f| one(f)).collect()
         };
+        let proj: Vec<(DVec3, Option<Projected>, DVec3)> = phi_batch(&self.bvh, &lines)
+            .into_iter()
+            .zip(&lines)
+            .map(|(p, &(c, n, _))| (c, p, n))
+            .collect();
         self.projections += proj.len();
         // A centre with no hit along its normal still needs Fitmap values:
         // take them at the closest point of M (the miss is counted).
@@ -1589,18 +1683,28 @@ impl<'a> Simplifier<'a> {
             for (&v, p) in w.iter().zip(smooth) {
                 self.k.positions_mut()[v.idx()] = p;
             }
-            let mut targets = Vec::with_capacity(w.len());
-            for (&v, m) in w.iter().zip(&masks) {
-                let k = &self.k;
-                let l = limit_of(k, m);
-                let n = vertex_normal(k, v);
-                let p = k.position(v);
-                let scale = k
-                    .outgoing(v)
-                    .map(|h| (k.position(k.head(h)) - p).length())
-                    .fold(0.0, f64::max);
-                targets.push(self.phi(l, n, scale).map_or(l, |p| p.point));
-            }
+            let k = &self.k;
+            let lines: Vec<(DVec3, DVec3, f64)> = w
+                .iter()
+                .zip(&masks)
+                .map(|(&v, m)| {
+                    let p = k.position(v);
+                    let scale = k
+                        .outgoing(v)
+                        .map(|h| (k.position(k.head(h)) - p).length())
+                        .fold(0.0, f64::max);
+                    let reach = local_reach(scale, self.max_dist);
+                    (limit_of(k, m), vertex_normal(k, v), reach)
+                })
+                .collect();
+            let hits = phi_batch(&self.bvh, &lines);
+            self.projections += hits.len();
+            self.unprojectable += hits.iter().filter(|h| h.is_none()).count();
+            let targets: Vec<DVec3> = hits
+                .iter()
+                .zip(&lines)
+                .map(|(h, &(l, _, _))| h.map_or(l, |p| p.point))
+                .collect();
             for _ in 0..self.opts.fit_sweeps {
                 let delta: Vec<DVec3> = masks
                     .iter()
@@ -1622,7 +1726,12 @@ impl<'a> Simplifier<'a> {
         corners.sort_unstable();
         corners.dedup();
         for v in corners {
-            let l = limit_of(&self.k, &vertex_limit_mask(&self.k, v)?);
+            // W's masks still hold: the refit moved vertices, it did not
+            // change the connectivity a mask depends on.
+            let l = match w.binary_search(&v) {
+                Ok(i) => limit_of(&self.k, &masks[i]),
+                Err(_) => limit_of(&self.k, &vertex_limit_mask(&self.k, v)?),
+            };
             self.lim_log.push((v, self.lim[v.idx()]));
             self.lim[v.idx()] = l;
         }

@@ -58,10 +58,12 @@
 
 mod floor;
 mod output;
+mod sample;
 pub mod tessellate;
 pub mod written;
 
 pub use floor::resampling_floor;
+pub use sample::METRIC_SAMPLES;
 pub use written::WrittenReport;
 
 pub use output::{
@@ -110,6 +112,11 @@ pub struct MetricsOptions {
     /// Cells per patch side of `limit.ply` / `displaced.ply`; `None`: the
     /// default of [`tessellate`].
     pub output_tessellation: Option<usize>,
+    /// Measure every point of every direction (`--exact-metrics`); off:
+    /// directions of more than [`METRIC_SAMPLES`] points are sampled
+    /// ([`sample`]'s docs). Left out of `report.json` when off.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub exact: bool,
 }
 
 impl MetricsOptions {
@@ -133,6 +140,10 @@ impl MetricsOptions {
         self.offsets = m;
         self
     }
+    pub fn with_exact(mut self, e: bool) -> Self {
+        self.exact = e;
+        self
+    }
 }
 
 /// Distances in one direction, ‰ of M's bounding-box diagonal.
@@ -140,8 +151,17 @@ impl MetricsOptions {
 pub struct DistanceStats {
     pub rms_permille: f64,
     pub mean_permille: f64,
+    /// Over the samples measured: a lower bound of the max when they are a
+    /// sample of the population.
     pub max_permille: f64,
+    /// Points measured.
     pub samples: usize,
+    /// Points of the direction (`samples` unless it was sampled, see
+    /// [`METRIC_SAMPLES`]).
+    pub population: usize,
+    /// Half-width of the 95 % confidence interval of `rms_permille`; 0 when
+    /// every point was measured.
+    pub rms_ci95_permille: f64,
 }
 
 /// Accuracy of one surface against M (see the module docs).
@@ -163,6 +183,9 @@ pub struct Metrics {
     pub displaced: Accuracy,
     /// Percentage of M's area not reached by φ from L.
     pub unprojectable_area_percent: f64,
+    /// Half-width of its 95 % confidence interval (0: every triangle of M
+    /// was tested, see [`METRIC_SAMPLES`]).
+    pub unprojectable_ci95_percent: f64,
     pub displacement: DisplacementStats,
     pub tessellation_res: usize,
     /// Where D's surface→mesh error sits (see [`DisplacedBreakdown`]).
@@ -303,7 +326,10 @@ pub fn evaluate_surfaces(
                 let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
                 let limit_caster = Watched::new(limit_caster.as_ref(), w);
                 let (acc, unreached) = rayon::join(
-                    || limit_accuracy(caster, &limit, &limit_caster, &mp, &mw, diag),
+                    || {
+                        let l = (&limit, &limit_caster as &dyn RayCaster);
+                        limit_accuracy(caster, l, &mp, &mw, diag, opts.exact)
+                    },
                     || {
                         unprojectable_percent(
                             mesh,
@@ -314,6 +340,7 @@ pub fn evaluate_surfaces(
                             &limit_caster,
                             max_dist,
                             edge,
+                            opts.exact,
                         )
                     },
                 );
@@ -355,11 +382,13 @@ pub fn evaluate_surfaces(
             files,
         ))
     })?;
+    let (unprojectable_area_percent, unprojectable_ci95_percent) = unprojectable_area_percent;
     let metrics = Metrics {
         bbox_diagonal: diag,
         limit: limit_acc,
         displaced: displaced_acc,
         unprojectable_area_percent,
+        unprojectable_ci95_percent,
         displacement: displacement.stats.clone(),
         tessellation_res: t,
         displaced_breakdown,
@@ -466,7 +495,10 @@ fn displaced_side(
     let (dp, dw) = quadrature_points(&displaced);
     let (dd, m2d) = rayon::join(
         || closest_distances(&dp, caster),
-        || distance_stats(mp, mw, &displaced_caster, diag),
+        || {
+            let to = &displaced_caster as &dyn RayCaster;
+            sampled_distance_stats(mp, mw, to, diag, opts.exact, sample::STREAM_M_TO_D)
+        },
     );
     let dd = dd?;
     let acc = Accuracy::from_directions(stats_of(&dd, &dw, diag), m2d?);
@@ -607,7 +639,40 @@ fn stats_of(dist: &[f64], w: &[f64], diag: f64) -> DistanceStats {
         mean_permille: k * s1 / sw,
         max_permille: k * max,
         samples: count,
+        population: count,
+        rms_ci95_permille: 0.0,
     }
+}
+
+/// [`distance_stats`] on the [`sample::subset`] of the points that
+/// `stream` draws (all of them when `exact` or few enough), with the RMS's
+/// confidence interval ([`sample::ratio_ci95`] of the squared distances,
+/// through the square root by the delta method).
+fn sampled_distance_stats(
+    points: &[DVec3],
+    w: &[f64],
+    to: &dyn RayCaster,
+    diag: f64,
+    exact: bool,
+    stream: u64,
+) -> Result<DistanceStats> {
+    let Some(keep) = sample::subset(points.len(), exact, stream) else {
+        return distance_stats(points, w, to, diag);
+    };
+    let p: Vec<DVec3> = keep.iter().map(|&i| points[i]).collect();
+    let ws: Vec<f64> = keep.iter().map(|&i| w[i]).collect();
+    let d = closest_distances(&p, to)?;
+    let mut st = stats_of(&d, &ws, diag);
+    st.population = w.iter().filter(|&&x| x > 0.0).count();
+    let d2: Vec<f64> = d.iter().map(|x| x * x).collect();
+    let half = sample::ratio_ci95(&d2, &ws, st.population);
+    let rms = st.rms_permille * diag / 1000.0;
+    st.rms_ci95_permille = if rms > 0.0 {
+        1000.0 / diag * half / (2.0 * rms)
+    } else {
+        1000.0 / diag * half.sqrt()
+    };
+    Ok(st)
 }
 
 impl Accuracy {
@@ -709,25 +774,29 @@ fn breakdown(
 /// [`quadrature_points`]) to its tessellation (module docs).
 fn limit_accuracy(
     mesh_caster: &dyn RayCaster,
-    surface: &TriMesh,
-    surface_caster: &dyn RayCaster,
+    (surface, surface_caster): (&TriMesh, &dyn RayCaster),
     mp: &[DVec3],
     mw: &[f64],
     diag: f64,
+    exact: bool,
 ) -> Result<Accuracy> {
-    let s2m = distance_stats(
+    let s2m = sampled_distance_stats(
         &surface.positions,
         &vertex_areas(surface),
         mesh_caster,
         diag,
+        exact,
+        sample::STREAM_L_TO_M,
     )?;
-    let m2s = distance_stats(mp, mw, surface_caster, diag)?;
+    let m2s = sampled_distance_stats(mp, mw, surface_caster, diag, exact, sample::STREAM_M_TO_L)?;
     Ok(Accuracy::from_directions(s2m, m2s))
 }
 
 /// Projectability (module docs): the percentage of M's area whose
 /// triangle centroids φ does not reach from L. `grid` is L's tessellation
 /// grid, `limit_caster` built over it; `tol` is M's mean edge length.
+/// Above [`METRIC_SAMPLES`] triangles (unless `exact`) a sample of them,
+/// with the half-width of the percentage's 95 % interval (else 0).
 #[allow(clippy::too_many_arguments)]
 fn unprojectable_percent(
     mesh: &TriMesh,
@@ -738,23 +807,39 @@ fn unprojectable_percent(
     limit_caster: &dyn RayCaster,
     max_dist: f64,
     tol: f64,
-) -> Result<f64> {
-    let areas = triangle_areas(mesh);
-    let centroids = mesh.centroids();
+    exact: bool,
+) -> Result<(f64, f64)> {
+    let (mut areas, mut centroids) = (triangle_areas(mesh), mesh.centroids());
+    let keep = sample::subset(areas.len(), exact, sample::STREAM_PROJECTABILITY);
+    if let Some(keep) = &keep {
+        areas = keep.iter().map(|&t| areas[t]).collect();
+        centroids = keep.iter().map(|&t| centroids[t]).collect();
+    }
     let locations = nearest_limit_locations(limit_caster, &centroids, |t, u, v| {
         grid.triangle_location(t, u, v)
     })?;
     let exact = evaluator.evaluate(control.positions(), &locations)?;
     let (hits, _) = crate::project::project_along_normals(caster, &exact, max_dist)?;
     let total_area: f64 = areas.iter().sum();
-    let unreached: f64 = hits
+    let missed: Vec<f64> = hits
         .iter()
         .zip(&centroids)
+        .map(|(h, c)| match h {
+            Some(h) if (h.point - *c).length() <= tol => 0.0,
+            _ => 1.0,
+        })
+        .collect();
+    let unreached: f64 = missed
+        .iter()
         .zip(&areas)
-        .filter(|((h, c), _)| !matches!(h, Some(h) if (h.point - **c).length() <= tol))
+        .filter(|(m, _)| **m > 0.0)
         // fold from +0.0: `Sum` of no f64 is -0.0.
         .fold(0.0, |acc, (_, a)| acc + a);
-    Ok(100.0 * unreached / total_area.max(f64::MIN_POSITIVE))
+    let ci = match keep {
+        Some(_) => 100.0 * sample::ratio_ci95(&missed, &areas, mesh.triangles.len()),
+        None => 0.0,
+    };
+    Ok((100.0 * unreached / total_area.max(f64::MIN_POSITIVE), ci))
 }
 
 /// The limit-surface locations nearest to `points`, found on a tessellated
@@ -968,6 +1053,9 @@ pub struct ReportAccuracy {
 pub struct ReportProjectability {
     /// % of M's area not reached by φ from the limit surface.
     pub unprojectable_area_percent: f64,
+    /// Half-width of its 95 % confidence interval (0: measured on every
+    /// triangle of M, see [`METRIC_SAMPLES`]).
+    pub unprojectable_ci95_percent: f64,
     pub displacement: DisplacementStats,
 }
 
@@ -1021,6 +1109,7 @@ impl<O> Report<O> {
             },
             projectability: ReportProjectability {
                 unprojectable_area_percent: metrics.unprojectable_area_percent,
+                unprojectable_ci95_percent: metrics.unprojectable_ci95_percent,
                 displacement: metrics.displacement.clone(),
             },
             tessellation: metrics.files.clone(),
