@@ -56,6 +56,9 @@ pub struct RegionGeom<'a> {
     pub adj: Vec<Vec<(usize, f64)>>,
     pub on_boundary: &'a [bool],
     pub planar: Option<(DVec3, DVec3)>,
+    /// The region's triangles seen along its mean normal, when it is
+    /// nearly flat (see [`FlatShadow`]).
+    flat: Option<FlatShadow>,
 }
 
 impl<'a> RegionGeom<'a> {
@@ -107,6 +110,7 @@ impl<'a> RegionGeom<'a> {
                 (mesh.positions[v as usize] - c).dot(n).abs() <= PLANAR_TOLERANCE * diag
             }))
         .then_some((c, n));
+        let flat = FlatShadow::new(mesh, tris, n);
         RegionGeom {
             mesh,
             curv,
@@ -114,6 +118,7 @@ impl<'a> RegionGeom<'a> {
             adj,
             on_boundary,
             planar,
+            flat,
         }
     }
 
@@ -191,10 +196,143 @@ fn scores(g: &RegionGeom<'_>, poly: &[PolyVertex]) -> Vec<Vec<f64>> {
                 45.0
             } else {
                 f64::min(smin, smax) / n as f64
-            } + bend_penalty(sag, seg.length());
+            } + bend_penalty(sag, seg.length())
+                + g.flat.as_ref().map_or(0.0, |f| f.leave_penalty(pa, pb));
         }
     }
     sc
+}
+
+/// A nearly flat region's triangles projected onto the plane of its mean
+/// normal, bucketed on a grid, to tell whether a straight chord stays over
+/// the region.
+///
+/// SC (eq. 3) rates a chord by the Dijkstra path between its ends, and
+/// [`MAX_CHORD_BEND`] by how far that path leaves the chord along the
+/// normal; neither sees a path that bends *within* the surface, around a
+/// hole or a boss in the region. On a casting's top face (a nearly flat
+/// region wrapped around a rib's end: a few fillet triangles kept it from
+/// [`PLANAR_TOLERANCE`]) a chord from the rib's lower side to a point
+/// above the rib ran straight across the rib's foot; the facet covered
+/// ground that is not the region, 13‰ off M, and no enrichment inside the
+/// region's fixed boundary could take it back (8 faces of 1007 over the
+/// limit at the end). A chord whose shadow leaves the region's shadow is
+/// scored as a boundary (90°), as an over-bent one is.
+struct FlatShadow {
+    e1: DVec3,
+    e2: DVec3,
+    /// Projected triangles, and per grid cell the triangles touching it.
+    tris: Vec<[(f64, f64); 3]>,
+    lo: (f64, f64),
+    cell: f64,
+    nx: usize,
+    ny: usize,
+    cells: Vec<Vec<u32>>,
+}
+
+/// A region is nearly flat (see [`FlatShadow`]) when every triangle's
+/// normal is within 30° of the mean normal: its shadow along that normal
+/// then covers no point twice, except where a fold of under 60° would.
+const FLAT_COS: f64 = 0.866_025_403_784_438_6;
+
+/// Interior points of a chord tested by [`FlatShadow::leave_penalty`]: 15,
+/// ends excluded.
+const CHORD_SAMPLES: usize = 16;
+
+impl FlatShadow {
+    fn new(mesh: &TriMesh, tris: &[u32], n: DVec3) -> Option<Self> {
+        if n == DVec3::ZERO || tris.is_empty() {
+            return None;
+        }
+        let mut proj = Vec::with_capacity(tris.len());
+        let e1 = n.any_orthonormal_vector();
+        let e2 = n.cross(e1);
+        let (mut lo, mut hi) = ((f64::MAX, f64::MAX), (f64::MIN, f64::MIN));
+        for &t in tris {
+            let [a, b, c] = mesh.triangle(t as usize);
+            let tn = (b - a).cross(c - a).normalize_or_zero();
+            if tn.dot(n) < FLAT_COS {
+                return None;
+            }
+            let p = [a, b, c].map(|p| (p.dot(e1), p.dot(e2)));
+            for q in p {
+                lo = (lo.0.min(q.0), lo.1.min(q.1));
+                hi = (hi.0.max(q.0), hi.1.max(q.1));
+            }
+            proj.push(p);
+        }
+        // About one triangle per cell along each axis of a square grid.
+        let side = (tris.len() as f64).sqrt().ceil().max(1.0);
+        let cell = ((hi.0 - lo.0).max(hi.1 - lo.1) / side).max(1e-12);
+        let nx = ((hi.0 - lo.0) / cell) as usize + 1;
+        let ny = ((hi.1 - lo.1) / cell) as usize + 1;
+        let mut cells = vec![Vec::new(); nx * ny];
+        for (i, p) in proj.iter().enumerate() {
+            let (x0, x1) = (
+                p.iter().map(|q| q.0).fold(f64::MAX, f64::min),
+                p.iter().map(|q| q.0).fold(f64::MIN, f64::max),
+            );
+            let (y0, y1) = (
+                p.iter().map(|q| q.1).fold(f64::MAX, f64::min),
+                p.iter().map(|q| q.1).fold(f64::MIN, f64::max),
+            );
+            let cx = |x: f64| (((x - lo.0) / cell) as usize).min(nx - 1);
+            let cy = |y: f64| (((y - lo.1) / cell) as usize).min(ny - 1);
+            for y in cy(y0)..=cy(y1) {
+                for x in cx(x0)..=cx(x1) {
+                    cells[y * nx + x].push(i as u32);
+                }
+            }
+        }
+        Some(FlatShadow {
+            e1,
+            e2,
+            tris: proj,
+            lo,
+            cell,
+            nx,
+            ny,
+            cells,
+        })
+    }
+
+    /// Whether the shadow of `p` falls on a triangle's shadow (a margin of
+    /// 5 % of the triangle in barycentric terms, for points on an edge).
+    fn covers(&self, p: DVec3) -> bool {
+        let q = (p.dot(self.e1), p.dot(self.e2));
+        let x = (q.0 - self.lo.0) / self.cell;
+        let y = (q.1 - self.lo.1) / self.cell;
+        if x < 0.0 || y < 0.0 || x >= self.nx as f64 || y >= self.ny as f64 {
+            return false;
+        }
+        self.cells[y as usize * self.nx + x as usize]
+            .iter()
+            .any(|&t| {
+                let [a, b, c] = self.tris[t as usize];
+                let d = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
+                if d.abs() < 1e-300 {
+                    return false;
+                }
+                let l1 = ((b.0 - q.0) * (c.1 - q.1) - (b.1 - q.1) * (c.0 - q.0)) / d;
+                let l2 = ((c.0 - q.0) * (a.1 - q.1) - (c.1 - q.1) * (a.0 - q.0)) / d;
+                let l3 = 1.0 - l1 - l2;
+                l1 >= -0.05 && l2 >= -0.05 && l3 >= -0.05
+            })
+    }
+
+    /// 90° when a point of the chord `a b` (ends excluded) falls off the
+    /// region's shadow, else 0.
+    fn leave_penalty(&self, a: DVec3, b: DVec3) -> f64 {
+        let off = (1..CHORD_SAMPLES).any(|t| {
+            let s = t as f64 / CHORD_SAMPLES as f64;
+            !self.covers(a + s * (b - a))
+        });
+        if off {
+            90.0
+        } else {
+            0.0
+        }
+    }
 }
 
 /// Cuts a region polygon into facets (see the module docs). `edges` holds
