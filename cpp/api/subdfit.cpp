@@ -93,6 +93,7 @@ ffi::FfiOptions ffi_options(const Options& o) {
   r.m_fitmap = o.m_fitmap;
   r.tessellation = o.tessellation;
   r.proxy = o.proxy;
+  r.exact_metrics = o.exact_metrics;
   r.threads = o.threads;
   // Lossy: a name that is not UTF-8 must not make the call fail.
   r.source_name = rust::String::lossy(o.source_name);

@@ -234,6 +234,9 @@ fn options_key(o: &Options, source_name: &str) -> String {
     if c.layout != crate::convert::LayoutKind::Greedy {
         later += &format!(" layout={:?}", c.layout);
     }
+    if c.exact_metrics {
+        later += " exact_metrics=true";
+    }
     format!(
         "tolerance={:?} faces={} mode={:?} fit={:?} displacement_res={} max_error={:?} \
          m_fitmap={}{later} name={source_name}",

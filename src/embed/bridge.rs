@@ -34,6 +34,7 @@ pub(crate) mod api {
         tessellation: u32,
         /// -1 auto, 0 none, N: about N triangles.
         proxy: i64,
+        exact_metrics: bool,
         threads: u32,
         source_name: String,
     }
@@ -269,7 +270,8 @@ fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
             0 => Proxy::None,
             n if n > 0 => Proxy::Triangles(n as usize),
             n => return Err(bad("proxy", n)),
-        });
+        })
+        .with_exact_metrics(o.exact_metrics);
     Ok(embed::Options {
         convert,
         threads: o.threads,

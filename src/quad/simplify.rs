@@ -20,9 +20,13 @@
 //! BVH over M ([`BvhCaster::first_hit`], both directions), with a search
 //! distance of twice the local feature size: the per-collapse queries are a
 //! few dozen rays, for which a batched call (rayon + FFI chunking) costs
-//! more in fixed overhead than the rays themselves. The loop is sequential;
-//! only the initial evaluation of all faces runs in parallel, in input
-//! order, so the result does not depend on the number of threads.
+//! more in fixed overhead than the rays themselves. The loop is sequential
+//! (each step's heap, mesh and refit depend on the previous step's; forking
+//! a step's few dozen φ queries was measured slower, see `PHI_PAR_MIN`);
+//! only the sweeps over all faces run in parallel, in input order, so the
+//! result does not depend on the number of threads. The quadrangulation
+//! and interpolation before it need no Fitmap ([`prepare`]), so `convert`
+//! runs them beside the Fitmap.
 //!
 //! Measured (bunny, 69k triangles → natural end, Fitmap cached, 2 shared
 //! cores, 2026-11-22): τ 1 % 5.9 s (5,100 collapses/s), τ 10 % 4.9 s

@@ -114,7 +114,7 @@ pub struct MetricsOptions {
     pub output_tessellation: Option<usize>,
     /// Measure every point of every direction (`--exact-metrics`); off:
     /// directions of more than [`METRIC_SAMPLES`] points are sampled
-    /// ([`sample`]'s docs). Left out of `report.json` when off.
+    /// (see `report::sample`). Left out of `report.json` when off.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub exact: bool,
 }
