@@ -21,6 +21,7 @@
 pub mod cross;
 pub mod extract;
 pub mod position;
+pub mod purequad;
 pub mod sizing;
 
 use std::time::Instant;
@@ -61,6 +62,14 @@ pub struct FieldOptions {
     pub alignment_weight: f64,
     /// Gauss–Seidel sweeps of the position field per hierarchy level.
     pub position_sweeps: usize,
+    /// Sweeps of the extrinsic orientation smoothing after the linear
+    /// solve ([`cross::smooth_extrinsic`]).
+    pub orientation_sweeps: usize,
+    /// Solve the lattice at the target size and make it pure quad near its
+    /// non-quads only ([`purequad`]); `false`: solve it at twice the size
+    /// and split every face (Catmull-Clark), the fallback when the first
+    /// does not keep M's topology.
+    pub lattice_at_size: bool,
 }
 
 impl Default for FieldOptions {
@@ -74,6 +83,8 @@ impl Default for FieldOptions {
             alignment_length: 1.0,
             alignment_weight: 1.0,
             position_sweeps: 8,
+            orientation_sweeps: 10,
+            lattice_at_size: true,
         }
     }
 }
@@ -123,6 +134,9 @@ pub struct FieldStats {
     /// factor on h they left ([`RETRY_FACTOR`]^retries).
     pub retries: usize,
     pub size_factor: f64,
+    /// Whether the lattice was extracted at the target size
+    /// ([`FieldOptions::lattice_at_size`]) or at twice it and split.
+    pub lattice_at_size: bool,
     pub seconds_cross: f64,
     pub seconds_sizing: f64,
     pub seconds_position: f64,
@@ -256,26 +270,35 @@ fn layout_sized(
     sizing::cap_at_boundaries(surf, &mut h, opts.gradation);
     let mut factor = 1.0;
     let mut last_error = None;
+    let modes: &[bool] = if opts.lattice_at_size {
+        &[true, false]
+    } else {
+        &[false]
+    };
     for attempt in 0..=RETRIES {
-        let t = Instant::now();
-        let scale: Vec<f64> = h.iter().map(|x| 2.0 * factor * x).collect();
-        let lattice = position::position_field(surf, dirs, &scale, opts.position_sweeps)?;
-        stats.seconds_position += t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let extracted = extract::extract(surf, mesh, dirs, &lattice, &scale);
-        stats.seconds_extract += t.elapsed().as_secs_f64();
-        match extracted {
-            Ok((control, raw_non_quads)) => {
-                stats.retries = attempt;
-                stats.size_factor = factor;
-                stats.raw_non_quads = raw_non_quads;
-                stats.vertices = control.num_vertices();
-                stats.faces = control.num_faces();
-                stats.irregular_vertices = irregular_vertices(&control);
-                return Ok(FieldLayout { control, stats });
+        for &at_size in modes {
+            let t = Instant::now();
+            let m = if at_size { 1.0 } else { 2.0 };
+            let scale: Vec<f64> = h.iter().map(|x| m * factor * x).collect();
+            let lattice = position::position_field(surf, dirs, &scale, opts.position_sweeps)?;
+            stats.seconds_position += t.elapsed().as_secs_f64();
+            let t = Instant::now();
+            let extracted = extract::extract(surf, mesh, dirs, &lattice, &scale, at_size);
+            stats.seconds_extract += t.elapsed().as_secs_f64();
+            match extracted {
+                Ok((control, raw_non_quads)) => {
+                    stats.retries = attempt;
+                    stats.size_factor = factor;
+                    stats.lattice_at_size = at_size;
+                    stats.raw_non_quads = raw_non_quads;
+                    stats.vertices = control.num_vertices();
+                    stats.faces = control.num_faces();
+                    stats.irregular_vertices = irregular_vertices(&control);
+                    return Ok(FieldLayout { control, stats });
+                }
+                Err(e @ Error::Topology { .. }) => last_error = Some(e),
+                Err(e) => return Err(e),
             }
-            Err(e @ Error::Topology { .. }) => last_error = Some(e),
-            Err(e) => return Err(e),
         }
         factor *= RETRY_FACTOR;
     }
