@@ -12,9 +12,11 @@
 //! boundary edge of M has the surface on one side only, and a walked face
 //! that uses its other side is the hole, not a face. Adjacent non-quads
 //! are merged where that saves irregular vertices, then the faces are
-//! made pure quad by one Catmull-Clark split (each n-gon into n quads;
-//! the lattice was solved at twice the target length for this), the new
-//! points are put on M's closest points, and the result must have M's
+//! made pure quad: at the target size by [`super::purequad`] (only faces
+//! near non-quads change) and a few steps of tangential relaxation; or,
+//! the fallback, by one Catmull-Clark split (each n-gon into n quads; the
+//! lattice was solved at twice the target length for this). The points
+//! are put on M's closest points, and the result must have M's
 //! components, boundary loops and Euler characteristic, else an error.
 
 use crate::error::{Error, Result};

@@ -104,7 +104,9 @@ fn make_even(pos: &mut Vec<DVec3>, polys: Vec<Vec<u32>>) -> Option<Vec<Vec<u32>>
     let mut ef: HashMap<(u32, u32), Vec<usize>> = HashMap::new();
     for (f, p) in polys.iter().enumerate() {
         for i in 0..p.len() {
-            ef.entry(key(p[i], p[(i + 1) % p.len()])).or_default().push(f);
+            ef.entry(key(p[i], p[(i + 1) % p.len()]))
+                .or_default()
+                .push(f);
         }
     }
     let mut odd: Vec<bool> = polys.iter().map(|p| p.len() % 2 == 1).collect();
@@ -208,11 +210,21 @@ fn split_even(
                     worst = worst
                         .max(corner_deviation(pos, v, u, p[(i + k - 1) % k]))
                         .max(corner_deviation(pos, p[(i + 4) % k], v, u));
-                    worst - if u >= first_new || v >= first_new { NEW_POINT_BONUS } else { 0.0 }
+                    worst
+                        - if u >= first_new || v >= first_new {
+                            NEW_POINT_BONUS
+                        } else {
+                            0.0
+                        }
                 };
                 cost(a).total_cmp(&cost(b)).then(a.cmp(&b))
             })?;
-        quads.push([p[best], p[(best + 1) % k], p[(best + 2) % k], p[(best + 3) % k]]);
+        quads.push([
+            p[best],
+            p[(best + 1) % k],
+            p[(best + 2) % k],
+            p[(best + 3) % k],
+        ]);
         edges.insert(key(p[best], p[(best + 3) % k]));
         let (a, b) = ((best + 1) % k, (best + 2) % k);
         p = (0..k).filter(|&i| i != a && i != b).map(|i| p[i]).collect();
@@ -226,7 +238,10 @@ const NEW_POINT_BONUS: f64 = 30.0;
 
 /// |angle at `b` between `a` and `c` − 90°|, in degrees.
 fn corner_deviation(pos: &[DVec3], a: u32, b: u32, c: u32) -> f64 {
-    let (u, v) = (pos[a as usize] - pos[b as usize], pos[c as usize] - pos[b as usize]);
+    let (u, v) = (
+        pos[a as usize] - pos[b as usize],
+        pos[c as usize] - pos[b as usize],
+    );
     (u.angle_between(v).to_degrees() - 90.0).abs()
 }
 
