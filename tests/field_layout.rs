@@ -258,16 +258,15 @@ fn layout_uniform(m: &TriMesh, h: f64) -> subdfit::quad::field::FieldLayout {
 fn torus_layout_keeps_genus_and_adaptive_size_removes_dislocations() {
     // No square lattice of one edge length closes on a torus of revolution:
     // the circle around the axis is 2π(R ± r) outside / inside, so a lattice
-    // of uniform spacing needs a dislocation (a 3–5 pair) per cell around
-    // the tube: 2πr / (2h) ≈ 14.7 at h = 0.15 here, and the extraction has
-    // 59 raw non-quads (measured), about two per dislocation. The conformal
-    // size h ∝ ρ (distance to the axis) has a regular lattice: 2πρ / h
-    // cells around the axis at every ρ, ∮ r dv / (c ρ) = 2πr / (c √(R² − r²))
-    // around the tube; c = 2π / 40 / 2 (the lattice is solved at 2h and
-    // split) gives 40 × 14.94 cells. The per-vertex scale must remove most
-    // of the dislocations (measured: 4 raw non-quads, 8 irregular vertices,
-    // not yet the 0 of a perfect lattice: the position field settles 7 %
-    // short of the 600 cells).
+    // of uniform spacing needs dislocations (3–5 pairs) around the tube
+    // (measured at the mean size: 112 raw non-quads, 249 irregular
+    // vertices). The conformal size h ∝ ρ (distance to the axis) has a
+    // regular lattice: 2πρ / h cells around the axis at every ρ,
+    // ∮ r dv / (c ρ) = 2πr / (c √(R² − r²)) around the tube; c = 2π / 80
+    // gives 80 × 29.9 cells. The per-vertex scale must remove most of the
+    // dislocations (measured: 13 raw non-quads, 24 irregular vertices, not
+    // yet the 0 of a perfect lattice: the tube count is not an integer and
+    // the position field settles short of the cells).
     let (big, small) = (2.0, 0.7);
     let m = torus(big, small, 200, 70);
     let c = 2.0 * PI / 40.0 / 2.0;
