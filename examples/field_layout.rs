@@ -9,8 +9,11 @@
 //! `OUT_natural.obj` / `OUT_<FACES>.obj`, so that
 //! `subdfit fit MESH OUT_natural.obj -o DIR` fits it. Prints one JSON line
 //! per run: the layout's stats and M's topology against the result's.
-//! `FIELD_ALIGN` and `FIELD_SWEEPS` override
-//! [`FieldOptions::alignment_weight`] and [`FieldOptions::position_sweeps`]
+//! `FIELD_UNIFORM=N` lays out one uniform size for N quads instead.
+//! `FIELD_SPLIT` solves at 2h and splits every face; `FIELD_ALIGN`,
+//! `FIELD_SWEEPS`, `FIELD_OSWEEPS` and `FIELD_GRADATION` override
+//! [`FieldOptions::alignment_weight`], [`FieldOptions::position_sweeps`],
+//! [`FieldOptions::orientation_sweeps`] and [`FieldOptions::gradation`]
 //! (for measuring them).
 
 use std::time::Instant;
@@ -55,6 +58,24 @@ fn main() -> anyhow::Result<()> {
             .with_alignment_weight(weight);
         if let Ok(v) = std::env::var("FIELD_SWEEPS") {
             opts.position_sweeps = v.parse()?;
+        }
+        if let Ok(v) = std::env::var("FIELD_OSWEEPS") {
+            opts.orientation_sweeps = v.parse()?;
+        }
+        if let Ok(v) = std::env::var("FIELD_GRADATION") {
+            opts = opts.with_gradation(v.parse()?);
+        }
+        if std::env::var("FIELD_SPLIT").is_ok() {
+            opts.lattice_at_size = false;
+        }
+        // FIELD_UNIFORM=N: one uniform size for N quads (h = √(area / N)),
+        // no Fitmap (for comparing the lattice with a peer's at its count).
+        if let Ok(v) = std::env::var("FIELD_UNIFORM") {
+            let n: f64 = v.parse()?;
+            let area: f64 = subdfit::analysis::normals::triangle_areas(&mesh)
+                .iter()
+                .sum();
+            opts = opts.with_uniform_size(Some((area / n).sqrt()));
         }
         let result = field_layout(&mesh, &fitmap, &opts);
         let layout_seconds = t1.elapsed().as_secs_f64();

@@ -200,7 +200,38 @@ pub fn cross_field(s: &Surface, opts: &FieldOptions) -> Result<Vec<DVec3>> {
         let (e1, e2) = bases[i];
         dirs.push(e1 * a.cos() + e2 * a.sin());
     }
+    smooth_extrinsic(s, &mut dirs, opts.orientation_sweeps);
     Ok(dirs)
+}
+
+/// Gauss–Seidel sweeps of Instant Meshes' orientation rule (Jakob et al.
+/// 2015, §4: each cross moved to the mean of its neighbours' arms nearest
+/// its own, projected on its tangent plane) over M's vertices, boundary
+/// vertices held. The curvature guide of [`curvature_guide`] is read per
+/// vertex from a 2-ring quadric and is noisy on scanned surfaces: the
+/// linear solve keeps pairs of ±¼ singularities a few triangles apart
+/// (spot: 36 + 28), which this local smoothing lets annihilate while the
+/// field's large-scale alignment stays. Sequential in vertex order, so
+/// the result does not depend on the thread count.
+pub fn smooth_extrinsic(s: &Surface, dirs: &mut [DVec3], sweeps: usize) {
+    for _ in 0..sweeps {
+        for i in 0..s.len() {
+            if s.boundary_tangent[i].is_some() {
+                continue;
+            }
+            let ni = s.normals[i];
+            let mut acc = dirs[i];
+            for &j in s.neighbours(i) {
+                let j = j as usize;
+                let cur = (acc - ni * ni.dot(acc)).normalize_or(dirs[i]);
+                acc += match_arm(cur, dirs[j], s.normals[j]).0;
+            }
+            let q = (acc - ni * ni.dot(acc)).normalize_or_zero();
+            if q != DVec3::ZERO {
+                dirs[i] = q;
+            }
+        }
+    }
 }
 
 /// Solves `(L + tM) u = tM target` with the boundary rows (realified:

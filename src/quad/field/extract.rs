@@ -12,9 +12,11 @@
 //! boundary edge of M has the surface on one side only, and a walked face
 //! that uses its other side is the hole, not a face. Adjacent non-quads
 //! are merged where that saves irregular vertices, then the faces are
-//! made pure quad by one Catmull-Clark split (each n-gon into n quads;
-//! the lattice was solved at twice the target length for this), the new
-//! points are put on M's closest points, and the result must have M's
+//! made pure quad: at the target size by [`super::purequad`] (only faces
+//! near non-quads change) and a few steps of tangential relaxation; or,
+//! the fallback, by one Catmull-Clark split (each n-gon into n quads; the
+//! lattice was solved at twice the target length for this). The points
+//! are put on M's closest points, and the result must have M's
 //! components, boundary loops and Euler characteristic, else an error.
 
 use crate::error::{Error, Result};
@@ -47,19 +49,37 @@ pub fn extract(
     dirs: &[DVec3],
     o: &[DVec3],
     scale: &[f64],
+    at_size: bool,
 ) -> Result<(ControlMesh, usize)> {
     let mut g = lattice_graph(s, dirs, o, scale);
     let faces = clean_faces(&mut g);
     let non_quads = faces.iter().filter(|f| f.len() != 4).count();
-    let faces = merge_non_quad_pairs(faces, g.pos.len());
-    let (positions, quads) = split_to_quads(&g, &faces);
+    let faces = merge_non_quad_pairs(faces, g.pos.len(), at_size);
+    let (positions, quads) = if at_size {
+        let mut pos = g.pos.clone();
+        let quads = super::purequad::to_quads(&mut pos, faces).ok_or_else(|| Error::Topology {
+            element: "field layout".into(),
+            msg: "an odd face of the lattice has no partner to pair with".into(),
+        })?;
+        compact(pos, quads)
+    } else {
+        split_to_quads(&g, &faces)
+    };
     let caster = BvhCaster::new(mesh)?;
-    let hits = caster.closest_points(&positions, f64::INFINITY)?;
-    let positions: Vec<DVec3> = positions
-        .iter()
-        .zip(&hits)
-        .map(|(p, h)| h.as_ref().map_or(*p, |h| h.point))
-        .collect();
+    let project = |positions: &[DVec3]| -> Result<Vec<DVec3>> {
+        let hits = caster.closest_points(positions, f64::INFINITY)?;
+        Ok(positions
+            .iter()
+            .zip(&hits)
+            .map(|(p, h)| h.as_ref().map_or(*p, |h| h.point))
+            .collect())
+    };
+    let mut positions = project(&positions)?;
+    if at_size {
+        for _ in 0..RELAX_STEPS {
+            positions = project(&relax(&positions, &quads))?;
+        }
+    }
     let control = ControlMesh::from_polygons(positions, &quads).map_err(|e| Error::Topology {
         element: "field layout".into(),
         msg: format!("the extracted quads are not a manifold mesh ({e})"),
@@ -347,7 +367,12 @@ const MAX_MERGED: usize = 6;
 /// Only pairs sharing exactly that edge (the union is a simple polygon)
 /// into at most [`MAX_MERGED`] sides, best gain first (ties in face order), each face once, the gain recomputed
 /// from the valences as they change.
-fn merge_non_quad_pairs(polys: Vec<Vec<u32>>, n: usize) -> Vec<Vec<u32>> {
+///
+/// With `at_size` (no split follows, [`super::purequad`] cuts even faces by
+/// chords and pairs odd ones by paths) the gain is that of the pure-quad
+/// conversion instead: two odd faces merged need no path between them (a
+/// path ends in two new valence-3 points), two even ones gain nothing.
+fn merge_non_quad_pairs(polys: Vec<Vec<u32>>, n: usize, at_size: bool) -> Vec<Vec<u32>> {
     let ef = edge_faces(&polys);
     let (mut val, bnd) = valences(&polys, n);
     let gain = |val: &[usize], f: usize, h: usize, a: u32, b: u32| -> Option<i64> {
@@ -364,7 +389,12 @@ fn merge_non_quad_pairs(polys: Vec<Vec<u32>>, n: usize) -> Vec<Vec<u32>> {
         if merged > MAX_MERGED {
             return None;
         }
-        Some(2 - i64::from(merged != 4) - cost(a) - cost(b))
+        let base = if at_size {
+            2 * i64::from(pf.len() % 2 == 1 && pg.len() % 2 == 1)
+        } else {
+            2 - i64::from(merged != 4)
+        };
+        Some(base - cost(a) - cost(b))
     };
     let mut cand: Vec<(i64, usize, usize, usize)> = Vec::new();
     for (f, pf) in polys.iter().enumerate() {
@@ -416,6 +446,68 @@ fn merge_non_quad_pairs(polys: Vec<Vec<u32>>, n: usize) -> Vec<Vec<u32>> {
     }
     out
 }
+/// Tangential relaxation steps of the extracted points (each followed by
+/// the projection onto M), as Instant Meshes' extraction ends (Jakob et
+/// al. 2015, §6: "a few iterations of tangential smoothing"): the lattice
+/// points are cluster means and the chords' quads have whatever corners
+/// the raw lattice left, down to a fraction of a degree.
+const RELAX_STEPS: usize = 3;
+
+/// Each interior point moved halfway to the mean of its edge neighbours
+/// (halfway, so that the projection onto M stays on the point's own sheet
+/// of a thin part); points on a boundary edge stay.
+fn relax(pos: &[DVec3], quads: &[[u32; 4]]) -> Vec<DVec3> {
+    let n = pos.len();
+    let mut count: std::collections::HashMap<(u32, u32), u8> = Default::default();
+    for q in quads {
+        for i in 0..4 {
+            *count.entry(key(q[i], q[(i + 1) % 4])).or_default() += 1;
+        }
+    }
+    let (mut sum, mut deg, mut fixed) = (vec![DVec3::ZERO; n], vec![0.0; n], vec![false; n]);
+    let mut edges: Vec<(&(u32, u32), &u8)> = count.iter().collect();
+    edges.sort_unstable();
+    for (&(a, b), &c) in edges {
+        let (a, b) = (a as usize, b as usize);
+        sum[a] += pos[b];
+        sum[b] += pos[a];
+        deg[a] += 1.0;
+        deg[b] += 1.0;
+        if c == 1 {
+            fixed[a] = true;
+            fixed[b] = true;
+        }
+    }
+    (0..n)
+        .map(|v| {
+            if fixed[v] || deg[v] == 0.0 {
+                pos[v]
+            } else {
+                0.5 * (pos[v] + sum[v] / deg[v])
+            }
+        })
+        .collect()
+}
+
+/// The points used by `quads`, renumbered in order of first use.
+fn compact(pos: Vec<DVec3>, quads: Vec<[u32; 4]>) -> (Vec<DVec3>, Vec<[u32; 4]>) {
+    let mut index = vec![u32::MAX; pos.len()];
+    let mut out = Vec::new();
+    let quads = quads
+        .into_iter()
+        .map(|q| {
+            q.map(|v| {
+                if index[v as usize] == u32::MAX {
+                    index[v as usize] = out.len() as u32;
+                    out.push(pos[v as usize]);
+                }
+                index[v as usize]
+            })
+        })
+        .collect();
+    (out, quads)
+}
+
 /// One Catmull-Clark split of the raw faces, topologically (face points
 /// at the corners' mean, edge points at midpoints; both projected onto M
 /// by the caller). Lattice points used by no face are dropped.
@@ -477,7 +569,7 @@ mod tests {
                 }
             }
         }
-        let out = merge_non_quad_pairs(polys.clone(), 16);
+        let out = merge_non_quad_pairs(polys.clone(), 16, false);
         assert_eq!(out.len(), 9);
         assert!(out.iter().all(|p| p.len() == 4));
         let centre = out.iter().find(|p| p.contains(&id(1, 1))).unwrap();
