@@ -8,8 +8,8 @@
 use std::f64::consts::PI;
 
 use subdfit::analysis::Fitmap;
-use subdfit::mesh::TriMesh;
 use subdfit::mesh::ControlMesh;
+use subdfit::mesh::TriMesh;
 use subdfit::quad::field::cleanup::{cleanup, CleanupOptions};
 use subdfit::quad::field::{
     control_topology, cross, field_layout, field_layout_sized, irregular_vertices, sizing,
@@ -436,7 +436,10 @@ fn cleanup_removes_planted_valence_3_5_pairs() {
     let caster = BvhCaster::new(&m).unwrap();
     let mut k = quad_grid(8);
     assert_eq!(irregular_vertices(&k), 0);
-    let (a, b) = (subdfit::mesh::VertexId(4 * 9 + 4), subdfit::mesh::VertexId(4 * 9 + 5));
+    let (a, b) = (
+        subdfit::mesh::VertexId(4 * 9 + 4),
+        subdfit::mesh::VertexId(4 * 9 + 5),
+    );
     let h = k.outgoing(a).find(|&h| k.head(h) == b).unwrap();
     rotate_edge(&mut k, h, Rotation::Ccw).unwrap();
     let planted = irregular_vertices(&k);
@@ -502,7 +505,14 @@ fn field_faces_target_lands_within_two_percent() {
         let status = std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"))
             .args(["convert", spot, "-o"])
             .arg(&out)
-            .args(["--mode", "organic", "--layout", "field", "--tolerance", "0.01"])
+            .args([
+                "--mode",
+                "organic",
+                "--layout",
+                "field",
+                "--tolerance",
+                "0.01",
+            ])
             .args(["--faces", &n.to_string(), "--quiet"])
             .status()
             .unwrap();

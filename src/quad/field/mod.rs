@@ -218,7 +218,11 @@ pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Res
             if inside && trims as f64 <= COUNT_TRIMS * n {
                 break;
             }
-            let raw = out.stats.cleanup.as_ref().map_or(got, |c| c.faces_before as f64);
+            let raw = out
+                .stats
+                .cleanup
+                .as_ref()
+                .map_or(got, |c| c.faces_before as f64);
             let f = if (got < n || inside) && caster.is_some() {
                 (raw / (COUNT_MARGIN * n)).sqrt()
             } else {
