@@ -698,9 +698,11 @@ fn limit_of(k: &ControlMesh, mask: &[(VertexId, f64)]) -> DVec3 {
 
 // ---- the loop ------------------------------------------------------------------
 
-struct Simplifier<'a> {
-    m: &'a TriMesh,
-    fitmap: &'a Fitmap,
+/// The loop's state; [`super::field::cleanup`] drives the same operators,
+/// local fits and tests in its own order.
+pub(crate) struct Simplifier<'a> {
+    pub(crate) m: &'a TriMesh,
+    pub(crate) fitmap: &'a Fitmap,
     caster: &'a dyn RayCaster,
     /// Pure-Rust BVH over M for the per-collapse φ queries: one ray at a
     /// time inside the sequential loop, without the fixed cost of a batched
@@ -708,14 +710,14 @@ struct Simplifier<'a> {
     bvh: BvhCaster,
     opts: SimplifyOptions,
     max_dist: f64,
-    k: ControlMesh,
-    valence_targets: ValenceTargets,
+    pub(crate) k: ControlMesh,
+    pub(crate) valence_targets: ValenceTargets,
     version: Vec<u32>,
-    fs: Vec<f64>,
-    fm: Vec<f64>,
+    pub(crate) fs: Vec<f64>,
+    pub(crate) fm: Vec<f64>,
     /// Limit position of every live control vertex (kept current in the
     /// refit region; the M-fitmap test reads it).
-    lim: Vec<DVec3>,
+    pub(crate) lim: Vec<DVec3>,
     heap: BinaryHeap<Reverse<(u64, u32, u8, u32)>>,
     projections: usize,
     unprojectable: usize,
@@ -733,26 +735,26 @@ struct Simplifier<'a> {
     stamp_now: u32,
     /// Old positions and limit points written by the current step, for its
     /// undo.
-    pos_log: Vec<(VertexId, DVec3)>,
-    lim_log: Vec<(VertexId, DVec3)>,
+    pub(crate) pos_log: Vec<(VertexId, DVec3)>,
+    pub(crate) lim_log: Vec<(VertexId, DVec3)>,
     /// Per face, the tests that refused its collapses since the last
     /// sweep began ([`Blocked`] bits): at the natural end, what stops each
     /// final patch ([`SimplifyStats::final_blockers`]).
     blocked: std::collections::HashMap<u32, u8>,
     /// κ of the S-fitmap test (0: off).
-    kappa: f64,
+    pub(crate) kappa: f64,
     /// The last [`SimplifyOptions::checkpoints`] checkpoints, oldest
     /// (most faces) first, and the face count that takes the next one.
     checkpoints: std::collections::VecDeque<crate::mesh::LivePolygons>,
     next_checkpoint: usize,
     /// The relaxation of the halting tests ([`RELAX_STEP`]), 1 unless
     /// `target_faces` asked for fewer faces than the natural end.
-    relax: f64,
+    pub(crate) relax: f64,
 }
 
 /// The result of φ at one patch centre, for the guard.
 #[derive(Copy, Clone, Debug)]
-struct CentreCheck {
+pub(crate) struct CentreCheck {
     face: FaceId,
     /// |centre − φ(centre)|, or the distance to the closest point of M when
     /// the normal line misses.
@@ -763,9 +765,9 @@ struct CentreCheck {
 }
 
 /// The faces of a region before a step, for its undo.
-struct Snapshot {
-    vertices: Vec<VertexId>,
-    faces: Vec<(FaceId, [VertexId; 4])>,
+pub(crate) struct Snapshot {
+    pub(crate) vertices: Vec<VertexId>,
+    pub(crate) faces: Vec<(FaceId, [VertexId; 4])>,
 }
 
 /// Bits naming the tests that refuse a collapse.
@@ -787,6 +789,13 @@ impl Blocked {
         (Self::GUARD_NORMAL, "guard_normal"),
         (Self::UNDERSHOOT, "undershoot"),
     ];
+}
+
+/// The centre (corners' mean) and radius (farthest corner) of a patch.
+fn patch_radius(q: &[DVec3; 4]) -> (DVec3, f64) {
+    let ctr = 0.25 * (q[0] + q[1] + q[2] + q[3]);
+    let r = q.iter().map(|p| (*p - ctr).length()).fold(0.0, f64::max);
+    (ctr, r)
 }
 
 /// Rings around a collapsed quad that a step can change (see
@@ -860,7 +869,7 @@ fn local_reach(scale: f64, max_dist: f64) -> f64 {
 }
 
 impl<'a> Simplifier<'a> {
-    fn new(
+    pub(crate) fn new(
         m: &'a TriMesh,
         fitmap: &'a Fitmap,
         caster: &'a dyn RayCaster,
@@ -938,7 +947,7 @@ impl<'a> Simplifier<'a> {
     }
 
     /// φ of one point (counted).
-    fn phi(&mut self, o: DVec3, n: DVec3, scale: f64) -> Option<Projected> {
+    pub(crate) fn phi(&mut self, o: DVec3, n: DVec3, scale: f64) -> Option<Projected> {
         self.projections += 1;
         let p = phi_line(&self.bvh, o, n, local_reach(scale, self.max_dist));
         if p.is_none() {
@@ -949,7 +958,7 @@ impl<'a> Simplifier<'a> {
 
     /// Recomputes centre, F_S, F_M and heap entries of `faces` (live ones);
     /// returns what φ found at each centre (for the guard).
-    fn update_faces(&mut self, faces: &[FaceId]) -> Result<Vec<CentreCheck>> {
+    pub(crate) fn update_faces(&mut self, faces: &[FaceId]) -> Result<Vec<CentreCheck>> {
         let nf = self.k.num_faces();
         if self.version.len() < nf {
             self.version.resize(nf, 0);
@@ -1085,11 +1094,6 @@ impl<'a> Simplifier<'a> {
         for v in [a, c] {
             faces.extend(self.k.vertex_faces(v).filter(|&g| g != f));
         }
-        let radius = |q: &[DVec3; 4]| {
-            let ctr = 0.25 * (q[0] + q[1] + q[2] + q[3]);
-            let r = q.iter().map(|p| (*p - ctr).length()).fold(0.0, f64::max);
-            (ctr, r)
-        };
         for g in faces {
             let mut q = [DVec3::ZERO; 4];
             let mut before = [DVec3::ZERO; 4];
@@ -1097,28 +1101,46 @@ impl<'a> Simplifier<'a> {
                 before[i] = self.lim[x.idx()];
                 q[i] = if x == a || x == c { merged } else { before[i] };
             }
-            let (ctr, r) = radius(&q);
             // Only a patch the collapse *extends* is tested (§3.3.1): one
             // that does not grow (the merged corner moves towards its
             // centre) cannot lose projectability by it, even if a doublet
             // removal or a rotation already left it above F_M.
-            if r <= radius(&before).1 {
+            if patch_radius(&q).1 <= patch_radius(&before).1 {
                 continue;
             }
-            let n = (q[2] - q[0]).cross(q[3] - q[1]).normalize_or_zero();
-            let (fm, fs) = match self.phi(ctr, n, 2.0 * r) {
-                Some(p) => (
-                    self.fitmap.m_at(self.m, p.triangle, p.u, p.v),
-                    self.fitmap.s_at(self.m, p.triangle, p.u, p.v),
-                ),
-                None => (self.fm[g.idx()], self.fs[g.idx()]),
-            };
-            if r > fm * self.relax {
-                return Some(Blocked::M_FITMAP);
+            if let Some(why) = self.patch_test(g, &q) {
+                return Some(why);
             }
-            if r * fs > self.kappa * self.relax && self.kappa > 0.0 {
-                return Some(Blocked::S_FITMAP);
-            }
+        }
+        None
+    }
+
+    /// The radius of one patch whose corners' limit points are `q`, and
+    /// F_M, F_S at its centre projected by φ (face `g`'s cached values
+    /// where φ misses).
+    pub(crate) fn patch_fitmap(&mut self, g: FaceId, q: &[DVec3; 4]) -> (f64, f64, f64) {
+        let (ctr, r) = patch_radius(q);
+        let n = (q[2] - q[0]).cross(q[3] - q[1]).normalize_or_zero();
+        let (fm, fs) = match self.phi(ctr, n, 2.0 * r) {
+            Some(p) => (
+                self.fitmap.m_at(self.m, p.triangle, p.u, p.v),
+                self.fitmap.s_at(self.m, p.triangle, p.u, p.v),
+            ),
+            None => (self.fm[g.idx()], self.fs[g.idx()]),
+        };
+        (r, fm, fs)
+    }
+
+    /// The M- and S-fitmap tests of one patch whose corners' limit points
+    /// are `q` (face `g`'s cached F_M, F_S where φ misses its centre):
+    /// `radius ≤ F_M` and `radius · F_S ≤ κ`, both times the relaxation.
+    pub(crate) fn patch_test(&mut self, g: FaceId, q: &[DVec3; 4]) -> Option<u8> {
+        let (r, fm, fs) = self.patch_fitmap(g, q);
+        if r > fm * self.relax {
+            return Some(Blocked::M_FITMAP);
+        }
+        if r * fs > self.kappa * self.relax && self.kappa > 0.0 {
+            return Some(Blocked::S_FITMAP);
         }
         None
     }
@@ -1342,7 +1364,7 @@ impl<'a> Simplifier<'a> {
     /// region, and a heap grown with dead entries made `pop` a tenth of
     /// the run. Entries are unique (face, diagonal, version), so the live
     /// ones pop in the same order after.
-    fn compact_heap(&mut self) {
+    pub(crate) fn compact_heap(&mut self) {
         let live = 2 * self.k.num_live_faces();
         if self.heap.len() <= 4 * live + 1024 {
             return;
@@ -1358,7 +1380,7 @@ impl<'a> Simplifier<'a> {
     }
 
     /// Final counts and the adaptivity figures, then the compact mesh.
-    fn finish(self, mut stats: SimplifyStats, t: Instant) -> Result<Simplified> {
+    pub(crate) fn finish(self, mut stats: SimplifyStats, t: Instant) -> Result<Simplified> {
         for f in self.k.live_faces() {
             let bits = self.blocked.get(&f.0).copied().unwrap_or(0);
             for (bit, name) in Blocked::NAMES {
@@ -1428,7 +1450,7 @@ impl<'a> Simplifier<'a> {
     /// collapse changes the faces around its two ends, the doublet removals
     /// those around the side corners' third neighbours, the rotations faces
     /// within two rings of the merged vertex; nothing further.
-    fn snapshot(&mut self, f: FaceId) -> Snapshot {
+    pub(crate) fn snapshot(&mut self, f: FaceId) -> Snapshot {
         let nv = self.k.num_vertices();
         if self.stamp.len() < nv {
             self.stamp.resize(nv, 0);
@@ -1476,7 +1498,7 @@ impl<'a> Simplifier<'a> {
     /// faces that differ are replaced, deleted vertices revived, through
     /// [`ControlMesh::restore_faces`]), positions and limit points back from
     /// the step's logs, then fresh heap entries for the restored area.
-    fn undo(&mut self, snap: Snapshot) -> Result<()> {
+    pub(crate) fn undo(&mut self, snap: Snapshot) -> Result<()> {
         let k = &self.k;
         let mut now: Vec<(FaceId, [VertexId; 4])> = snap
             .vertices
@@ -1533,7 +1555,7 @@ impl<'a> Simplifier<'a> {
     /// beyond the bound of [`SimplifyOptions::guard_scale`]. The radius in
     /// the bound is the limit patch's (largest distance of a corner's limit
     /// point to their mean).
-    fn guard(&self, checks: &[CentreCheck]) -> Option<bool> {
+    pub(crate) fn guard(&self, checks: &[CentreCheck]) -> Option<bool> {
         let floor = self.opts.guard_floor * self.fitmap.tolerance.max(0.0).powf(0.25) * self.diag;
         for c in checks {
             if self.k.is_face_deleted(c.face) {
@@ -1558,7 +1580,7 @@ impl<'a> Simplifier<'a> {
     }
 
     /// Test hook: the invariants after every step.
-    fn check_step(&self, what: &str) -> Result<()> {
+    pub(crate) fn check_step(&self, what: &str) -> Result<()> {
         if !self.opts.check_every_step {
             return Ok(());
         }
@@ -1636,7 +1658,7 @@ impl<'a> Simplifier<'a> {
     /// corners fixed) then `fit_sweeps` fixed-point sweeps `P += φ − L`
     /// towards the φ targets of the smoothed limit points. Then the faces
     /// around W get new centres, Fitmap values and heap entries.
-    fn refit(&mut self, touched: &[VertexId]) -> Result<Vec<CentreCheck>> {
+    pub(crate) fn refit(&mut self, touched: &[VertexId]) -> Result<Vec<CentreCheck>> {
         let k = &self.k;
         let mut w: Vec<VertexId> = Vec::new();
         for &v in touched {

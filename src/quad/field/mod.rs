@@ -26,7 +26,11 @@
 //! 86 / 34 / 9.2 (2h + split: 86 / 21 / 14.1; Instant Meshes 78 faces /
 //! 28 / 8.6), homer 268 / 77 / 4.6 and 1.0 % unprojectable (2h + split:
 //! 230 / 28 / 20.6 and 5.8 %; Instant Meshes 272 / 49 / 3.5 and 0.8 %).
+//! 5. [`cleanup`]: the greedy layout's limit-aware operators (diagonal
+//!    collapse, edge rotation, doublet removal, each with its local fit)
+//!    with a valence term, and a face target's last few collapses.
 
+pub mod cleanup;
 pub mod cross;
 pub mod extract;
 pub mod position;
@@ -79,6 +83,9 @@ pub struct FieldOptions {
     /// and split every face (Catmull-Clark), the fallback when the first
     /// does not keep M's topology.
     pub lattice_at_size: bool,
+    /// Run [`cleanup::cleanup`] on the extracted mesh ([`field_layout`]
+    /// only; [`field_layout_sized`] returns the raw extraction).
+    pub cleanup: bool,
 }
 
 impl Default for FieldOptions {
@@ -94,6 +101,7 @@ impl Default for FieldOptions {
             position_sweeps: 8,
             orientation_sweeps: 10,
             lattice_at_size: true,
+            cleanup: true,
         }
     }
 }
@@ -113,6 +121,10 @@ impl FieldOptions {
     }
     pub fn with_gradation(mut self, g: f64) -> Self {
         self.gradation = g;
+        self
+    }
+    pub fn with_cleanup(mut self, on: bool) -> Self {
+        self.cleanup = on;
         self
     }
 }
@@ -150,6 +162,9 @@ pub struct FieldStats {
     pub seconds_sizing: f64,
     pub seconds_position: f64,
     pub seconds_extract: f64,
+    /// What [`cleanup::cleanup`] did (`None`: it did not run); `faces`,
+    /// `vertices` and `irregular_vertices` above are then its result's.
+    pub cleanup: Option<cleanup::CleanupStats>,
 }
 
 /// The result of [`field_layout`].
@@ -194,26 +209,56 @@ pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Res
     stats.m_fitmap_relaxed = relaxed;
     stats.predicted_faces = predicted;
     stats.seconds_sizing = t.elapsed().as_secs_f64();
-    let mut out = layout_sized(&surf, mesh, &dirs, &h, opts, stats.clone())?;
+    let caster = if opts.cleanup {
+        Some(crate::raycast::bvh::BvhCaster::new(mesh)?)
+    } else {
+        None
+    };
+    let lay = |h: &[f64]| -> Result<FieldLayout> {
+        let out = layout_sized(&surf, mesh, &dirs, h, opts, stats.clone())?;
+        match &caster {
+            Some(c) => clean(mesh, fitmap, c, out, opts.target_faces),
+            None => Ok(out),
+        }
+    };
+    let mut out = lay(&h)?;
     // ∫ dA / h² predicts the lattice's cells only roughly (measured: the
-    // position field settles on 0.55–0.95 of them on coarse lattices), so
-    // a face target rescales h by √(faces / N) and solves steps 3–4 again,
-    // at most [`COUNT_PASSES`] times, keeping the result nearest N.
+    // position field settles on 0.55–0.95 of them on coarse lattices, and
+    // a relaxed F_M can cost refinements, [`RETRY_FACTOR`]), so a face
+    // target rescales the h that was actually laid out and solves steps
+    // 3–5 again, at most [`COUNT_PASSES`] times, keeping the result
+    // nearest N. The cleanup's count phase can only remove faces, so a
+    // lattice below the window aims [`COUNT_MARGIN`] above N and lets the
+    // cleanup trim it; one above the window (the cleanup could not trim)
+    // scales by the final count.
     if let Some(n) = opts.target_faces {
+        let n = n as f64;
         let mut h = h;
         for _ in 0..COUNT_PASSES {
             let got = out.stats.faces as f64;
-            if (got - n as f64).abs() <= 0.02 * n as f64 {
+            let (outside, trims) = count_score(&out, n);
+            let inside = !outside;
+            if inside && trims as f64 <= COUNT_TRIMS * n {
                 break;
             }
-            let f = (got / n as f64).sqrt();
+            let raw = out
+                .stats
+                .cleanup
+                .as_ref()
+                .map_or(got, |c| c.faces_before as f64);
+            let f = if (got < n || inside) && caster.is_some() {
+                (raw / (COUNT_MARGIN * n)).sqrt()
+            } else {
+                (got / n).sqrt()
+            };
+            let f = out.stats.size_factor * f;
             for x in &mut h {
                 *x *= f;
             }
-            let Ok(next) = layout_sized(&surf, mesh, &dirs, &h, opts, stats.clone()) else {
+            let Ok(next) = lay(&h) else {
                 break;
             };
-            if (next.stats.faces as f64 - n as f64).abs() < (got - n as f64).abs() {
+            if count_score(&next, n) < count_score(&out, n) {
                 out = next;
             }
         }
@@ -221,8 +266,49 @@ pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Res
     Ok(out)
 }
 
+/// How a layout meets a face target `n`, lower is better: whether it is
+/// outside the ±2 % window, then outside by the distance, inside by the
+/// collapses the cleanup needed to get there (each one a patch the field
+/// did not size).
+fn count_score(out: &FieldLayout, n: f64) -> (bool, usize) {
+    let got = out.stats.faces as f64;
+    if (got - n).abs() > 0.02 * n {
+        (true, (got - n).abs() as usize)
+    } else {
+        let trims = out.stats.cleanup.as_ref().map_or(0, |c| c.count_collapses);
+        (false, trims)
+    }
+}
+
+/// The share of a face target the cleanup may trim before another pass
+/// re-sizes the lattice (see [`field_layout`]).
+pub const COUNT_TRIMS: f64 = 0.05;
+
+/// The extracted layout `out` through [`cleanup::cleanup`], its figures
+/// updated.
+fn clean(
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    caster: &crate::raycast::bvh::BvhCaster,
+    mut out: FieldLayout,
+    target_faces: Option<usize>,
+) -> Result<FieldLayout> {
+    let co = cleanup::CleanupOptions::default().with_target_faces(target_faces);
+    let (control, cs) = cleanup::cleanup(mesh, fitmap, caster, out.control, &co)?;
+    out.stats.vertices = control.num_vertices();
+    out.stats.faces = control.num_faces();
+    out.stats.irregular_vertices = irregular_vertices(&control);
+    out.stats.cleanup = Some(cs);
+    out.control = control;
+    Ok(out)
+}
+
+/// A face target's lattice aims this much above it when the cleanup's
+/// count phase can trim the rest (see [`field_layout`]).
+pub const COUNT_MARGIN: f64 = 1.04;
+
 /// Passes of the face-count correction of [`field_layout`].
-pub const COUNT_PASSES: usize = 2;
+pub const COUNT_PASSES: usize = 4;
 
 /// [`field_layout`] with a given target edge length per vertex of `mesh`
 /// instead of the Fitmap's (the cross field and the last two steps as

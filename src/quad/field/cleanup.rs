@@ -1,0 +1,484 @@
+//! Step 5: the limit-aware operators of the greedy layout as a cleanup of
+//! the extracted control mesh (issue 40, item 2).
+//!
+//! The lattice extraction leaves irregular vertices the field did not ask
+//! for (each raw non-quad splits into about two). Fitmaps §3.3's local
+//! operators — diagonal collapse, edge rotation and doublet removal — run
+//! here on the extracted pure-quad mesh, each followed by the local limit
+//! fit of §3.4 ([`Simplifier::refit`]), with a valence term in the
+//! acceptance (as in Gmsh's field-guided quad cleanup, Remacle et al.,
+//! "Blossom-Quad", and Tarini et al. 2010's "practical quad mesh
+//! simplification": operations are kept for the valence energy
+//! `E = Σ |valence − ideal|`, ideal 4 inside, 3 on the boundary, 2 at the
+//! extracted mesh's own boundary corners, [`ValenceTargets`]):
+//!
+//! - an operation is kept when it lowers E without raising the number of
+//!   patches around it that fail the S- or M-fitmap test (the simplifier's
+//!   own [`Simplifier::patch_test`] on the limit patches after the refit);
+//! - it may leave E one higher only when it lowers that number (it fixes
+//!   projectability or the predicted fit);
+//! - anything else is undone ([`Simplifier::undo`]).
+//!
+//! With a face target (`--faces`), a second phase collapses diagonals
+//! (the shortest `|d| · F_S` first, the simplifier's priority; ties by
+//! valence gain) until the count is at most the target, never below its 2 %
+//! window, preferring collapses that raise neither E nor the failures.
+//!
+//! Candidates are ranked by their predicted valence gain, ties by kind and
+//! element index, and tried one at a time: the result does not depend on
+//! the thread count. Every operator keeps the components, boundary loops
+//! and Euler characteristic ([`crate::quad::ops`]).
+
+use serde::Serialize;
+
+use crate::analysis::Fitmap;
+use crate::error::Result;
+use crate::mesh::{ControlMesh, FaceId, HalfedgeId, TriMesh, VertexId};
+use crate::quad::interpolate::interpolate_limit;
+use crate::quad::ops::{
+    can_collapse_diagonal, can_rotate_edge, collapse_diagonal, remove_doublets, rotate_edge,
+    rotation_energy_gain, CollapsePlan, Rotation, ValenceTargets,
+};
+use crate::quad::simplify::{Simplifier, SimplifyOptions, SimplifyStats};
+use crate::quad::InterpolationOptions;
+use crate::raycast::RayCaster;
+use crate::DVec3;
+
+/// Options of [`cleanup`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[non_exhaustive]
+pub struct CleanupOptions {
+    /// Sweeps over all candidates at most (each sweep ranks them anew).
+    pub sweeps: usize,
+    /// Collapse down to this many faces (±2 %) after the valence phase.
+    pub target_faces: Option<usize>,
+    /// Validate the mesh after every operation (tests).
+    pub check_every_step: bool,
+}
+
+impl Default for CleanupOptions {
+    fn default() -> Self {
+        CleanupOptions {
+            sweeps: 6,
+            target_faces: None,
+            check_every_step: false,
+        }
+    }
+}
+
+impl CleanupOptions {
+    pub fn with_target_faces(mut self, n: Option<usize>) -> Self {
+        self.target_faces = n;
+        self
+    }
+    pub fn with_check_every_step(mut self, on: bool) -> Self {
+        self.check_every_step = on;
+        self
+    }
+}
+
+/// Figures of one [`cleanup`].
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct CleanupStats {
+    pub faces_before: usize,
+    pub faces_after: usize,
+    /// [`super::irregular_vertices`] before and after.
+    pub irregular_before: usize,
+    pub irregular_after: usize,
+    /// The valence energy E (module docs) before and after.
+    pub energy_before: usize,
+    pub energy_after: usize,
+    /// Operations kept in the valence phase.
+    pub rotations: usize,
+    pub collapses: usize,
+    /// Doublets removed (the extraction's and the collapses' cascades).
+    pub doublets: usize,
+    /// Collapses kept by the face-count phase.
+    pub count_collapses: usize,
+    /// Operations undone: no valence gain after all, or more patches
+    /// failing the S-/M-fitmap tests.
+    pub undone_valence: usize,
+    pub undone_fitmap: usize,
+    pub sweeps: usize,
+    pub seconds: f64,
+}
+
+/// One candidate operation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Op {
+    Rotate(HalfedgeId, u8),
+    Collapse(FaceId, u8),
+}
+
+fn rotation(d: u8) -> Rotation {
+    if d == 0 {
+        Rotation::Ccw
+    } else {
+        Rotation::Cw
+    }
+}
+
+/// Cleans `k` (a pure-quad control mesh on `mesh`, whose vertices lie on
+/// it) up with the operators of [`crate::quad::ops`] (module docs). `mesh`
+/// and `fitmap` are the layout's (M or M′), `caster` a ray caster over
+/// `mesh`. The control vertices are first placed so that the limit surface
+/// interpolates their positions (the simplifier's start, §3.2), so the
+/// local fits and the tests read limit patches on M. The result is
+/// compact.
+pub fn cleanup(
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    caster: &dyn RayCaster,
+    mut k: ControlMesh,
+    opts: &CleanupOptions,
+) -> Result<(ControlMesh, CleanupStats)> {
+    let t = std::time::Instant::now();
+    let mut stats = CleanupStats {
+        faces_before: k.num_faces(),
+        irregular_before: super::irregular_vertices(&k),
+        energy_before: energy_of(&k, &ValenceTargets::new(&k)),
+        ..Default::default()
+    };
+    let targets = k.positions().to_vec();
+    let mut moved = vec![false; targets.len()];
+    interpolate_limit(&mut k, &targets, &InterpolationOptions::default())?;
+    let all: Vec<VertexId> = k.live_vertices().collect();
+    let (removed, touched) = remove_doublets(&mut k, &all)?;
+    for &v in &touched {
+        moved[v.idx()] = true;
+    }
+    stats.doublets = removed.len();
+    let so = SimplifyOptions::default().with_check_every_step(opts.check_every_step);
+    let mut s = Simplifier::new(mesh, fitmap, caster, &so, k, &mut || Ok(()))?;
+    let faces: Vec<FaceId> = s.k.live_faces().collect();
+    s.update_faces(&faces)?;
+    if !touched.is_empty() {
+        s.refit(&touched)?;
+    }
+    for _ in 0..opts.sweeps {
+        stats.sweeps += 1;
+        if valence_sweep(&mut s, &mut stats, &mut moved)? == 0 {
+            break;
+        }
+    }
+    if let Some(n) = opts.target_faces {
+        count_phase(&mut s, &mut stats, n, &mut moved)?;
+    }
+    // The output is points on M, as the extraction's are (the global fit
+    // starts from there, and measured from the interpolated control
+    // points it ends worse: RMS L 1.46 → 2.00‰ on bunny): vertices no
+    // kept operation moved go back to their extracted positions, the
+    // others to their limit points, which the local fits kept on M.
+    let live: Vec<VertexId> = s.k.live_vertices().collect();
+    for v in live {
+        let i = v.idx();
+        s.k.positions_mut()[i] = if moved[i] { s.lim[i] } else { targets[i] };
+    }
+    let simplified = s.finish(SimplifyStats::default(), t)?;
+    let k = simplified.mesh;
+    stats.faces_after = k.num_faces();
+    stats.irregular_after = super::irregular_vertices(&k);
+    stats.energy_after = energy_of(&k, &ValenceTargets::new(&k));
+    stats.seconds = t.elapsed().as_secs_f64();
+    Ok((k, stats))
+}
+
+/// E over the live vertices of `k`.
+fn energy_of(k: &ControlMesh, vt: &ValenceTargets) -> usize {
+    k.live_vertices()
+        .map(|v| vt.penalty(k, v, k.valence(v)))
+        .sum()
+}
+
+/// The valence gain a collapse predicts from the valences alone: the
+/// merged vertex gets `D(a) + D(c) − 2` edges, each side corner loses one
+/// (doublet cascades and collapses along the boundary are left to the
+/// measured energy). `None` along the boundary.
+fn collapse_gain(k: &ControlMesh, vt: &ValenceTargets, plan: &CollapsePlan) -> Option<i64> {
+    if plan.corner.is_some() {
+        return None;
+    }
+    let p = |v: VertexId, d: usize| vt.penalty(k, v, d) as i64;
+    let (a, c) = (plan.keep, plan.remove);
+    let (da, dc) = (k.valence(a), k.valence(c));
+    // The merged vertex is on the boundary when either end is.
+    let m = if k.is_boundary_vertex(c) { c } else { a };
+    let mut gain = p(a, da) + p(c, dc) - p(m, da + dc - 2);
+    for v in plan.sides {
+        let d = k.valence(v);
+        gain += p(v, d) - p(v, d.saturating_sub(1));
+    }
+    Some(gain)
+}
+
+/// The candidates of one sweep with a positive predicted gain, best first
+/// (gain, then kind and index: deterministic).
+fn candidates(s: &Simplifier<'_>) -> Vec<(i64, Op)> {
+    let (k, vt) = (&s.k, &s.valence_targets);
+    let mut out = Vec::new();
+    for e in k.edges().filter(|&e| !k.is_edge_deleted(e)) {
+        let h = e.halfedge();
+        for d in 0..2u8 {
+            if let Ok(x) = can_rotate_edge(k, h, rotation(d)) {
+                let g = rotation_energy_gain(k, vt, &x, rotation(d));
+                if g > 0 {
+                    out.push((g, Op::Rotate(h, d)));
+                }
+            }
+        }
+    }
+    for f in k.live_faces() {
+        for d in 0..2u8 {
+            if let Ok(plan) = can_collapse_diagonal(k, f, d as usize) {
+                match collapse_gain(k, vt, &plan) {
+                    Some(g) if g > 0 => out.push((g, Op::Collapse(f, d))),
+                    _ => {}
+                }
+            }
+        }
+    }
+    out.sort_by_key(|&(g, op)| (std::cmp::Reverse(g), op));
+    out
+}
+
+/// What an operation did to its region.
+struct Trial {
+    energy: (i64, i64),
+    fails: (usize, usize),
+    /// The worst patch's ratio before and after ([`region_fails`]).
+    worst: (f64, f64),
+    faces_removed: usize,
+}
+
+/// Applies `op` with its local fit and measures the region around it
+/// (the faces within the simplifier's snapshot rings: every face whose
+/// limit patch the operation and the refit can change). Faces are live
+/// and in id order in both counts, so `update_faces` returns one check per
+/// face. `None` when the
+/// operation no longer applies. The caller keeps it or calls
+/// [`Simplifier::undo`] with the returned snapshot.
+fn apply(
+    s: &mut Simplifier<'_>,
+    op: Op,
+) -> Result<Option<(Trial, crate::quad::simplify::Snapshot)>> {
+    let anchor = match op {
+        Op::Rotate(h, d) => {
+            if can_rotate_edge(&s.k, h, rotation(d)).is_err() {
+                return Ok(None);
+            }
+            s.k.face_of(h)
+        }
+        Op::Collapse(f, d) => {
+            if s.k.is_face_deleted(f) || can_collapse_diagonal(&s.k, f, d as usize).is_err() {
+                return Ok(None);
+            }
+            Some(f)
+        }
+    };
+    let Some(anchor) = anchor else {
+        return Ok(None);
+    };
+    let snap = s.snapshot(anchor);
+    let e0 = region_energy(s, &snap.vertices);
+    let (f0, w0) = region_fails(s, &snap.vertices)?;
+    let n0 = s.k.num_live_faces();
+    s.pos_log.clear();
+    s.lim_log.clear();
+    let touched: Vec<VertexId> = match op {
+        Op::Rotate(h, d) => {
+            let x = rotate_edge(&mut s.k, h, rotation(d))?;
+            s.check_step("rotation")?;
+            x.to_vec()
+        }
+        Op::Collapse(f, d) => {
+            let plan = can_collapse_diagonal(&s.k, f, d as usize).expect("checked above");
+            s.pos_log.push((plan.keep, s.k.position(plan.keep)));
+            let done = collapse_diagonal(&mut s.k, f, d as usize, Some(plan.position))?;
+            s.check_step("collapse")?;
+            let mut t = vec![done.keep, plan.sides[0], plan.sides[1]];
+            t.retain(|&v| !s.k.is_vertex_deleted(v));
+            t
+        }
+    };
+    s.refit(&touched)?;
+    let (f1, w1) = region_fails(s, &snap.vertices)?;
+    let trial = Trial {
+        energy: (e0, region_energy(s, &snap.vertices)),
+        fails: (f0, f1),
+        worst: (w0, w1),
+        faces_removed: n0 - s.k.num_live_faces(),
+    };
+    Ok(Some((trial, snap)))
+}
+
+/// Marks the vertices the kept operation moved (its refit's positions and
+/// limit points).
+fn mark_moved(s: &Simplifier<'_>, moved: &mut [bool]) {
+    for &(v, _) in s.pos_log.iter().chain(&s.lim_log) {
+        moved[v.idx()] = true;
+    }
+}
+
+/// E over the live vertices of a region.
+fn region_energy(s: &Simplifier<'_>, vertices: &[VertexId]) -> i64 {
+    vertices
+        .iter()
+        .filter(|&&v| !s.k.is_vertex_deleted(v))
+        .map(|&v| s.valence_targets.penalty(&s.k, v, s.k.valence(v)) as i64)
+        .sum()
+}
+
+/// Over the live faces around a region's live vertices: how many fail the
+/// S- or M-fitmap test on their limit patches (radius ≤ F_M, radius · F_S
+/// ≤ κ, [`Simplifier::patch_fitmap`]) or the simplifier's surface guard
+/// on their centres ([`Simplifier::guard`]: the predicted fit), and the
+/// largest of radius / F_M and radius · F_S / κ (how far the worst patch
+/// is from failing, or past it).
+fn region_fails(s: &mut Simplifier<'_>, vertices: &[VertexId]) -> Result<(usize, f64)> {
+    let mut faces: Vec<FaceId> = vertices
+        .iter()
+        .filter(|&&v| !s.k.is_vertex_deleted(v))
+        .flat_map(|&v| s.k.vertex_faces(v))
+        .collect();
+    faces.sort_unstable();
+    faces.dedup();
+    let checks = s.update_faces(&faces)?;
+    let (mut n, mut worst) = (0, 0.0f64);
+    for (g, c) in faces.into_iter().zip(&checks) {
+        let mut q = [DVec3::ZERO; 4];
+        for (i, x) in s.k.face_vertices(g).enumerate().take(4) {
+            q[i] = s.lim[x.idx()];
+        }
+        let (r, fm, fs) = s.patch_fitmap(g, &q);
+        let mut ratio = if fm > 0.0 { r / fm } else { f64::INFINITY };
+        if s.kappa > 0.0 {
+            ratio = ratio.max(r * fs / s.kappa);
+        }
+        worst = worst.max(ratio);
+        if ratio > s.relax || s.guard(std::slice::from_ref(c)).is_some() {
+            n += 1;
+        }
+    }
+    Ok((n, worst))
+}
+
+/// One sweep of the valence phase; returns the operations kept.
+fn valence_sweep(
+    s: &mut Simplifier<'_>,
+    stats: &mut CleanupStats,
+    moved: &mut [bool],
+) -> Result<usize> {
+    let mut kept = 0;
+    for (_, op) in candidates(s) {
+        // The ranking is from the sweep's start: skip what earlier
+        // operations have made useless.
+        let gain = match op {
+            Op::Rotate(h, d) => match can_rotate_edge(&s.k, h, rotation(d)) {
+                Ok(x) => rotation_energy_gain(&s.k, &s.valence_targets, &x, rotation(d)),
+                Err(_) => continue,
+            },
+            Op::Collapse(f, d) => {
+                if s.k.is_face_deleted(f) {
+                    continue;
+                }
+                match can_collapse_diagonal(&s.k, f, d as usize) {
+                    Ok(plan) => collapse_gain(&s.k, &s.valence_targets, &plan).unwrap_or(0),
+                    Err(_) => continue,
+                }
+            }
+        };
+        if gain <= 0 {
+            continue;
+        }
+        let Some((trial, snap)) = apply(s, op)? else {
+            continue;
+        };
+        let (e0, e1) = trial.energy;
+        let (f0, f1) = trial.fails;
+        // "Without breaking the tests": no more failing patches, and the
+        // worst patch no worse than before (or still passing).
+        let (w0, w1) = trial.worst;
+        let tests_kept = f1 <= f0 && w1 <= w0.max(s.relax);
+        let keep = (e1 < e0 && tests_kept) || (f1 < f0 && e1 <= e0 + 1);
+        if keep {
+            mark_moved(s, moved);
+            kept += 1;
+            match op {
+                Op::Rotate(..) => stats.rotations += 1,
+                Op::Collapse(..) => stats.collapses += 1,
+            }
+            stats.doublets += trial.faces_removed.saturating_sub(1);
+        } else {
+            if !tests_kept {
+                stats.undone_fitmap += 1;
+            } else {
+                stats.undone_valence += 1;
+            }
+            s.undo(snap)?;
+            s.check_step("undo")?;
+        }
+        s.compact_heap();
+    }
+    Ok(kept)
+}
+
+/// The face-count phase (module docs): collapses until at most `n` faces
+/// remain, never below `0.98 n`; three rounds of widening acceptance (no
+/// more failing patches and no higher E; no higher E; E at most 2 higher).
+fn count_phase(
+    s: &mut Simplifier<'_>,
+    stats: &mut CleanupStats,
+    n: usize,
+    moved: &mut [bool],
+) -> Result<()> {
+    let floor = (0.98 * n as f64).ceil() as usize;
+    for round in 0..3 {
+        loop {
+            if s.k.num_live_faces() <= n {
+                return Ok(());
+            }
+            let mut cands: Vec<(u64, i64, Op)> = Vec::new();
+            for f in s.k.live_faces() {
+                let q = crate::quad::ops::quad_positions(&s.k, f);
+                for d in 0..2u8 {
+                    let Ok(plan) = can_collapse_diagonal(&s.k, f, d as usize) else {
+                        continue;
+                    };
+                    let g = collapse_gain(&s.k, &s.valence_targets, &plan).unwrap_or(0);
+                    let len = (q[d as usize] - q[d as usize + 2]).length();
+                    let cost = len * s.fs[f.idx()].max(0.0);
+                    cands.push((cost.to_bits(), -g, Op::Collapse(f, d)));
+                }
+            }
+            cands.sort_unstable();
+            let mut kept = 0;
+            for (_, _, op) in cands {
+                if s.k.num_live_faces() <= n {
+                    return Ok(());
+                }
+                let Some((trial, snap)) = apply(s, op)? else {
+                    continue;
+                };
+                let ((e0, e1), (f0, f1)) = (trial.energy, trial.fails);
+                let ok = match round {
+                    0 => e1 <= e0 && f1 <= f0,
+                    1 => e1 <= e0,
+                    _ => e1 <= e0 + 2,
+                };
+                if ok && s.k.num_live_faces() >= floor {
+                    mark_moved(s, moved);
+                    kept += 1;
+                    stats.count_collapses += 1;
+                } else {
+                    s.undo(snap)?;
+                    s.check_step("undo")?;
+                }
+                s.compact_heap();
+            }
+            if kept == 0 {
+                break;
+            }
+        }
+    }
+    Ok(())
+}
