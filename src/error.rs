@@ -64,6 +64,15 @@ pub enum Error {
     /// embedding); nothing was written and no state is left behind.
     #[error("cancelled by the caller during stage '{stage}'")]
     Cancelled { stage: String },
+    /// An error with what the host was doing when it happened (the input's
+    /// name, the output folder), as the CLI prefixes it; its kind is its
+    /// source's.
+    #[error("{context}: {source}")]
+    Context {
+        context: String,
+        #[source]
+        source: Box<Error>,
+    },
     /// An error about one of several meshes of a call, with the role of
     /// that mesh (`"input mesh"`, `"control mesh"`), as the CLI says it.
     #[error("{role}: {source}")]
@@ -133,7 +142,7 @@ impl Error {
             }
             Error::Internal { .. } => ErrorKind::Internal,
             Error::Cancelled { .. } => ErrorKind::Cancelled,
-            Error::Role { source, .. } => source.kind(),
+            Error::Role { source, .. } | Error::Context { source, .. } => source.kind(),
         }
     }
 
@@ -159,29 +168,15 @@ impl Error {
     }
 
     /// The same error with its message prefixed by `context` (`"{context}:
-    /// {msg}"`), keeping its kind: what a host adds to say which of its
-    /// calls failed (e.g. the output folder a write went to).
+    /// {msg}"`, see [`Error::Context`]), keeping its kind: what a host adds
+    /// to say which of its calls failed (e.g. the output folder a write
+    /// went to). A cancel stays as it is.
     pub fn context(self, context: impl std::fmt::Display) -> Self {
         match self {
             Error::Cancelled { .. } => self,
-            Error::InvalidOption { option, msg } => Error::InvalidOption {
-                option,
-                msg: format!("{context}: {msg}"),
-            },
-            Error::Internal { msg } => Error::Internal {
-                msg: format!("{context}: {msg}"),
-            },
-            e => match e.kind() {
-                ErrorKind::Numerical => Error::Numerical {
-                    stage: context.to_string(),
-                    msg: e.to_string(),
-                },
-                ErrorKind::Option => Error::InvalidOption {
-                    option: String::new(),
-                    msg: format!("{context}: {e}"),
-                },
-                ErrorKind::Internal => Error::internal(format!("{context}: {e}")),
-                _ => Error::InvalidArgument(format!("{context}: {e}")),
+            e => Error::Context {
+                context: context.to_string(),
+                source: Box::new(e),
             },
         }
     }
@@ -237,5 +232,45 @@ impl Error {
             backend,
             msg: msg.into(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kinds_survive_roles_and_context() {
+        let option = Error::option("tolerance", "tolerance τ = 5 must be in (0, 1]");
+        let input = Error::invalid_mesh("m.obj", "face 3", "index 9 out of range");
+        let numerical = Error::backend("Eigen", "not positive definite");
+        let bug = Error::internal("candidate 3 lost");
+        for (e, kind) in [
+            (option, ErrorKind::Option),
+            (input, ErrorKind::Input),
+            (numerical, ErrorKind::Numerical),
+            (bug, ErrorKind::Internal),
+        ] {
+            let text = e.to_string();
+            assert_eq!(e.kind(), kind, "{text}");
+            let e = e.in_role("input mesh");
+            assert_eq!(e.kind(), kind, "{e}");
+            // A host's prefix (embed's input name) keeps the kind and the text.
+            let e = e.context("bunny.ply");
+            assert_eq!(e.kind(), kind, "{e}");
+            assert!(e.to_string().starts_with("bunny.ply: "), "{e}");
+            assert!(e.to_string().contains(&text), "{e} lost {text}");
+            assert_eq!(ErrorKind::from_code(kind.code()), kind);
+        }
+        let bug = Error::internal("x").to_string();
+        assert!(
+            bug.contains("a bug in subdfit") && bug.contains("report"),
+            "{bug}"
+        );
+        let cancelled = Error::Cancelled {
+            stage: "fit".into(),
+        }
+        .context("m.obj");
+        assert!(matches!(cancelled, Error::Cancelled { .. }));
     }
 }

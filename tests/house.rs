@@ -53,7 +53,7 @@ const ORDER: &[(&str, u32)] = &[
 ];
 
 /// Root re-exports any module may name.
-const ROOT_ITEMS: &[&str] = &["Error", "Result", "DVec2", "DVec3"];
+const ROOT_ITEMS: &[&str] = &["Error", "ErrorKind", "Result", "DVec2", "DVec3"];
 
 const MAX_FN_LINES: usize = 150;
 

@@ -437,12 +437,14 @@ fn bad_input_is_an_error_not_a_panic() {
     let mut nan = m.positions().to_vec();
     nan[3].x = f64::NAN;
     assert!(ev.vertex_limits(&nan).is_err());
-    // Isolation level outside 1..=10.
+    // Isolation level outside 1..=10: an option out of its range.
     for level in [0, 11] {
-        assert!(matches!(
-            OsdEvaluator::new(&m, &EvalOptions::default().with_isolation_level(level)),
-            Err(Error::InvalidArgument(_))
-        ));
+        let r = OsdEvaluator::new(&m, &EvalOptions::default().with_isolation_level(level));
+        assert!(
+            matches!(&r, Err(e @ Error::InvalidOption { .. }) if e.kind() == subdfit::ErrorKind::Option),
+            "{:?}",
+            r.err()
+        );
     }
     // Empty batches are fine.
     assert!(ev.evaluate(m.positions(), &[]).unwrap().is_empty());

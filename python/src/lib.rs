@@ -80,7 +80,7 @@ const POLL: Duration = Duration::from_millis(5);
 fn to_py(e: &subdfit::Error) -> PyErr {
     use subdfit::{Error as E, ErrorKind as K};
     let mut inner = e;
-    while let E::Role { source, .. } = inner {
+    while let E::Role { source, .. } | E::Context { source, .. } = inner {
         inner = &**source;
     }
     let msg = embed::error_message(e);

@@ -62,7 +62,7 @@ use super::Displacement;
 /// sample pulled by the points of M and D around it, plus the ridge): its
 /// condition number does not grow with the number of samples, so conjugate
 /// gradients converge in tens of iterations, where LDLᵀ's fill-in made the
-/// solve most of the stage on large inputs (567k offsets: 5.6 s).
+/// solve most of the stage on large inputs.
 /// 1e-10 of the residual is far below the Gauss–Newton linearisation's own
 /// error.
 const CG_TOLERANCE: f64 = 1e-10;
@@ -115,9 +115,10 @@ const NORMAL_COS: f64 = std::f64::consts::FRAC_1_SQRT_2;
 /// decides.
 const CHECK_STRIDE: usize = 4;
 
-/// Ridge of the unprojectable samples relative to the others'. (Until
-/// session 17 Eigen's `λ RᵀR` squared it to 10⁸; at 10⁴ bunny τ = 1 %
-/// ends at RMS D 0.413‰ instead of 0.434‰, gargoyle is unchanged.)
+/// Ridge of the unprojectable samples relative to the others': strong
+/// enough to hold them at their inpainted values, not so strong that it
+/// squares into the conditioning (an earlier `λ RᵀR` form did, to 10⁸;
+/// docs/status.md, "Measurements behind the code").
 const FIXED_RIDGE: f64 = 1e4;
 
 /// Halvings of a rejected step on the host surface (see [`refine_offsets_on`]).

@@ -1,3 +1,7 @@
+//! The cxx bridge to `cpp/eigen_bridge.h`: Eigen's sparse least squares
+//! and conjugate gradients for [`crate::solve`], which owns the systems;
+//! only arrays cross (triplets, right-hand sides, solutions).
+
 #[cxx::bridge(namespace = "subdfit::eigen")]
 pub(crate) mod bridge {
     unsafe extern "C++" {

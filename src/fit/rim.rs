@@ -25,11 +25,10 @@
 //! curve that collapsed onto part of its rim does not trap the fit. The
 //! surface fit ([`super::fit_with_progress`]) starts from the fitted loops.
 //!
-//! Measured (bunny, `convert`): τ = 1 %, RMS D→M 1.106‰ → 0.281‰, L
-//! 2.94/3.00‰ → 2.71/2.96‰; τ = 10 %, where the loops have 3–14 control
-//! points, RMS D→M got worse, 0.95‰ → 1.54‰ (open problem: the coarse
-//! border patches do not recover from the moved loops within the fit's
-//! rounds). Closed meshes are untouched.
+//! It helps fine layouts much and can hurt very coarse ones, whose few
+//! border patches do not recover from moved loops within the fit's rounds
+//! (an open problem; figures in docs/status.md, "Measurements behind the
+//! code"). Closed meshes are untouched.
 
 use crate::mesh::{ControlMesh, TriMesh, VertexId};
 use crate::DVec3;

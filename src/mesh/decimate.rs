@@ -5,9 +5,9 @@
 //!
 //! The decimator is meshoptimizer's quadric edge-collapse simplifier (the
 //! `meshopt` crate). OpenMesh's `DecimaterT` with `ModQuadricT`, already
-//! linked, was tried first: 57 s for a 1.1M-triangle scan down to 40k
-//! triangles (12 s quadric-only for 278k → 40k); meshoptimizer takes 5.4 s
-//! on one core, and [`decimate`] splits that over both.
+//! linked, was tried first and was about ten times slower on a scan
+//! (docs/status.md, "Measurements behind the code"); [`decimate`] splits
+//! the work over the cores.
 //!
 //! meshoptimizer does not check the link condition: on a dense scan it
 //! leaves a few "pillows", two triangles on the same three vertices facing
@@ -44,11 +44,10 @@ const SPLIT_ABOVE: usize = 200_000;
 /// decimated like the rest: meshoptimizer (1.3) collapses a border vertex
 /// only along its border and adds a plane through each border edge,
 /// perpendicular to its triangle, to the quadrics, so the holes keep their
-/// shape. Locking the border instead (as until session 17) kept every
-/// boundary vertex of M in M′, and the control mesh inherited them: the
-/// bunny ladder's rung 3 (1,784 boundary edges) ended with 692 boundary
-/// control vertices for 684 patches, rung 2 with 260 for 434 (free: 66 for
-/// 351, 42 for 330; the full-resolution layout of rung 2 keeps 60 for 451).
+/// shape. Locking the border instead kept every boundary vertex of M in
+/// M′, and the control mesh inherited them (on a scan with many holes, as
+/// many boundary control vertices as patches; docs/status.md,
+/// "Measurements behind the code").
 /// The surviving vertices are M's own, bit for bit: an edge collapse keeps one
 /// of its two vertices where it is, so M′ lies on M's vertices. Pillows are
 /// removed; a non-manifold vertex the simplifier leaves is split

@@ -1,3 +1,8 @@
+//! Meshes as the readers hand them over, before any validation: a
+//! polygon soup ([`PolySoup`]) and the all-triangle mesh M ([`TriMesh`]),
+//! with the edge keys and counts the validation and the layers above use
+//! (one `u64` per undirected edge, so edges sort and compare as integers).
+
 use crate::DVec3;
 
 /// Polygons exactly as a reader found them: positions and faces of any size,
