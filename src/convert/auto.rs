@@ -59,6 +59,15 @@ pub fn with_second_opinion<'a, 'p>(
     Ok(keep_better(first, second, &why, doubt))
 }
 
+/// `--mode auto` also doubts a mechanical result whose enrichment (§7)
+/// more than grew its initial polyhedron by half: on a CAD part §4–§6's
+/// regions and curves already carry the shape and §7 refines it (fandisk
+/// 68 → 82 faces, block 215 → 248, the procedural castings at most
+/// 313 → 429), while an organic shape read as CAD is rebuilt by the
+/// enrichment (spot split 1 → 4: 858 → 1522 faces), and the organic
+/// pipeline may say it in far fewer ([`organic_wins`] weighs the faces).
+pub const AUTO_MAX_GROWTH: f64 = 1.5;
+
 /// Why `--mode auto`'s mechanical result needs the organic one beside it,
 /// or `None`: its own target missed, or more than 1 % of M unprojectable
 /// (a surface that does not follow M, whatever the per-face figures).
@@ -70,10 +79,16 @@ fn second_opinion_reason(r: &Report) -> Option<String> {
         .map(|t| t.outcome.as_str())
         .collect();
     let unproj = r.projectability.unprojectable_area_percent;
+    let initial = r.options["mechanical"]["stats"]["initial_faces"].as_u64();
+    let faces = r.control.faces as f64;
     if !missed.is_empty() {
         Some(format!(
             "the mechanical result missed its target ({})",
             missed.join("; ")
+        ))
+    } else if let Some(i) = initial.filter(|&i| faces > AUTO_MAX_GROWTH * i as f64) {
+        Some(format!(
+            "the mechanical result grew from {i} to {faces} faces in enrichment"
         ))
     } else if unproj > 1.0 {
         Some(format!(
@@ -247,6 +262,21 @@ mod tests {
             &candidate(2.1, 300, true),
             true
         ));
+    }
+
+    #[test]
+    fn auto_doubts_a_result_rebuilt_by_enrichment() {
+        let mut r = report(0.9, 0.0);
+        r.targets.clear();
+        r.control.faces = 1522;
+        r.options = serde_json::json!({"mechanical": {"stats": {"initial_faces": 858}}});
+        assert!(second_opinion_reason(&r).is_some());
+        // A CAD part refined by a third: no doubt, and none for an
+        // explicit `--mode mechanical` either way.
+        r.control.faces = 1100;
+        assert!(second_opinion_reason(&r).is_none());
+        r.control.faces = 1522;
+        assert!(far_over_reason(&r, 3e-3).is_none());
     }
 
     #[test]
