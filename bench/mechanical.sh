@@ -7,19 +7,18 @@
 # report.json on the 2-core machine, in permille of the diagonal; features
 # = sharp input edges within 1 permille of a crease curve, 0 of 722 off on
 # every line below, worst 0.88):
-#   --max-error 3e-3    (default) 77 V / 80 F, mean 0.34, RMS 0.66, max 7.1
+#   --max-error 3e-3    (default) 77 V / 82 F, mean 0.34, RMS 0.67, max 6.8
 #   --max-error 6e-3    Table 2 (<= 75 V, <= 89 F, mean <= 0.78, RMS <= 1.63,
-#                       max <= 10.46): 73 V / 72 F, mean 0.67, RMS 1.48,
-#                       max 7.9
+#                       max <= 10.46): 73 V / 76 F, mean 0.62, RMS 1.35,
+#                       max 7.6
 #   --max-error 1e-3    Hoppe's line (<= 170 F at RMS <= 0.32): 148 V /
 #                       155 F, mean 0.12, RMS 0.21, max 2.4 (the curve
 #                       tolerances scale with --max-error below 3e-3)
 # RMS vs faces (--max-error: F / RMS): 0.9e-3: 202 / 0.19, 1.1e-3:
 # 143 / 0.26, 1.5e-3: 113 / 0.33, 2e-3: 98 / 0.42, 4e-3: 78 / 1.11,
 # 8e-3: 68 / 1.62.
-# block.ply and joint.ply (default settings): block 188 V / 236 F, mean
-# 0.49, RMS 0.78, max 5.1, features 0/1027 off; joint 165 V / 168 F, mean
-# 0.43, RMS 0.78, max 5.8, features 0/840 off.
+# block.ply and joint.ply (default settings): block 248 F, RMS 0.79;
+# joint 188 F, RMS 0.77 (report.json, surface to mesh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --bin subdfit
@@ -53,19 +52,10 @@ print(f"fandisk --max-error {sys.argv[2]}: {c['vertices']} V / {c['faces']} F, "
 PY
 done
 # Procedural CAD parts (issue 38; src/fixtures/cad.rs): the regression set
-# of tests/mechanical_parts.rs and two heavier parts (every rim filleted,
-# 35k-47k triangles) at the defaults. Measured on the 2-core machine under
-# load from other builds (seconds are the whole convert):
-#   plate_3x3_holes          8640 tri -> 257 F, RMS 0.30, max valence 8,  met, 1.8 s
-#   plate_mixed_holes       11328 tri -> 438 F, RMS 0.57, max valence 11, met, 3.1 s
-#   bosses_and_tubes        10896 tri -> 330 F, RMS 0.69, max valence 8,  met, 2.0 s
-#   ribbed_plate             9888 tri -> 467 F, RMS 0.50, max valence 14, met, 2.8 s
-#   casting_4x3             46880 tri -> 1001 F, RMS 0.65, max valence 15,
-#                           8 of 1007 faces above 3e-3 (not met), 9.6 s
-#   fine_3x3_filleted_holes 34560 tri -> 611 F, RMS 0.86, max valence 11, met, 4.2 s
-# Before per-region enrichment (the loop ended for all regions when the
-# total RMS stalled): plate_mixed_holes 14 of 412 faces over, RMS 0.82;
-# ribbed_plate 1 of 460 over.
+# of tests/mechanical_parts.rs, the heavy parts (35k-48k triangles, like an
+# exported CAD mesh) and the open ones, at the defaults. Figures (faces,
+# RMS, max valence, faces over, wall / CPU seconds on the loaded 2-core
+# machine) are in docs/status.md, "Mechanical parts".
 parts=$out/parts
 cargo run --release --quiet --example cad_parts -- "$parts" >/dev/null
 for m in "$parts"/*.ply; do

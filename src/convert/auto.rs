@@ -13,6 +13,10 @@
 //!   unprojectable, the organic conversion runs too ([`Doubt::FarOver`]).
 //!   Issue 38's genus-9 casting ended at RMS 9.95‰ against E = 3‰ with
 //!   10 % unprojectable: that is the case this rule catches.
+//!
+//! Which one is kept weighs conciseness too, a goal of both papers
+//! (Lavoué et al.'s Table 2 and Panozzo et al.'s tables rate a fit by its
+//! faces and its error together) — see [`keep_better`].
 
 use serde::Serialize;
 
@@ -52,13 +56,28 @@ pub fn with_second_opinion<'a, 'p>(
     };
     run.take_timer();
     let second = second(run, &why)?;
-    Ok(keep_better(first, second, &why))
+    Ok(keep_better(first, second, &why, doubt))
 }
+
+/// `--mode auto` also doubts a mechanical result whose enrichment (§7)
+/// more than grew its initial polyhedron by half: on a CAD part §4–§6's
+/// regions and curves already carry the shape and §7 refines it (fandisk
+/// 68 → 82 faces, block 215 → 248, the procedural castings at most
+/// 313 → 429), while an organic shape read as CAD is rebuilt by the
+/// enrichment (spot split 1 → 4: 858 → 1522 faces), and the organic
+/// pipeline may say it in far fewer ([`organic_wins`] weighs the faces).
+pub const AUTO_MAX_GROWTH: f64 = 1.5;
 
 /// Why `--mode auto`'s mechanical result needs the organic one beside it,
 /// or `None`: its own target missed, or more than 1 % of M unprojectable
 /// (a surface that does not follow M, whatever the per-face figures).
 fn second_opinion_reason(r: &Report) -> Option<String> {
+    doubt_reason(r, r.options.mechanical_initial_faces())
+}
+
+/// [`second_opinion_reason`] given the mechanical polyhedron's face count
+/// before enrichment (`None` for an organic result).
+fn doubt_reason(r: &Report, initial: Option<usize>) -> Option<String> {
     let missed: Vec<&str> = r
         .targets
         .iter()
@@ -66,10 +85,15 @@ fn second_opinion_reason(r: &Report) -> Option<String> {
         .map(|t| t.outcome.as_str())
         .collect();
     let unproj = r.projectability.unprojectable_area_percent;
+    let faces = r.control.faces as f64;
     if !missed.is_empty() {
         Some(format!(
             "the mechanical result missed its target ({})",
             missed.join("; ")
+        ))
+    } else if let Some(i) = initial.filter(|&i| faces > AUTO_MAX_GROWTH * i as f64) {
+        Some(format!(
+            "the mechanical result grew from {i} to {faces} faces in enrichment"
         ))
     } else if unproj > 1.0 {
         Some(format!(
@@ -122,6 +146,8 @@ pub struct Candidate {
     pub faces: usize,
     /// Wall time of its stages.
     pub seconds: f64,
+    /// Every target of its own (`--max-error`, `--faces`) was met.
+    pub targets_met: bool,
 }
 
 impl Candidate {
@@ -131,16 +157,38 @@ impl Candidate {
             unprojectable_area_percent: c.report.projectability.unprojectable_area_percent,
             faces: c.report.control.faces,
             seconds: c.report.stages.iter().map(|s| s.seconds).sum::<f64>(),
+            targets_met: c.report.targets.iter().all(|t| t.met),
         }
     }
 }
 
-/// The one of two conversions of the same mesh with the lower RMS distance
-/// from its limit surface to M (ties: mechanical, the smaller control
-/// mesh); its report says what was compared and why.
-fn keep_better(mechanical: Converted, organic: Converted, why: &str) -> Converted {
+/// Whether the organic candidate is kept over the mechanical one.
+///
+/// The more accurate one (lower RMS distance of the limit surface) wins,
+/// unless `weigh_faces` and the organic one met its own targets: then the
+/// two are compared by RMS × faces, the error scaled to a common control
+/// mesh size by the slowest convergence of a surface fit (error ∝ h² ∝
+/// 1 / faces; a smooth bicubic fit converges faster, which would favour
+/// the smaller mesh even more). A spot mesh split into parts took the
+/// mechanical result of 1534 faces over an organic one of 99 at a
+/// slightly higher RMS; a CAD part's mechanical result (fandisk: 80 faces
+/// at 0.7‰ against organic patches several times as far) still wins.
+/// Ties: mechanical, the paper's answer for a part that looks like CAD.
+pub fn organic_wins(m: &Candidate, o: &Candidate, weigh_faces: bool) -> bool {
+    if weigh_faces && o.targets_met {
+        o.rms_limit_permille * (o.faces as f64) < m.rms_limit_permille * (m.faces as f64)
+    } else {
+        o.rms_limit_permille < m.rms_limit_permille
+    }
+}
+
+/// The one of two conversions of the same mesh that [`organic_wins`]
+/// picks (faces weighed for `--mode auto`'s [`Doubt::Missed`]; an
+/// explicit `--mode mechanical` far over its target is replaced only by a
+/// more accurate result); its report says what was compared and why.
+fn keep_better(mechanical: Converted, organic: Converted, why: &str, doubt: Doubt) -> Converted {
     let (m, o) = (Candidate::of(&mechanical), Candidate::of(&organic));
-    let organic_wins = o.rms_limit_permille < m.rms_limit_permille;
+    let organic_wins = organic_wins(&m, &o, doubt == Doubt::Missed);
     let note = SecondOpinion {
         why: why.to_string(),
         mechanical: m,
@@ -187,6 +235,56 @@ mod tests {
             outcome: "8 of 1007 faces over".into(),
         });
         r
+    }
+
+    fn candidate(rms: f64, faces: usize, met: bool) -> Candidate {
+        Candidate {
+            rms_limit_permille: rms,
+            unprojectable_area_percent: 0.0,
+            faces,
+            seconds: 1.0,
+            targets_met: met,
+        }
+    }
+
+    #[test]
+    fn auto_weighs_faces_explicit_mechanical_only_accuracy() {
+        // Spot split into parts: a mechanical mesh of 1534 faces against
+        // an organic one of 99 a little less accurate. `auto` keeps the
+        // organic one (15× fewer faces for 1.2× the error)...
+        let m = candidate(4.0, 1534, false);
+        let o = candidate(4.8, 99, true);
+        assert!(organic_wins(&m, &o, true));
+        // ...but not when the organic one missed its own target, and an
+        // explicit `--mode mechanical` far over its target is replaced by
+        // accuracy alone.
+        assert!(!organic_wins(&m, &candidate(4.8, 99, false), true));
+        assert!(!organic_wins(&m, &o, false));
+        assert!(organic_wins(&m, &candidate(3.9, 2000, false), false));
+        // A CAD part: the mechanical result is both smaller and closer.
+        let cad = candidate(0.7, 80, true);
+        assert!(!organic_wins(&cad, &candidate(2.1, 300, true), true));
+        // Fewer faces bought with far more error is no gain: 0.6‰ at 872
+        // faces (523) against 2.1‰ at 300 (630).
+        assert!(!organic_wins(
+            &candidate(0.6, 872, false),
+            &candidate(2.1, 300, true),
+            true
+        ));
+    }
+
+    #[test]
+    fn auto_doubts_a_result_rebuilt_by_enrichment() {
+        let mut r = report(0.9, 0.0);
+        r.targets.clear();
+        r.control.faces = 1522;
+        assert!(doubt_reason(&r, Some(858)).is_some());
+        // A CAD part refined by a third: no doubt, and none for an
+        // explicit `--mode mechanical` either way.
+        r.control.faces = 1100;
+        assert!(doubt_reason(&r, Some(858)).is_none());
+        r.control.faces = 1522;
+        assert!(far_over_reason(&r, 3e-3).is_none());
     }
 
     #[test]

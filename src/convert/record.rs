@@ -155,6 +155,18 @@ pub struct MechanicalRecord {
 }
 
 impl RunOptions {
+    /// A mechanical run's polyhedron face count before enrichment (§7),
+    /// `None` for any other run.
+    pub fn mechanical_initial_faces(&self) -> Option<usize> {
+        match self {
+            RunOptions::Mechanical(b) => match &b.layout {
+                BranchLayout::Mechanical { mechanical } => Some(mechanical.stats.initial_faces),
+                _ => None,
+            },
+            RunOptions::Fitted { .. } => None,
+        }
+    }
+
     /// The pipeline whose result this is: `"organic"` or `"mechanical"`
     /// (the one `--mode auto`'s second opinion kept, when it ran one);
     /// `None` for `fit`, which has no mode.

@@ -37,6 +37,40 @@ use crate::DVec3;
 /// curve threshold: flat CAD faces are flat to the float resolution).
 pub const PLANAR_TOLERANCE: f64 = 2e-4;
 
+/// The normalised sum of the area-weighted normals of `tris`.
+fn area_normal(mesh: &TriMesh, tris: &[u32]) -> DVec3 {
+    let mut n = DVec3::ZERO;
+    for &t in tris {
+        let [a, b, c] = mesh.triangle(t as usize);
+        n += (b - a).cross(c - a);
+    }
+    n.normalize_or_zero()
+}
+
+/// The plane (a point and unit normal) of a region whose vertices all lie
+/// within [`PLANAR_TOLERANCE`] of it, or `None`. Least-squares plane:
+/// the vertices' centroid and, for the normal, that of the area-weighted
+/// triangle normals, which is the plane's whenever the region is planar.
+pub fn region_plane(mesh: &TriMesh, tris: &[u32], diag: f64) -> Option<(DVec3, DVec3)> {
+    let mut verts: Vec<u32> = tris
+        .iter()
+        .flat_map(|&t| mesh.triangles[t as usize])
+        .collect();
+    verts.sort_unstable();
+    verts.dedup();
+    let c = verts
+        .iter()
+        .map(|&v| mesh.positions[v as usize])
+        .sum::<DVec3>()
+        / verts.len().max(1) as f64;
+    let n = area_normal(mesh, tris);
+    (n != DVec3::ZERO
+        && verts
+            .iter()
+            .all(|&v| (mesh.positions[v as usize] - c).dot(n).abs() <= PLANAR_TOLERANCE * diag))
+    .then_some((c, n))
+}
+
 /// One boundary control point of a region polygon.
 #[derive(Copy, Clone, Debug)]
 pub struct PolyVertex {
@@ -90,26 +124,8 @@ impl<'a> RegionGeom<'a> {
                 }
             }
         }
-        // Least-squares plane: centroid and the smallest-variance axis
-        // (power iteration on the inverted-spectrum covariance is overkill;
-        // use the normal of the area-weighted triangle normals instead,
-        // which is the plane normal whenever the region is planar).
-        let c = verts
-            .iter()
-            .map(|&v| mesh.positions[v as usize])
-            .sum::<DVec3>()
-            / verts.len().max(1) as f64;
-        let mut n = DVec3::ZERO;
-        for &t in tris {
-            let [a, b, cc] = mesh.triangle(t as usize);
-            n += (b - a).cross(cc - a);
-        }
-        let n = n.normalize_or_zero();
-        let planar = (n != DVec3::ZERO
-            && verts.iter().all(|&v| {
-                (mesh.positions[v as usize] - c).dot(n).abs() <= PLANAR_TOLERANCE * diag
-            }))
-        .then_some((c, n));
+        let planar = region_plane(mesh, tris, diag);
+        let n = area_normal(mesh, tris);
         let flat = FlatShadow::new(mesh, tris, n);
         RegionGeom {
             mesh,
@@ -230,10 +246,16 @@ struct FlatShadow {
     cells: Vec<Vec<u32>>,
 }
 
-/// A region is nearly flat (see [`FlatShadow`]) when every triangle's
-/// normal is within 30° of the mean normal: its shadow along that normal
-/// then covers no point twice, except where a fold of under 60° would.
+/// A region is nearly flat (see [`FlatShadow`]) when at least
+/// [`FLAT_SHARE`] of its area has normals within 30° of the mean normal
+/// (a flat face with strips of fillet or chamfer the segmentation left
+/// on it). Every triangle casts its shadow; a steep one casts a thin one,
+/// which can only make the test stricter next to it, and the penalty is
+/// a score (a chord off the shadow is still cut when nothing else can be).
 const FLAT_COS: f64 = 0.866_025_403_784_438_6;
+
+/// See [`FLAT_COS`]: half the area.
+const FLAT_SHARE: f64 = 0.5;
 
 /// Interior points of a chord tested by [`FlatShadow::leave_penalty`]: 15,
 /// ends excluded.
@@ -248,11 +270,13 @@ impl FlatShadow {
         let e1 = n.any_orthonormal_vector();
         let e2 = n.cross(e1);
         let (mut lo, mut hi) = ((f64::MAX, f64::MAX), (f64::MIN, f64::MIN));
+        let (mut flat_area, mut area) = (0.0, 0.0);
         for &t in tris {
             let [a, b, c] = mesh.triangle(t as usize);
-            let tn = (b - a).cross(c - a).normalize_or_zero();
-            if tn.dot(n) < FLAT_COS {
-                return None;
+            let tn = (b - a).cross(c - a);
+            area += tn.length();
+            if tn.normalize_or_zero().dot(n) >= FLAT_COS {
+                flat_area += tn.length();
             }
             let p = [a, b, c].map(|p| (p.dot(e1), p.dot(e2)));
             for q in p {
@@ -260,6 +284,9 @@ impl FlatShadow {
                 hi = (hi.0.max(q.0), hi.1.max(q.1));
             }
             proj.push(p);
+        }
+        if flat_area < FLAT_SHARE * area {
+            return None;
         }
         // About one triangle per cell along each axis of a square grid.
         let side = (tris.len() as f64).sqrt().ceil().max(1.0);

@@ -287,11 +287,13 @@ pub fn convert(a: ConvertArgs) -> Result<ExitCode> {
     }
     if let Some(second) = converted.second_opinion.as_ref().filter(|_| !a.quiet) {
         eprintln!(
-            "subdfit: note: {}: {}; organic RMS {:.3}‰, mechanical {:.3}‰: kept {}",
+            "subdfit: note: {}: {}; organic RMS {:.3}‰ in {} faces, mechanical {:.3}‰ in {}: kept {}",
             a.mesh.display(),
             second.why,
             second.organic.rms_limit_permille,
+            second.organic.faces,
             second.mechanical.rms_limit_permille,
+            second.mechanical.faces,
             second.kept
         );
     }
