@@ -93,14 +93,18 @@ pub fn fit_in_memory(
     mut control: crate::mesh::ControlMesh,
     opts: &PipelineOptions,
     timer: StageTimer,
-    host: HostRecord,
+    mut host: HostRecord,
     progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
     at_unit_scale(input, |m, frame| {
         frame.points_to_unit(control.positions_mut());
         let mut run = Run::start(m, *frame, timer, progress)?;
         let fitmap = match &opts.fitmap {
-            Some(fo) => proxied_fitmap(run.mesh(), fo, &mut run.timer, run.progress)?,
+            Some(fo) => {
+                let (fitmap, tried) = proxied_fitmap(run.mesh(), fo, &mut run.timer, run.progress)?;
+                host.fitmap_proxy = tried.map(Box::new);
+                fitmap
+            }
             None => None,
         };
         let timer = run.take_timer();
@@ -122,17 +126,17 @@ pub fn fit_in_memory(
 /// as `convert` does (a full-resolution Fitmap of a 1.1M-triangle scan
 /// took 47 s, twice the whole fit); `None` below the bound or when no
 /// proxy keeps M's topology (the Fitmap is then computed on M after the
-/// fit). (The proxy's record is not kept: `fit`'s `options.run` is the
-/// host's record alone.)
+/// fit). What was tried is returned beside it, for `report.json`'s
+/// `options.run.fitmap_proxy`.
 fn proxied_fitmap(
     mesh: &crate::mesh::TriMesh,
     fo: &FitmapOptions,
     timer: &mut StageTimer,
     progress: &mut crate::watch::Progress<'_>,
-) -> Result<Option<crate::analysis::Fitmap>> {
-    let (proxy, _) = layout::layout_proxy(mesh, Proxy::Auto, timer, progress)?;
+) -> Result<(Option<crate::analysis::Fitmap>, Option<layout::ProxyRecord>)> {
+    let (proxy, tried) = layout::layout_proxy(mesh, Proxy::Auto, timer, progress)?;
     let Some((m, c)) = proxy else {
-        return Ok(None);
+        return Ok((None, tried));
     };
     let stage = crate::fit::report_progress;
     stage(progress, "fitmap", 0.0)?;
@@ -143,7 +147,7 @@ fn proxied_fitmap(
     let fitmap = timer.run("fitmap transfer", || {
         fitmap.transferred(&m, c.as_ref(), mesh)
     })?;
-    Ok(Some(fitmap))
+    Ok((Some(fitmap), tried))
 }
 
 /// `subdfit metrics`: Table 1's figures for a given `control` against

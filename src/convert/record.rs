@@ -72,6 +72,10 @@ pub struct HostRecord {
     /// `subdfit fit`: the control mesh given and what reading it repaired.
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub fit: Option<FitInputs>,
+    /// `subdfit fit` on a mesh above the proxy bound: what the Fitmap's
+    /// layout proxy tried (`options.run.fitmap_proxy`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fitmap_proxy: Option<Box<super::layout::ProxyRecord>>,
 }
 
 impl HostRecord {
@@ -81,6 +85,7 @@ impl HostRecord {
             command: "convert".into(),
             mesh: mesh.into(),
             fit: None,
+            fitmap_proxy: None,
         }
     }
 
@@ -91,6 +96,7 @@ impl HostRecord {
             command: "fit".into(),
             mesh: mesh.into(),
             fit,
+            fitmap_proxy: None,
         }
     }
 }
