@@ -427,11 +427,11 @@ impl FastMTest<'_, '_> {
 /// one edge (~`r_0`) from theirs, and a radius that fails at every seed
 /// around it fails there too but for a fold narrower than an edge; the
 /// radii skipped are the expensive ones (failing M-tests of the largest
-/// balls, Monte Carlo up to [`FAST_M_SAMPLES`] draws each). Measured
-/// (Embree, τ = 5 %): one step cuts gargoyle's CPU time by 21 % for 0.37 %
-/// of spot's vertices leaving F_M's exact step (91.09 → 90.72 %; fandisk
-/// 95.83 → 95.80, homer 94.80 → 94.67); zero steps (cap at the highest
-/// seed) cut 34 % but drop spot to 90.51 %, too near the 90 % criterion.
+/// balls, Monte Carlo up to [`FAST_M_SAMPLES`] draws each). One step
+/// saves a fifth of the CPU time for a fraction of a percent of the
+/// vertices leaving F_M's exact step; zero steps save more but come too
+/// near the 90 % agreement criterion (docs/status.md, "Measurements
+/// behind the code").
 pub const FAST_M_STEPS_ABOVE_SEEDS: usize = 1;
 
 /// Fast mode: an interpolated vertex whose seed neighbours' F_S differ by
@@ -439,14 +439,10 @@ pub const FAST_M_STEPS_ABOVE_SEEDS: usize = 1;
 /// its balls, no M-test; F_M stays interpolated). F_S varies slowly at the
 /// scale of one edge (every ball of a vertex holds its neighbour's ball of
 /// one step smaller radius), but Spearman's ρ compares *ranks*,
-/// and on a CAD model with a narrow F_S range (fandisk) the mean of the
-/// neighbours reorders vertices: ρ was 0.9496 with every non-seed
-/// interpolated, 0.9917 with every vertex analysed. Measured ρ on fandisk:
-/// 0.9606 at 1.02, 0.9572 at 1.1 (spot/homer ≥ 0.987), for 11 % / 5 %
-/// more CPU time on gargoyle than interpolating all (measured with the
-/// linear fit of F_S; with the log-space fit, [`s_from_errors`], spot's ρ
-/// is 0.997 and the fitmap takes 3–12 % more CPU time, more vertices
-/// getting their own F_S).
+/// and on a CAD model with a narrow F_S range the mean of the neighbours
+/// reorders vertices; fitting those whose seeds differ brings ρ most of
+/// the way to the all-analysed value for a few percent more CPU time
+/// (docs/status.md, "Measurements behind the code").
 pub const FAST_S_DIRECT_SPREAD: f64 = 1.05;
 
 /// Fast mode: which vertices are analysed, and how the others get their

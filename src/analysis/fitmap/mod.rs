@@ -34,28 +34,23 @@
 //!   [`crate::analysis::compare`] measures (`bench/fitmap_compare.sh`;
 //!   see `tests/fitmap_props.rs` for where the F_M agreement stands).
 //!
-//! Where fast and exact F_M differ by more than one step (τ = 5 %, counted
-//! with `fitmap_bench diag`, which prints the exact mode's flipped
-//! fraction at every radius, [`exact_flip_fractions`]): 65 / 71 / 61
-//! vertices of spot / homer / fandisk (2.2 / 1.2 / 0.9 %). In every case
-//! one radius above F_M has a literal flipped fraction within about ±2 %
-//! of τ, or the vertex differs from its seeds. By cause: the Monte Carlo
-//! estimate of a proxy radius taken while still undecided near τ (20 / 33
-//! / 2 vertices; [`FitmapOptions::certify`] takes the exact decision
-//! there); interpolation from seeds that agree with each other but not
-//! with the vertex — on fandisk, vertices beside a crease whose exact F_M
-//! alternates 6 / 8 from vertex to vertex (20 / 24 / 55); the cap of
-//! [`FAST_M_STEPS_ABOVE_SEEDS`] and its seeds' own errors (23 / 11 / 3);
-//! the proxy cubic deciding confidently where the exact cubic is within
-//! 0.5 % of τ (2 / 3 / 1). Certifying the interpolations and the cap as
-//! well (analysing every vertex next to a seed with an undecided test, or
-//! whose normal differs from its seeds') moves the share on the same step
-//! to 95–98 % but still leaves vertices 5–8 steps apart, at 2× the CPU
-//! time: under "largest passing radius" a vertex whose fractions hover
-//! at τ over several radii moves by several steps on one verdict, which
-//! any estimate that is not the literal computation at every radius near
-//! τ gets wrong somewhere (the exact mode under another seed of the
-//! M-test samples is itself up to 5 steps off, see [`Fitmap::m`]).
+//! Where fast and exact F_M differ by more than one step (counted with
+//! `fitmap_bench diag`, which prints the exact mode's flipped fraction at
+//! every radius, [`exact_flip_fractions`]), one radius above F_M has a
+//! literal flipped fraction close to τ, or the vertex differs from its
+//! seeds. The causes: a Monte Carlo estimate of a proxy radius taken while
+//! still undecided near τ ([`FitmapOptions::certify`] takes the exact
+//! decision there); interpolation from seeds that agree with each other
+//! but not with the vertex (beside a crease whose exact F_M alternates
+//! from vertex to vertex); the cap of [`FAST_M_STEPS_ABOVE_SEEDS`] and its
+//! seeds' own errors; the proxy cubic deciding confidently where the exact
+//! cubic is within a hair of τ. Certifying everything does not remove
+//! them: under "largest passing radius" a vertex whose fractions hover at
+//! τ over several radii moves by several steps on one verdict, which any
+//! estimate that is not the literal computation at every radius near τ
+//! gets wrong somewhere (the exact mode under another seed of the M-test
+//! samples is itself several steps off, see [`Fitmap::m`]). (Counts per
+//! mesh and cause: docs/status.md, "Measurements behind the code".)
 //!
 //! Both modes test the radii from the largest down and stop at the first
 //! that passes: F_M is the largest passing radius (§3.1.3, see
@@ -133,11 +128,10 @@ pub struct FitmapOptions {
     /// Fast mode: where the Monte Carlo M-test of a proxy radius (§3.1.3 on
     /// the coarse proxy of the large radii) stays within its uncertainty of
     /// τ, take the exact mode's decision instead (exact ball, exact cubic,
-    /// literal test). Off by default: measured (τ = 5 %) it puts 2–3 %
-    /// more vertices on the exact mode's F_M step (spot 90.7 → 93.7 %,
-    /// homer 94.7 → 96.2 %, fandisk 95.8 → 96.6 %) for 1.5–2× the CPU time
-    /// on gargoyle, and leaves the largest step difference where it is
-    /// (see [`Fitmap::m`] and the module docs).
+    /// literal test). Off by default: it puts a few percent more vertices
+    /// on the exact mode's F_M step for up to twice the CPU time, and
+    /// leaves the largest step difference where it is (see [`Fitmap::m`],
+    /// the module docs and docs/status.md).
     pub certify: bool,
     /// Seed of the random samples: the M-test samples of each triangle
     /// ([`MSamples`]) and the fast mode's draws per vertex and radius.
