@@ -33,12 +33,11 @@
 //! are inpainted, and the jumps at a hole's rim are no detail a finer tile
 //! could carry. Beyond the pilot the error falls per level as it did over
 //! the last measured level, at most 16-fold ([`LEVEL_FALL`]: bilinear
-//! interpolation of a smooth field errs by `O(h² |∇²d|)`). Measured on
-//! bunny (τ = 1 %, 1× budget, RMS M → displaced.ply): with the fixed
-//! 16-fold fall and the unprojectable samples counted, the three 33²
-//! tiles went to two patches over holes and one of real detail, and the
-//! least squares diverged there: 0.118‰; capping tiles at 17² gave
-//! 0.0965‰; the rule here gives 0.097‰ and keeps 33² tiles for larger budgets (one at 1×, on the real detail). (The
+//! interpolation of a smooth field errs by `O(h² |∇²d|)`). With a fixed
+//! 16-fold fall and the unprojectable samples counted, the finest tiles
+//! went to patches over holes and the least squares diverged there; this
+//! rule puts them on real detail (measured: docs/status.md,
+//! "Measurements behind the code"). (The
 //! model's closed form is the `p` of the brief: minimising
 //! `Σ A_f κ_f² h_f⁴` with `Σ A_f / h_f² = N` gives samples
 //! `n_f = A_f / h_f² ∝ A_f κ_f^{2/3}`, i.e. `p = 2/3` with the field's

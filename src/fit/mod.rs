@@ -35,9 +35,8 @@
 //!
 //! Boundary fit: where M is open (holes, borders), φ is undefined beyond
 //! its rim, and a sample there would be dropped, leaving the border patches
-//! of the limit surface to the fairness term: they drift past the rim
-//! (bunny, τ = 1 %: the patches along its five holes overhung them by 3.5‰
-//! median, and a seventh of the displacement samples missed M). So the
+//! of the limit surface to the fairness term: they drift past the rim,
+//! and the displacement samples there miss M. So the
 //! border curves of the limit surface are sampled too (k points per
 //! boundary edge of the control mesh, k its patch's), and these samples,
 //! the limit points of the boundary vertices, and any lost sample whose
@@ -74,15 +73,13 @@
 //!   (Pottmann–Leopoldseder's own remedy is the same blend of TDM and PDM).
 //!   The coordinates are coupled, so the system has 3·nv unknowns and one
 //!   right-hand side, and three rows per sample: each round costs about
-//!   ten times a `Point` round (measured: 64 patches on a 32k-triangle
-//!   mesh, 0.6 s vs 6.8 s for nine rounds). It fits better: RMS L 0.98‰
-//!   vs 1.37‰ there, 3–8 % lower on dense control meshes.
+//!   ten times a `Point` round, and it fits better (measured:
+//!   docs/status.md, "Measurements behind the code").
 //!   [`FitOptions::final_sdm_rounds`] runs only the last rounds with it.
 //!
 //! Both objectives hand Eigen each patch's rows compressed to a square
 //! triangular block with the same normal equations ([`compress`]): about
-//! five times fewer rows, which makes an SDM round 35–40 % cheaper (bunny
-//! τ = 1 %, eight rounds: 3.0 s of CPU instead of 4.8 s). Each round's
+//! five times fewer rows, which makes an SDM round cheaper. Each round's
 //! solve runs beside the score's back-distance queries (see the loop).
 
 mod compress;
@@ -171,14 +168,9 @@ pub struct FitOptions {
     /// The point distance to φ's targets holds every sample at its
     /// parameter location, so the surface can only slide tangentially as
     /// fast as re-projection moves the targets, and the error keeps
-    /// falling by ~2 % a round after eight rounds (bunny τ = 1 %: 8.19‰,
-    /// 5.15, 4.67, 4.42, 4.26, 4.13, 4.03, 3.95, 3.88). The SDM's tangential
-    /// weights free that sliding. Measured, 5 point + 3 SDM rounds against
-    /// 8 point rounds (RMS L ‰, RMS D ‰ D→M / M→D, fit CPU): bunny τ 1 %
-    /// 3.41 vs 3.97, 0.66/0.28 vs 0.59/0.27, +0.8 s; τ 10 % 5.46 vs 6.05,
-    /// 0.70/0.34 vs 0.82/0.28, +0.9 s; gargoyle τ 1 % 1.80 vs 1.99,
-    /// 0.37/0.44 vs 0.37/0.43, +1.0 s; τ 10 % 4.09 vs 4.25, 0.50/0.59 vs
-    /// 0.51/0.59, +0.5 s, unprojectable 0.20 % vs 0.16 %. Off by default:
+    /// falling by a few percent a round after eight rounds. The SDM's
+    /// tangential weights free that sliding (measured: docs/status.md,
+    /// "Measurements behind the code"). Off by default:
     /// it costs the conversion's time budget and worsens D and the
     /// projectability on some meshes.
     pub final_sdm_rounds: usize,
@@ -343,9 +335,9 @@ pub fn fit(
 ///
 /// On an open mesh the control mesh's boundary loops are first fitted to
 /// M's rim ([`rim`]). That start wins where the loops have enough control
-/// points to follow their rims (bunny τ = 1 %: RMS D → M 1.11‰ → 0.28‰)
-/// but can shear large border patches that the rounds do not repair
-/// (bunny τ = 10 %: 0.95‰ → 1.54‰). So both starts are fitted and the one
+/// points to follow their rims but can shear large border patches that the
+/// rounds do not repair (see `src/fit/rim.rs` in docs/status.md,
+/// "Measurements behind the code"). So both starts are fitted and the one
 /// with the lower score of the fit's own kept iterate wins (ties keep the
 /// rim start): one more fit, on open meshes whose loops moved only.
 pub fn fit_with_progress(
@@ -1060,7 +1052,7 @@ fn rim_segments(mesh: &TriMesh, rim: &[u8]) -> Vec<RimSegment> {
 /// The closest point of the rim (all boundary edges of M) to each point,
 /// as a [`Projected`] on the edge's triangle. Brute force over the
 /// segments, in parallel over the points (order kept): rims are short next
-/// to M (bunny: 223 edges for 69k triangles) and only border samples ask.
+/// to M (a few hundred edges for 10⁵ triangles) and only border samples ask.
 fn closest_on_segments(segs: &[RimSegment], pts: &[DVec3]) -> Vec<Option<Projected>> {
     use rayon::prelude::*;
     pts.par_iter()

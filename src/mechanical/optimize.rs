@@ -12,9 +12,8 @@
 //! Leopoldseder ([`Objective::Sdm`], eq. 4: normal residual in full,
 //! tangential residuals weighted by `dκ/(1 + dκ)` in the foot triangle's
 //! principal frame, [`tri_frames`]); the point distance `Σ |s − f|²`
-//! ([`Objective::Point`]) is kept for comparison. On fandisk SDM lowers
-//! the RMS of the first fitted round from 0.775‰ to 0.738‰ and the final
-//! one from 0.596‰ to 0.581‰ (same faces). Up to `m₀` iterations per
+//! ([`Objective::Point`]) is kept for comparison (SDM fits closer at the
+//! same faces). Up to `m₀` iterations per
 //! round, each accepted only if the squared distance to the (new) closest
 //! feet falls, stopping early when it falls by less than 1 %.
 //!
@@ -33,35 +32,26 @@
 //! the strip gains the row of points across it that its profile lacks, at
 //! one face per face (a face with one cut edge just gains its midpoint).
 //! Fanning such a quad into triangles around a centre, as before, gave six
-//! faces per quad for the same row: on fandisk with `--max-error 1.2e-3`
-//! the largest fillet went from 15 to 67 faces (199 in all, RMS 0.335‰)
-//! where the chords alone gave 29 (157 in all, RMS 0.319‰).
+//! faces per quad for the same row, many more faces for no lower error.
 //!
 //! Regions are independent (their boundaries are creases of fixed curve
 //! points), which the loop uses twice: a geometry step is accepted per
 //! region (a region whose squared distance it raises keeps its points), and
 //! each region's best measured state is kept. A region whose RMS rose by
 //! more than 2 % after an enrichment (a case-1 fan folding over a curved
-//! region: fandisk's largest fillet went from 3.4‰ to 4.7‰) is put back
+//! region) is put back
 //! and, in the same round, enriched by case 2 where its best state was
 //! over the limit; it is enriched by case 2 only from then on, and a
 //! second regression freezes it at its best state. The others keep their
 //! progress; the output is the best state of every region. Before this,
 //! one bad region ended the whole loop (the stall test saw the total RMS
-//! rise) and block.ply stopped at RMS 3.5‰; it now reaches 0.6‰. A
+//! rise) and stopped far above the limit. A
 //! restored region used to wait a round before being enriched, and that
 //! idle round could read as a stall and end the loop with faces over the
 //! limit and nothing refined.
 //!
-//! RMS against faces on fandisk (report.json's surface-to-mesh figures,
-//! `--max-error` → faces / RMS‰): 1e-3 → 181 / 0.245, 1.1e-3 → 158 /
-//! 0.277, 1.2e-3 → 151 / 0.331, 1.3e-3 → 156 / 0.318, 1.4e-3 → 139 /
-//! 0.348, 1.5e-3 → 124 / 0.374, 2e-3 → 119 / 0.467, 3e-3 → 97 / 0.717
-//! (before the chord split, the same-round enrichment and the final pass:
-//! 1e-3 → 238 / 0.256, 1.1e-3 → 207 / 0.285, 1.2e-3 → 199 / 0.315,
-//! 1.5e-3 → 166 / 0.364, 2e-3 → 149 / 0.472, 3e-3 → 97 / 0.723).
-//! Hoppe et al.'s line in Lavoué et al.'s Table 2 is 170 faces at 0.32‰:
-//! `--max-error 1.1e-3` meets it.
+//! RMS against faces on fandisk, against Lavoué et al.'s Table 2: see
+//! docs/status.md, "Measurements behind the code".
 
 use std::collections::{HashMap, HashSet};
 

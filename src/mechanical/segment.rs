@@ -26,9 +26,8 @@
 //!    their smooth boundaries* while the union stays a disc (step 3a):
 //!    every region boundary becomes an infinitely sharp crease, which
 //!    belongs on a feature, not on a tangent-continuous blend; the
-//!    curvature-class splits survive only where a disc needs them. On
-//!    fandisk 21 regions become 15 (120 → 113 control vertices); on
-//!    joint.ply 23 → 22. Two regions that also share a *fading* feature
+//!    curvature-class splits survive only where a disc needs them. Two
+//!    regions that also share a *fading* feature
 //!    (a sharp chain that ends inside a face of the part, see
 //!    [`fading_edges`]) merge too: where such a feature runs is decided
 //!    by step 4, not by where two curvature classes happened to meet.
@@ -38,16 +37,14 @@
 //!    (a T-junction), or joined to another fading tip when that path is
 //!    shorter than both continuations; the region is cut there, so that
 //!    every sharp edge ends up on a boundary (a crease of the output) with
-//!    the least new boundary. On fandisk the cone's fading side crease now
-//!    ends on the top crease, and the class boundaries around it are gone
-//!    (15 → 14 regions, 80 → 78 curve control points).
+//!    the least new boundary.
 //! 5. *Discs.* §6.3.1 cuts a region with holes into a disc with its
 //!    Topological Contour; here a region that is not a topological disc
 //!    (one boundary loop, Euler characteristic 1) is split in two by a
 //!    geodesic Voronoi partition from its two mutually farthest triangles,
 //!    recursively ([`SegmentOptions::max_splits`] in all). The cut becomes a
-//!    region boundary (a crease), which is the price of this simplification:
-//!    on fandisk no region needs it.
+//!    region boundary (a crease), which is the price of this simplification
+//!    (rarely paid: docs/status.md, "Measurements behind the code").
 
 use std::cmp::Reverse;
 use std::collections::{BinaryHeap, HashMap, HashSet, VecDeque};

@@ -11,6 +11,7 @@ pub mod ops;
 mod quadrangulate;
 pub mod simplify;
 
+pub use crate::subdiv::catmark::closed_form::face_centre_limit;
 pub use interpolate::{
     interpolate_limit, interpolate_limit_local, limit_positions, vertex_limit_mask,
     InterpolationOptions, InterpolationReport, InterpolationSolver,
@@ -20,7 +21,6 @@ pub use quadrangulate::{
     QuadrangulateOptions, Quadrangulation, QuadrangulationReport, QualityStats,
 };
 pub use simplify::{
-    face_centre_limit, prepare, s_fitmap_kappa, simplify, simplify_control, simplify_prepared,
-    simplify_with_progress, Prepared, Progress, Simplified, SimplifyOptions, SimplifyStats,
-    StopReason,
+    prepare, s_fitmap_kappa, simplify, simplify_control, simplify_prepared, simplify_with_progress,
+    Prepared, Progress, Simplified, SimplifyOptions, SimplifyStats, StopReason,
 };

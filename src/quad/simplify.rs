@@ -10,8 +10,8 @@
 //! plus its 1-ring, twice alternating Laplacian smoothing and a fixed-point
 //! fit towards φ targets (§3.4). Boundary vertices collapse only along the
 //! boundary (see [`super::ops::can_collapse_diagonal`]): without that the
-//! boundary loops kept every input vertex, and bunny's five holes alone
-//! held 144 of its 299 final patches at τ = 10 %.
+//! boundary loops keep every input vertex and a mesh's holes hold a large
+//! share of its final patches.
 //!
 //! All per-collapse work is local: vertex limit points come from
 //! [`vertex_limit_mask`] (cached per vertex, refreshed around each refit),
@@ -26,12 +26,9 @@
 //! only the sweeps over all faces run in parallel, in input order, so the
 //! result does not depend on the number of threads. The quadrangulation
 //! and interpolation before it need no Fitmap ([`prepare`]), so `convert`
-//! runs them beside the Fitmap.
-//!
-//! Measured (bunny, 69k triangles → natural end, Fitmap cached, 2 shared
-//! cores, 2026-11-22): τ 1 % 5.9 s (5,100 collapses/s), τ 10 % 4.9 s
-//! (6,200/s); gargoyle 4.1 / 4.6 s; peak RSS 76 MB. A full re-sort of the
-//! control mesh's free lists per edit had made it quadratic (23 s).
+//! runs them beside the Fitmap. Every edit updates the control mesh's
+//! free lists locally: a full re-sort per edit made the loop quadratic.
+//! (Timings: docs/status.md, "Measurements behind the code".)
 
 use std::cmp::Reverse;
 use std::collections::{BTreeMap, BinaryHeap};
@@ -53,12 +50,12 @@ use crate::mesh::{ControlMesh, FaceId, TriMesh, VertexId};
 use crate::project::{default_max_dist, Projected};
 use crate::raycast::bvh::BvhCaster;
 use crate::raycast::{nearer_on_line, Ray, RayCaster};
-use crate::subdiv::LimitPoint;
+use crate::subdiv::catmark::closed_form::{centroid, face_centre_limit, vertex_normal};
 use crate::DVec3;
 
-/// Default [`SimplifyOptions::s_fitmap_scale`]: κ = 1.55 κ₀ (the measured
-/// window in which bunny meets Table 1 at τ = 1 % and 10 %; see the
-/// option's documentation).
+/// Default [`SimplifyOptions::s_fitmap_scale`]: κ = 1.55 κ₀, inside the
+/// measured window in which the results meet Fitmaps' Table 1 at τ = 1 %
+/// and 10 % (see the option's documentation).
 pub const DEFAULT_S_FITMAP_SCALE: f64 = 1.55;
 
 /// Options of [`simplify`]. τ is not here: it is the Fitmap's.
@@ -91,36 +88,20 @@ pub struct SimplifyOptions {
     /// See `guard_scale`: times τ^¼, a fraction of M's bounding-box
     /// diagonal. τ, the Fitmap's tolerance to lost projectability, is the
     /// method's one parameter (§3.1.3); the floor grows with it so that a
-    /// larger τ buys coarser patches from the guard too (0.026: 8.2‰ at
-    /// τ = 1 %, 14.6‰ at 10 %; below that the S-fitmap term rules).
+    /// larger τ buys coarser patches from the guard too (below the floor
+    /// the S-fitmap term rules).
     ///
     /// The guard is not in the paper, whose only halting rule is the
     /// M-fitmap test (§3.3.1); it stands in for the accuracy the paper's
     /// Fitmap delivered at the same τ, and its floor is an empirical
-    /// calibration against Table 1 (bunny, gargoyle; RMS L after the global
-    /// fit of §3.5, measured 2026-11-22 on this crate's Fitmap):
-    /// - no guard: the M-fitmap test alone ends bunny τ = 1 % at 258
-    ///   patches with RMS L 8.6‰ (Table 1: 506 patches, 3.41‰);
-    /// - floor ∝ √τ (3.2× from 1 to 10 %): at 5‰ for τ = 1 % gargoyle keeps
-    ///   1351 patches (Table 1: 1096); at 8‰ the 10 % floor (25‰) no longer
-    ///   binds and bunny τ 10 % ends on the M-fitmap test at 168 patches
-    ///   with RMS L 9.9‰ (Table 1: 218, 8.48‰);
-    /// - floor ∝ τ^¼ (1.8×), 7‰ at 1 % and 12.4‰ at 10 %: bunny 201
-    ///   patches, RMS L 6.96‰ at 10 %; gargoyle 1094 patches, RMS L 1.76‰
-    ///   at 1 % (Table 1: 2.36‰); but the loop's outcome varies by ±5 %
-    ///   with small changes of the bound (gargoyle τ 1 %: 1133 patches at
-    ///   0.023), so the default takes a margin;
-    /// - 0.026 (the default): bunny 353 / 186 patches (τ 1 / 10 %), 109 /
-    ///   55 irregular vertices, RMS L 4.55 / 8.15‰ (Table 1: 506 / 218,
-    ///   216 / 72, 3.41 / 8.48‰); gargoyle 1036 / 387 patches, RMS L 2.12 /
-    ///   4.15‰ (Table 1: 1096 / 493, 2.36 / 4.50‰). 0.024 trades bunny τ 1 %
-    ///   to 382 patches at 3.38‰, but bunny τ 10 % then keeps 75 irregular
-    ///   vertices (Table 1: 72).
-    ///
-    /// These figures predate the log-space F_S and the S-fitmap test being
-    /// on by default ([`SimplifyOptions::s_fitmap_scale`]), which now
-    /// controls the error: with both, the guard stops under 10 % of the
-    /// final patches; it was not recalibrated.
+    /// calibration against Fitmaps' Table 1 (RMS L after the global fit of
+    /// §3.5): a floor ∝ τ^¼ keeps the guard binding at both τ = 1 % and
+    /// 10 %, where ∝ √τ stopped binding at 10 %; the default keeps a margin
+    /// because the loop's outcome moves by ±5 % with small changes of the
+    /// bound. Since the S-fitmap test ([`SimplifyOptions::s_fitmap_scale`])
+    /// controls the error, the guard stops few final patches; it was not
+    /// recalibrated. (Calibration figures: docs/status.md, "Measurements
+    /// behind the code".)
     pub guard_floor: f64,
     /// See `guard_scale`.
     pub guard_min_cos: f64,
@@ -137,38 +118,18 @@ pub struct SimplifyOptions {
     ///
     /// On by default at [`DEFAULT_S_FITMAP_SCALE`] since F_S is fitted in
     /// log space (`analysis::fitmap`, `s_from_errors`): F_S now predicts the
-    /// error at patch-size radii and varies over M (sd of ln F_S ≈ 0.15 over
-    /// bunny's and gargoyle's vertices, 0.12 / 0.07 before), so the test
+    /// error at patch-size radii and varies over M (more than the former
+    /// linear fit did), so the test
     /// stops patches where (F_S·r)⁴ is large and the M-fitmap test stops
     /// the rest. The scale is not from the paper (the paper has no κ: its
     /// prescription is a proportionality, §3.1.1); κ₀ sets the order of
     /// magnitude from the Fitmap, and the factor is the measured window
-    /// in which bunny meets Table 1 at both τ (count and RMS L). Measured
-    /// 2026-11-22 with the log-space F_S (patches / RMS L ‰ after the
-    /// global fit / Spearman(radius, 1/F_S) / mean radius of the top F_S
-    /// quartile over the bottom one, at the natural end; Table 1: bunny 506
-    /// / 3.41 and 218 / 8.48, gargoyle 1096 / 2.36 and 493 / 4.50):
-    ///
-    /// | scale | bunny 1 % | bunny 10 % | gargoyle 1 % | gargoyle 10 % |
-    /// |---|---|---|---|---|
-    /// | off | 345, 6.62, 0.67, 0.22 | 178, 10.98, 0.46, 0.31 | 1118, 2.40, 0.65, 0.44 | 302, 6.37, 0.42, 0.66 |
-    /// | 1 | 594, 1.57, 0.78, 0.38 | 309, 2.89, 0.65, 0.51 | 2289, 1.03, 0.70, 0.60 | 646, 2.62, 0.50, 0.72 |
-    /// | 1.4 | 468, 2.41, 0.74, 0.27 | 236, 4.59, 0.59, 0.37 | 1499, 1.47, 0.72, 0.49 | 442, 3.93, 0.48, 0.67 |
-    /// | 1.5 | 415, 3.41, 0.76, 0.24 | 217, 5.37, 0.60, 0.33 | 1414, 1.59, 0.71, 0.47 | 443, 3.79, 0.44, 0.68 |
-    /// | **1.55** | 428, 3.00, 0.76, 0.25 | 204, 6.03, 0.63, 0.33 | 1387, 1.65, 0.70, 0.48 | 422, 4.04, 0.40, 0.70 |
-    /// | 1.6 | 402, 3.01, 0.73, 0.24 | 216, 5.29, 0.55, 0.34 | 1309, 1.73, 0.70, 0.47 | 388, 4.41, 0.44, 0.66 |
-    ///
-    /// Below 1.5 bunny τ 10 % exceeds 218 patches (and 72 irregular
-    /// vertices); off, RMS L exceeds Table 1 on every row (the M-fitmap test
-    /// alone ends with fewer, larger patches). The outcome moves by ±5 % in
-    /// the count and ±15 % in L between neighbouring scales (the order of
-    /// the collapses changes), so the default sits inside the window, not
-    /// at its edge. Gargoyle τ 1 % stays above Table 1's count at every
-    /// scale, off included (1118), with RMS L below Table 1 once the test
-    /// is on. With the former linear F_S fit (≈ E(r_h)/r_h⁴, a near-global
-    /// quantity) no scale gave adaptivity: Spearman −0.09 / −0.15 / 0.31 /
-    /// −0.16 and quartile ratios 0.90 / 0.86 / 0.65 / 1.07 with the test
-    /// off, ≤ 0.45 with it on at the cost of counts beyond Table 1.
+    /// in which the results meet Table 1 at both τ (count and RMS L); the
+    /// outcome moves between neighbouring scales (the order of the
+    /// collapses changes), so the default sits inside the window, not at
+    /// its edge. With the former linear F_S fit (≈ E(r_h)/r_h⁴, a
+    /// near-global quantity) no scale gave adaptivity. (The scale sweep:
+    /// docs/status.md, "Measurements behind the code".)
     pub s_fitmap_scale: f64,
     /// Keep the last this many intermediate meshes of the loop, one each
     /// time the face count falls by another factor [`CHECKPOINT_RATIO`]
@@ -303,10 +264,7 @@ pub struct SimplifyStats {
     /// At the natural end, what stops the final patches: for each test,
     /// the number of final faces one of whose diagonal collapses it refused
     /// in the last sweep (a face can count under two tests, one per
-    /// diagonal). Measured (2026-11-22, defaults): the M-fitmap test
-    /// refuses a collapse of 75–85 % of the final patches on bunny and
-    /// gargoyle at τ 1 and 10 %, the S-fitmap test 25–35 %, the guard
-    /// under 10 %.
+    /// diagonal).
     pub final_blockers: BTreeMap<String, usize>,
     /// Collapses undone because the refit left a patch centre too far from
     /// M ([`SimplifyOptions::guard_scale`]).
@@ -469,8 +427,8 @@ pub struct Prepared {
 
 /// The first half of [`simplify_with_progress`]: quadrangulation and
 /// interpolation, which read M only, so a caller can run them beside the
-/// Fitmap (`convert` does: bunny's 0.3 s of sequential work then shares
-/// the Fitmap's two cores instead of following it). Deterministic.
+/// Fitmap (`convert` does: that sequential work then shares the Fitmap's
+/// cores instead of following it). Deterministic.
 pub fn prepare(mesh: &TriMesh) -> Result<Prepared> {
     prepare_polled(mesh, &mut || Ok(()))
 }
@@ -592,106 +550,10 @@ pub fn s_fitmap_kappa(mesh: &TriMesh, fitmap: &Fitmap) -> f64 {
     }
 }
 
-// ---- closed-form limit quantities -------------------------------------------
+// ---- limit quantities ----------------------------------------------------------
 
-fn centroid(k: &ControlMesh, f: FaceId) -> DVec3 {
-    let mut c = DVec3::ZERO;
-    let mut n = 0.0;
-    for v in k.face_vertices(f) {
-        c += k.position(v);
-        n += 1.0;
-    }
-    c / n
-}
-
-/// The Catmull-Clark vertex point of `v` after one step (smooth rules;
-/// boundary edges are creases: cubic B-spline rule, corners fixed).
-fn vertex_point(k: &ControlMesh, v: VertexId) -> DVec3 {
-    let p = k.position(v);
-    let h0 = k.vertex_halfedge(v);
-    if k.is_boundary_halfedge(h0) {
-        if k.valence(v) == 2 {
-            return p;
-        }
-        let next = k.position(k.head(h0));
-        let prev = k.position(k.tail(k.prev(h0)));
-        return (prev + 6.0 * p + next) / 8.0;
-    }
-    let mut q = DVec3::ZERO;
-    let mut r = DVec3::ZERO;
-    let mut n = 0.0;
-    for h in k.outgoing(v) {
-        q += centroid(k, k.face_of(h).expect("interior"));
-        r += 0.5 * (p + k.position(k.head(h)));
-        n += 1.0;
-    }
-    (q / n + 2.0 * r / n + (n - 3.0) * p) / n
-}
-
-/// The Catmull-Clark edge point of the edge of `h`.
-fn edge_point(k: &ControlMesh, h: crate::mesh::HalfedgeId) -> DVec3 {
-    let a = k.position(k.tail(h));
-    let b = k.position(k.head(h));
-    match (k.face_of(h), k.face_of(h.twin())) {
-        (Some(f), Some(g)) => (a + b + centroid(k, f) + centroid(k, g)) / 4.0,
-        _ => 0.5 * (a + b),
-    }
-}
-
-/// The limit point and tangents at the centre of the quad `f`, in closed
-/// form: one Catmull-Clark step makes the face point a regular (valence 4)
-/// vertex whose neighbours are the four edge points `E_i` and whose
-/// diagonals are the four vertex points `V_i`, so its limit is
-/// `(16 F + 4 Σ E_i + Σ V_i) / 36` and its tangents are those of the
-/// bicubic B-spline at a knot. Exact for any valences around the face.
-pub fn face_centre_limit(k: &ControlMesh, f: FaceId) -> LimitPoint {
-    let hs: Vec<_> = k.face_halfedges(f).collect();
-    debug_assert_eq!(hs.len(), 4);
-    let fp = centroid(k, f);
-    let e: Vec<DVec3> = hs.iter().map(|&h| edge_point(k, h)).collect();
-    let vp: Vec<DVec3> = hs.iter().map(|&h| vertex_point(k, k.tail(h))).collect();
-    let position =
-        (16.0 * fp + 4.0 * (e[0] + e[1] + e[2] + e[3]) + vp[0] + vp[1] + vp[2] + vp[3]) / 36.0;
-    // E_0 lies on edge (v0, v1), so E_0 − E_2 runs along "v" and E_1 − E_3
-    // along "u" of the face; the B-spline derivative at a knot weighs the
-    // middle row 4 and the corner rows 1 (scale irrelevant for the normal).
-    let du = 4.0 * (e[1] - e[3]) + (vp[1] + vp[2] - vp[3] - vp[0]);
-    let dv = 4.0 * (e[2] - e[0]) + (vp[2] + vp[3] - vp[0] - vp[1]);
-    LimitPoint { position, du, dv }
-}
-
-/// Unit normal of the limit surface at the control vertex `v`: Halstead et
-/// al.'s limit tangents for an interior vertex with quads; for a boundary
-/// vertex the area-weighted normal of its control quads (a proxy, used only
-/// as the direction of φ).
-fn vertex_normal(k: &ControlMesh, v: VertexId) -> DVec3 {
-    if !k.is_boundary_vertex(v) {
-        let hs: Vec<_> = k.outgoing(v).collect();
-        let n = hs.len() as f64;
-        let c1 = (2.0 * std::f64::consts::PI / n).cos();
-        let a = 1.0 + c1 + (std::f64::consts::PI / n).cos() * (2.0 * (9.0 + c1)).sqrt();
-        let (mut t1, mut t2) = (DVec3::ZERO, DVec3::ZERO);
-        for (i, &h) in hs.iter().enumerate() {
-            let th0 = 2.0 * std::f64::consts::PI * i as f64 / n;
-            let th1 = 2.0 * std::f64::consts::PI * (i + 1) as f64 / n;
-            let e = k.position(k.head(h));
-            let d = k.position(k.head(k.next(h)));
-            t1 += a * th0.cos() * e + (th0.cos() + th1.cos()) * d;
-            t2 += a * th0.sin() * e + (th0.sin() + th1.sin()) * d;
-        }
-        let nrm = t1.cross(t2).normalize_or_zero();
-        if nrm != DVec3::ZERO {
-            return nrm;
-        }
-    }
-    let mut nrm = DVec3::ZERO;
-    for f in k.vertex_faces(v) {
-        let q = super::ops::quad_positions(k, f);
-        nrm += (q[2] - q[0]).cross(q[3] - q[1]);
-    }
-    nrm.normalize_or_zero()
-}
-
+/// The limit position of a [`vertex_limit_mask`]: its weighted sum of the
+/// control points.
 fn limit_of(k: &ControlMesh, mask: &[(VertexId, f64)]) -> DVec3 {
     mask.iter().map(|&(u, w)| w * k.position(u)).sum()
 }
@@ -850,11 +712,9 @@ fn phi_batch(bvh: &BvhCaster, lines: &[(DVec3, DVec3, f64)]) -> Vec<Option<Proje
 }
 
 /// Lines from which [`phi_batch`] forks. A collapse's refit and face
-/// updates ask for a few dozen lines at a time (bunny: 60 per collapse,
-/// about 28 % of the loop's time), and those stay on the loop's thread:
-/// forking them from 16 lines on was measured (bunny, 2026-12-05, this
-/// 2-core machine shared with other jobs) at 15.1 s wall / 7.4 CPU s for
-/// the loop against 8.5 s / 4.3 s sequential. Each fork/join wakes a
+/// updates ask for a few dozen lines at a time, and those stay on the
+/// loop's thread: forking them from 16 lines on was measured slower than
+/// sequential (docs/status.md, "Measurements behind the code"). Each fork/join wakes a
 /// worker (30k collapses, ~100k wake-ups), and when the OS has preempted
 /// the worker that stole half a batch the loop waits for it.
 const PHI_PAR_MIN: usize = 512;
@@ -1348,7 +1208,7 @@ impl<'a> Simplifier<'a> {
             return Ok(());
         }
         // Plain polygons: the ring drops the oldest (largest) checkpoints,
-        // ~90 % of those taken on bunny, so the half-edges are built only
+        // most of those taken, so the half-edges are built only
         // for the ones kept, at the end.
         let (c, _) = self.k.live_polygons();
         if self.checkpoints.len() == self.opts.checkpoints {

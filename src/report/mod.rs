@@ -32,10 +32,9 @@
 //! `t` large enough that L has about twice as many samples as M has
 //! vertices (at least the displacement resolution, at most 64): its chordal
 //! error is then well below M's own. Four times as many (the setting until
-//! the scale work of issue 16) moved RMS L by 0.14 % on gargoyle, 0.003 %
-//! on bunny and its 1.1M-triangle ladder rung, for 14 % of the latter's
-//! time in this stage (L's samples, its BVH and its OpenSubdiv evaluation
-//! grow with `t²`). D is the displacement grid itself: the
+//! the scale work of issue 16) moved RMS L by a fraction of a percent for
+//! a noticeable share of this stage's time (L's samples, its BVH and its
+//! OpenSubdiv evaluation grow with `t²`). D is the displacement grid itself: the
 //! limit point plus the measured offset at every `R × R` sample, linear in
 //! between, each grid cell split along its shorter displaced diagonal —
 //! what `displaced.ply` holds. By default the offsets are least-squares
@@ -521,10 +520,9 @@ fn displaced_side(
 }
 
 /// Gauss–Newton rounds of the least squares on the host surface (per-patch
-/// resolutions). Measured at τ = 1 %, RMS M → displaced.ply (‰), one
-/// round against three: bunny 1× 0.097 / 0.097, 2× 0.085 / 0.074;
-/// gargoyle 1× 0.247 / 0.223, 2× 0.147 / 0.134, for about three times
-/// the stage's time (the mode is opt-in).
+/// resolutions): three rounds fit D closer to M than one, for about
+/// three times the stage's time (the mode is opt-in; figures in
+/// docs/status.md, "Measurements behind the code").
 const HOST_LSQ_ROUNDS: usize = 3;
 
 /// The displacement of per-patch resolutions under `budget` samples

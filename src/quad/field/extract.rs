@@ -351,11 +351,10 @@ fn irregularity(val: usize, boundary: bool) -> i64 {
     }
 }
 
-/// Most sides of a merged face. Measured at τ 1 % (natural sizes, patches
-/// / irregular / RMS L ‰ after `subdfit fit`): merging only into quads,
-/// bunny 2064 / 345 / 1.45, homer 774 / 178 / 1.50; into hexagons too,
-/// 2050 / 339 / 1.46 and 764 / 174 / 1.47; any size, 2042 / 337 / 1.64
-/// and 760 / 173 / 1.41 (bunny's larger faces fit worse).
+/// Most sides of a merged face: merging into hexagons too lowers the
+/// irregular vertices a little at no cost in accuracy, while merges of
+/// any size leave larger faces that can fit worse (measured:
+/// docs/status.md, "Measurements behind the code").
 const MAX_MERGED: usize = 6;
 
 /// Adjacent non-quads merged across their shared edge before the split,

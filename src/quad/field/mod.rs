@@ -19,13 +19,8 @@
 //!    paths of split edges, even ones cut by chords), relaxed tangentially,
 //!    with M's components, boundary loops and Euler characteristic checked;
 //!    the fallback solves at twice the size and splits every face once
-//!    (Catmull-Clark).
-//!
-//! Measured at Instant Meshes' own counts with one uniform size (each
-//! layout fitted by `subdfit fit`; quads / irregular / RMS L ‰): spot
-//! 86 / 34 / 9.2 (2h + split: 86 / 21 / 14.1; Instant Meshes 78 faces /
-//! 28 / 8.6), homer 268 / 77 / 4.6 and 1.0 % unprojectable (2h + split:
-//! 230 / 28 / 20.6 and 5.8 %; Instant Meshes 272 / 49 / 3.5 and 0.8 %).
+//!    (Catmull-Clark). (Against Instant Meshes at its own counts:
+//!    docs/status.md, "Measurements behind the code".)
 //! 5. [`cleanup`]: the greedy layout's limit-aware operators (diagonal
 //!    collapse, edge rotation, doublet removal, each with its local fit)
 //!    with a valence term, and a face target's last few collapses.

@@ -28,6 +28,7 @@
 //! from corner k, the second half in sub-face k+1 with v decreasing to its
 //! corner. The differential tests against OpenSubdiv remain the arbiter.
 
+pub mod closed_form;
 pub(crate) mod patch;
 pub(crate) mod topo;
 

@@ -1,0 +1,637 @@
+//! The fast mode of the Fitmap (the default): the same quantities as the
+//! exact mode ([`super::exact`]) from the seed vertices of
+//! [`FAST_SEED_RULE`], layered balls, a clustered proxy of M for the
+//! large radii and a sequential Monte Carlo estimate of the flipped area
+//! with the literal test as its fallback (see the parent module's docs).
+
+use super::exact::exact_ball;
+use super::*;
+
+/// Fast mode: the expected size of a fit on a proxy level, in clusters;
+/// bigger balls are subsampled uniformly (an unbiased subsample of the
+/// least-squares sum of §3.1.2, see `keep_vertex`). Level-0 balls are fitted
+/// with every vertex.
+/// 256 points determine a cubic's RMS residual to a few percent.
+pub const FAST_MAX_FIT_POINTS: usize = 256;
+
+/// Fast mode: balls expected (`π r² n_M / |M|`) to hold more vertices than
+/// this are gathered on a proxy of M instead of M itself.
+pub const FAST_LEVEL0_MAX_VERTICES: f64 = 600.0;
+
+/// Fast mode: proxy cell size = r / this, so that a ball holds about
+/// `π · 6² ≈ 110` clusters (five times the 20 points a cubic fit needs,
+/// [`MIN_FIT_POINTS`]) and M's shape is resolved to 1/6 of the radius.
+pub const FAST_PROXY_CELLS_PER_RADIUS: f64 = 6.0;
+
+/// Fast mode: the M-test of a ball with more triangles than this uses
+/// [`FAST_M_SAMPLES`] Monte Carlo samples instead of the literal test.
+pub const FAST_LITERAL_M_MAX_TRIANGLES: usize = 64;
+
+/// Fast mode: the most triangles drawn to estimate the flipped area of a
+/// large ball ([`flip_test_sampled`]). Where the sequential test has not
+/// decided by then the fraction is within ~±2 standard errors of τ, i.e.
+/// `sqrt(f (1 - f) / 384)` ≈ ±1.1 % at f = 5 %, and the literal test
+/// decides where affordable ([`FAST_LITERAL_FALLBACK_MAX_TRIANGLES`]).
+pub const FAST_M_SAMPLES: usize = 384;
+
+/// Fast mode: a level-0 ball whose sampled M-test is still undecided
+/// after [`FAST_M_SAMPLES`] draws (its flipped fraction is within about
+/// ±2 standard errors of τ) gets the literal test when it has at most this
+/// many triangles: there the exact mode's verdict is one cast away, and a
+/// verdict taken from the estimate would differ from it about half the
+/// time.
+pub const FAST_LITERAL_FALLBACK_MAX_TRIANGLES: usize = 4096;
+
+/// Fast mode: triangles per batch of the sequential M-test (one batch of
+/// rays per Embree call).
+pub const FAST_M_BATCH: usize = 48;
+
+/// Fast mode: z of the Wilson interval that stops the sequential M-test
+/// (two-sided ~95 %).
+pub const FAST_M_Z: f64 = 2.0;
+
+/// `cap` of [`analyse_vertex_fast`] for an analysis of F_S alone.
+pub(super) const NO_M_TEST: u8 = u8::MAX;
+
+/// What the fast mode keeps of a fitted radius for its M-test.
+enum FastBall {
+    /// A level-0 ball: its triangles are the prefix of `sc.tris` (sorted by
+    /// key) with key <= its radius.
+    Level0,
+    /// Clusters of proxy level `li` in the ball.
+    Proxy(usize, Vec<u32>),
+}
+
+/// The triangles of the level-0 layered ball `sc.sorted0` with their key —
+/// the radius from which all three vertices are in the ball — sorted by
+/// (key, triangle) into `sc.tris`, and their running area sums into
+/// `sc.tri_cum` (only the M-test needs them).
+fn level0_triangles(ctx: &Ctx, sc: &mut Scratch) {
+    sc.tris.clear();
+    sc.tri_cum.clear();
+    sc.tri_keys.clear();
+    // The keys of a layered ball are radii (`layered_balls`), and a
+    // triangle's key is the largest of its vertices' keys: the index of
+    // that radius orders the triangles as the key does. Sorting one integer
+    // `(radius index, triangle)` per triangle gives the (key, triangle)
+    // order without comparing floats.
+    let radii = &ctx.radii;
+    for &(k, v) in &sc.sorted0 {
+        sc.key_at[v as usize] = k;
+    }
+    let stamp = sc.next_stamp();
+    for &(_, v) in &sc.sorted0 {
+        for &t in ctx.adj.vt.row(v as usize) {
+            if sc.tmark[t as usize] != stamp {
+                sc.tmark[t as usize] = stamp;
+                let k = ctx.mesh.triangles[t as usize]
+                    .iter()
+                    .map(|&w| sc.key_at[w as usize])
+                    .fold(f64::NEG_INFINITY, f64::max);
+                if k.is_finite() {
+                    let layer = radii.partition_point(|&r| r < k);
+                    debug_assert_eq!(radii.get(layer), Some(&k), "layered keys are radii");
+                    sc.tri_keys.push(((layer as u64) << 32) | t as u64);
+                }
+            }
+        }
+    }
+    sc.tri_keys.sort_unstable();
+    sc.tris.extend(
+        sc.tri_keys
+            .iter()
+            .map(|&key| (radii[(key >> 32) as usize], key as u32)),
+    );
+    for &(_, v) in &sc.sorted0 {
+        sc.key_at[v as usize] = f64::INFINITY;
+    }
+    let mut acc = 0.0;
+    for &(_, t) in &sc.tris {
+        acc += ctx.areas[t as usize];
+        sc.tri_cum.push(acc);
+    }
+}
+
+/// The fast analysis of vertex `p`; the M-test tries radii `<= cap` only
+/// (`cap = NO_M_TEST`: none, F_S alone).
+///
+/// Fitmaps §3.1.2 (the S-fitmap from the cubic fits' residuals over the
+/// radii) and §3.1.3 (the M-fitmap, the largest radius whose cubic passes
+/// the flip test), with the fast mode's approximations: small radii are
+/// fitted on M itself ([`fit_level0_radii`]), large ones on the proxy
+/// levels ([`fit_proxy_radius`]), and the M-test estimates the flip
+/// fraction by sampling ([`FastMTest`]).
+pub(super) fn analyse_vertex_fast(ctx: &Ctx, sc: &mut Scratch, p: u32, cap: usize) -> VertexResult {
+    let h = RADIUS_STEPS;
+    let mut res = VertexResult {
+        m_step: h as u8,
+        ..Default::default()
+    };
+    let n = ctx.normals[p as usize];
+    if n == DVec3::ZERO {
+        return res;
+    }
+    let centre = ctx.mesh.positions[p as usize];
+    let frame = Frame::from_normal(centre, n);
+    let mut fits = FastFits {
+        errors: Vec::with_capacity(h + 1),
+        balls: (0..=h).map(|_| None).collect(),
+        tested: Vec::with_capacity(h + 1),
+    };
+
+    // Radii gathered on M itself: one traversal for all of them.
+    let i0 = ctx.level_of.iter().take_while(|l| l.is_none()).count();
+    sc.sorted0.clear();
+    if i0 > 0 {
+        fit_level0_radii(ctx, sc, p, &frame, i0, &mut res, &mut fits);
+    }
+    // Large radii on the proxies.
+    for i in i0..=h {
+        fit_proxy_radius(ctx, sc, p, &frame, i, &mut res, &mut fits);
+    }
+
+    let tested: Vec<usize> = if cap == NO_M_TEST as usize {
+        Vec::new()
+    } else {
+        fits.tested.iter().copied().filter(|&i| i <= cap).collect()
+    };
+    let mut m_test = FastMTest {
+        ctx,
+        p,
+        frame: &frame,
+        balls: &fits.balls,
+        tris_ready: false,
+        rays: 0,
+    };
+    m_from_top_down(&mut res, &tested, |i| m_test.test(i, sc));
+    res.rays = m_test.rays;
+    res.defined = !fits.errors.is_empty();
+    res.s = s_from_errors(&fits.errors);
+    res
+}
+
+/// The fast mode's fits of one vertex, per radius index: the residuals
+/// for F_S (Fitmaps §3.1.2), the cubic and ball the M-test needs, and the
+/// radii that got a cubic, increasing.
+struct FastFits {
+    errors: Vec<(f64, f64)>,
+    balls: Vec<Option<(Cubic, FastBall)>>,
+    tested: Vec<usize>,
+}
+
+/// The fits of the radii `..i0`, gathered on M itself in one layered
+/// traversal; leaves the level-0 ball in `sc.sorted0` for the M-test.
+#[allow(clippy::needless_range_loop)] // radius index shared by several per-radius arrays
+fn fit_level0_radii(
+    ctx: &Ctx,
+    sc: &mut Scratch,
+    p: u32,
+    frame: &Frame,
+    i0: usize,
+    res: &mut VertexResult,
+    fits: &mut FastFits,
+) {
+    let centre = ctx.mesh.positions[p as usize];
+    let mut sorted = std::mem::take(&mut sc.sorted);
+    let stamp = sc.next_stamp();
+    layered_balls(
+        &ctx.adj.vv,
+        &ctx.mesh.positions,
+        p,
+        centre,
+        &ctx.radii[..i0],
+        &mut sc.mark,
+        &mut sc.pmark,
+        stamp,
+        &mut sc.pending,
+        &mut sorted,
+    );
+    for i in 0..i0 {
+        let r = ctx.radii[i];
+        let nb = sorted.partition_point(|&(k, _)| k <= r);
+        if nb < MIN_FIT_POINTS {
+            continue;
+        }
+        // Every vertex of the ball, as in the exact mode: the fit costs
+        // O(|B|) and level-0 balls are small (at most about
+        // FAST_LEVEL0_MAX_VERTICES), while a subsampled cubic would move
+        // the M-test's lines and with them verdicts near τ.
+        sc.pts.clear();
+        sc.pts.extend(
+            sorted[..nb]
+                .iter()
+                .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
+        );
+        res.fits += 1;
+        let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, None, r) else {
+            continue;
+        };
+        fits.errors.push((r, rms));
+        fits.balls[i] = Some((cubic, FastBall::Level0));
+        fits.tested.push(i);
+    }
+    // Keep the level-0 ball for the M-test; the proxies reuse the
+    // other buffer.
+    sc.sorted = std::mem::replace(&mut sc.sorted0, sorted);
+}
+
+/// The fit of radius index `i` on its proxy level (none for a level-0
+/// radius): the clusters in the ball, weighted by the vertices they stand
+/// for, subsampled to [`FAST_MAX_FIT_POINTS`] by a per-vertex hash.
+fn fit_proxy_radius(
+    ctx: &Ctx,
+    sc: &mut Scratch,
+    p: u32,
+    frame: &Frame,
+    i: usize,
+    res: &mut VertexResult,
+    fits: &mut FastFits,
+) {
+    let Some(li) = ctx.level_of[i] else { return };
+    let centre = ctx.mesh.positions[p as usize];
+    let level = &ctx.levels[li];
+    let r = ctx.radii[i];
+    let mut sorted = std::mem::take(&mut sc.sorted);
+    let stamp = sc.next_stamp();
+    layered_balls(
+        &level.adj,
+        &level.rep,
+        level.cluster_of[p as usize],
+        centre,
+        &[r],
+        &mut sc.level_mark[li],
+        &mut sc.level_pmark[li],
+        stamp,
+        &mut sc.pending,
+        &mut sorted,
+    );
+    sc.pts.clear();
+    sc.w.clear();
+    let total_w: f64 = sorted.iter().map(|&(_, c)| level.weight[c as usize]).sum();
+    if total_w >= MIN_FIT_POINTS as f64 && sorted.len() >= MIN_FIT_POINTS.min(10) {
+        let take = |c: u32, sc: &mut Scratch| {
+            sc.pts.push(frame.to_local(level.rep[c as usize]));
+            sc.w.push(level.weight[c as usize]);
+        };
+        if sorted.len() <= FAST_MAX_FIT_POINTS {
+            for &(_, c) in &sorted {
+                take(c, sc);
+            }
+        } else {
+            let keep = FAST_MAX_FIT_POINTS as f64 / sorted.len() as f64;
+            for &(_, c) in &sorted {
+                if keep_vertex(ctx.opts.seed, p, c, keep) {
+                    take(c, sc);
+                }
+            }
+        }
+        res.fits += 1;
+        if let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, Some(&sc.w), r) {
+            fits.errors.push((r, rms));
+            let clusters = sorted.iter().map(|&(_, c)| c).collect();
+            fits.balls[i] = Some((cubic, FastBall::Proxy(li, clusters)));
+            fits.tested.push(i);
+        }
+    }
+    sc.sorted = sorted;
+}
+
+/// The fast M-test of one vertex (Fitmaps §3.1.3): one radius's test at a
+/// time, as [`m_from_top_down`] asks, counting the rays cast. Level-0
+/// triangles are gathered on the first level-0 test only: the top-down
+/// M-test often stops on a proxy radius first.
+struct FastMTest<'a, 'c> {
+    ctx: &'a Ctx<'c>,
+    p: u32,
+    frame: &'a Frame,
+    balls: &'a [Option<(Cubic, FastBall)>],
+    tris_ready: bool,
+    rays: u64,
+}
+
+impl FastMTest<'_, '_> {
+    /// One radius's test, as the exact mode's decision where the estimate
+    /// is too close to τ to give it (`decide_fast`).
+    fn test(&mut self, i: usize, sc: &mut Scratch) -> Option<bool> {
+        let ctx = self.ctx;
+        let (cubic, ball) = self.balls[i].as_ref()?;
+        let r = ctx.radii[i];
+        let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(ctx.opts.seed, self.p, i));
+        if matches!(ball, FastBall::Level0) && !self.tris_ready {
+            level0_triangles(ctx, sc);
+            self.tris_ready = true;
+        }
+        sc.memo.reset();
+        // The triangles of a level-0 ball: all three vertices inside.
+        let nt = sc.tris.partition_point(|&(k, _)| k <= r);
+        let (sampled, k) = self.sample(sc, cubic, ball, r, nt, &mut rng);
+        self.rays += k;
+        match sampled {
+            Sampled::Nothing => None,
+            Sampled::Decided(pass) => Some(pass),
+            Sampled::Undecided { passes } => self.undecided(sc, cubic, ball, i, nt, passes),
+        }
+    }
+
+    /// The estimate of the flip fraction: literal on a small level-0 ball,
+    /// sampled by area otherwise (M's triangles, or the proxy clusters'
+    /// triangles through their clusters).
+    fn sample(
+        &self,
+        sc: &mut Scratch,
+        cubic: &Cubic,
+        ball: &FastBall,
+        r: f64,
+        nt: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> (Sampled, u64) {
+        let (ctx, frame) = (self.ctx, self.frame);
+        match ball {
+            FastBall::Level0 if nt <= FAST_LITERAL_M_MAX_TRIANGLES => {
+                let t: Vec<u32> = sc.tris[..nt].iter().map(|&(_, t)| t).collect();
+                let (f, k) = flip_fraction_literal(ctx, frame, cubic, r, &t, None);
+                (
+                    f.map_or(Sampled::Nothing, |f| {
+                        Sampled::Decided(f < ctx.opts.tolerance)
+                    }),
+                    k,
+                )
+            }
+            FastBall::Level0 => {
+                let (tris, cum) = (&sc.tris, &sc.tri_cum[..nt]);
+                let acc = cum[nt - 1];
+                let mut sample = |rng: &mut ChaCha8Rng| (acc > 0.0).then(|| tris[draw(cum, rng)].1);
+                flip_test_sampled(ctx, frame, cubic, r, &mut sample, rng, &mut sc.memo)
+            }
+            FastBall::Proxy(li, clusters) => {
+                let level = &ctx.levels[*li];
+                let mut cum = Vec::with_capacity(clusters.len());
+                let mut acc = 0.0;
+                for &c in clusters {
+                    acc += level.area[c as usize];
+                    cum.push(acc);
+                }
+                let mut sample = |rng: &mut ChaCha8Rng| {
+                    if acc <= 0.0 {
+                        return None;
+                    }
+                    let c = clusters[draw(&cum, rng)] as usize;
+                    Some(level.tris.row(c)[draw(level.tri_cum_row(c), rng)])
+                };
+                flip_test_sampled(ctx, frame, cubic, r, &mut sample, rng, &mut sc.memo)
+            }
+        }
+    }
+
+    /// The verdict where the estimate is within its uncertainty of τ
+    /// (`passes`: the estimate's side).
+    fn undecided(
+        &mut self,
+        sc: &mut Scratch,
+        cubic: &Cubic,
+        ball: &FastBall,
+        i: usize,
+        nt: usize,
+        passes: bool,
+    ) -> Option<bool> {
+        let (ctx, frame) = (self.ctx, self.frame);
+        let r = ctx.radii[i];
+        match ball {
+            // A level-0 ball has the exact mode's cubic: the literal test
+            // on its triangles (those drawn already known) is the exact
+            // mode's verdict.
+            FastBall::Level0 if nt <= FAST_LITERAL_FALLBACK_MAX_TRIANGLES => {
+                let t: Vec<u32> = sc.tris[..nt].iter().map(|&(_, t)| t).collect();
+                let memo = Some(&mut sc.memo);
+                let (f, k) = flip_fraction_literal(ctx, frame, cubic, r, &t, memo);
+                self.rays += k;
+                f.map(|f| f < ctx.opts.tolerance)
+            }
+            // A proxy ball's cubic is not the exact mode's: the exact
+            // ball, cubic and literal test, when asked for.
+            FastBall::Proxy(..) if ctx.opts.certify => {
+                let (_, exact) = exact_ball(ctx, sc, self.p, frame, i);
+                let (cubic, _, tris) = exact?;
+                let (f, k) = flip_fraction_literal(ctx, frame, &cubic, r, &tris, None);
+                self.rays += k;
+                f.map(|f| f < ctx.opts.tolerance)
+            }
+            _ => Some(passes),
+        }
+    }
+}
+
+/// Fast mode: a vertex analysed because its seed neighbours disagree on
+/// F_M ([`FAST_SEED_RULE`]) tests the radii from at most this many steps
+/// above the highest seed neighbour's F_M down, not from `r_h`. Its F_M is
+/// one edge (~`r_0`) from theirs, and a radius that fails at every seed
+/// around it fails there too but for a fold narrower than an edge; the
+/// radii skipped are the expensive ones (failing M-tests of the largest
+/// balls, Monte Carlo up to [`FAST_M_SAMPLES`] draws each). One step
+/// saves a fifth of the CPU time for a fraction of a percent of the
+/// vertices leaving F_M's exact step; zero steps save more but come too
+/// near the 90 % agreement criterion (docs/status.md, "Measurements
+/// behind the code").
+pub const FAST_M_STEPS_ABOVE_SEEDS: usize = 1;
+
+/// Fast mode: an interpolated vertex whose seed neighbours' F_S differ by
+/// more than this ratio (largest / smallest) gets its own F_S (the fits of
+/// its balls, no M-test; F_M stays interpolated). F_S varies slowly at the
+/// scale of one edge (every ball of a vertex holds its neighbour's ball of
+/// one step smaller radius), but Spearman's ρ compares *ranks*,
+/// and on a CAD model with a narrow F_S range the mean of the neighbours
+/// reorders vertices; fitting those whose seeds differ brings ρ most of
+/// the way to the all-analysed value for a few percent more CPU time
+/// (docs/status.md, "Measurements behind the code").
+pub const FAST_S_DIRECT_SPREAD: f64 = 1.05;
+
+/// Fast mode: which vertices are analysed, and how the others get their
+/// values. The seeds are the greedy maximal independent set of the vertex
+/// graph in vertex order (a vertex is a seed unless an earlier neighbour
+/// is one): about a quarter to a third of the vertices, every other vertex
+/// adjacent to at least one seed, so no vertex is more than one edge (~r_0)
+/// from an analysed one. A non-seed vertex takes
+/// - F_S = the mean of its seed neighbours' F_S (linear interpolation of
+///   the field at the scale of one edge, the same interpolation §3.1.1
+///   uses over faces), and
+/// - F_M = the step its seed neighbours agree on. Where they do not all
+///   agree the field changes at the scale of one edge (a fold's border,
+///   where the flipped fraction sits at τ over several radii) and no
+///   interpolation is trustworthy: the vertex is analysed itself, testing
+///   radii from [`FAST_M_STEPS_ABOVE_SEEDS`] above its seed neighbours'
+///   highest step down.
+/// - Where the seed neighbours' F_S differ by more than
+///   [`FAST_S_DIRECT_SPREAD`], F_S is computed directly instead.
+///
+/// Seeds whose analysis is undefined (no well-posed cubic) do not count;
+/// a vertex with no defined seed neighbour is analysed itself.
+pub const FAST_SEED_RULE: &str =
+    "greedy 1-ring independent set; F_S mean, F_M agreed step, else analysed";
+
+/// The seeds of [`FAST_SEED_RULE`], in increasing order.
+pub(super) fn fast_seeds(vv: &Csr, nv: usize) -> Vec<u32> {
+    let mut seed = vec![false; nv];
+    let mut out = Vec::with_capacity(nv / 3);
+    for v in 0..nv {
+        if !vv
+            .row(v)
+            .iter()
+            .any(|&w| (w as usize) < v && seed[w as usize])
+        {
+            seed[v] = true;
+            out.push(v as u32);
+        }
+    }
+    out
+}
+
+/// A non-seed vertex's values from its analysed neighbours
+/// ([`FAST_SEED_RULE`]); `None` when no neighbour has a defined analysis.
+pub(super) fn interpolate_from_seeds(
+    vv: &Csr,
+    v: usize,
+    results: &[VertexResult],
+    analysed: &[bool],
+) -> Option<VertexResult> {
+    let (mut s, mut k, mut step, mut hi) = (0.0, 0usize, u8::MAX, 0u8);
+    for &w in vv.row(v) {
+        let r = &results[w as usize];
+        if analysed[w as usize] && r.defined {
+            s += r.s;
+            k += 1;
+            step = step.min(r.m_step);
+            hi = hi.max(r.m_step);
+        }
+    }
+    (k > 0 && hi == step).then(|| VertexResult {
+        s: s / k as f64,
+        m_step: step,
+        defined: true,
+        m_floor: step == 0,
+        fits: 0,
+        rays: 0,
+    })
+}
+
+/// The defined analysed neighbours of `v`: (F_S range, highest F_M step),
+/// `None` when there are none.
+pub(super) fn seed_neighbour_range(
+    vv: &Csr,
+    v: usize,
+    results: &[VertexResult],
+    analysed: &[bool],
+) -> Option<((f64, f64), u8)> {
+    let mut out: Option<((f64, f64), u8)> = None;
+    for &w in vv.row(v) {
+        let r = &results[w as usize];
+        if analysed[w as usize] && r.defined {
+            let ((lo, hi), m) = out.unwrap_or(((r.s, r.s), r.m_step));
+            out = Some(((lo.min(r.s), hi.max(r.s)), m.max(r.m_step)));
+        }
+    }
+    out
+}
+
+/// Outcome of [`flip_test_sampled`].
+#[derive(Copy, Clone, Debug, PartialEq)]
+enum Sampled {
+    /// The ball has no area (nothing to test), or ray casting failed.
+    Nothing,
+    /// The Wilson interval lies on one side of τ: `true` = passes.
+    Decided(bool),
+    /// Still straddling τ after [`FAST_M_SAMPLES`] draws: the flipped
+    /// fraction is within a few percent of τ, where the caller decides
+    /// literally if it can; `passes` is the point estimate's verdict.
+    Undecided { passes: bool },
+}
+
+/// Fast-mode M-test of a large ball: the literal flipped fraction
+/// ([`flip_fraction_literal`]) estimated by Monte Carlo over the ball's
+/// triangles. `draw` picks a triangle of the ball with probability
+/// proportional to its area; its verdict is the literal one (the same
+/// samples, [`MSamples`], the same rule, [`triangle_verdicts`]), so the
+/// fraction of drawn triangles not reached is an unbiased estimate of the
+/// literal flipped fraction for the same cubic. The verdicts go to `memo`
+/// (reset by the caller for each cubic).
+///
+/// Sequential test: triangles come in batches of [`FAST_M_BATCH`]; after
+/// each batch the test stops as soon as the Wilson score interval (z =
+/// [`FAST_M_Z`]) of the flipped fraction lies entirely below τ (pass) or
+/// above it (fail). Typical balls are far from τ (no fold at all, or a fold
+/// filling much of the ball) and stop after one to three batches. After
+/// [`FAST_M_SAMPLES`] draws the fraction is within a few percent of τ and
+/// the test returns [`Sampled::Undecided`]: there the estimate cannot be
+/// trusted to give the literal verdict, and the caller takes the literal
+/// one where it can (see `decide_fast`).
+///
+/// The decision is monotone in τ for a given seed: the draws are a prefix
+/// of one stream, and if the test for τ₁ passes at n (upper bound < τ₁),
+/// every lower bound before n was <= τ₁ < τ₂, so the test for τ₂ cannot
+/// fail earlier and passes by n (the literal fraction is one number, so the
+/// fallback is monotone too).
+fn flip_test_sampled(
+    ctx: &Ctx,
+    frame: &Frame,
+    cubic: &Cubic,
+    r: f64,
+    draw: &mut dyn FnMut(&mut ChaCha8Rng) -> Option<u32>,
+    rng: &mut ChaCha8Rng,
+    memo: &mut VerdictMemo,
+) -> (Sampled, u64) {
+    let tau = ctx.opts.tolerance;
+    let (mut n, mut k, mut rays) = (0usize, 0usize, 0u64);
+    let mut batch = Vec::with_capacity(FAST_M_BATCH);
+    let mut todo = Vec::with_capacity(FAST_M_BATCH);
+    let mut reached = Vec::with_capacity(FAST_M_BATCH);
+    while n < FAST_M_SAMPLES {
+        batch.clear();
+        todo.clear();
+        for _ in 0..FAST_M_BATCH {
+            let Some(t) = draw(rng) else {
+                return (Sampled::Nothing, rays);
+            };
+            batch.push(t);
+            if memo.get(t).is_none() && !todo.contains(&t) {
+                todo.push(t);
+            }
+        }
+        let Some(c) = triangle_verdicts(ctx, frame, cubic, r, &todo, &mut reached) else {
+            return (Sampled::Nothing, rays);
+        };
+        for (&t, &ok) in todo.iter().zip(&reached) {
+            memo.set(t, ok);
+        }
+        rays += c;
+        n += batch.len();
+        k += batch
+            .iter()
+            .filter(|&&t| memo.get(t) == Some(false))
+            .count();
+        let (lo, hi) = wilson(k, n, FAST_M_Z);
+        if hi < tau {
+            return (Sampled::Decided(true), rays);
+        }
+        if lo > tau {
+            return (Sampled::Decided(false), rays);
+        }
+    }
+    let passes = (k as f64) < tau * n as f64;
+    (Sampled::Undecided { passes }, rays)
+}
+
+/// Wilson score interval of a binomial proportion `k / n`.
+fn wilson(k: usize, n: usize, z: f64) -> (f64, f64) {
+    let (n, p) = (n as f64, k as f64 / n as f64);
+    let z2 = z * z;
+    let d = 1.0 + z2 / n;
+    let c = (p + z2 / (2.0 * n)) / d;
+    let h = z * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt() / d;
+    (c - h, c + h)
+}
+/// Area-proportional draw from a cumulative table.
+fn draw(cum: &[f64], rng: &mut ChaCha8Rng) -> usize {
+    let total = *cum.last().unwrap_or(&0.0);
+    let x = rng.gen::<f64>() * total;
+    cum.partition_point(|&c| c <= x)
+        .min(cum.len().saturating_sub(1))
+}

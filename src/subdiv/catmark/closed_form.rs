@@ -1,0 +1,122 @@
+//! Closed-form Catmull-Clark quantities read straight off a
+//! [`ControlMesh`], for callers that need one value at a time inside a
+//! sequential loop (the greedy layout's collapses, Fitmaps §3.3–3.4) where
+//! preparing an evaluator per edit would cost more than the answer: the
+//! one-step face, edge and vertex points (Catmull and Clark 1978, with
+//! boundary edges as creases: cubic B-spline rule, corners fixed), the
+//! limit at a quad's centre, and the limit normal at a vertex (Halstead et
+//! al. 1993's limit tangents). Smooth rules only: no semi-sharp creases.
+//! The general evaluator, for any location and semi-sharp features, is
+//! [`super::RustEvaluator`].
+
+use crate::mesh::{ControlMesh, FaceId, HalfedgeId, VertexId};
+use crate::subdiv::LimitPoint;
+use crate::DVec3;
+
+/// The Catmull-Clark face point of `f` (the centroid of its corners).
+pub fn centroid(k: &ControlMesh, f: FaceId) -> DVec3 {
+    let mut c = DVec3::ZERO;
+    let mut n = 0.0;
+    for v in k.face_vertices(f) {
+        c += k.position(v);
+        n += 1.0;
+    }
+    c / n
+}
+
+/// The Catmull-Clark vertex point of `v` after one step (smooth rules;
+/// boundary edges are creases: cubic B-spline rule, corners fixed).
+pub fn vertex_point(k: &ControlMesh, v: VertexId) -> DVec3 {
+    let p = k.position(v);
+    let h0 = k.vertex_halfedge(v);
+    if k.is_boundary_halfedge(h0) {
+        if k.valence(v) == 2 {
+            return p;
+        }
+        let next = k.position(k.head(h0));
+        let prev = k.position(k.tail(k.prev(h0)));
+        return (prev + 6.0 * p + next) / 8.0;
+    }
+    let mut q = DVec3::ZERO;
+    let mut r = DVec3::ZERO;
+    let mut n = 0.0;
+    for h in k.outgoing(v) {
+        q += centroid(k, k.face_of(h).expect("interior"));
+        r += 0.5 * (p + k.position(k.head(h)));
+        n += 1.0;
+    }
+    (q / n + 2.0 * r / n + (n - 3.0) * p) / n
+}
+
+/// The Catmull-Clark edge point of the edge of `h`.
+pub fn edge_point(k: &ControlMesh, h: HalfedgeId) -> DVec3 {
+    let a = k.position(k.tail(h));
+    let b = k.position(k.head(h));
+    match (k.face_of(h), k.face_of(h.twin())) {
+        (Some(f), Some(g)) => (a + b + centroid(k, f) + centroid(k, g)) / 4.0,
+        _ => 0.5 * (a + b),
+    }
+}
+
+/// The limit point and tangents at the centre of the quad `f`, in closed
+/// form: one Catmull-Clark step makes the face point a regular (valence 4)
+/// vertex whose neighbours are the four edge points `E_i` and whose
+/// diagonals are the four vertex points `V_i`, so its limit is
+/// `(16 F + 4 Σ E_i + Σ V_i) / 36` and its tangents are those of the
+/// bicubic B-spline at a knot. Exact for any valences around the face.
+pub fn face_centre_limit(k: &ControlMesh, f: FaceId) -> LimitPoint {
+    let hs: Vec<_> = k.face_halfedges(f).collect();
+    debug_assert_eq!(hs.len(), 4);
+    let fp = centroid(k, f);
+    let e: Vec<DVec3> = hs.iter().map(|&h| edge_point(k, h)).collect();
+    let vp: Vec<DVec3> = hs.iter().map(|&h| vertex_point(k, k.tail(h))).collect();
+    let position =
+        (16.0 * fp + 4.0 * (e[0] + e[1] + e[2] + e[3]) + vp[0] + vp[1] + vp[2] + vp[3]) / 36.0;
+    // E_0 lies on edge (v0, v1), so E_0 − E_2 runs along "v" and E_1 − E_3
+    // along "u" of the face; the B-spline derivative at a knot weighs the
+    // middle row 4 and the corner rows 1 (scale irrelevant for the normal).
+    let du = 4.0 * (e[1] - e[3]) + (vp[1] + vp[2] - vp[3] - vp[0]);
+    let dv = 4.0 * (e[2] - e[0]) + (vp[2] + vp[3] - vp[0] - vp[1]);
+    LimitPoint { position, du, dv }
+}
+
+/// Unit normal of the limit surface at the control vertex `v`: Halstead et
+/// al.'s limit tangents for an interior vertex with quads; for a boundary
+/// vertex the area-weighted normal of its control quads (a proxy, used only
+/// as the direction of φ).
+pub fn vertex_normal(k: &ControlMesh, v: VertexId) -> DVec3 {
+    if !k.is_boundary_vertex(v) {
+        let hs: Vec<_> = k.outgoing(v).collect();
+        let n = hs.len() as f64;
+        let c1 = (2.0 * std::f64::consts::PI / n).cos();
+        let a = 1.0 + c1 + (std::f64::consts::PI / n).cos() * (2.0 * (9.0 + c1)).sqrt();
+        let (mut t1, mut t2) = (DVec3::ZERO, DVec3::ZERO);
+        for (i, &h) in hs.iter().enumerate() {
+            let th0 = 2.0 * std::f64::consts::PI * i as f64 / n;
+            let th1 = 2.0 * std::f64::consts::PI * (i + 1) as f64 / n;
+            let e = k.position(k.head(h));
+            let d = k.position(k.head(k.next(h)));
+            t1 += a * th0.cos() * e + (th0.cos() + th1.cos()) * d;
+            t2 += a * th0.sin() * e + (th0.sin() + th1.sin()) * d;
+        }
+        let nrm = t1.cross(t2).normalize_or_zero();
+        if nrm != DVec3::ZERO {
+            return nrm;
+        }
+    }
+    let mut nrm = DVec3::ZERO;
+    for f in k.vertex_faces(v) {
+        let q = quad_positions(k, f);
+        nrm += (q[2] - q[0]).cross(q[3] - q[1]);
+    }
+    nrm.normalize_or_zero()
+}
+
+/// The four corner positions of the quad `f`, from its first half-edge.
+fn quad_positions(k: &ControlMesh, f: FaceId) -> [DVec3; 4] {
+    let h0 = k.face_halfedge(f);
+    let h1 = k.next(h0);
+    let h2 = k.next(h1);
+    let h3 = k.next(h2);
+    [h0, h1, h2, h3].map(|h| k.position(k.tail(h)))
+}
