@@ -49,6 +49,25 @@ fn check(
         let s2m = &r["accuracy"]["limit"]["surface_to_mesh"];
         let rms = s2m["rms_permille"].as_f64().unwrap();
         let met = r["targets_met"].as_bool().unwrap();
+        // The verdict must describe the control mesh written: the figures
+        // it is taken from (`stats.output`) are of a mesh with the written
+        // face count, and agree with it. (It was once the last enrichment
+        // round's, measured before each region's best state was put back
+        // and the final geometry pass: 547 faces measured, 570 written.)
+        let out = &r["options"]["mechanical"]["stats"]["output"];
+        assert_eq!(
+            out["faces"], c["faces"],
+            "{name}: verdict measured on another mesh"
+        );
+        assert_eq!(
+            out["vertices"], c["vertices"],
+            "{name}: verdict measured on another mesh"
+        );
+        assert_eq!(
+            met,
+            out["faces_over_limit"].as_u64() == Some(0),
+            "{name}: targets_met disagrees with the written mesh's faces over the limit"
+        );
         println!(
             "{name}: {} triangles -> {} faces, RMS {rms:.3}‰ max {:.2}‰, max valence {max_valence}, targets met {met}, {secs:.1} s",
             m.triangles.len(),

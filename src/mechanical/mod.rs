@@ -200,7 +200,10 @@ pub struct MechanicalStats {
     /// A region was rebuilt as a star because the chord layout failed.
     pub star_fallback: bool,
     pub rounds: Vec<optimize::Round>,
-    /// The last round still had faces above `max_error`.
+    /// The control mesh as returned (after the last geometry pass, which
+    /// follows the last round): what `--max-error` is judged on.
+    pub output: optimize::Round,
+    /// The returned control mesh has faces above `max_error`.
     pub error_limit_reached: bool,
     pub seconds: Vec<(String, f64)>,
 }
@@ -808,7 +811,7 @@ fn build_with(
     laps.lap("polyhedron");
 
     // §7: fitting and enrichment with the curve points fixed.
-    let rounds = fit_and_enrich(
+    let optimize::Optimized { rounds, output } = fit_and_enrich(
         mesh,
         caster,
         &topo,
@@ -820,7 +823,7 @@ fn build_with(
     )?;
     laps.lap("optimize");
     let control = polys.to_control()?;
-    let error_limit_reached = rounds.last().is_some_and(|r| r.faces_over_limit > 0);
+    let error_limit_reached = output.faces_over_limit > 0;
     let (curve_max_error_permille, pieces) = piece_stats(&net, &stage, diag);
     Ok(Built {
         control,
@@ -846,6 +849,7 @@ fn build_with(
             initial_vertices,
             star_fallback,
             rounds,
+            output,
             error_limit_reached,
             seconds: laps.seconds,
         },
@@ -1317,7 +1321,7 @@ fn fit_and_enrich(
     region_tris: &[Vec<u32>],
     polys: &mut optimize::Polys,
     opts: &MechanicalOptions,
-) -> Result<Vec<optimize::Round>> {
+) -> Result<optimize::Optimized> {
     let reach = region_reach(topo, sharp, region_tris);
     let on_sharp: Vec<bool> = (0..mesh.positions.len() as u32)
         .map(|v| topo.vertex_edges(v).iter().any(|&e| sharp[e as usize]))
