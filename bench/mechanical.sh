@@ -17,8 +17,9 @@
 # RMS vs faces (--max-error: F / RMS): 0.9e-3: 202 / 0.19, 1.1e-3:
 # 143 / 0.26, 1.5e-3: 113 / 0.33, 2e-3: 98 / 0.42, 4e-3: 78 / 1.11,
 # 8e-3: 68 / 1.62.
-# block.ply and joint.ply (default settings): block 248 F, RMS 0.79;
-# joint 188 F, RMS 0.77 (report.json, surface to mesh).
+# block.ply and joint.ply (default settings): block 260 F, RMS 0.79;
+# joint 210 F, RMS 0.755 (report.json, surface to mesh; 188 F, 0.77 before the
+# corner-keeping smoothing of boundary pieces, docs/status.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo build --release --bin subdfit
@@ -53,7 +54,7 @@ PY
 done
 # Procedural CAD parts (issue 38; src/fixtures/cad.rs): the regression set
 # of tests/mechanical_parts.rs, the heavy parts (35k-48k triangles, like an
-# exported CAD mesh) and the open ones, at the defaults. Figures (faces,
+# exported CAD mesh), at the defaults. Figures (faces,
 # RMS, max valence, faces over, wall / CPU seconds on the loaded 2-core
 # machine) are in docs/status.md, "Mechanical parts".
 parts=$out/parts

@@ -9,7 +9,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     std::fs::create_dir_all(&dir)?;
     let mut parts = subdfit::fixtures::cad::parts();
     parts.extend(subdfit::fixtures::cad::heavy_parts());
-    parts.extend(subdfit::fixtures::cad::open_parts());
     for (name, plate) in parts {
         let m = plate.mesh();
         let path = dir.join(format!("{name}.ply"));

@@ -231,7 +231,7 @@ pub fn optimize(
     polys: &mut Polys,
     frames: &[TriFrame],
     o: &OptimizeOptions,
-) -> Result<Vec<Round>> {
+) -> Result<Optimized> {
     let diag = mesh.bbox_diagonal();
     let limit = o.max_error * diag;
     let mut rounds = Vec::new();
@@ -262,33 +262,24 @@ pub fn optimize(
             o.m0,
             0.01,
         )?;
-        // Restricted distance drives enrichment; the reported figures are
-        // the honest unrestricted distance to M.
-        let dists: Vec<f64> = pts
-            .iter()
-            .zip(&feet)
-            .map(|(p, f)| f.map_or(f64::NAN, |f| (*p - f).length()))
-            .collect();
-        let report: Vec<f64> = caster
-            .closest_points(&pts, f64::INFINITY)?
-            .iter()
-            .map(|c| c.map_or(f64::NAN, |c| c.distance))
-            .collect();
-        let err = SampleErrors::new(polys, &locs, &dists);
+        let Measured {
+            err,
+            dists,
+            face_over,
+            over_all,
+            mut rec,
+        } = measure(caster, polys, &locs, &pts, &feet, iters, limit, diag)?;
         let nf = polys.faces.len();
         let nreg = err.rsum.len();
         book.grow(nreg);
-        let face_over: Vec<bool> = err.frms.iter().map(|&e| e > limit).collect();
         let regressed = book.record(polys, &err, &face_over);
         let any_regressed = regressed.iter().any(|&x| x);
-        let over_all = (0..nf).filter(|&f| err.frms[f] > limit).count();
         let over: Vec<usize> = (0..nf)
             .filter(|&f| {
                 let r = polys.face_region[f] as usize;
                 face_over[f] && !regressed[r] && !book.frozen[r]
             })
             .collect();
-        let mut rec = round_record(polys, &report, &err, iters, over_all, diag);
         // Progress is judged per region (`RegionBook::record`): a region
         // whose enrichment bought less than 2 % of its RMS is enriched
         // differently, then frozen, while the others go on. A regression
@@ -325,7 +316,7 @@ pub fn optimize(
     // `--max-error 1.1e-3`: RMS 0.312‰ → 0.306‰; at the default 3e-3 it
     // stops after 4 steps, 0.744‰ → 0.733‰). Per-region acceptance as in
     // the rounds: no region's distance rises.
-    geometry(
+    let g = geometry(
         mesh.positions.len(),
         &region_casters,
         polys,
@@ -335,7 +326,68 @@ pub fn optimize(
         2 * o.m0,
         1e-3,
     )?;
-    Ok(rounds)
+    // The figures of the surface as written: the restore of each region's
+    // best state, the doublet splits and this pass all change it after the
+    // last round was measured, so `--max-error`'s verdict is taken here.
+    let output = measure(
+        caster, polys, &g.locs, &g.pts, &g.feet, g.iters, limit, diag,
+    )?
+    .rec;
+    Ok(Optimized { rounds, output })
+}
+
+/// What [`optimize`] measured: each round (before its enrichment) and the
+/// control mesh it returns (after the final geometry pass).
+pub struct Optimized {
+    pub rounds: Vec<Round>,
+    pub output: Round,
+}
+
+/// One measurement of the fitted samples: per-face and per-region errors
+/// of the restricted distances (what enrichment and `--max-error` judge)
+/// and the round record (unrestricted distances to M).
+struct Measured {
+    err: SampleErrors,
+    dists: Vec<f64>,
+    face_over: Vec<bool>,
+    over_all: usize,
+    rec: Round,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn measure(
+    caster: &dyn RayCaster,
+    polys: &Polys,
+    locs: &[crate::subdiv::SurfaceLocation],
+    pts: &[DVec3],
+    feet: &[Option<DVec3>],
+    iters: usize,
+    limit: f64,
+    diag: f64,
+) -> Result<Measured> {
+    // Restricted distance drives enrichment; the reported figures are
+    // the honest unrestricted distance to M.
+    let dists: Vec<f64> = pts
+        .iter()
+        .zip(feet)
+        .map(|(p, f)| f.map_or(f64::NAN, |f| (*p - f).length()))
+        .collect();
+    let report: Vec<f64> = caster
+        .closest_points(pts, f64::INFINITY)?
+        .iter()
+        .map(|c| c.map_or(f64::NAN, |c| c.distance))
+        .collect();
+    let err = SampleErrors::new(polys, locs, &dists);
+    let face_over: Vec<bool> = err.frms.iter().map(|&e| e > limit).collect();
+    let over_all = face_over.iter().filter(|&&x| x).count();
+    let rec = round_record(polys, &report, &err, iters, over_all, diag);
+    Ok(Measured {
+        err,
+        dists,
+        face_over,
+        over_all,
+        rec,
+    })
 }
 
 /// Removes every interior vertex of valence 2 (a *doublet*: two faces
