@@ -5,6 +5,8 @@
 //! directions: axis and circle), a flat annulus (a hole to keep) and a
 //! thin torus (a handle to keep).
 
+mod common;
+
 use std::f64::consts::PI;
 
 use subdfit::analysis::Fitmap;
@@ -82,74 +84,12 @@ fn torus(big: f64, small: f64, nu: usize, nv: usize) -> TriMesh {
 /// symmetric mesh's field has 20 + 12 − singularities at the icosahedron's
 /// faces and vertices instead of 8 (measured).
 fn icosphere(levels: usize) -> TriMesh {
-    let mut m = icosphere_exact(levels);
+    let mut m = common::icosphere(levels as u32, DVec3::ZERO, 1.0);
     for (i, p) in m.positions.iter_mut().enumerate() {
         let h = (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 40;
         *p *= 1.0 + 0.005 * (h as f64 / (1u64 << 24) as f64 * 2.0 - 1.0);
     }
     m
-}
-
-fn icosphere_exact(levels: usize) -> TriMesh {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut p: Vec<DVec3> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .iter()
-    .map(|a| DVec3::from_array(*a).normalize())
-    .collect();
-    let mut f: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut mid = std::collections::HashMap::new();
-        let mut m = |a: u32, b: u32, p: &mut Vec<DVec3>| {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                p.push((p[a as usize] + p[b as usize]).normalize());
-                p.len() as u32 - 1
-            })
-        };
-        let mut g = Vec::new();
-        for &[a, b, c] in &f {
-            let (ab, bc, ca) = (m(a, b, &mut p), m(b, c, &mut p), m(c, a, &mut p));
-            g.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        f = g;
-    }
-    TriMesh {
-        positions: p,
-        triangles: f,
-    }
 }
 
 /// A Fitmap that asks for nothing (F_S undefined, F_M the largest
