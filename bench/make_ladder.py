@@ -4,6 +4,10 @@ k times, each new vertex moved along its normal by seeded noise of 0.05 of
 the rung's mean edge (a scan's fine grain, without changing the shape).
 
 usage: make_ladder.py INPUT.ply OUTDIR LEVEL...   (writes OUTDIR/rungL.ply)
+
+LEVEL is a number of 1-to-4 steps, or `10m`: level 2 split once more 1-to-9
+(every edge in thirds, one point inside each face), 144x the input's
+triangles (bunny: 10.0M), written as OUTDIR/rung10m.ply.
 """
 import struct
 import sys
@@ -53,6 +57,50 @@ def subdivide(v, f, rng):
     return np.concatenate([v, mid]), f2
 
 
+def trisect(v, f, rng):
+    """1-to-9 split: two points on every edge (at a third and two thirds),
+    one at each face's centroid, the new points moved along the normal by
+    the same seeded noise as `subdivide` (0.05 of the new mean edge)."""
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    lo, hi = e.min(axis=1), e.max(axis=1)
+    uniq, inv = np.unique(np.stack([lo, hi], 1), axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    vn = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(vn, f[:, k], fn)
+    vn /= np.maximum(np.linalg.norm(vn, axis=1), 1e-300)[:, None]
+    a, b = v[uniq[:, 0]], v[uniq[:, 1]]
+    en = vn[uniq[:, 0]] + vn[uniq[:, 1]]
+    en /= np.maximum(np.linalg.norm(en, axis=1), 1e-300)[:, None]
+    h = np.linalg.norm(b - a, axis=1).mean() / 3.0
+    p1 = (2.0 * a + b) / 3.0 + en * (0.05 * h * rng.standard_normal(len(a)))[:, None]
+    p2 = (a + 2.0 * b) / 3.0 + en * (0.05 * h * rng.standard_normal(len(a)))[:, None]
+    fc = (v[f[:, 0]] + v[f[:, 1]] + v[f[:, 2]]) / 3.0
+    cn = vn[f[:, 0]] + vn[f[:, 1]] + vn[f[:, 2]]
+    cn /= np.maximum(np.linalg.norm(cn, axis=1), 1e-300)[:, None]
+    fc += cn * (0.05 * h * rng.standard_normal(len(f)))[:, None]
+    n, ne, nf = len(v), len(uniq), len(f)
+    # The point of edge k (k = 0: v0v1, 1: v1v2, 2: v2v0) nearer its first
+    # corner, and the one nearer its second: p1 lies at a third from the
+    # edge's smaller vertex id.
+    near = []
+    for k in range(3):
+        idx = inv[k * nf : (k + 1) * nf]
+        first_is_lo = e[k * nf : (k + 1) * nf, 0] == lo[k * nf : (k + 1) * nf]
+        i1, i2 = n + idx, n + ne + idx
+        near.append((np.where(first_is_lo, i1, i2), np.where(first_is_lo, i2, i1)))
+    (x, y), (z, w), (s, t) = near
+    c = n + 2 * ne + np.arange(nf)
+    v0, v1, v2 = f[:, 0], f[:, 1], f[:, 2]
+    tris = [
+        (v0, x, t), (x, y, c), (y, v1, z), (t, c, s), (c, z, w), (s, w, v2),
+        (x, c, t), (y, z, c), (c, w, s),
+    ]
+    f2 = np.concatenate([np.stack(tr, 1) for tr in tris])
+    return np.concatenate([v, p1, p2, fc]), f2
+
+
 def write_ply(path, v, f):
     with open(path, "wb") as w:
         w.write(
@@ -70,16 +118,27 @@ def write_ply(path, v, f):
 
 
 def main():
-    src, out, levels = sys.argv[1], sys.argv[2], sorted(int(x) for x in sys.argv[3:])
+    src, out = sys.argv[1], sys.argv[2]
+    ten_m = "10m" in sys.argv[3:]
+    levels = sorted(int(x) for x in sys.argv[3:] if x != "10m")
     v, f = read_ply(src)
     rng = np.random.default_rng(20261201)
     done = 0
-    for level in levels:
+    level2 = None
+    for level in sorted(set(levels + ([2] if ten_m else []))):
         while done < level:
             v, f = subdivide(v, f, rng)
             done += 1
-        write_ply(f"{out}/rung{level}.ply", v, f)
-        print(f"{out}/rung{level}.ply: {len(f)} triangles")
+            if done == 2 and ten_m:
+                level2 = (v, f)
+        if level in levels:
+            write_ply(f"{out}/rung{level}.ply", v, f)
+            print(f"{out}/rung{level}.ply: {len(f)} triangles")
+    if ten_m:
+        # A seed of its own: the other rungs are the same with or without it.
+        v, f = trisect(*level2, np.random.default_rng(20261205))
+        write_ply(f"{out}/rung10m.ply", v, f)
+        print(f"{out}/rung10m.ply: {len(f)} triangles")
 
 
 if __name__ == "__main__":

@@ -87,17 +87,15 @@ pub fn face_centre_limit(k: &ControlMesh, f: FaceId) -> LimitPoint {
 pub fn vertex_normal(k: &ControlMesh, v: VertexId) -> DVec3 {
     if !k.is_boundary_vertex(v) {
         let hs: Vec<_> = k.outgoing(v).collect();
-        let n = hs.len() as f64;
-        let c1 = (2.0 * std::f64::consts::PI / n).cos();
-        let a = 1.0 + c1 + (std::f64::consts::PI / n).cos() * (2.0 * (9.0 + c1)).sqrt();
+        let ring = HalsteadRing::of(hs.len());
         let (mut t1, mut t2) = (DVec3::ZERO, DVec3::ZERO);
         for (i, &h) in hs.iter().enumerate() {
-            let th0 = 2.0 * std::f64::consts::PI * i as f64 / n;
-            let th1 = 2.0 * std::f64::consts::PI * (i + 1) as f64 / n;
+            let (c0, s0) = ring.cos_sin[i];
+            let (c1, s1) = ring.cos_sin[i + 1];
             let e = k.position(k.head(h));
             let d = k.position(k.head(k.next(h)));
-            t1 += a * th0.cos() * e + (th0.cos() + th1.cos()) * d;
-            t2 += a * th0.sin() * e + (th0.sin() + th1.sin()) * d;
+            t1 += ring.a * c0 * e + (c0 + c1) * d;
+            t2 += ring.a * s0 * e + (s0 + s1) * d;
         }
         let nrm = t1.cross(t2).normalize_or_zero();
         if nrm != DVec3::ZERO {
@@ -110,6 +108,44 @@ pub fn vertex_normal(k: &ControlMesh, v: VertexId) -> DVec3 {
         nrm += (q[2] - q[0]).cross(q[3] - q[1]);
     }
     nrm.normalize_or_zero()
+}
+
+/// The valence-`n` constants of [`vertex_normal`]'s Halstead tangents:
+/// `a` and `(cos θ_j, sin θ_j)`, `θ_j = 2πj / n` for `j = 0..=n`. The greedy
+/// simplification asks for a vertex normal tens of times per collapse, and
+/// the sines and cosines had been a tenth of its own time; the table holds
+/// the same f64 values the expressions give, so normals are bit-identical.
+#[derive(Clone)]
+struct HalsteadRing {
+    a: f64,
+    cos_sin: Vec<(f64, f64)>,
+}
+
+/// Valences with a precomputed [`HalsteadRing`]; larger ones compute theirs.
+const HALSTEAD_TABLE: usize = 32;
+
+impl HalsteadRing {
+    fn new(valence: usize) -> HalsteadRing {
+        let n = valence as f64;
+        let c1 = (2.0 * std::f64::consts::PI / n).cos();
+        let a = 1.0 + c1 + (std::f64::consts::PI / n).cos() * (2.0 * (9.0 + c1)).sqrt();
+        let cos_sin = (0..=valence)
+            .map(|j| {
+                let th = 2.0 * std::f64::consts::PI * j as f64 / n;
+                (th.cos(), th.sin())
+            })
+            .collect();
+        HalsteadRing { a, cos_sin }
+    }
+
+    fn of(valence: usize) -> std::borrow::Cow<'static, HalsteadRing> {
+        static TABLE: std::sync::OnceLock<Vec<HalsteadRing>> = std::sync::OnceLock::new();
+        if valence >= HALSTEAD_TABLE {
+            return std::borrow::Cow::Owned(HalsteadRing::new(valence));
+        }
+        let t = TABLE.get_or_init(|| (0..HALSTEAD_TABLE).map(HalsteadRing::new).collect());
+        std::borrow::Cow::Borrowed(&t[valence])
+    }
 }
 
 /// The four corner positions of the quad `f`, from its first half-edge.
