@@ -31,7 +31,9 @@ EXTRA=${EXTRA:-"bunny gargoyle"}
 QF_MAX=${QF_MAX:-1200000}
 QF_PYTHON=${QF_PYTHON:-}
 if [ -z "$QF_PYTHON" ]; then
-  for p in .venv-peers/bin/python .venv/bin/python; do
+  # A worktree shares the main checkout's virtualenvs.
+  common=$(git rev-parse --path-format=absolute --git-common-dir 2>/dev/null || echo .git)
+  for p in .venv-peers/bin/python "$common/../.venv-peers/bin/python" .venv/bin/python; do
     if [ -x "$p" ] && "$p" -c "import pyQuadriFlow, trimesh" 2>/dev/null; then QF_PYTHON=$p; break; fi
   done
 fi

@@ -349,11 +349,51 @@ pub fn fit_with_progress(
 ) -> Result<Fitted> {
     // Watched (`crate::watch`): the ray queries of every round are chunked,
     // so a cancellation ends the fit within one chunk, not one round.
+    fit_deciding(mesh, control, caster, opts, progress, (None, None)).map(|(f, _)| f)
+}
+
+/// A fit asked only whether its RMS ends within `bound_permille` (‰ of the
+/// diagonal; the `--max-error` search, `convert::search`): it may stop as
+/// soon as the answer is plain, and then says so (see [`fit_deciding`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Decide {
+    pub bound_permille: f64,
+}
+
+/// The least ratio of a fit's final RMS to its RMS after round 1 or later
+/// that [`fit_deciding`] assumes: a fit whose RMS times this is still
+/// above the bound ends above it. Measured 0.74–0.78 after round 1,
+/// 0.79–0.84 after round 2 and 0.85–0.87 after round 3 (bunny at τ = 5 %,
+/// default and `--max-error 2e-3`, gargoyle at 2e-3; the ratio grows with
+/// the round), so 0.65 leaves a margin.
+pub const DECIDE_MISS_FLOOR: f64 = 0.65;
+
+/// [`fit_with_progress`], with `decide`: each start pauses once its kept
+/// iterate's RMS is within the bound (a pass: the rounds after only lower
+/// the score they keep) or, from round 1 on, once that RMS times
+/// [`DECIDE_MISS_FLOOR`] is still above it (a miss). The state is `None`
+/// when every start ran its whole course, i.e. the result is the one
+/// [`fit_with_progress`] gives; else passing it back as `resume` (same
+/// mesh, control mesh and options) runs on from where each start paused,
+/// to the same result as one uninterrupted fit.
+pub fn fit_deciding(
+    mesh: &TriMesh,
+    control: ControlMesh,
+    caster: &dyn RayCaster,
+    opts: &FitOptions,
+    progress: &mut Progress<'_>,
+    (decide, resume): (Option<Decide>, Option<FitState>),
+) -> Result<(Fitted, Option<FitState>)> {
     crate::watch::watched(progress, |w| {
         let caster = crate::raycast::Watched::new(caster, w);
-        fit_both_starts(mesh, control, &caster, opts, &mut |s: &str, f: f64| {
-            w.report(s, f).is_ok()
-        })
+        fit_both_starts(
+            mesh,
+            control,
+            &caster,
+            opts,
+            &mut |s: &str, f: f64| w.report(s, f).is_ok(),
+            (decide, resume),
+        )
     })
 }
 
@@ -364,7 +404,8 @@ fn fit_both_starts(
     caster: &dyn RayCaster,
     opts: &FitOptions,
     progress: &mut Progress<'_>,
-) -> Result<Fitted> {
+    (decide, resume): (Option<Decide>, Option<FitState>),
+) -> Result<(Fitted, Option<FitState>)> {
     let t0 = Instant::now();
     opts.check()?;
     let facts = MeshFacts::of(mesh);
@@ -373,8 +414,44 @@ fn fit_both_starts(
     } else {
         rim::fit_rims(mesh, &facts.rim, &control).moved
     };
+    let mut states = resume.map(|s| s.0).unwrap_or_default().into_iter();
+    // One start from its state (a finished one is its result).
+    let run = |control: ControlMesh,
+               moves: &[(VertexId, DVec3)],
+               state: Option<StartState>,
+               progress: &mut Progress<'_>| match state {
+        Some(StartState::Done(f)) => Ok((*f, None)),
+        Some(StartState::Paused(p)) => fit_from(
+            mesh,
+            &facts,
+            control,
+            caster,
+            opts,
+            progress,
+            moves,
+            t0,
+            (decide, Some(p)),
+        ),
+        None => fit_from(
+            mesh,
+            &facts,
+            control,
+            caster,
+            opts,
+            progress,
+            moves,
+            t0,
+            (decide, None),
+        ),
+    };
+    // What a start leaves for a resumption.
+    let state = |(f, p): (Fitted, Option<Paused>)| match p {
+        Some(p) => (f.clone(), StartState::Paused(p), false),
+        None => (f.clone(), StartState::Done(Box::new(f)), true),
+    };
     if rim_moves.is_empty() {
-        return fit_from(mesh, &facts, control, caster, opts, progress, &[], t0);
+        let (f, s, done) = state(run(control, &[], states.next(), progress)?);
+        return Ok((f, (!done).then(|| FitState(vec![s]))));
     }
     // The two starts side by side: each round's Eigen solve is serial
     // (~40 % of a round on a million triangles), so one start's solve
@@ -382,15 +459,14 @@ fn fit_both_starts(
     // inputs: the same result whatever the thread count. The rim start
     // reports the progress (the other's cancellation is still checked by
     // the watched caster's chunks).
-    let start = |control: ControlMesh, moves: &[(VertexId, DVec3)], progress: &mut Progress<'_>| {
-        fit_from(mesh, &facts, control, caster, opts, progress, moves, t0)
-    };
     let for_rim = control.clone();
+    let (s_with, s_without) = (states.next(), states.next());
     let (with, without) = rayon::join(
-        || start(for_rim, &rim_moves, progress),
-        || start(control, &[], &mut |_: &str, _: f64| true),
+        || run(for_rim, &rim_moves, s_with, progress),
+        || run(control, &[], s_without, &mut |_: &str, _: f64| true),
     );
-    let (with, without) = (with?, without?);
+    let ((with, st_with, done_with), (without, st_without, done_without)) =
+        (state(with?), state(without?));
     let score = |f: &Fitted| f.report.iterations[f.report.best_iteration].score_permille;
     let mut best = if score(&without) < score(&with) {
         without
@@ -398,7 +474,8 @@ fn fit_both_starts(
         with
     };
     best.report.seconds = t0.elapsed().as_secs_f64();
-    Ok(best)
+    let paused = !(done_with && done_without);
+    Ok((best, paused.then(|| FitState(vec![st_with, st_without]))))
 }
 
 /// What every start of a fit asks of M (computed once per fit; on a
@@ -436,7 +513,8 @@ fn fit_from(
     progress: &mut Progress<'_>,
     rim_moves: &[(VertexId, DVec3)],
     t0: Instant,
-) -> Result<Fitted> {
+    (decide, resume): (Option<Decide>, Option<Paused>),
+) -> Result<(Fitted, Option<Paused>)> {
     let diag = checked_diagonal(mesh)?;
     let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));
     report_progress(progress, "fit", 0.0)?;
@@ -450,7 +528,16 @@ fn fit_from(
     let permille = 1000.0 / diag;
     let mut outlier_bound = f64::INFINITY;
     let mut first_back: Option<f64> = None;
-    for round in 0..=opts.max_iterations {
+    let mut first_round = 0;
+    if let Some(p) = resume {
+        // Where the paused fit stood: the rounds from here are the ones an
+        // uninterrupted fit runs (the system above is rebuilt the same).
+        (positions, best, outlier_bound, first_back) =
+            (p.positions, p.best, p.outlier_bound, p.first_back);
+        (iterations, first_round) = (p.iterations, p.next_round);
+    }
+    let mut paused = None;
+    for round in first_round..=opts.max_iterations {
         let limit = sys.stencils.apply(&positions);
         let (mut hits, stats) = project_along_normals(caster, &limit, max_dist)?;
         if round == 0 {
@@ -512,15 +599,60 @@ fn fit_from(
             "fit",
             (round as f64 + 1.0) / (opts.max_iterations as f64 + 1.0),
         )?;
+        if let Some(d) = decide {
+            let kept = best.1 * permille;
+            if kept <= d.bound_permille
+                || (round >= 1 && kept * DECIDE_MISS_FLOOR > d.bound_permille)
+            {
+                paused = Some(Paused {
+                    positions,
+                    best: best.clone(),
+                    outlier_bound,
+                    first_back,
+                    iterations: iterations.clone(),
+                    next_round: round + 1,
+                });
+                break;
+            }
+        }
     }
     let (positions, rms, best_iteration, _) = best;
     control.set_positions(positions)?;
     report_progress(progress, "fit", 1.0)?;
-    Ok(Fitted {
+    let fitted = Fitted {
         control,
         report: sys.report(opts, iterations, best_iteration, rms * permille, t0),
-    })
+    };
+    Ok((fitted, paused))
 }
+
+/// One start of a fit stopped once decided ([`fit_deciding`]): what its
+/// round loop carries from one round to the next, so that resuming it
+/// runs exactly the rounds an uninterrupted fit would have.
+#[derive(Clone, Debug)]
+struct Paused {
+    positions: Vec<DVec3>,
+    /// (positions, rms, round, score) of the best iterate so far.
+    best: (Vec<DVec3>, f64, usize, f64),
+    outlier_bound: f64,
+    first_back: Option<f64>,
+    iterations: Vec<FitIteration>,
+    next_round: usize,
+}
+
+/// Where each start of a fit stands ([`fit_deciding`]): finished (its
+/// result) or paused.
+#[derive(Clone, Debug)]
+enum StartState {
+    Done(Box<Fitted>),
+    Paused(Paused),
+}
+
+/// A fit stopped once decided, to be resumed with [`fit_deciding`] on
+/// the same inputs: its starts in order (the rim start first, on open
+/// meshes whose loops move).
+#[derive(Clone, Debug)]
+pub struct FitState(Vec<StartState>);
 
 /// The bounding-box diagonal of `mesh`, or the error that makes a fit to
 /// it meaningless (no triangles, or a degenerate box: the permille figures
