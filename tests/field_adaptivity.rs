@@ -2,9 +2,11 @@
 //! at τ = 1 % and the default sizing, Spearman's ρ between each patch's
 //! radius and 1/F_S at its centre is at least 0.6 on the bunny, as the
 //! greedy layout's own adaptivity figure is. Needs `../shared/data`
-//! (skipped with a message when it is absent); ~30 s in release on a
+//! (skipped with a message when it is absent); ~40 s in release on a
 //! loaded machine (the Fitmap dominates), so it is ignored by default and
-//! run by `bench/adaptivity.sh`.
+//! run by `bench/adaptivity.sh`. Not met yet at the default sizing (see
+//! the ignore reason): the lattice's rounding to whole cells and the
+//! torn-lattice refinements on the bunny's holes blur the sizes.
 
 use std::path::Path;
 
@@ -46,7 +48,7 @@ fn spearman_of(name: &str) -> Option<(f64, usize, bool)> {
 /// (the sizing h ∝ 1/F_S where F_M does not cap it), with the grading and
 /// the lattice's rounding to whole cells as the only noise.
 #[test]
-#[ignore = "slow (~30 s release, the bunny's Fitmap); bench/adaptivity.sh runs it"]
+#[ignore = "slow (~40 s release, the bunny's Fitmap; bench/adaptivity.sh runs it) and not met yet: measured ρ = 0.52 at 511 patches (γ = 0.5: 0.55, γ = 1: 0.64 at 1251, β = 3: 0.37); docs/status.md, Field-aligned layout"]
 fn bunny_patch_radius_follows_the_s_fitmap() {
     let Some((rho, faces, kept)) = spearman_of("bunny") else {
         return;
