@@ -218,3 +218,42 @@ pub fn sizing_for(
     let n = predicted_faces(s, &h);
     Ok((h, alpha, relaxed, n))
 }
+
+/// Spearman's ρ between each patch's radius (centre to farthest corner)
+/// and 1/F_S at its centre (the mean over the nearest triangle of `mesh`
+/// of its vertices' positive F_S): issue 40's adaptivity check, the same
+/// figure as the greedy layout's [`crate::quad::SimplifyStats`]
+/// `adaptivity_spearman`. `None` when fewer than two patches have an F_S.
+pub fn adaptivity_spearman(
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    control: &crate::mesh::ControlMesh,
+) -> Result<Option<f64>> {
+    use crate::raycast::RayCaster;
+    let (mut centres, mut radius) = (Vec::new(), Vec::new());
+    for f in control.faces() {
+        let q: Vec<crate::DVec3> = control
+            .face_vertices(f)
+            .map(|v| control.position(v))
+            .collect();
+        let c = q.iter().copied().sum::<crate::DVec3>() / q.len() as f64;
+        radius.push(q.iter().map(|p| (*p - c).length()).fold(0.0, f64::max));
+        centres.push(c);
+    }
+    let caster = crate::raycast::bvh::BvhCaster::new(mesh)?;
+    let nearest = caster.closest_points(&centres, f64::INFINITY)?;
+    let (mut r, mut inv) = (Vec::new(), Vec::new());
+    for (c, &rad) in nearest.iter().zip(&radius) {
+        let Some(c) = c else { continue };
+        let fs: Vec<f64> = mesh.triangles[c.triangle as usize]
+            .iter()
+            .map(|&v| fitmap.s[v as usize])
+            .filter(|s| *s > 0.0 && s.is_finite())
+            .collect();
+        if !fs.is_empty() {
+            r.push(rad);
+            inv.push(fs.len() as f64 / fs.iter().sum::<f64>());
+        }
+    }
+    Ok(crate::analysis::spearman(&r, &inv))
+}
