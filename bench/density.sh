@@ -4,12 +4,14 @@
 #
 #   bench/density.sh [DATA_DIR] [OUT_DIR]
 #
-# For each mesh in $MESHES (default "bunny gargoyle spot homer") at each τ
+# For each mesh in $MESHES (default "bunny gargoyle spot homer
+# cheburashka") at each τ
 # in $TAUS (default "0.01"), converts once with `--max-error inf` (or
 # reuses OUT_DIR/MESH-τ/control.obj), then evaluates the same control mesh
 # at multiples $MULTS (default "1 2") of M's vertex count: on the uniform
-# grid (R = round((R₀ − 1)·√m) + 1, `displace::auto_resolution`) and per
-# patch under a budget of m × M's vertices (`--displacement-samples`,
+# grid (R = round((R₀ − 1)·√m) + 1, `displace::auto_resolution`;
+# `--displacement-allocation uniform`) and per patch under a budget of
+# m × M's vertices (`--displacement-samples`, the default allocation,
 # `displace::allocate_resolutions`), least-squares offsets both. Printed:
 # the samples (each shared sample once), report.json's D on its own mesh
 # (both directions), and RMS M → displaced.ply (the host's bilinear
@@ -30,7 +32,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${1:-../shared/data}
 OUT=${2:-target/density}
-MESHES=${MESHES:-"bunny gargoyle spot homer"}
+MESHES=${MESHES:-"bunny gargoyle spot homer cheburashka"}
 TAUS=${TAUS:-"0.01"}
 MULTS=${MULTS:-"1 2"}
 mkdir -p "$OUT"
