@@ -4,12 +4,14 @@
 #
 #   bench/density.sh [DATA_DIR] [OUT_DIR]
 #
-# For each mesh in $MESHES (default "bunny gargoyle spot homer") at each τ
+# For each mesh in $MESHES (default "bunny gargoyle spot homer
+# cheburashka") at each τ
 # in $TAUS (default "0.01"), converts once with `--max-error inf` (or
 # reuses OUT_DIR/MESH-τ/control.obj), then evaluates the same control mesh
 # at multiples $MULTS (default "1 2") of M's vertex count: on the uniform
-# grid (R = round((R₀ − 1)·√m) + 1, `displace::auto_resolution`) and per
-# patch under a budget of m × M's vertices (`--displacement-samples`,
+# grid (R = round((R₀ − 1)·√m) + 1, `displace::auto_resolution`;
+# `--displacement-allocation uniform`) and per patch under a budget of
+# m × M's vertices (`--displacement-samples`, the default allocation,
 # `displace::allocate_resolutions`), least-squares offsets both. Printed:
 # the samples (each shared sample once), report.json's D on its own mesh
 # (both directions), and RMS M → displaced.ply (the host's bilinear
@@ -18,19 +20,23 @@
 # (`report::resampling_floor`), measured as report.json does.
 #
 # Measured (τ = 1 %, `--max-error inf`, RMS M → displaced.ply, ‰ of the
-# diagonal; "samples" = each shared sample once):
+# diagonal; "samples" = each shared sample once; the whole output in
+# bench/results/density-2026-12-05.txt):
 #              uniform 1×  adaptive 1×  uniform 2×  adaptive 2×
-#   bunny        0.194       0.097        0.188       0.074
-#   gargoyle     0.421       0.222        0.214       0.133
-#   spot         0.640       0.369        0.417       0.275
-#   homer        0.397       0.195        0.212       0.181
-# The uniform grid's R is rounded, so its samples run 0–20 % above the
-# adaptive budget's (spot 1×: 3458 against 2928).
+#   bunny        0.194       0.098        0.188       0.074
+#   gargoyle     0.421       0.226        0.213       0.136
+#   spot         0.640       0.380        0.417       0.283
+#   homer        0.397       0.207        0.212       0.181
+#   cheburashka  0.453       0.179        0.229       0.115
+# The uniform grid's R is rounded, so its samples run −11 to +23 % off the
+# adaptive budget's (spot 1×: 3458 against 2924). The "s" column is the
+# wall time of the whole evaluation (limit and displaced sides), on a
+# shared machine: compare CPU seconds for the stage's cost.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${1:-../shared/data}
 OUT=${2:-target/density}
-MESHES=${MESHES:-"bunny gargoyle spot homer"}
+MESHES=${MESHES:-"bunny gargoyle spot homer cheburashka"}
 TAUS=${TAUS:-"0.01"}
 MULTS=${MULTS:-"1 2"}
 mkdir -p "$OUT"

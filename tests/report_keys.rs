@@ -6,7 +6,8 @@
 //! A key added or renamed on purpose updates the list in the same commit.
 //!
 //! Paths are dotted; array elements are `[]`; the keys of
-//! `valence_histogram` (valences, which depend on the mesh) are `*`.
+//! `valence_histogram` and `resolution_histogram` (valences and tile
+//! resolutions, which depend on the mesh) are `*`.
 
 use std::collections::BTreeSet;
 use std::path::Path;
@@ -25,7 +26,8 @@ fn key_paths(v: &serde_json::Value, prefix: &str, out: &mut BTreeSet<String>) {
     };
     match v {
         serde_json::Value::Object(m) => {
-            let histogram = prefix.ends_with("valence_histogram");
+            let histogram =
+                prefix.ends_with("valence_histogram") || prefix.ends_with("resolution_histogram");
             for (k, child) in m {
                 let p = join(if histogram { "*" } else { k });
                 out.insert(p.clone());

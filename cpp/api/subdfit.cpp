@@ -89,6 +89,8 @@ ffi::FfiOptions ffi_options(const Options& o) {
   r.mode = o.mode == Mode::Organic ? 0 : o.mode == Mode::Mechanical ? 1 : 2;
   r.fit_method = o.fit_method == FitMethod::Sdm ? 1 : 0;
   r.displacement_resolution = o.displacement_resolution;
+  r.displacement_samples = o.displacement_samples;
+  r.displacement_allocation = o.displacement_allocation == DisplacementAllocation::Uniform ? 1 : 0;
   r.max_error = o.max_error;
   r.m_fitmap = o.m_fitmap;
   r.tessellation = o.tessellation;

@@ -131,6 +131,9 @@ struct ControlMesh {
 // creases (Lavoué et al.); Auto: picks one from the share of sharp edges.
 enum class Mode { Organic, Mechanical, Auto };
 enum class FitMethod { Point, Sdm };
+// How the displacement samples are spread over the patches: per patch where
+// the detail is, under a total (the default), or the same grid everywhere.
+enum class DisplacementAllocation { Adaptive, Uniform };
 
 // The options of `subdfit convert` / `subdfit fit`, with the CLI's defaults.
 struct Options {
@@ -146,6 +149,11 @@ struct Options {
   FitMethod fit_method = FitMethod::Point;
   // --displacement-res: samples per patch side; 0 = automatic.
   std::uint32_t displacement_resolution = 0;
+  // --displacement-samples: displacement samples in all, each shared sample
+  // counted once; 0 = the input's vertex count.
+  std::uint32_t displacement_samples = 0;
+  // --displacement-allocation; a displacement_resolution implies Uniform.
+  DisplacementAllocation displacement_allocation = DisplacementAllocation::Adaptive;
   // --max-error, a fraction of the bounding-box diagonal: mechanical mode's
   // RMS bound per control face, organic mode's bound on the limit surface's
   // RMS distance; 0 = the mode's default, infinity = organic mode's natural

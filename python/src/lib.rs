@@ -190,7 +190,8 @@ impl PyOptions {
     #[new]
     #[pyo3(signature = (*, tolerance=None, mode="auto", max_error=None, faces_target=0,
         fit="point", displacement_res=0, m_fitmap=true, tessellation=0, proxy="auto",
-        layout="greedy", displacement_samples=0, threads=0, name=None, exact_metrics=false))]
+        layout="greedy", displacement_samples=0, threads=0, name=None, exact_metrics=false,
+        displacement_allocation="adaptive"))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         tolerance: Option<f64>,
@@ -207,6 +208,7 @@ impl PyOptions {
         threads: u32,
         name: Option<String>,
         exact_metrics: bool,
+        displacement_allocation: &str,
     ) -> PyResult<Self> {
         // The library's own types and words (`subdfit::convert::Mode`,
         // `subdfit::fit::Objective`, `Proxy`): one definition for every host.
@@ -230,6 +232,11 @@ impl PyOptions {
             .with_target_faces(positive(faces_target))
             .with_displacement_res(positive(displacement_res))
             .with_displacement_samples(positive(displacement_samples))
+            .with_displacement_allocation(displacement_allocation.parse().map_err(|_| {
+                InvalidOption::new_err(format!(
+                    "unknown displacement_allocation {displacement_allocation:?}: adaptive or uniform"
+                ))
+            })?)
             .with_m_fitmap(m_fitmap)
             .with_exact_metrics(exact_metrics)
             .with_tessellation(positive(tessellation))

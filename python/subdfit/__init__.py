@@ -286,6 +286,7 @@ def convert(
     name: str | None = None,
     progress: Progress | None = None,
     exact_metrics: bool = False,
+    displacement_allocation: str = "adaptive",
 ) -> Conversion:
     """Dense mesh → control mesh + displacement + metrics (``subdfit convert``).
 
@@ -300,7 +301,10 @@ def convert(
     patch side of limit.ply / displaced.ply; 0: automatic), ``proxy``
     (``"auto"``, ``"none"`` or a triangle count, as a string), ``layout``
     (``"greedy"`` or the experimental ``"field"``), ``displacement_samples``
-    (per-patch displacement resolution under this total; 0: uniform),
+    (displacement samples in all; 0: the input's vertex count),
+    ``displacement_allocation`` (``"adaptive"``: per-patch resolution
+    under that total, the default; ``"uniform"``: the same grid on every
+    patch),
     ``threads`` (0: all cores), ``exact_metrics`` (``--exact-metrics``:
     measure every point; by default a direction of more than 300 000 points
     is sampled and the report gives its 95 % confidence interval).
@@ -313,7 +317,7 @@ def convert(
                  faces_target=faces_target, fit=fit, displacement_res=displacement_res,
                  m_fitmap=m_fitmap, tessellation=tessellation, proxy=proxy, layout=layout,
                  displacement_samples=displacement_samples, threads=threads,
-                 exact_metrics=exact_metrics)
+                 exact_metrics=exact_metrics, displacement_allocation=displacement_allocation)
     return Conversion(_subdfit.convert(mesh, o, progress))
 
 

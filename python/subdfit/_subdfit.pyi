@@ -57,6 +57,7 @@ class Options:
         threads: int = 0,
         name: str | None = None,
         exact_metrics: bool = False,
+        displacement_allocation: str = "adaptive",
     ) -> None: ...
     @property
     def tolerance(self) -> float: ...

@@ -22,10 +22,13 @@ pub struct ConvertOptions {
     pub displacement_res: Option<usize>,
     /// Per-patch displacement resolution under this many samples in all
     /// (`--displacement-samples`, [`crate::displace`]'s adaptive grid);
-    /// `None`: the uniform grid. Left out of `report.json`'s options when
-    /// `None`, so uniform runs keep their bytes.
+    /// `None`: M's vertex count. Left out of `report.json`'s options when
+    /// `None`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub displacement_samples: Option<usize>,
+    /// `--displacement-allocation`: per patch under the budget (the
+    /// default) or the uniform grid of before issue 37.
+    pub displacement_allocation: crate::displace::SampleAllocation,
     /// Which pipeline: Fitmaps (organic), Lavoué et al. (mechanical), or
     /// chosen from the share of sharp edges (auto, the default).
     pub mode: Mode,
@@ -183,6 +186,7 @@ impl Default for ConvertOptions {
             objective: Objective::Point,
             displacement_res: None,
             displacement_samples: None,
+            displacement_allocation: Default::default(),
             mode: Mode::Auto,
             max_error: None,
             tessellation: None,
@@ -259,6 +263,10 @@ impl ConvertOptions {
     }
     pub fn with_displacement_samples(mut self, n: Option<usize>) -> Self {
         self.displacement_samples = n;
+        self
+    }
+    pub fn with_displacement_allocation(mut self, a: crate::displace::SampleAllocation) -> Self {
+        self.displacement_allocation = a;
         self
     }
     pub fn with_mode(mut self, m: Mode) -> Self {

@@ -71,9 +71,12 @@ use super::{compute_displacement, Displacement, PatchGrid};
 pub const MAX_LEVEL: u32 = 6;
 
 /// The pilot grid has at least this many times the budget's samples (at a
-/// level no deeper than [`MAX_LEVEL`]): levels up to about twice the
-/// average patch's then come from measurement, not from the model.
-pub const PILOT_FACTOR: f64 = 4.0;
+/// level no deeper than [`MAX_LEVEL`]); the level rounds up, so it holds
+/// 2–8 times the budget. At 4 (4–16×) the pilot was most of the stage's
+/// time, and 2 allocated within 1 % of its D (bunny 0.0965‰ both,
+/// gargoyle 0.249‰ against 0.247‰, τ 1 %, one least-squares round;
+/// docs/status.md, "Adaptive displacement").
+pub const PILOT_FACTOR: f64 = 2.0;
 
 /// The pilot grid's samples are kept below this (memory and time of the
 /// φ projection on huge inputs).

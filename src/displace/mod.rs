@@ -54,7 +54,9 @@ pub use atlas::{
     MIP_LEVELS, UDIM_PATCHES,
 };
 pub use grid::{Dependent, PatchGrid};
-pub use lsq::{refine_offsets, refine_offsets_on, HostSurface, LsqOffsetOptions, LsqOffsetStats};
+pub use lsq::{
+    refine_offsets, refine_offsets_on, HostSurface, LsqOffsetOptions, LsqOffsetStats, FIT_CELLS,
+};
 
 use serde::Serialize;
 
@@ -81,6 +83,29 @@ pub fn auto_resolution(mesh_vertices: usize, patches: usize) -> usize {
     }
     let r = (mesh_vertices as f64 / patches as f64).sqrt().round() as usize + 1;
     r.clamp(2, 64)
+}
+
+/// How the displacement samples are spread over the patches (issue 37).
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum SampleAllocation {
+    /// Per patch, `2^k + 1` per side where the detail is, under a total of
+    /// samples (default ≈ M's vertex count, Fitmaps §4, Table 1;
+    /// [`allocate_resolutions`]).
+    #[default]
+    Adaptive,
+    /// The same `R × R` grid on every patch ([`auto_resolution`]): the
+    /// behaviour before issue 37.
+    Uniform,
+}
+
+/// The CLI's words (`adaptive`, `uniform`), for hosts that take the
+/// allocation as a string.
+impl std::str::FromStr for SampleAllocation {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<SampleAllocation, String> {
+        <SampleAllocation as clap::ValueEnum>::from_str(s, false)
+    }
 }
 
 /// How the displacement offsets are chosen.

@@ -231,6 +231,9 @@ fn options_key(o: &Options, source_name: &str) -> String {
     if let Some(n) = c.displacement_samples {
         later += &format!(" displacement_samples={n}");
     }
+    if c.displacement_allocation != crate::displace::SampleAllocation::Adaptive {
+        later += &format!(" displacement_allocation={:?}", c.displacement_allocation);
+    }
     if c.layout != crate::convert::LayoutKind::Greedy {
         later += &format!(" layout={:?}", c.layout);
     }

@@ -12,6 +12,7 @@
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Mutex;
 
+use crate::displace::SampleAllocation;
 use crate::embed::{self, ControlArrays, MeshArrays, Progress};
 use crate::mesh::FaceId;
 use crate::subdiv::{Backend, LimitPoint, SurfaceLocation};
@@ -27,6 +28,10 @@ pub(crate) mod api {
         /// 0 point, 1 sdm.
         fit_method: u8,
         displacement_resolution: u32,
+        /// 0: the input's vertex count.
+        displacement_samples: u32,
+        /// 0 adaptive, 1 uniform.
+        displacement_allocation: u8,
         /// 0: the mode's default; infinity: organic mode's natural end.
         max_error: f64,
         m_fitmap: bool,
@@ -262,6 +267,12 @@ fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
             m => return Err(bad("fit method", m.into())),
         })
         .with_displacement_res(positive(o.displacement_resolution))
+        .with_displacement_samples(positive(o.displacement_samples))
+        .with_displacement_allocation(match o.displacement_allocation {
+            0 => SampleAllocation::Adaptive,
+            1 => SampleAllocation::Uniform,
+            m => return Err(bad("displacement allocation", m.into())),
+        })
         .with_max_error((o.max_error != 0.0).then_some(o.max_error))
         .with_m_fitmap(o.m_fitmap)
         .with_tessellation(positive(o.tessellation))

@@ -576,6 +576,8 @@ pub fn fit(
             .with_metrics(
                 MetricsOptions::default()
                     .with_displacement_res(o.displacement_res)
+                    .with_displacement_samples(o.displacement_samples)
+                    .with_displacement_allocation(o.displacement_allocation)
                     .with_output_tessellation(o.tessellation),
             )
             .with_fitmap(Some(o.tolerance.map_or_else(FitmapOptions::default, |t| {

@@ -9,6 +9,7 @@ use subdfit::analysis::fitmap::DEFAULT_TOLERANCE;
 use subdfit::convert::{
     convert_in_memory, write_converted, ConvertOptions, LayoutKind, Mode, Proxy,
 };
+use subdfit::displace::SampleAllocation;
 use subdfit::fit::Objective;
 
 use crate::fit::progress_bars;
@@ -70,14 +71,20 @@ pub struct ConversionArgs {
     /// Global fit objective.
     #[arg(long, value_enum, default_value_t = Objective::Point)]
     fit: Objective,
-    /// Displacement samples per patch side (default: total ≈ M's vertices).
+    /// Displacement samples per patch side, the same on every patch
+    /// (implies --displacement-allocation uniform).
     #[arg(long)]
     displacement_res: Option<usize>,
-    /// Per-patch displacement resolution (2^k + 1 per side, where the
-    /// detail is) under this many samples in all, each shared sample
-    /// counted once; --displacement-res overrides it.
+    /// Displacement samples in all, each shared sample counted once
+    /// (default: M's vertex count).
     #[arg(long)]
     displacement_samples: Option<usize>,
+    /// `adaptive`: per-patch resolution (2^k + 1 per side, where the
+    /// detail is) under --displacement-samples; `uniform`: the same R × R
+    /// grid on every patch, R from the budget (the behaviour before
+    /// issue 37).
+    #[arg(long, value_enum, default_value_t = SampleAllocation::Adaptive)]
+    displacement_allocation: SampleAllocation,
     /// Lift the projectability (M-fitmap) test (the paper's Fig. 7).
     #[arg(long)]
     no_mfitmap: bool,
@@ -147,6 +154,7 @@ impl ConversionArgs {
             .with_objective(self.fit)
             .with_displacement_res(self.displacement_res)
             .with_displacement_samples(self.displacement_samples)
+            .with_displacement_allocation(self.displacement_allocation)
             .with_mode(self.mode)
             .with_max_error(self.max_error)
             .with_tessellation(self.tessellation.map(|n| n as usize))
