@@ -28,6 +28,7 @@
 pub mod cleanup;
 pub mod cross;
 pub mod extract;
+pub mod flow;
 pub mod position;
 pub mod purequad;
 pub mod sizing;
