@@ -93,10 +93,7 @@ pub fn edge_offsets(
                 [q.dot(d) / sc, s.normals[k].cross(q).dot(d) / sc]
             };
             let (ua, ub) = (cell(i, dirs[i]), cell(j, qj));
-            let r = [
-                x[0] as f64 + ub[0] - ua[0],
-                x[1] as f64 + ub[1] - ua[1],
-            ];
+            let r = [x[0] as f64 + ub[0] - ua[0], x[1] as f64 + ub[1] - ua[1]];
             (x, r)
         })
         .unzip()
@@ -132,7 +129,7 @@ struct Side {
 /// Largest |offset| the flow may give an edge, first and last try
 /// (QuadriFlow starts at 2 and widens while the flow is not full; edges of
 /// M are shorter than the lattice spacing, so 1 is tried first).
-const BOUND: (i64, i64) = (1, 3);
+const BOUND: (i64, i64) = (1, 2);
 
 /// Zeroes the triangles' offset sums where a flow can (see the module
 /// docs); `offsets` and the real offsets `real` as from [`edge_offsets`].
@@ -142,18 +139,18 @@ pub fn repair_offsets(
     offsets: &mut [[i64; 2]],
     real: &[[f64; 2]],
 ) -> FlowReport {
-    let sides = triangle_sides(s, dirs);
+    let (sides, singular) = triangle_sides(s, dirs);
     let mut report = FlowReport::default();
-    let sums = equation_sums(&sides, offsets);
+    let sums = equation_sums(&sides, &singular, offsets);
     report.violated_before = sums.iter().filter(|&&x| x != 0).count();
     report.supply = sums.iter().filter(|&&x| x > 0).sum();
-    let arcs = arcs(s, &sides);
+    let arcs = arcs(s, &sides, &singular);
     let before = offsets.to_vec();
     if report.supply > 0 {
         report.moved += min_cost_flow(&sums, &arcs, offsets, real);
     }
     for bound in BOUND.0..=BOUND.1 {
-        let sums = equation_sums(&sides, offsets);
+        let sums = equation_sums(&sides, &singular, offsets);
         let supply: i64 = sums.iter().filter(|&&x| x > 0).sum();
         if supply == 0 {
             break;
@@ -164,11 +161,21 @@ pub fn repair_offsets(
             break;
         }
     }
-    let sums = equation_sums(&sides, offsets);
+    let sums = equation_sums(&sides, &singular, offsets);
     report.violated_after = sums.iter().filter(|&&x| x != 0).count();
-    report.changed = before.iter().zip(offsets.iter()).filter(|(a, b)| a != b).count();
-    report.folded = sides.iter().filter(|sd| signed_area(sd, offsets) < 0).count();
-    report.long_edges = offsets.iter().filter(|x| x[0].abs() + x[1].abs() > 1).count();
+    report.changed = before
+        .iter()
+        .zip(offsets.iter())
+        .filter(|(a, b)| a != b)
+        .count();
+    report.folded = sides
+        .iter()
+        .filter(|sd| signed_area(sd, offsets) < 0)
+        .count();
+    report.long_edges = offsets
+        .iter()
+        .filter(|x| x[0].abs() + x[1].abs() > 1)
+        .count();
     report
 }
 
@@ -186,11 +193,14 @@ fn signed_area(side: &[Side; 3], offsets: &[[i64; 2]]) -> i64 {
 }
 
 /// Per triangle its three sides in the triangle's frame, the frames
-/// turned along a spanning tree that avoids singular triangles.
-fn triangle_sides(s: &Surface, dirs: &[DVec3]) -> Vec<[Side; 3]> {
+/// turned along a spanning tree that avoids singular triangles, and
+/// whether the cross field is singular in it (its arms turn around it).
+fn triangle_sides(s: &Surface, dirs: &[DVec3]) -> (Vec<[Side; 3]>, Vec<bool>) {
     let edge_index = |a: u32, b: u32| -> u32 {
         let k = [a.min(b), a.max(b)];
-        s.edges.binary_search(&k).expect("a triangle edge is an edge") as u32
+        s.edges
+            .binary_search(&k)
+            .expect("a triangle edge is an edge") as u32
     };
     let nf = s.triangles.len();
     // Sides in the first vertex's frame (turn before t_f).
@@ -272,13 +282,19 @@ fn triangle_sides(s: &Surface, dirs: &[DVec3]) -> Vec<[Side; 3]> {
             sd.turn = (sd.turn + tf) % 4;
         }
     }
-    sides
+    (sides, singular)
 }
 
-/// Per (triangle, axis) the sum of its sides' offsets in its frame.
-fn equation_sums(sides: &[[Side; 3]], offsets: &[[i64; 2]]) -> Vec<i64> {
+/// Per (triangle, axis) the sum of its sides' offsets in its frame; 0 in
+/// a singular triangle, which has no frame its sides agree on (the
+/// lattice turns there: QuadriFlow puts the three corners on one lattice
+/// point instead), so it is neither excess nor demand of the flow.
+fn equation_sums(sides: &[[Side; 3]], singular: &[bool], offsets: &[[i64; 2]]) -> Vec<i64> {
     let mut sums = vec![0i64; 2 * sides.len()];
     for (f, side) in sides.iter().enumerate() {
+        if singular[f] {
+            continue;
+        }
         for sd in side {
             let x = rot(offsets[sd.edge as usize], sd.turn);
             sums[2 * f] += sd.sign * x[0];
@@ -313,11 +329,18 @@ fn landing(axis: u8, turn: u8) -> (u32, i64) {
 }
 
 /// The arcs: interior edges' components that enter their two triangles'
-/// equations with opposite signs.
-fn arcs(s: &Surface, sides: &[[Side; 3]]) -> Vec<Arc> {
+/// equations with opposite signs (edges of singular triangles are kept).
+fn arcs(s: &Surface, sides: &[[Side; 3]], singular: &[bool]) -> Vec<Arc> {
     let mut seen: Vec<Option<(u32, i64, u32, i64)>> = vec![None; 2 * s.edges.len()];
     let mut out = Vec::new();
     for (f, side) in sides.iter().enumerate() {
+        if singular[f] {
+            for sd in side {
+                seen[2 * sd.edge as usize] = Some((u32::MAX, 0, 0, 0));
+                seen[2 * sd.edge as usize + 1] = Some((u32::MAX, 0, 0, 0));
+            }
+            continue;
+        }
         for sd in side {
             for axis in 0..2u8 {
                 let (ax, sg) = landing(axis, sd.turn);
