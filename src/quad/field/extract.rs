@@ -52,7 +52,12 @@ pub fn extract(
     at_size: bool,
 ) -> Result<(ControlMesh, usize)> {
     match extract_once(s, mesh, dirs, o, scale, at_size, true) {
-        Err(Error::Topology { .. }) => extract_once(s, mesh, dirs, o, scale, at_size, false),
+        Err(e @ Error::Topology { .. }) => {
+            if std::env::var("FIELD_DEBUG").is_ok() {
+                eprintln!("repaired lattice rejected: {e}");
+            }
+            extract_once(s, mesh, dirs, o, scale, at_size, false)
+        }
         r => r,
     }
 }

@@ -141,11 +141,21 @@ pub fn repair_offsets(
 ) -> FlowReport {
     let (sides, singular) = triangle_sides(s, dirs);
     let mut report = FlowReport::default();
+    let before = offsets.to_vec();
+    // A singular triangle's corners on one lattice point (QuadriFlow's
+    // treatment of singularities): its offsets are 0 and stay 0; the
+    // flow then repairs the triangles around it.
+    for (side, &sg) in sides.iter().zip(&singular) {
+        if sg {
+            for sd in side {
+                offsets[sd.edge as usize] = [0, 0];
+            }
+        }
+    }
     let sums = equation_sums(&sides, &singular, offsets);
     report.violated_before = sums.iter().filter(|&&x| x != 0).count();
     report.supply = sums.iter().filter(|&&x| x > 0).sum();
     let arcs = arcs(s, &sides, &singular);
-    let before = offsets.to_vec();
     if report.supply > 0 {
         report.moved += min_cost_flow(&sums, &arcs, offsets, real);
     }
@@ -286,9 +296,8 @@ fn triangle_sides(s: &Surface, dirs: &[DVec3]) -> (Vec<[Side; 3]>, Vec<bool>) {
 }
 
 /// Per (triangle, axis) the sum of its sides' offsets in its frame; 0 in
-/// a singular triangle, which has no frame its sides agree on (the
-/// lattice turns there: QuadriFlow puts the three corners on one lattice
-/// point instead), so it is neither excess nor demand of the flow.
+/// a singular triangle, whose corners are put on one lattice point (it
+/// has no frame its sides agree on: the lattice turns there).
 fn equation_sums(sides: &[[Side; 3]], singular: &[bool], offsets: &[[i64; 2]]) -> Vec<i64> {
     let mut sums = vec![0i64; 2 * sides.len()];
     for (f, side) in sides.iter().enumerate() {
