@@ -411,12 +411,16 @@ fn push_flow(sums: &[i64], arcs: &[Arc], offsets: &mut [[i64; 2]], bound: i64) -
     moved
 }
 
-/// Cost of one unit of change, in thousandths of a lattice step: how much
-/// further the component moves from the field's real offset (changes
-/// toward it cost nothing but the unit that prefers fewer changes).
+/// Cost of one unit of change, in thousandths of a lattice step: how
+/// decided the field is about the component, the change in its distance
+/// to the real offset either way (near 0 where the real offset is half a
+/// step, an ambiguous rounding; near 1 where it is not). Symmetric: a
+/// one-sided cost (only moves away from the real offset) makes merging two
+/// close lattice points nearly free and the flow then removes whole rows
+/// of cells (measured: a uniform torus of 256 cells extracted at 84).
 fn change_cost(k: i64, r: f64, step: i64) -> i64 {
     let d = ((k + step) as f64 - r).abs() - (k as f64 - r).abs();
-    1 + (1000.0 * d.max(0.0)).round() as i64
+    1 + (1000.0 * d.abs()).round() as i64
 }
 
 /// The cheapest flow from the positive sums to the negative ones, each
