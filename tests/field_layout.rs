@@ -351,9 +351,9 @@ fn convert_with_the_field_layout() {
 /// no singularity here (see the test above), so every irregular vertex
 /// is a dislocation of the position field: the lattice has to stretch by
 /// (R ± r)/R around the tube, which QuadriFlow's integer-offset flow
-/// (Huang et al. 2018, §5) allows and a rounded position field does not.
+/// (Huang et al. 2018, §5; `quad::field::flow`) allows and a rounded
+/// position field does not (without the flow: 54 irregular vertices).
 #[test]
-#[ignore = "not met yet (measured: 54 irregular, 30 raw non-quads): no integer-offset flow; docs/status.md, Field-aligned layout"]
 fn uniform_torus_lattice_is_regular() {
     let (big, small) = (2.0, 0.5);
     let h = 2.0 * PI * small / 8.0;
@@ -366,9 +366,9 @@ fn uniform_torus_lattice_is_regular() {
 
 /// The second: a sphere at one uniform size has exactly the 8 valence-3
 /// vertices its cross field's 8 singularities of +¼ ask for (Euler
-/// characteristic 2 = 8 · ¼ · 4), and no other irregular vertex.
+/// characteristic 2 = 8 · ¼ · 4), and no other irregular vertex (without
+/// the flow: 22 of valence 3, 36 irregular).
 #[test]
-#[ignore = "not met yet (measured: 22 of valence 3, 36 irregular): dislocations; docs/status.md, Field-aligned layout"]
 fn uniform_sphere_lattice_has_eight_valence_three() {
     let m = icosphere(5);
     let out = layout_uniform(&m, 0.3);

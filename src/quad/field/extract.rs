@@ -25,8 +25,6 @@ use crate::raycast::bvh::BvhCaster;
 use crate::raycast::RayCaster;
 use crate::DVec3;
 
-use super::cross::match_arm;
-use super::position::compat_position;
 use super::{control_topology, Surface, UnionFind};
 
 /// Longest walk followed: every walk closes (each directed edge has one
@@ -42,7 +40,9 @@ struct Graph {
 }
 
 /// Extracts the pure-quad control mesh; also returns the number of raw
-/// faces that were not quads.
+/// faces that were not quads. The lattice's offsets are first repaired by
+/// [`super::flow`]; if that lattice does not have M's topology, the
+/// position field's own offsets are tried before giving up.
 pub fn extract(
     s: &Surface,
     mesh: &TriMesh,
@@ -51,7 +51,28 @@ pub fn extract(
     scale: &[f64],
     at_size: bool,
 ) -> Result<(ControlMesh, usize)> {
-    let mut g = lattice_graph(s, dirs, o, scale);
+    match extract_once(s, mesh, dirs, o, scale, at_size, true) {
+        Err(e @ Error::Topology { .. }) => {
+            if std::env::var("FIELD_DEBUG").is_ok() {
+                eprintln!("repaired lattice rejected: {e}");
+            }
+            extract_once(s, mesh, dirs, o, scale, at_size, false)
+        }
+        r => r,
+    }
+}
+
+/// [`extract`] with or without the flow's repair.
+fn extract_once(
+    s: &Surface,
+    mesh: &TriMesh,
+    dirs: &[DVec3],
+    o: &[DVec3],
+    scale: &[f64],
+    at_size: bool,
+    repair: bool,
+) -> Result<(ControlMesh, usize)> {
+    let mut g = lattice_graph(s, dirs, o, scale, repair);
     let faces = clean_faces(&mut g);
     let non_quads = faces.iter().filter(|f| f.len() != 4).count();
     let faces = merge_non_quad_pairs(faces, g.pos.len(), at_size);
@@ -104,28 +125,21 @@ pub fn extract(
 }
 
 /// Merges zero-offset edges, joins unit-offset ones (see the module docs).
-fn lattice_graph(s: &Surface, dirs: &[DVec3], o: &[DVec3], scale: &[f64]) -> Graph {
+fn lattice_graph(s: &Surface, dirs: &[DVec3], o: &[DVec3], scale: &[f64], repair: bool) -> Graph {
     let n = s.len();
     let mut uf = UnionFind::new(n);
     let mut unit: Vec<(u32, u32)> = Vec::new();
-    let offset = |i: usize, j: usize| {
-        let (qj, _) = match_arm(dirs[i], dirs[j], s.normals[j]);
-        let sc = 0.5 * (scale[i] + scale[j]);
-        let (_, _, c0, c1) = compat_position(
-            s.positions[i],
-            s.normals[i],
-            dirs[i],
-            o[i],
-            s.positions[j],
-            s.normals[j],
-            qj,
-            o[j],
-            sc,
-        );
-        [c0[0] - c1[0], c0[1] - c1[1]]
-    };
-    for &[a, b] in &s.edges {
-        let d = offset(a as usize, b as usize);
+    // The position field's offsets, made consistent per triangle by
+    // QuadriFlow's flow (super::flow) so that the lattice has no
+    // dislocation the cross field does not ask for.
+    let (mut offsets, real) = super::flow::edge_offsets(s, dirs, o, scale);
+    if repair {
+        let report = super::flow::repair_offsets(s, dirs, &mut offsets, &real);
+        if std::env::var("FIELD_DEBUG").is_ok() {
+            eprintln!("integer flow: {report:?}");
+        }
+    }
+    for (&[a, b], d) in s.edges.iter().zip(&offsets) {
         match d[0].abs() + d[1].abs() {
             0 => uf.union(a as usize, b as usize),
             1 => unit.push((a, b)),

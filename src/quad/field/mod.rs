@@ -14,7 +14,9 @@
 //!    with a per-vertex scale (QuadriFlow's adaptive mode, Huang et al.
 //!    2018), smoothed coarse to fine on a pairwise-merge hierarchy.
 //! 4. [`extract`]: the lattice graph of the position field (Instant Meshes
-//!    §6) at the target size, its faces (adjacent odd faces merged), made
+//!    §6) at the target size, its integer edge offsets first made to sum
+//!    to zero in every triangle by a minimum-cost flow ([`flow`]; QuadriFlow,
+//!    Huang et al. 2018, §5: removes the field's dislocations), its faces (adjacent odd faces merged), made
 //!    pure quad near its non-quads only ([`purequad`]: odd faces paired by
 //!    paths of split edges, even ones cut by chords), relaxed tangentially,
 //!    with M's components, boundary loops and Euler characteristic checked;
@@ -28,6 +30,7 @@
 pub mod cleanup;
 pub mod cross;
 pub mod extract;
+pub mod flow;
 pub mod position;
 pub mod purequad;
 pub mod sizing;
