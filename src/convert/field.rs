@@ -33,7 +33,7 @@ pub const FIELD_ROUNDS: usize = 4;
 pub const FIELD_MARGIN: f64 = 1.1;
 
 /// One fitted field layout (`report.json`'s `field_layout.rounds`).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct FieldRound {
     /// `--faces`-like target the round's sizing aimed at (`None`: the
     /// Fitmap's own sizes).
@@ -46,7 +46,7 @@ pub struct FieldRound {
 
 /// `report.json`'s record of the field layout: the first layout's figures
 /// and every round fitted.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct FieldRecord {
     pub first: FieldStats,
     pub rounds: Vec<FieldRound>,

@@ -80,7 +80,7 @@ pub(super) fn fit_fewest_within(
 
 /// What the organic `max_error` search tried and kept (`report.json`'s
 /// `options.run.max_error_search`).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct ErrorSearch {
     pub max_error_permille: f64,
     /// `(faces, RMS L ‰ by the fit's own samples)` of every candidate

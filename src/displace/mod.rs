@@ -84,7 +84,7 @@ pub fn auto_resolution(mesh_vertices: usize, patches: usize) -> usize {
 }
 
 /// How the displacement offsets are chosen.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize)]
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum OffsetMode {
     /// φ's hit distances: D interpolates M at the samples (Fitmaps §1.2).
