@@ -35,7 +35,7 @@ pub(crate) mod topo;
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::mesh::{ControlMesh, FaceId};
+use crate::mesh::{ControlMesh, FaceId, VertexId};
 use crate::subdiv::{
     check_not_holes, checked_holes, EvalOptions, LimitEvaluator, LimitPoint, LimitStencils,
     SurfaceLocation,
@@ -125,16 +125,7 @@ impl RustEvaluator {
             .collect::<Vec<_>>()
             .par_iter()
             .map(|&v| {
-                let faces: Vec<FaceId> = mesh.vertex_faces(v).collect();
-                let t = topo_from_mesh(mesh, Some(&faces), sdc);
-                let local = t
-                    .pts
-                    .iter()
-                    .position(|&g| g == v.0)
-                    .expect("v is in its ring") as u32;
-                let t = t.with_points(Sparse::unit);
-                let adj = t.adjacency();
-                let (mut p, a, b) = vertex_limit(&t, &adj, local, None);
+                let (mut p, a, b) = vertex_masks(mesh, v, sdc);
                 if let Some((bv, delta)) = options.broken_mask.filter(|m| m.0 == v.0) {
                     p.axpy(delta, &Sparse::unit(bv));
                 }
@@ -653,6 +644,37 @@ fn dart_masks<P: Clone>(
         w.iter_mut().for_each(|v| *v /= 3.0);
     }
     (p, a, b)
+}
+
+/// The exact limit masks (position, tangent 1, tangent 2) of the control
+/// vertex `v` of `mesh` under `sdc`, over control vertex ids (sorted):
+/// [`vertex_limit`] on `v`'s 1-ring.
+fn vertex_masks(mesh: &ControlMesh, v: VertexId, sdc: Rules) -> (Sparse, Sparse, Sparse) {
+    let faces: Vec<FaceId> = mesh.vertex_faces(v).collect();
+    let t = topo_from_mesh(mesh, Some(&faces), sdc);
+    let local = t
+        .pts
+        .iter()
+        .position(|&g| g == v.0)
+        .expect("v is in its ring") as u32;
+    let t = t.with_points(Sparse::unit);
+    let adj = t.adjacency();
+    vertex_limit(&t, &adj, local, None)
+}
+
+/// The Catmull-Clark limit position mask of the control vertex `v` under
+/// `scheme`: weights over control vertices (sorted by id, summing to 1)
+/// whose combination is the limit position of `v`. It is the position row
+/// of [`RustEvaluator`]'s vertex masks, for callers that need rows of the
+/// limit matrix `L` without building a whole evaluator (the limit
+/// interpolation of Fitmaps §3.2, `quad::interpolate`).
+pub fn vertex_limit_mask(
+    mesh: &ControlMesh,
+    v: VertexId,
+    scheme: &crate::mesh::SchemeOptions,
+) -> Vec<(VertexId, f64)> {
+    let (p, _, _) = vertex_masks(mesh, v, Rules::from_scheme(scheme));
+    p.0.into_iter().map(|(i, w)| (VertexId(i), w)).collect()
 }
 
 /// Exact limit position and two tangents at vertex `c` of `t` (its fan must
