@@ -42,8 +42,26 @@ pub enum Error {
     /// A least-squares system has no unique solution.
     #[error("least squares: the system is rank deficient ({msg}); add a regularisation term or more rows")]
     RankDeficient { msg: String },
-    /// A caller passed an argument out of its domain (a value handed to a
-    /// library function that is neither an option nor a mesh).
+    /// Data handed to the library in memory, with no file behind it (a
+    /// mesh, a Fitmap, a face-varying channel, control positions), that
+    /// cannot be used: the in-memory counterpart of [`Error::InvalidMesh`].
+    /// `what` names the data (`input mesh`, `Fitmap`, …), `element` the
+    /// offending element (`vertex 12`, `face 7`, `mesh`); a host that read
+    /// it from a file names the file with [`Error::context`].
+    #[error("{what}: {element}: {msg}")]
+    InvalidData {
+        what: String,
+        element: String,
+        msg: String,
+    },
+    /// A library function was called against its contract: arguments that
+    /// disagree with each other or with the mesh they go with (a list of
+    /// the wrong length, an id out of range, a surface location off its
+    /// face). Neither a bad option nor a bad mesh: the calling code is at
+    /// fault, and a host that builds these arguments itself (the CLI)
+    /// never produces one. Its kind is `Input`, the caller's side; inside
+    /// the library, a call that can only fail by a bug of subdfit's own
+    /// says so with [`Error::Internal`] instead.
     #[error("{0}")]
     InvalidArgument(String),
     /// An option out of its domain: `option` names it as the CLI spells
@@ -135,6 +153,7 @@ impl Error {
             | Error::Parse { .. }
             | Error::InvalidMesh { .. }
             | Error::Topology { .. }
+            | Error::InvalidData { .. }
             | Error::InvalidArgument(_) => ErrorKind::Input,
             Error::InvalidOption { .. } => ErrorKind::Option,
             Error::Backend { .. } | Error::RankDeficient { .. } | Error::Numerical { .. } => {
@@ -150,6 +169,19 @@ impl Error {
     pub fn option(option: impl Into<String>, msg: impl Into<String>) -> Self {
         Error::InvalidOption {
             option: option.into(),
+            msg: msg.into(),
+        }
+    }
+
+    /// Unusable in-memory data (see [`Error::InvalidData`]).
+    pub fn invalid_data(
+        what: impl Into<String>,
+        element: impl Into<String>,
+        msg: impl Into<String>,
+    ) -> Self {
+        Error::InvalidData {
+            what: what.into(),
+            element: element.into(),
             msg: msg.into(),
         }
     }

@@ -23,6 +23,9 @@
 //!    compiler checks ([`subdfit::convert::RunOptions`]), and hosts read
 //!    results from it, not from JSON. (The binary, `src/bin/`, may print
 //!    JSON of its own.)
+//! 6. **Errors with kinds.** `Error::InvalidArgument` (a call against a
+//!    function's contract) only at the sites [`INVALID_ARGUMENT_SITES`]
+//!    lists; every other error says its kind (`src/error.rs`).
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -461,6 +464,77 @@ fn one_mode_type_and_one_objective_type() {
     );
 }
 
+/// Every `enum` defined in `code`, with its variants' names.
+fn enum_variants(code: &str) -> Vec<(String, BTreeSet<String>)> {
+    let b = code.as_bytes();
+    let ident = |c: char| c.is_alphanumeric() || c == '_';
+    let mut out = Vec::new();
+    for (k, _) in code.match_indices("enum ") {
+        if code[..k].chars().last().is_some_and(ident) {
+            continue;
+        }
+        let name: String = code[k + 5..].chars().take_while(|&c| ident(c)).collect();
+        let Some(open) = code[k..].find('{').map(|o| o + k) else {
+            continue;
+        };
+        let close = matching_brace(b, open);
+        // Variants: the comma-separated items at the body's top level,
+        // attributes (`#[default]`) left out.
+        let mut variants = BTreeSet::new();
+        let (mut depth, mut start) = (0i32, open + 1);
+        for j in open + 1..=close {
+            match b[j] {
+                b'{' | b'(' | b'[' => depth += 1,
+                b'}' | b')' | b']' if j < close => depth -= 1,
+                _ => {}
+            }
+            if (b[j] == b',' && depth == 0) || j == close {
+                let mut item = code[start..j].trim();
+                while let Some(rest) = item.strip_prefix("#[") {
+                    item = rest[rest.find(']').map_or(rest.len(), |e| e + 1)..].trim_start();
+                }
+                let v: String = item.chars().take_while(|&c| ident(c)).collect();
+                if !v.is_empty() {
+                    variants.insert(v);
+                }
+                start = j + 1;
+            }
+        }
+        out.push((name, variants));
+    }
+    out
+}
+
+/// Copies under other names: an enum that spells the mode's choices or
+/// the objective's, besides `convert::Mode` and `fit::Objective`.
+#[test]
+fn no_renamed_copy_of_the_mode_or_the_objective() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    rust_files(&src_dir(), &mut files);
+    rust_files(&root.join("python/src"), &mut files);
+    let mut copies = Vec::new();
+    for f in &files {
+        let code = without_test_items(&strip(&std::fs::read_to_string(f).unwrap()).0);
+        let path = f.to_string_lossy().replace('\\', "/");
+        for (name, variants) in enum_variants(&code) {
+            let has = |vs: &[&str]| vs.iter().all(|v| variants.contains(*v));
+            let mode = has(&["Organic", "Mechanical"]);
+            let objective = has(&["Point", "Sdm"]);
+            let canonical = (name == "Mode" && path.ends_with("src/convert/options.rs"))
+                || (name == "Objective" && path.ends_with("src/fit/mod.rs"));
+            if (mode || objective) && !canonical {
+                copies.push(format!("{path}: enum {name} {variants:?}"));
+            }
+        }
+    }
+    assert!(
+        copies.is_empty(),
+        "copies of the mode or the objective (map to convert::Mode / fit::Objective):\n{}",
+        copies.join("\n")
+    );
+}
+
 /// Untyped JSON in `code`: `serde_json::Value` (also imported in a
 /// `serde_json::{…}` group), or the `json!` macro.
 fn untyped_json(code: &str) -> Vec<&'static str> {
@@ -522,5 +596,98 @@ fn the_new_checks_catch_what_they_are_for() {
     assert!(!mentions("use crate::fit::FitReport;", "fit::fit"));
     assert!(!mentions("x.fit_with_progress_more()", "fit_with_progress"));
     assert!(mentions("pub enum Mode {", "enum Mode"));
+    let e = enum_variants("pub enum Way {\n    #[default]\n    Organic,\n    Mechanical(u8),\n    X { a: u8, b: u8 },\n}\n");
+    assert_eq!(e.len(), 1);
+    assert_eq!(e[0].0, "Way");
+    let want: BTreeSet<String> = ["Organic", "Mechanical", "X"].map(String::from).into();
+    assert_eq!(e[0].1, want);
     assert!(!mentions("pub enum ModeArg {", "enum Mode"));
+}
+
+/// The files of `src/` that still construct `Error::InvalidArgument`, and
+/// how many times at most (rule 6 of this file: **errors with kinds**).
+/// After issue 36's per-site pass it is left only for calls against a
+/// function's contract (a list of the wrong length, an id out of range, a
+/// surface location off its face, a host's arrays that disagree): a bad
+/// input file or mesh is `InvalidMesh`, `InvalidData` or `Topology` and
+/// names the element, a bad option `InvalidOption`, a failed numerical
+/// stage `Numerical`, a broken invariant `Internal`. A new site is either
+/// one of those, or added here with the reason it is API misuse.
+const INVALID_ARGUMENT_SITES: &[(&str, usize)] = &[
+    ("analysis/fitmap/exact.rs", 1),
+    ("displace/atlas.rs", 3),
+    ("displace/grid.rs", 4),
+    ("embed/bridge.rs", 2),
+    ("embed/mod.rs", 6),
+    ("io/obj_uv.rs", 2),
+    ("io/usd.rs", 2),
+    ("io/write.rs", 10),
+    ("mesh/control.rs", 1),
+    ("mesh/nonmanifold.rs", 1),
+    ("project.rs", 2),
+    ("quad/field/mod.rs", 3),
+    ("quad/interpolate.rs", 3),
+    ("quad/simplify.rs", 2),
+    ("raycast/mod.rs", 3),
+    ("render/image.rs", 1),
+    ("render/scene.rs", 1),
+    ("render/tracer.rs", 2),
+    ("solve/mod.rs", 1),
+    ("subdiv/catmark/mod.rs", 4),
+    ("subdiv/loop_scheme/mod.rs", 1),
+    ("subdiv/mod.rs", 6),
+    ("subdiv/osd.rs", 7),
+    ("subdiv/quadtri/limit.rs", 1),
+    ("subdiv/quadtri/mod.rs", 2),
+    ("subdiv/refine.rs", 1),
+];
+
+#[test]
+fn invalid_argument_only_where_listed() {
+    let src = src_dir();
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut bad = Vec::new();
+    let mut total = 0;
+    for f in &files {
+        let rel = f
+            .strip_prefix(&src)
+            .unwrap()
+            .to_string_lossy()
+            .replace('\\', "/");
+        if rel == "error.rs" {
+            continue;
+        }
+        let code = without_test_items(&strip(&std::fs::read_to_string(f).unwrap()).0);
+        let ident = |c: char| c.is_alphanumeric() || c == '_';
+        let n = code
+            .match_indices("InvalidArgument")
+            .filter(|&(k, m)| {
+                !code[..k].chars().last().is_some_and(ident)
+                    && !code[k + m.len()..].chars().next().is_some_and(ident)
+            })
+            .count();
+        total += n;
+        let allowed = INVALID_ARGUMENT_SITES
+            .iter()
+            .find(|(p, _)| *p == rel)
+            .map_or(0, |&(_, n)| n);
+        if n > allowed {
+            bad.push(format!(
+                "src/{rel}: {n} InvalidArgument (at most {allowed})"
+            ));
+        }
+    }
+    assert!(
+        bad.is_empty(),
+        "InvalidArgument beyond its list (give the error its kind, see src/error.rs):\n{}",
+        bad.join("\n")
+    );
+    // The list shrinks with the code: a file's count above what is left
+    // would let a site come back unnoticed.
+    let listed: usize = INVALID_ARGUMENT_SITES.iter().map(|&(_, n)| n).sum();
+    assert_eq!(
+        total, listed,
+        "INVALID_ARGUMENT_SITES lists {listed} sites, src/ has {total}: lower the list"
+    );
 }

@@ -566,7 +566,10 @@ fn bad_input_is_a_typed_error() {
     let mut m = fixtures::cube();
     m.set_crease(VertexId(0), VertexId(1), 2.0).unwrap();
     match QuadTriRefiner::new(&m, 1) {
-        Err(Error::InvalidArgument(msg)) => assert!(msg.contains("semi-sharp"), "{msg}"),
+        Err(e @ Error::Topology { .. }) => {
+            assert!(e.to_string().contains("semi-sharp"), "{e}");
+            assert_eq!(e.kind(), subdfit::ErrorKind::Input);
+        }
         Err(e) => panic!("wrong error {e}"),
         Ok(_) => panic!("semi-sharp crease accepted"),
     }

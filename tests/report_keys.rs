@@ -12,7 +12,7 @@
 use std::collections::BTreeSet;
 use std::path::Path;
 
-use subdfit::convert::{convert_in_memory, ConvertOptions, Mode};
+use subdfit::convert::{convert_in_memory, BranchRecord, ConvertOptions, Mode, RunOptions};
 
 /// Every node's path in `v` below `prefix`, null and `false` leaves
 /// included (as `jq paths` lists them).
@@ -64,6 +64,7 @@ fn check(mesh: &str, mode: Mode, golden: &str) {
     .unwrap();
     let mut got = BTreeSet::new();
     key_paths(&serde_json::to_value(&c.report).unwrap(), "", &mut got);
+    record_round_trips(&c.report, mode);
     let want: BTreeSet<String> =
         std::fs::read_to_string(root.join("tests/data/report_keys").join(golden))
             .unwrap()
@@ -75,6 +76,47 @@ fn check(mesh: &str, mode: Mode, golden: &str) {
     assert!(
         missing.is_empty() && added.is_empty(),
         "{mesh} ({mode:?}): report.json keys changed\nmissing: {missing:#?}\nadded: {added:#?}"
+    );
+}
+
+/// `report.json`'s `options`, as the file holds it, read into the typed
+/// record (`RunOptions`) and written again: the same keys and the same
+/// values, so a host can read a finished run's record typed.
+fn record_round_trips(report: &impl serde::Serialize, mode: Mode) {
+    // The bytes report.json gets (report/output.rs writes them so).
+    let text = serde_json::to_string_pretty(report).unwrap();
+    let file: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let options = &file["options"];
+    let record: RunOptions = serde_json::from_value(options.clone()).unwrap_or_else(|e| {
+        // The untagged enum hides which part failed: the branch's record
+        // says it.
+        let branch = options.get("run").filter(|r| r.get("mode").is_some());
+        let why = serde_json::from_value::<BranchRecord>(branch.unwrap_or(options).clone())
+            .err()
+            .map_or_else(String::new, |e| e.to_string());
+        panic!("{mode:?}: options do not read back: {e} ({why})")
+    });
+    let again = serde_json::to_value(&record).unwrap();
+    let (mut a, mut b) = (BTreeSet::new(), BTreeSet::new());
+    key_paths(options, "", &mut a);
+    key_paths(&again, "", &mut b);
+    assert_eq!(a, b, "{mode:?}: the record's keys changed on the way back");
+    assert_eq!(&again, options, "{mode:?}: the record's values changed");
+    // Typed readers see what the file says.
+    let kept = match mode {
+        Mode::Mechanical => "mechanical",
+        _ => "organic",
+    };
+    assert_eq!(record.mode(), Some(kept));
+    assert_eq!(record.host().command, "convert");
+    assert!(
+        record.host().mesh.ends_with(".ply"),
+        "{}",
+        record.host().mesh
+    );
+    assert_eq!(
+        record.mechanical_initial_faces().is_some(),
+        mode == Mode::Mechanical
     );
 }
 

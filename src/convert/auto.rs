@@ -11,8 +11,8 @@
 //!   distance of the whole limit surface exceeds the per-face bound itself
 //!   (every face within E would keep it below), or more than 1 % of M is
 //!   unprojectable, the organic conversion runs too ([`Doubt::FarOver`]).
-//!   Issue 38's genus-9 casting ended at RMS 9.95‰ against E = 3‰ with
-//!   10 % unprojectable: that is the case this rule catches.
+//!   (The case that called for it: docs/status.md, "Measurements behind
+//!   the code".)
 //!
 //! Which one is kept weighs conciseness too, a goal of both papers
 //! (Lavoué et al.'s Table 2 and Panozzo et al.'s tables rate a fit by its
@@ -61,11 +61,11 @@ pub fn with_second_opinion<'a, 'p>(
 
 /// `--mode auto` also doubts a mechanical result whose enrichment (§7)
 /// more than grew its initial polyhedron by half: on a CAD part §4–§6's
-/// regions and curves already carry the shape and §7 refines it (fandisk
-/// 68 → 82 faces, block 215 → 248, the procedural castings at most
-/// 313 → 429), while an organic shape read as CAD is rebuilt by the
-/// enrichment (spot split 1 → 4: 858 → 1522 faces), and the organic
-/// pipeline may say it in far fewer ([`organic_wins`] weighs the faces).
+/// regions and curves already carry the shape and §7 only refines it,
+/// while an organic shape read as CAD is rebuilt by the enrichment, and
+/// the organic pipeline may say it in far fewer faces ([`organic_wins`]
+/// weighs the faces). The growths measured on both kinds of mesh are in
+/// docs/status.md, "Measurements behind the code".
 pub const AUTO_MAX_GROWTH: f64 = 1.5;
 
 /// Why `--mode auto`'s mechanical result needs the organic one beside it,
@@ -136,8 +136,31 @@ pub struct SecondOpinion {
     pub kept: &'static str,
 }
 
+/// [`SecondOpinion`] as `report.json` holds it, `kept` owned.
+#[derive(serde::Deserialize)]
+struct SecondOpinionText {
+    why: String,
+    mechanical: Candidate,
+    organic: Candidate,
+    kept: String,
+}
+
+// By hand: a derived impl would borrow `kept` from the input, so it could
+// only read from `'static` text.
+impl<'de> serde::Deserialize<'de> for SecondOpinion {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        let t = <SecondOpinionText as serde::Deserialize>::deserialize(d)?;
+        Ok(SecondOpinion {
+            why: t.why,
+            mechanical: t.mechanical,
+            organic: t.organic,
+            kept: crate::mechanical::static_name(&t.kept)?,
+        })
+    }
+}
+
 /// One side of a [`SecondOpinion`].
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct Candidate {
     /// RMS distance of the limit surface, ‰ of the diagonal.
     pub rms_limit_permille: f64,
@@ -169,11 +192,12 @@ impl Candidate {
 /// two are compared by RMS × faces, the error scaled to a common control
 /// mesh size by the slowest convergence of a surface fit (error ∝ h² ∝
 /// 1 / faces; a smooth bicubic fit converges faster, which would favour
-/// the smaller mesh even more). A spot mesh split into parts took the
-/// mechanical result of 1534 faces over an organic one of 99 at a
-/// slightly higher RMS; a CAD part's mechanical result (fandisk: 80 faces
-/// at 0.7‰ against organic patches several times as far) still wins.
-/// Ties: mechanical, the paper's answer for a part that looks like CAD.
+/// the smaller mesh even more). Without the faces, an organic mesh split
+/// into parts kept a mechanical result of fifteen times the faces for a
+/// slightly lower RMS; with them, a CAD part's mechanical result (several
+/// times closer than the organic patches) still wins (docs/status.md,
+/// "Measurements behind the code"). Ties: mechanical, the paper's answer
+/// for a part that looks like CAD.
 pub fn organic_wins(m: &Candidate, o: &Candidate, weigh_faces: bool) -> bool {
     if weigh_faces && o.targets_met {
         o.rms_limit_permille * (o.faces as f64) < m.rms_limit_permille * (m.faces as f64)

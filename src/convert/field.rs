@@ -62,7 +62,7 @@ pub const MAX_REFINE: f64 = 0.5;
 pub const MAX_COARSEN: f64 = 1.25;
 
 /// One fitted field layout (`report.json`'s `field_layout.rounds`).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct FieldRound {
     /// `--faces`-like target the round's sizing aimed at (`None`: the
     /// Fitmap's own sizes).
@@ -85,7 +85,7 @@ pub struct FieldRound {
 
 /// `report.json`'s record of the field layout: the first layout's figures
 /// and every round fitted.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct FieldRecord {
     pub first: FieldStats,
     pub rounds: Vec<FieldRound>,

@@ -330,7 +330,7 @@ pub(super) fn layout_proxy(
 
 /// What [`layout_proxy`] tried (`report.json`'s `layout_proxy`, and `fit`'s
 /// `fitmap_proxy`).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct ProxyRecord {
     /// Whether the layout ran on M′ (one attempt kept M's topology).
     pub used: bool,
@@ -340,7 +340,7 @@ pub struct ProxyRecord {
 }
 
 /// One decimation [`layout_proxy`] tried.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct ProxyAttempt {
     pub target_triangles: usize,
     pub triangles: usize,

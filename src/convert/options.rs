@@ -7,7 +7,7 @@ use crate::error::{Error, Result};
 use crate::fit::Objective;
 
 /// Options of [`convert`], mirroring `subdfit convert`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub struct ConvertOptions {
     /// τ of the M-fitmap (§3.1.3), a fraction: the only parameter of the
@@ -54,12 +54,14 @@ pub struct ConvertOptions {
     /// [`crate::report::METRIC_SAMPLES`] points are measured on a sample,
     /// with the confidence interval in `report.json`. Left out of
     /// `report.json`'s options when off.
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub exact_metrics: bool,
 }
 
 /// `convert --layout`: which organic layout makes the control mesh.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
+#[derive(
+    Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum LayoutKind {
     /// Fitmaps §3.2–3.3: M′'s triangle pairs, then diagonal collapses,
@@ -78,7 +80,7 @@ pub enum LayoutKind {
 /// per vertex they see, the fit and the metrics scale with M's size
 /// only through ray casting; so the layout runs on M′ (meshoptimizer's quadric
 /// simplification, [`crate::mesh::decimate`]) and the rest on M.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize)]
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Proxy {
     /// M′ of [`PROXY_AUTO_TRIANGLES`] triangles when M has more than
@@ -146,7 +148,9 @@ pub const DEFAULT_ORGANIC_MAX_ERROR: f64 = 5e-3;
 /// Which pipeline a conversion runs: `convert --mode`, and the same enum
 /// in every host (`embed`, C++, Python). The CLI parses it by clap's
 /// derive; `report.json` writes it in lower case.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
+#[derive(
+    Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Mode {
     /// Picks one from the share of sharp feature edges

@@ -23,7 +23,7 @@ use super::tail::PipelineOptions;
 use super::ConvertOptions;
 
 /// `report.json`'s `options`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 #[serde(untagged)]
 pub enum RunOptions {
     /// A run whose control mesh went through the global fit (organic,
@@ -44,7 +44,7 @@ pub enum RunOptions {
 }
 
 /// `options.run` of a fitted run.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 #[serde(untagged)]
 pub enum FittedRun {
     /// A conversion's branch (`convert`, and the hosts' `convert`).
@@ -55,7 +55,7 @@ pub enum FittedRun {
 
 /// `{"second_opinion": …}` of a [`RunOptions::Fitted`] result that
 /// `--mode auto` kept.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct SecondOpinionNote {
     pub second_opinion: SecondOpinion,
 }
@@ -63,7 +63,7 @@ pub struct SecondOpinionNote {
 /// The host's record of a run (`options.run` of `fit`, `options.run.run`
 /// of `convert`, `options.run` of a mechanical run): which command, on
 /// which file, and for `fit` the control mesh given.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct HostRecord {
     /// `"convert"` or `"fit"`.
     pub command: String,
@@ -102,7 +102,7 @@ impl HostRecord {
 }
 
 /// The control mesh `subdfit fit` was given.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct FitInputs {
     /// Its path.
     pub control: String,
@@ -113,7 +113,7 @@ pub struct FitInputs {
 
 /// One branch of a conversion: `--mode`'s choice, the options, the host's
 /// record and what the layout did.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct BranchRecord {
     pub mode: ModeRecord,
     pub convert: ConvertOptions,
@@ -124,7 +124,7 @@ pub struct BranchRecord {
 
 /// `--mode`'s choice and why, with `--mode auto`'s second opinion when it
 /// ran one and kept this branch.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct ModeRecord {
     #[serde(flatten)]
     pub choice: ModeChoice,
@@ -133,7 +133,7 @@ pub struct ModeRecord {
 }
 
 /// The layout's keys of a [`BranchRecord`].
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 #[serde(untagged)]
 pub enum BranchLayout {
     OrganicGreedy {
@@ -154,7 +154,7 @@ pub enum BranchLayout {
 }
 
 /// Lavoué et al.'s options and statistics of a mechanical branch.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct MechanicalRecord {
     pub options: MechanicalOptions,
     pub stats: MechanicalStats,

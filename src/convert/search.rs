@@ -87,7 +87,7 @@ const FINAL_OVER_ROUND: [f64; 9] = [0.60, 0.76, 0.81, 0.86, 0.90, 0.93, 0.96, 0.
 
 /// What the organic `max_error` search tried and kept (`report.json`'s
 /// `options.run.max_error_search`).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct ErrorSearch {
     pub max_error_permille: f64,
     /// `(faces, RMS L ‰ by the fit's own samples)` of every candidate

@@ -23,7 +23,7 @@ use super::record::{FittedRun, RunOptions};
 use super::Report;
 
 /// Options of [`fit_and_write`].
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub struct PipelineOptions {
     pub fit: FitOptions,

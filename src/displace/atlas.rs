@@ -169,9 +169,10 @@ impl Atlas {
                 let images = patches.div_ceil(per * per);
                 // UDIM numbers run 1001..=1999: 10 tiles per row, 100 rows.
                 if images > 1000 {
-                    return Err(Error::InvalidArgument(format!(
-                        "atlas: {patches} patches need {images} UDIM tiles (max 1000)"
-                    )));
+                    return Err(Error::option(
+                        "atlas",
+                        format!("atlas: {patches} patches need {images} UDIM tiles (max 1000)"),
+                    ));
                 }
                 (per, per, images)
             }
@@ -283,11 +284,14 @@ impl Atlas {
             height
         };
         if image >= 1000 {
-            return Err(Error::InvalidArgument(format!(
-                "atlas: {} patches need {} UDIM tiles (max 1000)",
-                res.len(),
-                image + 1
-            )));
+            return Err(Error::option(
+                "atlas",
+                format!(
+                    "atlas: {} patches need {} UDIM tiles (max 1000)",
+                    res.len(),
+                    image + 1
+                ),
+            ));
         }
         check_size(width, height)?;
         Ok(Atlas {
@@ -516,9 +520,12 @@ pub enum AtlasMap {
 /// EXR stores sizes as i32; keep well inside.
 fn check_size(width: usize, height: usize) -> Result<()> {
     if width > 1 << 16 || height > 1 << 16 {
-        return Err(Error::InvalidArgument(format!(
-            "atlas: {width} × {height} texels is too large; lower the displacement resolution"
-        )));
+        return Err(Error::option(
+            "displacement_res",
+            format!(
+                "atlas: {width} × {height} texels is too large; lower the displacement resolution"
+            ),
+        ));
     }
     Ok(())
 }

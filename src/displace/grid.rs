@@ -125,10 +125,13 @@ impl PatchGrid {
 
     fn build(mesh: &ControlMesh, res: &[usize]) -> Result<PatchGrid> {
         if let Some(&r) = res.iter().find(|&&r| r > MAX_RES) {
-            return Err(Error::InvalidArgument(format!(
-                "patch grid: resolution {r} per patch side is beyond any sensible atlas \
-                 (max {MAX_RES})"
-            )));
+            return Err(Error::option(
+                "displacement_res",
+                format!(
+                    "patch grid: resolution {r} per patch side is beyond any sensible atlas \
+                     (max {MAX_RES})"
+                ),
+            ));
         }
         if let Some(f) = mesh.faces().find(|&f| mesh.face_size(f) != 4) {
             return Err(Error::topology(
@@ -187,9 +190,12 @@ impl PatchGrid {
             next += (r as u64 - 2) * (r as u64 - 2);
         }
         if next > u32::MAX as u64 {
-            return Err(Error::InvalidArgument(format!(
-                "patch grid: {next} samples do not fit 32-bit indices; lower the resolution"
-            )));
+            return Err(Error::option(
+                "displacement_res",
+                format!(
+                    "patch grid: {next} samples do not fit 32-bit indices; lower the resolution"
+                ),
+            ));
         }
         face_start.push(next as u32);
         let uniform = res.windows(2).all(|w| w[0] == w[1]);

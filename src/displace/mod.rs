@@ -109,7 +109,7 @@ impl std::str::FromStr for SampleAllocation {
 }
 
 /// How the displacement offsets are chosen.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize)]
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum OffsetMode {
     /// φ's hit distances: D interpolates M at the samples (Fitmaps §1.2).

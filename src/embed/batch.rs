@@ -103,10 +103,13 @@ fn folder_meshes(dir: &Path) -> Result<Vec<PathBuf>> {
     }
     out.sort();
     if out.is_empty() {
-        return Err(Error::InvalidArgument(format!(
-            "{}: no mesh file (OBJ, PLY, OFF, STL) in this folder",
-            dir.display()
-        )));
+        return Err(Error::option(
+            "inputs",
+            format!(
+                "{}: no mesh file (OBJ, PLY, OFF, STL) in this folder",
+                dir.display()
+            ),
+        ));
     }
     Ok(out)
 }
@@ -137,7 +140,7 @@ fn manifest_meshes(path: &Path) -> Result<Vec<PathBuf>> {
 }
 
 fn glob_meshes(pattern: &str) -> Result<Vec<PathBuf>> {
-    let bad = |msg: String| Error::InvalidArgument(format!("pattern {pattern}: {msg}"));
+    let bad = |msg: String| Error::option("inputs", format!("pattern {pattern}: {msg}"));
     let mut out = Vec::new();
     for p in glob::glob(pattern).map_err(|e| bad(e.to_string()))? {
         let p = p.map_err(|e| bad(e.to_string()))?;
@@ -177,7 +180,7 @@ fn expand(spec: &str) -> Result<Vec<PathBuf>> {
 /// number (`bunny-2`), so names depend only on the inputs' order.
 pub fn plan(inputs: &[String], out_root: &Path) -> Result<Vec<Asset>> {
     if inputs.is_empty() {
-        return Err(Error::InvalidArgument("no input given".into()));
+        return Err(Error::option("inputs", "no input given"));
     }
     let mut seen_inputs = HashSet::new();
     let mut names = HashSet::new();

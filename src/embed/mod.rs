@@ -597,7 +597,9 @@ pub fn fit(
 
 /// Test hooks for the C++ package test (not part of the API): `"panic"`
 /// panics on the calling thread, `"panic-in-worker"` inside a rayon worker,
-/// `"error"` returns an error, `"progress"` runs a fake ten-second stage on
+/// `"error"` returns an error (of kind `Input`; `"error-option"`,
+/// `"error-numerical"` and `"error-internal"` one of each other kind),
+/// `"progress"` runs a fake ten-second stage on
 /// all workers that reports every millisecond, so a host can time its
 /// cancellation.
 #[doc(hidden)]
@@ -614,6 +616,11 @@ pub fn self_test(what: &str, progress: &Progress) -> Result<()> {
             Ok(())
         }
         "error" => Err(Error::InvalidArgument("self-test error".into())),
+        // One error of each other kind, for a host to check its mapping
+        // (exit code, exception class, `subdfit::Error::kind()`).
+        "error-option" => Err(Error::option("self-test", "self-test option error")),
+        "error-numerical" => Err(Error::numerical("self-test", "self-test numerical error")),
+        "error-internal" => Err(Error::internal("self-test internal error")),
         "progress" => {
             const STEPS: u32 = 10_000;
             let done = std::sync::atomic::AtomicU32::new(0);

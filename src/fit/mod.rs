@@ -105,7 +105,9 @@ pub use crate::watch::{report_progress, Progress};
 /// for the global fit, the mechanical geometry step
 /// ([`crate::mechanical::optimize`]) and every host (the CLI's `--fit` by
 /// clap's derive, [`crate::embed`], C++, Python).
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
+#[derive(
+    Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Objective {
     /// Point distance to the normal projection φ(s) (Fitmaps §3.5).
@@ -139,7 +141,7 @@ impl Objective {
 }
 
 /// Options of [`fit`]; defaults documented on each field.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub struct FitOptions {
     pub objective: Objective,
@@ -659,15 +661,19 @@ pub struct FitState(Vec<StartState>);
 /// of the report are relative to this diagonal).
 fn checked_diagonal(mesh: &TriMesh) -> Result<f64> {
     if mesh.positions.is_empty() || mesh.triangles.is_empty() {
-        return Err(Error::InvalidArgument(
-            "fit: the input mesh is empty".into(),
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            "is empty; the fit needs triangles",
         ));
     }
     let diag = mesh.bbox_diagonal();
     if !(diag.is_finite() && diag > 0.0) {
-        return Err(Error::InvalidArgument(format!(
-            "fit: the input mesh has a degenerate bounding box (diagonal {diag})"
-        )));
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            format!("has a degenerate bounding box (diagonal {diag}); the fit needs a surface"),
+        ));
     }
     Ok(diag)
 }
@@ -973,10 +979,10 @@ impl RoundTargets {
             .filter_map(|(h, s)| h.map(|h| (h.point - s.position).length_squared()))
             .fold((0.0, 0usize), |(a, c), d2| (a + d2, c + 1));
         if count == 0 {
-            return Err(Error::InvalidArgument(
-                "fit: no sample of the limit surface projects onto the mesh along its normal; \
-                 the control mesh does not approximate this mesh"
-                    .into(),
+            return Err(Error::numerical(
+                "fit",
+                "no sample of the limit surface projects onto the mesh along its normal; \
+                 the control mesh does not approximate this mesh",
             ));
         }
         let rms = (sum2 / count as f64).sqrt();

@@ -7,12 +7,11 @@
 //! closed uniform cubic B-spline of the loop's control points, and depends
 //! on nothing else. The surface fit's border rows target the *closest*
 //! point of the rim, a one-sided measure: a border curve lying along part
-//! of the rim satisfies them as well as one covering all of it. Measured on
-//! the bunny at τ = 1 % (five holes), the border curves were within 2–5‰
-//! (mean) of the rim while the rim was 17–27‰ (mean) from them: each curve
-//! hugged one side of its hole and the limit surface capped the rest of
-//! it, where the displaced samples have nothing of M below them (98 % of
-//! the RMS D error on 2 % of the area).
+//! of the rim satisfies them as well as one covering all of it. On a mesh
+//! with holes, each border curve hugged one side of its hole and the limit
+//! surface capped the rest of it, where the displaced samples have nothing
+//! of M below them: most of the displaced error on a small share of the
+//! area (figures in docs/status.md, "Measurements behind the code").
 //!
 //! So each loop is fitted to its rim as a curve least-squares problem in
 //! the other direction — rim points to the curve — with foot-point
@@ -229,10 +228,10 @@ const ROUNDS: usize = 10;
 /// Smallest closed loop fitted. A closed uniform cubic B-spline of three
 /// control points is a planar oval fixed up to an affine map, and four
 /// leave little more: forcing such a curve onto a rim moves its few control
-/// points far (bunny τ = 10 %: up to 25‰) and distorts the large border
-/// patches more than the overhang it removes (measured: RMS D 0.95‰ →
-/// 1.72‰ with the 3- and 4-point loops fitted). Those loops keep the
-/// surface fit's closest-point rim rows only.
+/// points far and distorts the large border patches more than the overhang
+/// it removes (the displaced error grew, docs/status.md, "Measurements
+/// behind the code"). Those loops keep the surface fit's closest-point rim
+/// rows only.
 const MIN_LOOP: usize = 5;
 /// Largest loop fitted (dense normal equations: m² memory, m³/3 flops).
 const MAX_LOOP: usize = 1500;

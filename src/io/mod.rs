@@ -71,10 +71,11 @@ impl Format {
             Some("ply") => Ok(Format::Ply),
             Some("off") => Ok(Format::Off),
             Some("stl") => Ok(Format::Stl),
-            _ => Err(Error::InvalidArgument(format!(
-                "{}: unknown mesh format; use .obj, .ply, .off or .stl",
-                path.display()
-            ))),
+            _ => Err(Error::invalid_mesh(
+                path,
+                "file name",
+                "unknown mesh format; use .obj, .ply, .off or .stl",
+            )),
         }
     }
 

@@ -26,9 +26,8 @@
 //! and chord points) to the curve, through foot points, not through a
 //! parameter correspondence. Against least squares on the polyline
 //! vertices with parameter correction (the fitter this crate used first)
-//! this reaches the same tolerance with fewer points: fandisk's curve
-//! network went from 95 to 80 control points with the features kept
-//! within 0.88‰ instead of 0.97‰.
+//! this reaches the same tolerance with fewer points (figures in
+//! docs/status.md, "Measurements behind the code").
 
 use crate::DVec3;
 
@@ -299,8 +298,7 @@ fn solve_tdm(
     // FEATURE_FAIRNESS of the mean data term. The tangent-distance step
     // leaves the control points free to slide along the curve; a little
     // fairness keeps them evenly spread (the polygon becomes facet edges
-    // of §6). On fandisk it also finds fits one point smaller (83 instead
-    // of 84 control vertices, worst feature 0.88‰ instead of 0.95‰).
+    // of §6), and it finds fits as small or smaller than without.
     let lam = FEATURE_FAIRNESS * trace.max(1e-300);
     for k in 1..n.saturating_sub(1) + usize::from(closed) * 2 {
         if lam <= 0.0 {
@@ -435,11 +433,10 @@ fn fit_feature_n(
 ///
 /// Against a least-squares fit of the vertices with a parameter
 /// correspondence (the fitter this one replaced) it reaches the same
-/// tolerance with fewer points: fandisk's feature lines (before kink corners) need 122 control
-/// points instead of 140 at 0.97‰ / 0.95‰ (the tangent-distance step
-/// lets the curve slide along the polyline, and the minimax weights spend
-/// the error budget evenly). Near the floor: with one point fewer, most
-/// lines miss by 1–5 % under 200 iterations.
+/// tolerance with fewer points: the tangent-distance step lets the curve
+/// slide along the polyline, and the minimax weights spend the error
+/// budget evenly, so the count found is near the floor (with one point
+/// fewer, most lines miss by a few per cent under 200 iterations).
 pub fn fit_feature(points: &[DVec3], closed: bool, min_n: usize, tol: f64) -> Curve {
     let edges = if closed {
         points.len()

@@ -71,11 +71,12 @@ pub const DEFAULT_MAX_ROUNDS: usize = 8;
 /// `--mode auto` picks mechanical when at least this share of M's interior
 /// edges is sharp (dihedral above [`SHARP_DIHEDRAL_DEG`]): 0.5 % (and see
 /// [`AUTO_FLAT_SHARE`]). A CAD tessellation has its feature lines as edges
-/// (fandisk: 3.7 %); a dense organic scan a few noisy spikes at most.
+/// (several per cent of them); a dense organic scan a few noisy spikes at
+/// most.
 pub const AUTO_SHARP_SHARE: f64 = 0.005;
 
 /// Options of [`build_control`].
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub struct MechanicalOptions {
     /// `E_limit`: RMS distance per control face, fraction of the diagonal.
@@ -106,7 +107,10 @@ pub struct MechanicalOptions {
     pub fairness: f64,
     /// Objective of the geometry step: SDM, the paper's (§7.1). Written
     /// by its variant name in `report.json` (`"Sdm"`), as it always was.
-    #[serde(serialize_with = "crate::fit::Objective::serialize_variant_name")]
+    #[serde(
+        serialize_with = "crate::fit::Objective::serialize_variant_name",
+        deserialize_with = "objective_variant_name"
+    )]
     pub objective: optimize::Objective,
 }
 
@@ -132,9 +136,8 @@ impl MechanicalOptions {
     /// default `E_limit` they shrink in proportion — features to `E/3`
     /// (0.97‰ at most), smooth boundaries to `2E/3` (2‰ at most). A tight
     /// `E_limit` with 1‰ crease curves cannot be met near the creases, and
-    /// the enrichment spends its faces there in vain: on fandisk
-    /// `E = 1.2 × 10⁻³` gives 174 faces at RMS 0.37‰ with scaled curves,
-    /// 174 faces at RMS 0.40‰ without.
+    /// the enrichment spends its faces there in vain (the scaled curves
+    /// lower the RMS at the same face count).
     pub fn with_max_error(mut self, e: f64) -> Self {
         self.max_error = e;
         let d = MechanicalOptions::default();
@@ -168,7 +171,7 @@ impl MechanicalOptions {
 }
 
 /// What [`build_control`] did, for `report.json`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct MechanicalStats {
     pub sharp_edges: usize,
     pub sharp_edges_inside_regions: usize,
@@ -191,6 +194,7 @@ pub struct MechanicalStats {
     pub kink_corners: usize,
     /// Largest polyline-to-curve distance over the feature (all-sharp)
     /// pieces, ‰ of the diagonal (smooth pieces: see [`PieceStat`]).
+    #[serde(deserialize_with = "nullable_f64")]
     pub curve_max_error_permille: f64,
     pub pieces: Vec<PieceStat>,
     /// Initial facets per region (§6).
@@ -256,8 +260,8 @@ pub fn edge_shares(mesh: &TriMesh) -> (f64, f64) {
 /// An edge bending by less than this (degrees) is flat: 1°.
 pub const FLAT_DIHEDRAL_DEG: f64 = 1.0;
 /// `--mode auto` also asks for this share of flat edges: 30 %. Sharp
-/// edges alone do not tell a CAD part from a coarse organic mesh (spot, a
-/// 6k-triangle cow, has 3.2 % of edges above 30°, fandisk 3.7 %); what
+/// edges alone do not tell a CAD part from a coarse organic mesh (the two
+/// can have as many edges above 30°); what
 /// does is that a CAD part is mostly flat or singly curved between its
 /// features, so most of its edges do not bend at all.
 pub const AUTO_FLAT_SHARE: f64 = 0.3;
@@ -274,6 +278,69 @@ pub struct ModeChoice {
     pub flat_edge_share: f64,
     pub flat_threshold: f64,
     pub reason: String,
+}
+
+/// The names a run record holds as `&'static str` (a pipeline, how it was
+/// chosen), read back from `report.json`: a name no run writes is an
+/// error, so a record read back holds the same values it was written with.
+pub(crate) fn static_name<E: serde::de::Error>(s: &str) -> std::result::Result<&'static str, E> {
+    const NAMES: [&str; 4] = ["mechanical", "organic", "auto", "forced"];
+    NAMES
+        .into_iter()
+        .find(|n| *n == s)
+        .ok_or_else(|| E::custom(format!("unknown name `{s}` (one of {NAMES:?})")))
+}
+
+/// [`ModeChoice`] as `report.json` holds it, names owned.
+#[derive(serde::Deserialize)]
+struct ModeChoiceText {
+    mode: String,
+    how: String,
+    sharp_edge_share: f64,
+    threshold: f64,
+    flat_edge_share: f64,
+    flat_threshold: f64,
+    reason: String,
+}
+
+// By hand: a derived impl would borrow the `&'static str` fields from the
+// input, so it could only read from `'static` text.
+impl<'de> serde::Deserialize<'de> for ModeChoice {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        let t = <ModeChoiceText as serde::Deserialize>::deserialize(d)?;
+        Ok(ModeChoice {
+            mode: static_name(&t.mode)?,
+            how: static_name(&t.how)?,
+            sharp_edge_share: t.sharp_edge_share,
+            threshold: t.threshold,
+            flat_edge_share: t.flat_edge_share,
+            flat_threshold: t.flat_threshold,
+            reason: t.reason,
+        })
+    }
+}
+
+/// The objective written by `Objective::serialize_variant_name`
+/// (`"Point"`, `"Sdm"`), read back.
+fn objective_variant_name<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<optimize::Objective, D::Error> {
+    match <String as serde::Deserialize>::deserialize(d)?.as_str() {
+        "Point" => Ok(optimize::Objective::Point),
+        "Sdm" => Ok(optimize::Objective::Sdm),
+        s => Err(<D::Error as serde::de::Error>::custom(format!(
+            "unknown objective `{s}` (Point or Sdm)"
+        ))),
+    }
+}
+
+/// A figure that may be infinite or NaN (`report.json` writes those as
+/// `null`, JSON having no such numbers), read back as NaN: written again,
+/// it is `null` again.
+pub(crate) fn nullable_f64<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> std::result::Result<f64, D::Error> {
+    Ok(<Option<f64> as serde::Deserialize>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// `--mode auto`'s rule (see [`AUTO_SHARP_SHARE`]).
@@ -300,18 +367,17 @@ pub fn choose_mode(mesh: &TriMesh) -> ModeChoice {
 /// Passes of kink detection in §5 (see [`CurveFit::with_kink_corners`]).
 const KINK_PASSES: usize = 4;
 /// A boundary vertex turning by less than this (degrees) is not tried as a
-/// kink corner: 10°, below any CAD feature's bend and above the turn of a
-/// feature arc's tessellation on the meshes at hand (fandisk: ≤ 22° per
-/// edge on its tightest arcs, which the fit keeps smooth since splitting
-/// there saves nothing).
+/// kink corner: 10°, below any CAD feature's bend; a feature arc's
+/// tessellation may turn by more per edge on its tightest arcs, which the
+/// fit keeps smooth since splitting there saves nothing.
 const KINK_MIN_TURN_DEG: f64 = 10.0;
 
 /// See [`tip_corners`]: a fading feature chain of at least
-/// this many sharp edges gets a corner at its tip: 8. Fandisk's fading
-/// features run over 20–45 edges; spot.ply's noise chains (organic input
-/// forced through mechanical mode) mostly over fewer, and corners at all
-/// their tips took its RMS distance from 2.8‰ to 12‰ (measured with the
-/// conservative curve fitter since removed, see [`build_control`]).
+/// this many sharp edges gets a corner at its tip: 8. A CAD part's fading
+/// features run over several times as many edges; the noise chains of an
+/// organic scan forced through mechanical mode mostly over fewer, and
+/// corners at all their tips ruin its fit (docs/status.md, "Measurements
+/// behind the code").
 const TIP_CHAIN_EDGES: usize = 8;
 
 /// §5's curves for a network.
@@ -417,10 +483,10 @@ fn fit_pieces(
     // M) the polyline *is* the feature line and is kept as it is: the
     // crease must follow it within `feature_tolerance`. Elsewhere a boundary
     // separates two curvature classes across a smooth part of M and
-    // zigzags along triangle edges (amplitude up to an edge length, 14‰ on
-    // fandisk): fitting that within 0.5‰ costs one control point per
+    // zigzags along triangle edges (amplitude up to an edge length):
+    // fitting that within the curve tolerance costs one control point per
     // vertex, and a cubic B-spline interpolating a zigzag oscillates far
-    // off M (control points 3 units away on fandisk). §4's boundary
+    // off M. §4's boundary
     // rectification is what removes the zigzag in the paper; here the
     // vertices not on a sharp edge are smoothed along the piece (10 passes
     // of the ¼-½-¼ filter, which cancels the period-2 zigzag outright) and
@@ -621,14 +687,14 @@ fn smooth_piece(
     // The ¼-½-¼ filter moves a zigzag's vertices onto its midline, which
     // crosses the polyline's own edges; where the piece turns (round a
     // rib's filleted end) its ten passes also cut the corner, off the
-    // polyline into the neighbouring region (by ~10‰ on a ribbed part:
-    // the crease fitted there lay ~10‰ from its own region along a whole
-    // face edge, and that face stayed over `--max-error` through every
-    // enrichment round). Such a piece is smoothed by Taubin's λ|μ filter
-    // instead ("A signal processing approach to fair surface design",
-    // SIGGRAPH 1995, §4): its λ = ½ passes cancel the zigzag as before,
-    // its μ passes undo the shrinkage. Only there: on every piece it
-    // raised block.ply's RMS from 0.79‰ to 0.88‰.
+    // polyline into the neighbouring region (the crease fitted there lay
+    // off its own region along a whole face edge, and that face stayed
+    // over `--max-error` through every enrichment round). Such a piece is
+    // smoothed by Taubin's λ|μ filter instead ("A signal processing
+    // approach to fair surface design", SIGGRAPH 1995, §4): its λ = ½
+    // passes cancel the zigzag as before, its μ passes undo the
+    // shrinkage. Only there: on every piece it raised the RMS of a part
+    // without such corners.
     let mut p = smooth(None);
     let seg_dist = |x: DVec3| {
         (0..m - usize::from(!closed))
@@ -674,7 +740,7 @@ fn curve_to_mesh(c: &curves::Curve, caster: &dyn RayCaster) -> f64 {
 }
 
 /// One boundary piece's curve, for `report.json`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct PieceStat {
     pub polyline_vertices: usize,
     pub control_points: usize,
@@ -682,6 +748,7 @@ pub struct PieceStat {
     pub sharp: bool,
     pub closed: bool,
     /// Largest polyline-to-curve distance, ‰ of the diagonal.
+    #[serde(deserialize_with = "nullable_f64")]
     pub max_error_permille: f64,
 }
 
@@ -690,17 +757,14 @@ pub struct PieceStat {
 /// One curve network (§5), fitted with the fewest control points
 /// ([`curves::fit_feature`] along feature lines, [`curves::fit_samples_until`]
 /// elsewhere, see `fit_one`), then §6's polyhedra and §7's fitting and
-/// enrichment on it. (Block and joint once ended with three and one
-/// regions at RMS 6–15‰ and were built again with a second, conservative
-/// curve fitter. Their curves were within tolerance; the cause was §6's
-/// cut, which spanned half-pipe regions with single chords from the middle
-/// control point of a smooth side, see `polyhedron::MAX_CHORD_BEND`. With
-/// that rule fandisk, block and joint all end under `max_error` with the
-/// compact network, and the second fitter is gone. Spot, an organic mesh
-/// forced through this mode, was the one input still built twice and kept
-/// the conservative network: 864 V / 1033 F at RMS 2.8‰ then, 826 V /
-/// 990 F at RMS 11.6‰ with the compact one; `--mode auto` sends it to
-/// the organic pipeline.)
+/// enrichment on it. (A second, conservative curve fitter once rebuilt
+/// the parts that ended far over `max_error`; the cause was §6's cut, which
+/// spanned half-pipe regions with single chords from the middle control
+/// point of a smooth side, see `polyhedron::MAX_CHORD_BEND`. With that
+/// rule the CAD parts end under `max_error` with the compact network, and
+/// the second fitter is gone; an organic mesh forced through this mode is
+/// sent to the organic pipeline by `--mode auto`. The history is in
+/// docs/status.md, "Measurements behind the code".)
 ///
 /// Fading features are left as slits ([`SegmentOptions::slits`]) when
 /// every one hangs from its region's boundary, else (or when a slit
@@ -902,8 +966,10 @@ fn checked_diagonal(mesh: &TriMesh, opts: &MechanicalOptions) -> Result<f64> {
     opts.check()?;
     let diag = mesh.bbox_diagonal();
     if mesh.triangles.is_empty() || !(diag.is_finite() && diag > 0.0) {
-        return Err(Error::InvalidArgument(
-            "mechanical: the input mesh is empty or has a degenerate bounding box".into(),
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            "is empty or has a degenerate bounding box; the mechanical mode needs a solid",
         ));
     }
     Ok(diag)
@@ -917,9 +983,9 @@ fn checked_diagonal(mesh: &TriMesh, opts: &MechanicalOptions) -> Result<f64> {
 /// feature part be fitted as a feature line and the continuation as a
 /// smooth boundary (§5's piecewise smooth curves), where one curve for
 /// both needs the feature tolerance along a boundary that has no
-/// feature (fandisk: 78 → 77 curve control points; block 230 → 225).
+/// feature (it saves curve control points).
 /// Only at the tip of a chain of at least [`TIP_CHAIN_EDGES`] sharp
-/// edges: a short chain (noise on a scan, spot.ply: hundreds of them)
+/// edges: a short chain (noise on a scan, hundreds of them)
 /// is a feature line of two control points at most, and a corner at its
 /// tip only cuts the boundary into more pieces.
 fn tip_corners(topo: &Topology, sharp: &[bool], nv: usize) -> Vec<bool> {
@@ -1210,10 +1276,10 @@ fn cut_facets(
 /// §5 fits a smooth boundary to lie on M within the curve tolerance, and
 /// between a flat face and a tangent fillet "on M" includes the fillet's
 /// first rise: a casting's plate-to-rib-fillet curves had control points
-/// 3‰ of the diagonal above the plate. The plate's facets then leave
-/// their plane to meet them, and with every curve point fixed (§7.3) no
-/// enrichment inside the region can take that back (a ribbed part kept a
-/// face at 4.1‰ through every round). A curve of control points in a
+/// above the plate. The plate's facets then leave their plane to meet
+/// them, and with every curve point fixed (§7.3) no enrichment inside the
+/// region can take that back (a face stayed over the bound through every
+/// round). A curve of control points in a
 /// plane lies in it (a B-spline is an affine combination of its points),
 /// which is where M's edge of the face is; the fillet side's free points
 /// follow in §7.

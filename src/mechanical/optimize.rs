@@ -106,7 +106,7 @@ impl Polys {
 }
 
 /// Per-round record.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Round {
     pub faces: usize,
     pub vertices: usize,

@@ -11,8 +11,8 @@
 //!
 //! meshoptimizer does not check the link condition: on a dense scan it
 //! leaves a few "pillows", two triangles on the same three vertices facing
-//! each other (53 on the bunny subdivided to 278k triangles, at 40k). They
-//! enclose nothing and are removed. Whatever else changes M's topology is
+//! each other (docs/status.md, "Measurements behind the code", counts
+//! them on a scan). They enclose nothing and are removed. Whatever else changes M's topology is
 //! caught by [`Topology`], which the pipeline compares before using M′.
 
 use crate::error::{Error, Result};
@@ -20,7 +20,7 @@ use crate::error::{Error, Result};
 use super::TriMesh;
 
 /// What [`decimate`] did, for the report.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct DecimateStats {
     /// Triangles removed as pillows (see the module doc).
     pub pillow_triangles: usize,
@@ -331,7 +331,7 @@ fn triangle_components(mesh: &TriMesh) -> (Vec<u32>, usize) {
 /// and the Euler characteristic V − E + F over referenced vertices.
 /// Equal figures on two manifold meshes mean the same genus per
 /// component, in sum: what the control mesh inherits.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Copy, Clone, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Topology {
     pub components: usize,
     pub boundary_loops: usize,

@@ -22,7 +22,7 @@ use crate::error::Result;
 use crate::DVec3;
 
 /// What [`control_from_foreign_soup`] changed.
-#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct ForeignRepairs {
     /// Corners dropped because they repeated the previous corner.
     pub repeated_corners: usize,

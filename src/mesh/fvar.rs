@@ -25,29 +25,35 @@ impl FVarChannel {
     pub fn check(&self, mesh: &ControlMesh) -> Result<()> {
         let corners: usize = mesh.faces().map(|f| mesh.face_size(f)).sum();
         if self.indices.len() != corners {
-            return Err(Error::InvalidArgument(format!(
-                "face-varying channel: {} corner indices for a mesh of {corners} face corners",
-                self.indices.len()
-            )));
+            return Err(Error::invalid_data(
+                "face-varying channel",
+                "indices",
+                format!(
+                    "{} corner indices for a mesh of {corners} face corners",
+                    self.indices.len()
+                ),
+            ));
         }
         let mut c = 0;
         for f in mesh.faces() {
             for _ in 0..mesh.face_size(f) {
                 let i = self.indices[c];
                 if i as usize >= self.values.len() {
-                    return Err(Error::InvalidArgument(format!(
-                        "face-varying channel: face {} uses value {i}, but there are {} values",
-                        f.0,
-                        self.values.len()
-                    )));
+                    return Err(Error::invalid_data(
+                        "face-varying channel",
+                        format!("face {}", f.0),
+                        format!("uses value {i}, but there are {} values", self.values.len()),
+                    ));
                 }
                 c += 1;
             }
         }
         if let Some(i) = self.values.iter().position(|v| !v.is_finite()) {
-            return Err(Error::InvalidArgument(format!(
-                "face-varying channel: value {i} is not finite"
-            )));
+            return Err(Error::invalid_data(
+                "face-varying channel",
+                format!("value {i}"),
+                "is not finite",
+            ));
         }
         Ok(())
     }

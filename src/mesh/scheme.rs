@@ -189,11 +189,13 @@ impl SchemeOptions {
 /// message).
 pub fn check_loop_triangles(mesh: &ControlMesh) -> crate::error::Result<()> {
     match mesh.faces().find(|&f| mesh.face_size(f) != 3) {
-        Some(f) => Err(crate::error::Error::InvalidArgument(format!(
-            "the Loop scheme needs an all-triangle mesh, but face {} has {} corners",
-            f.0,
-            mesh.face_size(f)
-        ))),
+        Some(f) => Err(crate::error::Error::topology(
+            format!("face {}", f.0),
+            format!(
+                "has {} corners; the Loop scheme needs an all-triangle mesh",
+                mesh.face_size(f)
+            ),
+        )),
         None => Ok(()),
     }
 }

@@ -38,10 +38,12 @@ use crate::DVec3;
 /// - boundary vertex with one face (boundary valence 2): a corner, mask `v`.
 ///
 /// Creases and corner sharpness other than the boundary are not supported
-/// and give [`Error::InvalidArgument`] rather than a wrong mask.
+/// and give [`Error::Topology`] rather than a wrong mask.
 ///
-/// (The limit evaluators in `crate::subdiv` implement the same masks; the
-/// two copies should be merged.)
+/// The masks are the exact limit evaluator's own
+/// ([`crate::subdiv::catmark::vertex_limit_mask`], the position row of
+/// [`crate::subdiv::catmark::RustEvaluator`]'s vertex masks), so `L` and the
+/// surface every later stage evaluates agree.
 pub fn vertex_limit_mask(mesh: &ControlMesh, v: VertexId) -> Result<Vec<(VertexId, f64)>> {
     if v.idx() >= mesh.num_vertices() {
         return Err(Error::InvalidArgument(format!(
@@ -54,102 +56,17 @@ pub fn vertex_limit_mask(mesh: &ControlMesh, v: VertexId) -> Result<Vec<(VertexI
             .outgoing(v)
             .any(|h| mesh.edge_sharpness(h.edge()) != 0.0)
     {
-        return Err(Error::InvalidArgument(format!(
-            "vertex_limit_mask: {v} has crease or corner sharpness; only the boundary \
-             (edge-and-corner) rule is supported here"
-        )));
+        return Err(Error::topology(
+            format!("{v}"),
+            "has crease or corner sharpness; limit interpolation supports only the \
+             boundary (edge-and-corner) rule",
+        ));
     }
-    let h0 = mesh.vertex_halfedge(v);
-    if mesh.is_boundary_halfedge(h0) {
-        if mesh.valence(v) == 2 {
-            return Ok(vec![(v, 1.0)]);
-        }
-        let next = mesh.head(h0);
-        let prev = mesh.tail(mesh.prev(h0));
-        return Ok(normalise(vec![
-            (prev, 1.0 / 6.0),
-            (v, 4.0 / 6.0),
-            (next, 1.0 / 6.0),
-        ]));
-    }
-    let all_quads = mesh.vertex_faces(v).all(|f| mesh.face_size(f) == 4);
-    Ok(normalise(if all_quads {
-        quad_interior_mask(mesh, v)
-    } else {
-        general_interior_mask(mesh, v)
-    }))
-}
-
-fn quad_interior_mask(mesh: &ControlMesh, v: VertexId) -> Vec<(VertexId, f64)> {
-    let n = mesh.valence(v) as f64;
-    let den = n * (n + 5.0);
-    let mut w = vec![(v, n * n / den)];
-    for h in mesh.outgoing(v) {
-        // h: v → e inside the quad (v, e, d, ·).
-        w.push((mesh.head(h), 4.0 / den));
-        w.push((mesh.head(mesh.next(h)), 1.0 / den));
-    }
-    w
-}
-
-/// The limit mask after one Catmull-Clark step (smooth rules: every edge at
-/// an interior, crease-free vertex is smooth), expressed on the control
-/// vertices. Exact for any face sizes; equal to [`quad_interior_mask`] on
-/// quads.
-fn general_interior_mask(mesh: &ControlMesh, v: VertexId) -> Vec<(VertexId, f64)> {
-    let hs: Vec<_> = mesh.outgoing(v).collect();
-    let n = hs.len();
-    let nf = n as f64;
-    // Face point of the face left of hs[i]: the average of its vertices.
-    let face_pts: Vec<Vec<(VertexId, f64)>> = hs
-        .iter()
-        .map(|&h| {
-            let f = mesh.face_of(h).expect("interior vertex");
-            let k = mesh.face_size(f) as f64;
-            mesh.face_vertices(f).map(|u| (u, 1.0 / k)).collect()
-        })
-        .collect();
-    let mut w: Vec<(VertexId, f64)> = Vec::new();
-    let add = |src: &[(VertexId, f64)], s: f64, w: &mut Vec<(VertexId, f64)>| {
-        w.extend(src.iter().map(|&(u, x)| (u, x * s)));
-    };
-    let den = nf * (nf + 5.0);
-    // Refined vertex point V' = (Q + 2R + (n − 3) v) / n, weighted n²/den.
-    let sv = nf * nf / den / nf;
-    for fp in &face_pts {
-        add(fp, sv / nf, &mut w);
-    }
-    for &h in &hs {
-        // R: average of the edge midpoints.
-        add(&[(v, 0.5), (mesh.head(h), 0.5)], 2.0 * sv / nf, &mut w);
-    }
-    w.push((v, sv * (nf - 3.0)));
-    // Edge points E_i = (v + w_i + F_i + F_{i−1}) / 4, weighted 4/den; the
-    // edge of hs[i] separates the faces left of hs[i] and of hs[i−1].
-    for i in 0..n {
-        let s = 4.0 / den / 4.0;
-        add(&[(v, 1.0), (mesh.head(hs[i]), 1.0)], s, &mut w);
-        add(&face_pts[i], s, &mut w);
-        add(&face_pts[(i + n - 1) % n], s, &mut w);
-    }
-    // Face points, weighted 1/den.
-    for fp in &face_pts {
-        add(fp, 1.0 / den, &mut w);
-    }
-    w
-}
-
-/// Sorts by vertex and sums duplicate entries.
-fn normalise(mut w: Vec<(VertexId, f64)>) -> Vec<(VertexId, f64)> {
-    w.sort_by_key(|&(u, _)| u);
-    let mut out: Vec<(VertexId, f64)> = Vec::with_capacity(w.len());
-    for (u, x) in w {
-        match out.last_mut() {
-            Some(last) if last.0 == u => last.1 += x,
-            _ => out.push((u, x)),
-        }
-    }
-    out
+    Ok(crate::subdiv::catmark::vertex_limit_mask(
+        mesh,
+        v,
+        &crate::mesh::SchemeOptions::default(),
+    ))
 }
 
 /// The limit matrix `L` in compressed rows (row `v` = mask of `v`).
@@ -274,9 +191,11 @@ fn check_targets(control: &ControlMesh, targets: &[DVec3]) -> Result<f64> {
         )));
     }
     if let Some(i) = targets.iter().position(|p| !p.is_finite()) {
-        return Err(Error::InvalidArgument(format!(
-            "limit interpolation: target {i} is not finite"
-        )));
+        return Err(Error::invalid_data(
+            "limit interpolation targets",
+            format!("target {i}"),
+            "is not finite",
+        ));
     }
     let (lo, hi) = targets.iter().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
@@ -457,15 +376,30 @@ mod tests {
     }
 
     #[test]
-    fn general_mask_equals_quad_mask_on_quads() {
-        let m = crate::fixtures::cube();
+    fn quad_masks_are_the_closed_form() {
+        // An interior vertex of valence n with quads only: the dominant
+        // left eigenvector (n² v + 4 Σ e_i + Σ d_i) / (n (n + 5)); a
+        // boundary vertex with two or more faces: the cubic B-spline's
+        // (1, 4, 1) / 6; one face: the corner itself.
+        let m = crate::fixtures::flat_grid(4, 3);
         for v in m.vertices() {
-            let a = normalise(quad_interior_mask(&m, v));
-            let b = normalise(general_interior_mask(&m, v));
-            assert_eq!(a.len(), b.len());
-            for (x, y) in a.iter().zip(&b) {
-                assert_eq!(x.0, y.0);
-                assert!((x.1 - y.1).abs() < 1e-15, "{v}: {a:?} vs {b:?}");
+            let w = vertex_limit_mask(&m, v).unwrap();
+            let of = |u: VertexId| w.iter().find(|x| x.0 == u).map_or(0.0, |x| x.1);
+            let s: f64 = w.iter().map(|x| x.1).sum();
+            assert!((s - 1.0).abs() < 1e-14, "{v}: {w:?}");
+            if !m.is_boundary_vertex(v) {
+                let n = m.valence(v) as f64;
+                let den = n * (n + 5.0);
+                assert!((of(v) - n * n / den).abs() < 1e-15, "{v}: {w:?}");
+                for h in m.outgoing(v) {
+                    assert!((of(m.head(h)) - 4.0 / den).abs() < 1e-15, "{v}: {w:?}");
+                    assert!((of(m.head(m.next(h))) - 1.0 / den).abs() < 1e-15);
+                }
+            } else if m.valence(v) == 2 {
+                assert_eq!(w, vec![(v, 1.0)]);
+            } else {
+                assert!((of(v) - 4.0 / 6.0).abs() < 1e-15, "{v}: {w:?}");
+                assert_eq!(w.len(), 3, "{v}: {w:?}");
             }
         }
     }

@@ -271,7 +271,11 @@ pub(crate) fn quadrangulate_polled(
     poll: &mut dyn FnMut() -> Result<()>,
 ) -> Result<Quadrangulation> {
     if mesh.triangles.is_empty() {
-        return Err(Error::InvalidArgument("quadrangulate: no triangles".into()));
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            "has no triangles to quadrangulate",
+        ));
     }
     let (vertex_map, mut positions, tris) = compact_vertices(mesh)?;
     let unreferenced = mesh.positions.len() - positions.len();

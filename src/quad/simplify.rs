@@ -206,7 +206,7 @@ impl SimplifyOptions {
 }
 
 /// Why the loop ended.
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize)]
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StopReason {
     /// `target_faces` reached.
@@ -238,7 +238,7 @@ pub struct Progress {
 }
 
 /// Counters and timings of one run.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct SimplifyStats {
     pub input_triangles: usize,
     pub initial_faces: usize,
@@ -738,8 +738,9 @@ impl<'a> Simplifier<'a> {
         poll: &mut dyn FnMut() -> Result<()>,
     ) -> Result<Self> {
         if !k.is_all_quads() {
-            return Err(Error::InvalidArgument(
-                "simplify: the control mesh must be made of quads only".into(),
+            return Err(Error::topology(
+                "mesh",
+                "the greedy simplification needs a control mesh of quads only",
             ));
         }
         let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(m));

@@ -74,7 +74,9 @@ impl Image {
 
     /// PNG bytes (8-bit RGB, default compression).
     pub fn encode_png(&self) -> Result<Vec<u8>> {
-        let bad = |e: png::EncodingError| Error::InvalidArgument(format!("PNG encoding: {e}"));
+        // The size is checked below and the sink is a Vec: an encoder error
+        // left is a bug.
+        let bad = |e: png::EncodingError| Error::internal(format!("PNG encoding: {e}"));
         if self.width == 0 || self.height == 0 || self.width > u32::MAX as usize {
             return Err(Error::InvalidArgument(format!(
                 "PNG encoding: image size {}x{} is empty or too large",

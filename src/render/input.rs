@@ -59,10 +59,13 @@ impl Sources {
         if self.is_dir {
             Ok(())
         } else {
-            Err(Error::InvalidArgument(format!(
-                "{}: the {what} picture needs a `subdfit convert` output folder, not a mesh file",
-                self.path.display()
-            )))
+            Err(Error::option(
+                "input",
+                format!(
+                    "{}: the {what} picture needs a `subdfit convert` output folder, not a mesh file",
+                    self.path.display()
+                ),
+            ))
         }
     }
 
@@ -94,10 +97,11 @@ impl Sources {
             .input_mesh()
             .map(PathBuf::from)
             .ok_or_else(|| {
-                Error::InvalidArgument(format!(
-                    "{}: no fitmap.ply and no input mesh named in report.json; pass the input mesh",
-                    self.path.display()
-                ))
+                Error::invalid_data(
+                    self.path.display().to_string(),
+                    "report.json",
+                    "names no input mesh and there is no fitmap.ply; pass the input mesh",
+                )
             })
     }
 
@@ -141,11 +145,11 @@ impl Sources {
             };
             let n = self.input()?.positions.len();
             if f.0.len() != n {
-                return Err(Error::InvalidArgument(format!(
-                    "{}: the Fitmap has {} values for {n} vertices of the input",
-                    self.path.display(),
-                    f.0.len()
-                )));
+                return Err(Error::invalid_data(
+                    self.path.display().to_string(),
+                    "fitmap.ply",
+                    format!("{} values for the {n} vertices of the input", f.0.len()),
+                ));
             }
             self.fitmap = Some(f);
         }

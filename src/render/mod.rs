@@ -256,7 +256,7 @@ pub fn render_panels_laid_out(
 ) -> Result<(Image, PictureLayout)> {
     check_size(opts.width, opts.height)?;
     if panels.is_empty() {
-        return Err(Error::InvalidArgument("render: nothing to render".into()));
+        return Err(Error::option("what", "render: nothing to render"));
     }
     let legends: Vec<Legend> = panels
         .iter()

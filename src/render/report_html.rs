@@ -118,10 +118,10 @@ pub fn write_report_html(
     let report = WrittenReport::read(&report_path)?;
     let mut sources = Sources::new(dir, input)?;
     if !sources.is_dir {
-        return Err(Error::InvalidArgument(format!(
-            "{}: report.html needs an output folder",
-            dir.display()
-        )));
+        return Err(Error::option(
+            "input",
+            format!("{}: report.html needs an output folder", dir.display()),
+        ));
     }
     let mesh_name = report
         .input_mesh()

@@ -250,8 +250,10 @@ pub fn error_field(
 ) -> Result<ErrorField> {
     let diag = input.bbox_diagonal();
     if input.triangles.is_empty() || !(diag.is_finite() && diag > 0.0) {
-        return Err(Error::InvalidArgument(
-            "error map: the input mesh is empty or has a degenerate bounding box".into(),
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            "is empty or has a degenerate bounding box; the error map needs a surface",
         ));
     }
     let limit_caster = make_raycaster(rays, limit)?;
@@ -335,8 +337,10 @@ pub fn fitmap_surfaces(mesh: &TriMesh, s: &[f64], m: &[f64]) -> Result<[(Surface
     }
     let d = mesh.bbox_diagonal() / 100.0;
     if !(d.is_finite() && d > 0.0) {
-        return Err(Error::InvalidArgument(
-            "fitmap: the mesh has a degenerate bounding box".into(),
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            "has a degenerate bounding box; the Fitmap picture needs a surface",
         ));
     }
     let a: Vec<f64> = s.iter().map(|&x| x.powi(4) * d.powi(3)).collect();

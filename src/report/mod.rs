@@ -91,7 +91,7 @@ use crate::subdiv::{make_evaluator, Backend, EvalOptions};
 use crate::DVec3;
 
 /// Options of [`metrics`] / [`evaluate_surfaces`].
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub struct MetricsOptions {
     /// Displacement samples per patch side; `None`: [`auto_resolution`]
@@ -118,7 +118,7 @@ pub struct MetricsOptions {
     /// Measure every point of every direction (`--exact-metrics`); off:
     /// directions of more than [`METRIC_SAMPLES`] points are sampled
     /// (see `report::sample`). Left out of `report.json` when off.
-    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub exact: bool,
 }
 
@@ -284,8 +284,10 @@ pub fn evaluate_surfaces(
 ) -> Result<Surfaces> {
     let diag = mesh.bbox_diagonal();
     if mesh.triangles.is_empty() || !(diag.is_finite() && diag > 0.0) {
-        return Err(Error::InvalidArgument(
-            "metrics: the input mesh is empty or has a degenerate bounding box".into(),
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            "is empty or has a degenerate bounding box; no metric is defined on it",
         ));
     }
     let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));

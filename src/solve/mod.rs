@@ -69,9 +69,10 @@ impl NormalEquations {
     /// order, repeats allowed) and each unknown with itself.
     pub fn with_pairs(n: usize, pairs: impl Iterator<Item = [u32; 2]> + Clone) -> Result<Self> {
         if n >= i32::MAX as usize {
-            return Err(Error::InvalidArgument(format!(
-                "normal equations: {n} unknowns is more than the solver indexes"
-            )));
+            return Err(Error::numerical(
+                "normal equations",
+                format!("{n} unknowns is more than the solver indexes"),
+            ));
         }
         let mut count = vec![1i64; n];
         for [a, b] in pairs.clone() {
@@ -118,8 +119,9 @@ impl NormalEquations {
                 }
             }
             if w > i32::MAX as usize {
-                return Err(Error::InvalidArgument(
-                    "normal equations: more entries than the solver indexes".into(),
+                return Err(Error::numerical(
+                    "normal equations",
+                    "more entries than the solver indexes",
                 ));
             }
             outer.push(w as i32);

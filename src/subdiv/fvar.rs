@@ -123,8 +123,7 @@ pub fn fvar_mesh_with(
     let (soup, pair_vertex) = pair_soup(mesh, channel);
     let (split, _, origin) = split_non_manifold_polygons(&soup);
     let vertex_of: Vec<u32> = origin.iter().map(|&o| pair_vertex[o as usize]).collect();
-    let mut fm = ControlMesh::from_soup(&split)
-        .map_err(|e| Error::InvalidArgument(format!("face-varying mesh: {e}")))?;
+    let mut fm = ControlMesh::from_soup(&split).map_err(|e| e.context("face-varying mesh"))?;
     let linear = scheme.scheme == SubdivScheme::Bilinear || scheme.fvar == FVarLinear::All;
     let kind = match (linear, scheme.scheme) {
         (false, _) => FVarKind::Smooth,
@@ -411,11 +410,12 @@ fn osd_siblings(
             if of.all(|s| s == first) {
                 Ok(first)
             } else {
-                Err(Error::InvalidArgument(format!(
-                    "face-varying data at vertex {}: a value span that OpenSubdiv's sibling \
+                Err(Error::invalid_data(
+                    "face-varying data",
+                    format!("vertex {}", v.0),
+                    "a value span that OpenSubdiv's sibling \
                      numbering splits in two; not reproduced exactly, so not evaluated",
-                    v.0
-                )))
+                ))
             }
         })
         .collect()
@@ -499,23 +499,27 @@ fn check_reproducible(
                 })
                 .count();
             if inside > 0 && inside != semi_at_vertex {
-                return Err(Error::InvalidArgument(format!(
-                    "face-varying data at vertex {}: Chaikin creasing with semi-sharp edges on \
+                return Err(Error::invalid_data(
+                    "face-varying data",
+                    format!("vertex {}", v.0),
+                    "Chaikin creasing with semi-sharp edges on \
                      both sides of a face-varying seam (OpenSubdiv averages their sharpness \
                      across the seam); not reproduced exactly, so not evaluated",
-                    v.0
-                )));
+                ));
             }
         }
     }
     if scheme.crease_method == CreaseMethod::Chaikin && has_dependent_value(scheme, values) {
-        return Err(Error::InvalidArgument(format!(
-            "face-varying data at vertex {}: under {} with Chaikin creasing one of its two values \
+        return Err(Error::invalid_data(
+            "face-varying data",
+            format!("vertex {}", v.0),
+            format!(
+                "under {} with Chaikin creasing one of its two values \
              is semi-sharp and the other follows it (OpenSubdiv's dependent sharpness, timed by \
              Chaikin's averaged sharpness); not reproduced exactly, so not evaluated",
-            v.0,
-            scheme.fvar.name()
-        )));
+                scheme.fvar.name()
+            ),
+        ));
     }
     Ok(())
 }
@@ -574,12 +578,15 @@ fn dependent_sharpness(fm: &ControlMesh, v: VertexId, s: VertexId, seams: &[f64]
     let weight = (dying.iter().sum::<f32>() / dying.len() as f32).min(1.0);
     let sigma = weight + (last - 1.0);
     if (dying.len() > 2 && distinct) || sigma - (last - 1.0) != weight {
-        return Err(Error::InvalidArgument(format!(
-            "face-varying data at vertex {}: a value whose sharpness depends on the other's \
+        return Err(Error::invalid_data(
+            "face-varying data",
+            format!("vertex {}", v.0),
+            format!(
+                "a value whose sharpness depends on the other's \
              (OpenSubdiv's dependent sharpness) with a transition weight ({weight}) that f32 \
              vertex sharpness cannot carry exactly; not evaluated",
-            v.0
-        )));
+            ),
+        ));
     }
     Ok(sigma as f64)
 }

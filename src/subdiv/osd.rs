@@ -261,14 +261,20 @@ impl OsdEvaluator {
         }
         let loop_scheme = options.scheme.scheme == SubdivScheme::Loop;
         if let Some(f) = desc.face_sizes.iter().position(|&n| loop_scheme && n != 3) {
-            return Err(Error::InvalidArgument(format!(
-                "face {f} has {} corners: Loop subdivision needs triangles",
-                desc.face_sizes[f]
-            )));
+            return Err(Error::topology(
+                format!("face {f}"),
+                format!(
+                    "has {} corners: Loop subdivision needs triangles",
+                    desc.face_sizes[f]
+                ),
+            ));
         }
         let num_vertices = desc.num_vertices;
         let nv = u32::try_from(num_vertices).map_err(|_| {
-            Error::InvalidArgument(format!("{num_vertices} control vertices are too many"))
+            Error::topology(
+                "mesh",
+                format!("{num_vertices} control vertices are too many"),
+            )
         })?;
         let face_sizes = desc.face_sizes.clone();
         let (crease_vertices, crease_weights, corner_vertices, corner_weights) = desc.tag_arrays();
@@ -596,7 +602,10 @@ pub fn osd_refine_uniform_desc(
     }
     let num_vertices = desc.num_vertices;
     let nv = u32::try_from(num_vertices).map_err(|_| {
-        Error::InvalidArgument(format!("{num_vertices} control vertices are too many"))
+        Error::topology(
+            "mesh",
+            format!("{num_vertices} control vertices are too many"),
+        )
     })?;
     if positions.len() != num_vertices {
         return Err(Error::InvalidArgument(format!(
@@ -709,11 +718,15 @@ impl OsdFVarEvaluator {
         channel: &crate::mesh::FVarChannel,
     ) -> Result<Self> {
         if channel.indices.len() != desc.face_indices.len() {
-            return Err(Error::InvalidArgument(format!(
-                "face-varying channel has {} indices for {} face corners",
-                channel.indices.len(),
-                desc.face_indices.len()
-            )));
+            return Err(Error::invalid_data(
+                "face-varying channel",
+                "indices",
+                format!(
+                    "{} indices for {} face corners",
+                    channel.indices.len(),
+                    desc.face_indices.len()
+                ),
+            ));
         }
         if let Some(i) = channel
             .indices
@@ -802,7 +815,7 @@ pub fn osd_refine_uniform_fvar(
 ) -> Result<OsdFVarRefinement> {
     channel.check(mesh)?;
     let nv = u32::try_from(mesh.num_vertices())
-        .map_err(|_| Error::InvalidArgument("too many control vertices".into()))?;
+        .map_err(|_| Error::topology("mesh", "too many control vertices"))?;
     let desc = OsdDescriptor::of_mesh(mesh);
     let (crease_vertices, crease_weights, corner_vertices, corner_weights) = desc.tag_arrays();
     let values: Vec<f64> = channel.values.iter().flat_map(|v| v.to_array()).collect();

@@ -117,7 +117,7 @@ pub const DEFAULT_TOLERANCE: f64 = 0.05;
 
 /// Options of [`compute_fitmap`]. τ is the only parameter of the method
 /// (§3.1.3); the others choose how it is computed.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub struct FitmapOptions {
     /// τ: the largest flipped fraction of a ball's area that still lets a
@@ -309,17 +309,24 @@ pub fn fitmap_radii(mesh: &TriMesh) -> Result<Vec<f64>> {
         }
     }
     if count == 0 {
-        return Err(Error::InvalidArgument(
-            "fitmap: the mesh has no edges".into(),
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            "has no edges; the Fitmap needs triangles",
         ));
     }
     let r0 = sum / count as f64;
     let rh = LARGEST_RADIUS_OF_DIAGONAL * mesh.bbox_diagonal();
     if !(r0 > 0.0 && rh.is_finite() && rh > r0) {
-        return Err(Error::InvalidArgument(format!(
-            "fitmap: radii undefined (mean edge r_0 = {r0}, bbox diagonal / 4 = r_h = {rh}); \
-             the mesh must be finite, non-degenerate and finer than a quarter of its diagonal"
-        )));
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            format!(
+                "the Fitmap's radii are undefined (mean edge r_0 = {r0}, bbox diagonal / 4 = \
+                 r_h = {rh}); the mesh must be finite, non-degenerate and finer than a quarter \
+                 of its diagonal"
+            ),
+        ));
     }
     Ok((0..=RADIUS_STEPS)
         .map(|i| r0 * (rh / r0).powf(i as f64 / RADIUS_STEPS as f64))
@@ -884,8 +891,10 @@ fn checked_areas(mesh: &TriMesh) -> Result<(Vec<f64>, f64)> {
     let areas = triangle_areas(mesh);
     let total_area: f64 = areas.iter().sum();
     if total_area.is_nan() || total_area <= 0.0 {
-        return Err(Error::InvalidArgument(
-            "fitmap: the mesh has zero area".into(),
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            "has zero area; the Fitmap needs a surface",
         ));
     }
     Ok((areas, total_area))
@@ -1034,9 +1043,11 @@ fn check_fitmap_input(mesh: &TriMesh, opts: &FitmapOptions) -> Result<()> {
     check_tolerance(opts.tolerance)
         .map_err(|e| Error::option("tolerance", format!("fitmap: {e}")))?;
     if let Some(v) = mesh.positions.iter().position(|p| !p.is_finite()) {
-        return Err(Error::InvalidArgument(format!(
-            "fitmap: vertex {v} has a non-finite coordinate"
-        )));
+        return Err(Error::invalid_data(
+            "input mesh",
+            format!("vertex {v}"),
+            "has a non-finite coordinate",
+        ));
     }
     let nv = mesh.positions.len();
     if let Some(t) = mesh
@@ -1044,9 +1055,11 @@ fn check_fitmap_input(mesh: &TriMesh, opts: &FitmapOptions) -> Result<()> {
         .iter()
         .position(|t| t.iter().any(|&v| v as usize >= nv))
     {
-        return Err(Error::InvalidArgument(format!(
-            "fitmap: triangle {t} indexes a vertex out of range"
-        )));
+        return Err(Error::invalid_data(
+            "input mesh",
+            format!("triangle {t}"),
+            "indexes a vertex out of range",
+        ));
     }
     Ok(())
 }
@@ -1153,11 +1166,15 @@ fn fitmap_from_results(
 ) -> Result<Fitmap> {
     let undefined = results.iter().filter(|r| !r.defined).count();
     if undefined == results.len() {
-        return Err(Error::InvalidArgument(format!(
-            "fitmap: no vertex has {MIN_FIT_POINTS} vertices within r_h = {:.4e} in a \
-             well-posed configuration; the mesh is too small for a cubic fit",
-            radii[RADIUS_STEPS]
-        )));
+        return Err(Error::invalid_data(
+            "input mesh",
+            "mesh",
+            format!(
+                "no vertex has {MIN_FIT_POINTS} vertices within r_h = {:.4e} in a well-posed \
+                 configuration; the mesh is too small for the Fitmap's cubic fit",
+                radii[RADIUS_STEPS]
+            ),
+        ));
     }
     stats.undefined_vertices = undefined;
     stats.m_floor_vertices = results.iter().filter(|r| r.m_floor).count();

@@ -78,7 +78,7 @@ impl CleanupOptions {
 }
 
 /// Figures of one [`cleanup`].
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct CleanupStats {
     pub faces_before: usize,
     pub faces_after: usize,

@@ -138,7 +138,7 @@ impl FieldOptions {
 }
 
 /// Figures of one [`field_layout`] run.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct FieldStats {
     pub vertices: usize,
     pub faces: usize,
@@ -207,9 +207,10 @@ pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Res
             (h, 1.0, 1.0, n)
         }
         Some(u) => {
-            return Err(Error::InvalidArgument(format!(
-                "field layout: uniform size {u} must be finite and > 0"
-            )))
+            return Err(Error::option(
+                "uniform_size",
+                format!("field layout: uniform size {u} must be finite and > 0"),
+            ))
         }
         None => sizing::sizing_for(&surf, mesh, fitmap, opts)?,
     };
@@ -496,7 +497,7 @@ impl Surface {
     pub fn new(mesh: &TriMesh) -> Result<Surface> {
         let n = mesh.positions.len();
         if mesh.triangles.is_empty() || n == 0 {
-            return Err(Error::InvalidArgument("field layout: empty mesh".into()));
+            return Err(Error::invalid_data("input mesh", "mesh", "is empty"));
         }
         let normals = crate::analysis::normals::vertex_normals(mesh);
         let tri_areas = crate::analysis::normals::triangle_areas(mesh);

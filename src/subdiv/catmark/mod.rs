@@ -35,7 +35,7 @@ pub(crate) mod topo;
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::mesh::{ControlMesh, FaceId};
+use crate::mesh::{ControlMesh, FaceId, VertexId};
 use crate::subdiv::{
     check_not_holes, checked_holes, EvalOptions, LimitEvaluator, LimitPoint, LimitStencils,
     SurfaceLocation,
@@ -125,16 +125,7 @@ impl RustEvaluator {
             .collect::<Vec<_>>()
             .par_iter()
             .map(|&v| {
-                let faces: Vec<FaceId> = mesh.vertex_faces(v).collect();
-                let t = topo_from_mesh(mesh, Some(&faces), sdc);
-                let local = t
-                    .pts
-                    .iter()
-                    .position(|&g| g == v.0)
-                    .expect("v is in its ring") as u32;
-                let t = t.with_points(Sparse::unit);
-                let adj = t.adjacency();
-                let (mut p, a, b) = vertex_limit(&t, &adj, local, None);
+                let (mut p, a, b) = vertex_masks(mesh, v, sdc);
                 if let Some((bv, delta)) = options.broken_mask.filter(|m| m.0 == v.0) {
                     p.axpy(delta, &Sparse::unit(bv));
                 }
@@ -655,6 +646,93 @@ fn dart_masks<P: Clone>(
     (p, a, b)
 }
 
+/// The exact limit masks (position, tangent 1, tangent 2) of the control
+/// vertex `v` of `mesh` under `sdc`, over control vertex ids (sorted):
+/// [`vertex_limit`] on `v`'s 1-ring.
+fn vertex_masks(mesh: &ControlMesh, v: VertexId, sdc: Rules) -> (Sparse, Sparse, Sparse) {
+    let faces: Vec<FaceId> = mesh.vertex_faces(v).collect();
+    let t = topo_from_mesh(mesh, Some(&faces), sdc);
+    let local = t
+        .pts
+        .iter()
+        .position(|&g| g == v.0)
+        .expect("v is in its ring") as u32;
+    let t = t.with_points(Sparse::unit);
+    let adj = t.adjacency();
+    vertex_limit(&t, &adj, local, None)
+}
+
+/// The Catmull-Clark limit position mask of the control vertex `v` under
+/// `scheme`: weights over control vertices (sorted by id, summing to 1)
+/// whose combination is the limit position of `v`. It is the position row
+/// of [`RustEvaluator`]'s vertex masks, for callers that need rows of the
+/// limit matrix `L` without building a whole evaluator (the limit
+/// interpolation of Fitmaps §3.2, `quad::interpolate`).
+///
+/// A vertex without sharpness whose faces are all quads, the case of every
+/// vertex of the layouts' pure-quad meshes, reads its weights
+/// ([`smooth_position_weights`], [`CREASE_POSITION_WEIGHTS`], a corner's
+/// own point) off its 1-ring directly: the same weights summed in the same
+/// (sorted) order as [`vertex_limit`]'s, without building the ring's
+/// topology, which made the greedy layout's loop three times slower.
+pub fn vertex_limit_mask(
+    mesh: &ControlMesh,
+    v: VertexId,
+    scheme: &crate::mesh::SchemeOptions,
+) -> Vec<(VertexId, f64)> {
+    let rules = Rules::from_scheme(scheme);
+    if let Some(w) = plain_quad_mask(mesh, v, rules) {
+        return w;
+    }
+    let (p, _, _) = vertex_masks(mesh, v, rules);
+    p.0.into_iter().map(|(i, w)| (VertexId(i), w)).collect()
+}
+
+/// [`vertex_limit_mask`] of a vertex with no sharpness on it or its edges
+/// and only quads around it, under boundary "edge and corner"; `None`
+/// otherwise (the general route handles it).
+fn plain_quad_mask(mesh: &ControlMesh, v: VertexId, rules: Rules) -> Option<Vec<(VertexId, f64)>> {
+    let plain = rules.sharpen_corners
+        && mesh.vertex_sharpness(v) == 0.0
+        && mesh
+            .outgoing(v)
+            .all(|h| mesh.edge_sharpness(h.edge()) == 0.0)
+        && mesh.vertex_faces(v).all(|f| mesh.face_size(f) == 4);
+    if !plain {
+        return None;
+    }
+    let h0 = mesh.vertex_halfedge(v);
+    let mut w = if mesh.is_boundary_halfedge(h0) {
+        if mesh.valence(v) == 2 {
+            // One face: a corner, which interpolates.
+            return Some(vec![(v, 1.0)]);
+        }
+        // The boundary is a crease whose neighbours are the heads of the
+        // boundary half-edges into and out of `v`.
+        let [w0, wv, wk] = CREASE_POSITION_WEIGHTS;
+        vec![(mesh.head(h0), w0), (v, wv), (mesh.tail(mesh.prev(h0)), wk)]
+    } else {
+        let [wv, we, wf] = smooth_position_weights(mesh.valence(v));
+        let mut w = vec![(v, wv)];
+        for h in mesh.outgoing(v) {
+            // h: v → e inside the quad (v, e, f, ·).
+            w.push((mesh.head(h), we));
+            w.push((mesh.head(mesh.next(h)), wf));
+        }
+        w
+    };
+    // Sorted by id, repeated vertices summed, as Sparse sums them.
+    w.sort_by_key(|&(u, _)| u);
+    let mut out: Vec<(VertexId, f64)> = Vec::with_capacity(w.len());
+    for (u, x) in w {
+        match out.last_mut() {
+            Some(last) if last.0 == u => last.1 += x,
+            _ => out.push((u, x)),
+        }
+    }
+    Some(out)
+}
+
 /// Exact limit position and two tangents at vertex `c` of `t` (its fan must
 /// be complete in `t`). The first tangent points along the edge to `start`
 /// when `c` is smooth and `start` given; `t1 × t2` is the outward normal
@@ -772,6 +850,21 @@ fn dart_limit<P: Pt>(t: &Topo<P>, adj: &Adj, c: u32, e: &[u32], f: &[u32]) -> (P
     (apply(&p), apply(&t1), apply(&t2))
 }
 
+/// The smooth rule's limit position weights at an interior vertex of
+/// valence `n` whose faces are quads: `[vertex, each edge neighbour, each
+/// diagonal]`, the dominant left eigenvector `(n² v + 4 Σ e_i + Σ f_i) /
+/// (n (n + 5))` of [`smooth_limit`].
+fn smooth_position_weights(n: usize) -> [f64; 3] {
+    let nf = n as f64;
+    let d = nf * (nf + 5.0);
+    [nf * nf / d, 4.0 / d, 1.0 / d]
+}
+
+/// A crease vertex's limit position weights `[e_0, vertex, e_k]` over its
+/// two crease neighbours: the cubic B-spline's (1, 4, 1) / 6 of
+/// [`crease_limit`].
+const CREASE_POSITION_WEIGHTS: [f64; 3] = [1.0 / 6.0, 4.0 / 6.0, 1.0 / 6.0];
+
 /// Interior (closed) fan of quads. Position: the dominant left
 /// eigenvector (n²v + 4Σe + Σf)/(n(n+5)), exact for every n ≥ 2
 /// (OpenSubdiv uses the corner mask at n = 2 on purpose, see
@@ -781,12 +874,12 @@ fn smooth_limit<P: Pt>(t: &Topo<P>, c: u32, e: &[u32], f: &[u32]) -> (P, P, P) {
     let v = pt(c);
     let n = e.len();
     let nf = n as f64;
-    let d = nf * (nf + 5.0);
+    let [wv, we, wf] = smooth_position_weights(n);
     let mut p = P::zero();
-    p.axpy(nf * nf / d, v);
+    p.axpy(wv, v);
     for i in 0..n {
-        p.axpy(4.0 / d, pt(e[i]));
-        p.axpy(1.0 / d, pt(f[i]));
+        p.axpy(we, pt(e[i]));
+        p.axpy(wf, pt(f[i]));
     }
     let (mut t1, mut t2) = (P::zero(), P::zero());
     if n == 2 {
@@ -825,7 +918,8 @@ fn crease_limit<P: Pt>(t: &Topo<P>, adj: &Adj, c: u32, e: &[u32], f: &[u32]) -> 
         .position(|&x| t.edge_sharp(adj, adj.edge_id[&key(c, x)]) > 0.0)
         .map_or(e.len() - 1, |i| i + 1);
     // The crease is a cubic B-spline curve: 1-4-1 limit mask.
-    let p = comb(&[(1.0 / 6.0, pt(e[0])), (4.0 / 6.0, v), (1.0 / 6.0, pt(e[k]))]);
+    let [w0, wv, wk] = CREASE_POSITION_WEIGHTS;
+    let p = comb(&[(w0, pt(e[0])), (wv, v), (wk, pt(e[k]))]);
     let t1 = comb(&[(0.5, pt(e[0])), (-0.5, pt(e[k]))]);
     // Across: on the side between e_0 and e_k (k faces). For k = 2
     // the regular boundary B-spline derivative; otherwise the exact
@@ -923,5 +1017,37 @@ impl LimitEvaluator for RustEvaluator {
             st.offsets.push(st.indices.len() as u32);
         }
         Ok(st)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The direct read of a plain quad vertex's mask is the general
+    /// route's, bit for bit (interior, boundary and corner vertices).
+    #[test]
+    fn plain_quad_masks_are_the_general_routes() {
+        let rules = Rules::from_scheme(&crate::mesh::SchemeOptions::default());
+        let mut checked = 0;
+        for (name, m) in [
+            ("grid", crate::fixtures::grid(5, 4, 3)),
+            ("flat grid", crate::fixtures::flat_grid(3, 2)),
+            ("polar sphere", crate::fixtures::polar_sphere(7, 3)),
+            ("cube", crate::fixtures::cube()),
+            ("valence 2", crate::fixtures::valence2(1)),
+        ] {
+            for v in m.vertices() {
+                let Some(fast) = plain_quad_mask(&m, v, rules) else {
+                    continue;
+                };
+                let (p, _, _) = vertex_masks(&m, v, rules);
+                let general: Vec<(VertexId, f64)> =
+                    p.0.into_iter().map(|(i, w)| (VertexId(i), w)).collect();
+                assert_eq!(fast, general, "{name} {v}");
+                checked += 1;
+            }
+        }
+        assert!(checked > 50, "{checked} vertices checked");
     }
 }

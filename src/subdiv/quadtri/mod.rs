@@ -179,19 +179,24 @@ pub fn check_mesh(mesh: &ControlMesh) -> Result<()> {
     }
     for (a, b, s) in mesh.creases() {
         if s < INFINITELY_SHARP {
-            return Err(Error::InvalidArgument(format!(
-                "edge ({}, {}): semi-sharp crease (sharpness {s}) is not supported by the \
-                 quad/triangle scheme, only smooth (0) or infinitely sharp ({INFINITELY_SHARP}) edges",
-                a.0, b.0
-            )));
+            return Err(Error::topology(
+                format!("edge ({}, {})", a.0, b.0),
+                format!(
+                    "semi-sharp crease (sharpness {s}) is not supported by the quad/triangle \
+                     scheme, only smooth (0) or infinitely sharp ({INFINITELY_SHARP}) edges"
+                ),
+            ));
         }
     }
     for (v, s) in mesh.corners() {
         if s < INFINITELY_SHARP {
-            return Err(Error::InvalidArgument(format!(
-                "{v}: semi-sharp corner (sharpness {s}) is not supported by the quad/triangle \
-                 scheme, only infinitely sharp ({INFINITELY_SHARP}) corners"
-            )));
+            return Err(Error::topology(
+                format!("{v}"),
+                format!(
+                    "semi-sharp corner (sharpness {s}) is not supported by the quad/triangle \
+                     scheme, only infinitely sharp ({INFINITELY_SHARP}) corners"
+                ),
+            ));
         }
     }
     Ok(())
