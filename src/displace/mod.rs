@@ -86,7 +86,9 @@ pub fn auto_resolution(mesh_vertices: usize, patches: usize) -> usize {
 }
 
 /// How the displacement samples are spread over the patches (issue 37).
-#[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, clap::ValueEnum)]
+#[derive(
+    Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "snake_case")]
 pub enum SampleAllocation {
     /// Per patch, `2^k + 1` per side where the detail is, under a total of
