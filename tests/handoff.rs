@@ -229,7 +229,17 @@ fn udim_tiles_and_half_floats_read_back_in_openexr() {
     convert(
         &data("spot.ply"),
         &out,
-        &["--atlas", "udim", "--half", "--tessellation", "4"],
+        // One R × R grid per patch, so 8 × 8 patches per tile; the
+        // adaptive atlas's UDIM tiles are checked below.
+        &[
+            "--atlas",
+            "udim",
+            "--half",
+            "--tessellation",
+            "4",
+            "--displacement-allocation",
+            "uniform",
+        ],
     );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
@@ -314,6 +324,70 @@ fn udim_tiles_and_half_floats_read_back_in_openexr() {
 }
 
 /// Interior vertices with two neighbours, of a control.obj.
+/// The adaptive atlas (the default) in UDIM tiles: tiles of different
+/// sizes shelf-packed, so only what does not depend on the packing is
+/// asserted: each patch's UVs lie inside one tile's unit square, every
+/// tile a patch uses exists (scalar and vector, half floats, same size,
+/// not all zero), and no file is written for a tile no patch uses.
+#[test]
+fn adaptive_udim_tiles_hold_every_patch() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("spot");
+    convert(
+        &data("spot.ply"),
+        &out,
+        &["--atlas", "udim", "--half", "--tessellation", "4"],
+    );
+    let text = std::fs::read_to_string(out.join("control.obj")).unwrap();
+    let vts: Vec<(f64, f64)> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("vt "))
+        .map(|l| {
+            let mut it = l.split_whitespace().map(|x| x.parse::<f64>().unwrap());
+            (it.next().unwrap(), it.next().unwrap())
+        })
+        .collect();
+    let mut used = std::collections::BTreeSet::new();
+    for l in text.lines().filter_map(|l| l.strip_prefix("f ")) {
+        let tiles: Vec<usize> = l
+            .split_whitespace()
+            .map(|c| {
+                let vt: usize = c.split('/').nth(1).unwrap().parse().unwrap();
+                let (u, v) = vts[vt - 1];
+                assert!(
+                    u > 0.0 && v > 0.0 && v < 1.0,
+                    "UV ({u}, {v}) outside the tiles"
+                );
+                assert!(u.fract() > 0.0, "UV ({u}, {v}) on a tile's border");
+                u.floor() as usize
+            })
+            .collect();
+        assert!(
+            tiles.iter().all(|&t| t == tiles[0]),
+            "face `f {l}` spans tiles"
+        );
+        used.insert(tiles[0]);
+    }
+    let last = *used.iter().next_back().unwrap();
+    assert_eq!(used.len(), last + 1, "tiles used: {used:?}");
+    for k in 0..=last {
+        let p = out.join(format!("displacement.{}.exr", 1001 + k));
+        let (w, h, texels) = subdfit::displace::read_exr(&p).unwrap();
+        assert!(
+            texels.iter().any(|t| t.abs() > 0.0),
+            "{} all zero",
+            p.display()
+        );
+        let pv = out.join(format!("displacement_vector.{}.exr", 1001 + k));
+        let (vw, vh, _) = subdfit::displace::read_exr_channels(&pv).unwrap();
+        assert_eq!((vw, vh), (w, h));
+    }
+    assert!(!out
+        .join(format!("displacement.{}.exr", 1002 + last))
+        .exists());
+    assert!(!out.join("displacement.exr").exists());
+}
+
 fn interior_valence_two(obj: &Path) -> Vec<u32> {
     let c = subdfit::io::read_control_mesh(obj).unwrap();
     c.vertices()

@@ -389,7 +389,7 @@ fn loop_refuses_non_triangles_and_outside_locations() {
         let e = make_evaluator(backend, &quads, &eo)
             .err()
             .expect("a quad must be refused");
-        assert!(e.to_string().contains("face 1 has 4 corners"), "{e}");
+        assert!(e.to_string().contains("face 1: has 4 corners"), "{e}");
     }
     let m = mesh(icosphere());
     for backend in [Backend::Osd, Backend::Rust] {
@@ -588,7 +588,7 @@ fn diff_limit_cli_loop() {
     let o = run(&quad);
     assert_ne!(o.status.code(), Some(0));
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("face 0 has 4 corners"), "{err}");
+    assert!(err.contains("face 0: has 4 corners"), "{err}");
 }
 
 /// Next to an irregular vertex OpenSubdiv's Gregory-triangle end caps only

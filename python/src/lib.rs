@@ -417,17 +417,25 @@ impl PyConversion {
 
     /// `(faces, resolution, values)`: all tiles have the same resolution;
     /// `values` holds them one after the other, each row-major (v rows).
+    /// Each tile's patch, its resolution (samples per side: adaptive
+    /// tiles differ patch to patch, issue 37) and every tile's values, one
+    /// after the other.
+    #[allow(clippy::type_complexity)]
     fn tiles<'py>(
         &self,
         py: Python<'py>,
-    ) -> (Bound<'py, PyArray1<u32>>, u32, Bound<'py, PyArray1<f32>>) {
+    ) -> (
+        Bound<'py, PyArray1<u32>>,
+        Bound<'py, PyArray1<u32>>,
+        Bound<'py, PyArray1<f32>>,
+    ) {
         let t = &self.0.tiles;
-        let res = t.first().map_or(0, |t| t.resolution);
         let faces: Vec<u32> = t.iter().map(|t| t.face).collect();
+        let res: Vec<u32> = t.iter().map(|t| t.resolution).collect();
         let values: Vec<f32> = t.iter().flat_map(|t| t.values.iter().copied()).collect();
         (
             PyArray1::from_vec(py, faces),
-            res,
+            PyArray1::from_vec(py, res),
             PyArray1::from_vec(py, values),
         )
     }

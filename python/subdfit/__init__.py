@@ -196,9 +196,16 @@ class Conversion:
         faces, res, values = native.tiles()
         #: Patch (control face) of each tile.
         self.tile_faces: np.ndarray = faces
-        #: (patches, res, res) float32 displacement along the limit normal,
-        #: row-major in the patch's (u, v): ``tiles[f, j, i]`` at v_j, u_i.
-        self.tiles: np.ndarray = values.reshape(len(faces), res, res)
+        #: Samples per side of each tile: per patch with the adaptive
+        #: allocation (the default), all equal with ``displacement_allocation="uniform"``.
+        self.tile_resolutions: np.ndarray = res
+        ends = np.cumsum(res.astype(np.int64) ** 2)
+        #: One (r, r) float32 array per tile (views into one buffer): the
+        #: displacement along the limit normal, row-major in the patch's
+        #: (u, v), ``tiles[k][j, i]`` at v_j, u_i.
+        self.tiles: list[np.ndarray] = [
+            values[e - r * r : e].reshape(r, r) for e, r in zip(ends.tolist(), res.tolist())
+        ]
         #: Every number of report.json, keys as dotted paths
         #: (``"accuracy.limit.rms_permille"``), in the file's order.
         self.metrics: dict[str, float] = dict(native.metrics())

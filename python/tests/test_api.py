@@ -63,8 +63,17 @@ def test_result_arrays_describe_the_control_mesh(spot):
     assert set(np.unique(c.face_sizes)) == {4}  # organic: all quads
     assert c.uv_indices.shape == c.face_indices.shape
     assert c.uvs.shape[1] == 2 and 0 <= c.uvs.min() and c.uvs.max() <= 1
-    assert r.tiles.dtype == np.float32 and r.tiles.shape[0] == c.face_sizes.size
-    assert r.tiles.shape[1] == r.tiles.shape[2] > 1 and np.isfinite(r.tiles).all()
+    assert len(r.tiles) == r.tile_resolutions.size == c.face_sizes.size
+    for t, res in zip(r.tiles, r.tile_resolutions):
+        assert t.dtype == np.float32 and t.shape == (res, res) and res > 1
+        assert np.isfinite(t).all()
+    # Adaptive (the default): 2^k + 1 per side, several sizes on spot, and
+    # the samples, each shared one counted once, within 5 % of the budget
+    # (M's vertex count) — so the tiles hold more, their edges repeated.
+    assert all(((res - 1) & (res - 2)) == 0 for res in r.tile_resolutions.tolist())
+    assert len(set(r.tile_resolutions.tolist())) > 1
+    budget = r.metrics["input.vertices"]
+    assert abs(r.report["projectability"]["displacement"]["samples"] - budget) <= 0.05 * budget
     assert list(r.tile_faces) == list(range(c.face_sizes.size))
     assert r.metrics["control.faces"] == c.face_sizes.size
     assert r.metrics["input.vertices"] == len(m.vertices)

@@ -129,8 +129,9 @@ pub fn tessellate(
     // A displacement of per-patch resolutions: each patch tessellated at
     // least as finely as its tile (N·2^j cells, nested across edges, so
     // the grid stays welded and watertight), so that no sample of a fine
-    // tile falls between the vertices.
-    let (grid, limit) = if d.grid.is_uniform() {
+    // tile falls between the vertices. A `--tessellation N` the user gave
+    // is kept as given, as with uniform tiles finer than N.
+    let (grid, limit) = if d.grid.is_uniform() || segments.is_some() {
         (grid, limit)
     } else {
         let res: Vec<usize> = (0..control.num_faces())
