@@ -299,14 +299,7 @@ fn udim_tiles_and_half_floats_read_back_in_openexr() {
         .exists());
     // UVs in UDIM space: the last patch's corners lie in its tile's square.
     let text = std::fs::read_to_string(out.join("control.obj")).unwrap();
-    let vts: Vec<(f64, f64)> = text
-        .lines()
-        .filter_map(|l| l.strip_prefix("vt "))
-        .map(|l| {
-            let mut it = l.split_whitespace().map(|x| x.parse::<f64>().unwrap());
-            (it.next().unwrap(), it.next().unwrap())
-        })
-        .collect();
+    let vts = obj_uvs(&text);
     let last = &vts[vts.len() - 4..];
     let tile = (tiles - 1) as f64;
     assert!(
@@ -339,14 +332,7 @@ fn adaptive_udim_tiles_hold_every_patch() {
         &["--atlas", "udim", "--half", "--tessellation", "4"],
     );
     let text = std::fs::read_to_string(out.join("control.obj")).unwrap();
-    let vts: Vec<(f64, f64)> = text
-        .lines()
-        .filter_map(|l| l.strip_prefix("vt "))
-        .map(|l| {
-            let mut it = l.split_whitespace().map(|x| x.parse::<f64>().unwrap());
-            (it.next().unwrap(), it.next().unwrap())
-        })
-        .collect();
+    let vts = obj_uvs(&text);
     let mut used = std::collections::BTreeSet::new();
     for l in text.lines().filter_map(|l| l.strip_prefix("f ")) {
         let tiles: Vec<usize> = l
@@ -386,6 +372,17 @@ fn adaptive_udim_tiles_hold_every_patch() {
         .join(format!("displacement.{}.exr", 1002 + last))
         .exists());
     assert!(!out.join("displacement.exr").exists());
+}
+
+/// The `vt` lines of an OBJ text, in order.
+fn obj_uvs(text: &str) -> Vec<(f64, f64)> {
+    text.lines()
+        .filter_map(|l| l.strip_prefix("vt "))
+        .map(|l| {
+            let mut it = l.split_whitespace().map(|x| x.parse::<f64>().unwrap());
+            (it.next().unwrap(), it.next().unwrap())
+        })
+        .collect()
 }
 
 fn interior_valence_two(obj: &Path) -> Vec<u32> {

@@ -421,9 +421,13 @@ fn fit_both_starts(
     let run = |control: ControlMesh,
                moves: &[(VertexId, DVec3)],
                state: Option<StartState>,
-               progress: &mut Progress<'_>| match state {
-        Some(StartState::Done(f)) => Ok((*f, None)),
-        Some(StartState::Paused(p)) => fit_from(
+               progress: &mut Progress<'_>| {
+        let paused = match state {
+            Some(StartState::Done(f)) => return Ok((*f, None)),
+            Some(StartState::Paused(p)) => Some(p),
+            None => None,
+        };
+        fit_from(
             mesh,
             &facts,
             control,
@@ -432,19 +436,8 @@ fn fit_both_starts(
             progress,
             moves,
             t0,
-            (decide, Some(p)),
-        ),
-        None => fit_from(
-            mesh,
-            &facts,
-            control,
-            caster,
-            opts,
-            progress,
-            moves,
-            t0,
-            (decide, None),
-        ),
+            (decide, paused),
+        )
     };
     // What a start leaves for a resumption.
     let state = |(f, p): (Fitted, Option<Paused>)| match p {
