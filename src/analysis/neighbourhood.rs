@@ -187,9 +187,10 @@ pub fn nested_balls(
 /// Fills `out` with `(radii[i], v)` for every vertex `v` of `B(p, radii[i])`
 /// not in the previous ball: sorted by key, so that the ball of `radii[i]`
 /// is the prefix with `key <= radii[i]`, as [`nested_balls`] gives it.
-/// `centre` is the point distances are measured from; `mark` and `pmark`
-/// are scratch of `positions.len()` entries, all different from `stamp` on
-/// entry.
+/// `centre` is the point distances are measured from; `mark` is scratch
+/// of `positions.len()` entries, all different from `stamp` on entry; on
+/// return it is `stamp` at every vertex seen (in the last ball, or pending
+/// just outside it).
 #[allow(clippy::too_many_arguments)] // scratch buffers kept by the caller
 pub fn layered_balls(
     adj: &Csr,
@@ -198,7 +199,6 @@ pub fn layered_balls(
     centre: DVec3,
     radii: &[f64],
     mark: &mut [u32],
-    pmark: &mut [u32],
     stamp: u32,
     pending: &mut Vec<u32>,
     out: &mut Vec<(f64, u32)>,
@@ -219,7 +219,6 @@ pub fn layered_balls(
         keep.clear();
         for &v in pending.iter() {
             if (positions[v as usize] - centre).length_squared() <= r2 {
-                mark[v as usize] = stamp;
                 out.push((r, v));
             } else {
                 keep.push(v);
@@ -235,15 +234,16 @@ pub fn layered_balls(
                 // current radius (every pending vertex inside it was moved
                 // into the ball when this radius started, and the others
                 // were found outside it), so its distance need not be
-                // computed again.
-                if mark[wi] == stamp || pmark[wi] == stamp {
+                // computed again. One mark for both (seen), where there
+                // were two (in the ball, pending): the traversal only asks
+                // "seen?", and one array is one memory access per edge.
+                if mark[wi] == stamp {
                     continue;
                 }
+                mark[wi] = stamp;
                 if (positions[wi] - centre).length_squared() <= r2 {
-                    mark[wi] = stamp;
                     out.push((r, w));
                 } else {
-                    pmark[wi] = stamp;
                     pending.push(w);
                 }
             }
@@ -417,7 +417,7 @@ mod tests {
         let adj = Adjacency::new(&m);
         let n = m.positions.len();
         let radii = [0.03, 0.07, 0.15, 0.22, 0.4, 0.9];
-        let (mut mark, mut pmark, mut mark2) = (vec![0u32; n], vec![0u32; n], vec![0u32; n]);
+        let (mut mark, mut mark2) = (vec![0u32; n], vec![0u32; n]);
         let (mut pending, mut out, mut ball) = (Vec::new(), Vec::new(), Vec::new());
         let mut stamp = 0;
         let mut strict_subset_seen = false;
@@ -431,7 +431,6 @@ mod tests {
                 c,
                 &radii,
                 &mut mark,
-                &mut pmark,
                 stamp,
                 &mut pending,
                 &mut out,

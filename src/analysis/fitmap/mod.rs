@@ -393,9 +393,7 @@ struct Scratch {
     tmark: Vec<u32>,
     stamp: u32,
     key_at: Vec<f64>,
-    pmark: Vec<u32>,
     level_mark: Vec<Vec<u32>>,
-    level_pmark: Vec<Vec<u32>>,
     pending: Vec<u32>,
     ball: Vec<u32>,
     sorted: Vec<(f64, u32)>,
@@ -423,9 +421,7 @@ impl Scratch {
             tmark: vec![0; nt],
             stamp: 0,
             key_at: vec![f64::INFINITY; n],
-            pmark: vec![0; n],
             level_mark: ctx.levels.iter().map(|l| vec![0; l.len()]).collect(),
-            level_pmark: ctx.levels.iter().map(|l| vec![0; l.len()]).collect(),
             pending: Vec::new(),
             ball: Vec::new(),
             sorted: Vec::new(),
@@ -443,8 +439,7 @@ impl Scratch {
         if self.stamp == u32::MAX {
             self.mark.fill(0);
             self.tmark.fill(0);
-            self.pmark.fill(0);
-            for m in self.level_mark.iter_mut().chain(&mut self.level_pmark) {
+            for m in self.level_mark.iter_mut() {
                 m.fill(0);
             }
             self.stamp = 0;
