@@ -515,3 +515,44 @@ fn field_faces_target_lands_within_two_percent() {
         assert!(met, "--faces {n}");
     }
 }
+
+/// QuadriFlow's flip removal (Huang et al. 2018, §5.3;
+/// `quad::field::flip`) on a real mesh: on spot at τ 1 % the flow leaves
+/// folded triangles in the lattice (a fold puts a lattice point on the
+/// wrong side of its neighbours, and the extraction then walks a face
+/// twice or not at all); the moves must remove them without breaking any
+/// triangle's zero sum, and the extraction must keep the flow-repaired
+/// lattice (no fallback to the field's own offsets) with spot's topology.
+/// `report.json` says which lattice ran and what the removal did.
+#[test]
+fn flow_lattice_is_kept_on_spot_after_flip_removal() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("spot");
+    let spot = concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply");
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .args(["convert", spot, "-o"])
+        .arg(&out)
+        .args(["--layout", "field", "--tolerance", "0.01"])
+        .args(["--max-error", "inf", "--quiet"])
+        .status()
+        .unwrap();
+    assert!(status.success(), "convert --layout field failed: {status}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let lattice = &report["options"]["run"]["field_layout"]["first"]["lattice"];
+    eprintln!("{lattice}");
+    assert_eq!(lattice["repaired"], true, "the flow's lattice fell back");
+    let flips = &lattice["flips"];
+    let n = |k: &str| flips[k].as_u64().unwrap();
+    assert!(n("folded_before") > 0, "spot's flow leaves folds to remove");
+    assert!(n("moves") > 0);
+    assert!(
+        n("folded_after") + n("collinear_after") < n("folded_before") + n("collinear_before"),
+        "{flips}"
+    );
+    let control =
+        subdfit::io::read_control_mesh(&out.join("control.obj")).expect("control.obj reads");
+    assert!(control.is_all_quads());
+    let t = control_topology(&control);
+    assert_eq!((t.components, t.boundary_loops, t.euler), (1, 0, 2));
+}

@@ -50,7 +50,7 @@ pub fn extract(
     o: &[DVec3],
     scale: &[f64],
     at_size: bool,
-) -> Result<(ControlMesh, usize)> {
+) -> Result<(ControlMesh, usize, LatticeInfo)> {
     match extract_once(s, mesh, dirs, o, scale, at_size, true) {
         Err(e @ Error::Topology { .. }) => {
             if std::env::var("FIELD_DEBUG").is_ok() {
@@ -62,6 +62,19 @@ pub fn extract(
     }
 }
 
+/// How the extracted lattice was made.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct LatticeInfo {
+    /// The flow-repaired offsets were extracted (`false`: the position
+    /// field's own, after the repaired lattice failed M's topology).
+    pub repaired: bool,
+    /// What the flip removal did on the repaired offsets.
+    pub flips: super::flip::FlipReport,
+    /// Control vertices where separate fans of quads met, split into one
+    /// vertex per fan ([`split_pinches`]).
+    pub pinches_split: usize,
+}
+
 /// [`extract`] with or without the flow's repair.
 fn extract_once(
     s: &Surface,
@@ -71,8 +84,8 @@ fn extract_once(
     scale: &[f64],
     at_size: bool,
     repair: bool,
-) -> Result<(ControlMesh, usize)> {
-    let mut g = lattice_graph(s, dirs, o, scale, repair);
+) -> Result<(ControlMesh, usize, LatticeInfo)> {
+    let (mut g, flips) = lattice_graph(s, dirs, o, scale, repair);
     let faces = clean_faces(&mut g);
     let non_quads = faces.iter().filter(|f| f.len() != 4).count();
     let faces = merge_non_quad_pairs(faces, g.pos.len(), at_size);
@@ -85,6 +98,12 @@ fn extract_once(
         compact(pos, quads)
     } else {
         split_to_quads(&g, &faces)
+    };
+    let (positions, quads, pinches_split) = split_pinches(positions, quads);
+    let info = LatticeInfo {
+        repaired: repair,
+        flips,
+        pinches_split,
     };
     let caster = BvhCaster::new(mesh)?;
     let project = |positions: &[DVec3]| -> Result<Vec<DVec3>> {
@@ -121,11 +140,17 @@ fn extract_once(
             ),
         });
     }
-    Ok((control, non_quads))
+    Ok((control, non_quads, info))
 }
 
 /// Merges zero-offset edges, joins unit-offset ones (see the module docs).
-fn lattice_graph(s: &Surface, dirs: &[DVec3], o: &[DVec3], scale: &[f64], repair: bool) -> Graph {
+fn lattice_graph(
+    s: &Surface,
+    dirs: &[DVec3],
+    o: &[DVec3],
+    scale: &[f64],
+    repair: bool,
+) -> (Graph, super::flip::FlipReport) {
     let n = s.len();
     let mut uf = UnionFind::new(n);
     let mut unit: Vec<(u32, u32)> = Vec::new();
@@ -133,10 +158,15 @@ fn lattice_graph(s: &Surface, dirs: &[DVec3], o: &[DVec3], scale: &[f64], repair
     // QuadriFlow's flow (super::flow) so that the lattice has no
     // dislocation the cross field does not ask for.
     let (mut offsets, real) = super::flow::edge_offsets(s, dirs, o, scale);
+    let mut flips = super::flip::FlipReport::default();
     if repair {
         let report = super::flow::repair_offsets(s, dirs, &mut offsets, &real);
+        // The flow zeroes the sums but may fold the lattice (QuadriFlow
+        // §5.3): folds removed by curl-free moves before extraction.
+        flips = super::flip::remove_flips(s, dirs, &mut offsets, &real);
         if std::env::var("FIELD_DEBUG").is_ok() {
             eprintln!("integer flow: {report:?}");
+            eprintln!("flip removal: {flips:?}");
         }
     }
     for (&[a, b], d) in s.edges.iter().zip(&offsets) {
@@ -200,11 +230,87 @@ fn lattice_graph(s: &Surface, dirs: &[DVec3], o: &[DVec3], scale: &[f64], repair
             hole_side.insert((cb, ca));
         }
     }
-    Graph {
-        pos,
-        ring,
-        hole_side,
+    (
+        Graph {
+            pos,
+            ring,
+            hole_side,
+        },
+        flips,
+    )
+}
+
+/// Each control vertex whose quads form more than one fan (quads around
+/// it joined through the edges they share at it) split into one vertex
+/// per fan, each moved a quarter of the way towards its fan's quads'
+/// centre so the copies do not coincide (the caller projects them onto
+/// M). On a lattice this happens where the zero offsets chain two lattice
+/// points into one cluster, two sheets of the lattice then touch at a
+/// point (measured on gargoyle: two closed fans of two quads each, the
+/// split gives M's topology); where instead two holes of M come within
+/// one step, the split joins them (bunny) and the topology check after
+/// rejects the lattice as before. Returns the new points and quads and
+/// how many vertices were split.
+fn split_pinches(
+    mut pos: Vec<DVec3>,
+    mut quads: Vec<[u32; 4]>,
+) -> (Vec<DVec3>, Vec<[u32; 4]>, usize) {
+    let n = pos.len();
+    // Corners of each vertex, (quad, corner), in quad order.
+    let mut corners: Vec<Vec<(usize, usize)>> = vec![Vec::new(); n];
+    for (q, quad) in quads.iter().enumerate() {
+        for (c, &v) in quad.iter().enumerate() {
+            corners[v as usize].push((q, c));
+        }
     }
+    let mut split = 0;
+    for (v, cs) in corners.iter().enumerate() {
+        if cs.len() < 2 {
+            continue;
+        }
+        // Two corners are in one fan when their quads share an edge at v.
+        let mut uf = UnionFind::new(cs.len());
+        let ends = |&(q, c): &(usize, usize)| [quads[q][(c + 1) % 4], quads[q][(c + 3) % 4]];
+        for i in 0..cs.len() {
+            for j in i + 1..cs.len() {
+                let (a, b) = (ends(&cs[i]), ends(&cs[j]));
+                if a.iter().any(|x| b.contains(x)) {
+                    uf.union(i, j);
+                }
+            }
+        }
+        let roots: Vec<usize> = (0..cs.len()).map(|i| uf.find(i)).collect();
+        let mut fans: Vec<usize> = roots.clone();
+        fans.sort_unstable();
+        fans.dedup();
+        if fans.len() < 2 {
+            continue;
+        }
+        split += 1;
+        let p = pos[v];
+        for (k, &root) in fans.iter().enumerate() {
+            let members: Vec<(usize, usize)> = (0..cs.len())
+                .filter(|&i| roots[i] == root)
+                .map(|i| cs[i])
+                .collect();
+            let centre = members
+                .iter()
+                .map(|&(q, _)| quads[q].iter().map(|&w| pos[w as usize]).sum::<DVec3>() / 4.0)
+                .sum::<DVec3>()
+                / members.len() as f64;
+            let id = if k == 0 {
+                v
+            } else {
+                pos.push(p);
+                pos.len() - 1
+            };
+            pos[id] = p + 0.25 * (centre - p);
+            for (q, c) in members {
+                quads[q][c] = id as u32;
+            }
+        }
+    }
+    (pos, quads, split)
 }
 
 /// The faces of the lattice graph after removing what cannot bound a

@@ -40,7 +40,7 @@ use super::Surface;
 
 /// `c` turned by `k` quarter turns counter-clockwise: (x, y) → (−y, x).
 #[inline]
-fn rot(c: [i64; 2], k: u8) -> [i64; 2] {
+pub(super) fn rot(c: [i64; 2], k: u8) -> [i64; 2] {
     match k % 4 {
         0 => c,
         1 => [-c[1], c[0]],
@@ -52,7 +52,7 @@ fn rot(c: [i64; 2], k: u8) -> [i64; 2] {
 /// The quarter turns k with which b's arm k matches a's first arm: a
 /// vector's coordinates in a's lattice are those in b's turned by −k.
 #[inline]
-fn turn(dirs: &[DVec3], s: &Surface, a: usize, b: usize) -> u8 {
+pub(super) fn turn(dirs: &[DVec3], s: &Surface, a: usize, b: usize) -> u8 {
     if a == b {
         0
     } else {
@@ -120,10 +120,10 @@ pub struct FlowReport {
 /// from the edge's frame (its smaller vertex's) to the triangle's, and the
 /// sign (+1 when the triangle walks it from the smaller vertex).
 #[derive(Clone, Copy)]
-struct Side {
-    edge: u32,
-    turn: u8,
-    sign: i64,
+pub(super) struct Side {
+    pub(super) edge: u32,
+    pub(super) turn: u8,
+    pub(super) sign: i64,
 }
 
 /// Largest |offset| the flow may give an edge, first and last try
@@ -205,7 +205,7 @@ fn signed_area(side: &[Side; 3], offsets: &[[i64; 2]]) -> i64 {
 /// Per triangle its three sides in the triangle's frame, the frames
 /// turned along a spanning tree that avoids singular triangles, and
 /// whether the cross field is singular in it (its arms turn around it).
-fn triangle_sides(s: &Surface, dirs: &[DVec3]) -> (Vec<[Side; 3]>, Vec<bool>) {
+pub(super) fn triangle_sides(s: &Surface, dirs: &[DVec3]) -> (Vec<[Side; 3]>, Vec<bool>) {
     let edge_index = |a: u32, b: u32| -> u32 {
         let k = [a.min(b), a.max(b)];
         s.edges

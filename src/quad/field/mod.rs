@@ -30,6 +30,7 @@
 pub mod cleanup;
 pub mod cross;
 pub mod extract;
+pub mod flip;
 pub mod flow;
 pub mod position;
 pub mod purequad;
@@ -166,6 +167,10 @@ pub struct FieldStats {
     /// Whether the lattice was extracted at the target size
     /// ([`FieldOptions::lattice_at_size`]) or at twice it and split.
     pub lattice_at_size: bool,
+    /// Whether the flow-repaired lattice was kept, what the flip removal
+    /// did, pinched vertices split ([`extract::LatticeInfo`]).
+    #[serde(default)]
+    pub lattice: extract::LatticeInfo,
     pub seconds_cross: f64,
     pub seconds_sizing: f64,
     pub seconds_position: f64,
@@ -411,7 +416,8 @@ fn layout_sized(
             let extracted = extract::extract(surf, mesh, dirs, &lattice, &scale, at_size);
             stats.seconds_extract += t.elapsed().as_secs_f64();
             match extracted {
-                Ok((control, raw_non_quads)) => {
+                Ok((control, raw_non_quads, lattice)) => {
+                    stats.lattice = lattice;
                     stats.retries = attempt;
                     stats.size_factor = factor;
                     stats.lattice_at_size = at_size;
