@@ -1529,8 +1529,15 @@ impl<'a> Simplifier<'a> {
             .map(|&v| vertex_limit_mask(k, v))
             .collect::<Result<_>>()?;
         self.pos_log.extend(w.iter().map(|&v| (v, k.position(v))));
+        // The faces around W (the refit moves vertices, it does not change
+        // the connectivity): their centroids are taken once per round, not
+        // once per vertex of W that shares them (up to four).
+        let mut faces: Vec<FaceId> = w.iter().flat_map(|&v| k.vertex_faces(v)).collect();
+        faces.sort_unstable();
+        faces.dedup();
         for _ in 0..self.opts.refit_rounds {
             let k = &self.k;
+            let centroids: Vec<DVec3> = faces.iter().map(|&f| centroid(k, f)).collect();
             let smooth: Vec<DVec3> = w
                 .iter()
                 .map(|&v| {
@@ -1547,7 +1554,9 @@ impl<'a> Simplifier<'a> {
                     let mut c = DVec3::ZERO;
                     let mut n = 0.0;
                     for f in k.vertex_faces(v) {
-                        c += centroid(k, f);
+                        c += faces
+                            .binary_search(&f)
+                            .map_or_else(|_| centroid(k, f), |i| centroids[i]);
                         n += 1.0;
                     }
                     // Tangent-space smoothing (§3.4): the whole step to the
@@ -1597,9 +1606,6 @@ impl<'a> Simplifier<'a> {
             }
         }
         let k = &self.k;
-        let mut faces: Vec<FaceId> = w.iter().flat_map(|&v| k.vertex_faces(v)).collect();
-        faces.sort_unstable();
-        faces.dedup();
         // Limit points change for every corner of these faces (their masks
         // reach into W).
         let mut corners: Vec<VertexId> = faces.iter().flat_map(|&f| k.face_vertices(f)).collect();
