@@ -49,7 +49,7 @@ use crate::error::{Error, Result};
 use crate::mesh::{ControlMesh, FaceId, TriMesh, VertexId};
 use crate::project::{default_max_dist, Projected};
 use crate::raycast::bvh::BvhCaster;
-use crate::raycast::{nearer_on_line, Ray, RayCaster};
+use crate::raycast::RayCaster;
 use crate::subdiv::catmark::closed_form::{centroid, face_centre_limit, vertex_normal};
 use crate::DVec3;
 
@@ -670,21 +670,14 @@ fn euler(k: &ControlMesh) -> i64 {
 
 /// φ of one point along the unit direction `n` on the BVH: the nearer hit of
 /// the line within `max_t` in either direction, `+n` winning ties (the
-/// semantics of [`RayCaster::line_hits`]). The backward ray only searches up
-/// to the forward hit.
+/// semantics of [`RayCaster::line_hits`]), in one traversal of the line
+/// ([`BvhCaster::line_hit`]: the same hit as a forward ray and a backward
+/// one up to it, which descended the tree twice).
 fn phi_line(bvh: &BvhCaster, o: DVec3, n: DVec3, max_t: f64) -> Option<Projected> {
     if n == DVec3::ZERO || !o.is_finite() || !n.is_finite() {
         return None;
     }
-    let ray = |dir: DVec3, tmax: f64| Ray {
-        origin: o,
-        dir,
-        tmin: 0.0,
-        tmax,
-    };
-    let fwd = bvh.first_hit(&ray(n, max_t));
-    let bwd = bvh.first_hit(&ray(-n, fwd.map_or(max_t, |h| h.t)));
-    nearer_on_line(fwd, bwd).map(|h| Projected {
+    bvh.line_hit(o, n, max_t).map(|h| Projected {
         point: o + h.t * n,
         offset: h.t,
         triangle: h.triangle,
@@ -1536,8 +1529,15 @@ impl<'a> Simplifier<'a> {
             .map(|&v| vertex_limit_mask(k, v))
             .collect::<Result<_>>()?;
         self.pos_log.extend(w.iter().map(|&v| (v, k.position(v))));
+        // The faces around W (the refit moves vertices, it does not change
+        // the connectivity): their centroids are taken once per round, not
+        // once per vertex of W that shares them (up to four).
+        let mut faces: Vec<FaceId> = w.iter().flat_map(|&v| k.vertex_faces(v)).collect();
+        faces.sort_unstable();
+        faces.dedup();
         for _ in 0..self.opts.refit_rounds {
             let k = &self.k;
+            let centroids: Vec<DVec3> = faces.iter().map(|&f| centroid(k, f)).collect();
             let smooth: Vec<DVec3> = w
                 .iter()
                 .map(|&v| {
@@ -1554,7 +1554,9 @@ impl<'a> Simplifier<'a> {
                     let mut c = DVec3::ZERO;
                     let mut n = 0.0;
                     for f in k.vertex_faces(v) {
-                        c += centroid(k, f);
+                        c += faces
+                            .binary_search(&f)
+                            .map_or_else(|_| centroid(k, f), |i| centroids[i]);
                         n += 1.0;
                     }
                     // Tangent-space smoothing (§3.4): the whole step to the
@@ -1604,9 +1606,6 @@ impl<'a> Simplifier<'a> {
             }
         }
         let k = &self.k;
-        let mut faces: Vec<FaceId> = w.iter().flat_map(|&v| k.vertex_faces(v)).collect();
-        faces.sort_unstable();
-        faces.dedup();
         // Limit points change for every corner of these faces (their masks
         // reach into W).
         let mut corners: Vec<VertexId> = faces.iter().flat_map(|&f| k.face_vertices(f)).collect();
