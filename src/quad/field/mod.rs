@@ -32,6 +32,7 @@ pub mod cross;
 pub mod extract;
 pub mod flow;
 pub mod position;
+pub mod moves;
 pub mod purequad;
 pub mod sizing;
 
