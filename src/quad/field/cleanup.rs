@@ -55,7 +55,11 @@ pub struct CleanupOptions {
     /// Validate the mesh after every operation (tests).
     pub check_every_step: bool,
     /// Rounds of multi-rotation moves ([`super::moves`]), each followed by
-    /// the single-operation sweeps again (0: single operations only).
+    /// the single-operation sweeps again (0: single operations only, the
+    /// default: with 2 rounds the irregular vertices fell 25–32 % on
+    /// cheburashka, bunny and gargoyle but RMS L rose on cheburashka
+    /// 4.60 → 5.47‰ and homer 16.8 → 17.8‰, and gargoyle's cleanup took
+    /// 44 s instead of 2; see docs/status.md).
     pub move_rounds: usize,
 }
 
@@ -65,7 +69,7 @@ impl Default for CleanupOptions {
             sweeps: 6,
             target_faces: None,
             check_every_step: false,
-            move_rounds: 2,
+            move_rounds: 0,
         }
     }
 }
@@ -278,10 +282,7 @@ struct Trial {
 /// face. `None` when the
 /// operation no longer applies. The caller keeps it or calls
 /// [`Simplifier::undo`] with the returned snapshot.
-fn apply(
-    s: &mut Simplifier<'_>,
-    op: Op,
-) -> Result<Option<(Trial, Snapshot)>> {
+fn apply(s: &mut Simplifier<'_>, op: Op) -> Result<Option<(Trial, Snapshot)>> {
     let anchor = match op {
         Op::Rotate(h, d) => {
             if can_rotate_edge(&s.k, h, rotation(d)).is_err() {
@@ -545,13 +546,19 @@ fn region_shape(s: &Simplifier<'_>, vertices: &[VertexId]) -> f64 {
 /// rule (lower E with no more failing patches and the worst no worse, or
 /// fewer failing patches at E at most one higher); otherwise the region
 /// is undone. Returns the moves kept.
-fn move_sweep(s: &mut Simplifier<'_>, stats: &mut CleanupStats, moved: &mut [bool]) -> Result<usize> {
-    let seeds: Vec<VertexId> = s
-        .k
-        .live_vertices()
-        .filter(|&v| s.valence_targets.is_irregular(&s.k, v))
-        .collect();
+fn move_sweep(
+    s: &mut Simplifier<'_>,
+    stats: &mut CleanupStats,
+    moved: &mut [bool],
+) -> Result<usize> {
+    let seeds: Vec<VertexId> =
+        s.k.live_vertices()
+            .filter(|&v| s.valence_targets.is_irregular(&s.k, v))
+            .collect();
     let mut kept = 0;
+    // Moves this round already tried: a move found from one end of a pair
+    // is found again from the other.
+    let mut tried = std::collections::HashSet::new();
     for seed in seeds {
         if s.k.is_vertex_deleted(seed) || !s.valence_targets.is_irregular(&s.k, seed) {
             continue;
@@ -561,6 +568,14 @@ fn move_sweep(s: &mut Simplifier<'_>, stats: &mut CleanupStats, moved: &mut [boo
         };
         if mv.steps.len() < 2 {
             // Single rotations are the valence sweep's (already refused).
+            continue;
+        }
+        let sig: Vec<(VertexId, VertexId, bool)> = mv
+            .steps
+            .iter()
+            .map(|st| (st.u, st.w, st.dir == crate::quad::ops::Rotation::Ccw))
+            .collect();
+        if !tried.insert(sig) {
             continue;
         }
         let snap = move_snapshot(s, &mv.steps);
@@ -590,8 +605,8 @@ fn move_sweep(s: &mut Simplifier<'_>, stats: &mut CleanupStats, moved: &mut [boo
         let a1 = region_shape(s, &snap.vertices);
         // A move reshapes many patches: besides the tests, their predicted
         // fit as a whole (Σ of the squared ratios) may not get worse.
-        let tests_kept = f1 <= f0 && w1 <= w0.max(s.relax) && l1 <= l0 * MOVE_LOAD
-            && a1 <= a0 * MOVE_SHAPE;
+        let tests_kept =
+            f1 <= f0 && w1 <= w0.max(s.relax) && l1 <= l0 * MOVE_LOAD && a1 <= a0 * MOVE_SHAPE;
         let keep = applied && ((e1 < e0 && tests_kept) || (f1 < f0 && e1 <= e0 + 1));
         if keep {
             mark_moved(s, moved);

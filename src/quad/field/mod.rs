@@ -31,8 +31,8 @@ pub mod cleanup;
 pub mod cross;
 pub mod extract;
 pub mod flow;
-pub mod position;
 pub mod moves;
+pub mod position;
 pub mod purequad;
 pub mod sizing;
 

@@ -24,7 +24,7 @@
 use std::collections::HashMap;
 
 use crate::mesh::{ControlMesh, VertexId};
-use crate::quad::ops::{min_valence, Rotation, ValenceTargets};
+use crate::quad::ops::{Rotation, ValenceTargets};
 
 /// Rotations in one move at most.
 pub const MAX_STEPS: usize = 4;
@@ -54,28 +54,30 @@ pub struct Move {
 
 /// The neighbourhood of a seed as plain quads (local vertex indices),
 /// edited in place by the search and restored on the way back.
-struct Local<'a> {
-    k: &'a ControlMesh,
-    vt: &'a ValenceTargets,
+struct Local {
     /// Local index → control vertex.
     global: Vec<VertexId>,
     /// Every face of the vertex is in `faces` (its valence and edges are
     /// all known here).
     complete: Vec<bool>,
-    /// Valence change since the start.
-    delta: Vec<i64>,
+    /// Valence now (the control mesh's, changed by the search's steps).
+    valence: Vec<usize>,
+    /// Ideal valence ([`ValenceTargets::ideal`]) and whether the vertex
+    /// is on the boundary.
+    ideal: Vec<usize>,
+    boundary: Vec<bool>,
     faces: Vec<[u32; 4]>,
     /// Directed edge → the face that has it.
     edge: HashMap<(u32, u32), usize>,
     expanded: usize,
 }
 
-impl Local<'_> {
+impl Local {
     fn valence(&self, v: u32) -> usize {
-        (self.k.valence(self.global[v as usize]) as i64 + self.delta[v as usize]) as usize
+        self.valence[v as usize]
     }
     fn penalty(&self, v: u32, d: usize) -> i64 {
-        self.vt.penalty(self.k, self.global[v as usize], d) as i64
+        d.abs_diff(self.ideal[v as usize]) as i64
     }
     fn irregular(&self, v: u32) -> bool {
         self.penalty(v, self.valence(v)) != 0
@@ -119,8 +121,9 @@ impl Local<'_> {
             return None;
         }
         for v in [x[0], x[3]] {
-            let g = self.global[v as usize];
-            let need = min_valence(self.k, g) + 1 + usize::from(self.k.is_boundary_vertex(g));
+            // `min_valence`: 2 on the boundary, 3 inside.
+            let b = self.boundary[v as usize];
+            let need = if b { 2 } else { 3 } + 1 + usize::from(b);
             if self.valence(v) < need {
                 return None;
             }
@@ -158,17 +161,26 @@ impl Local<'_> {
 
     /// Applies (`sign` 1) or undoes (`sign` −1) a rotation of faces `i`
     /// and `j`, whose faces before it were `old`.
-    fn rotate(&mut self, i: usize, j: usize, x: [u32; 6], dir: Rotation, old: [[u32; 4]; 2], sign: i64) {
+    fn rotate(
+        &mut self,
+        i: usize,
+        j: usize,
+        x: [u32; 6],
+        dir: Rotation,
+        old: [[u32; 4]; 2],
+        sign: i64,
+    ) {
         let (new, [a, b]) = Self::rotated(x, dir);
         if sign > 0 {
             self.swap(i, j, old, new);
         } else {
             self.swap(i, j, new, old);
         }
-        self.delta[x[0] as usize] -= sign;
-        self.delta[x[3] as usize] -= sign;
-        self.delta[a as usize] += sign;
-        self.delta[b as usize] += sign;
+        let add = |d: &mut usize, s: i64| *d = (*d as i64 + s) as usize;
+        add(&mut self.valence[x[0] as usize], -sign);
+        add(&mut self.valence[x[3] as usize], -sign);
+        add(&mut self.valence[a as usize], sign);
+        add(&mut self.valence[b as usize], sign);
     }
 
     /// The rotations worth trying now: edges of faces around a currently
@@ -202,7 +214,13 @@ impl Local<'_> {
     }
 
     /// Depth-first search; `path` holds the steps so far, `sum` their gain.
-    fn search(&mut self, path: &mut Vec<Step>, sum: i64, last: Option<[u32; 2]>, best: &mut Option<Move>) {
+    fn search(
+        &mut self,
+        path: &mut Vec<Step>,
+        sum: i64,
+        last: Option<[u32; 2]>,
+        best: &mut Option<Move>,
+    ) {
         if self.expanded >= BUDGET || path.len() >= MAX_STEPS {
             return;
         }
@@ -223,8 +241,9 @@ impl Local<'_> {
                 dir,
             });
             let better = |b: &Option<Move>| {
-                b.as_ref()
-                    .is_none_or(|m| (total, -(path.len() as i64)) > (m.gain, -(m.steps.len() as i64)))
+                b.as_ref().map_or(true, |m| {
+                    (total, -(path.len() as i64)) > (m.gain, -(m.steps.len() as i64))
+                })
             };
             if total > 0 && better(best) {
                 *best = Some(Move {
@@ -262,8 +281,8 @@ pub fn plan(k: &ControlMesh, vt: &ValenceTargets, seed: VertexId) -> Option<Move
             let v = global[i];
             for h in k.outgoing(v) {
                 let u = k.head(h);
-                if !local.contains_key(&u) {
-                    local.insert(u, global.len() as u32);
+                if let std::collections::hash_map::Entry::Vacant(e) = local.entry(u) {
+                    e.insert(global.len() as u32);
                     global.push(u);
                 }
             }
@@ -297,13 +316,12 @@ pub fn plan(k: &ControlMesh, vt: &ValenceTargets, seed: VertexId) -> Option<Move
             edge.insert((f[c], f[(c + 1) % 4]), i);
         }
     }
-    let n = global.len();
     let mut l = Local {
-        k,
-        vt,
+        valence: global.iter().map(|&v| k.valence(v)).collect(),
+        ideal: global.iter().map(|&v| vt.ideal(k, v)).collect(),
+        boundary: global.iter().map(|&v| k.is_boundary_vertex(v)).collect(),
         global,
         complete,
-        delta: vec![0; n],
         faces,
         edge,
         expanded: 0,
