@@ -428,6 +428,67 @@ fn cleanup_removes_planted_valence_3_5_pairs() {
     assert_eq!(stats.energy_after, 0);
 }
 
+/// Two 3–5 pairs planted by a rotation and then pulled apart by an
+/// energy-neutral rotation beside one of them (E stays 4): no single
+/// operation lowers E by itself there, a sequence of rotations does
+/// ([`subdfit::quad::field::moves`]). With the multi-rotation moves on, the
+/// cleanup must end with no irregular vertex at all (at most the planted
+/// pairs' own would be the weaker bar), the same 100 faces, pure quads and
+/// the grid's one boundary loop, every step validated; and the planner
+/// alone must find a move of at least two rotations.
+#[test]
+fn cleanup_moves_annihilate_separated_dislocations() {
+    let m = grid_mesh(41, 41, false, false, |u, v| DVec3::new(u, v, 0.0));
+    let fm = flat_fitmap(m.positions.len());
+    let caster = BvhCaster::new(&m).unwrap();
+    let mut k = quad_grid(10);
+    let (a, b) = (
+        subdfit::mesh::VertexId(5 * 11 + 5),
+        subdfit::mesh::VertexId(5 * 11 + 6),
+    );
+    let h = k.outgoing(a).find(|&h| k.head(h) == b).unwrap();
+    rotate_edge(&mut k, h, Rotation::Ccw).unwrap();
+    let vt = ValenceTargets::new(&k);
+    let energy = |k: &ControlMesh| -> usize {
+        k.live_vertices()
+            .map(|v| vt.penalty(k, v, k.valence(v)))
+            .sum()
+    };
+    assert_eq!(energy(&k), 4);
+    let (h, dir) = k
+        .edges()
+        .map(|e| e.halfedge())
+        .flat_map(|h| [(h, Rotation::Ccw), (h, Rotation::Cw)])
+        .find(|&(h, d)| {
+            can_rotate_edge(&k, h, d).is_ok_and(|x| rotation_energy_gain(&k, &vt, &x, d) == 0)
+        })
+        .expect("an energy-neutral rotation beside a pair");
+    rotate_edge(&mut k, h, dir).unwrap();
+    assert_eq!(energy(&k), 4);
+    let planted = irregular_vertices(&k);
+    let seeds: Vec<_> = k
+        .live_vertices()
+        .filter(|&v| vt.is_irregular(&k, v))
+        .collect();
+    let best = seeds
+        .iter()
+        .filter_map(|&v| subdfit::quad::field::moves::plan(&k, &vt, v))
+        .max_by_key(|mv| mv.gain)
+        .expect("a move");
+    assert!(best.steps.len() >= 2 && best.gain > 0, "{best:?}");
+    let opts = CleanupOptions::default()
+        .with_check_every_step(true)
+        .with_move_rounds(2);
+    let (out, stats) = cleanup(&m, &fm, &caster, k, &opts).unwrap();
+    eprintln!("{}", serde_json::to_string(&stats).unwrap());
+    assert!(out.is_all_quads());
+    let t = control_topology(&out);
+    assert_eq!((t.components, t.boundary_loops, t.euler), (1, 1, 1));
+    assert_eq!(out.num_faces(), 100);
+    assert_eq!(irregular_vertices(&out), 0, "planted {planted}");
+    assert_eq!(stats.energy_after, 0);
+}
+
 /// On the raw extraction of a torus at uniform size (the dislocations the
 /// lattice needs: 3–5 pairs no single operation removes) with one more
 /// pair of pairs planted by a rotation, the cleanup keeps the genus and

@@ -32,6 +32,7 @@ pub mod cross;
 pub mod extract;
 pub mod flip;
 pub mod flow;
+pub mod moves;
 pub mod position;
 pub mod purequad;
 pub mod sizing;
