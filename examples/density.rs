@@ -96,6 +96,9 @@ fn main() -> anyhow::Result<()> {
                     "displaced_ply_vertices": s.displaced.positions.len(),
                     "histogram": s.metrics.displacement.adaptive.as_ref().map(|a| &a.resolution_histogram),
                     "lsq": s.metrics.displacement.least_squares,
+                    "breakdown": s.metrics.displaced_breakdown,
+                    "worst_res": s.metrics.displaced_breakdown.worst_patches.iter()
+                        .map(|p| s.displacement.grid.patch_res(p.patch)).collect::<Vec<_>>(),
                     "seconds": seconds,
                 })
             );

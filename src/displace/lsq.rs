@@ -276,13 +276,34 @@ pub fn refine_offsets_on(
     let mut last_delta: Option<Vec<f64>> = None;
     let mut halvings = 0;
     let mut round = 0;
+    // On the host surface the unknowns' coupling is fixed by the sample
+    // grid, whatever the offsets: built once, not per round and per step
+    // halving (each had rebuilt it from the host tessellation's edges,
+    // ~12 % of the stage's CPU on bunny).
+    let pattern = match host {
+        Some(_) => Some(host_pattern(disp)?),
+        None => None,
+    };
     while round <= opts.rounds {
         // The last round only decides whether the previous update is kept:
         // it measures the objective on a fixed subsample (every
         // CHECK_STRIDE-th point of both lists, compared with the same
         // subsample's value before the update) instead of all points.
+        // (Checking a halved step earlier on the subsample too, without
+        // rows, saved bunny's default-options run three full rounds but
+        // raised its RMS M → displaced.ply at 2× from 0.074‰ to 0.085‰:
+        // the subsample kept a step the full objective rejects. Not kept;
+        // docs/status.md, "Adaptive displacement".)
         let check_only = round > 0 && round == opts.rounds;
-        let (score, ne) = round_rows(mesh, mesh_caster, &m_edges, total_m, disp, host, check_only)?;
+        let at = RoundAt {
+            mesh,
+            mesh_caster,
+            m_edges: &m_edges,
+            total_m,
+            host,
+            pattern: pattern.as_ref(),
+        };
+        let (score, ne) = round_rows(&at, disp, check_only)?;
         let (obj, sub) = score.rms();
         // The stats are the subsample's, the one figure every round has.
         if round == 0 {
@@ -347,14 +368,18 @@ pub fn refine_offsets_on(
 /// (both directions) and, unless `check_only` (which measures the
 /// subsample only), the linearised rows summed into normal equations.
 fn round_rows(
-    mesh: &TriMesh,
-    mesh_caster: &dyn RayCaster,
-    m_edges: &Edges,
-    total_m: f64,
+    at: &RoundAt<'_>,
     disp: &Displacement,
-    host: Option<&HostSurface>,
     check_only: bool,
 ) -> Result<(Score, Option<NormalEquations>)> {
+    let RoundAt {
+        mesh,
+        mesh_caster,
+        m_edges,
+        total_m,
+        host,
+        pattern,
+    } = *at;
     let normals = &disp.directions;
     let stride = if check_only { CHECK_STRIDE } else { 1 };
     let dmesh = match host {
@@ -376,6 +401,8 @@ fn round_rows(
     };
     let mut ne = if check_only {
         None
+    } else if let Some(p) = pattern {
+        Some(p.clone())
     } else if deps.is_identity() {
         Some(NormalEquations::with_pairs(
             disp.offsets.len(),
@@ -445,6 +472,65 @@ fn round_rows(
         },
     )?;
     Ok((score, ne))
+}
+
+/// What every round of [`refine_offsets_on`] reads: M, its caster and
+/// fitting points, and D's host surface with its unknowns' pattern.
+#[derive(Clone, Copy)]
+struct RoundAt<'a> {
+    mesh: &'a TriMesh,
+    mesh_caster: &'a dyn RayCaster,
+    m_edges: &'a Edges,
+    total_m: f64,
+    host: Option<&'a HostSurface>,
+    /// Empty normal equations with the host surface's pattern.
+    pattern: Option<&'a NormalEquations>,
+}
+
+/// Empty normal equations whose pattern holds every pair of samples that a
+/// row on `disp`'s host surface ([`HostSurface`]) can couple. A host
+/// vertex reads the four corners of the sample cell it lies in (a vertex
+/// on a cell's side or corner reads only that side's or corner's samples),
+/// and host cells nest in sample cells (their count per side is a power
+/// of two no smaller than the samples'), so the two ends of any host edge
+/// read corners of one closed sample cell, in either patch of a shared
+/// edge; a finer tile's in-between samples on an edge to a coarser one are
+/// dependent, read as the coarse side's two samples around them
+/// ([`Dependents::pairs`] expands them). Every pair of corners of every
+/// sample cell is then a superset of the host's rows: about 4 pairs per
+/// sample instead of up to 28 per host edge. (The sample grid's own
+/// triangles are not: a border cell of a coarse tile is a fan over the
+/// finer neighbour's samples, which misses one corner pair.)
+fn host_pattern(disp: &Displacement) -> Result<NormalEquations> {
+    let g = &disp.grid;
+    let mut edges: Vec<[u32; 2]> = Vec::new();
+    for f in 0..g.num_patches() {
+        let r1 = g.patch_res(f) - 1;
+        for j in 0..r1 {
+            for i in 0..r1 {
+                let c = [
+                    g.sample(f, i, j),
+                    g.sample(f, i + 1, j),
+                    g.sample(f, i + 1, j + 1),
+                    g.sample(f, i, j + 1),
+                ];
+                for a in 0..4 {
+                    for b in a + 1..4 {
+                        edges.push([c[a].min(c[b]), c[a].max(c[b])]);
+                    }
+                }
+            }
+        }
+    }
+    edges.sort_unstable();
+    edges.dedup();
+    let deps = Dependents::of(disp);
+    let pairs = if deps.list.is_empty() {
+        edges
+    } else {
+        deps.pairs(&edges)
+    };
+    NormalEquations::with_pairs(disp.offsets.len(), pairs.iter().copied())
 }
 
 /// How D's vertices move with the offsets: one sample each (the sample
@@ -579,6 +665,15 @@ impl HostSurface {
             let r1 = g.patch_res(f) - 1;
             let at = |x: f64| {
                 let x = x.clamp(0.0, 1.0) * r1 as f64;
+                // A host vertex on a sample line reads that line only:
+                // without the snap, `k / cells · r1` a rounding below the
+                // line read the next cell at a weight of 1e-16, outside
+                // the pattern of `host_pattern`.
+                let x = if (x - x.round()).abs() < 1e-9 {
+                    x.round()
+                } else {
+                    x
+                };
                 let i = (x.floor() as usize).min(r1 - 1);
                 (i, x - i as f64)
             };
