@@ -399,21 +399,23 @@ fn round_rows(
         None => Basis::Samples(Dependents::of(disp)),
         Some(h) => Basis::Host(h),
     };
-    let mut ne = if check_only {
-        None
-    } else if let Some(p) = pattern {
-        Some(p.clone())
-    } else if deps.is_identity() {
-        Some(NormalEquations::with_pairs(
+    // A host surface always arrives with its pattern (`host_pattern`, built
+    // once per fit); the sample grid's pattern is D's edges, dependent ends
+    // replaced by the samples they follow.
+    let mut ne = match (check_only, pattern, &deps) {
+        (true, _, _) => None,
+        (false, Some(p), _) => Some(p.clone()),
+        (false, None, Basis::Samples(d)) if !d.list.is_empty() => {
+            let pairs = d.pairs(&d_edges.ends);
+            Some(NormalEquations::with_pairs(
+                disp.offsets.len(),
+                pairs.iter().copied(),
+            )?)
+        }
+        (false, None, _) => Some(NormalEquations::with_pairs(
             disp.offsets.len(),
             d_edges.ends.iter().copied(),
-        )?)
-    } else {
-        let pairs = deps.pairs(&d_edges.ends);
-        Some(NormalEquations::with_pairs(
-            disp.offsets.len(),
-            pairs.iter().copied(),
-        )?)
+        )?),
     };
     let mut score = Score::default();
     let mut row = Vec::with_capacity(3);
@@ -541,11 +543,6 @@ enum Basis<'a> {
 }
 
 impl Basis<'_> {
-    /// Every vertex is its own sample with weight 1.
-    fn is_identity(&self) -> bool {
-        matches!(self, Basis::Samples(d) if d.list.is_empty())
-    }
-
     fn push(&self, row: &mut Vec<(u32, f64)>, normals: &[DVec3], v: u32, scale: f64, nt: DVec3) {
         match self {
             Basis::Samples(d) => d.push(row, normals, v, scale, nt),
@@ -557,28 +554,6 @@ impl Basis<'_> {
                         None => row.push((s, a)),
                     }
                 }
-            }
-        }
-    }
-
-    fn pairs(&self, edges: &[[u32; 2]]) -> Vec<[u32; 2]> {
-        match self {
-            Basis::Samples(d) => d.pairs(edges),
-            Basis::Host(h) => {
-                let mut pairs = Vec::new();
-                let mut support = Vec::new();
-                for &[x, y] in edges {
-                    support.clear();
-                    support.extend(h.terms(x).iter().chain(h.terms(y)).map(|t| t.0));
-                    for (k, &a) in support.iter().enumerate() {
-                        for &b in &support[k + 1..] {
-                            pairs.push([a.min(b), a.max(b)]);
-                        }
-                    }
-                }
-                pairs.sort_unstable();
-                pairs.dedup();
-                pairs
             }
         }
     }
