@@ -14,10 +14,17 @@
 //! the error target get a smaller h locally"), one far below it
 //! ([`COARSEN_BELOW`]) a larger one, capped at the M-fitmap's projectable
 //! size and at [`MAX_COARSEN`] per pass; then the field is graded again
-//! and steps 3–5 run on it. At most [`FIELD_ROUNDS`] layouts are fitted,
-//! fewer when a refined sizing no longer grows the mesh; the one with the
-//! lowest fitted RMS is kept, and `report.json`'s target says whether it
-//! met the bound.
+//! and steps 3–5 run on it. Projectability drives the same refinement:
+//! each vertex of M′ is tested as `report.json` tests M (the normal
+//! projection φ from its nearest limit point must land on it, the
+//! M-fitmap's criterion, Fitmaps §3.1.3), the patches it is nearest to
+//! carry its area, and a patch with unprojectable vertices gets h ×
+//! [`UNPROJECTABLE_REFINE`]; rounds go on while more than
+//! [`UNPROJECTABLE_PERCENT`] of M′'s area is unprojectable. At most
+//! [`FIELD_ROUNDS`] layouts are fitted, fewer when a refined sizing no
+//! longer grows the mesh; the one with the lowest fitted RMS among those
+//! within the projectability bound (else among all) is kept, and
+//! `report.json`'s target says whether it met the bound.
 
 use serde::Serialize;
 
@@ -35,7 +42,7 @@ use super::tail::{measure_fitted, Converted, PipelineOptions};
 use crate::report::StageTimer;
 
 /// Layouts fitted at most for one `--max-error` (the first included).
-pub const FIELD_ROUNDS: usize = 4;
+pub const FIELD_ROUNDS: usize = 6;
 
 /// Extra refinements of one round's sizing when its lattice did not grow
 /// the mesh, each at [`REGROW_FACTOR`] times h ([`fit_field`]).
