@@ -14,10 +14,17 @@
 //! the error target get a smaller h locally"), one far below it
 //! ([`COARSEN_BELOW`]) a larger one, capped at the M-fitmap's projectable
 //! size and at [`MAX_COARSEN`] per pass; then the field is graded again
-//! and steps 3–5 run on it. At most [`FIELD_ROUNDS`] layouts are fitted,
-//! fewer when a refined sizing no longer grows the mesh; the one with the
-//! lowest fitted RMS is kept, and `report.json`'s target says whether it
-//! met the bound.
+//! and steps 3–5 run on it. Projectability drives the same refinement:
+//! each vertex of M′ is tested as `report.json` tests M (the normal
+//! projection φ from its nearest limit point must land on it, the
+//! M-fitmap's criterion, Fitmaps §3.1.3), the patches it is nearest to
+//! carry its area, and a patch with unprojectable vertices gets h ×
+//! [`UNPROJECTABLE_REFINE`]; rounds go on while more than
+//! [`UNPROJECTABLE_PERCENT`] of M′'s area is unprojectable. At most
+//! [`FIELD_ROUNDS`] layouts are fitted, fewer when a refined sizing no
+//! longer grows the mesh; the one with the lowest fitted RMS among those
+//! within the projectability bound (else among all) is kept, and
+//! `report.json`'s target says whether it met the bound.
 
 use serde::Serialize;
 
@@ -32,14 +39,19 @@ use super::layout::FieldRelayout;
 use super::options::ConvertOptions;
 use super::run::Run;
 use super::tail::{measure_fitted, Converted, PipelineOptions};
+use crate::report::StageTimer;
 
 /// Layouts fitted at most for one `--max-error` (the first included).
-pub const FIELD_ROUNDS: usize = 4;
+pub const FIELD_ROUNDS: usize = 6;
 
 /// Extra refinements of one round's sizing when its lattice did not grow
 /// the mesh, each at [`REGROW_FACTOR`] times h ([`fit_field`]).
 pub const REGROW: usize = 2;
 pub const REGROW_FACTOR: f64 = 0.9;
+
+/// The factor on h of another try when a refined sizing's lattice tore
+/// ([`fit_field`]): a small change that lays another lattice.
+pub const TORN_RETRY_FACTOR: f64 = 0.95;
 
 /// A patch is refined when its RMS is above this share of `--max-error`
 /// (the lattice does not land exactly on h, and the patches refined pull
@@ -56,6 +68,21 @@ pub const COARSEN_BELOW: f64 = 1.0 / 16.0;
 /// ([`Sizes::refine`]): the lattice lands below its predicted count
 /// (0.55–0.95 of it measured).
 pub const FIELD_MARGIN: f64 = 1.1;
+
+/// Rounds go on while the fitted limit surface leaves more than this share
+/// of M′'s area unprojectable, % (issue 40's acceptance: ≤ 0.1 % of M's
+/// area, measured by `report.json` on M).
+pub const UNPROJECTABLE_PERCENT: f64 = 0.1;
+
+/// The factor on h under a patch with unprojectable vertices (a patch
+/// larger than the M-fitmap's radius there folds over M′; Fitmaps §3.1.3:
+/// F_M is the largest radius that projects, and the sizes step down the
+/// same way, about a factor 1.4 per step in area).
+pub const UNPROJECTABLE_REFINE: f64 = 0.7;
+
+/// The growth in predicted patches one pass may take when projectability
+/// alone asks for refinement (the error's own budget is below 1.1 then).
+pub const UNPROJECTABLE_GROWTH: f64 = 1.3;
 
 /// The largest factor on h per pass, down and up.
 pub const MAX_REFINE: f64 = 0.5;
@@ -77,10 +104,23 @@ pub struct FieldRound {
     /// Spearman's ρ between patch radius and 1/F_S on the layout before
     /// its fit ([`sizing::adaptivity_spearman`]; issue 40 asks ≥ 0.6).
     pub adaptivity_spearman: Option<f64>,
+    /// With `--max-error`: the share of M′'s area the fitted limit surface
+    /// does not project onto, % ([`unprojectable_vertices`]).
+    #[serde(default)]
+    pub layout_unprojectable_percent: Option<f64>,
     /// Patches of this round over / far under the local target (module
     /// docs), whose sizes the next round lowers / raises (0 on the last).
     pub patches_refined: usize,
     pub patches_coarsened: usize,
+    /// Patches of this round with unprojectable vertices, whose sizes the
+    /// next round lowers by [`UNPROJECTABLE_REFINE`] (0 on the last).
+    #[serde(default)]
+    pub patches_unprojectable: usize,
+    /// The factor on the round's sizing its lattice was solved at (below 1
+    /// after a torn lattice's global refinements or a regrowth, 1 on the
+    /// first round's own sizing).
+    #[serde(default)]
+    pub size_factor: Option<f64>,
 }
 
 /// `report.json`'s record of the field layout: the first layout's figures
@@ -114,7 +154,8 @@ pub fn fit_field(
     let mut sizes: Option<Sizes> = None;
     // The best fit so far by its own RMS: a finer layout that fits worse
     // (or a sizing that did not grow the mesh) is not kept.
-    let mut best: Option<(f64, crate::fit::Fitted)> = None;
+    let mut best: Option<((bool, f64), crate::fit::Fitted)> = None;
+    let mut size_factor = None;
     loop {
         let faces = control.num_faces();
         let irregular = crate::quad::field::irregular_vertices(&control);
@@ -133,7 +174,9 @@ pub fn fit_field(
             None => None,
         };
         let diag = relayout.mesh.bbox_diagonal();
-        let layout_rms = measured.as_ref().map(|m| 1000.0 * m.1 / diag);
+        let layout_rms = measured.as_ref().map(|m| 1000.0 * m.rms / diag);
+        let unprojectable = measured.as_ref().map(|m| m.unprojectable_percent);
+        let fails_projection = unprojectable.is_some_and(|u| u > UNPROJECTABLE_PERCENT);
         let rms = fitted
             .report
             .final_rms_permille
@@ -145,52 +188,43 @@ pub fn fit_field(
             fit_rms_permille: fitted.report.final_rms_permille,
             layout_rms_permille: layout_rms,
             adaptivity_spearman: spearman,
+            layout_unprojectable_percent: unprojectable,
             patches_refined: 0,
             patches_coarsened: 0,
+            patches_unprojectable: 0,
+            size_factor,
         });
         let next = match (e, measured) {
-            (Some(e), Some((per_patch, _))) if rms > e && rounds.len() < FIELD_ROUNDS => {
+            (Some(e), Some(m)) if (rms > e || fails_projection) && rounds.len() < FIELD_ROUNDS => {
                 let mut s = match sizes.take() {
                     Some(s) => s,
                     None => Sizes::new(&relayout.mesh, &relayout.fitmap, &fo)?,
                 };
                 let e_abs = e * diag / 1000.0;
-                let (up, down) = s.refine(&per_patch, rms / e, e_abs, fo.gradation);
-
+                let budget = growth_budget(rms / e, fails_projection);
+                let (up, down, unproj) = s.refine(&m.per_patch, budget, e_abs, fo.gradation);
                 let last = rounds.last_mut().expect("pushed above");
                 (last.patches_refined, last.patches_coarsened) = (up, down);
+                last.patches_unprojectable = unproj;
                 Some(s)
             }
             _ => None,
         };
-        if best.as_ref().map_or(true, |b| rms < b.0) {
-            best = Some((rms, fitted));
+        // A layout whose patches project onto M′ is preferred to one with
+        // a lower RMS that leaves more than the bound unprojectable.
+        let key = (fails_projection, rms);
+        if best.as_ref().map_or(true, |b| key < b.0) {
+            best = Some((key, fitted));
         }
         let Some(mut s) = next else {
             break;
         };
         target = None;
-        // A refined sizing whose lattice did not grow the mesh (measured on
-        // spot at 56 patches: the lattice of a coarse field settles on
-        // another count by its own rounding) is laid out again at
-        // [`REGROW_FACTOR`] times h, at most [`REGROW`] times, before the
-        // rounds give up (refining by the same errors again overshot:
-        // spot 56 → 323 patches, 15.5‰ → 1.35‰ against a 5‰ bound).
-        let mut grown = None;
-        for again in 0..=REGROW {
-            if again > 0 {
-                for x in &mut s.h {
-                    *x *= REGROW_FACTOR;
-                }
-            }
-            let laid = timer.run("field layout", || {
-                field_layout_refined(&relayout.mesh, &relayout.fitmap, &s.h, &fo)
-            })?;
-            if laid.control.num_faces() > faces {
-                grown = Some(laid.control);
-                break;
-            }
+        let grown = lay_out_grown(&mut timer, relayout, &mut s, &fo, faces)?;
+        if let Some((_, f)) = &grown {
+            size_factor = Some(*f);
         }
+        let grown = grown.map(|g| g.0);
         sizes = Some(s);
         let Some(c) = grown else {
             break;
@@ -221,6 +255,58 @@ pub fn fit_field(
     Ok(c)
 }
 
+/// A refined sizing whose lattice did not grow the mesh (measured on
+/// spot at 56 patches: the lattice of a coarse field settles on
+/// another count by its own rounding) is laid out again at
+/// [`REGROW_FACTOR`] times h, at most [`REGROW`] times, before the
+/// rounds give up (refining by the same errors again overshot:
+/// spot 56 → 323 patches, 15.5‰ → 1.35‰ against a 5‰ bound).
+///
+/// A lattice torn by M's topology is refined globally inside the
+/// layout (`size_factor` < 1: ×0.8 per retry, measured on homer
+/// 230 → 1069 patches at 0.64), which undoes the local refinement:
+/// the same sizes are then laid out again at [`TORN_RETRY_FACTOR`]
+/// (another lattice of nearly the same sizes), and the first
+/// untorn lattice that grew is kept, else the smallest that grew.
+/// Returns the kept layout and the factor on `s.h` it was solved at;
+/// `s.h` is left at the scale laid out.
+fn lay_out_grown(
+    timer: &mut StageTimer,
+    relayout: &FieldRelayout,
+    s: &mut Sizes,
+    fo: &FieldOptions,
+    faces: usize,
+) -> Result<Option<(ControlMesh, f64)>> {
+    let mut grown: Option<(ControlMesh, f64, f64)> = None;
+    let mut scale = 1.0;
+    for _ in 0..=REGROW {
+        let h: Vec<f64> = s.h.iter().map(|x| x * scale).collect();
+        let laid = timer.run("field layout", || {
+            field_layout_refined(&relayout.mesh, &relayout.fitmap, &h, fo)
+        })?;
+        let n = laid.control.num_faces();
+        if n <= faces {
+            scale *= REGROW_FACTOR;
+            continue;
+        }
+        let torn = laid.stats.size_factor < 1.0;
+        let f = laid.stats.size_factor * scale;
+        if !torn || grown.as_ref().map_or(true, |g| n < g.0.num_faces()) {
+            grown = Some((laid.control, f, scale));
+        }
+        if !torn {
+            break;
+        }
+        scale *= TORN_RETRY_FACTOR;
+    }
+    if let Some((_, _, scale)) = &grown {
+        for x in &mut s.h {
+            *x *= scale;
+        }
+    }
+    Ok(grown.map(|(c, f, _)| (c, f)))
+}
+
 /// The sizing field of the field layout on M′, refined by
 /// [`Sizes::refine`] (module docs).
 struct Sizes {
@@ -240,31 +326,37 @@ impl Sizes {
     }
 
     /// Scales h under each patch by its error (`per_patch` from
-    /// [`patch_errors`]) against the bound `e` (units of M′), within the
-    /// growth the whole mesh's RMS at `over` times the bound allows,
-    /// grades it with `gamma`; the patches refined and coarsened (module
-    /// docs).
+    /// [`patch_errors`]) against the bound `e` (units of M′) and by
+    /// [`UNPROJECTABLE_REFINE`] where it leaves vertices unprojectable,
+    /// within `budget` times the predicted patches ([`growth_budget`]),
+    /// grades it with `gamma`; the patches refined and coarsened by the
+    /// error, and refined for projectability (module docs).
     fn refine(
         &mut self,
-        per_patch: &[(f64, Vec<u32>)],
-        over: f64,
+        per_patch: &[PatchError],
+        budget: f64,
         e: f64,
         gamma: f64,
-    ) -> (usize, usize) {
+    ) -> (usize, usize, usize) {
         let t = LOCAL_TARGET * e;
         let mut factor = vec![f64::INFINITY; self.h.len()];
-        let (mut up, mut down) = (0, 0);
-        for (rms, vertices) in per_patch {
-            let f = if *rms > t {
+        let (mut up, mut down, mut unprojectable) = (0, 0, 0);
+        for p in per_patch {
+            let rms = p.rms;
+            let mut f = if rms > t {
                 up += 1;
                 (t / rms).powf(0.25).max(MAX_REFINE)
-            } else if *rms < COARSEN_BELOW * t {
+            } else if rms < COARSEN_BELOW * t {
                 down += 1;
                 (t / rms.max(f64::MIN_POSITIVE)).powf(0.25).min(MAX_COARSEN)
             } else {
                 1.0
             };
-            for &v in vertices {
+            if p.unprojectable > 0.0 {
+                unprojectable += 1;
+                f = f.min(UNPROJECTABLE_REFINE);
+            }
+            for &v in &p.vertices {
                 factor[v as usize] = f;
             }
         }
@@ -281,7 +373,6 @@ impl Sizes {
         // lattice patches dominate the RMS and are fixed by any
         // refinement. So the factors are raised to the power s ∈ (0, 1]
         // (bisected) that keeps the predicted count within that budget.
-        let budget = over.sqrt().max(1.0) * FIELD_MARGIN;
         let before = sizing::predicted_faces(&self.surf, &self.h);
         let sized = |s: f64| -> Vec<f64> {
             let mut h: Vec<f64> = self
@@ -319,19 +410,33 @@ impl Sizes {
             h = sized(lo);
         }
         self.h = h;
-        (up, down)
+        (up, down, unprojectable)
+    }
+}
+
+/// The growth in predicted patches one refinement may take: the h⁴ rule's
+/// `(rms / E)^½` with [`FIELD_MARGIN`] for a fit `over` = rms / E times
+/// the bound (the field's own error model, [`Sizes::refine`]), at least
+/// [`UNPROJECTABLE_GROWTH`] when projectability asks for refinement.
+fn growth_budget(over: f64, fails_projection: bool) -> f64 {
+    let by_error = over.sqrt().max(1.0) * FIELD_MARGIN;
+    if fails_projection {
+        by_error.max(UNPROJECTABLE_GROWTH)
+    } else {
+        by_error
     }
 }
 
 /// Per patch (control face) of a fitted `control`: the area-weighted RMS
 /// distance from the vertices of `mesh` nearest to it to its limit
-/// surface, and those vertices; also the whole mesh's RMS (units of
-/// `mesh`). Measured from `mesh` to the limit surface, as RMS L is, so a
-/// part of M that no patch reaches (a horn the layout cut across) counts
-/// where the fit's own samples, taken on the patches, do not see it. The
-/// limit surface is a grid of `k × k` cells per patch (k from
-/// [`CELLS_PER_VERTEX`]).
-fn patch_errors(mesh: &TriMesh, control: &ControlMesh) -> Result<(PatchErrors, f64)> {
+/// surface, those vertices, and the area of them the patch does not
+/// project onto (module docs); also the whole mesh's RMS (units of `mesh`)
+/// and unprojectable share of its area. Measured from `mesh` to the limit
+/// surface, as RMS L is, so a part of M that no patch reaches (a horn the
+/// layout cut across) counts where the fit's own samples, taken on the
+/// patches, do not see it. The limit surface is a grid of `k × k` cells
+/// per patch (k from [`CELLS_PER_VERTEX`]).
+fn patch_errors(mesh: &TriMesh, control: &ControlMesh) -> Result<Measured> {
     use crate::subdiv::{make_evaluator, Backend, EvalOptions, SurfaceLocation};
     let patches: usize = control
         .faces()
@@ -377,30 +482,109 @@ fn patch_errors(mesh: &TriMesh, control: &ControlMesh) -> Result<(PatchErrors, f
     };
     let caster = crate::raycast::bvh::BvhCaster::new(&surface)?;
     let nearest = caster.closest_points(&mesh.positions, f64::INFINITY)?;
+    let missed =
+        unprojectable_vertices(mesh, control, evaluator.as_ref(), &surface, &locs, &nearest)?;
     let areas = crate::report::vertex_areas(mesh);
     let n = tri_face.iter().map(|&f| f as usize + 1).max().unwrap_or(0);
-    let mut sum = vec![(0.0, 0.0, Vec::new()); n];
-    let (mut all, mut area) = (0.0, 0.0);
+    let mut sum = vec![PatchError::default(); n];
+    let (mut all, mut area, mut lost) = (0.0, 0.0, 0.0);
     for (v, c) in nearest.iter().enumerate() {
         let Some(c) = c else { continue };
         let a = areas[v];
         let s = &mut sum[tri_face[c.triangle as usize] as usize];
-        s.0 += a * c.distance * c.distance;
-        s.1 += a;
-        s.2.push(v as u32);
+        s.rms += a * c.distance * c.distance;
+        s.area += a;
+        s.vertices.push(v as u32);
         all += a * c.distance * c.distance;
         area += a;
+        if missed[v] {
+            s.unprojectable += a;
+            lost += a;
+        }
     }
     let per_patch = sum
         .into_iter()
-        .filter(|s| s.1 > 0.0)
-        .map(|(sq, a, vs)| ((sq / a).sqrt(), vs))
+        .filter(|s| s.area > 0.0)
+        .map(|mut s| {
+            s.rms = (s.rms / s.area).sqrt();
+            s
+        })
         .collect();
-    Ok((per_patch, (all / area.max(f64::MIN_POSITIVE)).sqrt()))
+    let area = area.max(f64::MIN_POSITIVE);
+    Ok(Measured {
+        per_patch,
+        rms: (all / area).sqrt(),
+        unprojectable_percent: 100.0 * lost / area,
+    })
 }
 
-/// Per patch: its RMS distance and the vertices of M′ nearest to it.
-type PatchErrors = Vec<(f64, Vec<u32>)>;
+/// Projectability of `mesh`'s vertices from the fitted limit surface: the
+/// M-fitmap's test (Fitmaps §3.1.3: a point of M is reached when the normal
+/// projection φ from the surface lands on it) as `report.json`'s
+/// unprojectable area measures it on M (`crate::report`), here on the
+/// layout mesh's vertices so that it can be attributed to patches: each
+/// vertex's nearest point on the limit grid `surface` (`nearest`, its
+/// parameters interpolated from the grid's `locs`) is evaluated exactly,
+/// the line along its normal is cast against `mesh`, and the vertex is
+/// missed when the nearest hit is farther from it than `mesh`'s mean edge.
+fn unprojectable_vertices(
+    mesh: &TriMesh,
+    control: &ControlMesh,
+    evaluator: &dyn crate::subdiv::LimitEvaluator,
+    surface: &TriMesh,
+    locs: &[crate::subdiv::SurfaceLocation],
+    nearest: &[Option<crate::raycast::ClosestPoint>],
+) -> Result<Vec<bool>> {
+    let mut at = Vec::with_capacity(nearest.len());
+    let mut which = Vec::with_capacity(nearest.len());
+    for (v, c) in nearest.iter().enumerate() {
+        let Some(c) = c else { continue };
+        let [a, b, d] = surface.triangles[c.triangle as usize].map(|i| locs[i as usize]);
+        let w = 1.0 - c.u - c.v;
+        at.push(crate::subdiv::SurfaceLocation {
+            u: (w * a.u + c.u * b.u + c.v * d.u).clamp(0.0, 1.0),
+            v: (w * a.v + c.u * b.v + c.v * d.v).clamp(0.0, 1.0),
+            ..a
+        });
+        which.push(v);
+    }
+    let exact = evaluator.evaluate(control.positions(), &at)?;
+    let m_caster = crate::raycast::bvh::BvhCaster::new(mesh)?;
+    let max_dist = crate::project::default_max_dist(mesh);
+    let (hits, _) = crate::project::project_along_normals(&m_caster, &exact, max_dist)?;
+    // The report's tolerance (M's mean edge), here over the triangles'
+    // sides (interior edges counted twice: the same mean on a closed mesh).
+    let sides: f64 = (0..mesh.triangles.len())
+        .map(|t| {
+            let [a, b, c] = mesh.triangle(t);
+            (a - b).length() + (b - c).length() + (c - a).length()
+        })
+        .sum();
+    let tol = sides / (3 * mesh.triangles.len()).max(1) as f64;
+    let mut missed = vec![false; mesh.positions.len()];
+    for (h, &v) in hits.iter().zip(&which) {
+        missed[v] = !matches!(h, Some(h) if (h.point - mesh.positions[v]).length() <= tol);
+    }
+    Ok(missed)
+}
+
+/// One patch's figures in [`patch_errors`]: its RMS distance, the area of
+/// the vertices of M′ nearest to it (and the part it does not project
+/// onto), and those vertices.
+#[derive(Clone, Debug, Default)]
+struct PatchError {
+    rms: f64,
+    area: f64,
+    unprojectable: f64,
+    vertices: Vec<u32>,
+}
+
+/// [`patch_errors`]' result.
+struct Measured {
+    per_patch: Vec<PatchError>,
+    rms: f64,
+    unprojectable_percent: f64,
+}
 
 /// Limit-grid cells per vertex of M′ in [`patch_errors`] (the grid's chord
 /// error then stays well below the patches' distance to M′).
