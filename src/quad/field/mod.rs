@@ -76,8 +76,17 @@ pub struct FieldOptions {
     /// Gauss–Seidel sweeps of the position field per hierarchy level.
     pub position_sweeps: usize,
     /// Sweeps of the extrinsic orientation smoothing after the linear
-    /// solve ([`cross::smooth_extrinsic`]).
+    /// solve ([`cross::smooth_extrinsic`]), per hierarchy level with
+    /// `orientation_hierarchy`.
     pub orientation_sweeps: usize,
+    /// Smooth the cross field on the position field's hierarchy
+    /// ([`cross::smooth_hierarchical`], Instant Meshes' multiresolution
+    /// rule, the linear solve kept as a guide where the surface is
+    /// strongly anisotropic) instead of on M's vertices only. Off: its
+    /// effect on the irregular count is within the layout's run-to-run
+    /// spread and it breaks the uniform sphere's 8 valence-3 vertices
+    /// (docs/status.md, "Field-aligned layout", 2026-12-05 cross field).
+    pub orientation_hierarchy: bool,
     /// Solve the lattice at the target size and make it pure quad near its
     /// non-quads only ([`purequad`]); `false`: solve it at twice the size
     /// and split every face (Catmull-Clark), the fallback when the first
@@ -110,6 +119,7 @@ impl Default for FieldOptions {
             alignment_weight: 1.0,
             position_sweeps: 8,
             orientation_sweeps: 10,
+            orientation_hierarchy: false,
             lattice_at_size: true,
             cleanup: true,
         }

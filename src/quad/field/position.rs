@@ -25,25 +25,59 @@ use crate::DVec3;
 use super::cross::match_arm;
 use super::Surface;
 
-/// One level of the hierarchy.
-struct Level {
-    p: Vec<DVec3>,
-    n: Vec<DVec3>,
-    area: Vec<f64>,
-    q: Vec<DVec3>,
-    s: Vec<f64>,
+/// One level of the hierarchy (also the cross field's, [`super::cross`]).
+pub(super) struct Level {
+    pub(super) p: Vec<DVec3>,
+    pub(super) n: Vec<DVec3>,
+    pub(super) area: Vec<f64>,
+    pub(super) q: Vec<DVec3>,
+    pub(super) s: Vec<f64>,
     /// A point and tangent of M's boundary the lattice keeps a line on.
-    constraint: Vec<Option<(DVec3, DVec3)>>,
-    start: Vec<usize>,
-    nbr: Vec<u32>,
+    pub(super) constraint: Vec<Option<(DVec3, DVec3)>>,
+    pub(super) start: Vec<usize>,
+    pub(super) nbr: Vec<u32>,
     /// Index of the parent in the next coarser level.
-    parent: Vec<u32>,
+    pub(super) parent: Vec<u32>,
 }
 
 impl Level {
-    fn neighbours(&self, i: usize) -> &[u32] {
+    pub(super) fn neighbours(&self, i: usize) -> &[u32] {
         &self.nbr[self.start[i]..self.start[i + 1]]
     }
+
+    /// M's vertices as the finest level, with cross field `dirs` and
+    /// spacing `scale`.
+    pub(super) fn finest(surf: &Surface, dirs: &[DVec3], scale: &[f64]) -> Level {
+        Level {
+            p: surf.positions.clone(),
+            n: surf.normals.clone(),
+            area: surf.areas.clone(),
+            q: dirs.to_vec(),
+            s: scale.to_vec(),
+            constraint: (0..surf.len())
+                .map(|i| surf.boundary_tangent[i].map(|t| (surf.positions[i], t)))
+                .collect(),
+            start: surf.start.clone(),
+            nbr: surf.nbr.clone(),
+            parent: Vec::new(),
+        }
+    }
+}
+
+/// The pairwise-merge hierarchy above `finest` (§5.3), finest first:
+/// merged until at most 64 vertices are left or a level no longer
+/// shrinks by 10 %.
+pub(super) fn hierarchy(finest: Level) -> Vec<Level> {
+    let mut levels = vec![finest];
+    while levels.last().map_or(0, |l| l.p.len()) > 64 {
+        let (parent, coarse) = coarsen(levels.last().expect("one level"));
+        if coarse.p.len() as f64 > 0.9 * levels.last().expect("one level").p.len() as f64 {
+            break;
+        }
+        levels.last_mut().expect("one level").parent = parent;
+        levels.push(coarse);
+    }
+    levels
 }
 
 /// The point nearest the midpoint of `p0`, `p1` on both tangent planes
@@ -115,27 +149,7 @@ pub fn position_field(
     scale: &[f64],
     sweeps: usize,
 ) -> Result<Vec<DVec3>> {
-    let mut levels = vec![Level {
-        p: surf.positions.clone(),
-        n: surf.normals.clone(),
-        area: surf.areas.clone(),
-        q: dirs.to_vec(),
-        s: scale.to_vec(),
-        constraint: (0..surf.len())
-            .map(|i| surf.boundary_tangent[i].map(|t| (surf.positions[i], t)))
-            .collect(),
-        start: surf.start.clone(),
-        nbr: surf.nbr.clone(),
-        parent: Vec::new(),
-    }];
-    while levels.last().map_or(0, |l| l.p.len()) > 64 {
-        let (parent, coarse) = coarsen(levels.last().expect("one level"));
-        if coarse.p.len() as f64 > 0.9 * levels.last().expect("one level").p.len() as f64 {
-            break;
-        }
-        levels.last_mut().expect("one level").parent = parent;
-        levels.push(coarse);
-    }
+    let levels = hierarchy(Level::finest(surf, dirs, scale));
     let top = levels.len() - 1;
     let mut o = levels[top].p.clone();
     for l in (0..=top).rev() {
