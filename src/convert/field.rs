@@ -22,16 +22,16 @@
 //! [`UNPROJECTABLE_REFINE`]; rounds go on while more than
 //! [`UNPROJECTABLE_PERCENT`] of M′'s area is unprojectable.
 //!
-//! On a pure-quad layout (the field layout's own output) the refinement is
-//! local instead ([`refine_locally`]): the same per-patch errors and
-//! projectability choose patches of the fitted control mesh that are
-//! split 1 → 4 with conforming transitions
-//! ([`crate::quad::field::refine`]), every other quad and every fitted
-//! position kept, and the next round's fit starts from them. Laying the whole lattice out again on the refined
-//! sizing changed every patch, so each round met new badly fitted or
+//! With [`LOCAL_REFINEMENT`] (off: its measurements there), a pure-quad
+//! layout (the field layout's own output) is refined locally instead
+//! ([`refine_locally`]): the same per-patch errors and projectability
+//! choose patches of the layout that are split 1 → 4 with conforming
+//! transitions ([`crate::quad::field::refine`]), every other quad kept,
+//! and the next round fits the split layout. Laying the whole lattice out
+//! again on the refined sizing changes every patch, so each round meets new badly fitted or
 //! folded patches and the rounds overshot (spot at τ 5 %: 285 patches,
-//! 3.03‰ against a 5‰ bound, more than its 135 at τ 1 %); the sizing
-//! path stays for a layout with other faces. At most
+//! 3.03‰ against a 5‰ bound, more than its 135 at τ 1 %), but the local
+//! pass measured worse still. At most
 //! [`FIELD_ROUNDS`] layouts are fitted, fewer when a refined sizing no
 //! longer grows the mesh; the one with the lowest fitted RMS among those
 //! within the projectability bound (else among all) is kept, and
@@ -54,7 +54,15 @@ use crate::report::StageTimer;
 
 /// Whether a pure-quad layout is refined locally ([`refine_locally`])
 /// rather than laid out again on a refined sizing ([`lay_out_grown`]).
-pub const LOCAL_REFINEMENT: bool = true;
+/// Off: measured at the defaults (`--layout field --mode organic`, τ 5 %)
+/// the local pass ended worse than the relayout on every mesh tried
+/// (patches / irregular / RMS L ‰, relayout → local: spot 285 / 67 / 3.03
+/// → 222 / 69 / 18.96, homer 624 / 173 / 1.16 → 738 / 307 / 2.75,
+/// cheburashka 514 / 82 / 1.94 → 527 / 201 / 3.42; docs/status.md, Field-
+/// aligned layout): each refined region's transitions add valence-3/5
+/// pairs, and the refit of a locally split layout left parts of M′ far
+/// from the limit surface (its RMS over M′ rose from round to round).
+pub const LOCAL_REFINEMENT: bool = false;
 
 /// Layouts fitted at most for one `--max-error` (the first included).
 pub const FIELD_ROUNDS: usize = 6;
@@ -63,6 +71,10 @@ pub const FIELD_ROUNDS: usize = 6;
 /// the mesh, each at [`REGROW_FACTOR`] times h ([`fit_field`]).
 pub const REGROW: usize = 2;
 pub const REGROW_FACTOR: f64 = 0.9;
+
+/// A relaid lattice with more than this times the patches its growth
+/// budget allows is laid once more at a larger h ([`lay_out_grown`]).
+pub const OVERSHOOT: f64 = 1.25;
 
 /// The factor on h of another try when a refined sizing's lattice tore
 /// ([`fit_field`]): a small change that lays another lattice.
@@ -239,7 +251,7 @@ pub fn fit_field(
                         last.patches_refined = split.refined;
                         last.patches_unprojectable = split.unprojectable;
                         last.patches_split = Some(split.split);
-                        Next::Local(c)
+                        Next::Local(*c)
                     }
                     Local::Nothing => Next::Stop,
                     Local::NotQuad => {
@@ -251,7 +263,7 @@ pub fn fit_field(
                             s.refine(&m.per_patch, budget, e_abs, fo.gradation);
                         (last.patches_refined, last.patches_coarsened) = (up, down);
                         last.patches_unprojectable = unproj;
-                        Next::Relayout(s)
+                        Next::Relayout(s, (budget * faces as f64).round() as usize)
                     }
                 }
             }
@@ -270,8 +282,9 @@ pub fn fit_field(
                 size_factor = None;
                 c
             }
-            Next::Relayout(mut s) => {
-                let grown = lay_out_grown(&mut timer, relayout, &mut s, &fo, faces)?;
+            Next::Relayout(mut s, allowed) => {
+                let counts = (faces, allowed);
+                let grown = lay_out_grown(&mut timer, relayout, &mut s, &fo, counts)?;
                 if let Some((_, f)) = &grown {
                     size_factor = Some(*f);
                 }
@@ -312,8 +325,9 @@ enum Next {
     Stop,
     /// The round's fitted control mesh refined locally ([`refine_locally`]).
     Local(ControlMesh),
-    /// The whole lattice laid out again on a refined sizing.
-    Relayout(Sizes),
+    /// The whole lattice laid out again on a refined sizing, with the
+    /// patch count its budget allows.
+    Relayout(Sizes, usize),
 }
 
 /// What a round that missed the bounds asks of [`refine_locally`].
@@ -335,7 +349,7 @@ enum Local {
     NotQuad,
     /// No patch asked for refinement.
     Nothing,
-    Split(ControlMesh, SplitCounts),
+    Split(Box<ControlMesh>, SplitCounts),
 }
 
 /// Patches that asked for refinement by their error and by projectability,
@@ -347,11 +361,11 @@ struct SplitCounts {
     split: usize,
 }
 
-/// The local pass of `--max-error` (module docs): the fitted `control`
-/// with its failing patches split 1 → 4 and conforming transitions
-/// around them ([`crate::quad::field::refine`]), every other quad and
-/// every fitted position kept, so the next fit starts from this one
-/// (issue 39, item 2).
+/// The local pass of `--max-error` (module docs): the round's layout
+/// `control` (on M′, as laid) with its failing patches split 1 → 4 and
+/// conforming transitions around them ([`crate::quad::field::refine`]),
+/// every other quad and vertex kept, the new vertices moved onto
+/// `layout_mesh` (M′).
 ///
 /// A patch above the local target t = [`LOCAL_TARGET`]·E is weighted by
 /// its share of the excess squared error, `area (rms² − t²) / t²` (a
@@ -440,7 +454,7 @@ fn refine_locally(
         unprojectable,
         split: lo,
     };
-    Ok(Local::Split(best, counts))
+    Ok(Local::Split(Box::new(best), counts))
 }
 
 /// A refined sizing whose lattice did not grow the mesh (measured on
@@ -455,23 +469,27 @@ fn refine_locally(
 /// 230 → 1069 patches at 0.64), which undoes the local refinement:
 /// the same sizes are then laid out again at [`TORN_RETRY_FACTOR`]
 /// (another lattice of nearly the same sizes), and the first
-/// untorn lattice that grew is kept, else the smallest that grew.
-/// Returns the kept layout and the factor on `s.h` it was solved at;
+/// untorn lattice that grew is kept, else the smallest that grew; an
+/// untorn one above [`OVERSHOOT`] times the `allowed` count is laid once
+/// more at a larger h. Returns the kept layout and the factor on `s.h` it was solved at;
 /// `s.h` is left at the scale laid out.
 fn lay_out_grown(
     timer: &mut StageTimer,
     relayout: &FieldRelayout,
     s: &mut Sizes,
     fo: &FieldOptions,
-    faces: usize,
+    (faces, allowed): (usize, usize),
 ) -> Result<Option<(ControlMesh, f64)>> {
     let mut grown: Option<(ControlMesh, f64, f64)> = None;
     let mut scale = 1.0;
-    for _ in 0..=REGROW {
+    let mut lay = |scale: f64| {
         let h: Vec<f64> = s.h.iter().map(|x| x * scale).collect();
-        let laid = timer.run("field layout", || {
+        timer.run("field layout", || {
             field_layout_refined(&relayout.mesh, &relayout.fitmap, &h, fo)
-        })?;
+        })
+    };
+    for _ in 0..=REGROW {
+        let laid = lay(scale)?;
         let n = laid.control.num_faces();
         if n <= faces {
             scale *= REGROW_FACTOR;
@@ -486,6 +504,22 @@ fn lay_out_grown(
             break;
         }
         scale *= TORN_RETRY_FACTOR;
+    }
+    // An untorn lattice far above the growth budget (the lattice's count
+    // follows the sizing's prediction loosely, measured: homer at τ 5 %
+    // went 275 → 624 patches, 1.75× what its budget of 1.3× allowed) is laid
+    // once more at h scaled by √(count / allowed) (the count goes as
+    // h⁻²), and kept if it still grew and is untorn and smaller.
+    if let Some((c, f, sc)) = &grown {
+        let n = c.num_faces();
+        if *f >= *sc && n as f64 > OVERSHOOT * allowed as f64 {
+            let retry = sc * (n as f64 / allowed.max(1) as f64).sqrt();
+            let laid = lay(retry)?;
+            let m = laid.control.num_faces();
+            if m > faces && m < n && laid.stats.size_factor >= 1.0 {
+                grown = Some((laid.control, retry, retry));
+            }
+        }
     }
     if let Some((_, _, scale)) = &grown {
         for x in &mut s.h {

@@ -1,6 +1,5 @@
-//! Local refinement of a fitted pure-quad control mesh (issue 40's
-//! `--max-error` in local passes; issue 39, item 2: each pass starts from
-//! the previous fit instead of a new layout).
+//! Local refinement of a pure-quad control mesh (issue 40's `--max-error`
+//! in local passes instead of a new layout per pass).
 //!
 //! The patches asked for are split 1 → 4 (a vertex at each edge midpoint
 //! and one at the centroid). Their neighbours then carry split edges; a
@@ -9,14 +8,15 @@
 //! refinement, 1 → 3 with a valence-3 centre, Schneiders, "Refining
 //! quadrilateral and hexahedral element meshes", 1996; four: 1 → 4), one
 //! with an odd number has none (a quad with five sides is not a union of
-//! quads). The odd quads are even in number (every quad has four sides, so
-//! a region of quads has an even perimeter) and are paired by shortest
+//! quads). On a closed mesh the odd quads are even in number (each split
+//! edge is a side of two quads, so the split sides sum to an even number)
+//! and are paired by shortest
 //! paths of further split edges across the dual graph, a T-join (Edmonds
 //! and Johnson 1973), found greedily by breadth-first search; a path may
 //! end on M's boundary, where a split edge has one quad. No T-junction is
 //! left, every vertex of the control mesh keeps its id and position and
-//! the quads off the refined patches and their paths are kept as they were,
-//! so the next fit starts from this one. Splitting whole chords instead
+//! the quads off the refined patches and their paths are kept as they were.
+//! Splitting whole chords instead
 //! (no new irregular vertex) was measured first and dropped: on the field
 //! layouts a chord winds around the shape and crosses itself, so one chord
 //! split spot's 33 patches into 116 and the rounds ended at 705 patches.
