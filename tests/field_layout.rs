@@ -350,6 +350,13 @@ fn convert_with_the_field_layout() {
         .as_array()
         .expect("field_layout.rounds in report.json");
     assert!(!rounds.is_empty());
+    // A round refined locally (`quad::field::refine`) hands the next round
+    // its own lattice with the patches split: more of them.
+    for w in rounds.windows(2) {
+        if w[0]["patches_split"].as_u64().is_some() {
+            assert!(w[1]["faces"].as_u64() > w[0]["faces"].as_u64());
+        }
+    }
     let control =
         subdfit::io::read_control_mesh(&out.join("control.obj")).expect("control.obj reads");
     assert!(control.is_all_quads());
@@ -724,5 +731,88 @@ fn two_holes_within_a_lattice_step_are_kept_apart() {
             out.stats.lattice.repaired,
             "h {h}: the repaired lattice fell back"
         );
+    }
+}
+
+/// Twice the area of quad `f` of `k` (its two triangles on the diagonal
+/// v0–v2: exact for a planar quad).
+fn quad_area(k: &ControlMesh, f: subdfit::mesh::FaceId) -> f64 {
+    let p: Vec<DVec3> = k.face_vertices(f).map(|v| k.position(v)).collect();
+    0.5 * ((p[1] - p[0]).cross(p[2] - p[0]).length() + (p[2] - p[0]).cross(p[3] - p[0]).length())
+}
+
+/// The local `--max-error` pass (`quad::field::refine`): splitting two
+/// patches 1 → 4 on a field layout of a sphere (with its irregular
+/// vertices) and on a flat grid with a boundary must keep every vertex of
+/// the mesh at its id and position, every quad without a split edge as it
+/// was, the pure-quad topology (components, boundary loops, Euler
+/// characteristic), and cut the patches asked for into four smaller ones
+/// (exact quarters of a flat square). It must stay local: on the grid a
+/// split patch's odd neighbours (its four sides) pair up through its
+/// corner quads, so at most its 3 × 3 block changes, 9 quads per patch;
+/// on the sphere fewer quads change than are kept. Each quad with two
+/// adjacent split edges (the corner template) adds at most two irregular
+/// vertices (its valence-3 centre, its far corner one edge up); no other
+/// template adds any.
+#[test]
+fn local_split_refines_the_patches_and_keeps_the_rest() {
+    use subdfit::mesh::FaceId;
+    use subdfit::quad::field::refine;
+    let sphere = layout_uniform(&icosphere(4), 0.25).control;
+    for (k, flat) in [(sphere, false), (quad_grid(8), true)] {
+        let n = k.num_faces();
+        let (f, g) = (n / 2 + 3, n / 3 + 1);
+        let mut marked = vec![false; n];
+        (marked[f], marked[g]) = (true, true);
+        let split = refine::split_edges(&k, &marked).unwrap();
+        let s = refine::split(&k, &split).unwrap();
+        assert_eq!(&s.positions()[..k.num_vertices()], k.positions());
+        assert!(s.is_all_quads());
+        assert_eq!(control_topology(&s), control_topology(&k));
+        // Faces are replaced in place, in `k`'s order, by their pieces.
+        let mut at = 0u32;
+        let (mut kept, mut changed, mut corners) = (0, 0, 0);
+        for q in k.faces() {
+            let on: Vec<bool> = k.face_halfedges(q).map(|h| split[h.edge().idx()]).collect();
+            let pieces = match on.iter().filter(|&&x| x).count() {
+                0 => 1,
+                4 => 4,
+                2 if on[0] == on[2] => 2,
+                2 => {
+                    corners += 1;
+                    3
+                }
+                c => panic!("quad {} with {c} split edges", q.0),
+            };
+            if marked[q.idx()] {
+                assert_eq!(pieces, 4);
+            }
+            let area = quad_area(&k, q);
+            for p in at..at + pieces {
+                let a = quad_area(&s, FaceId(p));
+                if pieces == 1 {
+                    let old: Vec<u32> = k.face_vertices(q).map(|v| v.0).collect();
+                    let new: Vec<u32> = s.face_vertices(FaceId(p)).map(|v| v.0).collect();
+                    assert_eq!(old, new);
+                } else if flat && pieces == 4 {
+                    assert!((a - 0.25 * area).abs() < 1e-12 * area);
+                } else {
+                    assert!(a < area, "piece {a} of {area}");
+                }
+            }
+            if pieces == 1 {
+                kept += 1;
+            } else {
+                changed += 1;
+            }
+            at += pieces;
+        }
+        assert_eq!(at as usize, s.num_faces());
+        if flat {
+            assert!(changed <= 18, "{changed} quads changed for 2 patches");
+        } else {
+            assert!(kept > changed, "kept {kept} changed {changed}");
+        }
+        assert!(irregular_vertices(&s) <= irregular_vertices(&k) + 2 * corners);
     }
 }

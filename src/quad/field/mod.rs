@@ -35,6 +35,7 @@ pub mod flow;
 pub mod moves;
 pub mod position;
 pub mod purequad;
+pub mod refine;
 pub mod sizing;
 
 use std::time::Instant;
