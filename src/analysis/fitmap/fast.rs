@@ -375,8 +375,8 @@ impl FastMTest<'_, '_> {
                 let (tris, cum) = (&sc.tris, &sc.tri_cum[..nt]);
                 let acc = cum[nt - 1];
                 let mut sample = |rng: &mut ChaCha8Rng, out: &mut Vec<u32>| {
-                    // `!(acc > 0.0)`: a NaN sum has no area either.
-                    if !(acc > 0.0) {
+                    // A NaN sum has no area either.
+                    if acc.is_nan() || acc <= 0.0 {
                         return false;
                     }
                     out.extend((0..FAST_M_BATCH).map(|_| tris[draw(cum, rng)].1));
@@ -393,7 +393,7 @@ impl FastMTest<'_, '_> {
                     cum.push(acc);
                 }
                 let mut sample = |rng: &mut ChaCha8Rng, out: &mut Vec<u32>| {
-                    if !(acc > 0.0) {
+                    if acc <= 0.0 {
                         return false;
                     }
                     draw_proxy_batch(level, clusters, &cum, rng, out);
