@@ -319,22 +319,53 @@ void EmbreeScene::closest_points(rust::Slice<const float> points_f32,
                        ? float(max_dist) * (1.0f + 4.0f * std::numeric_limits<float>::epsilon()) +
                              radius_slack_
                        : std::numeric_limits<float>::infinity();
+  // The previous query's answer, as a start for the next one: the caller
+  // sends points in spatial order (`in_spatial_order`), so that triangle is
+  // usually near the next point, and its distance bounds the next answer's.
+  // Starting from it (best = it, radius from its distance, as the callback
+  // shrinks the radius after a hit) culls from the first node the boxes a
+  // query from `max_dist` (often infinite) would open before its first
+  // leaf. The answer is the same: the callback keeps the least (distance,
+  // triangle id) over the triangles it sees plus the start, and every
+  // triangle at least as near as the answer is within the radius (the same
+  // conservative radius as the callback's), so it is seen either way.
+  uint32_t prev = kInvalid;
+  auto vtx = [&](uint32_t i) {
+    const double *q = &positions_[3 * size_t(i)];
+    return V3{q[0], q[1], q[2]};
+  };
   for (size_t i = 0; i < n; ++i) {
     out_prim[i] = kInvalid;
     const double *p = &points_f64[3 * i];
     if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
       continue;
+    const V3 pv{p[0], p[1], p[2]};
     RTCPointQuery q;
     q.x = points_f32[3 * i];
     q.y = points_f32[3 * i + 1];
     q.z = points_f32[3 * i + 2];
     q.time = 0.0f;
     q.radius = r0;
+    PointQueryState st{this, pv, max_dist * max_dist, kInvalid};
+    if (prev != kInvalid) {
+      const uint32_t *t = &triangles_[3 * size_t(prev)];
+      const double d2 = point_triangle_dist2(pv, vtx(t[0]), vtx(t[1]), vtx(t[2]));
+      // Strictly inside max_dist, as the callback's own test.
+      if (d2 < st.best_d2) {
+        st.best_d2 = d2;
+        st.best_prim = prev;
+        const float r = float(std::sqrt(d2)) *
+                            (1.0f + 4.0f * std::numeric_limits<float>::epsilon()) +
+                        radius_slack_;
+        q.radius = std::min(q.radius, r);
+      }
+    }
     RTCPointQueryContext ctx;
     rtcInitPointQueryContext(&ctx);
-    PointQueryState st{this, V3{p[0], p[1], p[2]}, max_dist * max_dist, kInvalid};
     rtcPointQuery(scene_, &q, &ctx, point_query_callback, &st);
     out_prim[i] = st.best_prim;
+    if (st.best_prim != kInvalid)
+      prev = st.best_prim;
   }
   check(device_, "rtcPointQuery");
 }

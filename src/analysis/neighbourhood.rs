@@ -228,7 +228,27 @@ pub fn layered_balls(
         while head < out.len() {
             let v = out[head].1 as usize;
             head += 1;
-            for &w in adj.row(v) {
+            // The walk is a chain of scattered reads (a vertex's row, then
+            // its neighbours' marks and positions); asking for the rows of
+            // the vertices a few places down the queue, and for this row's
+            // marks and positions before testing any, lets those misses
+            // overlap. Hints only ([`prefetch`]): the ball is the same.
+            if let Some(&(_, a)) = out.get(head + BFS_PREFETCH_AHEAD) {
+                prefetch(adj.offsets.as_ptr().wrapping_add(a as usize));
+            }
+            if let Some(&(_, a)) = out.get(head + BFS_PREFETCH_AHEAD / 2) {
+                prefetch(
+                    adj.items
+                        .as_ptr()
+                        .wrapping_add(adj.offsets[a as usize] as usize),
+                );
+            }
+            let row = adj.row(v);
+            for &w in row {
+                prefetch(mark.as_ptr().wrapping_add(w as usize));
+                prefetch(positions.as_ptr().wrapping_add(w as usize));
+            }
+            for &w in row {
                 let wi = w as usize;
                 // Visited, or pending: a pending vertex is outside the
                 // current radius (every pending vertex inside it was moved
@@ -249,6 +269,29 @@ pub fn layered_balls(
             }
         }
     }
+}
+
+/// How far down the queue [`layered_balls`] asks for a vertex's adjacency
+/// row (its offsets; the row itself at half this distance): a few vertices,
+/// i.e. a few dozen edges of work, about one memory latency.
+const BFS_PREFETCH_AHEAD: usize = 4;
+
+/// A hint to load the cache line holding `p`: memory-level parallelism for
+/// the Fitmap's scattered reads (ball walks over M, the M-test's samples
+/// and draws), which otherwise wait for one miss after another. It changes
+/// no value (the pointer is never dereferenced, and a prefetch cannot
+/// fault), so results stay bit for bit the same.
+#[inline(always)]
+pub(crate) fn prefetch<T>(p: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: `_mm_prefetch` only hints the cache; it reads nothing the
+    // program sees and cannot fault, whatever the address. SSE is part of
+    // the x86_64 baseline.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p as *const i8);
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
 }
 
 /// A coarse proxy of M used by the fast mode for large radii: vertices are

@@ -85,7 +85,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::cubic::{fit_cubic, Cubic, CubicFit, Frame};
-use super::neighbourhood::{bfs_ball, layered_balls, Adjacency, Csr, ProxyLevel};
+use super::neighbourhood::{bfs_ball, layered_balls, prefetch, Adjacency, Csr, ProxyLevel};
 use super::normals::{triangle_areas, vertex_normals};
 use crate::error::{Error, Result};
 use crate::mesh::TriMesh;
@@ -551,7 +551,34 @@ impl MSamples {
     fn of(&self, t: u32) -> &[DVec3] {
         &self.points[self.offsets[t as usize] as usize..self.offsets[t as usize + 1] as usize]
     }
+
+    /// Asks for the samples of `tris` ahead of their use: first the
+    /// offsets, then the points they name (see [`prefetch`]). The M-test
+    /// visits triangles scattered over M, so each first touch of a
+    /// triangle's samples is a cache miss; issued one after the other by
+    /// the verdict loop they were half of [`triangle_verdicts`]'s time
+    /// (perf, bunny).
+    fn prefetch(&self, tris: &[u32]) {
+        for &t in tris {
+            prefetch(self.offsets.as_ptr().wrapping_add(t as usize));
+        }
+        for &t in tris {
+            let (a, b) = (
+                self.offsets[t as usize] as usize,
+                self.offsets[t as usize + 1] as usize,
+            );
+            if a < b {
+                prefetch(self.points.as_ptr().wrapping_add(a));
+                prefetch(self.points.as_ptr().wrapping_add(b - 1));
+            }
+        }
+    }
 }
+
+/// Triangles per chunk of [`triangle_verdicts`]' first pass: the prefetches
+/// of a chunk are issued before its verdicts, and a chunk's lines (about
+/// three each) stay well inside L1.
+const VERDICT_PREFETCH_CHUNK: usize = 64;
 
 /// The per-triangle verdicts of the M-test for the ball of radius `r`
 /// whose cubic is `cubic` (§3.1.3), for the triangles `tris`; `reached[k]`
@@ -617,20 +644,24 @@ fn triangle_verdicts(
         // were blocked). Most triangles are settled by their first line, so
         // later samples need neither a foot point nor a ray.
         pending.clear();
-        for (k, &t) in tris.iter().enumerate() {
-            let xs = ctx.samples.of(t);
-            // The vertical distance to the graph bounds the distance to it:
-            // within eps the sample cannot be blocked, and the triangle is
-            // reached without a foot point or a ray (the common case: a
-            // cubic fits M to far better than a tenth of an edge).
-            let near = xs.iter().any(|&x| {
-                let q = frame.to_local(x);
-                (q.z - cubic.eval(q.x, q.y)).abs() <= eps
-            });
-            if near {
-                reached[k] = true;
-            } else if !xs.is_empty() {
-                pending.push((k as u32, 0u32));
+        for (chunk, part) in tris.chunks(VERDICT_PREFETCH_CHUNK).enumerate() {
+            ctx.samples.prefetch(part);
+            let base = chunk * VERDICT_PREFETCH_CHUNK;
+            for (k, &t) in part.iter().enumerate().map(|(j, t)| (base + j, t)) {
+                let xs = ctx.samples.of(t);
+                // The vertical distance to the graph bounds the distance to it:
+                // within eps the sample cannot be blocked, and the triangle is
+                // reached without a foot point or a ray (the common case: a
+                // cubic fits M to far better than a tenth of an edge).
+                let near = xs.iter().any(|&x| {
+                    let q = frame.to_local(x);
+                    (q.z - cubic.eval(q.x, q.y)).abs() <= eps
+                });
+                if near {
+                    reached[k] = true;
+                } else if !xs.is_empty() {
+                    pending.push((k as u32, 0u32));
+                }
             }
         }
         let mut lines = 0u64;

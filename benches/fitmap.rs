@@ -1,0 +1,52 @@
+//! The layout's two heaviest stages on the Stanford bunny (69,451
+//! triangles), per core: the default (fast) Fitmap (Fitmaps §3.1) and the
+//! greedy simplification loop (§3.3–3.4) at its default options, each in a
+//! one-thread rayon pool, so the figures are CPU seconds of one core and do
+//! not depend on what else the machine runs (the end-to-end wall times in
+//! docs/status.md, "Scale", do).
+//!
+//! `cargo bench --bench fitmap`; skips with a message if the data is absent.
+
+#[path = "../tests/common/mod.rs"]
+mod common;
+
+use std::time::Duration;
+
+use common::*;
+use criterion::Criterion;
+use subdfit::analysis::{compute_fitmap, FitmapOptions};
+use subdfit::quad::simplify::{simplify, SimplifyOptions};
+use subdfit::raycast::{make_raycaster, RayBackend};
+
+fn main() {
+    let Some(mesh) = load_data_mesh("bunny.ply") else {
+        return;
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let caster = pool
+        .install(|| make_raycaster(RayBackend::Embree, &mesh))
+        .unwrap();
+    let opts = FitmapOptions::default();
+    let fitmap = pool
+        .install(|| compute_fitmap(&mesh, caster.as_ref(), &opts))
+        .unwrap();
+
+    let mut c = Criterion::default()
+        .warm_up_time(Duration::from_millis(100))
+        .measurement_time(Duration::from_secs(20))
+        .sample_size(10)
+        .configure_from_args();
+    let mut g = c.benchmark_group("bunny");
+    g.bench_function("fitmap_fast_1thread", |b| {
+        b.iter(|| pool.install(|| compute_fitmap(&mesh, caster.as_ref(), &opts).unwrap()))
+    });
+    let so = SimplifyOptions::default();
+    g.bench_function("simplify_1thread", |b| {
+        b.iter(|| pool.install(|| simplify(&mesh, &fitmap, caster.as_ref(), &so).unwrap()))
+    });
+    g.finish();
+    c.final_summary();
+}
