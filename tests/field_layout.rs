@@ -443,7 +443,10 @@ fn move_fit_guard_sees_the_limit_leave_m() {
     let probe = FitProbe::new(&m, 0.125, 1e-6, 1);
     let k = quad_grid(8);
     let v = subdfit::mesh::VertexId(4 * 9 + 4);
-    let before = probe.measure(&k, &[v], &[]).unwrap().expect("a manifold region");
+    let before = probe
+        .measure(&k, &[v], &[])
+        .unwrap()
+        .expect("a manifold region");
     assert!(before.samples.len() > 50, "{}", before.samples.len());
     assert!(before.samples.iter().all(|s| s.1 < 1e-20));
     let delta = 0.02;
@@ -456,7 +459,10 @@ fn move_fit_guard_sees_the_limit_leave_m() {
     assert_eq!(after.ids(), before.ids());
     let top = after.samples.iter().map(|s| s.1.sqrt()).fold(0.0, f64::max);
     let peak = 4.0 / 9.0 * delta;
-    assert!(top <= peak * (1.0 + 1e-9) && top >= 0.9 * peak, "{top} vs {peak}");
+    assert!(
+        top <= peak * (1.0 + 1e-9) && top >= 0.9 * peak,
+        "{top} vs {peak}"
+    );
     assert!(!probe.holds(&before, &after, FIT_RISE));
     assert!(probe.holds(&before, &before, FIT_RISE));
     assert!(probe.holds(&after, &after, FIT_RISE));

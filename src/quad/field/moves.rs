@@ -25,8 +25,8 @@ use std::collections::HashMap;
 
 use crate::error::Result;
 use crate::mesh::{ControlMesh, FaceId, TriMesh, VertexId};
-use crate::DVec3;
 use crate::quad::ops::{Rotation, ValenceTargets};
+use crate::DVec3;
 
 /// Rotations in one move at most.
 pub const MAX_STEPS: usize = 4;
@@ -460,8 +460,7 @@ impl<'a> FitProbe<'a> {
                     if let Some(v) = self.grid.get(&[x, y, z]) {
                         out.extend(v.iter().copied().filter(|&i| {
                             let p = self.points[i as usize];
-                            i % self.stride == 0 &&
-                            p.cmpge(lo).all() && p.cmple(hi).all()
+                            i % self.stride == 0 && p.cmpge(lo).all() && p.cmple(hi).all()
                         }));
                     }
                 }
@@ -481,7 +480,11 @@ impl<'a> FitProbe<'a> {
     /// outer ring whose faces there form two fans).
     fn tessellate(k: &ControlMesh, changed: &[VertexId]) -> Result<Option<Tess>> {
         let faces_at = |vs: &[VertexId]| -> Vec<FaceId> {
-            let mut out: Vec<FaceId> = vs.iter().flat_map(|&v| k.vertex_faces(v)).collect();
+            let mut out: Vec<FaceId> = vs
+                .iter()
+                .filter(|&&v| !k.is_vertex_deleted(v))
+                .flat_map(|&v| k.vertex_faces(v))
+                .collect();
             out.sort_unstable();
             out.dedup();
             out
