@@ -466,6 +466,46 @@ fn cleanup_removes_planted_valence_3_5_pairs() {
     assert_eq!(stats.energy_after, 0);
 }
 
+/// The moves' fit guard reads M → limit: M a plane, the control grid on
+/// it, so every sample around an interior control vertex lies on the
+/// limit (Σ d² at round-off). Lifting that vertex by δ lifts its limit
+/// point by 4/9 δ (the valence-4 limit mask's own weight, (n²)/(n(n+5))
+/// at n = 4: 16/36) and the sample under it is off the limit by about that
+/// (the bump is wide and flat: within 10 %); no sample is further. The
+/// guard must refuse the lifted state against the flat one at its factor
+/// and accept a state against itself.
+#[test]
+fn move_fit_guard_sees_the_limit_leave_m() {
+    use subdfit::quad::field::moves::{FitProbe, FIT_RISE};
+    let m = grid_mesh(41, 41, false, false, |u, v| DVec3::new(u, v, 0.0));
+    let probe = FitProbe::new(&m, 0.125, 1e-6, 1);
+    let k = quad_grid(8);
+    let v = subdfit::mesh::VertexId(4 * 9 + 4);
+    let before = probe
+        .measure(&k, &[v], &[])
+        .unwrap()
+        .expect("a manifold region");
+    assert!(before.samples.len() > 50, "{}", before.samples.len());
+    assert!(before.samples.iter().all(|s| s.1 < 1e-20));
+    let delta = 0.02;
+    let mut lifted = k.clone();
+    lifted.positions_mut()[v.idx()].z += delta;
+    let after = probe
+        .measure(&lifted, &[v], &before.ids())
+        .unwrap()
+        .unwrap();
+    assert_eq!(after.ids(), before.ids());
+    let top = after.samples.iter().map(|s| s.1.sqrt()).fold(0.0, f64::max);
+    let peak = 4.0 / 9.0 * delta;
+    assert!(
+        top <= peak * (1.0 + 1e-9) && top >= 0.9 * peak,
+        "{top} vs {peak}"
+    );
+    assert!(!probe.holds(&before, &after, FIT_RISE));
+    assert!(probe.holds(&before, &before, FIT_RISE));
+    assert!(probe.holds(&after, &after, FIT_RISE));
+}
+
 /// Two 3–5 pairs planted by a rotation and then pulled apart by an
 /// energy-neutral rotation beside one of them (E stays 4): no single
 /// operation lowers E by itself there, a sequence of rotations does

@@ -23,8 +23,10 @@
 
 use std::collections::HashMap;
 
-use crate::mesh::{ControlMesh, VertexId};
+use crate::error::Result;
+use crate::mesh::{ControlMesh, FaceId, TriMesh, VertexId};
 use crate::quad::ops::{Rotation, ValenceTargets};
+use crate::DVec3;
 
 /// Rotations in one move at most.
 pub const MAX_STEPS: usize = 4;
@@ -184,15 +186,19 @@ impl Local {
     }
 
     /// The rotations worth trying now: edges of faces around a currently
-    /// irregular complete vertex, each undirected edge once (from its face
-    /// with `u < w`), both directions, in face and corner order.
-    fn options(&self) -> Vec<(usize, usize, [u32; 6], Rotation, i64)> {
+    /// irregular complete vertex that also have a vertex of `focus` (the
+    /// seed for the first step, the last step's hexagon after it: a
+    /// dislocation glides through the quads next to it, so a move is one
+    /// connected chain), each undirected edge once (from its face with
+    /// `u < w`), both directions, in face and corner order.
+    fn options(&self, focus: &[u32]) -> Vec<(usize, usize, [u32; 6], Rotation, i64)> {
         let mut out = Vec::new();
         for i in 0..self.faces.len() {
             let f = self.faces[i];
-            if !f
-                .iter()
-                .any(|&v| self.complete[v as usize] && self.irregular(v))
+            if !f.iter().any(|v| focus.contains(v))
+                || !f
+                    .iter()
+                    .any(|&v| self.complete[v as usize] && self.irregular(v))
             {
                 continue;
             }
@@ -213,19 +219,21 @@ impl Local {
         out
     }
 
-    /// Depth-first search; `path` holds the steps so far, `sum` their gain.
+    /// Depth-first search; `path` holds the steps so far, `sum` their gain,
+    /// `focus` where the next step must touch ([`Self::options`]).
     fn search(
         &mut self,
         path: &mut Vec<Step>,
         sum: i64,
         last: Option<[u32; 2]>,
+        focus: &[u32],
         best: &mut Option<Move>,
     ) {
         if self.expanded >= BUDGET || path.len() >= MAX_STEPS {
             return;
         }
         self.expanded += 1;
-        for (i, j, x, dir, g) in self.options() {
+        for (i, j, x, dir, g) in self.options(focus) {
             // Never rotate the edge the last step made (that undoes it).
             let e = [x[0].min(x[3]), x[0].max(x[3])];
             if last == Some(e) {
@@ -254,7 +262,7 @@ impl Local {
             let old = [self.faces[i], self.faces[j]];
             self.rotate(i, j, x, dir, old, 1);
             let (_, [a, b]) = Self::rotated(x, dir);
-            self.search(path, total, Some([a.min(b), a.max(b)]), best);
+            self.search(path, total, Some([a.min(b), a.max(b)]), &x, best);
             self.rotate(i, j, x, dir, old, -1);
             path.pop();
             if self.expanded >= BUDGET {
@@ -327,6 +335,292 @@ pub fn plan(k: &ControlMesh, vt: &ValenceTargets, seed: VertexId) -> Option<Move
         expanded: 0,
     };
     let mut best = None;
-    l.search(&mut Vec::new(), 0, None, &mut best);
+    l.search(&mut Vec::new(), 0, None, &[0], &mut best);
     best
+}
+
+// ---- the fit guard -------------------------------------------------------------
+
+/// How much a move may raise Σ d² over its region's samples of M (d: a
+/// sample's distance to the limit surface, [`FitProbe::measure`]): 2 %.
+/// The moves were kept under the fitmap tests alone before, and RMS L of
+/// the fitted result rose by up to 19 % (cheburashka): the M → limit
+/// distance, the one the S-/M-fitmap ratios do not see, is where a sheared
+/// layout loses the surface.
+pub const FIT_RISE: f64 = 1.02;
+
+/// Refined levels of the limit surface the guard measures against: 4 × 4
+/// cells per patch, exact limit points at their corners. Its chord error
+/// (≈ (h/4)²/8R for patch size h and radius of curvature R) is far below
+/// the fit's RMS distance on the shared meshes, and the same on both sides
+/// of the comparison.
+const GUARD_LEVELS: u32 = 2;
+
+/// M's vertices bucketed in a uniform grid: the
+/// samples a move's guard reads around its region.
+pub struct FitProbe<'a> {
+    points: &'a [DVec3],
+    cell: f64,
+    grid: HashMap<[i64; 3], Vec<u32>>,
+    /// A distance too small to count (the floor of the test: a region
+    /// M already fits to round-off must not block on noise).
+    floor: f64,
+    /// Every `stride`-th vertex of M is a sample (M′ has tens of vertices
+    /// per patch; a few per cell of the guard's tessellation suffice).
+    stride: u32,
+}
+
+/// What [`FitProbe::measure`] found: per sample (M's vertex index) its
+/// squared distance to the limit over the region, and whether its closest
+/// point lies on a patch the move changes.
+pub struct FitMeasure {
+    pub samples: Vec<(u32, f64, bool)>,
+}
+
+/// The limit surface over a set of patches as triangles (patch `i`'s are
+/// `16 · 2` consecutive ones), with a bounding sphere per patch.
+struct Tess {
+    tris: Vec<[DVec3; 3]>,
+    /// Per patch: centre, radius, and whether it changes with the move.
+    patches: Vec<(DVec3, f64, bool)>,
+}
+
+impl Tess {
+    const PER_PATCH: usize = 2 << (2 * GUARD_LEVELS);
+
+    /// The closest point's squared distance and its patch: the patch with
+    /// the nearest centre first, then every patch whose bounding sphere
+    /// comes closer than the best so far, in patch order.
+    fn closest(&self, p: DVec3) -> (f64, usize) {
+        let lb: Vec<f64> = self
+            .patches
+            .iter()
+            .map(|&(c, r, _)| ((p - c).length() - r).max(0.0))
+            .collect();
+        let first = (0..self.patches.len())
+            .min_by(|&a, &b| {
+                let da = (p - self.patches[a].0).length_squared();
+                let db = (p - self.patches[b].0).length_squared();
+                da.total_cmp(&db).then(a.cmp(&b))
+            })
+            .unwrap_or(0);
+        let mut best = (f64::INFINITY, usize::MAX);
+        let visit = |i: usize, best: &mut (f64, usize)| {
+            for t in &self.tris[i * Self::PER_PATCH..(i + 1) * Self::PER_PATCH] {
+                let (q, _, _) = crate::raycast::closest_point_triangle(p, t[0], t[1], t[2]);
+                let d = (q - p).length_squared();
+                if d < best.0 {
+                    *best = (d, i);
+                }
+            }
+        };
+        if self.patches.is_empty() {
+            return best;
+        }
+        visit(first, &mut best);
+        for (i, &l) in lb.iter().enumerate() {
+            if i != first && l * l < best.0 {
+                visit(i, &mut best);
+            }
+        }
+        best
+    }
+}
+
+impl<'a> FitProbe<'a> {
+    /// `cell`: the grid's cell size (about a patch); `floor`, `stride`: see
+    /// the fields.
+    pub fn new(mesh: &'a TriMesh, cell: f64, floor: f64, stride: usize) -> Self {
+        let cell = cell.max(1e-12);
+        let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+        for (i, p) in mesh.positions.iter().enumerate() {
+            grid.entry(Self::key(*p, cell)).or_default().push(i as u32);
+        }
+        FitProbe {
+            points: &mesh.positions,
+            cell,
+            grid,
+            floor,
+            stride: stride.clamp(1, u32::MAX as usize) as u32,
+        }
+    }
+
+    fn key(p: DVec3, cell: f64) -> [i64; 3] {
+        let q = p / cell;
+        [q.x.floor() as i64, q.y.floor() as i64, q.z.floor() as i64]
+    }
+
+    /// M's vertices in the box `[lo, hi]`, ascending.
+    fn candidates(&self, lo: DVec3, hi: DVec3) -> Vec<u32> {
+        let (a, b) = (Self::key(lo, self.cell), Self::key(hi, self.cell));
+        let mut out = Vec::new();
+        for x in a[0]..=b[0] {
+            for y in a[1]..=b[1] {
+                for z in a[2]..=b[2] {
+                    if let Some(v) = self.grid.get(&[x, y, z]) {
+                        out.extend(v.iter().copied().filter(|&i| {
+                            let p = self.points[i as usize];
+                            i % self.stride == 0 && p.cmpge(lo).all() && p.cmple(hi).all()
+                        }));
+                    }
+                }
+            }
+        }
+        out.sort_unstable();
+        out
+    }
+
+    /// The limit over the faces with a corner in `changed` (the patches a
+    /// change of those control points moves most; the refit's 1-ring is in
+    /// `changed`, so its own patches are) and one ring of faces more (so a
+    /// sample's closest point is found where it is),
+    /// by [`GUARD_LEVELS`] of uniform Catmull-Clark refinement of that
+    /// region and its own 1-ring, every refined vertex at its limit.
+    /// `None` when the region is not a manifold piece (a vertex of the
+    /// outer ring whose faces there form two fans).
+    fn tessellate(k: &ControlMesh, changed: &[VertexId]) -> Result<Option<Tess>> {
+        let faces_at = |vs: &[VertexId]| -> Vec<FaceId> {
+            let mut out: Vec<FaceId> = vs
+                .iter()
+                .filter(|&&v| !k.is_vertex_deleted(v))
+                .flat_map(|&v| k.vertex_faces(v))
+                .collect();
+            out.sort_unstable();
+            out.dedup();
+            out
+        };
+        let inner = faces_at(changed);
+        let corners: Vec<VertexId> = {
+            let mut c: Vec<VertexId> = inner.iter().flat_map(|&f| k.face_vertices(f)).collect();
+            c.sort_unstable();
+            c.dedup();
+            c
+        };
+        let region = faces_at(&corners);
+        let mut ring_corners: Vec<VertexId> =
+            region.iter().flat_map(|&f| k.face_vertices(f)).collect();
+        ring_corners.sort_unstable();
+        ring_corners.dedup();
+        let mut all = region.clone();
+        all.extend(
+            faces_at(&ring_corners)
+                .into_iter()
+                .filter(|f| region.binary_search(f).is_err()),
+        );
+        let mut local: HashMap<VertexId, u32> = HashMap::new();
+        let mut pos = Vec::new();
+        let polys: Vec<[u32; 4]> = all
+            .iter()
+            .map(|&f| {
+                crate::quad::ops::quad(k, f).map(|v| {
+                    *local.entry(v).or_insert_with(|| {
+                        pos.push(k.position(v));
+                        pos.len() as u32 - 1
+                    })
+                })
+            })
+            .collect();
+        let Ok(sub) = ControlMesh::from_polygons(pos, &polys) else {
+            return Ok(None);
+        };
+        let r = crate::subdiv::refine::refine_uniform(&sub, GUARD_LEVELS)?;
+        let scheme = crate::mesh::SchemeOptions::default();
+        let mut lim: Vec<Option<DVec3>> = vec![None; r.num_vertices()];
+        let mut limit = |v: VertexId| -> DVec3 {
+            *lim[v.idx()].get_or_insert_with(|| {
+                crate::subdiv::catmark::vertex_limit_mask(&r, v, &scheme)
+                    .into_iter()
+                    .map(|(u, w)| w * r.position(u))
+                    .sum()
+            })
+        };
+        let per = 1usize << (2 * GUARD_LEVELS);
+        let mut tess = Tess {
+            tris: Vec::with_capacity(region.len() * Tess::PER_PATCH),
+            patches: Vec::with_capacity(region.len()),
+        };
+        for (p, f) in region.iter().enumerate() {
+            let start = tess.tris.len();
+            for c in p * per..(p + 1) * per {
+                let q: Vec<DVec3> = r.face_vertices(FaceId(c as u32)).map(&mut limit).collect();
+                tess.tris.push([q[0], q[1], q[2]]);
+                tess.tris.push([q[0], q[2], q[3]]);
+            }
+            let pts = tess.tris[start..].iter().flatten();
+            let n = (2 * 3 * per) as f64;
+            let ctr = pts.clone().sum::<DVec3>() / n;
+            let rad = pts.map(|x| (*x - ctr).length()).fold(0.0, f64::max);
+            tess.patches
+                .push((ctr, rad, inner.binary_search(f).is_ok()));
+        }
+        Ok(Some(tess))
+    }
+
+    /// Squared distances to the limit over the region of `changed` (the
+    /// control vertices a move rotated around or refitted): of `extra`
+    /// (M's vertex indices, ascending) and of every sample of M whose
+    /// closest point on that region lies on a patch the move changes.
+    /// (No test of the normals: the samples the limit misses, on both
+    /// sides of a thin part it cuts through, are the ones that count.)
+    /// `None`: see [`Self::tessellate`].
+    pub fn measure(
+        &self,
+        k: &ControlMesh,
+        changed: &[VertexId],
+        extra: &[u32],
+    ) -> Result<Option<FitMeasure>> {
+        let Some(tess) = Self::tessellate(k, changed)? else {
+            return Ok(None);
+        };
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        let mut reach = 0.0f64;
+        for &(c, r, inner) in &tess.patches {
+            if inner {
+                lo = lo.min(c - DVec3::splat(r));
+                hi = hi.max(c + DVec3::splat(r));
+                reach = reach.max(r);
+            }
+        }
+        let mut cand = self.candidates(lo - DVec3::splat(reach), hi + DVec3::splat(reach));
+        cand.extend_from_slice(extra);
+        cand.sort_unstable();
+        cand.dedup();
+        let mut samples = Vec::new();
+        for i in cand {
+            let (d2, patch) = tess.closest(self.points[i as usize]);
+            let inner = patch != usize::MAX && tess.patches[patch].2;
+            if inner || extra.binary_search(&i).is_ok() {
+                samples.push((i, d2, inner));
+            }
+        }
+        Ok(Some(FitMeasure { samples }))
+    }
+
+    /// Whether the fit after a move (`after`) is within `rise` of the one
+    /// before (`before`): Σ d² over the samples both measured (the caller
+    /// passes each state's samples to the other's [`Self::measure`] as
+    /// `extra`), plus the floor per sample.
+    pub fn holds(&self, before: &FitMeasure, after: &FitMeasure, rise: f64) -> bool {
+        let (mut s0, mut s1, mut n) = (0.0, 0.0, 0.0);
+        for &(i, d0, _) in &before.samples {
+            if let Ok(j) = after.samples.binary_search_by_key(&i, |s| s.0) {
+                s0 += d0;
+                s1 += after.samples[j].1;
+                n += 1.0;
+            }
+        }
+        // The largest distance too: M → limit RMS L is carried by the few
+        // places the limit misses (a thin part cut through), and there a
+        // move must not make it worse either.
+        let top = |m: &FitMeasure| m.samples.iter().map(|s| s.1).fold(0.0, f64::max);
+        let f2 = self.floor * self.floor;
+        s1 <= rise * s0 + n * f2 && top(after) <= rise * top(before) + f2
+    }
+}
+
+impl FitMeasure {
+    /// The sample indices, ascending.
+    pub fn ids(&self) -> Vec<u32> {
+        self.samples.iter().map(|s| s.0).collect()
+    }
 }
