@@ -24,7 +24,7 @@
 //!    (Catmull-Clark). (Against Instant Meshes at its own counts:
 //!    docs/status.md, "Measurements behind the code".)
 //!    Where the repaired lattice misses M's topology, the lattice step is
-//!    halved locally and the fields solved again ([`local`]).
+//!    lowered locally and the fields solved again ([`local`]).
 //! 5. [`cleanup`]: the greedy layout's limit-aware operators (diagonal
 //!    collapse, edge rotation, doublet removal, each with its local fit)
 //!    with a valence term, and a face target's last few collapses.
