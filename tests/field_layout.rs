@@ -856,3 +856,103 @@ fn local_split_refines_the_patches_and_keeps_the_rest() {
         assert!(irregular_vertices(&s) <= irregular_vertices(&k) + 2 * corners);
     }
 }
+
+/// The local refinement's sizing (`src/quad/field/local.rs`, `refine`): on
+/// a plate at a uniform step 0.1, one seed; every vertex within one step
+/// of it along M's edges gets 0.7 × the step, the change spreads out
+/// graded at the sizing's slope γ (so a vertex farther than 0.1 + 0.03 /
+/// γ from the seed, in straight line, keeps its step: graph distances are
+/// never shorter), the result stays graded and the count returned is the
+/// vertices lowered.
+#[test]
+fn local_refinement_lowers_the_step_near_the_seed_only() {
+    use subdfit::quad::field::local::{refine, LOCAL_FACTOR};
+    let m = plate_with_two_holes(0.08);
+    let s = Surface::new(&m).unwrap();
+    let n = m.positions.len();
+    let gamma = 0.25;
+    let seed = (0..n)
+        .min_by(|&a, &b| {
+            let d = |v: usize| (m.positions[v] - DVec3::new(0.6, 0.3, 0.0)).length();
+            d(a).total_cmp(&d(b))
+        })
+        .unwrap();
+    let mut h = vec![0.1; n];
+    let lowered = refine(&s, &mut h, &[seed as u32], gamma);
+    assert!((h[seed] - LOCAL_FACTOR * 0.1).abs() < 1e-12);
+    let reach = 0.1 + (1.0 - LOCAL_FACTOR) * 0.1 / gamma;
+    for v in 0..n {
+        let d = (m.positions[v] - m.positions[seed]).length();
+        if d > reach + 1e-9 {
+            assert_eq!(h[v], 0.1, "vertex {v} at {d} lowered");
+        }
+        assert!(h[v] >= LOCAL_FACTOR * 0.1 - 1e-12);
+        for &w in s.neighbours(v) {
+            let e = (m.positions[v] - m.positions[w as usize]).length();
+            assert!(
+                h[v] <= h[w as usize] + gamma * e + 1e-12,
+                "not graded at {v}"
+            );
+        }
+    }
+    assert_eq!(lowered, h.iter().filter(|&&x| x < 0.1).count());
+    assert!(lowered > 0 && 4 * lowered < n, "{lowered} of {n}");
+}
+
+/// Where a lattice misses M's topology (`src/quad/field/local.rs`,
+/// `failure_seeds`): a quad grid of step 0.1 over the two-hole plate with
+/// the left hole's cells removed and the right hole's kept (filled, one
+/// loop missing). The seeds must hold every boundary vertex of M's right
+/// hole and stay away from the outer boundary (nothing is wrong there).
+#[test]
+fn failure_seeds_find_a_filled_hole() {
+    use subdfit::quad::field::local::failure_seeds;
+    let m = plate_with_two_holes(0.08);
+    let s = Surface::new(&m).unwrap();
+    let caster = BvhCaster::new(&m).unwrap();
+    let (nx, ny) = (20usize, 12usize);
+    let id = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
+    let mut pos = Vec::new();
+    for j in 0..=ny {
+        for i in 0..=nx {
+            pos.push(DVec3::new(
+                -1.0 + 0.1 * i as f64,
+                -0.6 + 0.1 * j as f64,
+                0.0,
+            ));
+        }
+    }
+    let mut quads = Vec::new();
+    for j in 0..ny {
+        for i in 0..nx {
+            let c = DVec3::new(-0.95 + 0.1 * i as f64, -0.55 + 0.1 * j as f64, 0.0);
+            // The left hole spans x in [-0.34, -0.04], |y| < 0.15.
+            if (-0.4..0.0).contains(&c.x) && c.y.abs() < 0.2 {
+                continue;
+            }
+            quads.push([id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]);
+        }
+    }
+    let scale = vec![0.1; m.positions.len()];
+    let seeds = failure_seeds(&s, &caster, &pos, &quads, &scale).unwrap();
+    let right_hole: Vec<u32> = s
+        .boundary_edges
+        .iter()
+        .map(|e| e[0])
+        .filter(|&v| {
+            let p = m.positions[v as usize];
+            p.x > 0.0 && p.x < 0.5 && p.y.abs() < 0.2
+        })
+        .collect();
+    assert!(!right_hole.is_empty());
+    for v in &right_hole {
+        assert!(seeds.contains(v), "boundary vertex {v} of the filled hole");
+    }
+    for &v in &seeds {
+        let p = m.positions[v as usize];
+        assert!(
+            p.x.abs() < 0.6 && p.y.abs() < 0.4,
+            "seed {v} at {p:?}, away from the holes"
+        );
+    }
+}

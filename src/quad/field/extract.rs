@@ -52,14 +52,48 @@ pub fn extract(
     at_size: bool,
 ) -> Result<(ControlMesh, usize, LatticeInfo)> {
     match extract_once(s, mesh, dirs, o, scale, at_size, true) {
-        Err(e @ Error::Topology { .. }) => {
+        Err(Failure {
+            error: e @ Error::Topology { .. },
+            ..
+        }) => {
             if std::env::var("FIELD_DEBUG").is_ok() {
                 eprintln!("repaired lattice rejected: {e}");
             }
-            extract_once(s, mesh, dirs, o, scale, at_size, false)
+            extract_once(s, mesh, dirs, o, scale, at_size, false).map_err(|f| f.error)
         }
-        r => r,
+        r => r.map_err(|f| f.error),
     }
+}
+
+/// A failed extraction: the error, and for a lattice at the target size
+/// that missed M's topology the vertices of M where it went wrong
+/// ([`super::local::failure_seeds`]; empty when none were found).
+pub struct Failure {
+    pub error: Error,
+    pub seeds: Vec<u32>,
+}
+
+impl From<Error> for Failure {
+    fn from(error: Error) -> Self {
+        Failure {
+            error,
+            seeds: Vec::new(),
+        }
+    }
+}
+
+/// The lattice at the target size, flow-repaired (`repair`) or the
+/// position field's own offsets, with the seeds of a topology failure
+/// ([`super::local`]).
+pub fn extract_at_size(
+    s: &Surface,
+    mesh: &TriMesh,
+    dirs: &[DVec3],
+    o: &[DVec3],
+    scale: &[f64],
+    repair: bool,
+) -> std::result::Result<(ControlMesh, usize, LatticeInfo), Failure> {
+    extract_once(s, mesh, dirs, o, scale, true, repair)
 }
 
 /// How the extracted lattice was made.
@@ -73,6 +107,13 @@ pub struct LatticeInfo {
     /// Control vertices where separate fans of quads met, split into one
     /// vertex per fan ([`split_pinches`]).
     pub pinches_split: usize,
+    /// Rounds of local refinement the kept repaired lattice needed (0:
+    /// none, the lattice at the first sizes kept M's topology), and the
+    /// vertices of M whose lattice step they lowered ([`super::local`]).
+    #[serde(default)]
+    pub local_rounds: usize,
+    #[serde(default)]
+    pub local_vertices: usize,
 }
 
 /// [`extract`] with or without the flow's repair.
@@ -84,7 +125,7 @@ fn extract_once(
     scale: &[f64],
     at_size: bool,
     repair: bool,
-) -> Result<(ControlMesh, usize, LatticeInfo)> {
+) -> std::result::Result<(ControlMesh, usize, LatticeInfo), Failure> {
     let (mut g, flips) = lattice_graph(s, dirs, o, scale, repair);
     let faces = clean_faces(&mut g);
     let non_quads = faces.iter().filter(|f| f.len() != 4).count();
@@ -104,6 +145,7 @@ fn extract_once(
         repaired: repair,
         flips,
         pinches_split,
+        ..LatticeInfo::default()
     };
     let caster = BvhCaster::new(mesh)?;
     let project = |positions: &[DVec3]| -> Result<Vec<DVec3>> {
@@ -120,27 +162,47 @@ fn extract_once(
             positions = project(&relax(&positions, &quads))?;
         }
     }
-    let control = ControlMesh::from_polygons(positions, &quads).map_err(|e| Error::Topology {
-        element: "field layout".into(),
-        msg: format!("the extracted quads are not a manifold mesh ({e})"),
-    })?;
+    // Where the kept lattice went wrong, for the local refinement (only
+    // the repaired lattice at the target size is refined, [`super::local`]).
+    let seeds = |positions: &[DVec3]| -> Vec<u32> {
+        if at_size && repair {
+            super::local::failure_seeds(s, &caster, positions, &quads, scale).unwrap_or_default()
+        } else {
+            Vec::new()
+        }
+    };
+    let control = match ControlMesh::from_polygons(positions.clone(), &quads) {
+        Ok(c) => c,
+        Err(e) => {
+            return Err(Failure {
+                error: Error::Topology {
+                    element: "field layout".into(),
+                    msg: format!("the extracted quads are not a manifold mesh ({e})"),
+                },
+                seeds: seeds(&positions),
+            })
+        }
+    };
     let got = control_topology(&control);
     if got != s.topology && std::env::var("FIELD_DEBUG").is_ok() {
         eprintln!("pinched vertices split: {pinches_split}");
     }
     if got != s.topology {
-        return Err(Error::Topology {
-            element: "field layout".into(),
-            msg: format!(
-                "the extracted mesh has {} components, {} boundary loops, Euler characteristic {}; \
-                 M has {}, {}, {}",
-                got.components,
-                got.boundary_loops,
-                got.euler,
-                s.topology.components,
-                s.topology.boundary_loops,
-                s.topology.euler
-            ),
+        return Err(Failure {
+            error: Error::Topology {
+                element: "field layout".into(),
+                msg: format!(
+                    "the extracted mesh has {} components, {} boundary loops, Euler characteristic {}; \
+                     M has {}, {}, {}",
+                    got.components,
+                    got.boundary_loops,
+                    got.euler,
+                    s.topology.components,
+                    s.topology.boundary_loops,
+                    s.topology.euler
+                ),
+            },
+            seeds: seeds(&positions),
         });
     }
     Ok((control, non_quads, info))

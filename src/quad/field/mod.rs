@@ -23,6 +23,8 @@
 //!    the fallback solves at twice the size and splits every face once
 //!    (Catmull-Clark). (Against Instant Meshes at its own counts:
 //!    docs/status.md, "Measurements behind the code".)
+//!    Where the repaired lattice misses M's topology, the lattice step is
+//!    lowered locally and the fields solved again ([`local`]).
 //! 5. [`cleanup`]: the greedy layout's limit-aware operators (diagonal
 //!    collapse, edge rotation, doublet removal, each with its local fit)
 //!    with a valence term, and a face target's last few collapses.
@@ -32,6 +34,7 @@ pub mod cross;
 pub mod extract;
 pub mod flip;
 pub mod flow;
+pub mod local;
 pub mod moves;
 pub mod position;
 pub mod purequad;
@@ -425,7 +428,21 @@ fn layout_sized(
             let lattice = position::position_field(surf, dirs, &scale, opts.position_sweeps)?;
             stats.seconds_position += t.elapsed().as_secs_f64();
             let t = Instant::now();
-            let extracted = extract::extract(surf, mesh, dirs, &lattice, &scale, at_size);
+            // At the target size a repaired lattice that misses M's
+            // topology is refined locally first ([`local`]).
+            let extracted = if at_size {
+                local::extract_refining(
+                    surf,
+                    mesh,
+                    dirs,
+                    &lattice,
+                    &scale,
+                    opts.gradation,
+                    opts.position_sweeps,
+                )
+            } else {
+                extract::extract(surf, mesh, dirs, &lattice, &scale, at_size)
+            };
             stats.seconds_extract += t.elapsed().as_secs_f64();
             match extracted {
                 Ok((control, raw_non_quads, lattice)) => {
