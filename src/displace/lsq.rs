@@ -281,7 +281,7 @@ pub fn refine_offsets_on(
     // halving (each had rebuilt it from the host tessellation's edges,
     // ~12 % of the stage's CPU on bunny).
     let pattern = match host {
-        Some(_) => Some(host_pattern(disp)?),
+        Some(h) => Some(host_pattern(disp, h)?),
         None => None,
     };
     while round <= opts.rounds {
@@ -503,7 +503,15 @@ struct RoundAt<'a> {
 /// sample instead of up to 28 per host edge. (The sample grid's own
 /// triangles are not: a border cell of a coarse tile is a fan over the
 /// finer neighbour's samples, which misses one corner pair.)
-fn host_pattern(disp: &Displacement) -> Result<NormalEquations> {
+///
+/// With the B-spline reconstruction a host vertex reads the 4 × 4 knots
+/// around its knot cell, through the linear phantom and the refined
+/// borders of [`super::BsplineTiles`]: the pattern is every pair among
+/// the samples one knot cell reads ([`bspline_pattern`]).
+fn host_pattern(disp: &Displacement, host: &HostSurface) -> Result<NormalEquations> {
+    if disp.reconstruction == super::Reconstruction::Bspline {
+        return bspline_pattern(disp, host);
+    }
     let g = &disp.grid;
     let mut edges: Vec<[u32; 2]> = Vec::new();
     for f in 0..g.num_patches() {
@@ -532,6 +540,41 @@ fn host_pattern(disp: &Displacement) -> Result<NormalEquations> {
     } else {
         deps.pairs(&edges)
     };
+    NormalEquations::with_pairs(disp.offsets.len(), pairs.iter().copied())
+}
+
+/// [`host_pattern`] of the B-spline reconstruction: per patch and knot
+/// cell, every pair among the samples the cell's lookups read. A host
+/// triangle lies in one knot cell when the host's cells nest in the
+/// tile's (the host's cells per side a multiple of the knot cells); else
+/// (a uniform tile whose `R − 1` does not divide them) in two neighbouring
+/// ones per side, and the window spans two cells. A host vertex on a patch
+/// border, seen from the other patch, reads only that border's
+/// coefficients (the phantom's module docs), which this patch's windows
+/// hold too.
+fn bspline_pattern(disp: &Displacement, host: &HostSurface) -> Result<NormalEquations> {
+    let g = &disp.grid;
+    let tiles = super::BsplineTiles::new(g);
+    let mut pairs: Vec<[u32; 2]> = Vec::new();
+    let (mut window, mut local) = (Vec::new(), Vec::new());
+    for f in 0..g.num_patches() {
+        let r1 = g.patch_res(f) - 1;
+        let cells = host.grid.patch_res(f) - 1;
+        let span = if cells % r1 == 0 { 1 } else { 2 };
+        local.clear();
+        for j in 0..r1 {
+            for i in 0..r1 {
+                window.clear();
+                tiles.window(f, i, j, span, &mut window);
+                for (a, &x) in window.iter().enumerate() {
+                    local.extend(window[a + 1..].iter().map(|&y| [x, y]));
+                }
+            }
+        }
+        local.sort_unstable();
+        local.dedup();
+        pairs.extend_from_slice(&local);
+    }
     NormalEquations::with_pairs(disp.offsets.len(), pairs.iter().copied())
 }
 
@@ -633,8 +676,18 @@ impl HostSurface {
         let mut start = Vec::with_capacity(base.len() + 1);
         let mut terms: Vec<(u32, f64)> = Vec::new();
         let mut projected = Vec::with_capacity(base.len());
+        let tiles = (disp.reconstruction == super::Reconstruction::Bspline)
+            .then(|| super::BsplineTiles::new(g));
         for l in grid.locations() {
             start.push(terms.len() as u32);
+            if let Some(tiles) = &tiles {
+                // The cubic lookup of the coefficients (already over the
+                // independent samples).
+                let t = tiles.terms(l.face.idx(), l.u, l.v);
+                projected.push(t.iter().all(|e| disp.projected[e.0 as usize]));
+                terms.extend(t);
+                continue;
+            }
             let first = terms.len();
             let f = l.face.idx();
             let r1 = g.patch_res(f) - 1;
@@ -933,6 +986,61 @@ mod tests {
         assert!(
             st.rounds >= 1 && st.rms_after_permille < st.rms_before_permille,
             "{msg}"
+        );
+    }
+
+    #[test]
+    fn bspline_coefficients_fit_a_sphere_closer_than_bilinear_samples() {
+        // The sphere of the test above, 6 × 6 samples per patch, offsets
+        // least squares on the host surface both ways: as bilinear
+        // samples and as B-spline coefficients (the same unknowns). The
+        // offset field is smooth, so the cubic reconstruction must fit it
+        // more closely (measured on a finer host surface than the fit's),
+        // and its host mesh is welded: each border vertex one point.
+        let control = cube();
+        let ev = make_evaluator(Backend::Osd, &control, &EvalOptions::default()).unwrap();
+        let fine = PatchGrid::new(&control, 41).unwrap();
+        let mesh = TriMesh {
+            positions: ev
+                .evaluate(control.positions(), fine.locations())
+                .unwrap()
+                .iter()
+                .map(|p| p.position.normalize())
+                .collect(),
+            triangles: fine.triangles(),
+        };
+        let diag = mesh.bbox_diagonal();
+        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+        let (mp, mw) = quadrature_points(&mesh);
+        let mut rms = Vec::new();
+        for recon in [
+            super::super::Reconstruction::Bilinear,
+            super::super::Reconstruction::Bspline,
+        ] {
+            let mut disp =
+                compute_displacement(&control, ev.as_ref(), caster.as_ref(), 6, 2.0, diag, 0.05)
+                    .unwrap();
+            disp.reconstruction = recon;
+            let host = HostSurface::with_floor(&control, ev.as_ref(), &disp, FIT_CELLS).unwrap();
+            let opts = LsqOffsetOptions {
+                rounds: 3,
+                ..LsqOffsetOptions::default()
+            };
+            refine_offsets_on(&mesh, caster.as_ref(), &mut disp, Some(&host), diag, &opts).unwrap();
+            let check = HostSurface::with_floor(&control, ev.as_ref(), &disp, 32).unwrap();
+            let d = check.mesh(&disp);
+            let dc = make_raycaster(RayBackend::Embree, &d).unwrap();
+            rms.push(
+                distance_stats(&mp, &mw, dc.as_ref(), diag)
+                    .unwrap()
+                    .rms_permille,
+            );
+        }
+        assert!(
+            rms[1] < 0.8 * rms[0],
+            "M → D bilinear {:.4}‰, bspline {:.4}‰",
+            rms[0],
+            rms[1]
         );
     }
 
