@@ -445,11 +445,11 @@ mod grid_tests {
                     let (ix, iy) = (x.floor(), y.floor());
                     let (wx, wy) = (weights(x - ix), weights(y - iy));
                     let mut got = 0.0;
-                    for b in 0..4 {
-                        for a in 0..4 {
+                    for (b, wb) in wy.iter().enumerate() {
+                        for (a, wa) in wx.iter().enumerate() {
                             let px = (ix as isize + a as isize - 1) as usize;
                             let py = (iy as isize + b as isize - 1) as usize;
-                            got += wx[a] * wy[b] * img[py * atlas.width + px] as f64;
+                            got += wa * wb * img[py * atlas.width + px] as f64;
                         }
                     }
                     let want: f64 = tiles

@@ -137,7 +137,12 @@ pub fn tessellate(
         let res: Vec<usize> = (0..control.num_faces())
             .map(|f| {
                 let mut cells = n;
-                while cells + 1 < d.grid.patch_res(f) {
+                // The B-spline bends within a knot cell: two cells each.
+                let least = match d.reconstruction {
+                    Reconstruction::Bspline => 2 * (d.grid.patch_res(f) - 1),
+                    Reconstruction::Bilinear => d.grid.patch_res(f) - 1,
+                };
+                while cells < least {
                     cells *= 2;
                 }
                 cells + 1
