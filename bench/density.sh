@@ -29,6 +29,10 @@
 #   spot         0.640       0.380        0.417       0.283
 #   homer        0.397       0.207        0.212       0.181
 #   cheburashka  0.453       0.179        0.229       0.115
+# With `--displacement-reconstruction bspline` (2026-12-05, session 6; RMS M →
+# displaced.ply, adaptive 1× / 2×): bunny 0.080 / 0.060, gargoyle 0.199 /
+# 0.113, spot 0.328 / 0.250, homer 0.179 / 0.113, cheburashka 0.154 / 0.100
+# (docs/status.md, "Adaptive displacement").
 # The uniform grid's R is rounded, so its samples run −11 to +23 % off the
 # adaptive budget's (spot 1×: 3458 against 2924). The "s" column is the
 # wall time of the whole evaluation (limit and displaced sides), on a

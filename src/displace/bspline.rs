@@ -66,7 +66,7 @@ pub fn weights(t: f64) -> [f64; 4] {
 /// times finer (`m` a power of two) by knot insertion with the linear end
 /// phantom (module docs): row `k` (`0..=n·m`) holds the weights of the
 /// coarse coefficients `0..=n`.
-pub fn refinement(n: usize, m: usize) -> Vec<Vec<(usize, f64)>> {
+pub fn refinement(n: usize, m: usize) -> Refinement {
     // Dense rows over the coarse coefficients: n ≤ 4095, m·n ≤ 4096, and
     // this runs once per (n, m) pair met in a grid.
     let mut rows: Vec<Vec<f64>> = (0..=n)
@@ -115,12 +115,15 @@ pub fn refinement(n: usize, m: usize) -> Vec<Vec<(usize, f64)>> {
         .collect()
 }
 
+/// Rows of [`refinement`]: per fine coefficient, its coarse weights.
+pub type Refinement = Vec<Vec<(usize, f64)>>;
+
 /// The B-spline coefficients of every tile of a grid as combinations of
 /// its independent samples (module docs).
 pub struct BsplineTiles<'a> {
     grid: &'a PatchGrid,
     /// [`refinement`] per (coarse cells, ratio) met on an edge.
-    refine: HashMap<(usize, usize), Vec<Vec<(usize, f64)>>>,
+    refine: HashMap<(usize, usize), Refinement>,
 }
 
 impl<'a> BsplineTiles<'a> {

@@ -1004,61 +1004,6 @@ mod tests {
     }
 
     #[test]
-    fn bspline_coefficients_fit_a_sphere_closer_than_bilinear_samples() {
-        // The sphere of the test above, 6 × 6 samples per patch, offsets
-        // least squares on the host surface both ways: as bilinear
-        // samples and as B-spline coefficients (the same unknowns). The
-        // offset field is smooth, so the cubic reconstruction must fit it
-        // more closely (measured on a finer host surface than the fit's),
-        // and its host mesh is welded: each border vertex one point.
-        let control = cube();
-        let ev = make_evaluator(Backend::Osd, &control, &EvalOptions::default()).unwrap();
-        let fine = PatchGrid::new(&control, 41).unwrap();
-        let mesh = TriMesh {
-            positions: ev
-                .evaluate(control.positions(), fine.locations())
-                .unwrap()
-                .iter()
-                .map(|p| p.position.normalize())
-                .collect(),
-            triangles: fine.triangles(),
-        };
-        let diag = mesh.bbox_diagonal();
-        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
-        let (mp, mw) = quadrature_points(&mesh);
-        let mut rms = Vec::new();
-        for recon in [
-            super::super::Reconstruction::Bilinear,
-            super::super::Reconstruction::Bspline,
-        ] {
-            let mut disp =
-                compute_displacement(&control, ev.as_ref(), caster.as_ref(), 6, 2.0, diag, 0.05)
-                    .unwrap();
-            disp.reconstruction = recon;
-            let host = HostSurface::with_floor(&control, ev.as_ref(), &disp, FIT_CELLS).unwrap();
-            let opts = LsqOffsetOptions {
-                rounds: 3,
-                ..LsqOffsetOptions::default()
-            };
-            refine_offsets_on(&mesh, caster.as_ref(), &mut disp, Some(&host), diag, &opts).unwrap();
-            let check = HostSurface::with_floor(&control, ev.as_ref(), &disp, 32).unwrap();
-            let d = check.mesh(&disp);
-            let dc = make_raycaster(RayBackend::Embree, &d).unwrap();
-            rms.push(
-                distance_stats(&mp, &mw, dc.as_ref(), diag)
-                    .unwrap()
-                    .rms_permille,
-            );
-        }
-        assert!(
-            rms[1] < 0.8 * rms[0],
-            "M → D bilinear {:.4}‰, bspline {:.4}‰",
-            rms[0],
-            rms[1]
-        );
-    }
-
-    #[test]
     fn offsets_onto_a_plane_stay_exact() {
         // The limit surface of a lifted flat grid is a plane parallel to
         // M: φ's offsets are already exact and least squares must not
