@@ -14,8 +14,9 @@
 # m × M's vertices (`--displacement-samples`, the default allocation,
 # `displace::allocate_resolutions`), least-squares offsets both. Printed:
 # the samples (each shared sample once), report.json's D on its own mesh
-# (both directions), and RMS M → displaced.ply (the host's bilinear
-# reconstruction, as an independent harness measures), ‰ of the diagonal.
+# (both directions), and RMS M → displaced.ply (the host's reconstruction,
+# bilinear or the cubic B-spline per $RECONS, default both, as an
+# independent harness measures), ‰ of the diagonal.
 # Then the floor: M resampled at its own density with every vertex on M
 # (`report::resampling_floor`), measured as report.json does.
 #
@@ -28,6 +29,10 @@
 #   spot         0.640       0.380        0.417       0.283
 #   homer        0.397       0.207        0.212       0.181
 #   cheburashka  0.453       0.179        0.229       0.115
+# With `--displacement-reconstruction bspline` (2026-12-05, session 6; RMS M →
+# displaced.ply, adaptive 1× / 2×): bunny 0.080 / 0.060, gargoyle 0.199 /
+# 0.113, spot 0.328 / 0.250, homer 0.179 / 0.113, cheburashka 0.154 / 0.100
+# (docs/status.md, "Adaptive displacement").
 # The uniform grid's R is rounded, so its samples run −11 to +23 % off the
 # adaptive budget's (spot 1×: 3458 against 2924). The "s" column is the
 # wall time of the whole evaluation (limit and displaced sides), on a
@@ -39,6 +44,9 @@ OUT=${2:-target/density}
 MESHES=${MESHES:-"bunny gargoyle spot homer cheburashka"}
 TAUS=${TAUS:-"0.01"}
 MULTS=${MULTS:-"1 2"}
+# Reconstructions measured (`--displacement-reconstruction`): each at every
+# multiple and allocation.
+export RECONS=${RECONS:-"bilinear bspline"}
 mkdir -p "$OUT"
 cargo build --release --quiet --bin subdfit --example density --example resample_floor
 
@@ -58,7 +66,7 @@ done
 python3 - "$OUT" $MESHES <<'PY'
 import json, sys, os
 out = sys.argv[1]
-print(f"{'mesh':<10} {'τ':>5} {'×':>4} {'allocation':<9} {'R max':>5} {'samples':>8} {'D→M':>7} {'M→D':>7} {'M→ply':>7} {'s':>6}  resolutions")
+print(f"{'mesh':<10} {'τ':>5} {'×':>4} {'allocation':<9} {'recon':<8} {'R max':>5} {'samples':>8} {'D→M':>7} {'M→D':>7} {'M→ply':>7} {'s':>6}  resolutions")
 for m in sys.argv[2:]:
     for f in sorted(os.listdir(out)):
         if not (f.startswith(m + "-") and f.endswith(".jsonl")) or "floor" in f:
@@ -67,7 +75,7 @@ for m in sys.argv[2:]:
         for line in open(os.path.join(out, f)):
             r = json.loads(line)
             hist = " ".join(f"{k}:{v}" for k, v in sorted((r.get("histogram") or {}).items(), key=lambda kv: int(kv[0])))
-            print(f"{m:<10} {float(tau)*100:>4g}% {r['multiple']:>4g} {r['allocation']:<9} {r['res']:>5} {r['samples']:>8} "
+            print(f"{m:<10} {float(tau)*100:>4g}% {r['multiple']:>4g} {r['allocation']:<9} {r.get('reconstruction', 'bilinear'):<8} {r['res']:>5} {r['samples']:>8} "
                   f"{r['d_s2m']:>7.3f} {r['d_m2s']:>7.3f} {r['m_to_displaced_ply']:>7.3f} {r['seconds']:>6.2f}  {hist}")
     fl = os.path.join(out, f"{m}-floor.jsonl")
     if os.path.exists(fl):

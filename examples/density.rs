@@ -56,25 +56,35 @@ fn main() -> anyhow::Result<()> {
     let (mp, mw) = quadrature_points(mesh);
     let nv = mesh.positions.len();
     let r0 = auto_resolution(nv, control.num_faces());
+    // `RECONS` (default "bilinear"): the reconstructions to measure, each
+    // at every multiple and allocation (`--displacement-reconstruction`).
+    let recons: Vec<subdfit::displace::Reconstruction> = std::env::var("RECONS")
+        .unwrap_or_else(|_| "bilinear".into())
+        .split_whitespace()
+        .map(|s| s.parse().map_err(anyhow::Error::msg))
+        .collect::<anyhow::Result<_>>()?;
     for m in mults {
         let r = ((r0 - 1) as f64 * m.sqrt()).round() as usize + 1;
         let budget = (m * nv as f64).round() as usize;
-        for (name, opts) in [
-            (
-                "uniform",
-                MetricsOptions::default().with_displacement_res(Some(r)),
-            ),
-            (
-                "adaptive",
-                MetricsOptions::default()
-                    .with_displacement_samples(Some(budget))
-                    .with_offsets(if std::env::var("SD_HIT").is_ok() {
-                        subdfit::displace::OffsetMode::Hit
-                    } else {
-                        subdfit::displace::OffsetMode::LeastSquares
-                    }),
-            ),
-        ] {
+        for (recon, (name, opts)) in recons.iter().flat_map(|&rc| {
+            [
+                (
+                    "uniform",
+                    MetricsOptions::default().with_displacement_res(Some(r)),
+                ),
+                (
+                    "adaptive",
+                    MetricsOptions::default()
+                        .with_displacement_samples(Some(budget))
+                        .with_offsets(if std::env::var("SD_HIT").is_ok() {
+                            subdfit::displace::OffsetMode::Hit
+                        } else {
+                            subdfit::displace::OffsetMode::LeastSquares
+                        }),
+                ),
+            ]
+            .map(|(n, o)| (rc, (n, o.with_reconstruction(rc))))
+        }) {
             let t0 = Instant::now();
             let s = evaluate_surfaces(mesh, &control, caster.as_ref(), &opts, &mut |_, _| true)?;
             let seconds = t0.elapsed().as_secs_f64();
@@ -86,6 +96,7 @@ fn main() -> anyhow::Result<()> {
                 serde_json::json!({
                     "multiple": m,
                     "allocation": name,
+                    "reconstruction": recon,
                     "res": s.displacement.grid.res(),
                     "samples": s.metrics.displacement.samples,
                     "mesh_vertices": nv,

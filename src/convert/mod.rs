@@ -327,6 +327,7 @@ fn convert_as(
         .with_displacement_res(opts.displacement_res)
         .with_displacement_samples(opts.displacement_samples)
         .with_displacement_allocation(opts.displacement_allocation)
+        .with_reconstruction(opts.displacement_reconstruction)
         .with_output_tessellation(opts.tessellation)
         .with_exact(opts.exact_metrics);
     let branch = |layout: BranchLayout| BranchRecord {

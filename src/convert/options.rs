@@ -29,6 +29,14 @@ pub struct ConvertOptions {
     /// `--displacement-allocation`: per patch under the budget (the
     /// default) or the uniform grid of before issue 37.
     pub displacement_allocation: crate::displace::SampleAllocation,
+    /// `--displacement-reconstruction`: how hosts read the maps, bilinear
+    /// (the default) or the cubic B-spline of the texels (Blender's
+    /// "Cubic"; docs/handoff.md). Left out of `report.json` when bilinear.
+    #[serde(
+        default,
+        skip_serializing_if = "crate::displace::Reconstruction::is_bilinear"
+    )]
+    pub displacement_reconstruction: crate::displace::Reconstruction,
     /// Which pipeline: Fitmaps (organic), Lavoué et al. (mechanical), or
     /// chosen from the share of sharp edges (auto, the default).
     pub mode: Mode,
@@ -191,6 +199,7 @@ impl Default for ConvertOptions {
             displacement_res: None,
             displacement_samples: None,
             displacement_allocation: Default::default(),
+            displacement_reconstruction: Default::default(),
             mode: Mode::Auto,
             max_error: None,
             tessellation: None,
@@ -271,6 +280,10 @@ impl ConvertOptions {
     }
     pub fn with_displacement_allocation(mut self, a: crate::displace::SampleAllocation) -> Self {
         self.displacement_allocation = a;
+        self
+    }
+    pub fn with_displacement_reconstruction(mut self, r: crate::displace::Reconstruction) -> Self {
+        self.displacement_reconstruction = r;
         self
     }
     pub fn with_mode(mut self, m: Mode) -> Self {

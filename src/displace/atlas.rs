@@ -418,6 +418,13 @@ impl Atlas {
         }
         let mut imgs = vec![vec![0.0f32; self.width * self.height]; self.images];
         let g = self.gutter as isize;
+        // B-spline coefficients: each texel the tile's coefficient, the
+        // gutter its linear phantom one texel out (what a cubic lookup at
+        // the border reads; `super::bspline` module docs) and that
+        // texel's value beyond.
+        let tiles = (d.reconstruction == super::Reconstruction::Bspline)
+            .then(|| super::BsplineTiles::new(&d.grid));
+        let mut terms = Vec::new();
         for f in 0..patches {
             let (image, x0, y0) = self.tile_origin(f);
             let far = (self.tiles[f].pitch - self.gutter) as isize - 1;
@@ -427,11 +434,21 @@ impl Atlas {
                 .ok_or_else(|| Error::internal(format!("atlas: patch {f} beyond the layout")))?;
             for y in -g..=far {
                 for x in -g..=far {
-                    let (i, j) = (x.clamp(0, r1) as usize, y.clamp(0, r1) as usize);
-                    let s = d.grid.sample(f, i, j) as usize;
+                    let v = match &tiles {
+                        None => {
+                            let (i, j) = (x.clamp(0, r1) as usize, y.clamp(0, r1) as usize);
+                            value(d.grid.sample(f, i, j) as usize)
+                        }
+                        Some(t) => {
+                            terms.clear();
+                            let (i, j) = (x.clamp(-1, r1 + 1), y.clamp(-1, r1 + 1));
+                            t.coefficient(f, i, j, 1.0, &mut terms);
+                            terms.iter().map(|&(s, w)| w * value(s as usize)).sum()
+                        }
+                    };
                     let px = (x0 as isize + x) as usize;
                     let py = (y0 as isize + y) as usize;
-                    img[py * self.width + px] = value(s) as f32;
+                    img[py * self.width + px] = v as f32;
                 }
             }
         }

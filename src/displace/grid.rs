@@ -357,6 +357,19 @@ impl PatchGrid {
         }
     }
 
+    /// Samples per side of the coarser patch across side `side` (0..4,
+    /// side `k` running from corner `k` to corner `k + 1`) of patch `f`
+    /// (its own when it is the coarser or the edge has one patch).
+    pub fn side_coarse_res(&self, f: usize, side: usize) -> usize {
+        self.edge_coarse[self.face_he[f][side].edge().idx()] as usize
+    }
+
+    /// Global index of the sample `k` of the edge's finer units along
+    /// side `side` of patch `f`, from the side's first corner.
+    pub fn side_sample(&self, f: usize, side: usize, k: usize) -> u32 {
+        self.edge_sample(self.face_he[f][side], k)
+    }
+
     /// How many of the edge's finer units one cell of patch `f` spans
     /// along side `side`.
     fn side_step(&self, f: usize, side: usize) -> usize {

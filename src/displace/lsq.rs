@@ -281,7 +281,7 @@ pub fn refine_offsets_on(
     // halving (each had rebuilt it from the host tessellation's edges,
     // ~12 % of the stage's CPU on bunny).
     let pattern = match host {
-        Some(_) => Some(host_pattern(disp)?),
+        Some(h) => Some(host_pattern(disp, h)?),
         None => None,
     };
     while round <= opts.rounds {
@@ -503,7 +503,15 @@ struct RoundAt<'a> {
 /// sample instead of up to 28 per host edge. (The sample grid's own
 /// triangles are not: a border cell of a coarse tile is a fan over the
 /// finer neighbour's samples, which misses one corner pair.)
-fn host_pattern(disp: &Displacement) -> Result<NormalEquations> {
+///
+/// With the B-spline reconstruction a host vertex reads the 4 × 4 knots
+/// around its knot cell, through the linear phantom and the refined
+/// borders of [`super::BsplineTiles`]: the pattern is every pair among
+/// the samples one knot cell reads ([`bspline_pattern`]).
+fn host_pattern(disp: &Displacement, host: &HostSurface) -> Result<NormalEquations> {
+    if disp.reconstruction == super::Reconstruction::Bspline {
+        return bspline_pattern(disp, host);
+    }
     let g = &disp.grid;
     let mut edges: Vec<[u32; 2]> = Vec::new();
     for f in 0..g.num_patches() {
@@ -532,6 +540,41 @@ fn host_pattern(disp: &Displacement) -> Result<NormalEquations> {
     } else {
         deps.pairs(&edges)
     };
+    NormalEquations::with_pairs(disp.offsets.len(), pairs.iter().copied())
+}
+
+/// [`host_pattern`] of the B-spline reconstruction: per patch and knot
+/// cell, every pair among the samples the cell's lookups read. A host
+/// triangle lies in one knot cell when the host's cells nest in the
+/// tile's (the host's cells per side a multiple of the knot cells); else
+/// (a uniform tile whose `R − 1` does not divide them) in two neighbouring
+/// ones per side, and the window spans two cells. A host vertex on a patch
+/// border, seen from the other patch, reads only that border's
+/// coefficients (the phantom's module docs), which this patch's windows
+/// hold too.
+fn bspline_pattern(disp: &Displacement, host: &HostSurface) -> Result<NormalEquations> {
+    let g = &disp.grid;
+    let tiles = super::BsplineTiles::new(g);
+    let mut pairs: Vec<[u32; 2]> = Vec::new();
+    let (mut window, mut local) = (Vec::new(), Vec::new());
+    for f in 0..g.num_patches() {
+        let r1 = g.patch_res(f) - 1;
+        let cells = host.grid.patch_res(f) - 1;
+        let span = if cells % r1 == 0 { 1 } else { 2 };
+        local.clear();
+        for j in 0..r1 {
+            for i in 0..r1 {
+                window.clear();
+                tiles.window(f, i, j, span, &mut window);
+                for (a, &x) in window.iter().enumerate() {
+                    local.extend(window[a + 1..].iter().map(|&y| [x, y]));
+                }
+            }
+        }
+        local.sort_unstable();
+        local.dedup();
+        pairs.extend_from_slice(&local);
+    }
     NormalEquations::with_pairs(disp.offsets.len(), pairs.iter().copied())
 }
 
@@ -617,8 +660,22 @@ impl HostSurface {
         floor: usize,
     ) -> Result<HostSurface> {
         let g = &disp.grid;
+        // The B-spline bends within a knot cell: at one host cell per
+        // knot cell (a fine tile at the 64 cap) the fit would see only its
+        // values at the knots. At least two per knot cell (bunny τ 1 %,
+        // 1×: RMS M → displaced.ply 0.099‰ with one on the finest tiles,
+        // report's M → D on the fit's host 0.079‰).
+        let cubic = disp.reconstruction == super::Reconstruction::Bspline;
         let res: Vec<usize> = (0..g.num_patches())
-            .map(|f| HostSurface::cells_at_least(g.patch_res(f), floor) + 1)
+            .map(|f| {
+                let r = g.patch_res(f);
+                let c = HostSurface::cells_at_least(r, floor);
+                if cubic {
+                    c.max(2 * (r - 1)) + 1
+                } else {
+                    c + 1
+                }
+            })
             .collect();
         let grid = super::PatchGrid::with_resolutions(control, &res)?;
         let base: Vec<DVec3> = evaluator
@@ -633,8 +690,18 @@ impl HostSurface {
         let mut start = Vec::with_capacity(base.len() + 1);
         let mut terms: Vec<(u32, f64)> = Vec::new();
         let mut projected = Vec::with_capacity(base.len());
+        let tiles = (disp.reconstruction == super::Reconstruction::Bspline)
+            .then(|| super::BsplineTiles::new(g));
         for l in grid.locations() {
             start.push(terms.len() as u32);
+            if let Some(tiles) = &tiles {
+                // The cubic lookup of the coefficients (already over the
+                // independent samples).
+                let t = tiles.terms(l.face.idx(), l.u, l.v);
+                projected.push(t.iter().all(|e| disp.projected[e.0 as usize]));
+                terms.extend(t);
+                continue;
+            }
             let first = terms.len();
             let f = l.face.idx();
             let r1 = g.patch_res(f) - 1;

@@ -44,6 +44,7 @@
 
 mod alloc;
 mod atlas;
+mod bspline;
 mod grid;
 mod lsq;
 
@@ -53,6 +54,7 @@ pub use atlas::{
     read_exr, read_exr_channels, Atlas, AtlasLayout, AtlasMap, TexelType, DEFAULT_GUTTER,
     MIP_LEVELS, UDIM_PATCHES,
 };
+pub use bspline::{refinement, weights as bspline_weights, BsplineTiles};
 pub use grid::{Dependent, PatchGrid};
 pub use lsq::{
     refine_offsets, refine_offsets_on, HostSurface, LsqOffsetOptions, LsqOffsetStats, FIT_CELLS,
@@ -110,6 +112,38 @@ impl std::str::FromStr for SampleAllocation {
     }
 }
 
+/// How a host reads the displacement maps between texels, and so what
+/// the written values are (issue 37 item 2).
+#[derive(
+    Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, serde::Deserialize, clap::ValueEnum,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum Reconstruction {
+    /// Bilinear lookup of samples of the displacement: what every host
+    /// does (USD's `UsdUVTexture`, Blender's "Linear").
+    #[default]
+    Bilinear,
+    /// The bicubic uniform B-spline of the texels, Blender/Cycles'
+    /// "Cubic" image interpolation: the maps hold B-spline coefficients
+    /// and a linear-extrapolation gutter ([`BsplineTiles`]). A host with
+    /// only a bilinear lookup must not read these maps.
+    Bspline,
+}
+
+impl Reconstruction {
+    pub fn is_bilinear(&self) -> bool {
+        *self == Reconstruction::Bilinear
+    }
+}
+
+/// The CLI's words (`bilinear`, `bspline`).
+impl std::str::FromStr for Reconstruction {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Reconstruction, String> {
+        <Reconstruction as clap::ValueEnum>::from_str(s, false)
+    }
+}
+
 /// How the displacement offsets are chosen.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Default, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -140,6 +174,11 @@ pub struct DisplacementStats {
     /// Set when the offsets were refined by least squares
     /// ([`refine_offsets`]) instead of kept at φ's hits.
     pub least_squares: Option<LsqOffsetStats>,
+    /// How hosts must read the maps (bilinear samples, or B-spline
+    /// coefficients for a cubic lookup); absent: bilinear, the report as
+    /// before the option.
+    #[serde(skip_serializing_if = "Reconstruction::is_bilinear")]
+    pub reconstruction: Reconstruction,
     /// Set for a per-patch resolution under a sample budget
     /// (`--displacement-samples`); absent for a uniform grid, whose
     /// report is unchanged.
@@ -161,6 +200,11 @@ pub struct Displacement {
     pub offsets: Vec<f64>,
     pub projected: Vec<bool>,
     pub stats: DisplacementStats,
+    /// How the maps are read between samples: with
+    /// [`Reconstruction::Bspline`] the offsets are B-spline coefficients
+    /// ([`BsplineTiles`]), and [`Self::vectors`] at a sample is a
+    /// coefficient, not a point of the displaced surface.
+    pub reconstruction: Reconstruction,
 }
 
 impl Displacement {
@@ -279,6 +323,7 @@ pub fn displacement_on(
         unprojectable_percent: 100.0 * pstats.unprojectable_fraction(),
         max_abs_offset_permille: 1000.0 * max_abs / diag.max(f64::MIN_POSITIVE),
         least_squares: None,
+        reconstruction: Reconstruction::Bilinear,
         adaptive: None,
     };
     Ok(Displacement {
@@ -288,6 +333,7 @@ pub fn displacement_on(
         offsets,
         projected,
         stats,
+        reconstruction: Reconstruction::Bilinear,
     })
 }
 

@@ -81,7 +81,7 @@ use crate::analysis::normals::triangle_areas;
 use crate::displace::{
     allocate_resolutions, auto_resolution, compute_displacement, displacement_on,
     refine_offsets_on, Displacement, DisplacementStats, HostSurface, LsqOffsetOptions, OffsetMode,
-    PatchGrid, SampleAllocation, FIT_CELLS,
+    PatchGrid, Reconstruction, SampleAllocation, FIT_CELLS,
 };
 use crate::error::{Error, Result};
 use crate::fit::Progress;
@@ -108,6 +108,12 @@ pub struct MetricsOptions {
     /// Per-patch resolutions under the budget (the default) or the
     /// uniform grid; `displacement_res` implies the uniform grid.
     pub displacement_allocation: SampleAllocation,
+    /// How hosts read the maps: bilinear samples (the default) or
+    /// B-spline coefficients for a cubic lookup
+    /// ([`crate::displace::BsplineTiles`]); left out of `report.json`
+    /// when bilinear.
+    #[serde(default, skip_serializing_if = "Reconstruction::is_bilinear")]
+    pub reconstruction: Reconstruction,
     /// Limit tessellation per patch side; `None`: see the module docs.
     pub tessellation_res: Option<usize>,
     /// φ's search distance; `None`: a quarter of M's diagonal.
@@ -135,6 +141,10 @@ impl MetricsOptions {
     }
     pub fn with_displacement_allocation(mut self, a: SampleAllocation) -> Self {
         self.displacement_allocation = a;
+        self
+    }
+    pub fn with_reconstruction(mut self, r: Reconstruction) -> Self {
+        self.reconstruction = r;
         self
     }
     pub fn with_tessellation_res(mut self, r: Option<usize>) -> Self {
@@ -470,7 +480,12 @@ fn displaced_side(
     // 0.2243‰ against 0.2258‰, a quarter of the measuring points
     // (docs/status.md, "Adaptive displacement"); displaced.ply keeps its
     // own tessellation.
-    let adaptive = !displacement.grid.is_uniform();
+    // The B-spline reconstruction is always fitted and measured on the
+    // host surface: its samples are coefficients, not points of D.
+    displacement.reconstruction = opts.reconstruction;
+    displacement.stats.reconstruction = opts.reconstruction;
+    let adaptive =
+        !displacement.grid.is_uniform() || opts.reconstruction == Reconstruction::Bspline;
     let host = match adaptive {
         false => None,
         true => Some(HostSurface::with_floor(

@@ -40,7 +40,7 @@
 
 use serde::Serialize;
 
-use crate::displace::{Displacement, PatchGrid};
+use crate::displace::{BsplineTiles, Displacement, PatchGrid, Reconstruction};
 use crate::error::{Error, Result};
 use crate::mesh::{ControlMesh, FaceId, TriMesh};
 use crate::subdiv::{LimitEvaluator, SurfaceLocation};
@@ -137,7 +137,12 @@ pub fn tessellate(
         let res: Vec<usize> = (0..control.num_faces())
             .map(|f| {
                 let mut cells = n;
-                while cells + 1 < d.grid.patch_res(f) {
+                // The B-spline bends within a knot cell: two cells each.
+                let least = match d.reconstruction {
+                    Reconstruction::Bspline => 2 * (d.grid.patch_res(f) - 1),
+                    Reconstruction::Bilinear => d.grid.patch_res(f) - 1,
+                };
+                while cells < least {
                     cells *= 2;
                 }
                 cells + 1
@@ -148,16 +153,19 @@ pub fn tessellate(
         (grid, limit)
     };
     let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
+    // The host's lookup: bilinear in the samples, or the cubic B-spline of
+    // the coefficients (`crate::displace::BsplineTiles`).
+    let tiles = (d.reconstruction == Reconstruction::Bspline).then(|| BsplineTiles::new(&d.grid));
     let (offsets, projected): (Vec<f64>, Vec<bool>) = grid
         .locations()
         .iter()
-        .map(|l| bilinear(d, l, |s| d.offsets[s]))
+        .map(|l| lookup(d, tiles.as_ref(), l, |s| d.offsets[s]))
         .unzip();
     let vectors = d.vectors();
     let displaced_positions: Vec<DVec3> = positions
         .iter()
         .zip(grid.locations())
-        .map(|(&p, l)| p + bilinear(d, l, |s| vectors[s]).0)
+        .map(|(&p, l)| p + lookup(d, tiles.as_ref(), l, |s| vectors[s]).0)
         .collect();
     Ok(Tessellations {
         limit: TriMesh {
@@ -179,6 +187,29 @@ pub fn tessellate(
             target_met: rms <= target && max <= 10.0 * target,
         },
     })
+}
+
+/// `value(sample)` at `loc` as the host reads it: [`bilinear`], or the
+/// B-spline of `tiles` when given (and whether every sample read was
+/// projected).
+fn lookup<T>(
+    d: &Displacement,
+    tiles: Option<&BsplineTiles>,
+    loc: &SurfaceLocation,
+    value: impl Fn(usize) -> T,
+) -> (T, bool)
+where
+    T: std::ops::Mul<f64, Output = T> + std::ops::Add<Output = T> + Default,
+{
+    let Some(tiles) = tiles else {
+        return bilinear(d, loc, value);
+    };
+    let terms = tiles.terms(loc.face.idx(), loc.u, loc.v);
+    let projected = terms.iter().all(|e| d.projected[e.0 as usize]);
+    let v = terms
+        .iter()
+        .fold(T::default(), |a, &(s, w)| a + value(s as usize) * w);
+    (v, projected)
 }
 
 /// `value(sample)` at `loc` (a quad patch location): bilinear in the

@@ -9,7 +9,7 @@ use subdfit::analysis::fitmap::DEFAULT_TOLERANCE;
 use subdfit::convert::{
     convert_in_memory, write_converted, ConvertOptions, LayoutKind, Mode, Proxy,
 };
-use subdfit::displace::SampleAllocation;
+use subdfit::displace::{Reconstruction, SampleAllocation};
 use subdfit::fit::Objective;
 
 use crate::fit::progress_bars;
@@ -85,6 +85,13 @@ pub struct ConversionArgs {
     /// issue 37).
     #[arg(long, value_enum, default_value_t = SampleAllocation::Adaptive)]
     displacement_allocation: SampleAllocation,
+    /// How hosts read the maps between texels: `bilinear` (every host;
+    /// the maps hold samples) or `bspline` (the maps hold bicubic
+    /// B-spline coefficients with a linear-extrapolation gutter, for
+    /// Blender/Cycles' "Cubic" image interpolation; a bilinear-only host,
+    /// USD's UsdUVTexture among them, must not read them). docs/handoff.md.
+    #[arg(long, value_enum, default_value_t = Reconstruction::Bilinear)]
+    displacement_reconstruction: Reconstruction,
     /// Lift the projectability (M-fitmap) test (the paper's Fig. 7).
     #[arg(long)]
     no_mfitmap: bool,
@@ -155,6 +162,7 @@ impl ConversionArgs {
             .with_displacement_res(self.displacement_res)
             .with_displacement_samples(self.displacement_samples)
             .with_displacement_allocation(self.displacement_allocation)
+            .with_displacement_reconstruction(self.displacement_reconstruction)
             .with_mode(self.mode)
             .with_max_error(self.max_error)
             .with_tessellation(self.tessellation.map(|n| n as usize))
