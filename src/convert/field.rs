@@ -240,32 +240,13 @@ pub fn fit_field(
                     projection: fails_projection,
                     error: rms > e,
                 };
-                let local = match &laid {
-                    Some(laid) => timer.run("field refinement", || {
-                        refine_locally(laid, &relayout.mesh, &m.per_patch, asks)
-                    })?,
-                    None => Local::NotQuad,
+                let round = Refining {
+                    laid: laid.as_ref(),
+                    relayout,
+                    fo: &fo,
+                    faces,
                 };
-                match local {
-                    Local::Split(c, split) => {
-                        last.patches_refined = split.refined;
-                        last.patches_unprojectable = split.unprojectable;
-                        last.patches_split = Some(split.split);
-                        Next::Local(*c)
-                    }
-                    Local::Nothing => Next::Stop,
-                    Local::NotQuad => {
-                        let mut s = match sizes.take() {
-                            Some(s) => s,
-                            None => Sizes::new(&relayout.mesh, &relayout.fitmap, &fo)?,
-                        };
-                        let (up, down, unproj) =
-                            s.refine(&m.per_patch, budget, e_abs, fo.gradation);
-                        (last.patches_refined, last.patches_coarsened) = (up, down);
-                        last.patches_unprojectable = unproj;
-                        Next::Relayout(s, (budget * faces as f64).round() as usize)
-                    }
-                }
+                round.next(&mut timer, &m, asks, &mut sizes, last)?
             }
             _ => Next::Stop,
         };
@@ -318,6 +299,54 @@ pub fn fit_field(
         c.report.add_target(faces_target(n, c.report.control.faces));
     }
     Ok(c)
+}
+
+/// A round of [`fit_field`] that missed the bound, deciding what follows
+/// it: the local pass on the layout as laid when it is on
+/// ([`LOCAL_REFINEMENT`]), else the sizing refined for a relayout.
+struct Refining<'a> {
+    laid: Option<&'a ControlMesh>,
+    relayout: &'a FieldRelayout,
+    fo: &'a FieldOptions,
+    faces: usize,
+}
+
+impl Refining<'_> {
+    fn next(
+        &self,
+        timer: &mut StageTimer,
+        m: &Measured,
+        asks: Asks,
+        sizes: &mut Option<Sizes>,
+        last: &mut FieldRound,
+    ) -> Result<Next> {
+        let local = match self.laid {
+            Some(laid) => timer.run("field refinement", || {
+                refine_locally(laid, &self.relayout.mesh, &m.per_patch, asks)
+            })?,
+            None => Local::NotQuad,
+        };
+        Ok(match local {
+            Local::Split(c, split) => {
+                last.patches_refined = split.refined;
+                last.patches_unprojectable = split.unprojectable;
+                last.patches_split = Some(split.split);
+                Next::Local(*c)
+            }
+            Local::Nothing => Next::Stop,
+            Local::NotQuad => {
+                let mut s = match sizes.take() {
+                    Some(s) => s,
+                    None => Sizes::new(&self.relayout.mesh, &self.relayout.fitmap, self.fo)?,
+                };
+                let (up, down, unproj) =
+                    s.refine(&m.per_patch, asks.budget, asks.e, self.fo.gradation);
+                (last.patches_refined, last.patches_coarsened) = (up, down);
+                last.patches_unprojectable = unproj;
+                Next::Relayout(s, (asks.budget * self.faces as f64).round() as usize)
+            }
+        })
+    }
 }
 
 /// What follows a fitted round in [`fit_field`].
