@@ -201,17 +201,11 @@ impl<'a> BsplineTiles<'a> {
     /// gives there as a combination of the independent samples.
     pub fn terms(&self, f: usize, u: f64, v: f64) -> Vec<(u32, f64)> {
         let r1 = self.grid.patch_res(f) - 1;
+        // A point on a knot line reads exactly that knot's weights
+        // (`PatchGrid::cell_at`'s snap).
         let at = |x: f64| {
-            let x = x.clamp(0.0, 1.0) * r1 as f64;
-            // A point on a knot line reads exactly that knot's weights
-            // (see `HostSurface::with_floor`'s snap).
-            let x = if (x - x.round()).abs() < 1e-9 {
-                x.round()
-            } else {
-                x
-            };
-            let i = (x.floor() as usize).min(r1 - 1);
-            (i as isize, weights(x - i as f64))
+            let (i, t) = self.grid.cell_at(f, x);
+            (i as isize, weights(t))
         };
         let ((i, wu), (j, wv)) = (at(u), at(v));
         // The phantom folded in per axis first, so that a weight that is

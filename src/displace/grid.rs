@@ -294,6 +294,25 @@ impl PatchGrid {
         self.face_res[f] as usize
     }
 
+    /// The sample cell of patch `f` holding the patch coordinate `x`
+    /// (clamped to [0, 1]) and the position within it, in [0, 1]. A point
+    /// within 1e-9 of a sample line is snapped onto it, so that it reads
+    /// that line only: `k / cells · (res − 1)` a rounding below a line
+    /// would otherwise read the next cell at a weight of 1e-16, outside
+    /// the least squares' pattern (`lsq::host_pattern`) and coupling the
+    /// samples of two tiles (the B-spline's phantom weights).
+    pub fn cell_at(&self, f: usize, x: f64) -> (usize, f64) {
+        let r1 = self.patch_res(f) - 1;
+        let x = x.clamp(0.0, 1.0) * r1 as f64;
+        let x = if (x - x.round()).abs() < 1e-9 {
+            x.round()
+        } else {
+            x
+        };
+        let i = (x.floor() as usize).min(r1 - 1);
+        (i, x - i as f64)
+    }
+
     /// Whether every patch has the same resolution.
     pub fn is_uniform(&self) -> bool {
         self.uniform
@@ -552,6 +571,22 @@ mod tests {
     use crate::DVec3;
 
     use crate::fixtures::cube;
+
+    /// `cell_at`: a coordinate a rounding below a sample line reads that
+    /// line (weight exactly 0 on the next cell), the last line reads the
+    /// last cell at 1, and out-of-range coordinates clamp.
+    #[test]
+    fn cell_at_snaps_onto_sample_lines() {
+        let g = PatchGrid::new(&cube(), 5).unwrap();
+        assert_eq!(g.cell_at(0, 0.75 - 1e-15), (3, 0.0));
+        assert_eq!(g.cell_at(0, 0.75 + 1e-15), (3, 0.0));
+        assert_eq!(g.cell_at(0, 1.0), (3, 1.0));
+        assert_eq!(g.cell_at(0, 1.5), (3, 1.0));
+        assert_eq!(g.cell_at(0, -0.5), (0, 0.0));
+        let (i, t) = g.cell_at(0, 0.6);
+        assert_eq!(i, 2);
+        assert!((t - 0.4).abs() < 1e-12, "{t}");
+    }
 
     #[test]
     fn welded_grid_on_a_closed_mesh_is_a_closed_manifold() {

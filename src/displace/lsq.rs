@@ -704,22 +704,9 @@ impl HostSurface {
             }
             let first = terms.len();
             let f = l.face.idx();
-            let r1 = g.patch_res(f) - 1;
-            let at = |x: f64| {
-                let x = x.clamp(0.0, 1.0) * r1 as f64;
-                // A host vertex on a sample line reads that line only:
-                // without the snap, `k / cells · r1` a rounding below the
-                // line read the next cell at a weight of 1e-16, outside
-                // the pattern of `host_pattern`.
-                let x = if (x - x.round()).abs() < 1e-9 {
-                    x.round()
-                } else {
-                    x
-                };
-                let i = (x.floor() as usize).min(r1 - 1);
-                (i, x - i as f64)
-            };
-            let ((i, s), (j, t)) = (at(l.u), at(l.v));
+            // A host vertex on a sample line reads that line only
+            // (`PatchGrid::cell_at`'s snap).
+            let ((i, s), (j, t)) = (g.cell_at(f, l.u), g.cell_at(f, l.v));
             let mut ok = true;
             for (dj, wj) in [(0, 1.0 - t), (1, t)] {
                 for (di, wi) in [(0, 1.0 - s), (1, s)] {
