@@ -79,7 +79,7 @@ impl Default for CleanupOptions {
             sweeps: 6,
             target_faces: None,
             check_every_step: false,
-            move_rounds: 0,
+            move_rounds: 2,
             move_fit_rise: super::moves::FIT_RISE,
             move_shape_tests: false,
         }
@@ -220,6 +220,7 @@ pub fn cleanup(
         // [`GUARD_SAMPLES`] samples per patch.
         let stride = mesh.positions.len() / (GUARD_SAMPLES * k.num_live_faces()).max(1);
         super::moves::FitProbe::new(mesh, len / n.max(1.0), 1e-4 * mesh.bbox_diagonal(), stride)
+            .with_region_fit(super::moves::RegionFit::new(mesh, caster, k))
     });
     for round in 0..=opts.move_rounds {
         for _ in 0..opts.sweeps {
@@ -488,6 +489,7 @@ fn valence_sweep(
         let (w0, w1) = trial.worst;
         let tests_kept = f1 <= f0 && w1 <= w0.max(s.relax);
         let mut keep = (e1 < e0 && tests_kept) || (f1 < f0 && e1 <= e0 + 1);
+        let mut undone = false;
         if let (true, Some((probe, rise))) = (keep, guard) {
             // After a round of moves the sweeps' operations answer to the
             // same fit guard: the moves open new ones, and what they do to
@@ -499,6 +501,7 @@ fn valence_sweep(
             keep = fit_guard(s, probe, &snap, &mut redo, &changed, rise)?;
             if !keep {
                 stats.sweep_undone_fit += 1;
+                undone = true;
             }
         }
         if keep {
@@ -516,8 +519,10 @@ fn valence_sweep(
             } else {
                 stats.undone_valence += 1;
             }
-            s.undo(snap)?;
-            s.check_step("undo")?;
+            if !undone {
+                s.undo(snap)?;
+                s.check_step("undo")?;
+            }
         }
         s.compact_heap();
     }
@@ -706,11 +711,17 @@ fn apply_move(
 
 /// The fit guard of an operation just applied (issue 40 item 2: an
 /// operation may not make the fit worse): M's samples around the changed
-/// region measured against the limit after it, then (undone) before it,
-/// then (redone by `redo`) after it again on the union of both sample
-/// sets; kept when Σ d² and the largest d² rose by at most `rise`
-/// ([`super::moves::FitProbe::holds`]). On return the operation is
-/// applied (whatever the verdict), with its logs for the undo.
+/// region measured against the limit after it, then (undone) before it on
+/// both sets of samples, each after the global fit's objective on the
+/// region ([`super::moves::FitProbe::measure_fitted`]: the prediction of
+/// what the global fit makes of the region); kept when Σ d² and the
+/// largest d² rose by at most `rise` ([`super::moves::FitProbe::holds`]).
+/// Refused on the samples both measured, the operation stays undone (the
+/// before-state's own new samples cannot turn a refusal into a pass often
+/// enough to pay for the redo); passed, it is redone by `redo` and, when
+/// the before-state had samples the after-state had not measured,
+/// measured again on all of them. Returns whether it is kept: applied,
+/// with its logs for an undo, when kept; undone when not.
 fn fit_guard(
     s: &mut Simplifier<'_>,
     probe: &super::moves::FitProbe<'_>,
@@ -719,34 +730,41 @@ fn fit_guard(
     changed: &[VertexId],
     rise: f64,
 ) -> Result<bool> {
-    let Some(after) = probe.measure(&s.k, changed, &[])? else {
-        return Ok(false);
-    };
-    s.undo(Snapshot {
+    let copy = |snap: &Snapshot| Snapshot {
         vertices: snap.vertices.clone(),
         faces: snap.faces.clone(),
-    })?;
+    };
+    let after = probe.measure_fitted(&mut s.k, changed, &[])?;
+    s.undo(copy(snap))?;
     s.check_step("undo")?;
-    let before = probe.measure(&s.k, changed, &after.ids())?;
+    let Some(after) = after else {
+        return Ok(false);
+    };
+    let Some(before) = probe.measure_fitted(&mut s.k, changed, &after.ids())? else {
+        return Ok(false);
+    };
+    if !probe.holds(&before, &after, rise) {
+        return Ok(false);
+    }
     if !redo(s)? {
         return Err(crate::Error::topology(
             "mesh",
             "an operation that applied once did not apply again after its undo",
         ));
     }
-    let Some(before) = before else {
-        return Ok(false);
-    };
     let ids = before.ids();
-    let after = if ids == after.ids() {
-        after
-    } else {
-        match probe.measure(&s.k, changed, &ids)? {
-            Some(a) => a,
-            None => return Ok(false),
-        }
+    if ids == after.ids() {
+        return Ok(true);
+    }
+    let keep = match probe.measure_fitted(&mut s.k, changed, &ids)? {
+        Some(a) => probe.holds(&before, &a, rise),
+        None => false,
     };
-    Ok(probe.holds(&before, &after, rise))
+    if !keep {
+        s.undo(copy(snap))?;
+        s.check_step("undo")?;
+    }
+    Ok(keep)
 }
 
 /// One round of multi-rotation moves ([`super::moves`]): around every
@@ -821,6 +839,7 @@ fn move_sweep(
         }
         let mut keep = touched.is_some() && ((e1 < e0 && tests_kept) || (f1 < f0 && e1 <= e0 + 1));
         stats.move_seconds_try += t.elapsed().as_secs_f64();
+        let mut undone = false;
         if keep {
             if let (Some(probe), Some(changed)) = (probe, &touched) {
                 let t = std::time::Instant::now();
@@ -830,6 +849,7 @@ fn move_sweep(
                 stats.move_seconds_guard += t.elapsed().as_secs_f64();
                 if !keep {
                     stats.moves_undone_fit += 1;
+                    undone = true;
                 }
             }
         }
@@ -842,8 +862,10 @@ fn move_sweep(
         } else {
             stats.moves_undone += 1;
             epochs.fail(seed);
-            s.undo(snap)?;
-            s.check_step("undo")?;
+            if !undone {
+                s.undo(snap)?;
+                s.check_step("undo")?;
+            }
         }
         s.compact_heap();
     }

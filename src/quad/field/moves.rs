@@ -368,6 +368,9 @@ pub struct FitProbe<'a> {
     /// Every `stride`-th vertex of M is a sample (M′ has tens of vertices
     /// per patch; a few per cell of the guard's tessellation suffice).
     stride: u32,
+    /// The region fit run before each measure ([`Self::measure_fitted`]):
+    /// `None` measures the layout as it is.
+    fit: Option<RegionFit<'a>>,
 }
 
 /// What [`FitProbe::measure`] found: per sample (M's vertex index) its
@@ -427,6 +430,326 @@ impl Tess {
     }
 }
 
+/// The faces around a set of changed control vertices: `inner` those with
+/// a corner in it, `free` their corners, `region` the faces at `free`
+/// (every patch a move of `free` changes most), `all` the region and one
+/// ring of faces more (the support of the region's limit patches). Sorted;
+/// `all` starts with `region`.
+struct Region {
+    inner: Vec<FaceId>,
+    free: Vec<VertexId>,
+    region: Vec<FaceId>,
+    all: Vec<FaceId>,
+}
+
+impl Region {
+    fn of(k: &ControlMesh, changed: &[VertexId]) -> Region {
+        let faces_at = |vs: &[VertexId]| -> Vec<FaceId> {
+            let mut out: Vec<FaceId> = vs
+                .iter()
+                .filter(|&&v| !k.is_vertex_deleted(v))
+                .flat_map(|&v| k.vertex_faces(v))
+                .collect();
+            out.sort_unstable();
+            out.dedup();
+            out
+        };
+        let corners_of = |fs: &[FaceId]| -> Vec<VertexId> {
+            let mut c: Vec<VertexId> = fs.iter().flat_map(|&f| k.face_vertices(f)).collect();
+            c.sort_unstable();
+            c.dedup();
+            c
+        };
+        let inner = faces_at(changed);
+        let free = corners_of(&inner);
+        let region = faces_at(&free);
+        let mut all = region.clone();
+        all.extend(
+            faces_at(&corners_of(&region))
+                .into_iter()
+                .filter(|f| region.binary_search(f).is_err()),
+        );
+        Region {
+            inner,
+            free,
+            region,
+            all,
+        }
+    }
+}
+
+/// The faces `all` of `k` as a control mesh of their own (face `i` is
+/// `all[i]`), with its vertices' ids in `k`; `None` when they are not a
+/// manifold piece (a vertex whose faces there form two fans).
+fn submesh(k: &ControlMesh, all: &[FaceId]) -> Option<(ControlMesh, Vec<VertexId>)> {
+    let mut local: HashMap<VertexId, u32> = HashMap::new();
+    let mut global = Vec::new();
+    let polys: Vec<[u32; 4]> = all
+        .iter()
+        .map(|&f| {
+            crate::quad::ops::quad(k, f).map(|v| {
+                *local.entry(v).or_insert_with(|| {
+                    global.push(v);
+                    global.len() as u32 - 1
+                })
+            })
+        })
+        .collect();
+    let pos = global.iter().map(|&v| k.position(v)).collect();
+    let sub = ControlMesh::from_polygons(pos, &polys).ok()?;
+    Some((sub, global))
+}
+
+/// The global fit's objective on a region ([`FitProbe::settle`]): what
+/// `crate::fit` solves on the whole control mesh (Fitmaps §3.5, the
+/// `Point` objective: `min |A δ − (φ(s) − s)|² + λ |L δ|² + λ ε² |δ|²`,
+/// samples on a `k × k` grid per patch with k from the patch's share of
+/// M's vertices, one vertex equation per control vertex, outliers beyond
+/// 10 × the first round's median and feet facing away (cos < 0.3) left
+/// out, the best of the rounds kept), with the same sample density and
+/// the same λ, on the region's control vertices only (the ring around
+/// them held). The cleanup's own local refit (Fitmaps §3.4's smoothing and
+/// fixed-point sweeps) ends elsewhere than the global fit does, and a
+/// guard that measured after it let moves through whose regions the
+/// global fit then fitted worse (homer RMS L +15 %, docs/status.md).
+pub struct RegionFit<'a> {
+    caster: &'a dyn crate::raycast::RayCaster,
+    mesh: &'a TriMesh,
+    /// M's interpolated vertex normals (the fit's facing test).
+    normals: Vec<DVec3>,
+    /// Samples per unit of control-polygon area: the global fit's `k² ≈
+    /// n · |P| / Σ|P|`.
+    density: f64,
+    /// The global fit's λ = fairness · samples / control vertices.
+    lambda: f64,
+    max_dist: f64,
+}
+
+/// The fit's own constants ([`crate::fit::FitOptions`]' defaults; the
+/// fit module is above this one, so they are repeated here).
+const FIT_FAIRNESS: f64 = 0.01;
+const FIT_RIDGE: f64 = 1e-2;
+const FIT_OUTLIER: f64 = 10.0;
+const FIT_NORMAL_COS: f64 = 0.3;
+const FIT_ISOLATION: u8 = 6;
+
+/// Parameter-correction rounds of the region fit (the global fit stops
+/// after at most 8, most of its gain in the first three).
+const REGION_ROUNDS: usize = 3;
+
+/// Samples per patch side at most in the region fit; a patch the global
+/// fit samples more densely gets its rows weighted by the ratio, so the
+/// data term weighs the same against λ (the cost of a guard is its ray
+/// casts).
+const REGION_K: usize = 5;
+
+impl<'a> RegionFit<'a> {
+    /// For the layout `k` on `mesh` (ray caster `caster`).
+    pub fn new(
+        mesh: &'a TriMesh,
+        caster: &'a dyn crate::raycast::RayCaster,
+        k: &ControlMesh,
+    ) -> Self {
+        let area: f64 = k
+            .live_faces()
+            .map(|f| {
+                let q = crate::quad::ops::quad_positions(k, f);
+                0.5 * (q[2] - q[0]).cross(q[3] - q[1]).length()
+            })
+            .sum();
+        let n = mesh.positions.len() as f64;
+        RegionFit {
+            caster,
+            mesh,
+            normals: crate::analysis::normals::vertex_normals(mesh),
+            density: n / area.max(1e-300),
+            lambda: FIT_FAIRNESS * n / k.num_live_vertices().max(1) as f64,
+            max_dist: crate::project::default_max_dist(mesh),
+        }
+    }
+}
+
+impl RegionFit<'_> {
+    /// Fits the region of `changed` ([`Region`]: its `free` control
+    /// vertices unknown, the ring around them held) by the global fit's
+    /// objective (the type's docs) and writes the result into `k`;
+    /// returns the old positions of the vertices it moved (for
+    /// [`restore`]), `None` when the region is not a manifold piece.
+    pub fn settle(
+        &self,
+        k: &mut ControlMesh,
+        changed: &[VertexId],
+    ) -> Result<Option<Vec<(VertexId, DVec3)>>> {
+        use crate::subdiv::{make_evaluator, Backend, EvalOptions, SurfaceLocation};
+        let Region {
+            free, region, all, ..
+        } = Region::of(k, changed);
+        let Some((sub, global)) = submesh(k, &all) else {
+            return Ok(None);
+        };
+        // Unknown index of each sub-mesh vertex (`free` ones only).
+        let col: Vec<Option<usize>> = global.iter().map(|v| free.binary_search(v).ok()).collect();
+        // Samples: the global fit's k × k cell centres on the region's
+        // patches (capped at REGION_K, weighted up to the same data mass),
+        // then one vertex equation per free vertex (a corner of one of its
+        // faces, all of which are in the sub-mesh).
+        let mut locs = Vec::new();
+        let mut weight = Vec::new();
+        for i in 0..region.len() {
+            let q: Vec<DVec3> = sub
+                .face_vertices(FaceId(i as u32))
+                .map(|v| sub.position(v))
+                .collect();
+            let area = 0.5 * (q[2] - q[0]).cross(q[3] - q[1]).length();
+            let kk = ((self.density * area).sqrt().floor() as usize).clamp(3, 64);
+            let ku = kk.min(REGION_K);
+            let w = ((kk * kk) as f64 / (ku * ku) as f64).sqrt();
+            for j in 0..ku {
+                for c in 0..ku {
+                    let (u, v) = ((c as f64 + 0.5) / ku as f64, (j as f64 + 0.5) / ku as f64);
+                    locs.push(SurfaceLocation::quad(FaceId(i as u32), u, v));
+                    weight.push(w);
+                }
+            }
+        }
+        const CORNERS: [(f64, f64); 4] = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
+        for (l, c) in col.iter().enumerate() {
+            if c.is_none() {
+                continue;
+            }
+            let v = VertexId(l as u32);
+            let f = sub.vertex_faces(v).next().expect("a vertex of a face");
+            let at = sub.face_vertices(f).position(|w| w == v).expect("its face");
+            let (u, w) = CORNERS[at];
+            locs.push(SurfaceLocation::quad(f, u, w));
+            weight.push(1.0);
+        }
+        let ev = make_evaluator(
+            Backend::Osd,
+            &sub,
+            &EvalOptions::default().with_isolation_level(FIT_ISOLATION),
+        )?;
+        let stencils = ev.stencils(&locs)?;
+        let reg = self.regulariser(k, &free);
+        let mut pos = sub.positions().to_vec();
+        let (mut best, mut bound) = ((f64::INFINITY, pos.clone()), f64::INFINITY);
+        for round in 0..=REGION_ROUNDS {
+            let lp = stencils.apply(&pos);
+            let (mut hits, _) =
+                crate::project::project_along_normals(self.caster, &lp, self.max_dist)?;
+            if round == 0 {
+                let mut d: Vec<f64> = hits.iter().flatten().map(|h| h.offset.abs()).collect();
+                d.sort_unstable_by(f64::total_cmp);
+                bound = d
+                    .get(d.len() / 2)
+                    .map_or(f64::INFINITY, |m| FIT_OUTLIER * m);
+            }
+            for (h, s) in hits.iter_mut().zip(&lp) {
+                let Some(p) = h else { continue };
+                let t = self.mesh.triangles[p.triangle as usize];
+                let nm = (1.0 - p.u - p.v) * self.normals[t[0] as usize]
+                    + p.u * self.normals[t[1] as usize]
+                    + p.v * self.normals[t[2] as usize];
+                if p.offset.abs() > bound || nm.normalize_or_zero().dot(s.normal()) < FIT_NORMAL_COS
+                {
+                    *h = None;
+                }
+            }
+            // The fit's score: lost samples count at the outlier bound.
+            let lost = if bound.is_finite() {
+                bound * bound
+            } else {
+                0.0
+            };
+            let score: f64 = hits
+                .iter()
+                .zip(&weight)
+                .map(|(h, w)| w * w * h.as_ref().map_or(lost, |p| p.offset * p.offset))
+                .sum();
+            if score < best.0 {
+                best = (score, pos.clone());
+            }
+            if round == REGION_ROUNDS {
+                break;
+            }
+            let mut a = crate::solve::Triplets::new(hits.len(), free.len());
+            let mut b = vec![Vec::with_capacity(hits.len()); 3];
+            for (i, h) in hits.iter().enumerate() {
+                let d = h.as_ref().map_or(DVec3::ZERO, |p| p.point - lp[i].position);
+                if h.is_some() {
+                    for r in stencils.row(i) {
+                        if let Some(c) = col[stencils.indices[r] as usize] {
+                            a.push(i, c, weight[i] * stencils.weights[r]);
+                        }
+                    }
+                }
+                let d = weight[i] * d;
+                b[0].push(d.x);
+                b[1].push(d.y);
+                b[2].push(d.z);
+            }
+            let x = crate::solve::least_squares(
+                &a,
+                &b,
+                Some((&reg, self.lambda)),
+                &crate::solve::LsqOptions::default(),
+            )?;
+            for (l, c) in col.iter().enumerate() {
+                if let Some(c) = *c {
+                    pos[l] += DVec3::new(x[0][c], x[1][c], x[2][c]);
+                }
+            }
+        }
+        let mut old = Vec::with_capacity(free.len());
+        for (l, c) in col.iter().enumerate() {
+            if c.is_some() {
+                let v = global[l];
+                old.push((v, k.position(v)));
+                k.positions_mut()[v.idx()] = best.1[l];
+            }
+        }
+        Ok(Some(old))
+    }
+
+    /// The fit's umbrella Laplacian rows `δ_v − mean(δ_neighbours)` of
+    /// every vertex with a free one among itself and its neighbours (the
+    /// others' rows do not depend on the unknowns), held vertices' δ = 0,
+    /// stacked on ε I.
+    fn regulariser(&self, k: &ControlMesh, free: &[VertexId]) -> crate::solve::Triplets {
+        let mut rows: Vec<VertexId> = free
+            .iter()
+            .flat_map(|&v| std::iter::once(v).chain(k.outgoing(v).map(|h| k.head(h))))
+            .collect();
+        rows.sort_unstable();
+        rows.dedup();
+        let n = free.len();
+        let mut r = crate::solve::Triplets::new(rows.len() + n, n);
+        for (i, &v) in rows.iter().enumerate() {
+            if let Ok(c) = free.binary_search(&v) {
+                r.push(i, c, 1.0);
+            }
+            let nb: Vec<VertexId> = k.outgoing(v).map(|h| k.head(h)).collect();
+            let w = 1.0 / nb.len().max(1) as f64;
+            for u in nb {
+                if let Ok(c) = free.binary_search(&u) {
+                    r.push(i, c, -w);
+                }
+            }
+        }
+        for c in 0..n {
+            r.push(rows.len() + c, c, FIT_RIDGE);
+        }
+        r
+    }
+}
+
+/// Puts back the positions [`RegionFit::settle`] returned.
+pub fn restore(k: &mut ControlMesh, old: &[(VertexId, DVec3)]) {
+    for &(v, p) in old {
+        k.positions_mut()[v.idx()] = p;
+    }
+}
+
 impl<'a> FitProbe<'a> {
     /// `cell`: the grid's cell size (about a patch); `floor`, `stride`: see
     /// the fields.
@@ -442,7 +765,36 @@ impl<'a> FitProbe<'a> {
             grid,
             floor,
             stride: stride.clamp(1, u32::MAX as usize) as u32,
+            fit: None,
         }
+    }
+
+    /// Measures after the global fit's objective on the region
+    /// ([`RegionFit`]) from now on.
+    pub fn with_region_fit(mut self, fit: RegionFit<'a>) -> Self {
+        self.fit = Some(fit);
+        self
+    }
+
+    /// [`Self::measure`] of the layout the region fit makes of `k` (the
+    /// prediction of what the global fit does there; `k` is left as it
+    /// was), or of `k` itself without a region fit.
+    pub fn measure_fitted(
+        &self,
+        k: &mut ControlMesh,
+        changed: &[VertexId],
+        extra: &[u32],
+    ) -> Result<Option<FitMeasure>> {
+        let old = match &self.fit {
+            Some(f) => match f.settle(k, changed)? {
+                Some(old) => old,
+                None => return Ok(None),
+            },
+            None => Vec::new(),
+        };
+        let m = self.measure(k, changed, extra);
+        restore(k, &old);
+        m
     }
 
     fn key(p: DVec3, cell: f64) -> [i64; 3] {
@@ -479,48 +831,10 @@ impl<'a> FitProbe<'a> {
     /// `None` when the region is not a manifold piece (a vertex of the
     /// outer ring whose faces there form two fans).
     fn tessellate(k: &ControlMesh, changed: &[VertexId]) -> Result<Option<Tess>> {
-        let faces_at = |vs: &[VertexId]| -> Vec<FaceId> {
-            let mut out: Vec<FaceId> = vs
-                .iter()
-                .filter(|&&v| !k.is_vertex_deleted(v))
-                .flat_map(|&v| k.vertex_faces(v))
-                .collect();
-            out.sort_unstable();
-            out.dedup();
-            out
-        };
-        let inner = faces_at(changed);
-        let corners: Vec<VertexId> = {
-            let mut c: Vec<VertexId> = inner.iter().flat_map(|&f| k.face_vertices(f)).collect();
-            c.sort_unstable();
-            c.dedup();
-            c
-        };
-        let region = faces_at(&corners);
-        let mut ring_corners: Vec<VertexId> =
-            region.iter().flat_map(|&f| k.face_vertices(f)).collect();
-        ring_corners.sort_unstable();
-        ring_corners.dedup();
-        let mut all = region.clone();
-        all.extend(
-            faces_at(&ring_corners)
-                .into_iter()
-                .filter(|f| region.binary_search(f).is_err()),
-        );
-        let mut local: HashMap<VertexId, u32> = HashMap::new();
-        let mut pos = Vec::new();
-        let polys: Vec<[u32; 4]> = all
-            .iter()
-            .map(|&f| {
-                crate::quad::ops::quad(k, f).map(|v| {
-                    *local.entry(v).or_insert_with(|| {
-                        pos.push(k.position(v));
-                        pos.len() as u32 - 1
-                    })
-                })
-            })
-            .collect();
-        let Ok(sub) = ControlMesh::from_polygons(pos, &polys) else {
+        let Region {
+            inner, region, all, ..
+        } = Region::of(k, changed);
+        let Some((sub, _)) = submesh(k, &all) else {
             return Ok(None);
         };
         let r = crate::subdiv::refine::refine_uniform(&sub, GUARD_LEVELS)?;
