@@ -57,15 +57,18 @@ pub struct CleanupOptions {
     /// Rounds of multi-rotation moves ([`super::moves`]), each followed by
     /// the single-operation sweeps again, both under the fit guard
     /// ([`CleanupOptions::move_fit_rise`]). 0 (single operations only) is
-    /// the default: with 2 rounds and the guard the irregular vertices
-    /// fall 10–48 % on the shared meshes and RMS L falls on cheburashka,
-    /// spot and gargoyle, but rises 15 % on homer and 10 % on bunny (the
-    /// local guard does not bound the global fit there), and gargoyle's
-    /// cleanup costs about 15× (docs/status.md, 2026-12-05).
+    /// the default: with 2 rounds and the guard that measures after the
+    /// global fit's objective on the region ([`super::moves::RegionFit`])
+    /// the irregular vertices fall 9–35 % on the shared meshes and RMS L
+    /// falls on spot, cheburashka, bunny, gargoyle, but still rises 12 %
+    /// on homer (τ 1 %) and 5 % on spot at 81 faces (0.2 % unprojectable
+    /// there), bunny's RMS D rises 29 %, and the whole run's CPU 16–24 %
+    /// on cheburashka and gargoyle at 1391 faces (docs/status.md,
+    /// 2026-12-05, "Region-fit guard").
     pub move_rounds: usize,
     /// The moves' fit guard ([`super::moves::FIT_RISE`]): Σ d² of M's
-    /// samples around a move to its limit may rise by this factor at most
-    /// (≤ 0: no guard).
+    /// samples around a move to its limit, each state measured after the
+    /// region fit, may rise by this factor at most (≤ 0: no guard).
     pub move_fit_rise: f64,
     /// The earlier proxies for the fit as move tests too: the region's
     /// Σ (radius / F_M or radius · F_S / κ)² and Σ (corner − 90°)², neither
@@ -79,7 +82,7 @@ impl Default for CleanupOptions {
             sweeps: 6,
             target_faces: None,
             check_every_step: false,
-            move_rounds: 2,
+            move_rounds: 0,
             move_fit_rise: super::moves::FIT_RISE,
             move_shape_tests: false,
         }

@@ -673,7 +673,7 @@ impl RegionFit<'_> {
                 break;
             }
             let mut a = crate::solve::Triplets::new(hits.len(), free.len());
-            let mut b = vec![Vec::with_capacity(hits.len()); 3];
+            let mut b: Vec<Vec<f64>> = (0..3).map(|_| Vec::with_capacity(hits.len())).collect();
             for (i, h) in hits.iter().enumerate() {
                 let d = h.as_ref().map_or(DVec3::ZERO, |p| p.point - lp[i].position);
                 if h.is_some() {
