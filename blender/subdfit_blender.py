@@ -406,16 +406,18 @@ def evaluated_vertices(obj, with_resolved=False):
 
 def farthest_from(points, reference):
     """Largest distance from a point of `points` to its nearest in
-    `reference`, and the reference's bounding-box diagonal."""
+    `reference`, the reference's bounding-box diagonal, and the RMS of
+    those distances."""
     from mathutils import kdtree
     tree = kdtree.KDTree(len(reference))
     for i, p in enumerate(reference):
         tree.insert(p, i)
     tree.balance()
-    worst = max(tree.find(p)[2] for p in points)
+    dists = [tree.find(p)[2] for p in points]
     lo = [min(p[k] for p in reference) for k in range(3)]
     hi = [max(p[k] for p in reference) for k in range(3)]
-    return worst, math.dist(lo, hi)
+    rms = math.sqrt(sum(d * d for d in dists) / max(len(dists), 1))
+    return max(dists), math.dist(lo, hi), rms
 
 
 def check(folder, obj):
@@ -428,16 +430,17 @@ def check(folder, obj):
     out["unresolved_vertices"] = resolved.count(False)
     limit = read_ply_vertices(os.path.join(folder, "limit.ply"))
     out["limit_vertices"] = len(limit)
-    worst, diag = farthest_from(pts, limit)
+    worst, diag, _ = farthest_from(pts, limit)
     out["limit_max_over_diagonal"] = worst / diag
     if dis is not None:
         dis.show_viewport = True
         pts = evaluated_vertices(obj)
         displaced = read_ply_vertices(os.path.join(folder, "displaced.ply"))
-        worst, _ = farthest_from(pts, displaced)
+        worst, _, rms = farthest_from(pts, displaced)
         out["displaced_max_over_diagonal"] = worst / diag
+        out["displaced_rms_over_diagonal"] = rms / diag
         kept = [p for p, r in zip(pts, resolved) if r]
-        worst, _ = farthest_from(kept, displaced)
+        worst, _, _ = farthest_from(kept, displaced)
         out["displaced_resolved_max_over_diagonal"] = worst / diag
     return out
 

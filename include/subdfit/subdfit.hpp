@@ -138,6 +138,9 @@ enum class DisplacementAllocation { Adaptive, Uniform };
 // BSpline coefficients of the uniform bicubic B-spline, read with a cubic
 // B-spline filter (Blender/Cycles' "Cubic"; docs/handoff.md).
 enum class DisplacementReconstruction { Bilinear, BSpline };
+// Organic mode's layout: Greedy (Fitmaps' simplification, the default) or
+// Field (a field-aligned layout, experimental).
+enum class Layout { Greedy, Field };
 
 // The options of `subdfit convert` / `subdfit fit`, with the CLI's defaults.
 struct Options {
@@ -160,6 +163,8 @@ struct Options {
   DisplacementAllocation displacement_allocation = DisplacementAllocation::Adaptive;
   // --displacement-reconstruction
   DisplacementReconstruction displacement_reconstruction = DisplacementReconstruction::Bilinear;
+  // --layout
+  Layout layout = Layout::Greedy;
   // --max-error, a fraction of the bounding-box diagonal: mechanical mode's
   // RMS bound per control face, organic mode's bound on the limit surface's
   // RMS distance; 0 = the mode's default, infinity = organic mode's natural

@@ -34,6 +34,8 @@ pub(crate) mod api {
         displacement_allocation: u8,
         /// 0 bilinear, 1 bspline.
         displacement_reconstruction: u8,
+        /// 0 greedy, 1 field.
+        layout: u8,
         /// 0: the mode's default; infinity: organic mode's natural end.
         max_error: f64,
         m_fitmap: bool,
@@ -247,7 +249,7 @@ fn backend(b: u8) -> crate::Result<Backend> {
 }
 
 fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
-    use crate::convert::{Mode, Proxy};
+    use crate::convert::{LayoutKind, Mode, Proxy};
     use crate::fit::Objective;
     let bad = |what: &str, v: i64| crate::Error::option(what, format!("unknown {what} {v}"));
     let defaults = embed::Options::default();
@@ -279,6 +281,11 @@ fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
             0 => Reconstruction::Bilinear,
             1 => Reconstruction::Bspline,
             m => return Err(bad("displacement reconstruction", m.into())),
+        })
+        .with_layout(match o.layout {
+            0 => LayoutKind::Greedy,
+            1 => LayoutKind::Field,
+            m => return Err(bad("layout", m.into())),
         })
         .with_max_error((o.max_error != 0.0).then_some(o.max_error))
         .with_m_fitmap(o.m_fitmap)
