@@ -461,7 +461,9 @@ fn write_all<O: Serialize + Sync>(dir: &Path, out: &OutputFiles<'_, O>) -> Resul
     if let Some((scalar, vector)) = &sampled {
         for (k, img) in scalar.iter().enumerate() {
             jobs.push((
-                atlas.file_name(k).replacen("displacement", BILINEAR_STEM, 1),
+                atlas
+                    .file_name(k)
+                    .replacen("displacement", BILINEAR_STEM, 1),
                 Box::new(move |p| {
                     let exr = atlas.encode_exr_as(img, out.options.texels)?;
                     write_atomically(p, |w| w.write_all(&exr).map_err(|e| Error::io(p, e)))

@@ -199,7 +199,12 @@ impl NormalEquations {
     }
 
     /// [`Self::add_row`] of `entries`, `sorted` the same in column order.
-    fn add_sorted_row(&mut self, entries: &[(u32, f64)], sorted: &[(u32, f64)], b: f64) -> Result<()> {
+    fn add_sorted_row(
+        &mut self,
+        entries: &[(u32, f64)],
+        sorted: &[(u32, f64)],
+        b: f64,
+    ) -> Result<()> {
         for &(i, ai) in entries {
             let iu = i as usize;
             if iu + 1 >= self.outer.len() {
@@ -564,8 +569,8 @@ mod tests {
         assert_eq!(long.values, short.values);
         assert_eq!(long.rhs, short.rhs);
         // A long row outside the pattern is an error too.
-        let mut sparse = NormalEquations::with_pairs(n as usize, (0..n - 1).map(|i| [i, i + 1]))
-            .unwrap();
+        let mut sparse =
+            NormalEquations::with_pairs(n as usize, (0..n - 1).map(|i| [i, i + 1])).unwrap();
         let row: Vec<(u32, f64)> = (0..8).map(|c| (c, 1.0)).collect();
         assert!(sparse.add_row(&row, 0.0).is_err());
     }
