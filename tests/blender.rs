@@ -13,7 +13,7 @@
 //! floats: 11-bit texels). The tolerance is the issue's. With
 //! `--displacement-reconstruction bspline` the add-on reads the maps with
 //! a cubic B-spline (Geometry Nodes' Image Texture, "Cubic"): spot 3.6e-7,
-//! spot UDIM half floats 5.5e-6 (the old bilinear Displace modifier on
+//! bunny 1.3e-6, spot UDIM half floats 5.5e-6 (the old bilinear Displace modifier on
 //! these coefficient maps: 1.4e-2). Blender's own
 //! vertex normals are not involved: along them, with the scalar map, spot
 //! was 7.4e-3 off where its limit surface folds.
@@ -125,7 +125,8 @@ fn blender_addon_reproduces_limit_and_displaced_surfaces() {
 /// surface interpolating `displaced.ply` at the samples, off it between
 /// samples by the spline's bend within a knot cell. The bounds are the ones
 /// docs/handoff.md states for USD hosts, 5e-3 of the diagonal at most and
-/// 1e-3 RMS (measured on spot 2.8e-3 and 4.0e-4; the coefficients read as
+/// 1e-3 RMS (measured on spot 2.8e-3 and 4.0e-4, bunny 1.1e-3 and 8.5e-5;
+/// spot UDIM half floats as spot; the coefficients read as
 /// samples, which a bilinear host would do without these maps: 1.4e-2),
 /// and that surface must not be the spline's (else the maps would be
 /// pointless: the cubic lookup of the coefficients is what lands on it).

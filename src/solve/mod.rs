@@ -544,12 +544,13 @@ mod tests {
         // (each (i, j) gets one product per row, in row order either way).
         let n = 24u32;
         let window = |r: u32| -> Vec<u32> { (0..16).map(|k| (r + 5 * k) % n).collect() };
-        let pairs: Vec<[u32; 2]> = (0..8)
-            .flat_map(|r| {
-                let w = window(r);
-                (0..16).flat_map(move |a| (0..16).map(move |b| [w[a], w[b]]))
-            })
-            .collect();
+        let mut pairs: Vec<[u32; 2]> = Vec::new();
+        for r in 0..8 {
+            let w = window(r);
+            for &a in &w {
+                pairs.extend(w.iter().map(|&b| [a, b]));
+            }
+        }
         let mut long = NormalEquations::with_pairs(n as usize, pairs.iter().copied()).unwrap();
         let mut short = long.clone();
         for r in 0..8u32 {
