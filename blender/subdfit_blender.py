@@ -27,13 +27,22 @@ Add-on: Edit > Preferences > Add-ons > Install this file, then File >
 Import > "subdfit conversion folder". Headless:
 
     blender -b --python blender/subdfit_blender.py -- OUTDIR [--level L] [--check]
+        [--maps STEM]
 
 imports OUTDIR; `--level` is the subdivision level (default log2 of the
 folder's tessellation when it is a power of two, else 4); `--check`
 compares the evaluated mesh with `limit.ply` (Displace off) and
 `displaced.ply` (on) and prints one JSON line `SUBDFIT_CHECK {...}` with
 the largest distance to the nearest vertex of each file, as a fraction of
-the bounding-box diagonal. Depends on nothing but Blender.
+the bounding-box diagonal; `--maps displacement_bilinear` reads the
+samples written beside B-spline maps for bilinear hosts (USD) instead.
+Depends on nothing but Blender.
+
+B-spline maps (`--displacement-reconstruction bspline`, report.json's
+`projectability.displacement.reconstruction`): the Displace modifier has no
+cubic filter, so a Geometry Nodes modifier reads them with the Image
+Texture node's "Cubic" interpolation, and a Cycles material does the same
+at render time (`add_bspline_displacement`, `add_bspline_material`).
 """
 
 import json
@@ -120,8 +129,12 @@ def read_ply_vertices(path):
     return out
 
 
-def import_folder(folder, level=None, name=None):
-    """Builds the object of the module docs from `folder`; returns it."""
+def import_folder(folder, level=None, name=None, maps="displacement"):
+    """Builds the object of the module docs from `folder`; returns it.
+    `maps`: the stem of the maps to read (`displacement_bilinear`: the
+    samples of B-spline maps written for bilinear hosts, read here with
+    the Displace modifier as such a host would)."""
+    bspline = maps == "displacement"
     verts, faces, uvs, face_uvs, creases, corners = read_control_obj(
         os.path.join(folder, "control.obj"))
     report = {}
@@ -170,7 +183,7 @@ def import_folder(folder, level=None, name=None):
     sub.use_creases = True
 
     path, vector = None, False
-    for stem, is_vector in (("displacement_vector", True), ("displacement", False)):
+    for stem, is_vector in ((maps + "_vector", True), (maps, False)):
         for file in (stem + ".1001.exr", stem + ".exr"):
             if path is None and os.path.isfile(os.path.join(folder, file)):
                 path, vector = os.path.join(folder, file), is_vector
@@ -179,6 +192,9 @@ def import_folder(folder, level=None, name=None):
         if ".1001." in os.path.basename(path):
             img.source = "TILED"
         img.colorspace_settings.name = "Non-Color"
+        if bspline and is_bspline(report):
+            add_bspline_displacement(obj, img, tile_images(path), vector, name)
+            return obj
         tex = bpy.data.textures.new(name + "_displacement", "IMAGE")
         tex.image = img
         tex.extension = "EXTEND"
@@ -195,6 +211,176 @@ def import_folder(folder, level=None, name=None):
         dis.direction = "RGB_TO_XYZ" if vector else "NORMAL"
         dis.space = "LOCAL"
     return obj
+
+
+def is_bspline(report):
+    """Whether the folder's maps hold B-spline coefficients
+    (`--displacement-reconstruction bspline`; absent from report.json for
+    the default bilinear samples)."""
+    d = report.get("projectability", {}).get("displacement", {})
+    return d.get("reconstruction", "bilinear") == "bspline"
+
+
+def tile_images(path):
+    """[(tile index, image)] of the map at `path`: itself as tile 0, or
+    each UDIM tile `*.1001.exr`, `*.1002.exr`, ... loaded as an image of
+    its own (the Geometry Nodes image lookup of Blender 3.4 reads only the
+    first tile of a tiled image)."""
+    if ".1001." not in os.path.basename(path):
+        return None
+    out, k = [], 0
+    while True:
+        tile = path.replace(".1001.", ".%d." % (1001 + k))
+        if not os.path.isfile(tile):
+            return out
+        img = bpy.data.images.load(tile, check_existing=False)
+        img.colorspace_settings.name = "Non-Color"
+        out.append((k, img))
+        k += 1
+
+
+def cubic_lookup(nodes, links, uv, img, tile):
+    """Image Texture node (Cubic, Extend) reading `img` at `uv` moved into
+    UDIM tile `tile`'s unit square; returns its colour socket (times the
+    mask of UVs inside that tile when `tile` is given)."""
+    tex = nodes.new("GeometryNodeImageTexture")
+    tex.interpolation = "Cubic"
+    tex.extension = "EXTEND"
+    tex.inputs["Image"].default_value = img
+    if tile is None:
+        links.new(uv, tex.inputs["Vector"])
+        return tex.outputs["Color"]
+    tu, tv = tile % 10, tile // 10
+    shift = nodes.new("ShaderNodeVectorMath")
+    shift.operation = "SUBTRACT"
+    links.new(uv, shift.inputs[0])
+    shift.inputs[1].default_value = (tu, tv, 0.0)
+    links.new(shift.outputs["Vector"], tex.inputs["Vector"])
+    sep = nodes.new("ShaderNodeSeparateXYZ")
+    links.new(uv, sep.inputs["Vector"])
+    mask = None
+    for axis, t in (("X", tu), ("Y", tv)):
+        fl = nodes.new("ShaderNodeMath")
+        fl.operation = "FLOOR"
+        links.new(sep.outputs[axis], fl.inputs[0])
+        eq = nodes.new("ShaderNodeMath")
+        eq.operation = "COMPARE"
+        links.new(fl.outputs[0], eq.inputs[0])
+        eq.inputs[1].default_value = float(t)
+        eq.inputs[2].default_value = 0.5
+        if mask is None:
+            mask = eq.outputs[0]
+        else:
+            both = nodes.new("ShaderNodeMath")
+            both.operation = "MULTIPLY"
+            links.new(mask, both.inputs[0])
+            links.new(eq.outputs[0], both.inputs[1])
+            mask = both.outputs[0]
+    scale = nodes.new("ShaderNodeVectorMath")
+    scale.operation = "SCALE"
+    links.new(tex.outputs["Color"], scale.inputs[0])
+    links.new(mask, scale.inputs["Scale"])
+    return scale.outputs["Vector"]
+
+
+def add_bspline_displacement(obj, img, tiles, vector, name):
+    """The displacement of B-spline coefficient maps (docs/handoff.md).
+
+    The Displace modifier's image lookup has no cubic filter, so the
+    displaced mesh is made by a Geometry Nodes modifier whose Image Texture
+    node reads the map with interpolation "Cubic": in Blender 3.4
+    (`node_geo_image_texture.cc`, `image_cubic_texture_lookup`) the
+    uniform cubic B-spline of the texels, texel centres at
+    `(i + 0.5) / width` (it takes `u * width - 0.5`), the convention of
+    Cycles' image kernel (`cubic_w0` ... `cubic_w3`) and of the atlas, whose
+    samples sit at texel centres. The lookup is evaluated per face corner,
+    each corner with its own patch's UV (a vertex on a patch edge has one
+    UV per patch), then averaged onto the vertex: the spline is continuous
+    across patch edges (src/displace/bspline.rs), so the corners agree to
+    float round-off. The map's offsets are in object space: the vector map
+    is added as is; the scalar map of older folders goes along Blender's
+    normal, as the Displace modifier does. For rendering, the material
+    built by `add_bspline_material` does the same in Cycles' shader."""
+    group = bpy.data.node_groups.new(name + "_bspline_displacement", "GeometryNodeTree")
+    nodes, links = group.nodes, group.links
+    group.inputs.new("NodeSocketGeometry", "Geometry")
+    group.outputs.new("NodeSocketGeometry", "Geometry")
+    gin = nodes.new("NodeGroupInput")
+    gout = nodes.new("NodeGroupOutput")
+    uv = nodes.new("GeometryNodeInputNamedAttribute")
+    uv.data_type = "FLOAT_VECTOR"
+    uv.inputs["Name"].default_value = "st"
+    if tiles is None:
+        value = cubic_lookup(nodes, links, uv.outputs["Attribute"], img, None)
+    else:
+        # UDIM: one lookup per tile, each masked to its tile's UVs, summed.
+        value = None
+        for k, tile in tiles:
+            part = cubic_lookup(nodes, links, uv.outputs["Attribute"], tile, k)
+            if value is not None:
+                add = nodes.new("ShaderNodeVectorMath")
+                add.operation = "ADD"
+                links.new(value, add.inputs[0])
+                links.new(part, add.inputs[1])
+                part = add.outputs["Vector"]
+            value = part
+    cap = nodes.new("GeometryNodeCaptureAttribute")
+    cap.data_type = "FLOAT_VECTOR"
+    cap.domain = "CORNER"
+    links.new(gin.outputs["Geometry"], cap.inputs["Geometry"])
+    links.new(value, cap.inputs["Value"])
+    setp = nodes.new("GeometryNodeSetPosition")
+    links.new(cap.outputs["Geometry"], setp.inputs["Geometry"])
+    offset = cap.outputs["Attribute"]
+    if not vector:
+        # One channel of the scalar map, along the (tessellation) normal.
+        sep = nodes.new("ShaderNodeSeparateXYZ")
+        links.new(offset, sep.inputs["Vector"])
+        normal = nodes.new("GeometryNodeInputNormal")
+        scale = nodes.new("ShaderNodeVectorMath")
+        scale.operation = "SCALE"
+        links.new(normal.outputs["Normal"], scale.inputs[0])
+        links.new(sep.outputs["X"], scale.inputs["Scale"])
+        offset = scale.outputs["Vector"]
+    links.new(offset, setp.inputs["Offset"])
+    links.new(setp.outputs["Geometry"], gout.inputs["Geometry"])
+    mod = obj.modifiers.new("Displace", "NODES")
+    mod.node_group = group
+    add_bspline_material(obj, img, vector, name)
+
+
+def add_bspline_material(obj, img, vector, name):
+    """A Cycles material displacing by the same spline at render time:
+    Image Texture (Non-Color, interpolation "Cubic", the uniform cubic
+    B-spline in Cycles' image kernel) on UV map "st", into a Vector
+    Displacement node (object space, midlevel 0, scale 1) or, for the
+    scalar map, a Displacement node; "Displacement Only" (docs/handoff.md)."""
+    mat = bpy.data.materials.new(name + "_subdfit")
+    mat.use_nodes = True
+    mat.cycles.displacement_method = "DISPLACEMENT"
+    nodes, links = mat.node_tree.nodes, mat.node_tree.links
+    out = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
+    uv = nodes.new("ShaderNodeUVMap")
+    uv.uv_map = "st"
+    tex = nodes.new("ShaderNodeTexImage")
+    tex.image = img
+    tex.interpolation = "Cubic"
+    tex.extension = "EXTEND"
+    links.new(uv.outputs["UV"], tex.inputs["Vector"])
+    if vector:
+        disp = nodes.new("ShaderNodeVectorDisplacement")
+        disp.space = "OBJECT"
+        disp.inputs["Midlevel"].default_value = 0.0
+        disp.inputs["Scale"].default_value = 1.0
+        links.new(tex.outputs["Color"], disp.inputs["Vector"])
+    else:
+        disp = nodes.new("ShaderNodeDisplacement")
+        disp.space = "OBJECT"
+        disp.inputs["Midlevel"].default_value = 0.0
+        disp.inputs["Scale"].default_value = 1.0
+        links.new(tex.outputs["Color"], disp.inputs["Height"])
+    links.new(disp.outputs["Displacement"], out.inputs["Displacement"])
+    obj.data.materials.append(mat)
 
 
 def evaluated_vertices(obj, with_resolved=False):
@@ -220,16 +406,18 @@ def evaluated_vertices(obj, with_resolved=False):
 
 def farthest_from(points, reference):
     """Largest distance from a point of `points` to its nearest in
-    `reference`, and the reference's bounding-box diagonal."""
+    `reference`, the reference's bounding-box diagonal, and the RMS of
+    those distances."""
     from mathutils import kdtree
     tree = kdtree.KDTree(len(reference))
     for i, p in enumerate(reference):
         tree.insert(p, i)
     tree.balance()
-    worst = max(tree.find(p)[2] for p in points)
+    dists = [tree.find(p)[2] for p in points]
     lo = [min(p[k] for p in reference) for k in range(3)]
     hi = [max(p[k] for p in reference) for k in range(3)]
-    return worst, math.dist(lo, hi)
+    rms = math.sqrt(sum(d * d for d in dists) / max(len(dists), 1))
+    return max(dists), math.dist(lo, hi), rms
 
 
 def check(folder, obj):
@@ -242,16 +430,17 @@ def check(folder, obj):
     out["unresolved_vertices"] = resolved.count(False)
     limit = read_ply_vertices(os.path.join(folder, "limit.ply"))
     out["limit_vertices"] = len(limit)
-    worst, diag = farthest_from(pts, limit)
+    worst, diag, _ = farthest_from(pts, limit)
     out["limit_max_over_diagonal"] = worst / diag
     if dis is not None:
         dis.show_viewport = True
         pts = evaluated_vertices(obj)
         displaced = read_ply_vertices(os.path.join(folder, "displaced.ply"))
-        worst, _ = farthest_from(pts, displaced)
+        worst, _, rms = farthest_from(pts, displaced)
         out["displaced_max_over_diagonal"] = worst / diag
+        out["displaced_rms_over_diagonal"] = rms / diag
         kept = [p for p, r in zip(pts, resolved) if r]
-        worst, _ = farthest_from(kept, displaced)
+        worst, _, _ = farthest_from(kept, displaced)
         out["displaced_resolved_max_over_diagonal"] = worst / diag
     return out
 
@@ -292,9 +481,10 @@ def main(argv):
     folder, level, do_check = args[0], None, "--check" in args
     if "--level" in args:
         level = int(args[args.index("--level") + 1])
+    maps = args[args.index("--maps") + 1] if "--maps" in args else "displacement"
     for o in list(bpy.data.objects):
         bpy.data.objects.remove(o)
-    obj = import_folder(folder, level)
+    obj = import_folder(folder, level, maps=maps)
     if do_check:
         print("SUBDFIT_CHECK " + json.dumps(check(folder, obj)), flush=True)
 

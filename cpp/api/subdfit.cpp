@@ -91,6 +91,9 @@ ffi::FfiOptions ffi_options(const Options& o) {
   r.displacement_resolution = o.displacement_resolution;
   r.displacement_samples = o.displacement_samples;
   r.displacement_allocation = o.displacement_allocation == DisplacementAllocation::Uniform ? 1 : 0;
+  r.displacement_reconstruction =
+      o.displacement_reconstruction == DisplacementReconstruction::BSpline ? 1 : 0;
+  r.layout = o.layout == Layout::Field ? 1 : 0;
   r.max_error = o.max_error;
   r.m_fitmap = o.m_fitmap;
   r.tessellation = o.tessellation;

@@ -1,4 +1,5 @@
 // convert INPUT OUTPUT.obj [--tolerance T] [--faces N] [--threads N]
+//         [--displacement-reconstruction bilinear|bspline]
 //         [--report REPORT.json] [--cancel-at STAGE:FRACTION] [--self-test WHAT]
 // Reads a mesh with OpenMesh, converts it with a progress bar on stderr and
 // writes the control mesh. Any error: the message on stderr, then its kind
@@ -43,6 +44,10 @@ int main(int argc, char** argv) {
     else if (!std::strcmp(argv[i], "--faces")) options.target_faces = std::atoi(argv[i + 1]);
     else if (!std::strcmp(argv[i], "--self-test")) self_test = argv[i + 1];
     else if (!std::strcmp(argv[i], "--threads")) options.threads = std::atoi(argv[i + 1]);
+    else if (!std::strcmp(argv[i], "--displacement-reconstruction"))
+      options.displacement_reconstruction = !std::strcmp(argv[i + 1], "bspline")
+                                                ? subdfit::DisplacementReconstruction::BSpline
+                                                : subdfit::DisplacementReconstruction::Bilinear;
     else if (!std::strcmp(argv[i], "--report")) report_path = argv[i + 1];
     else if (!std::strcmp(argv[i], "--cancel-at")) {
       const std::string a = argv[i + 1];

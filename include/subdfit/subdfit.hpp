@@ -134,6 +134,13 @@ enum class FitMethod { Point, Sdm };
 // How the displacement samples are spread over the patches: per patch where
 // the detail is, under a total (the default), or the same grid everywhere.
 enum class DisplacementAllocation { Adaptive, Uniform };
+// How a host reads the displacement maps: Bilinear samples (every host), or
+// BSpline coefficients of the uniform bicubic B-spline, read with a cubic
+// B-spline filter (Blender/Cycles' "Cubic"; docs/handoff.md).
+enum class DisplacementReconstruction { Bilinear, BSpline };
+// Organic mode's layout: Greedy (Fitmaps' simplification, the default) or
+// Field (a field-aligned layout, experimental).
+enum class Layout { Greedy, Field };
 
 // The options of `subdfit convert` / `subdfit fit`, with the CLI's defaults.
 struct Options {
@@ -154,6 +161,10 @@ struct Options {
   std::uint32_t displacement_samples = 0;
   // --displacement-allocation; a displacement_resolution implies Uniform.
   DisplacementAllocation displacement_allocation = DisplacementAllocation::Adaptive;
+  // --displacement-reconstruction
+  DisplacementReconstruction displacement_reconstruction = DisplacementReconstruction::Bilinear;
+  // --layout
+  Layout layout = Layout::Greedy;
   // --max-error, a fraction of the bounding-box diagonal: mechanical mode's
   // RMS bound per control face, organic mode's bound on the limit surface's
   // RMS distance; 0 = the mode's default, infinity = organic mode's natural

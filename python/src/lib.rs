@@ -191,7 +191,7 @@ impl PyOptions {
     #[pyo3(signature = (*, tolerance=None, mode="auto", max_error=None, faces_target=0,
         fit="point", displacement_res=0, m_fitmap=true, tessellation=0, proxy="auto",
         layout="greedy", displacement_samples=0, threads=0, name=None, exact_metrics=false,
-        displacement_allocation="adaptive"))]
+        displacement_allocation="adaptive", displacement_reconstruction="bilinear"))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         tolerance: Option<f64>,
@@ -209,6 +209,7 @@ impl PyOptions {
         name: Option<String>,
         exact_metrics: bool,
         displacement_allocation: &str,
+        displacement_reconstruction: &str,
     ) -> PyResult<Self> {
         // The library's own types and words (`subdfit::convert::Mode`,
         // `subdfit::fit::Objective`, `Proxy`): one definition for every host.
@@ -237,6 +238,14 @@ impl PyOptions {
                     "unknown displacement_allocation {displacement_allocation:?}: adaptive or uniform"
                 ))
             })?)
+            .with_displacement_reconstruction(displacement_reconstruction.parse().map_err(
+                |_| {
+                    InvalidOption::new_err(format!(
+                        "unknown displacement_reconstruction {displacement_reconstruction:?}: \
+                         bilinear or bspline"
+                    ))
+                },
+            )?)
             .with_m_fitmap(m_fitmap)
             .with_exact_metrics(exact_metrics)
             .with_tessellation(positive(tessellation))

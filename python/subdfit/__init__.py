@@ -294,6 +294,7 @@ def convert(
     progress: Progress | None = None,
     exact_metrics: bool = False,
     displacement_allocation: str = "adaptive",
+    displacement_reconstruction: str = "bilinear",
 ) -> Conversion:
     """Dense mesh → control mesh + displacement + metrics (``subdfit convert``).
 
@@ -312,6 +313,10 @@ def convert(
     ``displacement_allocation`` (``"adaptive"``: per-patch resolution
     under that total, the default; ``"uniform"``: the same grid on every
     patch),
+    ``displacement_reconstruction`` (``"bilinear"``: the maps hold samples,
+    read bilinearly, the default; ``"bspline"``: they hold coefficients of
+    the uniform bicubic B-spline, read with Blender/Cycles' "Cubic"
+    interpolation; docs/handoff.md says what each host must do),
     ``threads`` (0: all cores), ``exact_metrics`` (``--exact-metrics``:
     measure every point; by default a direction of more than 300 000 points
     is sampled and the report gives its 95 % confidence interval).
@@ -324,7 +329,8 @@ def convert(
                  faces_target=faces_target, fit=fit, displacement_res=displacement_res,
                  m_fitmap=m_fitmap, tessellation=tessellation, proxy=proxy, layout=layout,
                  displacement_samples=displacement_samples, threads=threads,
-                 exact_metrics=exact_metrics, displacement_allocation=displacement_allocation)
+                 exact_metrics=exact_metrics, displacement_allocation=displacement_allocation,
+                 displacement_reconstruction=displacement_reconstruction)
     return Conversion(_subdfit.convert(mesh, o, progress))
 
 

@@ -58,6 +58,7 @@ class Options:
         name: str | None = None,
         exact_metrics: bool = False,
         displacement_allocation: str = "adaptive",
+        displacement_reconstruction: str = "bilinear",
     ) -> None: ...
     @property
     def tolerance(self) -> float: ...

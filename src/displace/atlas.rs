@@ -384,14 +384,21 @@ impl Atlas {
     /// block that straddles the border averages the patch's own values),
     /// unused tiles 0.
     pub fn bake_images(&self, d: &Displacement) -> Result<Vec<Vec<f32>>> {
-        self.bake_images_of(d, |s| d.offsets[s])
+        self.bake_images_of(d, d.reconstruction, |s| d.offsets[s])
+    }
+
+    /// [`Atlas::bake_images`] of one value per sample of `d`'s grid, laid
+    /// out as samples for a bilinear lookup whatever `d`'s reconstruction
+    /// (the B-spline evaluated at the samples, for USD: `super::bspline`).
+    pub fn bake_sample_images(&self, d: &Displacement, values: &[f64]) -> Result<Vec<Vec<f32>>> {
+        self.bake_images_of(d, super::Reconstruction::Bilinear, |s| values[s])
     }
 
     /// The three channels (x, y, z) of every image of the vector map: at
     /// each sample its displacement `offset · direction` (module docs).
     pub fn bake_vector_images(&self, d: &Displacement) -> Result<Vec<[Vec<f32>; 3]>> {
         let v = d.vectors();
-        let component = |c: usize| self.bake_images_of(d, |s| v[s][c]);
+        let component = |c: usize| self.bake_images_of(d, d.reconstruction, |s| v[s][c]);
         let (x, y, z) = (component(0)?, component(1)?, component(2)?);
         Ok(x.into_iter()
             .zip(y)
@@ -404,6 +411,7 @@ impl Atlas {
     fn bake_images_of(
         &self,
         d: &Displacement,
+        reconstruction: super::Reconstruction,
         value: impl Fn(usize) -> f64,
     ) -> Result<Vec<Vec<f32>>> {
         let patches = d.grid.num_patches();
@@ -422,7 +430,7 @@ impl Atlas {
         // gutter its linear phantom one texel out (what a cubic lookup at
         // the border reads; `super::bspline` module docs) and that
         // texel's value beyond.
-        let tiles = (d.reconstruction == super::Reconstruction::Bspline)
+        let tiles = (reconstruction == super::Reconstruction::Bspline)
             .then(|| super::BsplineTiles::new(&d.grid));
         let mut terms = Vec::new();
         for f in 0..patches {

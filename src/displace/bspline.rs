@@ -227,6 +227,34 @@ impl<'a> BsplineTiles<'a> {
         out
     }
 
+    /// The spline at every sample of the grid (at its own knot), from
+    /// `value` per independent sample: what a host with only a bilinear
+    /// lookup is given (USD's maps, [`crate::report`]'s outputs), so that
+    /// it interpolates the spline's values at the samples. The spline is
+    /// continuous across patch edges, so a sample shared by tiles gets the
+    /// same value from each up to round-off; the last tile in patch order
+    /// sets it (a fixed order: the same bytes at any thread count).
+    pub fn at_samples<T>(&self, value: impl Fn(usize) -> T) -> Vec<T>
+    where
+        T: Copy + Default + std::ops::Add<Output = T> + std::ops::Mul<f64, Output = T>,
+    {
+        let g = self.grid;
+        let mut out = vec![T::default(); g.num_samples()];
+        for f in 0..g.num_patches() {
+            let r1 = g.patch_res(f) - 1;
+            for j in 0..=r1 {
+                for i in 0..=r1 {
+                    let (u, v) = (i as f64 / r1 as f64, j as f64 / r1 as f64);
+                    out[g.sample(f, i, j) as usize] = self
+                        .terms(f, u, v)
+                        .iter()
+                        .fold(T::default(), |acc, &(s, w)| acc + value(s as usize) * w);
+                }
+            }
+        }
+        out
+    }
+
     /// Every independent sample the spline of tile `f` reads over its
     /// knot cells `i0..i0 + span`, `j0..j0 + span` (cell `i` reads the
     /// knots `i − 1 ..= i + 2`), for the normal equations' pattern.

@@ -12,7 +12,7 @@
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Mutex;
 
-use crate::displace::SampleAllocation;
+use crate::displace::{Reconstruction, SampleAllocation};
 use crate::embed::{self, ControlArrays, MeshArrays, Progress};
 use crate::mesh::FaceId;
 use crate::subdiv::{Backend, LimitPoint, SurfaceLocation};
@@ -32,6 +32,10 @@ pub(crate) mod api {
         displacement_samples: u32,
         /// 0 adaptive, 1 uniform.
         displacement_allocation: u8,
+        /// 0 bilinear, 1 bspline.
+        displacement_reconstruction: u8,
+        /// 0 greedy, 1 field.
+        layout: u8,
         /// 0: the mode's default; infinity: organic mode's natural end.
         max_error: f64,
         m_fitmap: bool,
@@ -245,7 +249,7 @@ fn backend(b: u8) -> crate::Result<Backend> {
 }
 
 fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
-    use crate::convert::{Mode, Proxy};
+    use crate::convert::{LayoutKind, Mode, Proxy};
     use crate::fit::Objective;
     let bad = |what: &str, v: i64| crate::Error::option(what, format!("unknown {what} {v}"));
     let defaults = embed::Options::default();
@@ -272,6 +276,16 @@ fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
             0 => SampleAllocation::Adaptive,
             1 => SampleAllocation::Uniform,
             m => return Err(bad("displacement allocation", m.into())),
+        })
+        .with_displacement_reconstruction(match o.displacement_reconstruction {
+            0 => Reconstruction::Bilinear,
+            1 => Reconstruction::Bspline,
+            m => return Err(bad("displacement reconstruction", m.into())),
+        })
+        .with_layout(match o.layout {
+            0 => LayoutKind::Greedy,
+            1 => LayoutKind::Field,
+            m => return Err(bad("layout", m.into())),
         })
         .with_max_error((o.max_error != 0.0).then_some(o.max_error))
         .with_m_fitmap(o.m_fitmap)

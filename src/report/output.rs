@@ -346,6 +346,42 @@ fn pause_for_tests() {
 /// One output file: its name and the code that writes it to a path.
 type Job<'a> = (String, Box<dyn Fn(&Path) -> Result<()> + Send + Sync + 'a>);
 
+/// The stem of the maps written beside B-spline coefficient maps for hosts
+/// with only a bilinear lookup: `displacement_bilinear[_vector][.<UDIM>].exr`.
+pub const BILINEAR_STEM: &str = "displacement_bilinear";
+
+/// Scalar and vector images (per UDIM tile) of the B-spline evaluated at
+/// every sample, laid out as bilinear samples, when `d` is a B-spline
+/// reconstruction; `None` otherwise. USD's `UsdUVTexture` has no filter
+/// choice and its hosts read bilinearly (docs/handoff.md), so the USD
+/// material binds these: a bilinear host gets the surface that
+/// interpolates the B-spline surface at the samples, within the error
+/// that tests/blender.rs measures, instead of reading coefficients as
+/// samples (on spot 1.4 % of the diagonal off `displaced.ply`).
+#[allow(clippy::type_complexity)]
+fn bilinear_maps(
+    atlas: &Atlas,
+    d: &crate::displace::Displacement,
+) -> Result<Option<(Vec<Vec<f32>>, Vec<[Vec<f32>; 3]>)>> {
+    use crate::displace::{BsplineTiles, Reconstruction};
+    if d.reconstruction != Reconstruction::Bspline {
+        return Ok(None);
+    }
+    let tiles = BsplineTiles::new(&d.grid);
+    let scalar = atlas.bake_sample_images(d, &tiles.at_samples(|s| d.offsets[s]))?;
+    let v = d.vectors();
+    let at = tiles.at_samples(|s| v[s]);
+    let channel = |c: usize| -> Vec<f64> { at.iter().map(|p| p[c]).collect() };
+    let [x, y, z] = [0, 1, 2].map(|c| atlas.bake_sample_images(d, &channel(c)));
+    let vector = x?
+        .into_iter()
+        .zip(y?)
+        .zip(z?)
+        .map(|((x, y), z)| [x, y, z])
+        .collect();
+    Ok(Some((scalar, vector)))
+}
+
 fn write_all<O: Serialize + Sync>(dir: &Path, out: &OutputFiles<'_, O>) -> Result<Vec<String>> {
     use rayon::prelude::*;
     let d = &out.surfaces.displacement;
@@ -355,10 +391,16 @@ fn write_all<O: Serialize + Sync>(dir: &Path, out: &OutputFiles<'_, O>) -> Resul
         .collect();
     let images = atlas.bake_images(d)?;
     let vectors = atlas.bake_vector_images(d)?;
+    let sampled = bilinear_maps(&atlas, d)?;
     let (atlas, uvs) = (&atlas, &uvs);
+    let texture = atlas.texture_pattern().to_string();
     let usd = UsdOptions {
         meters_per_unit: out.options.meters_per_unit,
-        texture: Some(atlas.texture_pattern().to_string()),
+        // B-spline maps: USD binds their samples (`bilinear_maps`).
+        texture: Some(match &sampled {
+            Some(_) => texture.replacen("displacement", BILINEAR_STEM, 1),
+            None => texture,
+        }),
     };
     let usd = &usd;
     let mut jobs: Vec<Job<'_>> = Vec::new();
@@ -415,6 +457,30 @@ fn write_all<O: Serialize + Sync>(dir: &Path, out: &OutputFiles<'_, O>) -> Resul
                 write_atomically(p, |w| w.write_all(&exr).map_err(|e| Error::io(p, e)))
             }),
         ));
+    }
+    if let Some((scalar, vector)) = &sampled {
+        for (k, img) in scalar.iter().enumerate() {
+            jobs.push((
+                atlas
+                    .file_name(k)
+                    .replacen("displacement", BILINEAR_STEM, 1),
+                Box::new(move |p| {
+                    let exr = atlas.encode_exr_as(img, out.options.texels)?;
+                    write_atomically(p, |w| w.write_all(&exr).map_err(|e| Error::io(p, e)))
+                }),
+            ));
+        }
+        for (k, xyz) in vector.iter().enumerate() {
+            jobs.push((
+                atlas
+                    .file_name_of(AtlasMap::Vector, k)
+                    .replacen("displacement", BILINEAR_STEM, 1),
+                Box::new(move |p| {
+                    let exr = atlas.encode_vector_exr_as(xyz, out.options.texels)?;
+                    write_atomically(p, |w| w.write_all(&exr).map_err(|e| Error::io(p, e)))
+                }),
+            ));
+        }
     }
     if let Some(fm) = out.fitmap {
         jobs.push((

@@ -62,6 +62,8 @@ pub struct NormalEquations {
     rhs: Vec<f64>,
     /// Rows added.
     pub rows: usize,
+    /// [`Self::add_row`]'s scratch: a long row's entries in column order.
+    sorted: Vec<(u32, f64)>,
 }
 
 impl NormalEquations {
@@ -134,6 +136,7 @@ impl NormalEquations {
             inner,
             rhs: vec![0.0; n],
             rows: 0,
+            sorted: Vec::new(),
         })
     }
 
@@ -170,12 +173,57 @@ impl NormalEquations {
     /// distinct and coupled in the pattern; else an error, `N` unchanged
     /// only if the first column is the one missing).
     pub fn add_row(&mut self, entries: &[(u32, f64)], b: f64) -> Result<()> {
+        // Short rows (the bilinear reconstruction's 4 samples): a scan of
+        // pattern row i per pair. Long ones (the B-spline's 16 and more,
+        // whose pattern rows hold ~50 columns) would scan k² times; with the
+        // entries in column order, one merge walk of each pattern row finds
+        // all k of its columns. The same (i, j) sums in the same order.
+        if entries.len() <= 6 {
+            for &(i, ai) in entries {
+                for &(j, aj) in entries {
+                    let k = self.entry(i, j)?;
+                    self.values[k] += ai * aj;
+                }
+                self.rhs[i as usize] += ai * b;
+            }
+            self.rows += 1;
+            return Ok(());
+        }
+        let mut sorted = std::mem::take(&mut self.sorted);
+        sorted.clear();
+        sorted.extend_from_slice(entries);
+        sorted.sort_unstable_by_key(|e| e.0);
+        let r = self.add_sorted_row(entries, &sorted, b);
+        self.sorted = sorted;
+        r
+    }
+
+    /// [`Self::add_row`] of `entries`, `sorted` the same in column order.
+    fn add_sorted_row(
+        &mut self,
+        entries: &[(u32, f64)],
+        sorted: &[(u32, f64)],
+        b: f64,
+    ) -> Result<()> {
         for &(i, ai) in entries {
-            for &(j, aj) in entries {
-                let k = self.entry(i, j)?;
+            let iu = i as usize;
+            if iu + 1 >= self.outer.len() {
+                return Err(self.entry(i, sorted[0].0).unwrap_err());
+            }
+            let (lo, hi) = (self.outer[iu] as usize, self.outer[iu + 1] as usize);
+            let mut k = lo;
+            for &(j, aj) in sorted {
+                while k < hi && self.inner[k] < j as i32 {
+                    k += 1;
+                }
+                if k == hi || self.inner[k] != j as i32 {
+                    return Err(Error::internal(format!(
+                        "normal equations: ({i}, {j}) is not in the sparsity pattern"
+                    )));
+                }
                 self.values[k] += ai * aj;
             }
-            self.rhs[i as usize] += ai * b;
+            self.rhs[iu] += ai * b;
         }
         self.rows += 1;
         Ok(())
@@ -486,6 +534,46 @@ mod tests {
         // A row outside the pattern is an error, not a panic.
         assert!(ne.add_row(&[(0, 1.0), (5, 1.0)], 0.0).is_err());
         assert!(ne.add_diagonal(n, 1.0).is_err());
+    }
+
+    #[test]
+    fn long_rows_sum_the_same_entries_as_short_ones() {
+        // Rows of 16 unknowns out of column order (the B-spline's 4 × 4
+        // knots) take the merge walk; the same rows split into the
+        // pattern's scan, entry by entry, must give bit-identical sums
+        // (each (i, j) gets one product per row, in row order either way).
+        let n = 24u32;
+        let window = |r: u32| -> Vec<u32> { (0..16).map(|k| (r + 5 * k) % n).collect() };
+        let mut pairs: Vec<[u32; 2]> = Vec::new();
+        for r in 0..8 {
+            let w = window(r);
+            for &a in &w {
+                pairs.extend(w.iter().map(|&b| [a, b]));
+            }
+        }
+        let mut long = NormalEquations::with_pairs(n as usize, pairs.iter().copied()).unwrap();
+        let mut short = long.clone();
+        for r in 0..8u32 {
+            let entries: Vec<(u32, f64)> = window(r)
+                .into_iter()
+                .map(|c| (c, 1.0 + (c * 7 + r) as f64 / 13.0))
+                .collect();
+            long.add_row(&entries, r as f64).unwrap();
+            for &(i, ai) in &entries {
+                for &(j, aj) in &entries {
+                    let k = short.entry(i, j).unwrap();
+                    short.values[k] += ai * aj;
+                }
+                short.rhs[i as usize] += ai * r as f64;
+            }
+        }
+        assert_eq!(long.values, short.values);
+        assert_eq!(long.rhs, short.rhs);
+        // A long row outside the pattern is an error too.
+        let mut sparse =
+            NormalEquations::with_pairs(n as usize, (0..n - 1).map(|i| [i, i + 1])).unwrap();
+        let row: Vec<(u32, f64)> = (0..8).map(|c| (c, 1.0)).collect();
+        assert!(sparse.add_row(&row, 0.0).is_err());
     }
 
     #[test]
