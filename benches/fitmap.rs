@@ -3,7 +3,8 @@
 //! greedy simplification loop (§3.3–3.4) at its default options, each in a
 //! one-thread rayon pool, so the figures are CPU seconds of one core and do
 //! not depend on what else the machine runs (the end-to-end wall times in
-//! docs/status.md, "Scale", do).
+//! docs/status.md, "Scale", do); the loop also in batches of 16
+//! (`SimplifyOptions::batch`), on one thread and on two.
 //!
 //! `cargo bench --bench fitmap`; skips with a message if the data is absent.
 
@@ -43,10 +44,34 @@ fn main() {
     g.bench_function("fitmap_fast_1thread", |b| {
         b.iter(|| pool.install(|| compute_fitmap(&mesh, caster.as_ref(), &opts).unwrap()))
     });
-    let so = SimplifyOptions::default();
-    g.bench_function("simplify_1thread", |b| {
-        b.iter(|| pool.install(|| simplify(&mesh, &fitmap, caster.as_ref(), &so).unwrap()))
-    });
+    // The loop sequential (the default) and in batches of 16, on
+    // one thread (its CPU cost) and on two (what the batches buy in wall
+    // time; that figure depends on what else the machine runs).
+    let pool2 = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    for (name, so, pool) in [
+        (
+            "simplify_sequential_1thread",
+            SimplifyOptions::default().with_batch(1),
+            &pool,
+        ),
+        (
+            "simplify_batched_1thread",
+            SimplifyOptions::default().with_batch(16),
+            &pool,
+        ),
+        (
+            "simplify_batched_2threads",
+            SimplifyOptions::default().with_batch(16),
+            &pool2,
+        ),
+    ] {
+        g.bench_function(name, |b| {
+            b.iter(|| pool.install(|| simplify(&mesh, &fitmap, caster.as_ref(), &so).unwrap()))
+        });
+    }
     g.finish();
     c.final_summary();
 }

@@ -21,10 +21,14 @@
 //! distance of twice the local feature size: the per-collapse queries are a
 //! few dozen rays, for which a batched call (rayon + FFI chunking) costs
 //! more in fixed overhead than the rays themselves. The loop is sequential
-//! (each step's heap, mesh and refit depend on the previous step's; forking
-//! a step's few dozen φ queries was measured slower, see `PHI_PAR_MIN`);
-//! only the sweeps over all faces run in parallel, in input order, so the
-//! result does not depend on the number of threads. The quadrangulation
+//! by default (each step's heap, mesh and refit depend on the previous
+//! step's; forking a step's few dozen φ queries was measured slower, see
+//! `PHI_PAR_MIN`). [`SimplifyOptions::batch`] above 1 runs it in batches
+//! of whole candidates whose regions do not meet (`Simplifier::run`):
+//! deterministic, but measured no cheaper and with a different outcome
+//! (see [`DEFAULT_BATCH`]). The sweeps over all faces run in parallel, in
+//! input order, so the result does not depend on the number of threads.
+//! The quadrangulation
 //! and interpolation before it need no Fitmap ([`prepare`]), so `convert`
 //! runs them beside the Fitmap. Every edit updates the control mesh's
 //! free lists locally: a full re-sort per edit made the loop quadratic.
@@ -137,7 +141,23 @@ pub struct SimplifyOptions {
     /// the natural end that `pipeline`'s `--max-error` search fits when the
     /// end itself is not accurate enough. 0: none.
     pub checkpoints: usize,
+    /// Collapses the loop evaluates together at most
+    /// ([`DEFAULT_BATCH`]): the next ones in the heap's order whose regions
+    /// do not meet, their Fitmap tests and refits one per rayon job. 1: the
+    /// sequential loop (Fitmaps' order exactly; the default). Any value
+    /// gives the same result at any thread count; values above 1 take a
+    /// batch's later candidates before the entries its earlier ones push,
+    /// a different greedy order with a different outcome.
+    pub batch: usize,
 }
+
+/// Default [`SimplifyOptions::batch`]: the sequential loop. Batches of 16
+/// were measured on 2026-12-05 (docs/status.md, "Scale", session 22): the
+/// same result at 1 and 2 threads, but 11 % more CPU on one thread and
+/// 40 % more on two, and a different greedy order that moved the shared
+/// meshes' outcome by more than noise (homer 212 → 233 patches, irregular
+/// vertices 60 → 81; bunny's loop 339 → 288 faces).
+pub const DEFAULT_BATCH: usize = 1;
 
 /// `--faces N` below the natural end (issue 17: "beyond the natural end
 /// the M-fitmap test is relaxed step by step"): each time the loop ends
@@ -169,6 +189,7 @@ impl Default for SimplifyOptions {
             guard_min_cos: 0.3,
             s_fitmap_scale: DEFAULT_S_FITMAP_SCALE,
             checkpoints: 0,
+            batch: DEFAULT_BATCH,
         }
     }
 }
@@ -194,6 +215,11 @@ impl SimplifyOptions {
     /// The S-fitmap test's κ in units of [`s_fitmap_kappa`] (0: off).
     pub fn with_s_fitmap_scale(mut self, scale: f64) -> Self {
         self.s_fitmap_scale = scale;
+        self
+    }
+    /// Collapses per batch ([`SimplifyOptions::batch`]; 1: sequential).
+    pub fn with_batch(mut self, n: usize) -> Self {
+        self.batch = n.max(1);
         self
     }
     /// The surface guard's bound (`scale = 0`: off) and normal test.
@@ -276,6 +302,13 @@ pub struct SimplifyStats {
     pub refused_undershoot: usize,
     /// Full re-evaluations of every face after the heap ran dry.
     pub sweeps: usize,
+    /// Batches of candidates the loop evaluated together
+    /// ([`SimplifyOptions::batch`]); with the candidates in them, the mean
+    /// batch.
+    #[serde(default)]
+    pub batches: usize,
+    #[serde(default)]
+    pub batched_candidates: usize,
     /// The factor the halting tests were relaxed by to reach
     /// `target_faces` below the natural end (1: not relaxed; see
     /// [`RELAX_STEP`]), and how many steps that took.
@@ -580,7 +613,7 @@ pub(crate) struct Simplifier<'a> {
     /// Limit position of every live control vertex (kept current in the
     /// refit region; the M-fitmap test reads it).
     pub(crate) lim: Vec<DVec3>,
-    heap: BinaryHeap<Reverse<(u64, u32, u8, u32)>>,
+    heap: BinaryHeap<HeapEntry>,
     projections: usize,
     unprojectable: usize,
     /// Topological invariants of the input, checked per step in tests.
@@ -592,9 +625,13 @@ pub(crate) struct Simplifier<'a> {
     /// again until the next sweep (their heap entries come back with the
     /// restored faces).
     refused: std::collections::HashMap<(u32, u32), u8>,
-    /// BFS stamps over vertices (region snapshots).
+    /// BFS stamps over vertices (region snapshots, batch claims).
     stamp: Vec<u32>,
     stamp_now: u32,
+    /// Per vertex, the batch that claimed it ([`Simplifier::claim`]).
+    claimed: Vec<u32>,
+    batch_now: u32,
+    ring_scratch: Vec<VertexId>,
     /// Old positions and limit points written by the current step, for its
     /// undo.
     pub(crate) pos_log: Vec<(VertexId, DVec3)>,
@@ -625,6 +662,105 @@ pub(crate) struct CentreCheck {
     /// hit (1 when the line missed: no normal to compare).
     cos: f64,
 }
+
+/// φ lines asked and missed by read-only work (added to the loop's
+/// counters in a fixed order afterwards).
+#[derive(Copy, Clone, Debug, Default)]
+struct PhiCount {
+    lines: usize,
+    misses: usize,
+}
+
+impl PhiCount {
+    fn add(&mut self, lines: usize, misses: usize) {
+        self.lines += lines;
+        self.misses += misses;
+    }
+}
+
+/// A heap entry: (cost bits, face, diagonal, version), least cost first.
+type HeapEntry = Reverse<(u64, u32, u8, u32)>;
+
+/// One collapse of a batch ([`Simplifier::run_batch`]) and what its undo
+/// needs.
+struct Candidate {
+    entry: HeapEntry,
+    plan: CollapsePlan,
+    /// The diagonal's ends, (smaller, larger) id: the key of `refused`.
+    pair: (u32, u32),
+    snap: Option<Snapshot>,
+    pos_log: Vec<(VertexId, DVec3)>,
+    lim_log: Vec<(VertexId, DVec3)>,
+    touched: Vec<VertexId>,
+    rotations: usize,
+    doublets: usize,
+}
+
+impl Candidate {
+    fn new(entry: HeapEntry, plan: CollapsePlan, pair: (u32, u32)) -> Self {
+        Candidate {
+            entry,
+            plan,
+            pair,
+            snap: None,
+            pos_log: Vec::new(),
+            lim_log: Vec::new(),
+            touched: Vec::new(),
+            rotations: 0,
+            doublets: 0,
+        }
+    }
+    fn face(&self) -> FaceId {
+        FaceId((self.entry.0).1)
+    }
+    fn diagonal(&self) -> usize {
+        (self.entry.0).2 as usize
+    }
+}
+
+/// What [`Simplifier::next_batch`] found.
+enum NextBatch {
+    Ready(Vec<Candidate>),
+    /// The heap is empty: a sweep or the natural end.
+    Empty,
+    /// `target_faces` is reached.
+    Target,
+}
+
+/// W of a local refit, W's limit masks and the faces around W
+/// ([`Simplifier::refit_region`]).
+struct RefitRegion {
+    w: Vec<VertexId>,
+    masks: Vec<Vec<(VertexId, f64)>>,
+    faces: Vec<FaceId>,
+}
+
+/// `f` over `xs` in input order, one item per rayon job when there are
+/// several (items are whole candidates' work); the result does not depend
+/// on the threads.
+fn map_in_order<T: Sync, R: Send>(xs: &[T], f: impl Fn(&T) -> R + Sync + Send) -> Vec<R> {
+    if xs.len() > 1 {
+        use rayon::prelude::*;
+        xs.par_iter().with_max_len(1).map(f).collect()
+    } else {
+        xs.iter().map(f).collect()
+    }
+}
+
+/// Edge rings around a candidate quad that no other candidate of its
+/// batch may reach. A step writes positions within 4 edges of the quad's
+/// corners (W: the rotations' vertices, within 3, plus their 1-ring) and
+/// limit points within 6 (the corners of the faces around W), and reads
+/// positions within 8 (those corners' limit masks and the face-centre
+/// limits around W); two claims of 7 rings that do not meet keep the quads
+/// 15 edges apart, more than 8 + 6, with one edge to spare for each of
+/// the two collapses shortening paths.
+const BATCH_RINGS: usize = 7;
+
+/// Candidates per batch put back (their region met an earlier one's)
+/// before a batch is closed short, per place in it: bounds the pops per
+/// batch on a coarse mesh, where most regions meet.
+const BATCH_DEFER: usize = 2;
 
 /// The faces of a region before a step, for its undo.
 pub(crate) struct Snapshot {
@@ -687,16 +823,20 @@ fn phi_line(bvh: &BvhCaster, o: DVec3, n: DVec3, max_t: f64) -> Option<Projected
 }
 
 /// φ of a batch of `(origin, unit direction, search distance)` lines, in
-/// order. From [`PHI_PAR_MIN`] lines on (the sweeps over every face) they
+/// order. From `par_min` lines on (the sweeps over every face) they
 /// are split over the rayon pool; the map keeps input order, so the result
 /// does not depend on the threads.
-fn phi_batch(bvh: &BvhCaster, lines: &[(DVec3, DVec3, f64)]) -> Vec<Option<Projected>> {
+fn phi_batch(
+    bvh: &BvhCaster,
+    lines: &[(DVec3, DVec3, f64)],
+    par_min: usize,
+) -> Vec<Option<Projected>> {
     let one = |&(o, n, t): &(DVec3, DVec3, f64)| phi_line(bvh, o, n, t);
-    if lines.len() >= PHI_PAR_MIN {
+    if lines.len() >= par_min {
         use rayon::prelude::*;
         lines
             .par_iter()
-            .with_min_len(PHI_PAR_MIN / 2)
+            .with_min_len((par_min / 2).max(1))
             .map(one)
             .collect()
     } else {
@@ -786,6 +926,9 @@ impl<'a> Simplifier<'a> {
             refused: Default::default(),
             stamp: Vec::new(),
             stamp_now: 0,
+            claimed: Vec::new(),
+            batch_now: 0,
+            ring_scratch: Vec::new(),
             pos_log: Vec::new(),
             lim_log: Vec::new(),
             blocked: Default::default(),
@@ -800,19 +943,35 @@ impl<'a> Simplifier<'a> {
         })
     }
 
-    /// φ of one point (counted).
-    pub(crate) fn phi(&mut self, o: DVec3, n: DVec3, scale: f64) -> Option<Projected> {
-        self.projections += 1;
+    /// φ of one point, counted in `count` (read-only: the batched loop asks
+    /// from several candidates at once).
+    fn phi_counted(
+        &self,
+        o: DVec3,
+        n: DVec3,
+        scale: f64,
+        count: &mut PhiCount,
+    ) -> Option<Projected> {
         let p = phi_line(&self.bvh, o, n, local_reach(scale, self.max_dist));
-        if p.is_none() {
-            self.unprojectable += 1;
-        }
+        count.add(1, p.is_none() as usize);
         p
+    }
+
+    fn add_count(&mut self, count: PhiCount) {
+        self.projections += count.lines;
+        self.unprojectable += count.misses;
     }
 
     /// Recomputes centre, F_S, F_M and heap entries of `faces` (live ones);
     /// returns what φ found at each centre (for the guard).
     pub(crate) fn update_faces(&mut self, faces: &[FaceId]) -> Result<Vec<CentreCheck>> {
+        self.update_faces_split(faces, PHI_PAR_MIN)
+    }
+
+    /// [`Simplifier::update_faces`], splitting the centres and their φ
+    /// over the pool from `par_min` faces on (any split gives the same
+    /// result: the maps keep input order).
+    fn update_faces_split(&mut self, faces: &[FaceId], par_min: usize) -> Result<Vec<CentreCheck>> {
         let nf = self.k.num_faces();
         if self.version.len() < nf {
             self.version.resize(nf, 0);
@@ -832,13 +991,17 @@ impl<'a> Simplifier<'a> {
             (l.position, l.normal(), local_reach(scale, max_dist))
         };
         // Map order is input order: the same result whatever the threads.
-        let lines: Vec<(DVec3, DVec3, f64)> = if faces.len() > 512 {
+        let lines: Vec<(DVec3, DVec3, f64)> = if faces.len() >= par_min {
             use rayon::prelude::*;
-            faces.par_iter().map(|&f| one(f)).collect()
+            faces
+                .par_iter()
+                .with_min_len((par_min / 2).max(1))
+                .map(|&f| one(f))
+                .collect()
         } else {
             faces.iter().map(|&f| one(f)).collect()
         };
-        let proj: Vec<(DVec3, Option<Projected>, DVec3)> = phi_batch(&self.bvh, &lines)
+        let proj: Vec<(DVec3, Option<Projected>, DVec3)> = phi_batch(&self.bvh, &lines, par_min)
             .into_iter()
             .zip(&lines)
             .map(|(p, &(c, n, _))| (c, p, n))
@@ -932,7 +1095,9 @@ impl<'a> Simplifier<'a> {
     /// normal; F_M is interpolated there, linearly over M's triangle
     /// ([`Fitmap::m_at`]). A centre φ cannot project keeps the face's
     /// cached F_M.
-    fn fitmap_test(&mut self, f: FaceId, plan: &CollapsePlan) -> Option<u8> {
+    ///
+    /// Read-only: the φ lines it asks are counted in `count`.
+    fn fitmap_verdict(&self, f: FaceId, plan: &CollapsePlan, count: &mut PhiCount) -> Option<u8> {
         let (a, c) = (plan.keep, plan.remove);
         let boundary = self.k.is_boundary_vertex(a) || self.k.is_boundary_vertex(c);
         let merged = if let Some(s) = plan.corner {
@@ -962,7 +1127,7 @@ impl<'a> Simplifier<'a> {
             if patch_radius(&q).1 <= patch_radius(&before).1 {
                 continue;
             }
-            if let Some(why) = self.patch_test(g, &q) {
+            if let Some(why) = self.patch_verdict(g, &q, count) {
                 return Some(why);
             }
         }
@@ -973,9 +1138,21 @@ impl<'a> Simplifier<'a> {
     /// F_M, F_S at its centre projected by φ (face `g`'s cached values
     /// where φ misses).
     pub(crate) fn patch_fitmap(&mut self, g: FaceId, q: &[DVec3; 4]) -> (f64, f64, f64) {
+        let mut count = PhiCount::default();
+        let x = self.patch_fitmap_counted(g, q, &mut count);
+        self.add_count(count);
+        x
+    }
+
+    fn patch_fitmap_counted(
+        &self,
+        g: FaceId,
+        q: &[DVec3; 4],
+        count: &mut PhiCount,
+    ) -> (f64, f64, f64) {
         let (ctr, r) = patch_radius(q);
         let n = (q[2] - q[0]).cross(q[3] - q[1]).normalize_or_zero();
-        let (fm, fs) = match self.phi(ctr, n, 2.0 * r) {
+        let (fm, fs) = match self.phi_counted(ctr, n, 2.0 * r, count) {
             Some(p) => (
                 self.fitmap.m_at(self.m, p.triangle, p.u, p.v),
                 self.fitmap.s_at(self.m, p.triangle, p.u, p.v),
@@ -988,8 +1165,18 @@ impl<'a> Simplifier<'a> {
     /// The M- and S-fitmap tests of one patch whose corners' limit points
     /// are `q` (face `g`'s cached F_M, F_S where φ misses its centre):
     /// `radius ≤ F_M` and `radius · F_S ≤ κ`, both times the relaxation.
+    // The loop itself asks `patch_verdict` (read-only); this counted form
+    // is the one `field::cleanup`'s documentation names, kept for it.
+    #[allow(dead_code)]
     pub(crate) fn patch_test(&mut self, g: FaceId, q: &[DVec3; 4]) -> Option<u8> {
-        let (r, fm, fs) = self.patch_fitmap(g, q);
+        let mut count = PhiCount::default();
+        let why = self.patch_verdict(g, q, &mut count);
+        self.add_count(count);
+        why
+    }
+
+    fn patch_verdict(&self, g: FaceId, q: &[DVec3; 4], count: &mut PhiCount) -> Option<u8> {
+        let (r, fm, fs) = self.patch_fitmap_counted(g, q, count);
         if r > fm * self.relax {
             return Some(Blocked::M_FITMAP);
         }
@@ -1042,16 +1229,58 @@ impl<'a> Simplifier<'a> {
         Ok(())
     }
 
+    /// The greedy loop (§3.3), in batches of at most
+    /// [`SimplifyOptions::batch`] candidates: the next ones in the heap's
+    /// order whose regions ([`BATCH_RINGS`]) do not meet. A batch's
+    /// read-only work — the Fitmap tests, and each refit round's smoothing,
+    /// φ targets and fit sweeps — runs one candidate per rayon job; every
+    /// edit (collapse, rotations, positions, limit points, heap, undo) is
+    /// made on this thread in the heap's order. Which candidates form a
+    /// batch depends on the heap and the mesh only, never on the threads,
+    /// so the result is the same at any thread count. A batch of one is the
+    /// sequential loop, step for step.
     fn run(
         &mut self,
         stats: &mut SimplifyStats,
         progress: &mut dyn FnMut(Progress) -> bool,
     ) -> Result<()> {
+        if self.opts.batch <= 1 || rayon::current_thread_index().is_some() {
+            return self.run_loop(stats, progress);
+        }
+        // A batch forks about fifteen times (its Fitmap tests, and each
+        // refit round's phases). From a thread outside the pool every fork
+        // is a hand-over to a worker and a futex wait for it (measured: a
+        // tenth of the loop's samples in the kernel, and 40 % more CPU than
+        // the sequential loop on one thread); from a worker it is a push
+        // on its own deque. So the loop runs as one job in the pool, and
+        // this thread keeps the progress callback (a host's, which need
+        // not be callable from elsewhere), answering the loop's questions
+        // over a channel.
+        let (to_host, from_loop) = std::sync::mpsc::channel::<Progress>();
+        let (to_loop, from_host) = std::sync::mpsc::channel::<bool>();
+        let mut result = Ok(());
+        rayon::in_place_scope(|scope| {
+            let result = &mut result;
+            scope.spawn(move |_| {
+                let mut ask =
+                    |p: Progress| to_host.send(p).is_ok() && from_host.recv().unwrap_or(false);
+                *result = self.run_loop(stats, &mut ask);
+            });
+            // Ends when the loop's end of the channel is dropped.
+            for p in from_loop {
+                let _ = to_loop.send(progress(p));
+            }
+        });
+        result
+    }
+
+    /// The loop of [`Simplifier::run`], on the thread it is called on.
+    fn run_loop(
+        &mut self,
+        stats: &mut SimplifyStats,
+        progress: &mut dyn FnMut(Progress) -> bool,
+    ) -> Result<()> {
         let t0 = Instant::now();
-        // The progress callback is also how a cancellation arrives: it is
-        // asked every ASK_EVERY heap pops (refused ones included: a run of
-        // refusals can be long) and between chunks of a full sweep.
-        const ASK_EVERY: usize = 64;
         stats.initial_faces = self.k.num_live_faces();
         self.update_all(stats, t0, progress)?;
         let target = self.opts.target_faces.unwrap_or(0);
@@ -1059,43 +1288,102 @@ impl<'a> Simplifier<'a> {
         let mut at_last_sweep = stats.collapses;
         let mut pops = 0usize;
         loop {
-            pops += 1;
-            if pops % ASK_EVERY == 0 {
+            let batch = match self.next_batch(stats, t0, progress, &mut pops, target)? {
+                NextBatch::Ready(b) => b,
+                NextBatch::Target => {
+                    stop = StopReason::TargetFaces;
+                    break;
+                }
+                NextBatch::Empty => {
+                    // The heap only re-evaluates faces around a refit region; a
+                    // refused collapse whose blocking neighbour changed later
+                    // from further away was never looked at again. Before
+                    // declaring the natural end, re-evaluate every face once
+                    // more, as long as the previous sweep led to collapses.
+                    if stats.collapses == at_last_sweep {
+                        // The natural end. Above a `target_faces` (by more than
+                        // its 2 % window), relax the halting tests one step
+                        // and sweep again.
+                        let above = self.k.num_live_faces() as f64 > 1.02 * target as f64;
+                        if target == 0 || !above || stats.relax_steps == MAX_RELAX_STEPS {
+                            break;
+                        }
+                        self.relax *= RELAX_STEP;
+                        stats.relax_steps += 1;
+                        stats.relaxation = self.relax;
+                    }
+                    at_last_sweep = stats.collapses;
+                    stats.sweeps += 1;
+                    // A collapse the guard undid was refused for the geometry of
+                    // its region then; collapses since may have changed it (the
+                    // refits move vertices, neighbouring collapses change the
+                    // patches), so it gets one more try per sweep. The loop
+                    // still ends: a sweep with no collapse is the last.
+                    self.refused.clear();
+                    self.blocked.clear();
+                    self.update_all(stats, t0, progress)?;
+                    continue;
+                }
+            };
+            self.run_batch(batch, stats, target)?;
+        }
+        if self.k.num_live_faces() <= target {
+            stop = StopReason::TargetFaces;
+        }
+        stats.stop = Some(stop);
+        stats.relaxation = self.relax;
+        stats.s_fitmap_kappa = self.kappa;
+        stats.projections = self.projections;
+        stats.unprojectable = self.unprojectable;
+        Ok(())
+    }
+
+    /// Pops the next batch: live entries in the heap's order, each passing
+    /// the topology check and not refused this sweep (those are counted and
+    /// dropped, as in a sequential step), whose region meets no earlier
+    /// candidate's (those go back to the heap for a later batch). A batch
+    /// of one near `target_faces` (its undershoot check counts faces one
+    /// collapse at a time).
+    fn next_batch(
+        &mut self,
+        stats: &mut SimplifyStats,
+        t0: Instant,
+        progress: &mut dyn FnMut(Progress) -> bool,
+        pops: &mut usize,
+        target: usize,
+    ) -> Result<NextBatch> {
+        // The progress callback is also how a cancellation arrives: it is
+        // asked every ASK_EVERY heap pops (refused ones included: a run of
+        // refusals can be long) and between chunks of a full sweep.
+        const ASK_EVERY: usize = 64;
+        let live = self.k.num_live_faces();
+        let size = if target > 0 && live <= target + 8 * self.opts.batch {
+            1
+        } else {
+            self.opts.batch.max(1)
+        };
+        self.batch_now = self.batch_now.wrapping_add(1);
+        if self.batch_now == 0 {
+            self.claimed.iter_mut().for_each(|x| *x = 0);
+            self.batch_now = 1;
+        }
+        let mut batch: Vec<Candidate> = Vec::with_capacity(size);
+        let mut deferred = Vec::new();
+        while batch.len() < size && deferred.len() < BATCH_DEFER * size {
+            *pops += 1;
+            if *pops % ASK_EVERY == 0 {
                 self.ask(stats, t0, progress)?;
             }
             self.compact_heap();
-            let Some(Reverse((_, fi, d, ver))) = self.heap.pop() else {
-                // The heap only re-evaluates faces around a refit region; a
-                // refused collapse whose blocking neighbour changed later
-                // from further away was never looked at again. Before
-                // declaring the natural end, re-evaluate every face once
-                // more, as long as the previous sweep led to collapses.
-                if stats.collapses == at_last_sweep {
-                    // The natural end. Above a `target_faces` (by more than
-                    // its 2 % window), relax the halting tests one step
-                    // and sweep again.
-                    let above = self.k.num_live_faces() as f64 > 1.02 * target as f64;
-                    if target == 0 || !above || stats.relax_steps == MAX_RELAX_STEPS {
-                        break;
-                    }
-                    self.relax *= RELAX_STEP;
-                    stats.relax_steps += 1;
-                    stats.relaxation = self.relax;
-                }
-                at_last_sweep = stats.collapses;
-                stats.sweeps += 1;
-                // A collapse the guard undid was refused for the geometry of
-                // its region then; collapses since may have changed it (the
-                // refits move vertices, neighbouring collapses change the
-                // patches), so it gets one more try per sweep. The loop
-                // still ends: a sweep with no collapse is the last.
-                self.refused.clear();
-                self.blocked.clear();
-                self.update_all(stats, t0, progress)?;
-                continue;
+            let Some(entry) = self.heap.pop() else {
+                break;
             };
-            if self.k.num_live_faces() <= target {
-                stop = StopReason::TargetFaces;
+            let Reverse((_, fi, d, ver)) = entry;
+            if live <= target {
+                if batch.is_empty() {
+                    return Ok(NextBatch::Target);
+                }
+                self.heap.push(entry);
                 break;
             }
             let f = FaceId(fi);
@@ -1122,64 +1410,237 @@ impl<'a> Simplifier<'a> {
                 self.block(fi, why);
                 continue;
             }
-            if self.opts.m_fitmap {
-                if let Some(why) = self.fitmap_test(f, &plan) {
+            if size > 1 && !self.claim(f) {
+                deferred.push(entry);
+                continue;
+            }
+            batch.push(Candidate::new(entry, plan, pair));
+        }
+        for e in deferred {
+            self.heap.push(e);
+        }
+        Ok(if batch.is_empty() {
+            NextBatch::Empty
+        } else {
+            NextBatch::Ready(batch)
+        })
+    }
+
+    /// Claims the vertices within [`BATCH_RINGS`] edges of the corners of
+    /// `f` for the current batch; `false` (and nothing claimed) if one is
+    /// already another candidate's.
+    fn claim(&mut self, f: FaceId) -> bool {
+        let nv = self.k.num_vertices();
+        if self.claimed.len() < nv {
+            self.claimed.resize(nv, 0);
+        }
+        if self.stamp.len() < nv {
+            self.stamp.resize(nv, 0);
+        }
+        self.stamp_now = self.stamp_now.wrapping_add(1);
+        if self.stamp_now == 0 {
+            self.stamp.iter_mut().for_each(|x| *x = 0);
+            self.stamp_now = 1;
+        }
+        let (now, batch) = (self.stamp_now, self.batch_now);
+        let mut ring = std::mem::take(&mut self.ring_scratch);
+        ring.clear();
+        ring.extend(self.k.face_vertices(f));
+        let mut free = true;
+        for &v in &ring {
+            self.stamp[v.idx()] = now;
+            free &= self.claimed[v.idx()] != batch;
+        }
+        let mut start = 0;
+        for _ in 0..BATCH_RINGS {
+            if !free {
+                break;
+            }
+            let end = ring.len();
+            for i in start..end {
+                for h in self.k.outgoing(ring[i]) {
+                    let u = self.k.head(h);
+                    if self.stamp[u.idx()] != now {
+                        self.stamp[u.idx()] = now;
+                        free &= self.claimed[u.idx()] != batch;
+                        ring.push(u);
+                    }
+                }
+            }
+            start = end;
+        }
+        if free {
+            for &v in &ring {
+                self.claimed[v.idx()] = batch;
+            }
+        }
+        self.ring_scratch = ring;
+        free
+    }
+
+    /// One batch: the Fitmap tests (one job per candidate), the collapses
+    /// and rotations in order, the refits ([`Simplifier::refit_batch`]),
+    /// then the guard of each candidate in order, undoing the refused ones.
+    fn run_batch(
+        &mut self,
+        mut batch: Vec<Candidate>,
+        stats: &mut SimplifyStats,
+        target: usize,
+    ) -> Result<()> {
+        stats.batches += 1;
+        stats.batched_candidates += batch.len();
+        if self.opts.m_fitmap {
+            let verdicts = map_in_order(&batch, |c| {
+                let mut count = PhiCount::default();
+                (self.fitmap_verdict(c.face(), &c.plan, &mut count), count)
+            });
+            let mut keep = Vec::with_capacity(batch.len());
+            for (c, (why, count)) in batch.into_iter().zip(verdicts) {
+                self.add_count(count);
+                if let Some(why) = why {
                     if why == Blocked::S_FITMAP {
                         stats.refused_s_fitmap += 1;
                     } else {
                         stats.refused_m_fitmap += 1;
                     }
-                    self.block(fi, why);
-                    continue;
+                    self.block(c.face().0, why);
+                } else {
+                    keep.push(c);
                 }
             }
-            let guard = self.opts.guard_scale > 0.0;
-            // A collapse whose doublet removals would take the mesh below
-            // `target_faces`' 2 % window is undone too (`--faces N` lands
-            // within ±2 %; one that removes a single face is always fine).
-            let floor = (0.98 * target as f64).ceil() as usize;
-            let snap = if guard || target > 0 {
-                Some(self.snapshot(f))
-            } else {
-                None
-            };
-            self.pos_log.clear();
-            self.lim_log.clear();
-            self.pos_log.push((plan.keep, self.k.position(plan.keep)));
-            let done = collapse_diagonal(&mut self.k, f, d as usize, Some(plan.position))?;
+            batch = keep;
+        }
+        let guard = self.opts.guard_scale > 0.0;
+        let mut done = Vec::with_capacity(batch.len());
+        for mut c in batch {
+            let f = c.face();
+            let d = c.diagonal();
+            if !done.is_empty() {
+                // The regions of a batch do not meet, so an earlier
+                // candidate's edits leave this face and its plan as they
+                // were; checked again all the same (a changed one goes back
+                // to the heap, and is the first of a later batch).
+                let same = |p: &CollapsePlan| {
+                    (p.keep, p.remove, p.sides, p.corner)
+                        == (c.plan.keep, c.plan.remove, c.plan.sides, c.plan.corner)
+                };
+                if self.k.is_face_deleted(f) || self.version[f.idx()] != (c.entry.0).3 {
+                    continue;
+                }
+                match can_collapse_diagonal(&self.k, f, d) {
+                    Ok(p) if same(&p) => c.plan = p,
+                    _ => {
+                        self.heap.push(c.entry);
+                        continue;
+                    }
+                }
+            }
+            let plan = c.plan;
+            c.snap = (guard || target > 0).then(|| self.snapshot(f));
+            c.pos_log.push((plan.keep, self.k.position(plan.keep)));
+            let col = collapse_diagonal(&mut self.k, f, d, Some(plan.position))?;
             stats.collapses += 1;
-            stats.doublets += done.doublets.len();
+            stats.doublets += col.doublets.len();
+            c.doublets = col.doublets.len();
             self.check_step("collapse")?;
-            let mut touched = vec![done.keep, plan.sides[0], plan.sides[1]];
+            let mut touched = vec![col.keep, plan.sides[0], plan.sides[1]];
             touched.retain(|&v| !self.k.is_vertex_deleted(v));
             let centres = touched.clone();
-            let rotations = self.rotate_around(&centres, &mut touched)?;
-            stats.rotations += rotations;
-            let checks = self.refit(&touched)?;
-            if let Some(snap) = snap {
-                if let Some(why) = self.refusal(guard, &checks, floor) {
-                    self.block(fi, why);
-                    stats.count_refusal(why);
-                    stats.collapses -= 1;
-                    stats.doublets -= done.doublets.len();
-                    stats.rotations -= rotations;
-                    self.undo(snap)?;
-                    self.refused.insert(pair, why);
-                    self.check_step("undo")?;
-                    continue;
-                }
-            }
+            c.rotations = self.rotate_around(&centres, &mut touched)?;
+            stats.rotations += c.rotations;
+            c.touched = touched;
+            done.push(c);
+        }
+        let checks = self.refit_batch(&mut done)?;
+        // A collapse whose doublet removals would take the mesh below
+        // `target_faces`' 2 % window is undone too (`--faces N` lands
+        // within ±2 %; one that removes a single face is always fine).
+        let floor = (0.98 * target as f64).ceil() as usize;
+        let mut kept = 0;
+        for (c, checks) in done.into_iter().zip(checks) {
+            let f = c.face();
+            let Some(snap) = c.snap else {
+                kept += 1;
+                continue;
+            };
+            let Some(why) = self.refusal(guard, &checks, floor) else {
+                kept += 1;
+                continue;
+            };
+            self.block(f.0, why);
+            stats.count_refusal(why);
+            stats.collapses -= 1;
+            stats.doublets -= c.doublets;
+            stats.rotations -= c.rotations;
+            self.pos_log = c.pos_log;
+            self.lim_log = c.lim_log;
+            self.undo(snap)?;
+            self.refused.insert(c.pair, why);
+            self.check_step("undo")?;
+        }
+        if kept > 0 {
             self.checkpoint()?;
         }
-        if self.k.num_live_faces() <= target {
-            stop = StopReason::TargetFaces;
-        }
-        stats.stop = Some(stop);
-        stats.relaxation = self.relax;
-        stats.s_fitmap_kappa = self.kappa;
-        stats.projections = self.projections;
-        stats.unprojectable = self.unprojectable;
         Ok(())
+    }
+
+    /// [`Simplifier::refit`] of every candidate of a batch: the regions do
+    /// not meet, so each round's smoothing, φ targets and sweeps of one
+    /// candidate read nothing another one writes, and they run one
+    /// candidate per job (a whole region's work per job: forking a single
+    /// refit's few dozen φ lines was measured slower than running them
+    /// sequentially); positions, limit points and the logs are written here
+    /// in order. Then one update of all their faces, whose centres and φ
+    /// are split over the pool. Returns each candidate's centre checks.
+    fn refit_batch(&mut self, cands: &mut [Candidate]) -> Result<Vec<Vec<CentreCheck>>> {
+        let regions: Vec<RefitRegion> = map_in_order(cands, |c| self.refit_region(&c.touched))
+            .into_iter()
+            .collect::<Result<_>>()?;
+        for (c, r) in cands.iter_mut().zip(&regions) {
+            c.pos_log
+                .extend(r.w.iter().map(|&v| (v, self.k.position(v))));
+        }
+        for _ in 0..self.opts.refit_rounds {
+            let smooth = map_in_order(&regions, |r| self.smoothed(r));
+            for (r, x) in regions.iter().zip(&smooth) {
+                self.set_positions(&r.w, x, false);
+            }
+            let targets = map_in_order(&regions, |r| {
+                let mut count = PhiCount::default();
+                (self.fit_targets(r, &mut count), count)
+            });
+            for (_, count) in &targets {
+                self.add_count(*count);
+            }
+            for _ in 0..self.opts.fit_sweeps {
+                let pairs: Vec<(&RefitRegion, &Vec<DVec3>)> =
+                    regions.iter().zip(targets.iter().map(|t| &t.0)).collect();
+                let delta = map_in_order(&pairs, |(r, t)| self.fit_deltas(r, t));
+                for (r, x) in regions.iter().zip(&delta) {
+                    self.set_positions(&r.w, x, true);
+                }
+            }
+        }
+        let limits = map_in_order(&regions, |r| self.refit_limits(r));
+        for (c, l) in cands.iter_mut().zip(limits) {
+            for (v, l) in l? {
+                c.lim_log.push((v, self.lim[v.idx()]));
+                self.lim[v.idx()] = l;
+            }
+        }
+        let faces: Vec<FaceId> = regions
+            .iter()
+            .flat_map(|r| r.faces.iter().copied())
+            .collect();
+        let par_min = if cands.len() > 1 { 64 } else { PHI_PAR_MIN };
+        let all = self.update_faces_split(&faces, par_min)?;
+        // The faces around W are live (W's vertices are), so there is one
+        // check per face, in order.
+        let mut all = all.into_iter();
+        Ok(regions
+            .iter()
+            .map(|r| all.by_ref().take(r.faces.len()).collect())
+            .collect())
     }
 
     /// Why a collapse just made must be undone: the guard (when on) or an
@@ -1513,6 +1974,31 @@ impl<'a> Simplifier<'a> {
     /// towards the φ targets of the smoothed limit points. Then the faces
     /// around W get new centres, Fitmap values and heap entries.
     pub(crate) fn refit(&mut self, touched: &[VertexId]) -> Result<Vec<CentreCheck>> {
+        let r = self.refit_region(touched)?;
+        let k = &self.k;
+        self.pos_log.extend(r.w.iter().map(|&v| (v, k.position(v))));
+        for _ in 0..self.opts.refit_rounds {
+            let smooth = self.smoothed(&r);
+            self.set_positions(&r.w, &smooth, false);
+            let mut count = PhiCount::default();
+            let targets = self.fit_targets(&r, &mut count);
+            self.add_count(count);
+            for _ in 0..self.opts.fit_sweeps {
+                let delta = self.fit_deltas(&r, &targets);
+                self.set_positions(&r.w, &delta, true);
+            }
+        }
+        for (v, l) in self.refit_limits(&r)? {
+            self.lim_log.push((v, self.lim[v.idx()]));
+            self.lim[v.idx()] = l;
+        }
+        self.update_faces(&r.faces)
+    }
+
+    /// W = the touched vertices plus their 1-ring (sorted), W's limit masks
+    /// and the faces around W (sorted): what [`Simplifier::refit`] moves,
+    /// reads and re-evaluates.
+    fn refit_region(&self, touched: &[VertexId]) -> Result<RefitRegion> {
         let k = &self.k;
         let mut w: Vec<VertexId> = Vec::new();
         for &v in touched {
@@ -1528,54 +2014,71 @@ impl<'a> Simplifier<'a> {
             .iter()
             .map(|&v| vertex_limit_mask(k, v))
             .collect::<Result<_>>()?;
-        self.pos_log.extend(w.iter().map(|&v| (v, k.position(v))));
         // The faces around W (the refit moves vertices, it does not change
         // the connectivity): their centroids are taken once per round, not
         // once per vertex of W that shares them (up to four).
         let mut faces: Vec<FaceId> = w.iter().flat_map(|&v| k.vertex_faces(v)).collect();
         faces.sort_unstable();
         faces.dedup();
-        for _ in 0..self.opts.refit_rounds {
-            let k = &self.k;
-            let centroids: Vec<DVec3> = faces.iter().map(|&f| centroid(k, f)).collect();
-            let smooth: Vec<DVec3> = w
-                .iter()
-                .map(|&v| {
-                    let p = k.position(v);
-                    let h0 = k.vertex_halfedge(v);
-                    if k.is_boundary_halfedge(h0) {
-                        if k.valence(v) == 2 {
-                            return p;
-                        }
-                        let next = k.position(k.head(h0));
-                        let prev = k.position(k.tail(k.prev(h0)));
-                        return 0.5 * p + 0.25 * (next + prev);
-                    }
-                    let mut c = DVec3::ZERO;
-                    let mut n = 0.0;
-                    for f in k.vertex_faces(v) {
-                        c += faces
-                            .binary_search(&f)
-                            .map_or_else(|_| centroid(k, f), |i| centroids[i]);
-                        n += 1.0;
-                    }
-                    // Tangent-space smoothing (§3.4): the whole step to the
-                    // mean of the face centroids, less its component along
-                    // the limit normal, so smoothing evens the patches out
-                    // without pulling the surface off M (the fit that
-                    // follows corrects what is left).
-                    let d = c / n - p;
-                    let nrm = vertex_normal(k, v);
-                    p + d - nrm * nrm.dot(d)
-                })
-                .collect();
-            for (&v, p) in w.iter().zip(smooth) {
-                self.k.positions_mut()[v.idx()] = p;
+        Ok(RefitRegion { w, masks, faces })
+    }
+
+    /// Writes `x` to the positions of `w` (added to them when `add`).
+    fn set_positions(&mut self, w: &[VertexId], x: &[DVec3], add: bool) {
+        let pos = self.k.positions_mut();
+        for (&v, &p) in w.iter().zip(x) {
+            if add {
+                pos[v.idx()] += p;
+            } else {
+                pos[v.idx()] = p;
             }
-            let k = &self.k;
-            let lines: Vec<(DVec3, DVec3, f64)> = w
-                .iter()
-                .zip(&masks)
+        }
+    }
+
+    /// One round's smoothed positions of W (§3.4; read-only).
+    fn smoothed(&self, r: &RefitRegion) -> Vec<DVec3> {
+        let k = &self.k;
+        let centroids: Vec<DVec3> = r.faces.iter().map(|&f| centroid(k, f)).collect();
+        r.w.iter()
+            .map(|&v| {
+                let p = k.position(v);
+                let h0 = k.vertex_halfedge(v);
+                if k.is_boundary_halfedge(h0) {
+                    if k.valence(v) == 2 {
+                        return p;
+                    }
+                    let next = k.position(k.head(h0));
+                    let prev = k.position(k.tail(k.prev(h0)));
+                    return 0.5 * p + 0.25 * (next + prev);
+                }
+                let mut c = DVec3::ZERO;
+                let mut n = 0.0;
+                for f in k.vertex_faces(v) {
+                    c += r
+                        .faces
+                        .binary_search(&f)
+                        .map_or_else(|_| centroid(k, f), |i| centroids[i]);
+                    n += 1.0;
+                }
+                // Tangent-space smoothing (§3.4): the whole step to the
+                // mean of the face centroids, less its component along
+                // the limit normal, so smoothing evens the patches out
+                // without pulling the surface off M (the fit that
+                // follows corrects what is left).
+                let d = c / n - p;
+                let nrm = vertex_normal(k, v);
+                p + d - nrm * nrm.dot(d)
+            })
+            .collect()
+    }
+
+    /// The φ targets of W's limit points along W's normals (the limit point
+    /// itself where φ misses; read-only).
+    fn fit_targets(&self, r: &RefitRegion, count: &mut PhiCount) -> Vec<DVec3> {
+        let k = &self.k;
+        let lines: Vec<(DVec3, DVec3, f64)> =
+            r.w.iter()
+                .zip(&r.masks)
                 .map(|(&v, m)| {
                     let p = k.position(v);
                     let scale = k
@@ -1586,41 +2089,41 @@ impl<'a> Simplifier<'a> {
                     (limit_of(k, m), vertex_normal(k, v), reach)
                 })
                 .collect();
-            let hits = phi_batch(&self.bvh, &lines);
-            self.projections += hits.len();
-            self.unprojectable += hits.iter().filter(|h| h.is_none()).count();
-            let targets: Vec<DVec3> = hits
-                .iter()
-                .zip(&lines)
-                .map(|(h, &(l, _, _))| h.map_or(l, |p| p.point))
-                .collect();
-            for _ in 0..self.opts.fit_sweeps {
-                let delta: Vec<DVec3> = masks
-                    .iter()
-                    .zip(&targets)
-                    .map(|(m, t)| *t - limit_of(&self.k, m))
-                    .collect();
-                for (&v, d) in w.iter().zip(delta) {
-                    self.k.positions_mut()[v.idx()] += d;
-                }
-            }
-        }
+        let hits = phi_batch(&self.bvh, &lines, PHI_PAR_MIN);
+        count.add(hits.len(), hits.iter().filter(|h| h.is_none()).count());
+        hits.iter()
+            .zip(&lines)
+            .map(|(h, &(l, _, _))| h.map_or(l, |p| p.point))
+            .collect()
+    }
+
+    /// One fixed-point sweep's moves `φ − L` of W (read-only).
+    fn fit_deltas(&self, r: &RefitRegion, targets: &[DVec3]) -> Vec<DVec3> {
+        r.masks
+            .iter()
+            .zip(targets)
+            .map(|(m, t)| *t - limit_of(&self.k, m))
+            .collect()
+    }
+
+    /// New limit points of every corner of the faces around W (their masks
+    /// reach into W; read-only).
+    fn refit_limits(&self, r: &RefitRegion) -> Result<Vec<(VertexId, DVec3)>> {
         let k = &self.k;
-        // Limit points change for every corner of these faces (their masks
-        // reach into W).
-        let mut corners: Vec<VertexId> = faces.iter().flat_map(|&f| k.face_vertices(f)).collect();
+        let mut corners: Vec<VertexId> = r.faces.iter().flat_map(|&f| k.face_vertices(f)).collect();
         corners.sort_unstable();
         corners.dedup();
-        for v in corners {
-            // W's masks still hold: the refit moved vertices, it did not
-            // change the connectivity a mask depends on.
-            let l = match w.binary_search(&v) {
-                Ok(i) => limit_of(&self.k, &masks[i]),
-                Err(_) => limit_of(&self.k, &vertex_limit_mask(&self.k, v)?),
-            };
-            self.lim_log.push((v, self.lim[v.idx()]));
-            self.lim[v.idx()] = l;
-        }
-        self.update_faces(&faces)
+        corners
+            .into_iter()
+            .map(|v| {
+                // W's masks still hold: the refit moved vertices, it did not
+                // change the connectivity a mask depends on.
+                let l = match r.w.binary_search(&v) {
+                    Ok(i) => limit_of(k, &r.masks[i]),
+                    Err(_) => limit_of(k, &vertex_limit_mask(k, v)?),
+                };
+                Ok((v, l))
+            })
+            .collect()
     }
 }

@@ -47,6 +47,10 @@ pub struct SimplifyArgs {
     /// equal-count κ₀ (see `SimplifyOptions::s_fitmap_scale`; 0 = off).
     #[arg(long, hide = true)]
     s_fitmap: Option<f64>,
+    /// Development aid: collapses evaluated together (see
+    /// `SimplifyOptions::batch`; 1 = the sequential loop).
+    #[arg(long, hide = true)]
+    batch: Option<usize>,
 }
 
 /// Raw little-endian cache of the Fitmap fields the simplification reads:
@@ -161,6 +165,9 @@ pub fn run(a: SimplifyArgs) -> Result<ExitCode> {
     let mut opts = SimplifyOptions::default()
         .with_target_faces(a.faces)
         .with_m_fitmap(!a.no_mfitmap);
+    if let Some(n) = a.batch {
+        opts = opts.with_batch(n);
+    }
     if let Some(g) = &a.guard {
         anyhow::ensure!(g.len() == 3, "--guard takes scale,floor,min_cos");
         opts = opts.with_guard(g[0], g[1], g[2]);
