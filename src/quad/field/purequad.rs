@@ -11,8 +11,10 @@
 //! argument of quad-dominant to pure-quad conversion, e.g. Bommes et al.,
 //! "Quad-mesh generation and processing: a survey", CGF 2013, §5; on a
 //! closed mesh the odd faces come in pairs since the sides sum to twice
-//! the edges). Even faces of six or more sides are then cut into quads,
-//! shortest chord first.
+//! the edges). Even faces of six or more sides are then filled by the
+//! lattice's grid where they are a rectangular hole of it, else cut into
+//! quads by chords chosen first by the valences their ends get, then by
+//! their corners' angles ([`Cut`]).
 
 use std::collections::{HashMap, HashSet, VecDeque};
 
@@ -42,7 +44,7 @@ pub fn to_quads(pos: &mut Vec<DVec3>, polys: Vec<Vec<u32>>) -> Option<Vec<[u32; 
         bnd: &bnd,
     };
     for p in polys {
-        if p.len() > 4 && grid_fill_enabled() && cut.fill_rectangle(&p, &mut quads) {
+        if p.len() > 4 && cut.fill_rectangle(&p, &mut quads) {
             continue;
         }
         cut.split_even(p, &mut quads)?;
@@ -258,7 +260,7 @@ impl Cut<'_> {
                     let (n, b) = (val[x as usize], bnd[x as usize]);
                     irregularity(n + 1, b) - irregularity(n, b)
                 };
-                worst + valence_degrees() * (rise(u) + rise(v)) as f64
+                worst + VALENCE_DEGREES * (rise(u) + rise(v)) as f64
             };
             let best = (0..k)
                 .filter(|&i| !self.edges.contains(&key(p[i], p[(i + 3) % k])))
@@ -404,17 +406,6 @@ impl Cut<'_> {
 /// is worth (see [`Cut::split_even`]): one irregular vertex outweighs
 /// any corner but a near-degenerate one.
 const VALENCE_DEGREES: f64 = 45.0;
-
-fn valence_degrees() -> f64 {
-    std::env::var("PQ_W")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(VALENCE_DEGREES)
-}
-
-fn grid_fill_enabled() -> bool {
-    std::env::var("PQ_GRID").map_or(true, |v| v != "0")
-}
 
 /// |angle at `b` between `a` and `c` − 90°|, in degrees.
 fn corner_deviation(pos: &[DVec3], a: u32, b: u32, c: u32) -> f64 {
