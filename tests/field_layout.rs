@@ -997,3 +997,81 @@ fn failure_seeds_find_a_filled_hole() {
         );
     }
 }
+
+/// Holes of a regular lattice are filled by its grid, not by chords: on
+/// a 6 × 6 grid of cells, the 2 × 2 block round one lost lattice point
+/// (an octagon whose side points lack one edge each and whose corners
+/// lack none) and a 1 × 3 block with its two inner edges lost come back
+/// as the 4 + 3 cells of the grid, every interior point at valence 4,
+/// each directed edge used once. Chords alone cannot do it on the first
+/// hole: its two chords p[i]–p[i+3] each join a corner and a side point,
+/// so at least two side points stay at valence 3 and a corner rises to 5.
+#[test]
+fn pure_quads_fill_lattice_holes_by_the_grid() {
+    let n = 6u32;
+    let id = |i: u32, j: u32| j * (n + 1) + i;
+    let mut pos: Vec<DVec3> = (0..(n + 1) * (n + 1))
+        .map(|v| DVec3::new((v % (n + 1)) as f64, (v / (n + 1)) as f64, 0.0))
+        .collect();
+    let in_first = |i: u32, j: u32| (1..3).contains(&i) && (1..3).contains(&j);
+    let in_second = |i: u32, j: u32| (4..5).contains(&i) && (1..4).contains(&j);
+    let mut polys: Vec<Vec<u32>> = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            if !in_first(i, j) && !in_second(i, j) {
+                polys.push(vec![id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+    }
+    // The holes, counter-clockwise like the cells.
+    polys.push(vec![
+        id(1, 1),
+        id(2, 1),
+        id(3, 1),
+        id(3, 2),
+        id(3, 3),
+        id(2, 3),
+        id(1, 3),
+        id(1, 2),
+    ]);
+    polys.push(vec![
+        id(4, 1),
+        id(5, 1),
+        id(5, 2),
+        id(5, 3),
+        id(5, 4),
+        id(4, 4),
+        id(4, 3),
+        id(4, 2),
+    ]);
+    let quads = subdfit::quad::field::purequad::to_quads(&mut pos, polys).unwrap();
+    assert_eq!(quads.len(), (n * n) as usize);
+    let mut directed = std::collections::HashSet::new();
+    for q in &quads {
+        for i in 0..4 {
+            assert!(directed.insert((q[i], q[(i + 1) % 4])), "edge used twice");
+        }
+    }
+    let mut valence = vec![0usize; pos.len()];
+    for &(a, b) in &directed {
+        if a < b || !directed.contains(&(b, a)) {
+            valence[a as usize] += 1;
+            valence[b as usize] += 1;
+        }
+    }
+    // The lost point comes back at the block's centre (the Coons patch of
+    // a square's sides), the only new point; the old one stays unused.
+    let centre = pos.len() - 1;
+    assert_eq!(centre, ((n + 1) * (n + 1)) as usize);
+    assert!((pos[centre] - DVec3::new(2.0, 2.0, 0.0)).length() < 1e-12);
+    for j in 1..n {
+        for i in 1..n {
+            let v = if (i, j) == (2, 2) {
+                centre
+            } else {
+                id(i, j) as usize
+            };
+            assert_eq!(valence[v], 4, "point ({i}, {j})");
+        }
+    }
+}

@@ -129,13 +129,19 @@ fn extract_once(
     let (mut g, flips) = lattice_graph(s, dirs, o, scale, repair);
     let faces = clean_faces(&mut g);
     let non_quads = faces.iter().filter(|f| f.len() != 4).count();
+    let debug = std::env::var("FIELD_DEBUG").is_ok();
+    let raw = if debug { faces.clone() } else { Vec::new() };
     let faces = merge_non_quad_pairs(faces, g.pos.len(), at_size);
     let (positions, quads) = if at_size {
         let mut pos = g.pos.clone();
+        let merged = if debug { faces.clone() } else { Vec::new() };
         let quads = super::purequad::to_quads(&mut pos, faces).ok_or_else(|| Error::Topology {
             element: "field layout".into(),
             msg: "an odd face of the lattice has no partner to pair with".into(),
         })?;
+        if debug {
+            eprintln!("{}", sources(&raw, &merged, &quads, g.pos.len()));
+        }
         compact(pos, quads)
     } else {
         split_to_quads(&g, &faces)
@@ -578,6 +584,77 @@ fn walk_faces(g: &Graph) -> Vec<Vec<u32>> {
         }
     }
     faces
+}
+
+/// Where the pure-quad mesh's irregular vertices come from (a
+/// `FIELD_DEBUG` diagnostic): the raw lattice's non-quads by size and
+/// after merging, and the irregular vertices of `quads` split into raw
+/// lattice points whose raw faces were all quads (the lattice's own
+/// singularities), raw points at a corner of a non-quad, and the points
+/// the pairing added (index ≥ `n_raw`).
+fn sources(raw: &[Vec<u32>], merged: &[Vec<u32>], quads: &[[u32; 4]], n_raw: usize) -> String {
+    let sizes = |faces: &[Vec<u32>]| {
+        let mut h = std::collections::BTreeMap::new();
+        for f in faces.iter().filter(|f| f.len() != 4) {
+            *h.entry(f.len()).or_insert(0usize) += 1;
+        }
+        h
+    };
+    let mut near_non_quad = vec![false; n_raw];
+    for f in raw.iter().filter(|f| f.len() != 4) {
+        for &v in f {
+            near_non_quad[v as usize] = true;
+        }
+    }
+    let (rv, rb) = valences(raw, n_raw);
+    let raw_singular = (0..n_raw)
+        .filter(|&v| rv[v] > 0 && !near_non_quad[v] && irregularity(rv[v], rb[v]) != 0)
+        .count();
+    let polys: Vec<Vec<u32>> = quads.iter().map(|q| q.to_vec()).collect();
+    let n = quads
+        .iter()
+        .flatten()
+        .map(|&v| v as usize + 1)
+        .max()
+        .unwrap_or(0);
+    let (val, bnd) = valences(&polys, n);
+    let (mut singular, mut corner, mut added) = (0, 0, 0);
+    for v in (0..n).filter(|&v| val[v] > 0 && irregularity(val[v], bnd[v]) != 0) {
+        if v >= n_raw {
+            added += 1;
+        } else if near_non_quad[v] {
+            corner += 1;
+        } else {
+            singular += 1;
+        }
+    }
+    // Each non-quad's corners as 4 − valence (what an interior lattice
+    // point lacks; negative: too many edges; 'b' on M's boundary).
+    let (mv, mb) = valences(merged, n_raw);
+    let mut shapes = std::collections::BTreeMap::new();
+    for f in merged.iter().filter(|f| f.len() != 4) {
+        let s: String = f
+            .iter()
+            .map(|&v| {
+                let v = v as usize;
+                if mb[v] {
+                    "b".to_string()
+                } else {
+                    (4 - mv[v] as i64).to_string()
+                }
+            })
+            .collect::<Vec<_>>()
+            .join(",");
+        *shapes.entry(s).or_insert(0usize) += 1;
+    }
+    format!(
+        "extraction sources: shapes {shapes:?}\n non-quads raw {:?} merged {:?}; raw singular points {raw_singular}; \
+         irregular after pairing {} = lattice singular {singular} + non-quad corners {corner} + \
+         added points {added}",
+        sizes(raw),
+        sizes(merged),
+        singular + corner + added
+    )
 }
 
 fn key(a: u32, b: u32) -> (u32, u32) {
