@@ -258,8 +258,15 @@ pub fn smooth_extrinsic(s: &Surface, dirs: &mut [DVec3], sweeps: usize) {
 /// is restricted up the pairwise-merge hierarchy of [`super::position`]
 /// (each coarse cross the area-weighted mean of its children's matched
 /// arms), smoothed from the coarsest level down, each level starting from
-/// its parent's cross, by Gauss–Seidel sweeps of the extrinsic rule of
-/// [`smooth_extrinsic`]. A sweep on M's vertices alone moves a cross by
+/// its parent's cross, by Gauss–Seidel sweeps of the extrinsic rule as
+/// Instant Meshes runs it: each neighbour matched to the running mean as a
+/// pair of arms ([`match_pair`]) and the mean renormalised after each one.
+/// With the one-sided [`match_arm`] and a plain mean instead (the rule of
+/// [`smooth_extrinsic`]) the field's 8 singularities on the jittered
+/// sphere were the same, but its uniform lattice had 10–13 valence-3
+/// vertices at every sweep count tried (the flow left 2–6 triangle
+/// equations); with this rule 8 (docs/status.md, 2026-12-05). A sweep
+/// on M's vertices alone moves a cross by
 /// its one-ring only, so ±¼ pairs the noisy curvature guide leaves a few
 /// lattice cells apart never meet (gargoyle at τ 1 %: 133 + 125
 /// singularities against QuadriFlow's 124 irregular vertices); on the
@@ -313,10 +320,14 @@ pub fn smooth_hierarchical(s: &Surface, dirs: &mut [DVec3], weight: &[f64], swee
                     sum = match_arm(q[i], lv.q[i], ni).0 * guide;
                     total = guide;
                 }
+                // Instant Meshes' running mean: the unit mean so far
+                // (weight `total`) and the neighbour, matched as a pair of
+                // arms in 3D, renormalised after each neighbour.
                 for &j in nb {
                     let j = j as usize;
                     let cur = (sum - ni * ni.dot(sum)).normalize_or(q[i]);
-                    sum = (sum * total + match_arm(cur, q[j], lv.n[j]).0) / (total + 1.0);
+                    let (a, b) = match_pair(cur, ni, q[j], lv.n[j]);
+                    sum = (a * total + b - ni * ni.dot(a * total + b)).normalize_or(cur);
                     total += 1.0;
                 }
                 let v = (sum - ni * ni.dot(sum)).normalize_or_zero();
@@ -430,6 +441,29 @@ pub fn match_arm(q0: DVec3, q1: DVec3, n1: DVec3) -> (DVec3, u8) {
     } else {
         (-t1, 3)
     }
+}
+
+/// Extrinsic matching of two crosses (Jakob et al. 2015, §4, the
+/// extrinsic 4-RoSy rule; Instant Meshes' `compat_orientation_extrinsic_4`):
+/// among the arms `q0`, `n0 × q0` and `q1`, `n1 × q1` the pair most nearly
+/// parallel in 3D, the second's sign flipped to agree. Unlike
+/// [`match_arm`] (the arm of `q1` nearest `q0`) it lets `q0`'s own arm
+/// change too, which matters where the normals differ: on the coarse
+/// levels of [`smooth_hierarchical`].
+pub fn match_pair(q0: DVec3, n0: DVec3, q1: DVec3, n1: DVec3) -> (DVec3, DVec3) {
+    let a = [q0, n0.cross(q0)];
+    let b = [q1, n1.cross(q1)];
+    let mut best = (f64::NEG_INFINITY, 0, 0);
+    for (i, x) in a.iter().enumerate() {
+        for (j, y) in b.iter().enumerate() {
+            let sc = x.dot(*y).abs();
+            if sc > best.0 {
+                best = (sc, i, j);
+            }
+        }
+    }
+    let (x, y) = (a[best.1], b[best.2]);
+    (x, if x.dot(y) < 0.0 { -y } else { y })
 }
 
 /// Triangles where the cross field has a singularity, with the turn

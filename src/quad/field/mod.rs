@@ -86,10 +86,11 @@ pub struct FieldOptions {
     /// Smooth the cross field on the position field's hierarchy
     /// ([`cross::smooth_hierarchical`], Instant Meshes' multiresolution
     /// rule, the linear solve kept as a guide where the surface is
-    /// strongly anisotropic) instead of on M's vertices only. Off: its
-    /// effect on the irregular count is within the layout's run-to-run
-    /// spread and it breaks the uniform sphere's 8 valence-3 vertices
-    /// (docs/status.md, "Field-aligned layout", 2026-12-05 cross field).
+    /// strongly anisotropic) instead of on M's vertices only. Off: it
+    /// lowers the irregular count on every shared mesh but not the
+    /// singularity count, RMS L rises by up to 65 % (homer), and the
+    /// adaptive torus keeps 9 irregular vertices (docs/status.md,
+    /// "Field-aligned layout", 2026-12-05 Instant Meshes' matching).
     pub orientation_hierarchy: bool,
     /// Solve the lattice at the target size and make it pure quad near its
     /// non-quads only ([`purequad`]); `false`: solve it at twice the size
