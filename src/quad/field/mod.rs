@@ -56,7 +56,8 @@ use crate::DVec3;
 pub struct FieldOptions {
     /// Aim at this many quads (the sizing field's scale α is bisected so
     /// that `∫ dA / h² ≈ N`, [`sizing::alpha_for_faces`]); `None`: α = 1,
-    /// the sizes the greedy simplifier's S- and M-fitmap tests accept.
+    /// the sizes the greedy simplifier's S- and M-fitmap tests accept
+    /// (on a mesh with holes, [`sizing::natural_alpha`]).
     pub target_faces: Option<usize>,
     /// A uniform target edge length instead of the Fitmap's (tests, and
     /// the torus/sphere checks of the design note).
