@@ -238,7 +238,8 @@ fn hole_caps_stay_local_and_the_natural_count_is_kept() {
         .map(|p| 0.15 + 0.45 * (0.5 + 0.5 * p.y.atan2(p.x).cos()))
         .collect();
     let hm = vec![f64::INFINITY; s.len()];
-    let opts = FieldOptions::default();
+    let mut opts = FieldOptions::default();
+    opts.loop_cap_slope = 2.0;
     let g = opts.gradation;
     // Each loop's length, the loop told apart by its radius.
     let inner = |v: u32| s.positions[v as usize].length() < 0.65;
@@ -278,7 +279,7 @@ fn hole_caps_stay_local_and_the_natural_count_is_kept() {
     for &[a, b] in &s.edges {
         let (a, b) = (a as usize, b as usize);
         let d = (s.positions[a] - s.positions[b]).length();
-        assert!(h[a] <= h[b] + sizing::LOOP_CAP_SLOPE * g * d * (1.0 + 1e-12));
+        assert!(h[a] <= h[b] + opts.loop_cap_slope * g * d * (1.0 + 1e-12));
     }
     // The sizes follow the S-fitmap more closely than the previous field's
     // (its inner loop's cap, spread at γ, set the sizes of most vertices).

@@ -87,30 +87,31 @@ pub fn predicted_faces(s: &Surface, h: &[f64]) -> f64 {
 /// lattice at every global refinement down to 0.41 h).
 pub const MIN_LATTICE_EDGES_PER_LOOP: f64 = 6.0;
 
-/// The slope, in units of the sizing's γ, at which a loop's cap spreads
-/// into the surface. Spread at γ the five small holes of the bunny set
-/// its sizes almost everywhere: τ 1 %, 99 % of the vertices below their
-/// own limits, 475 predicted patches where the S- and M-fitmaps alone,
-/// graded, ask for 326, and Spearman(patch radius, 1/F_S) 0.33. At 2γ
-/// the cap stays nearer the holes (docs/status.md "Field-aligned
-/// layout", 2026-12-05 adaptivity; a cap of half the edges, L/6, with
-/// 2γ measured ρ 0.50 but RMS L 2.29 → 2.88‰ and 0.42 % unprojectable
-/// at the holes).
-pub const LOOP_CAP_SLOPE: f64 = 2.0;
-
 /// Caps h on each boundary loop of M at `length / (2 ·`
 /// [`MIN_LATTICE_EDGES_PER_LOOP`]`)`, spread into the surface at slope
-/// [`LOOP_CAP_SLOPE`] · γ: holes are kept by refining locally, not by
-/// refining the whole field.
-pub fn cap_at_boundaries(s: &Surface, h: &mut [f64], gamma: f64) {
-    cap_loops(s, h, LOOP_CAP_SLOPE * gamma);
+/// `loop_slope · γ`: holes are kept by refining locally, not by refining
+/// the whole field. At `loop_slope` 1 (the default,
+/// [`FieldOptions::loop_cap_slope`]) h is capped and regraded at γ as a
+/// whole. Spread at γ the five small holes of the bunny set its sizes
+/// almost everywhere (τ 1 %: 99 % of the vertices below their own
+/// limits, 475 predicted patches where the S- and M-fitmaps alone,
+/// graded, ask for 326); at 2γ the cap stays nearer the holes, measured
+/// in docs/status.md ("Field-aligned layout", 2026-12-05 adaptivity).
+pub fn cap_at_boundaries(s: &Surface, h: &mut [f64], gamma: f64, loop_slope: f64) {
+    if loop_slope == 1.0 {
+        cap_loops(s, h, None);
+        grade(s, h, gamma);
+    } else {
+        cap_loops(s, h, Some(loop_slope * gamma));
+    }
 }
 
 /// h on each boundary loop of M at most `length / (2 ·`
-/// [`MIN_LATTICE_EDGES_PER_LOOP`]`)`, the caps graded at `slope` on their own and then taken as a minimum (h itself is not
-/// regraded: where it is graded at a slope ≤ `slope` the result is the
-/// graded minimum of both).
-fn cap_loops(s: &Surface, h: &mut [f64], slope: f64) {
+/// [`MIN_LATTICE_EDGES_PER_LOOP`]`)`: set on the loops' vertices
+/// (`slope` `None`), or graded at `slope` on their own and then taken as
+/// a minimum (h itself is not regraded: where it is graded at a slope ≤
+/// `slope` the result is the graded minimum of both).
+fn cap_loops(s: &Surface, h: &mut [f64], slope: Option<f64>) {
     if s.boundary_edges.is_empty() {
         return;
     }
@@ -128,7 +129,9 @@ fn cap_loops(s: &Surface, h: &mut [f64], slope: f64) {
         let r = uf.find(a as usize);
         cap[a as usize] = h[a as usize].min(length[r] / (2.0 * MIN_LATTICE_EDGES_PER_LOOP));
     }
-    grade(s, &mut cap, slope);
+    if let Some(slope) = slope {
+        grade(s, &mut cap, slope);
+    }
     for (x, c) in h.iter_mut().zip(&cap) {
         *x = x.min(*c);
     }
@@ -137,7 +140,7 @@ fn cap_loops(s: &Surface, h: &mut [f64], slope: f64) {
 /// The graded sizing field at scale α.
 pub fn sizing_at(s: &Surface, hs: &[f64], hm: &[f64], alpha: f64, opts: &FieldOptions) -> Vec<f64> {
     let mut h = fitmap_graded(s, hs, hm, alpha, opts);
-    cap_at_boundaries(s, &mut h, opts.gradation);
+    cap_at_boundaries(s, &mut h, opts.gradation, opts.loop_cap_slope);
     h
 }
 
@@ -153,19 +156,19 @@ fn fitmap_graded(s: &Surface, hs: &[f64], hm: &[f64], alpha: f64, opts: &FieldOp
 }
 
 /// α of the natural size (no `--faces`): 1, except on a mesh with
-/// boundary loops, where it is the α at which [`sizing_at`] predicts the
-/// count of the same field with the loops' caps spread at γ (the field
-/// before [`LOOP_CAP_SLOPE`]). That count is what τ has bought so far
-/// (the bunny meets the Fitmaps paper's Table 1 count with it); the
-/// steeper spread lays free most of the bunny, and α < 1 puts those
-/// patches where F_S asks for them rather than around the holes. The
-/// count is matched to ~0.2 % (α to 0.1 %).
+/// boundary loops whose caps spread faster than γ
+/// ([`FieldOptions::loop_cap_slope`] > 1), where it is the α at which
+/// [`sizing_at`] predicts the count of the same field with the caps
+/// spread at γ. That count is what τ has bought so far (the bunny meets
+/// the Fitmaps paper's Table 1 count with it); the steeper spread lays
+/// free most of the bunny, and α < 1 puts those patches where F_S asks
+/// for them rather than around the holes. α to 0.1 %.
 pub fn natural_alpha(s: &Surface, hs: &[f64], hm: &[f64], opts: &FieldOptions) -> f64 {
-    if s.boundary_edges.is_empty() {
+    if s.boundary_edges.is_empty() || opts.loop_cap_slope == 1.0 {
         return 1.0;
     }
     let mut reference = fitmap_graded(s, hs, hm, 1.0, opts);
-    cap_loops(s, &mut reference, opts.gradation);
+    cap_loops(s, &mut reference, Some(opts.gradation));
     let target = predicted_faces(s, &reference);
     let count = |a: f64| predicted_faces(s, &sizing_at(s, hs, hm, a, opts));
     bisect_ln(|a| count(a) > target, 1e-3, 1.0, 1e-3)
