@@ -223,6 +223,71 @@ fn grading_bounds_the_slope_and_alpha_meets_the_face_count() {
     }
 }
 
+#[test]
+fn hole_caps_stay_local_and_the_natural_count_is_kept() {
+    // A flat annulus 0.3 ≤ r ≤ 1 whose S-fitmap size varies 4× around it,
+    // mostly above the inner loop's cap (its length / 12 = 0.16).
+    let m = grid_mesh(96, 30, true, false, |u, v| {
+        let (a, r) = (2.0 * PI * u, 0.3 + 0.7 * v);
+        DVec3::new(r * a.cos(), r * a.sin(), 0.0)
+    });
+    let s = Surface::new(&m).unwrap();
+    let hs: Vec<f64> = m
+        .positions
+        .iter()
+        .map(|p| 0.15 + 0.45 * (0.5 + 0.5 * p.y.atan2(p.x).cos()))
+        .collect();
+    let hm = vec![f64::INFINITY; s.len()];
+    let mut opts = FieldOptions::default();
+    opts.loop_cap_slope = 2.0;
+    let g = opts.gradation;
+    // Each loop's length, the loop told apart by its radius.
+    let inner = |v: u32| s.positions[v as usize].length() < 0.65;
+    let mut length = [0.0; 2];
+    for &[a, b] in &s.boundary_edges {
+        length[inner(a) as usize] += (s.positions[a as usize] - s.positions[b as usize]).length();
+    }
+    // The previous field: the loops' caps spread at γ.
+    let mut reference = hs.clone();
+    sizing::grade(&s, &mut reference, g);
+    let mut cap = vec![f64::INFINITY; s.len()];
+    for &[a, _] in &s.boundary_edges {
+        let c = length[inner(a) as usize] / (2.0 * sizing::MIN_LATTICE_EDGES_PER_LOOP);
+        cap[a as usize] = reference[a as usize].min(c);
+    }
+    sizing::grade(&s, &mut cap, g);
+    for (x, c) in reference.iter_mut().zip(&cap) {
+        *x = x.min(*c);
+    }
+    let alpha = sizing::natural_alpha(&s, &hs, &hm, &opts);
+    let h = sizing::sizing_at(&s, &hs, &hm, alpha, &opts);
+    // The count τ bought before, to the bisection's 0.1 % in α.
+    let (n, n0) = (
+        sizing::predicted_faces(&s, &h),
+        sizing::predicted_faces(&s, &reference),
+    );
+    assert!(
+        alpha < 1.0 && (n - n0).abs() <= 0.005 * n0,
+        "α {alpha}: {n} against {n0}"
+    );
+    // Each loop keeps its lattice edges, and the field's slope is at most
+    // the caps' (2γ) and γ away from them.
+    for &[a, _] in &s.boundary_edges {
+        let c = length[inner(a) as usize] / (2.0 * sizing::MIN_LATTICE_EDGES_PER_LOOP);
+        assert!(h[a as usize] <= c * (1.0 + 1e-12));
+    }
+    for &[a, b] in &s.edges {
+        let (a, b) = (a as usize, b as usize);
+        let d = (s.positions[a] - s.positions[b]).length();
+        assert!(h[a] <= h[b] + opts.loop_cap_slope * g * d * (1.0 + 1e-12));
+    }
+    // The sizes follow the S-fitmap more closely than the previous field's
+    // (its inner loop's cap, spread at γ, set the sizes of most vertices).
+    let rho = |x: &[f64]| subdfit::analysis::spearman(x, &hs).unwrap();
+    eprintln!("ρ(h, h_S): {:.3} (before {:.3})", rho(&h), rho(&reference));
+    assert!(rho(&h) > rho(&reference) + 0.05);
+}
+
 fn layout_uniform(m: &TriMesh, h: f64) -> subdfit::quad::field::FieldLayout {
     let fm = flat_fitmap(m.positions.len());
     let opts = FieldOptions::default().with_uniform_size(Some(h));

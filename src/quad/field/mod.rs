@@ -56,7 +56,8 @@ use crate::DVec3;
 pub struct FieldOptions {
     /// Aim at this many quads (the sizing field's scale α is bisected so
     /// that `∫ dA / h² ≈ N`, [`sizing::alpha_for_faces`]); `None`: α = 1,
-    /// the sizes the greedy simplifier's S- and M-fitmap tests accept.
+    /// the sizes the greedy simplifier's S- and M-fitmap tests accept
+    /// (on a mesh with holes, [`sizing::natural_alpha`]).
     pub target_faces: Option<usize>,
     /// A uniform target edge length instead of the Fitmap's (tests, and
     /// the torus/sphere checks of the design note).
@@ -70,6 +71,12 @@ pub struct FieldOptions {
     pub m_fitmap_scale: f64,
     /// γ of the gradation `h_i ≤ h_j + γ |x_i − x_j|`.
     pub gradation: f64,
+    /// The slope, in units of γ, at which each boundary loop's cap
+    /// spreads into the surface ([`sizing::cap_at_boundaries`]); above 1
+    /// the natural size keeps the count of the field at 1
+    /// ([`sizing::natural_alpha`]). 1: off (2 measured better adaptivity
+    /// on the bunny but worse fit at τ 1 %, docs/status.md).
+    pub loop_cap_slope: f64,
     /// Length (fraction of the bbox diagonal) above which the cross field
     /// follows the curvature guide rather than its own smoothness.
     pub alignment_length: f64,
@@ -120,6 +127,7 @@ impl Default for FieldOptions {
             // (≤ 506), at RMS L below the paper's 2.36‰ / 3.41‰.
             m_fitmap_scale: 2.2,
             gradation: 0.25,
+            loop_cap_slope: 1.0,
             alignment_length: 1.0,
             alignment_weight: 1.0,
             position_sweeps: 8,
@@ -413,7 +421,7 @@ fn layout_sized(
     // the whole field is refined by [`RETRY_FACTOR`] and solved again, at
     // most [`RETRIES`] times: never another topology, an error instead.
     let mut h = h.to_vec();
-    sizing::cap_at_boundaries(surf, &mut h, opts.gradation);
+    sizing::cap_at_boundaries(surf, &mut h, opts.gradation, opts.loop_cap_slope);
     let mut factor = 1.0;
     let mut last_error = None;
     let modes: &[bool] = if opts.lattice_at_size {
