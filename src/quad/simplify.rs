@@ -1437,11 +1437,7 @@ impl<'a> Simplifier<'a> {
         if self.stamp.len() < nv {
             self.stamp.resize(nv, 0);
         }
-        self.stamp_now = self.stamp_now.wrapping_add(1);
-        if self.stamp_now == 0 {
-            self.stamp.iter_mut().for_each(|x| *x = 0);
-            self.stamp_now = 1;
-        }
+        self.next_stamp();
         let (now, batch) = (self.stamp_now, self.batch_now);
         let mut ring = std::mem::take(&mut self.ring_scratch);
         ring.clear();
@@ -1760,6 +1756,16 @@ impl<'a> Simplifier<'a> {
         })
     }
 
+    /// A fresh stamp for the per-vertex marks: cleared only when the
+    /// counter wraps, so marking a region costs its size, not the mesh's.
+    fn next_stamp(&mut self) {
+        self.stamp_now = self.stamp_now.wrapping_add(1);
+        if self.stamp_now == 0 {
+            self.stamp.iter_mut().for_each(|x| *x = 0);
+            self.stamp_now = 1;
+        }
+    }
+
     /// The faces within reach of a step on quad `f` (every face with a
     /// vertex at most [`SNAPSHOT_RINGS`] edges from a corner of `f`): the
     /// collapse changes the faces around its two ends, the doublet removals
@@ -1770,11 +1776,7 @@ impl<'a> Simplifier<'a> {
         if self.stamp.len() < nv {
             self.stamp.resize(nv, 0);
         }
-        self.stamp_now = self.stamp_now.wrapping_add(1);
-        if self.stamp_now == 0 {
-            self.stamp.iter_mut().for_each(|x| *x = 0);
-            self.stamp_now = 1;
-        }
+        self.next_stamp();
         let now = self.stamp_now;
         let mut vertices: Vec<VertexId> = self.k.face_vertices(f).collect();
         for &v in &vertices {

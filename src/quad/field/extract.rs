@@ -25,6 +25,7 @@ use crate::raycast::bvh::BvhCaster;
 use crate::raycast::RayCaster;
 use crate::DVec3;
 
+use super::purequad::{irregularity, valences};
 use super::{control_topology, Surface, UnionFind};
 
 /// Longest walk followed: every walk closes (each directed edge has one
@@ -671,29 +672,6 @@ fn edge_faces(polys: &[Vec<u32>]) -> std::collections::HashMap<(u32, u32), Vec<u
         }
     }
     ef
-}
-
-/// Valence per point and whether it is on the boundary (has an edge used
-/// by one face).
-fn valences(polys: &[Vec<u32>], n: usize) -> (Vec<usize>, Vec<bool>) {
-    let (mut val, mut bnd) = (vec![0usize; n], vec![false; n]);
-    for (&(a, b), fs) in &edge_faces(polys) {
-        for v in [a, b] {
-            val[v as usize] += 1;
-            bnd[v as usize] |= fs.len() == 1;
-        }
-    }
-    (val, bnd)
-}
-
-/// How far a valence is from regular: 4 inside, 2 or 3 on the boundary.
-fn irregularity(val: usize, boundary: bool) -> i64 {
-    let v = val as i64;
-    if boundary {
-        (2 - v).max(v - 3).max(0)
-    } else {
-        (v - 4).abs()
-    }
 }
 
 /// Most sides of a merged face: merging into hexagons too lowers the

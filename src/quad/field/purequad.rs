@@ -193,7 +193,7 @@ fn make_even(pos: &mut Vec<DVec3>, polys: Vec<Vec<u32>>) -> Option<Vec<Vec<u32>>
 
 /// Valence per point (edges at it) and whether it is on the boundary (has
 /// an edge used by one polygon).
-fn valences(polys: &[Vec<u32>], n: usize) -> (Vec<usize>, Vec<bool>) {
+pub(super) fn valences(polys: &[Vec<u32>], n: usize) -> (Vec<usize>, Vec<bool>) {
     let mut count: HashMap<(u32, u32), u8> = HashMap::new();
     for p in polys {
         for i in 0..p.len() {
@@ -212,7 +212,7 @@ fn valences(polys: &[Vec<u32>], n: usize) -> (Vec<usize>, Vec<bool>) {
 
 /// How far a valence is from regular: 4 inside, 2 (a corner of the
 /// boundary) or 3 (a straight stretch of it) on the boundary.
-fn irregularity(val: usize, boundary: bool) -> i64 {
+pub(super) fn irregularity(val: usize, boundary: bool) -> i64 {
     let v = val as i64;
     if boundary {
         (2 - v).max(v - 3).max(0)
