@@ -220,7 +220,25 @@ impl Cubic {
             let det = a * d - b * b;
             DVec2::new((d * f.x - b * f.y) / det, (a * f.y - b * f.x) / det)
         };
-        let len = step.length();
+        // 1e-9 of the radius: far below the grazing tolerance the
+        // M-test compares distances with (a tenth of an edge).
+        let tol = 1e-9 * self.scale;
+        // The length is needed only near its two thresholds: a step clearly
+        // inside (max_step, tol) is neither clamped nor the last, and the
+        // square root (a divider operation on every Newton step's
+        // dependency chain) is skipped. `len = √s2` correctly rounded is
+        // monotone in s2, so s2 ≤ ½ max_step² gives len < max_step and
+        // s2 > 2 tol² gives len > tol, whatever the rounding of the squared
+        // bounds (relative 2⁻⁵², while the factors leave ~30 % of margin);
+        // the bounds are used only when they are normal numbers (no
+        // underflow), and a NaN s2 fails both and takes the full path.
+        // The same decisions and values as always computing the length.
+        let s2 = step.length_squared();
+        let (hi2, lo2) = (0.5 * max_step * max_step, 2.0 * tol * tol);
+        if s2 <= hi2 && s2 > lo2 && hi2.is_normal() && lo2.is_normal() {
+            return (p - step, false);
+        }
+        let len = s2.sqrt();
         let step = if len > max_step {
             step * (max_step / len)
         } else {
@@ -229,9 +247,7 @@ impl Cubic {
         if !step.is_finite() {
             return (p, true);
         }
-        // 1e-9 of the radius: far below the grazing tolerance the
-        // M-test compares distances with (a tenth of an edge).
-        (p - step, len <= 1e-9 * self.scale)
+        (p - step, len <= tol)
     }
 }
 
@@ -269,33 +285,91 @@ pub fn fit_cubic(pts: &[DVec3], w: Option<&[f64]>, scale: f64) -> Option<CubicFi
     }
 }
 
+/// One point of a fit: its monomials, weight and height, scaled.
+#[derive(Copy, Clone)]
+struct FitRow {
+    m: [f64; CUBIC_COEFFICIENTS],
+    w: f64,
+    h: f64,
+}
+
+thread_local! {
+    /// [`fit_cubic`]'s per-thread point rows (it runs tens of thousands
+    /// of times per Fitmap inside rayon jobs).
+    static FIT_ROWS: std::cell::RefCell<Vec<FitRow>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Rows `$i` and `$j` of the lower triangle of the normal equations
+/// (entries `$a`, `$b` = 0..=row, the only ones the Cholesky reads) and of
+/// the right side: `Σ_k (w_k m_i) m_a` and `Σ_k (w_k m_i) h_k`, each summed
+/// over the points in order, so every entry gets the same products added
+/// in the same order as a single pass that updates the whole system per
+/// point — the same system bit for bit. Why by rows: the whole system
+/// (100 entries, 55 of them read) does not fit in registers, so the
+/// per-point pass loaded and stored every entry once per point (the
+/// accumulation was ~7 % of the Fitmap's CPU time, perf on bunny); a pair
+/// of rows (11 entries and 2 sums, `$i + $j = 9`) stays in registers over
+/// the points, whose rows are read from L1. A macro with literal indices,
+/// not a loop: a loop `0..=I` over a local array was compiled to a
+/// counted loop over a stack array (a load and a store per entry again).
+macro_rules! normal_rows {
+    ($rows:expr, $ata:expr, $atb:expr,
+     $i:literal: [$($a:literal),*], $j:literal: [$($b:literal),*]) => {{
+        let (mut ai, mut aj) = ([0.0f64; CUBIC_COEFFICIENTS], [0.0f64; CUBIC_COEFFICIENTS]);
+        let (mut bi, mut bj) = (0.0f64, 0.0f64);
+        for r in $rows.iter() {
+            let (wi, wj) = (r.w * r.m[$i], r.w * r.m[$j]);
+            bi += wi * r.h;
+            bj += wj * r.h;
+            $(ai[$a] += wi * r.m[$a];)*
+            $(aj[$b] += wj * r.m[$b];)*
+        }
+        $($ata[$i][$a] = ai[$a];)*
+        $($ata[$j][$b] = aj[$b];)*
+        $atb[$i] = bi;
+        $atb[$j] = bj;
+    }};
+}
+
+/// The normal equations of the fit in scaled coordinates (|x|, |y| <=
+/// ~1): the lower triangle of `AᵀWA` (the upper one is left 0; the
+/// Cholesky reads `j <= i` only) and `AᵀWh`. Each point's monomials,
+/// weight and height are taken once, then the sums are made row by row
+/// (`normal_rows!`), two rows per pass over the points.
+#[inline(always)]
+fn normal_equations(
+    pts: &[DVec3],
+    w: &impl Fn(usize) -> f64,
+    inv: f64,
+) -> (
+    [[f64; CUBIC_COEFFICIENTS]; CUBIC_COEFFICIENTS],
+    [f64; CUBIC_COEFFICIENTS],
+) {
+    let mut ata = [[0.0f64; CUBIC_COEFFICIENTS]; CUBIC_COEFFICIENTS];
+    let mut atb = [0.0f64; CUBIC_COEFFICIENTS];
+    // Taken out of the cell, not borrowed (as the Fitmap's other scratch).
+    let mut rows = FIT_ROWS.with(|c| c.take());
+    rows.clear();
+    rows.extend(pts.iter().enumerate().map(|(k, p)| FitRow {
+        m: monomials(p.x * inv, p.y * inv),
+        w: w(k),
+        h: p.z * inv,
+    }));
+    normal_rows!(rows, ata, atb, 0: [0], 9: [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]);
+    normal_rows!(rows, ata, atb, 1: [0, 1], 8: [0, 1, 2, 3, 4, 5, 6, 7, 8]);
+    normal_rows!(rows, ata, atb, 2: [0, 1, 2], 7: [0, 1, 2, 3, 4, 5, 6, 7]);
+    normal_rows!(rows, ata, atb, 3: [0, 1, 2, 3], 6: [0, 1, 2, 3, 4, 5, 6]);
+    normal_rows!(rows, ata, atb, 4: [0, 1, 2, 3, 4], 5: [0, 1, 2, 3, 4, 5]);
+    FIT_ROWS.with(|c| c.replace(rows));
+    (ata, atb)
+}
+
 #[allow(clippy::needless_range_loop)] // index loops mirror the Cholesky formulas
 #[inline(always)]
 fn fit_cubic_weighted(pts: &[DVec3], w: impl Fn(usize) -> f64, scale: f64) -> Option<CubicFit> {
     const N: usize = CUBIC_COEFFICIENTS;
     let inv = 1.0 / scale;
-    // Normal equations in scaled coordinates (|x|, |y| <= ~1).
-    let mut ata = [[0.0f64; N]; N];
-    let mut atb = [0.0f64; N];
-    // Whole rows are summed, though the Cholesky below reads only the
-    // lower triangle (`j <= i`): a fixed-length row compiles to packed
-    // multiplies and adds over contiguous entries, where the triangular
-    // loop kept each of its 55 entries in a scalar load-add-store (1.7×
-    // faster on 400 points, measured). Each lower entry gets the same
-    // products added in the same order, so the system is the same bit for
-    // bit; the upper entries are never read.
-    for (k, p) in pts.iter().enumerate() {
-        let wk = w(k);
-        let m = monomials(p.x * inv, p.y * inv);
-        let h = p.z * inv;
-        for i in 0..N {
-            let wi = wk * m[i];
-            atb[i] += wi * h;
-            for (a, &mj) in ata[i].iter_mut().zip(&m) {
-                *a += wi * mj;
-            }
-        }
-    }
+    let (ata, atb) = normal_equations(pts, &w, inv);
     // Cholesky (lower), with a relative pivot test as the rank check: a pivot
     // below 1e-11 of its diagonal entry means cond(A) ≳ 3e5 in the scaled
     // monomials, i.e. the samples do not determine a cubic.
@@ -404,6 +478,119 @@ mod tests {
                 (f.x.to_bits(), f.y.to_bits())
             );
         }
+    }
+
+    /// The row-pair sums are the per-point pass over the whole system
+    /// (the accumulation `fit_cubic` used before), bit for bit, on every
+    /// entry the Cholesky reads, weighted and not.
+    #[test]
+    #[allow(clippy::needless_range_loop)] // the reference loop as it was
+    fn normal_equations_match_the_per_point_pass_bitwise() {
+        const N: usize = CUBIC_COEFFICIENTS;
+        let pts: Vec<DVec3> = (0..613)
+            .map(|k| {
+                let t = k as f64;
+                DVec3::new(
+                    (1.3 * t).sin() * 0.7,
+                    (0.7 * t).cos() * 0.9,
+                    (0.37 * t).sin() * 0.1,
+                )
+            })
+            .collect();
+        let ws: Vec<f64> = (0..pts.len())
+            .map(|k| 1.0 + (k % 7) as f64 * 0.37)
+            .collect();
+        let inv = 1.0 / 0.83;
+        for weighted in [false, true] {
+            let w = |k: usize| if weighted { ws[k] } else { 1.0 };
+            let (mut ref_a, mut ref_b) = ([[0.0f64; N]; N], [0.0f64; N]);
+            for (k, p) in pts.iter().enumerate() {
+                let m = monomials(p.x * inv, p.y * inv);
+                let h = p.z * inv;
+                for i in 0..N {
+                    let wi = w(k) * m[i];
+                    ref_b[i] += wi * h;
+                    for j in 0..N {
+                        ref_a[i][j] += wi * m[j];
+                    }
+                }
+            }
+            let (a, b) = normal_equations(&pts, &w, inv);
+            for i in 0..N {
+                assert_eq!(a[i][..=i], ref_a[i][..=i], "row {i}");
+            }
+            assert_eq!(b, ref_b);
+        }
+    }
+
+    /// The Newton step without the square root where the length is far
+    /// from both thresholds takes the same decisions and values as the
+    /// step that always computes it: the foot points of many points,
+    /// near and far, against a loop that always takes the root.
+    #[test]
+    fn foot_point_matches_the_always_rooted_step() {
+        let c = Cubic {
+            coef: [0.02, 0.3, -0.1, 0.8, -0.4, 0.6, 0.3, -0.9, 0.5, 0.2],
+            scale: 0.7,
+        };
+        let reference = |q: DVec3, max_step: f64| {
+            let mut p = DVec2::new(q.x, q.y);
+            for _ in 0..FOOT_POINT_ITERATIONS {
+                let h = c.eval(p.x, p.y);
+                let g = c.grad(p.x, p.y);
+                let (huu, huv, hvv) = c.hessian(p.x, p.y);
+                let dz = h - q.z;
+                let f = DVec2::new(p.x - q.x + dz * g.x, p.y - q.y + dz * g.y);
+                let a = 1.0 + g.x * g.x + dz * huu;
+                let b = g.x * g.y + dz * huv;
+                let d = 1.0 + g.y * g.y + dz * hvv;
+                let det = a * d - b * b;
+                let step = if det > 1e-12 && a > 0.0 {
+                    DVec2::new((d * f.x - b * f.y) / det, (a * f.y - b * f.x) / det)
+                } else {
+                    let (a, d) = (1.0 + g.x * g.x, 1.0 + g.y * g.y);
+                    let b = g.x * g.y;
+                    let det = a * d - b * b;
+                    DVec2::new((d * f.x - b * f.y) / det, (a * f.y - b * f.x) / det)
+                };
+                let len = step.length();
+                let step = if len > max_step {
+                    step * (max_step / len)
+                } else {
+                    step
+                };
+                if !step.is_finite() {
+                    break;
+                }
+                p -= step;
+                if len <= 1e-9 * c.scale {
+                    break;
+                }
+            }
+            p
+        };
+        let mut clamped = 0;
+        for k in 0..4000 {
+            let t = k as f64;
+            let q = DVec3::new(
+                (1.7 * t).sin() * 0.9,
+                (0.9 * t).cos() * 0.8,
+                (0.3 * t).sin() * 10f64.powi(k % 5 - 3),
+            );
+            let max_step = [0.35, 0.05, 1e-3][k as usize % 3];
+            let (a, b) = (c.foot_point(q, max_step), reference(q, max_step));
+            assert_eq!(
+                (a.x.to_bits(), a.y.to_bits()),
+                (b.x.to_bits(), b.y.to_bits()),
+                "{k}"
+            );
+            let first = c.foot_point_step(DVec2::new(q.x, q.y), q, max_step).0;
+            clamped += ((first - DVec2::new(q.x, q.y)).length() >= 0.999 * max_step) as usize;
+        }
+        assert!(
+            clamped > 100,
+            "the clamped path must be exercised ({clamped})"
+        );
     }
 
     #[test]

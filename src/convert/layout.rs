@@ -141,9 +141,19 @@ fn organic_greedy(
     // share the cores with (their ~0.3 s on bunny is mostly sequential, so
     // after the Fitmap it left a core idle). A plain scoped thread, since
     // the Fitmap's progress callback is not `Send`; neither result depends
-    // on the other or on the thread count.
+    // on the other or on the thread count. Their parallel loops run in a
+    // one-thread pool of their own: in the global pool they queued behind
+    // the Fitmap's jobs, so `seconds_quadrangulate` was about the Fitmap's
+    // whole time and the rest of the start (interpolation) ran after it,
+    // on the critical path.
     let (fitmap, start) = std::thread::scope(|s| {
-        let start = s.spawn(|| crate::quad::prepare(layout));
+        let start = s.spawn(
+            || match rayon::ThreadPoolBuilder::new().num_threads(1).build() {
+                Ok(pool) => pool.install(|| crate::quad::prepare(layout)),
+                // No thread to spare: as before, in the global pool.
+                Err(_) => crate::quad::prepare(layout),
+            },
+        );
         let fitmap = layout_fitmap(layout, layout_caster, fo, timer, progress);
         // A panic there is re-raised here, as if it had run inline.
         let start = start
