@@ -4,7 +4,8 @@
 //! one-thread rayon pool, so the figures are CPU seconds of one core and do
 //! not depend on what else the machine runs (the end-to-end wall times in
 //! docs/status.md, "Scale", do); the loop also in batches of 16
-//! (`SimplifyOptions::batch`), on one thread and on two.
+//! (`SimplifyOptions::batch`), on one thread and on two; and one cubic
+//! fit of 600 points.
 //!
 //! `cargo bench --bench fitmap`; skips with a message if the data is absent.
 
@@ -43,6 +44,19 @@ fn main() {
     let mut g = c.benchmark_group("bunny");
     g.bench_function("fitmap_fast_1thread", |b| {
         b.iter(|| pool.install(|| compute_fitmap(&mesh, caster.as_ref(), &opts).unwrap()))
+    });
+    // One cubic fit (§3.1.2) of the size of the largest level-0 ball
+    // (`FAST_LEVEL0_MAX_VERTICES`, 600 points): the Fitmap runs tens of
+    // thousands of them, and their normal equations were ~7 % of it.
+    let pts: Vec<subdfit::DVec3> = (0..600)
+        .map(|k| {
+            let t = k as f64;
+            let (u, v) = ((1.3 * t).sin(), (0.7 * t).cos());
+            subdfit::DVec3::new(u, v, 0.3 * u * u - 0.2 * u * v * v + 0.01 * (5.1 * t).sin())
+        })
+        .collect();
+    g.bench_function("fit_cubic_600", |b| {
+        b.iter(|| subdfit::analysis::cubic::fit_cubic(std::hint::black_box(&pts), None, 1.0))
     });
     // The loop sequential (the default) and in batches of 16, on
     // one thread (its CPU cost) and on two (what the batches buy in wall
