@@ -78,7 +78,9 @@ fn main() {
     // beside the Fitmap in `convert`, so the loop is the stage's own
     // time), on bunny and on gargoyle, one thread.
     let gargoyle = load_data_mesh("gargoyle.ply").map(|m| {
-        let caster = pool.install(|| make_raycaster(RayBackend::Embree, &m)).unwrap();
+        let caster = pool
+            .install(|| make_raycaster(RayBackend::Embree, &m))
+            .unwrap();
         let fitmap = pool
             .install(|| compute_fitmap(&m, caster.as_ref(), &opts))
             .unwrap();

@@ -636,6 +636,8 @@ pub(crate) struct Simplifier<'a> {
     face_stamp: Vec<u32>,
     /// Face and vertex points shared by the faces of one update.
     memo: PointMemo,
+    /// φ's last answers at each face's centre.
+    phi_memo: PhiMemo,
     /// Per vertex, the batch that claimed it ([`Simplifier::claim`]).
     claimed: Vec<u32>,
     batch_now: u32,
@@ -744,7 +746,8 @@ struct PointMemo {
 impl PointMemo {
     /// Forgets the previous call's points (the mesh has changed since).
     fn begin(&mut self, k: &ControlMesh) {
-        self.face.resize(k.num_faces().max(self.face.len()), (0, DVec3::ZERO));
+        self.face
+            .resize(k.num_faces().max(self.face.len()), (0, DVec3::ZERO));
         let nv = k.num_vertices().max(self.vertex.len());
         self.vertex.resize(nv, (0, DVec3::ZERO));
         self.now = self.now.wrapping_add(1);
@@ -781,6 +784,62 @@ impl PointMemo {
         }
         let fp = self.centroid(k, f);
         face_centre_limit_from(fp, &e, &vp)
+    }
+}
+
+/// φ's hits at the centre of each face in its last two updates, keyed by
+/// the centre's line (origin, direction, search distance) bit for bit. A
+/// refused collapse's undo restores the positions of its region exactly,
+/// and then re-evaluates the faces around it: most of their centre lines
+/// are the ones they had before the collapse, which the step's own update
+/// had just replaced (hence two per face; the one used moves to the
+/// front). Misses are not kept (their closest-point fallback is rare, and
+/// asked again). φ is a function of the line alone, so an answer from here
+/// is the answer a new query would give; the loop's `projections` count
+/// these too (they are φ results used, as before).
+#[derive(Default)]
+struct PhiMemo {
+    slots: Vec<[Option<PhiMemoEntry>; 2]>,
+}
+
+/// A line's bits and φ's hit along it.
+type PhiMemoEntry = ([u64; 7], Projected);
+
+impl PhiMemo {
+    fn key(l: &(DVec3, DVec3, f64)) -> [u64; 7] {
+        let (o, n, t) = l;
+        [
+            o.x.to_bits(),
+            o.y.to_bits(),
+            o.z.to_bits(),
+            n.x.to_bits(),
+            n.y.to_bits(),
+            n.z.to_bits(),
+            t.to_bits(),
+        ]
+    }
+
+    fn get(&mut self, f: FaceId, l: &(DVec3, DVec3, f64)) -> Option<Projected> {
+        let key = Self::key(l);
+        let s = self.slots.get_mut(f.idx())?;
+        let is = |e: &Option<PhiMemoEntry>| e.as_ref().is_some_and(|e| e.0 == key);
+        if is(&s[1]) {
+            s.swap(0, 1);
+        }
+        if is(&s[0]) {
+            s[0].map(|e| e.1)
+        } else {
+            None
+        }
+    }
+
+    fn put(&mut self, f: FaceId, l: &(DVec3, DVec3, f64), p: Projected) {
+        if self.slots.len() <= f.idx() {
+            self.slots.resize(f.idx() + 1, [None, None]);
+        }
+        let s = &mut self.slots[f.idx()];
+        s[1] = s[0].take();
+        s[0] = Some((Self::key(l), p));
     }
 }
 
@@ -994,6 +1053,7 @@ impl<'a> Simplifier<'a> {
             stamp_now: 0,
             face_stamp: Vec::new(),
             memo: PointMemo::default(),
+            phi_memo: PhiMemo::default(),
             claimed: Vec::new(),
             batch_now: 0,
             ring_scratch: Vec::new(),
@@ -1076,7 +1136,8 @@ impl<'a> Simplifier<'a> {
                 .map(|&f| line(f, memo.centre_limit(k, f)))
                 .collect()
         };
-        let proj: Vec<(DVec3, Option<Projected>, DVec3)> = phi_batch(&self.bvh, &lines, par_min)
+        let proj: Vec<(DVec3, Option<Projected>, DVec3)> = self
+            .phi_centres(&faces, &lines, par_min)
             .into_iter()
             .zip(&lines)
             .map(|(p, &(c, n, _))| (c, p, n))
@@ -1152,6 +1213,34 @@ impl<'a> Simplifier<'a> {
             }
         }
         Ok(checks)
+    }
+
+    /// φ of the centre `lines` of `faces` ([`phi_batch`]), answered from
+    /// [`PhiMemo`] where a face's line is bit for bit one of its last two
+    /// (φ is a function of the line alone, so the answer is the same).
+    fn phi_centres(
+        &mut self,
+        faces: &[FaceId],
+        lines: &[(DVec3, DVec3, f64)],
+        par_min: usize,
+    ) -> Vec<Option<Projected>> {
+        let mut out: Vec<Option<Projected>> = vec![None; lines.len()];
+        let mut ask: Vec<usize> = Vec::new();
+        for (i, (&f, l)) in faces.iter().zip(lines).enumerate() {
+            match self.phi_memo.get(f, l) {
+                Some(p) => out[i] = Some(p),
+                None => ask.push(i),
+            }
+        }
+        let asked: Vec<(DVec3, DVec3, f64)> = ask.iter().map(|&i| lines[i]).collect();
+        let hits = phi_batch(&self.bvh, &asked, par_min);
+        for (&i, hit) in ask.iter().zip(hits) {
+            if let Some(p) = hit {
+                self.phi_memo.put(faces[i], &lines[i], p);
+            }
+            out[i] = hit;
+        }
+        out
     }
 
     /// The M-fitmap test (§3.1.1 / §3.3.1 with the README's correction):
@@ -2214,5 +2303,83 @@ impl<'a> Simplifier<'a> {
                 Ok((v, l))
             })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fixtures;
+
+    /// The shared face and vertex points give `face_centre_limit`'s bits on
+    /// every quad of meshes with extraordinary vertices inside and on the
+    /// boundary, in any order of the faces and across calls after a move.
+    #[test]
+    fn point_memo_is_face_centre_limit_bit_for_bit() {
+        let bits = |l: &LimitPoint| {
+            [l.position, l.du, l.dv].map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+        };
+        let tau = 2.0 * std::f64::consts::PI;
+        let meshes = [
+            fixtures::grid(5, 4, 3),
+            fixtures::fan(5, tau, 1),
+            fixtures::fan(3, tau, 2),
+            fixtures::fan(6, 0.75 * tau, 4),
+        ];
+        let mut memo = PointMemo::default();
+        for mut k in meshes {
+            assert!(k.is_all_quads());
+            let mut faces: Vec<FaceId> = k.live_faces().collect();
+            for round in 0..3 {
+                memo.begin(&k);
+                let mut compared = 0;
+                for &f in &faces {
+                    assert_eq!(
+                        bits(&memo.centre_limit(&k, f)),
+                        bits(&face_centre_limit(&k, f))
+                    );
+                    compared += 1;
+                }
+                assert_eq!(compared, k.num_live_faces());
+                // Move a vertex and revisit in another order: a new call
+                // must not keep the old points.
+                let v = VertexId(round as u32);
+                k.positions_mut()[v.idx()] += DVec3::new(0.01, -0.02, 0.03);
+                faces.reverse();
+            }
+        }
+    }
+
+    /// The φ memo answers only a line equal bit for bit to one of the
+    /// face's last two, and keeps the one used in front.
+    #[test]
+    fn phi_memo_answers_only_the_same_line() {
+        let hit = |t: f64| Projected {
+            point: DVec3::new(t, 0.0, 0.0),
+            offset: t,
+            triangle: 7,
+            u: 0.25,
+            v: 0.5,
+        };
+        let line = |x: f64| (DVec3::new(x, 1.0, 2.0), DVec3::Z, 0.5);
+        let f = FaceId(3);
+        let mut m = PhiMemo::default();
+        assert_eq!(m.get(f, &line(1.0)), None);
+        m.put(f, &line(1.0), hit(1.0));
+        m.put(f, &line(2.0), hit(2.0));
+        assert_eq!(m.get(f, &line(1.0)), Some(hit(1.0)));
+        assert_eq!(m.get(f, &line(2.0)), Some(hit(2.0)));
+        // -0.0 == 0.0 as numbers, but not as bits.
+        m.put(f, &line(0.0), hit(0.0));
+        assert_eq!(m.get(f, &line(-0.0)), None);
+        assert_eq!(m.get(FaceId(4), &line(0.0)), None);
+        // Three lines: the oldest one is gone.
+        m.put(f, &line(3.0), hit(3.0));
+        assert_eq!(m.get(f, &line(1.0)), None);
+        assert_eq!(m.get(f, &line(0.0)), Some(hit(0.0)));
+        // The one used came to the front, so the next put keeps it.
+        m.put(f, &line(4.0), hit(4.0));
+        assert_eq!(m.get(f, &line(0.0)), Some(hit(0.0)));
+        assert_eq!(m.get(f, &line(3.0)), None);
     }
 }
