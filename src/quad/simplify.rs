@@ -636,8 +636,6 @@ pub(crate) struct Simplifier<'a> {
     face_stamp: Vec<u32>,
     /// Face and vertex points shared by the faces of one update.
     memo: PointMemo,
-    /// φ's last answers at each face's centre.
-    phi_memo: PhiMemo,
     /// Per vertex, the batch that claimed it ([`Simplifier::claim`]).
     claimed: Vec<u32>,
     batch_now: u32,
@@ -784,62 +782,6 @@ impl PointMemo {
         }
         let fp = self.centroid(k, f);
         face_centre_limit_from(fp, &e, &vp)
-    }
-}
-
-/// φ's hits at the centre of each face in its last two updates, keyed by
-/// the centre's line (origin, direction, search distance) bit for bit. A
-/// refused collapse's undo restores the positions of its region exactly,
-/// and then re-evaluates the faces around it: most of their centre lines
-/// are the ones they had before the collapse, which the step's own update
-/// had just replaced (hence two per face; the one used moves to the
-/// front). Misses are not kept (their closest-point fallback is rare, and
-/// asked again). φ is a function of the line alone, so an answer from here
-/// is the answer a new query would give; the loop's `projections` count
-/// these too (they are φ results used, as before).
-#[derive(Default)]
-struct PhiMemo {
-    slots: Vec<[Option<PhiMemoEntry>; 2]>,
-}
-
-/// A line's bits and φ's hit along it.
-type PhiMemoEntry = ([u64; 7], Projected);
-
-impl PhiMemo {
-    fn key(l: &(DVec3, DVec3, f64)) -> [u64; 7] {
-        let (o, n, t) = l;
-        [
-            o.x.to_bits(),
-            o.y.to_bits(),
-            o.z.to_bits(),
-            n.x.to_bits(),
-            n.y.to_bits(),
-            n.z.to_bits(),
-            t.to_bits(),
-        ]
-    }
-
-    fn get(&mut self, f: FaceId, l: &(DVec3, DVec3, f64)) -> Option<Projected> {
-        let key = Self::key(l);
-        let s = self.slots.get_mut(f.idx())?;
-        let is = |e: &Option<PhiMemoEntry>| e.as_ref().is_some_and(|e| e.0 == key);
-        if is(&s[1]) {
-            s.swap(0, 1);
-        }
-        if is(&s[0]) {
-            s[0].map(|e| e.1)
-        } else {
-            None
-        }
-    }
-
-    fn put(&mut self, f: FaceId, l: &(DVec3, DVec3, f64), p: Projected) {
-        if self.slots.len() <= f.idx() {
-            self.slots.resize(f.idx() + 1, [None, None]);
-        }
-        let s = &mut self.slots[f.idx()];
-        s[1] = s[0].take();
-        s[0] = Some((Self::key(l), p));
     }
 }
 
@@ -1053,7 +995,6 @@ impl<'a> Simplifier<'a> {
             stamp_now: 0,
             face_stamp: Vec::new(),
             memo: PointMemo::default(),
-            phi_memo: PhiMemo::default(),
             claimed: Vec::new(),
             batch_now: 0,
             ring_scratch: Vec::new(),
@@ -1136,8 +1077,7 @@ impl<'a> Simplifier<'a> {
                 .map(|&f| line(f, memo.centre_limit(k, f)))
                 .collect()
         };
-        let proj: Vec<(DVec3, Option<Projected>, DVec3)> = self
-            .phi_centres(&faces, &lines, par_min)
+        let proj: Vec<(DVec3, Option<Projected>, DVec3)> = phi_batch(&self.bvh, &lines, par_min)
             .into_iter()
             .zip(&lines)
             .map(|(p, &(c, n, _))| (c, p, n))
@@ -1213,34 +1153,6 @@ impl<'a> Simplifier<'a> {
             }
         }
         Ok(checks)
-    }
-
-    /// φ of the centre `lines` of `faces` ([`phi_batch`]), answered from
-    /// [`PhiMemo`] where a face's line is bit for bit one of its last two
-    /// (φ is a function of the line alone, so the answer is the same).
-    fn phi_centres(
-        &mut self,
-        faces: &[FaceId],
-        lines: &[(DVec3, DVec3, f64)],
-        par_min: usize,
-    ) -> Vec<Option<Projected>> {
-        let mut out: Vec<Option<Projected>> = vec![None; lines.len()];
-        let mut ask: Vec<usize> = Vec::new();
-        for (i, (&f, l)) in faces.iter().zip(lines).enumerate() {
-            match self.phi_memo.get(f, l) {
-                Some(p) => out[i] = Some(p),
-                None => ask.push(i),
-            }
-        }
-        let asked: Vec<(DVec3, DVec3, f64)> = ask.iter().map(|&i| lines[i]).collect();
-        let hits = phi_batch(&self.bvh, &asked, par_min);
-        for (&i, hit) in ask.iter().zip(hits) {
-            if let Some(p) = hit {
-                self.phi_memo.put(faces[i], &lines[i], p);
-            }
-            out[i] = hit;
-        }
-        out
     }
 
     /// The M-fitmap test (§3.1.1 / §3.3.1 with the README's correction):
@@ -2348,38 +2260,5 @@ mod tests {
                 faces.reverse();
             }
         }
-    }
-
-    /// The φ memo answers only a line equal bit for bit to one of the
-    /// face's last two, and keeps the one used in front.
-    #[test]
-    fn phi_memo_answers_only_the_same_line() {
-        let hit = |t: f64| Projected {
-            point: DVec3::new(t, 0.0, 0.0),
-            offset: t,
-            triangle: 7,
-            u: 0.25,
-            v: 0.5,
-        };
-        let line = |x: f64| (DVec3::new(x, 1.0, 2.0), DVec3::Z, 0.5);
-        let f = FaceId(3);
-        let mut m = PhiMemo::default();
-        assert_eq!(m.get(f, &line(1.0)), None);
-        m.put(f, &line(1.0), hit(1.0));
-        m.put(f, &line(2.0), hit(2.0));
-        assert_eq!(m.get(f, &line(1.0)), Some(hit(1.0)));
-        assert_eq!(m.get(f, &line(2.0)), Some(hit(2.0)));
-        // -0.0 == 0.0 as numbers, but not as bits.
-        m.put(f, &line(0.0), hit(0.0));
-        assert_eq!(m.get(f, &line(-0.0)), None);
-        assert_eq!(m.get(FaceId(4), &line(0.0)), None);
-        // Three lines: the oldest one is gone.
-        m.put(f, &line(3.0), hit(3.0));
-        assert_eq!(m.get(f, &line(1.0)), None);
-        assert_eq!(m.get(f, &line(0.0)), Some(hit(0.0)));
-        // The one used came to the front, so the next put keeps it.
-        m.put(f, &line(4.0), hit(4.0));
-        assert_eq!(m.get(f, &line(0.0)), Some(hit(0.0)));
-        assert_eq!(m.get(f, &line(3.0)), None);
     }
 }
