@@ -4,8 +4,9 @@
 //! one-thread rayon pool, so the figures are CPU seconds of one core and do
 //! not depend on what else the machine runs (the end-to-end wall times in
 //! docs/status.md, "Scale", do); the loop also in batches of 16
-//! (`SimplifyOptions::batch`), on one thread and on two; and one cubic
-//! fit of 600 points.
+//! (`SimplifyOptions::batch`), on one thread and on two; the loop alone
+//! (its start prepared outside the timing) on bunny and gargoyle; and one
+//! cubic fit of 600 points.
 //!
 //! `cargo bench --bench fitmap`; skips with a message if the data is absent.
 
@@ -15,9 +16,9 @@ mod common;
 use std::time::Duration;
 
 use common::*;
-use criterion::Criterion;
+use criterion::{BatchSize, Criterion};
 use subdfit::analysis::{compute_fitmap, FitmapOptions};
-use subdfit::quad::simplify::{simplify, SimplifyOptions};
+use subdfit::quad::simplify::{prepare, simplify, simplify_prepared, SimplifyOptions};
 use subdfit::raycast::{make_raycaster, RayBackend};
 
 fn main() {
@@ -86,6 +87,48 @@ fn main() {
             b.iter(|| pool.install(|| simplify(&mesh, &fitmap, caster.as_ref(), &so).unwrap()))
         });
     }
+    // The loop alone, from a start prepared once per sample outside the
+    // timing (quadrangulation and interpolation read M only: they run
+    // beside the Fitmap in `convert`, so the loop is the stage's own
+    // time), on bunny and on gargoyle, one thread.
+    let gargoyle = load_data_mesh("gargoyle.ply").map(|m| {
+        let caster = pool
+            .install(|| make_raycaster(RayBackend::Embree, &m))
+            .unwrap();
+        let fitmap = pool
+            .install(|| compute_fitmap(&m, caster.as_ref(), &opts))
+            .unwrap();
+        (m, caster, fitmap)
+    });
+    let so = SimplifyOptions::default();
+    g.bench_function("simplify_loop_1thread", |b| {
+        b.iter_batched(
+            || prepare(&mesh).unwrap(),
+            |start| {
+                pool.install(|| {
+                    simplify_prepared(&mesh, &fitmap, caster.as_ref(), &so, start, &mut |_| true)
+                        .unwrap()
+                })
+            },
+            BatchSize::PerIteration,
+        )
+    });
     g.finish();
+    if let Some((m, caster, fitmap)) = &gargoyle {
+        let mut g = c.benchmark_group("gargoyle");
+        g.bench_function("simplify_loop_1thread", |b| {
+            b.iter_batched(
+                || prepare(m).unwrap(),
+                |start| {
+                    pool.install(|| {
+                        simplify_prepared(m, fitmap, caster.as_ref(), &so, start, &mut |_| true)
+                            .unwrap()
+                    })
+                },
+                BatchSize::PerIteration,
+            )
+        });
+        g.finish();
+    }
     c.final_summary();
 }

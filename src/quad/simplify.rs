@@ -54,7 +54,11 @@ use crate::mesh::{ControlMesh, FaceId, TriMesh, VertexId};
 use crate::project::{default_max_dist, Projected};
 use crate::raycast::bvh::BvhCaster;
 use crate::raycast::RayCaster;
-use crate::subdiv::catmark::closed_form::{centroid, face_centre_limit, vertex_normal};
+use crate::subdiv::catmark::closed_form::{
+    centroid, edge_point_with, face_centre_limit, face_centre_limit_from, vertex_normal,
+    vertex_point_with,
+};
+use crate::subdiv::LimitPoint;
 use crate::DVec3;
 
 /// Default [`SimplifyOptions::s_fitmap_scale`]: κ = 1.55 κ₀, inside the
@@ -628,6 +632,10 @@ pub(crate) struct Simplifier<'a> {
     /// BFS stamps over vertices (region snapshots, batch claims).
     stamp: Vec<u32>,
     stamp_now: u32,
+    /// The same stamps over faces (a snapshot's faces).
+    face_stamp: Vec<u32>,
+    /// Face and vertex points shared by the faces of one update.
+    memo: PointMemo,
     /// Per vertex, the batch that claimed it ([`Simplifier::claim`]).
     claimed: Vec<u32>,
     batch_now: u32,
@@ -715,6 +723,65 @@ impl Candidate {
     }
     fn diagonal(&self) -> usize {
         (self.entry.0).2 as usize
+    }
+}
+
+/// Catmull-Clark face points (centroids) and vertex points of one
+/// [`Simplifier::update_faces`] call, each computed once: the limit at a
+/// quad's centre ([`face_centre_limit`]) takes its face point, four edge
+/// points (two face points each) and four vertex points (one face point
+/// per incident face each), and the faces around a refit region share
+/// most of them: about 25 centroids per face, where a region has about one
+/// per face. Edge points are not kept: the two faces of an edge sum its
+/// terms in opposite orders, and a shared value would change the bits.
+#[derive(Default)]
+struct PointMemo {
+    now: u32,
+    face: Vec<(u32, DVec3)>,
+    vertex: Vec<(u32, DVec3)>,
+}
+
+impl PointMemo {
+    /// Forgets the previous call's points (the mesh has changed since).
+    fn begin(&mut self, k: &ControlMesh) {
+        self.face
+            .resize(k.num_faces().max(self.face.len()), (0, DVec3::ZERO));
+        let nv = k.num_vertices().max(self.vertex.len());
+        self.vertex.resize(nv, (0, DVec3::ZERO));
+        self.now = self.now.wrapping_add(1);
+        if self.now == 0 {
+            self.face.iter_mut().for_each(|x| x.0 = 0);
+            self.vertex.iter_mut().for_each(|x| x.0 = 0);
+            self.now = 1;
+        }
+    }
+
+    fn centroid(&mut self, k: &ControlMesh, f: FaceId) -> DVec3 {
+        let e = &mut self.face[f.idx()];
+        if e.0 != self.now {
+            *e = (self.now, centroid(k, f));
+        }
+        e.1
+    }
+
+    fn vertex_point(&mut self, k: &ControlMesh, v: VertexId) -> DVec3 {
+        if self.vertex[v.idx()].0 != self.now {
+            let p = vertex_point_with(k, v, |g| self.centroid(k, g));
+            self.vertex[v.idx()] = (self.now, p);
+        }
+        self.vertex[v.idx()].1
+    }
+
+    /// [`face_centre_limit`] of the quad `f`, bit for bit.
+    fn centre_limit(&mut self, k: &ControlMesh, f: FaceId) -> LimitPoint {
+        let mut e = [DVec3::ZERO; 4];
+        let mut vp = [DVec3::ZERO; 4];
+        for (i, h) in k.face_halfedges(f).enumerate().take(4) {
+            e[i] = edge_point_with(k, h, |g| self.centroid(k, g));
+            vp[i] = self.vertex_point(k, k.tail(h));
+        }
+        let fp = self.centroid(k, f);
+        face_centre_limit_from(fp, &e, &vp)
     }
 }
 
@@ -926,6 +993,8 @@ impl<'a> Simplifier<'a> {
             refused: Default::default(),
             stamp: Vec::new(),
             stamp_now: 0,
+            face_stamp: Vec::new(),
+            memo: PointMemo::default(),
             claimed: Vec::new(),
             batch_now: 0,
             ring_scratch: Vec::new(),
@@ -984,8 +1053,7 @@ impl<'a> Simplifier<'a> {
             .filter(|&f| !self.k.is_face_deleted(f))
             .collect();
         let (k, max_dist) = (&self.k, self.max_dist);
-        let one = |f: FaceId| {
-            let l = face_centre_limit(k, f);
+        let line = |f: FaceId, l: LimitPoint| {
             let q = super::ops::quad_positions(k, f);
             let scale = (q[2] - q[0]).length().max((q[3] - q[1]).length());
             (l.position, l.normal(), local_reach(scale, max_dist))
@@ -996,10 +1064,18 @@ impl<'a> Simplifier<'a> {
             faces
                 .par_iter()
                 .with_min_len((par_min / 2).max(1))
-                .map(|&f| one(f))
+                .map(|&f| line(f, face_centre_limit(k, f)))
                 .collect()
         } else {
-            faces.iter().map(|&f| one(f)).collect()
+            // A step's faces are neighbours: their face and vertex points
+            // are shared, taken once each (the same values, so the same
+            // bits as `face_centre_limit`).
+            let memo = &mut self.memo;
+            memo.begin(k);
+            faces
+                .iter()
+                .map(|&f| line(f, memo.centre_limit(k, f)))
+                .collect()
         };
         let proj: Vec<(DVec3, Option<Projected>, DVec3)> = phi_batch(&self.bvh, &lines, par_min)
             .into_iter()
@@ -1762,6 +1838,7 @@ impl<'a> Simplifier<'a> {
         self.stamp_now = self.stamp_now.wrapping_add(1);
         if self.stamp_now == 0 {
             self.stamp.iter_mut().for_each(|x| *x = 0);
+            self.face_stamp.iter_mut().for_each(|x| *x = 0);
             self.stamp_now = 1;
         }
     }
@@ -1797,12 +1874,23 @@ impl<'a> Simplifier<'a> {
             }
             start = end;
         }
-        let mut faces: Vec<FaceId> = vertices
-            .iter()
-            .flat_map(|&v| self.k.vertex_faces(v))
-            .collect();
+        // Each face once, marked by the same stamp (a face has up to four
+        // corners in the region: collecting them per corner and sorting the
+        // duplicates away was a third of the snapshot's time).
+        let nf = self.k.num_faces();
+        if self.face_stamp.len() < nf {
+            self.face_stamp.resize(nf, 0);
+        }
+        let mut faces: Vec<FaceId> = Vec::with_capacity(vertices.len() + 8);
+        for &v in &vertices {
+            for g in self.k.vertex_faces(v) {
+                if self.face_stamp[g.idx()] != now {
+                    self.face_stamp[g.idx()] = now;
+                    faces.push(g);
+                }
+            }
+        }
         faces.sort_unstable();
-        faces.dedup();
         vertices.sort_unstable();
         let faces = faces
             .into_iter()
@@ -2127,5 +2215,50 @@ impl<'a> Simplifier<'a> {
                 Ok((v, l))
             })
             .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fixtures;
+
+    /// The shared face and vertex points give `face_centre_limit`'s bits on
+    /// every quad of meshes with extraordinary vertices inside and on the
+    /// boundary, in any order of the faces and across calls after a move.
+    #[test]
+    fn point_memo_is_face_centre_limit_bit_for_bit() {
+        let bits = |l: &LimitPoint| {
+            [l.position, l.du, l.dv].map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+        };
+        let tau = 2.0 * std::f64::consts::PI;
+        let meshes = [
+            fixtures::grid(5, 4, 3),
+            fixtures::fan(5, tau, 1),
+            fixtures::fan(3, tau, 2),
+            fixtures::fan(6, 0.75 * tau, 4),
+        ];
+        let mut memo = PointMemo::default();
+        for mut k in meshes {
+            assert!(k.is_all_quads());
+            let mut faces: Vec<FaceId> = k.live_faces().collect();
+            for round in 0..3 {
+                memo.begin(&k);
+                let mut compared = 0;
+                for &f in &faces {
+                    assert_eq!(
+                        bits(&memo.centre_limit(&k, f)),
+                        bits(&face_centre_limit(&k, f))
+                    );
+                    compared += 1;
+                }
+                assert_eq!(compared, k.num_live_faces());
+                // Move a vertex and revisit in another order: a new call
+                // must not keep the old points.
+                let v = VertexId(round as u32);
+                k.positions_mut()[v.idx()] += DVec3::new(0.01, -0.02, 0.03);
+                faces.reverse();
+            }
+        }
     }
 }

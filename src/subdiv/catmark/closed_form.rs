@@ -27,6 +27,17 @@ pub fn centroid(k: &ControlMesh, f: FaceId) -> DVec3 {
 /// The Catmull-Clark vertex point of `v` after one step (smooth rules;
 /// boundary edges are creases: cubic B-spline rule, corners fixed).
 pub fn vertex_point(k: &ControlMesh, v: VertexId) -> DVec3 {
+    vertex_point_with(k, v, |f| centroid(k, f))
+}
+
+/// [`vertex_point`] with the face points from `face_point` (a caller that
+/// evaluates many neighbouring faces passes cached centroids; the same
+/// values give the same bits).
+pub fn vertex_point_with(
+    k: &ControlMesh,
+    v: VertexId,
+    mut face_point: impl FnMut(FaceId) -> DVec3,
+) -> DVec3 {
     let p = k.position(v);
     let h0 = k.vertex_halfedge(v);
     if k.is_boundary_halfedge(h0) {
@@ -41,7 +52,7 @@ pub fn vertex_point(k: &ControlMesh, v: VertexId) -> DVec3 {
     let mut r = DVec3::ZERO;
     let mut n = 0.0;
     for h in k.outgoing(v) {
-        q += centroid(k, k.face_of(h).expect("interior"));
+        q += face_point(k.face_of(h).expect("interior"));
         r += 0.5 * (p + k.position(k.head(h)));
         n += 1.0;
     }
@@ -50,10 +61,20 @@ pub fn vertex_point(k: &ControlMesh, v: VertexId) -> DVec3 {
 
 /// The Catmull-Clark edge point of the edge of `h`.
 pub fn edge_point(k: &ControlMesh, h: HalfedgeId) -> DVec3 {
+    edge_point_with(k, h, |f| centroid(k, f))
+}
+
+/// [`edge_point`] with the face points from `face_point` (see
+/// [`vertex_point_with`]).
+pub fn edge_point_with(
+    k: &ControlMesh,
+    h: HalfedgeId,
+    mut face_point: impl FnMut(FaceId) -> DVec3,
+) -> DVec3 {
     let a = k.position(k.tail(h));
     let b = k.position(k.head(h));
     match (k.face_of(h), k.face_of(h.twin())) {
-        (Some(f), Some(g)) => (a + b + centroid(k, f) + centroid(k, g)) / 4.0,
+        (Some(f), Some(g)) => (a + b + face_point(f) + face_point(g)) / 4.0,
         _ => 0.5 * (a + b),
     }
 }
@@ -65,11 +86,20 @@ pub fn edge_point(k: &ControlMesh, h: HalfedgeId) -> DVec3 {
 /// `(16 F + 4 Σ E_i + Σ V_i) / 36` and its tangents are those of the
 /// bicubic B-spline at a knot. Exact for any valences around the face.
 pub fn face_centre_limit(k: &ControlMesh, f: FaceId) -> LimitPoint {
-    let hs: Vec<_> = k.face_halfedges(f).collect();
-    debug_assert_eq!(hs.len(), 4);
-    let fp = centroid(k, f);
-    let e: Vec<DVec3> = hs.iter().map(|&h| edge_point(k, h)).collect();
-    let vp: Vec<DVec3> = hs.iter().map(|&h| vertex_point(k, k.tail(h))).collect();
+    let mut e = [DVec3::ZERO; 4];
+    let mut vp = [DVec3::ZERO; 4];
+    for (i, h) in k.face_halfedges(f).enumerate().take(4) {
+        e[i] = edge_point(k, h);
+        vp[i] = vertex_point(k, k.tail(h));
+    }
+    debug_assert_eq!(k.face_halfedges(f).count(), 4);
+    face_centre_limit_from(centroid(k, f), &e, &vp)
+}
+
+/// [`face_centre_limit`] from the quad's face point `fp`, its edge points
+/// `e` and its corners' vertex points `vp` (in the face's half-edge order,
+/// starting at its first half-edge), for a caller that has them cached.
+pub fn face_centre_limit_from(fp: DVec3, e: &[DVec3; 4], vp: &[DVec3; 4]) -> LimitPoint {
     let position =
         (16.0 * fp + 4.0 * (e[0] + e[1] + e[2] + e[3]) + vp[0] + vp[1] + vp[2] + vp[3]) / 36.0;
     // E_0 lies on edge (v0, v1), so E_0 − E_2 runs along "v" and E_1 − E_3
