@@ -377,7 +377,7 @@ impl FieldSystem {
             ne.add_row(&[(ya, w), (xb, -w * sn), (yb, -w * c)], 0.0)?;
         }
         let mut rows = Vec::with_capacity(n);
-        for i in 0..n {
+        for (i, &(e1, e2)) in bases.iter().enumerate() {
             let (xi, yi) = (2 * i as u32, 2 * i as u32 + 1);
             let (wt, goal) = match s.boundary_tangent[i] {
                 // §6.2: the boundary tangent is one arm of the cross, held by
@@ -385,7 +385,7 @@ impl FieldSystem {
                 // magnitude that of the largest target, so that it also
                 // dominates the power steps' right-hand side).
                 Some(tb) => {
-                    let phi = 4.0 * tb.dot(bases[i].1).atan2(tb.dot(bases[i].0));
+                    let phi = 4.0 * tb.dot(e2).atan2(tb.dot(e1));
                     let m = 2.0 / t;
                     (1e3 * stiff.max(1e-12), Some([m * phi.cos(), m * phi.sin()]))
                 }
