@@ -254,7 +254,7 @@ impl Prepared {
         if self.surf.len() != mesh.positions.len()
             || self.surf.triangles.len() != mesh.triangles.len()
         {
-            return Err(Error::InvalidArgument(format!(
+            return Err(Error::internal(format!(
                 "field layout: prepared on {} vertices / {} triangles, given {} / {}",
                 self.surf.len(),
                 self.surf.triangles.len(),
