@@ -45,7 +45,9 @@ use serde::Serialize;
 use crate::analysis::Fitmap;
 use crate::error::Result;
 use crate::mesh::{ControlMesh, TriMesh};
-use crate::quad::field::{field_layout_refined, sizing, FieldOptions, FieldStats, Surface};
+use crate::quad::field::{
+    field_layout_refined_prepared, sizing, FieldOptions, FieldStats, Surface,
+};
 use crate::raycast::RayCaster;
 use crate::report::TargetCheck;
 use crate::DVec3;
@@ -534,7 +536,13 @@ fn lay_out_grown(
     let mut lay = |scale: f64| {
         let h: Vec<f64> = s.h.iter().map(|x| x * scale).collect();
         timer.run("field layout", || {
-            field_layout_refined(&relayout.mesh, &relayout.fitmap, &h, fo)
+            field_layout_refined_prepared(
+                &relayout.prepared,
+                &relayout.mesh,
+                &relayout.fitmap,
+                &h,
+                fo,
+            )
         })
     };
     for _ in 0..=REGROW {

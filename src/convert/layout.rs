@@ -89,6 +89,8 @@ pub enum LayoutRecord {
 pub struct FieldRelayout {
     pub mesh: crate::mesh::TriMesh,
     pub fitmap: Fitmap,
+    /// The cross field and caster on `mesh`, shared by every relayout.
+    pub prepared: crate::quad::field::Prepared,
 }
 
 impl Layout {
@@ -212,8 +214,10 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
     let field_opts =
         crate::quad::field::FieldOptions::default().with_target_faces(opts.target_faces);
     stage(progress, "field layout", 0.0)?;
-    let laid = timer.run("field layout", || {
-        crate::quad::field::field_layout(layout, &fitmap, &field_opts)
+    let (laid, prepared) = timer.run("field layout", || {
+        let prep = crate::quad::field::Prepared::new(layout, &field_opts)?;
+        crate::quad::field::field_layout_prepared(&prep, layout, &fitmap, &field_opts)
+            .map(|laid| (laid, prep))
     })?;
     stage(progress, "field layout", 1.0)?;
     let on_m = fitmap_on_m(&proxy, fitmap.clone(), mesh, timer)?;
@@ -227,6 +231,7 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
             relayout: Box::new(FieldRelayout {
                 mesh: layout.clone(),
                 fitmap,
+                prepared,
             }),
         },
     })

@@ -241,15 +241,29 @@ impl NormalEquations {
     /// not converge). `N` must be definite (a ridge on every unknown that
     /// no row reaches).
     pub fn solve_cg(&self, tolerance: f64) -> Result<Vec<f64>> {
-        if self.rhs.is_empty() {
+        self.solve_cg_for(&self.rhs, tolerance)
+    }
+
+    /// [`Self::solve_cg`] with `rhs` in place of the rows' `Aᵀ b` (one
+    /// assembled `N` for several right-hand sides; `rhs.len()` must be
+    /// [`Self::len`]).
+    pub fn solve_cg_for(&self, rhs: &[f64], tolerance: f64) -> Result<Vec<f64>> {
+        if rhs.len() != self.rhs.len() {
+            return Err(Error::internal(format!(
+                "normal equations: {} right-hand side values for {} unknowns",
+                rhs.len(),
+                self.rhs.len()
+            )));
+        }
+        if rhs.is_empty() {
             return Ok(Vec::new());
         }
         bridge::spd_conjugate_gradients(
-            self.rhs.len(),
+            rhs.len(),
             &self.outer,
             &self.inner,
             &self.values,
-            &self.rhs,
+            rhs,
             tolerance,
         )
         .map_err(|e| Error::backend("Eigen", e.what().to_string()))

@@ -173,8 +173,11 @@ pub fn cross_field(s: &Surface, opts: &FieldOptions) -> Result<Vec<DVec3>> {
     let ell = (opts.alignment_length * s.diagonal).max(s.mean_edge);
     let t = 1.0 / (ell * ell);
     let weights = cotan_weights(s);
+    // One matrix for the first solve and the power steps: only the
+    // right-hand side changes between them.
+    let system = FieldSystem::new(s, &bases, &weights, t)?;
     let mut target: Vec<[f64; 2]> = guide.iter().map(|g| [g[0] / t, g[1] / t]).collect();
-    let mut u = solve_field(s, &bases, &weights, t, &target)?;
+    let mut u = system.solve(&target)?;
     for _ in 0..POWER_STEPS {
         let (mut ms, mut area) = (0.0, 0.0);
         for i in 0..n {
@@ -191,7 +194,7 @@ pub fn cross_field(s: &Surface, opts: &FieldOptions) -> Result<Vec<DVec3>> {
                 (guide[i][1] + u[2 * i + 1] / rms) / t,
             ];
         }
-        u = solve_field(s, &bases, &weights, t, &target)?;
+        u = system.solve(&target)?;
     }
     let mut dirs = Vec::with_capacity(n);
     for i in 0..n {
@@ -340,58 +343,78 @@ pub fn smooth_hierarchical(s: &Surface, dirs: &mut [DVec3], weight: &[f64], swee
     dirs.copy_from_slice(&q);
 }
 
-/// Solves `(L + tM) u = tM target` with the boundary rows (realified:
-/// `u_i = (x, y)` at unknowns `2i`, `2i + 1`).
-fn solve_field(
-    s: &Surface,
-    bases: &[(DVec3, DVec3)],
-    weights: &[f64],
-    t: f64,
-    target: &[[f64; 2]],
-) -> Result<Vec<f64>> {
-    let n = s.len();
-    let own = (0..n as u32).map(|i| [2 * i, 2 * i + 1]);
-    let pairs = own.chain(s.edges.iter().flat_map(|&[a, b]| {
-        let (a, b) = (2 * a, 2 * b);
-        [[a, b], [a, b + 1], [a + 1, b], [a + 1, b + 1]]
-    }));
-    let mut ne = NormalEquations::with_pairs(2 * n, pairs)?;
-    let mut stiff = 0.0f64;
-    for (k, &[a, b]) in s.edges.iter().enumerate() {
-        let (ai, bi) = (a as usize, b as usize);
-        // r = e^{4iφ}: b's e1 carried to a's tangent plane, at angle φ in a's basis.
-        let e1b = transport(bases[bi].0, s.normals[bi], s.normals[ai]);
-        let phi = e1b.dot(bases[ai].1).atan2(e1b.dot(bases[ai].0));
-        let (c, sn) = ((4.0 * phi).cos(), (4.0 * phi).sin());
-        let w = weights[k].sqrt();
-        stiff = stiff.max(weights[k]);
-        let (xa, ya, xb, yb) = (2 * a, 2 * a + 1, 2 * b, 2 * b + 1);
-        // Re(u_a − r u_b) and Im(u_a − r u_b).
-        ne.add_row(&[(xa, w), (xb, -w * c), (yb, w * sn)], 0.0)?;
-        ne.add_row(&[(ya, w), (xb, -w * sn), (yb, -w * c)], 0.0)?;
+/// The system `(L + tM) u = tM target` with the boundary rows
+/// (realified: `u_i = (x, y)` at unknowns `2i`, `2i + 1`), assembled once
+/// for every right-hand side of [`cross_field`].
+struct FieldSystem {
+    ne: NormalEquations,
+    /// Per vertex the square root of its data row's weight and, on M's
+    /// boundary, the goal held there (else the target's).
+    rows: Vec<(f64, Option<[f64; 2]>)>,
+}
+
+impl FieldSystem {
+    fn new(s: &Surface, bases: &[(DVec3, DVec3)], weights: &[f64], t: f64) -> Result<FieldSystem> {
+        let n = s.len();
+        let own = (0..n as u32).map(|i| [2 * i, 2 * i + 1]);
+        let pairs = own.chain(s.edges.iter().flat_map(|&[a, b]| {
+            let (a, b) = (2 * a, 2 * b);
+            [[a, b], [a, b + 1], [a + 1, b], [a + 1, b + 1]]
+        }));
+        let mut ne = NormalEquations::with_pairs(2 * n, pairs)?;
+        let mut stiff = 0.0f64;
+        for (k, &[a, b]) in s.edges.iter().enumerate() {
+            let (ai, bi) = (a as usize, b as usize);
+            // r = e^{4iφ}: b's e1 carried to a's tangent plane, at angle φ in a's basis.
+            let e1b = transport(bases[bi].0, s.normals[bi], s.normals[ai]);
+            let phi = e1b.dot(bases[ai].1).atan2(e1b.dot(bases[ai].0));
+            let (c, sn) = ((4.0 * phi).cos(), (4.0 * phi).sin());
+            let w = weights[k].sqrt();
+            stiff = stiff.max(weights[k]);
+            let (xa, ya, xb, yb) = (2 * a, 2 * a + 1, 2 * b, 2 * b + 1);
+            // Re(u_a − r u_b) and Im(u_a − r u_b).
+            ne.add_row(&[(xa, w), (xb, -w * c), (yb, w * sn)], 0.0)?;
+            ne.add_row(&[(ya, w), (xb, -w * sn), (yb, -w * c)], 0.0)?;
+        }
+        let mut rows = Vec::with_capacity(n);
+        for (i, &(e1, e2)) in bases.iter().enumerate() {
+            let (xi, yi) = (2 * i as u32, 2 * i as u32 + 1);
+            let (wt, goal) = match s.boundary_tangent[i] {
+                // §6.2: the boundary tangent is one arm of the cross, held by
+                // a row 10³ times stiffer than any smoothness row (its
+                // magnitude that of the largest target, so that it also
+                // dominates the power steps' right-hand side).
+                Some(tb) => {
+                    let phi = 4.0 * tb.dot(e2).atan2(tb.dot(e1));
+                    let m = 2.0 / t;
+                    (1e3 * stiff.max(1e-12), Some([m * phi.cos(), m * phi.sin()]))
+                }
+                None => (t * s.areas[i], None),
+            };
+            let w = wt.sqrt();
+            // The data rows' right-hand sides are [`Self::solve`]'s.
+            ne.add_row(&[(xi, w)], 0.0)?;
+            ne.add_row(&[(yi, w)], 0.0)?;
+            // A small ridge keeps vertices without area or neighbours definite.
+            ne.add_diagonal(xi as usize, 1e-12 * (1.0 + stiff))?;
+            ne.add_diagonal(yi as usize, 1e-12 * (1.0 + stiff))?;
+            rows.push((w, goal));
+        }
+        Ok(FieldSystem { ne, rows })
     }
-    for i in 0..n {
-        let (xi, yi) = (2 * i as u32, 2 * i as u32 + 1);
-        let (wt, goal) = match s.boundary_tangent[i] {
-            // §6.2: the boundary tangent is one arm of the cross, held by
-            // a row 10³ times stiffer than any smoothness row (its
-            // magnitude that of the largest target, so that it also
-            // dominates the power steps' right-hand side).
-            Some(tb) => {
-                let phi = 4.0 * tb.dot(bases[i].1).atan2(tb.dot(bases[i].0));
-                let m = 2.0 / t;
-                (1e3 * stiff.max(1e-12), [m * phi.cos(), m * phi.sin()])
-            }
-            None => (t * s.areas[i], target[i]),
-        };
-        let w = wt.sqrt();
-        ne.add_row(&[(xi, w)], w * goal[0])?;
-        ne.add_row(&[(yi, w)], w * goal[1])?;
-        // A small ridge keeps vertices without area or neighbours definite.
-        ne.add_diagonal(xi as usize, 1e-12 * (1.0 + stiff))?;
-        ne.add_diagonal(yi as usize, 1e-12 * (1.0 + stiff))?;
+
+    /// `u` for `target`: the right-hand side `Aᵀ b` written directly (the
+    /// smoothness rows' b is 0, so each unknown's entry is its data row's
+    /// `w · (w · goal)`, the same value the rows would sum to).
+    fn solve(&self, target: &[[f64; 2]]) -> Result<Vec<f64>> {
+        let mut rhs = vec![0.0; 2 * self.rows.len()];
+        for (i, &(w, fixed)) in self.rows.iter().enumerate() {
+            let goal = fixed.unwrap_or(target[i]);
+            rhs[2 * i] += w * (w * goal[0]);
+            rhs[2 * i + 1] += w * (w * goal[1]);
+        }
+        self.ne.solve_cg_for(&rhs, 1e-8)
     }
-    ne.solve_cg(1e-8)
 }
 
 /// Cotangent weights of the edges (in `s.edges` order), clamped below at a

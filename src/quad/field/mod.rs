@@ -211,9 +211,70 @@ pub struct FieldLayout {
     pub stats: FieldStats,
 }
 
+/// What every layout of one mesh shares, whatever its sizes: the fields'
+/// view of the mesh, the cross field (step 1 reads only the mesh and the
+/// options, not the sizes) with its singularity counts, and the cleanup's
+/// ray caster. Built once per mesh ([`Prepared::new`]), so that
+/// `--max-error`'s relayouts ([`field_layout_refined`]) do not solve the
+/// cross field and build the caster again for every size they try.
+pub struct Prepared {
+    surf: Surface,
+    dirs: Vec<DVec3>,
+    caster: Option<crate::raycast::bvh::BvhCaster>,
+    /// The singularity counts and `seconds_cross`.
+    stats: FieldStats,
+}
+
+impl Prepared {
+    /// Steps shared by every size on `mesh` (the caster only when
+    /// `opts.cleanup`).
+    pub fn new(mesh: &TriMesh, opts: &FieldOptions) -> Result<Prepared> {
+        let surf = Surface::new(mesh)?;
+        let mut stats = FieldStats::default();
+        let t = Instant::now();
+        let dirs = cross::cross_field(&surf, opts)?;
+        count_singularities(&surf, &dirs, &mut stats);
+        stats.seconds_cross = t.elapsed().as_secs_f64();
+        let caster = if opts.cleanup {
+            Some(crate::raycast::bvh::BvhCaster::new(mesh)?)
+        } else {
+            None
+        };
+        Ok(Prepared {
+            surf,
+            dirs,
+            caster,
+            stats,
+        })
+    }
+
+    /// An error unless `mesh` is the mesh this was prepared on (by vertex
+    /// and triangle count).
+    fn check(&self, mesh: &TriMesh) -> Result<()> {
+        if self.surf.len() != mesh.positions.len()
+            || self.surf.triangles.len() != mesh.triangles.len()
+        {
+            return Err(Error::internal(format!(
+                "field layout: prepared on {} vertices / {} triangles, given {} / {}",
+                self.surf.len(),
+                self.surf.triangles.len(),
+                mesh.positions.len(),
+                mesh.triangles.len()
+            )));
+        }
+        Ok(())
+    }
+}
+
 /// Runs the four steps of the module on `mesh` (M or the layout proxy M′,
 /// with `fitmap` on its vertices).
 pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Result<FieldLayout> {
+    check_fitmap(mesh, fitmap)?;
+    let prep = Prepared::new(mesh, opts)?;
+    field_layout_prepared(&prep, mesh, fitmap, opts)
+}
+
+fn check_fitmap(mesh: &TriMesh, fitmap: &Fitmap) -> Result<()> {
     if fitmap.s.len() != mesh.positions.len() || fitmap.m.len() != mesh.positions.len() {
         return Err(Error::InvalidArgument(format!(
             "field layout: the Fitmap has {} values for {} vertices",
@@ -221,18 +282,26 @@ pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Res
             mesh.positions.len()
         )));
     }
-    let surf = Surface::new(mesh)?;
-    let mut stats = FieldStats::default();
-    let t = Instant::now();
-    let dirs = cross::cross_field(&surf, opts)?;
-    count_singularities(&surf, &dirs, &mut stats);
-    stats.seconds_cross = t.elapsed().as_secs_f64();
+    Ok(())
+}
 
+/// [`field_layout`] on a [`Prepared`] mesh (`prep` from `mesh` and
+/// `opts`).
+pub fn field_layout_prepared(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    opts: &FieldOptions,
+) -> Result<FieldLayout> {
+    check_fitmap(mesh, fitmap)?;
+    prep.check(mesh)?;
+    let (surf, dirs) = (&prep.surf, &prep.dirs);
+    let mut stats = prep.stats.clone();
     let t = Instant::now();
     let (h, alpha, relaxed, predicted) = match opts.uniform_size {
         Some(u) if u > 0.0 && u.is_finite() => {
             let h = vec![u; surf.len()];
-            let n = sizing::predicted_faces(&surf, &h);
+            let n = sizing::predicted_faces(surf, &h);
             (h, 1.0, 1.0, n)
         }
         Some(u) => {
@@ -241,20 +310,24 @@ pub fn field_layout(mesh: &TriMesh, fitmap: &Fitmap, opts: &FieldOptions) -> Res
                 format!("field layout: uniform size {u} must be finite and > 0"),
             ))
         }
-        None => sizing::sizing_for(&surf, mesh, fitmap, opts)?,
+        None => sizing::sizing_for(surf, mesh, fitmap, opts)?,
     };
     stats.alpha = alpha;
     stats.m_fitmap_relaxed = relaxed;
     stats.predicted_faces = predicted;
     stats.seconds_sizing = t.elapsed().as_secs_f64();
-    let caster = if opts.cleanup {
-        Some(crate::raycast::bvh::BvhCaster::new(mesh)?)
-    } else {
-        None
+    let built;
+    let caster = match (&prep.caster, opts.cleanup) {
+        (_, false) => None,
+        (Some(c), true) => Some(c),
+        (None, true) => {
+            built = crate::raycast::bvh::BvhCaster::new(mesh)?;
+            Some(&built)
+        }
     };
     let lay = |h: &[f64]| -> Result<FieldLayout> {
-        let out = layout_sized(&surf, mesh, &dirs, h, opts, stats.clone())?;
-        match &caster {
+        let out = layout_sized(surf, mesh, dirs, h, opts, stats.clone())?;
+        match caster {
             Some(c) => clean(mesh, fitmap, c, out, opts.target_faces),
             None => Ok(out),
         }
@@ -352,6 +425,18 @@ pub const COUNT_PASSES: usize = 4;
 /// instead of the Fitmap's (the cross field and the last two steps as
 /// there).
 pub fn field_layout_sized(mesh: &TriMesh, h: &[f64], opts: &FieldOptions) -> Result<FieldLayout> {
+    check_sizes(mesh, h)?;
+    let prep = Prepared::new(
+        mesh,
+        &FieldOptions {
+            cleanup: false,
+            ..opts.clone()
+        },
+    )?;
+    sized(&prep, mesh, h, opts)
+}
+
+fn check_sizes(mesh: &TriMesh, h: &[f64]) -> Result<()> {
     if h.len() != mesh.positions.len() {
         return Err(Error::InvalidArgument(format!(
             "field layout: {} sizes for {} vertices",
@@ -365,16 +450,17 @@ pub fn field_layout_sized(mesh: &TriMesh, h: &[f64], opts: &FieldOptions) -> Res
             h[i]
         )));
     }
-    let surf = Surface::new(mesh)?;
-    let mut stats = FieldStats::default();
-    let t = Instant::now();
-    let dirs = cross::cross_field(&surf, opts)?;
-    count_singularities(&surf, &dirs, &mut stats);
-    stats.seconds_cross = t.elapsed().as_secs_f64();
+    Ok(())
+}
+
+/// Steps 3 and 4 of [`field_layout_sized`] on a [`Prepared`] mesh.
+fn sized(prep: &Prepared, mesh: &TriMesh, h: &[f64], opts: &FieldOptions) -> Result<FieldLayout> {
+    prep.check(mesh)?;
+    let mut stats = prep.stats.clone();
     stats.alpha = 1.0;
     stats.m_fitmap_relaxed = 1.0;
-    stats.predicted_faces = sizing::predicted_faces(&surf, h);
-    layout_sized(&surf, mesh, &dirs, h, opts, stats)
+    stats.predicted_faces = sizing::predicted_faces(&prep.surf, h);
+    layout_sized(&prep.surf, mesh, &prep.dirs, h, opts, stats)
 }
 
 /// [`field_layout_sized`] followed by [`cleanup::cleanup`] (when
@@ -387,12 +473,33 @@ pub fn field_layout_refined(
     h: &[f64],
     opts: &FieldOptions,
 ) -> Result<FieldLayout> {
-    let out = field_layout_sized(mesh, h, opts)?;
+    check_sizes(mesh, h)?;
+    let prep = Prepared::new(mesh, opts)?;
+    field_layout_refined_prepared(&prep, mesh, fitmap, h, opts)
+}
+
+/// [`field_layout_refined`] on a [`Prepared`] mesh (`prep` from `mesh`
+/// and `opts`; with `opts.cleanup` it must hold the caster).
+pub fn field_layout_refined_prepared(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    h: &[f64],
+    opts: &FieldOptions,
+) -> Result<FieldLayout> {
+    check_sizes(mesh, h)?;
+    let out = sized(prep, mesh, h, opts)?;
     if !opts.cleanup {
         return Ok(out);
     }
-    let caster = crate::raycast::bvh::BvhCaster::new(mesh)?;
-    clean(mesh, fitmap, &caster, out, None)
+    match &prep.caster {
+        Some(caster) => clean(mesh, fitmap, caster, out, None),
+        None => {
+            // Prepared without the cleanup's caster.
+            let caster = crate::raycast::bvh::BvhCaster::new(mesh)?;
+            clean(mesh, fitmap, &caster, out, None)
+        }
+    }
 }
 
 fn count_singularities(surf: &Surface, dirs: &[DVec3], stats: &mut FieldStats) {

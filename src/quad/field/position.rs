@@ -113,6 +113,19 @@ pub fn compat_position(
 ) -> (DVec3, DVec3, [i64; 2], [i64; 2]) {
     let (t0, t1) = (n0.cross(q0), n1.cross(q1));
     let m = middle(p0, n0, p1, n1);
+    compat_at(m, [q0, t0, o0], [q1, t1, o1], s)
+}
+
+/// [`compat_position`] with the edge's [`middle`] `m` and each side's
+/// lattice `[q, n × q, o]` given (the first two and `m` do not change
+/// between sweeps, [`sweep`] computes them once per level).
+#[inline]
+fn compat_at(
+    m: DVec3,
+    [q0, t0, o0]: [DVec3; 3],
+    [q1, t1, o1]: [DVec3; 3],
+    s: f64,
+) -> (DVec3, DVec3, [i64; 2], [i64; 2]) {
     let floor = |o: DVec3, q: DVec3, t: DVec3| {
         let d = m - o;
         [(q.dot(d) / s).floor() as i64, (t.dot(d) / s).floor() as i64]
@@ -164,24 +177,58 @@ pub fn position_field(
                 })
                 .collect();
         }
+        let edges = EdgeTerms::new(&levels[l]);
         for _ in 0..sweeps.max(1) {
-            sweep(&levels[l], &mut o);
+            sweep(&levels[l], &edges, &mut o);
         }
     }
     Ok(o)
 }
 
+/// What the position rule reads of each directed edge (i, j) of a level
+/// that no sweep changes, in `nbr` order: j's arm matched to i's, its
+/// `n × q`, the edge's [`middle`] and mean spacing. Computed once per
+/// level instead of once per sweep (the same values, so the same sweeps).
+struct EdgeTerms {
+    q: Vec<DVec3>,
+    t: Vec<DVec3>,
+    m: Vec<DVec3>,
+    s: Vec<f64>,
+}
+
+impl EdgeTerms {
+    fn new(l: &Level) -> EdgeTerms {
+        let k = l.nbr.len();
+        let mut e = EdgeTerms {
+            q: Vec::with_capacity(k),
+            t: Vec::with_capacity(k),
+            m: Vec::with_capacity(k),
+            s: Vec::with_capacity(k),
+        };
+        for i in 0..l.p.len() {
+            for &j in l.neighbours(i) {
+                let j = j as usize;
+                let (qj, _) = match_arm(l.q[i], l.q[j], l.n[j]);
+                e.q.push(qj);
+                e.t.push(l.n[j].cross(qj));
+                e.m.push(middle(l.p[i], l.n[i], l.p[j], l.n[j]));
+                e.s.push(0.5 * (l.s[i] + l.s[j]));
+            }
+        }
+        e
+    }
+}
+
 /// One Gauss–Seidel sweep of the position rule over a level.
-fn sweep(l: &Level, o: &mut [DVec3]) {
+fn sweep(l: &Level, e: &EdgeTerms, o: &mut [DVec3]) {
     for i in 0..l.p.len() {
         let (pi, ni, qi) = (l.p[i], l.n[i], l.q[i]);
+        let ti = ni.cross(qi);
         let mut sum = o[i];
         let mut weight = 0.0;
-        for &j in l.neighbours(i) {
-            let j = j as usize;
-            let (qj, _) = match_arm(qi, l.q[j], l.n[j]);
-            let s = 0.5 * (l.s[i] + l.s[j]);
-            let (xi, xj, _, _) = compat_position(pi, ni, qi, sum, l.p[j], l.n[j], qj, o[j], s);
+        for k in l.start[i]..l.start[i + 1] {
+            let j = l.nbr[k] as usize;
+            let (xi, xj, _, _) = compat_at(e.m[k], [qi, ti, sum], [e.q[k], e.t[k], o[j]], e.s[k]);
             // Running mean in i's shifted lattice (Instant Meshes §5.2).
             sum = (xi * weight + xj) / (weight + 1.0);
             weight += 1.0;
