@@ -291,67 +291,25 @@ pub fn fit_field(
         if best.as_ref().map_or(true, |b| key < b.0) {
             best = Some((key, fitted));
         }
-        // A round that met both bounds after a failing one, far under the
-        // bound and with many more patches, overshot: one round between
-        // the two sizings is tried ([`back_off`]), kept if it meets them
-        // with fewer patches (the rounds stop after it either way).
-        let next = match (next, &last_refined, e) {
-            (Next::Stop, Some(prev), Some(e)) if key.meets() && !backed_off => {
-                backed_off = true;
-                match (sizes.take(), back_off(prev, (faces, rms), e)) {
-                    (Some(mut s), Some((ratio, allowed))) => {
-                        s.h = s.interpolate(&prev.h, ratio);
-                        Next::BackOff(s, prev.faces, allowed)
-                    }
-                    _ => Next::Stop,
-                }
-            }
-            (next, ..) => next,
+        let next = if key.meets() && !backed_off && matches!(next, Next::Stop) {
+            backed_off = true;
+            backed_off_round(last_refined.as_ref(), (faces, rms), e, &mut sizes)
+        } else {
+            next
         };
         target = None;
-        control = match next {
-            Next::Stop => break,
-            Next::Local(c) => {
-                size_factor = None;
-                c
-            }
-            Next::Relayout(mut s, allowed, before) => {
-                let counts = (faces, allowed);
-                last_refined = Some(Refined {
-                    h: before,
-                    faces,
-                    rms,
-                });
-                let regrow = match e {
-                    Some(e) if rms <= e => PROJECTION_REGROW_FACTOR,
-                    _ => REGROW_FACTOR,
-                };
-                let grown = lay_out_grown(&mut timer, relayout, &mut s, &fo, counts, regrow)?;
-                if let Some((_, f)) = &grown {
-                    size_factor = Some(*f);
-                }
-                sizes = Some(s);
-                match grown {
-                    Some((c, _)) => c,
-                    None => break,
-                }
-            }
-            Next::BackOff(mut s, floor, allowed) => {
-                // Laid as any refined sizing (at least `floor` patches,
-                // the failing round's), then fitted as a round; `sizes`
-                // keeps the meeting round's (no round refines after it).
-                let counts = (floor, allowed);
-                let grown =
-                    lay_out_grown(&mut timer, relayout, &mut s, &fo, counts, REGROW_FACTOR)?;
-                match grown {
-                    Some((c, f)) if c.num_faces() < faces => {
-                        size_factor = Some(f);
-                        c
-                    }
-                    _ => break,
-                }
-            }
+        if let Next::Relayout(_, _, before) = &next {
+            let h = before.clone();
+            last_refined = Some(Refined { h, faces, rms });
+        }
+        let regrow = match e {
+            Some(e) if rms <= e => PROJECTION_REGROW_FACTOR,
+            _ => REGROW_FACTOR,
         };
+        match lay_next(&mut timer, relayout, &fo, next, faces, &mut sizes, regrow)? {
+            Some((c, f)) => (control, size_factor) = (c, f),
+            None => break,
+        }
     }
     let (_, fitted) =
         best.ok_or_else(|| crate::Error::internal("field layout: no round was fitted"))?;
@@ -375,6 +333,63 @@ pub fn fit_field(
         c.report.add_target(faces_target(n, c.report.control.faces));
     }
     Ok(c)
+}
+
+/// A round that met both bounds after a failing one, far under the bound
+/// and with many more patches, overshot: one round between the two
+/// sizings follows ([`back_off`]), kept if it meets them with fewer
+/// patches (the rounds stop after it either way). [`Next::Stop`] when
+/// there is no such pair; `sizes` is taken either way (no round refines
+/// after a meeting one).
+fn backed_off_round(
+    prev: Option<&Refined>,
+    (faces, rms): (usize, f64),
+    e: Option<f64>,
+    sizes: &mut Option<Sizes>,
+) -> Next {
+    let (Some(prev), Some(e)) = (prev, e) else {
+        return Next::Stop;
+    };
+    match (sizes.take(), back_off(prev, (faces, rms), e)) {
+        (Some(mut s), Some((ratio, allowed))) => {
+            s.h = s.interpolate(&prev.h, ratio);
+            Next::BackOff(s, prev.faces, allowed)
+        }
+        _ => Next::Stop,
+    }
+}
+
+/// The control mesh of the round after one of `faces` patches, and the
+/// factor on its sizing it was laid at (`None` for a local pass); `None`
+/// when the rounds stop (`next` is [`Next::Stop`], or no grown lattice).
+/// A relayout leaves its sizing in `sizes` for the next refinement and
+/// regrows by `regrow` ([`lay_out_grown`]); a back-off round must land
+/// below `faces`.
+fn lay_next(
+    timer: &mut StageTimer,
+    relayout: &FieldRelayout,
+    fo: &FieldOptions,
+    next: Next,
+    faces: usize,
+    sizes: &mut Option<Sizes>,
+    regrow: f64,
+) -> Result<Option<(ControlMesh, Option<f64>)>> {
+    Ok(match next {
+        Next::Stop => None,
+        Next::Local(c) => Some((c, None)),
+        Next::Relayout(mut s, allowed, _) => {
+            let grown = lay_out_grown(timer, relayout, &mut s, fo, (faces, allowed), regrow)?;
+            *sizes = Some(s);
+            grown.map(|(c, f)| (c, Some(f)))
+        }
+        Next::BackOff(mut s, floor, allowed) => {
+            let counts = (floor, allowed);
+            let grown = lay_out_grown(timer, relayout, &mut s, fo, counts, REGROW_FACTOR)?;
+            grown
+                .filter(|(c, _)| c.num_faces() < faces)
+                .map(|(c, f)| (c, Some(f)))
+        }
+    })
 }
 
 /// A round of [`fit_field`] that missed the bound, deciding what follows
