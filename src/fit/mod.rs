@@ -564,7 +564,8 @@ fn fit_from(
         // The back distance's closest points also give the solve its
         // mesh-to-surface rows ([`REVERSE_WEIGHT`]), so they come first;
         // the solve is the same pure function of this round's data.
-        let back_side = BackDistance::of(mesh, &limit[..sys.data_samples], &sys.ks)?;
+        let back_side =
+            BackDistance::of(mesh, &sys.m_normals, &limit[..sys.data_samples], &sys.ks)?;
         let back = back_side.rms();
         let reverse = if last {
             Vec::new()
@@ -949,6 +950,7 @@ impl FitSystem {
 
     /// The update δ of one round: the SDM system when `use_sdm` (and the
     /// curvatures were built), the point-distance one otherwise.
+    #[allow(clippy::too_many_arguments)]
     fn solve(
         &self,
         mesh: &TriMesh,
@@ -1038,6 +1040,8 @@ impl RoundTargets {
 struct BackDistance {
     /// The queried vertices of M.
     points: Vec<DVec3>,
+    /// Their normals (M's area-weighted vertex normals).
+    normals: Vec<DVec3>,
     /// Each one's closest point on the grids (triangle of `tris`).
     hits: Vec<Option<crate::raycast::ClosestPoint>>,
     /// The grids' triangles, as data-sample indices (`(1 − u − v) a + u b
@@ -1048,7 +1052,12 @@ struct BackDistance {
 impl BackDistance {
     /// Builds the grids of `samples` (in patch order, `ks` their sides)
     /// and queries M's strided vertices against them.
-    fn of(mesh: &TriMesh, samples: &[crate::subdiv::LimitPoint], ks: &[usize]) -> Result<Self> {
+    fn of(
+        mesh: &TriMesh,
+        normals: &[DVec3],
+        samples: &[crate::subdiv::LimitPoint],
+        ks: &[usize],
+    ) -> Result<Self> {
         let mut tm = TriMesh {
             positions: samples.iter().map(|s| s.position).collect(),
             triangles: Vec::new(),
@@ -1069,6 +1078,7 @@ impl BackDistance {
         if tm.triangles.is_empty() {
             return Ok(BackDistance {
                 points: Vec::new(),
+                normals: Vec::new(),
                 hits: Vec::new(),
                 tris: Vec::new(),
             });
@@ -1082,6 +1092,7 @@ impl BackDistance {
         let hits = caster.closest_points(&points, f64::INFINITY)?;
         Ok(BackDistance {
             points,
+            normals: normals.iter().step_by(stride).copied().collect(),
             hits,
             tris: tm.triangles,
         })
@@ -1117,7 +1128,11 @@ impl BackDistance {
         bound: f64,
     ) -> Vec<ReverseRow> {
         let mut rows = Vec::new();
-        for (m, h) in self.points.iter().zip(&self.hits) {
+        let min_cos = std::env::var("SD_REV_COS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(REVERSE_MIN_COS);
+        for ((m, nm), h) in self.points.iter().zip(&self.normals).zip(&self.hits) {
             let Some(h) = h else { continue };
             if h.distance <= far || h.distance > bound {
                 continue;
@@ -1128,7 +1143,7 @@ impl BackDistance {
                 .map(|c| w[c] * limit[t[c] as usize].normal())
                 .sum::<DVec3>()
                 .normalize_or_zero();
-            if n == DVec3::ZERO {
+            if n == DVec3::ZERO || nm.normalize_or_zero().dot(n) < min_cos {
                 continue;
             }
             rows.push(ReverseRow {
@@ -1155,6 +1170,10 @@ impl BackDistance {
 /// displacement samples 139 → 49; rows for every vertex (no
 /// [`REVERSE_FAR`]) at weight ½ raised D → M to 0.255‰ instead.
 const REVERSE_WEIGHT: f64 = 1.0;
+
+/// A vertex of M whose normal makes a cosine below this with the limit
+/// normal at its closest grid point gets no mesh-to-surface row.
+const REVERSE_MIN_COS: f64 = -2.0;
 
 /// A vertex of M gets a mesh-to-surface row only when its closest grid
 /// point is further than this many times the round's back RMS: where the
@@ -1704,7 +1723,7 @@ mod tests {
             ],
             triangles: vec![[0, 1, 2]],
         };
-        let back = BackDistance::of(&m, &samples, &[3]).unwrap();
+        let back = BackDistance::of(&m, &[DVec3::Z; 3], &samples, &[3]).unwrap();
         let rows = back.reverse_rows(&samples, 0.1, 1.0);
         assert_eq!(rows.len(), 1, "only the far vertex within the bound");
         let r = &rows[0];
@@ -1736,7 +1755,7 @@ mod tests {
             ],
             triangles: vec![[0, 1, 2]],
         };
-        let back = BackDistance::of(&m, &samples, &[3]).unwrap();
+        let back = BackDistance::of(&m, &[DVec3::Z; 3], &samples, &[3]).unwrap();
         let rows = back.reverse_rows(&samples, 0.1, 10.0);
         assert_eq!(rows.len(), 1);
         assert!((rows[0].residual - DVec3::new(0.0, 0.0, 0.6)).length() < 1e-12);
