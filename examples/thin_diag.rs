@@ -43,6 +43,50 @@ fn main() -> anyhow::Result<()> {
         "M -> displaced.ply {:.4} max {:.3}; max |offset| {:.2}",
         harness.rms_permille, harness.max_permille, d.stats.max_abs_offset_permille
     );
+    // Where M → displaced.ply's squared error lies, by patch: the written
+    // tessellation holds the patches in order, the same triangle count
+    // each.
+    let dhits = dc.closest_points(&mp, f64::INFINITY)?;
+    let patches = d.grid.num_patches();
+    let per = s.displaced.triangles.len() / patches.max(1);
+    let mut by_patch = vec![0.0; patches];
+    let mut total = 0.0;
+    let wsum: f64 = mw.iter().sum();
+    for (h, w) in dhits.iter().zip(&mw) {
+        let Some(h) = h else { continue };
+        let e = w * h.distance * h.distance;
+        by_patch[(h.triangle as usize / per.max(1)).min(patches - 1)] += e;
+        total += e;
+    }
+    let mut order: Vec<usize> = (0..patches).collect();
+    order.sort_by(|&a, &b| by_patch[b].total_cmp(&by_patch[a]));
+    let pm2 = 1000.0 / diag;
+    let mut rest = total;
+    for &f in order.iter().take(5) {
+        rest -= by_patch[f];
+        println!(
+            "M -> D patch {f}: share {:.1}%; RMS without it and the ones above {:.4}",
+            100.0 * by_patch[f] / total,
+            pm2 * (rest / wsum).sqrt()
+        );
+    }
+    // The same by tile resolution: error share against area share.
+    let mut by_res: std::collections::BTreeMap<usize, (f64, f64)> = Default::default();
+    for (h, w) in dhits.iter().zip(&mw) {
+        let Some(h) = h else { continue };
+        let f = (h.triangle as usize / per.max(1)).min(patches - 1);
+        let e = by_res.entry(d.grid.patch_res(f)).or_default();
+        e.0 += w * h.distance * h.distance;
+        e.1 += w;
+    }
+    for (r, (e, a)) in &by_res {
+        println!(
+            "M -> D tiles {r}x{r}: area {:.1}% error {:.1}% rms {:.4}",
+            100.0 * a / wsum,
+            100.0 * e / total,
+            pm2 * (e / a).sqrt()
+        );
+    }
     if std::env::var("DIAG_QUIET").is_ok() {
         return Ok(());
     }
