@@ -45,13 +45,6 @@
 //! objective (the tangent plane at a rim extends past M's end). On a closed
 //! M none of this applies and the system is unchanged.
 //!
-//! Mesh-to-surface rows: φ only looks from the surface, so where the
-//! limit passes beside or through a thin part of M its samples there are
-//! lost and nothing pulls it back. Each round, the vertices of M whose
-//! closest point on the sample grids is far (beyond [`REVERSE_FAR`] times
-//! the round's back RMS) add a point row at that closest point, moving it
-//! along the limit normal to the vertex's level ([`REVERSE_WEIGHT`]).
-//!
 //! Parameter correction: the limit points move, so the samples are
 //! re-projected and the system re-solved while the error keeps falling (by
 //! more than [`FitOptions::min_improvement`], relative), at most
@@ -561,37 +554,19 @@ fn fit_from(
         // ends the loop. Both are pure functions of this round's data, so
         // the result is the same whatever the thread count.
         let last = round == opts.max_iterations;
-        // The back distance's closest points also give the solve its
-        // mesh-to-surface rows ([`REVERSE_WEIGHT`]), so they come first;
-        // the solve is the same pure function of this round's data.
-        let back_side =
-            BackDistance::of(mesh, &sys.m_normals, &limit[..sys.data_samples], &sys.ks)?;
-        let back = back_side.rms();
-        let reverse = if last {
-            Vec::new()
-        } else {
-            // Each row weighs as many data rows as one queried vertex of M
-            // stands for, times the weight.
-            let mut rows = back_side.reverse_rows(&limit, REVERSE_FAR * back, outlier_bound);
-            let scale = (REVERSE_WEIGHT * sys.data_samples as f64
-                / back_side.points.len().max(1) as f64)
-                .sqrt();
-            for r in &mut rows {
-                for s in &mut r.samples {
-                    s.1 *= scale;
+        let (back, delta) = rayon::join(
+            || mesh_to_samples_rms(mesh, &limit[..sys.data_samples], &sys.ks),
+            || {
+                if last {
+                    return Ok(None);
                 }
-                r.residual *= scale;
-            }
-            rows
-        };
-        let delta = if last {
-            Ok(None)
-        } else {
-            let use_sdm = opts.objective == Objective::Sdm
-                || round + opts.final_sdm_rounds >= opts.max_iterations;
-            sys.solve(mesh, &limit, &targets, &reverse, use_sdm, nv, opts)
-                .map(Some)
-        };
+                let use_sdm = opts.objective == Objective::Sdm
+                    || round + opts.final_sdm_rounds >= opts.max_iterations;
+                sys.solve(mesh, &limit, &targets, use_sdm, nv, opts)
+                    .map(Some)
+            },
+        );
+        let back = back?;
         let back0 = *first_back.get_or_insert(back);
         let score = one_way + (back - back0).max(0.0);
         iterations.push(FitIteration {
@@ -950,13 +925,11 @@ impl FitSystem {
 
     /// The update δ of one round: the SDM system when `use_sdm` (and the
     /// curvatures were built), the point-distance one otherwise.
-    #[allow(clippy::too_many_arguments)]
     fn solve(
         &self,
         mesh: &TriMesh,
         limit: &[crate::subdiv::LimitPoint],
         targets: &RoundTargets,
-        reverse: &[ReverseRow],
         use_sdm: bool,
         nv: usize,
         opts: &FitOptions,
@@ -964,7 +937,7 @@ impl FitSystem {
         let (stencils, hits, face, laplacian) =
             (&self.stencils, &targets.hits, &self.face, &self.laplacian);
         match &self.sdm.as_ref().filter(|_| use_sdm) {
-            None => solve_point(stencils, limit, hits, reverse, face, laplacian, nv, opts),
+            None => solve_point(stencils, limit, hits, face, laplacian, nv, opts),
             Some((normals, curv)) => solve_sdm(
                 mesh,
                 normals,
@@ -972,7 +945,6 @@ impl FitSystem {
                 stencils,
                 limit,
                 hits,
-                reverse,
                 &targets.on_rim,
                 face,
                 laplacian,
@@ -1032,165 +1004,51 @@ impl RoundTargets {
     }
 }
 
-/// M's side of one round: (up to 20,000, evenly strided) vertices of M
-/// and their closest points on the triangulated `k × k` sample grids of
-/// the patches, which serve both the score's back distance
-/// ([`BackDistance::rms`]) and the mesh-to-surface rows of the solve
-/// ([`BackDistance::reverse_rows`]).
-struct BackDistance {
-    /// The queried vertices of M.
-    points: Vec<DVec3>,
-    /// Their normals (M's area-weighted vertex normals).
-    normals: Vec<DVec3>,
-    /// Each one's closest point on the grids (triangle of `tris`).
-    hits: Vec<Option<crate::raycast::ClosestPoint>>,
-    /// The grids' triangles, as data-sample indices (`(1 − u − v) a + u b
-    /// + v c` for a hit's barycentrics).
-    tris: Vec<[u32; 3]>,
-}
-
-impl BackDistance {
-    /// Builds the grids of `samples` (in patch order, `ks` their sides)
-    /// and queries M's strided vertices against them.
-    fn of(
-        mesh: &TriMesh,
-        normals: &[DVec3],
-        samples: &[crate::subdiv::LimitPoint],
-        ks: &[usize],
-    ) -> Result<Self> {
-        let mut tm = TriMesh {
-            positions: samples.iter().map(|s| s.position).collect(),
-            triangles: Vec::new(),
-        };
-        let mut base = 0u32;
-        for &k in ks {
-            let k32 = k as u32;
-            for j in 0..k32.saturating_sub(1) {
-                for i in 0..k32 - 1 {
-                    let a = base + j * k32 + i;
-                    let (b, c, d) = (a + 1, a + k32 + 1, a + k32);
-                    tm.triangles.push([a, b, c]);
-                    tm.triangles.push([a, c, d]);
-                }
+/// RMS distance from (up to 20,000, evenly strided) vertices of `mesh` to
+/// the triangulated `k × k` sample grids of the patches (`samples` in
+/// patch order, `ks` their sides): a cheap stand-in for the mesh-to-limit
+/// half of RMS L, biased upwards by the half-cell gaps between patches but
+/// the same bias for every iterate, which is all the comparison needs.
+fn mesh_to_samples_rms(
+    mesh: &TriMesh,
+    samples: &[crate::subdiv::LimitPoint],
+    ks: &[usize],
+) -> Result<f64> {
+    let mut tm = TriMesh {
+        positions: samples.iter().map(|s| s.position).collect(),
+        triangles: Vec::new(),
+    };
+    let mut base = 0u32;
+    for &k in ks {
+        let k32 = k as u32;
+        for j in 0..k32.saturating_sub(1) {
+            for i in 0..k32 - 1 {
+                let a = base + j * k32 + i;
+                let (b, c, d) = (a + 1, a + k32 + 1, a + k32);
+                tm.triangles.push([a, b, c]);
+                tm.triangles.push([a, c, d]);
             }
-            base += k32 * k32;
         }
-        if tm.triangles.is_empty() {
-            return Ok(BackDistance {
-                points: Vec::new(),
-                normals: Vec::new(),
-                hits: Vec::new(),
-                tris: Vec::new(),
-            });
-        }
-        // Embree's build is several times faster than the Rust BVH's SAH
-        // build (this runs every round); the distances come from the same
-        // point-to-triangle code either way.
-        let caster = crate::raycast::make_raycaster(crate::raycast::RayBackend::Embree, &tm)?;
-        let stride = mesh.positions.len().div_ceil(BACK_POINTS).max(1);
-        let points: Vec<DVec3> = mesh.positions.iter().step_by(stride).copied().collect();
-        let hits = caster.closest_points(&points, f64::INFINITY)?;
-        Ok(BackDistance {
-            points,
-            normals: normals.iter().step_by(stride).copied().collect(),
-            hits,
-            tris: tm.triangles,
-        })
+        base += k32 * k32;
     }
-
-    /// RMS distance from the queried vertices of M to the grids: a cheap
-    /// stand-in for the mesh-to-limit half of RMS L, biased upwards by the
-    /// half-cell gaps between patches but the same bias for every iterate,
-    /// which is all the comparison needs.
-    fn rms(&self) -> f64 {
-        let (sum2, n) = self.hits.iter().flatten().fold((0.0, 0usize), |(s, n), h| {
-            (s + h.distance * h.distance, n + 1)
-        });
-        if n == 0 {
-            0.0
-        } else {
-            (sum2 / n as f64).sqrt()
-        }
+    if tm.triangles.is_empty() {
+        return Ok(0.0);
     }
-
-    /// The mesh-to-surface rows of one round (see [`REVERSE_WEIGHT`]): for
-    /// each queried vertex of M whose closest grid point lies further
-    /// than `far` (and within `bound`, beyond which it belongs to another
-    /// part), one point row on that grid point (the barycentric blend of
-    /// its three samples' stencils) whose target moves it along the grid
-    /// normal to the vertex's level: `(n · (m − p)) n`. Only the normal
-    /// part: the tangential part is the parameterisation's, and at the
-    /// half-cell gaps between patch grids it points into the gap.
-    fn reverse_rows(
-        &self,
-        limit: &[crate::subdiv::LimitPoint],
-        far: f64,
-        bound: f64,
-    ) -> Vec<ReverseRow> {
-        let mut rows = Vec::new();
-        for ((m, nm), h) in self.points.iter().zip(&self.normals).zip(&self.hits) {
-            let Some(h) = h else { continue };
-            if h.distance <= far || h.distance > bound {
-                continue;
-            }
-            let t = self.tris[h.triangle as usize];
-            let w = [1.0 - h.u - h.v, h.u, h.v];
-            let n: DVec3 = (0..3)
-                .map(|c| w[c] * limit[t[c] as usize].normal())
-                .sum::<DVec3>()
-                .normalize_or_zero();
-            if n == DVec3::ZERO || nm.normalize_or_zero().dot(n) < REVERSE_MIN_COS {
-                continue;
-            }
-            rows.push(ReverseRow {
-                samples: [(t[0], w[0]), (t[1], w[1]), (t[2], w[2])],
-                residual: n.dot(*m - h.point) * n,
-            });
-        }
-        rows
-    }
-}
-
-/// Weight of the mesh-to-surface rows against the data rows, per
-/// queried vertex of M: 1, a far vertex of M weighs what a data sample
-/// does. They answer the fit's blind spot: φ looks only from the surface,
-/// so where the limit passes beside a thin feature of M (gargoyle τ 1 %:
-/// 2–8‰ off it, normal lines meeting M 35–90° off or not at all) or
-/// through it, the samples there are dropped as outliers or other-sheet
-/// hits and nothing pulls the limit back; M's own vertices near the
-/// feature still see the limit, from the feature's side. Fitting both
-/// directions is the symmetric form of Fitmaps §3.5's objective (the
-/// figures it is judged by, RMS L and D, are two-sided). Measured
-/// (docs/status.md, "Adaptive displacement", session 8): gargoyle τ 1 %
-/// 2× RMS L 1.646 → 1.588‰, D → M 0.203 → 0.145‰, unprojectable
-/// displacement samples 139 → 49; rows for every vertex (no
-/// [`REVERSE_FAR`]) at weight ½ raised D → M to 0.255‰ instead.
-const REVERSE_WEIGHT: f64 = 1.0;
-
-/// A vertex of M whose normal makes a cosine below this with the limit
-/// normal at its closest grid point gets no mesh-to-surface row: 0.3, the
-/// fit's own other-sheet test ([`FitOptions::min_normal_cos`]). A vertex
-/// on a thin part's sheet facing away would pull the limit onto that
-/// sheet, and the displacement lines there would then meet the other one
-/// (homer τ 1 %: D → M 0.401‰ before the rows, 0.560‰ with them unfiltered,
-/// 0.335‰ with this floor).
-const REVERSE_MIN_COS: f64 = 0.3;
-
-/// A vertex of M gets a mesh-to-surface row only when its closest grid
-/// point is further than this many times the round's back RMS: where the
-/// limit follows M, φ's rows already fit it, and the grid's half-cell gaps
-/// between patches would add rows that pull borders outwards.
-const REVERSE_FAR: f64 = 2.0;
-
-/// Most vertices of M the back distance and the mesh-to-surface rows query
-/// per round.
-const BACK_POINTS: usize = 20_000;
-
-/// One mesh-to-surface row: a point of the limit surface as a blend of
-/// data samples (index, weight) and the displacement it should move by.
-struct ReverseRow {
-    samples: [(u32, f64); 3],
-    residual: DVec3,
+    // Embree's build is several times faster than the Rust BVH's SAH build
+    // (this runs every round); the distances come from the same
+    // point-to-triangle code either way.
+    let caster = crate::raycast::make_raycaster(crate::raycast::RayBackend::Embree, &tm)?;
+    let stride = mesh.positions.len().div_ceil(20_000).max(1);
+    let pts: Vec<DVec3> = mesh.positions.iter().step_by(stride).copied().collect();
+    let hits = caster.closest_points(&pts, f64::INFINITY)?;
+    let (sum2, n) = hits.iter().flatten().fold((0.0, 0usize), |(s, n), h| {
+        (s + h.distance * h.distance, n + 1)
+    });
+    Ok(if n == 0 {
+        0.0
+    } else {
+        (sum2 / n as f64).sqrt()
+    })
 }
 
 /// The corners of ptex patch `sub` of face `f` (a quad: its corners; an
@@ -1485,56 +1343,17 @@ fn stack_rows(rows: Vec<compress::Row>, cols: usize, nrhs: usize) -> (Triplets, 
     (a, b)
 }
 
-/// The mesh-to-surface rows grouped by the face of their first sample
-/// (groups in face order, rows in their order within a face, so the
-/// compression sees the same groups at any thread count): each row's
-/// entries are the blend of its samples' stencils, and `rows_of` turns
-/// (entries, displacement) into the objective's rows.
-fn reverse_groups(
-    stencils: &LimitStencils,
-    reverse: &[ReverseRow],
-    face: &[u32],
-    rows_of: impl Fn(Vec<(u32, f64)>, DVec3) -> Vec<compress::Row>,
-) -> Vec<Vec<compress::Row>> {
-    let mut order: Vec<usize> = (0..reverse.len()).collect();
-    order.sort_by_key(|&r| face[reverse[r].samples[0].0 as usize]);
-    let mut groups: Vec<Vec<compress::Row>> = Vec::new();
-    let mut last = None;
-    for r in order {
-        let row = &reverse[r];
-        let f = face[row.samples[0].0 as usize];
-        if last != Some(f) {
-            groups.push(Vec::new());
-            last = Some(f);
-        }
-        let entries: Vec<(u32, f64)> = row
-            .samples
-            .iter()
-            .flat_map(|&(i, w)| {
-                stencils
-                    .row(i as usize)
-                    .map(move |k| (stencils.indices[k], w * stencils.weights[k]))
-            })
-            .collect();
-        let g = groups.last_mut().expect("a group was just pushed");
-        g.extend(rows_of(entries, row.residual));
-    }
-    groups
-}
-
-#[allow(clippy::too_many_arguments)]
 fn solve_point(
     stencils: &LimitStencils,
     limit: &[crate::subdiv::LimitPoint],
     hits: &[Option<Projected>],
-    reverse: &[ReverseRow],
     face: &[u32],
     laplacian: &[Vec<(u32, f64)>],
     nv: usize,
     opts: &FitOptions,
 ) -> Result<Vec<DVec3>> {
     let samples = hits.iter().filter(|h| h.is_some()).count();
-    let mut groups = grouped_rows(hits, face, |i, h, g| {
+    let groups = grouped_rows(hits, face, |i, h, g| {
         let d = h.point - limit[i].position;
         g.push((
             stencils
@@ -1544,9 +1363,6 @@ fn solve_point(
             vec![d.x, d.y, d.z],
         ));
     });
-    groups.extend(reverse_groups(stencils, reverse, face, |e, d| {
-        vec![(e, vec![d.x, d.y, d.z])]
-    }));
     let (a, b) = stack_rows(compress::compress_groups(groups, 3), nv, 3);
     let reg = regulariser(laplacian, nv, 1);
     // λ counts the samples, not the compressed rows: the normal equations
@@ -1617,7 +1433,6 @@ fn solve_sdm(
     stencils: &LimitStencils,
     limit: &[crate::subdiv::LimitPoint],
     hits: &[Option<Projected>],
-    reverse: &[ReverseRow],
     point_rows: &[bool],
     face: &[u32],
     laplacian: &[Vec<(u32, f64)>],
@@ -1626,7 +1441,7 @@ fn solve_sdm(
 ) -> Result<Vec<DVec3>> {
     let samples = hits.iter().filter(|h| h.is_some()).count();
     let floor = opts.sdm_tangent_floor;
-    let mut groups = grouped_rows(hits, face, |i, h, g| {
+    let groups = grouped_rows(hits, face, |i, h, g| {
         let t = mesh.triangles[h.triangle as usize];
         let interp = (1.0 - h.u - h.v) * normals[t[0] as usize]
             + h.u * normals[t[1] as usize]
@@ -1664,16 +1479,6 @@ fn solve_sdm(
             g.push((entries, vec![-sw * e.dot(res)]));
         }
     });
-    // The mesh-to-surface rows are point rows here too (x, y and z rows
-    // of one coupled system).
-    groups.extend(reverse_groups(stencils, reverse, face, |e, d| {
-        (0..3)
-            .map(|c| {
-                let row = e.iter().map(|&(v, w)| (3 * v + c as u32, w)).collect();
-                (row, vec![d[c]])
-            })
-            .collect()
-    }));
     let (a, b) = stack_rows(compress::compress_groups(groups, 1), 3 * nv, 1);
     let reg = regulariser(laplacian, nv, 3);
     // λ per unknown as in the point objective: `samples` data rows per
@@ -1688,81 +1493,4 @@ fn solve_sdm(
     Ok((0..nv)
         .map(|v| DVec3::new(x[3 * v], x[3 * v + 1], x[3 * v + 2]))
         .collect())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::subdiv::LimitPoint;
-
-    /// A 3 × 3 grid of samples on the plane z = 0 (normal +z), as one
-    /// patch of the fit's sample grids.
-    fn flat_grid() -> Vec<LimitPoint> {
-        let mut s = Vec::new();
-        for j in 0..3 {
-            for i in 0..3 {
-                s.push(LimitPoint {
-                    position: DVec3::new(i as f64, j as f64, 0.0),
-                    du: DVec3::X,
-                    dv: DVec3::Y,
-                });
-            }
-        }
-        s
-    }
-
-    #[test]
-    fn a_far_vertex_of_m_pulls_its_closest_grid_point_along_the_normal() {
-        let samples = flat_grid();
-        // M: one vertex 0.5 above the grid's interior (far), one 0.01 above
-        // it (near), one 5 above it (beyond the outlier bound below).
-        let m = TriMesh {
-            positions: vec![
-                DVec3::new(0.7, 1.3, 0.5),
-                DVec3::new(1.6, 0.4, 0.01),
-                DVec3::new(1.0, 1.0, 5.0),
-            ],
-            triangles: vec![[0, 1, 2]],
-        };
-        let back = BackDistance::of(&m, &[DVec3::Z; 3], &samples, &[3]).unwrap();
-        let rows = back.reverse_rows(&samples, 0.1, 1.0);
-        assert_eq!(rows.len(), 1, "only the far vertex within the bound");
-        let r = &rows[0];
-        // The blend of its samples is the foot point under the vertex (the
-        // grid is flat, so its closest point is straight below).
-        let wsum: f64 = r.samples.iter().map(|s| s.1).sum();
-        assert!((wsum - 1.0).abs() < 1e-12, "barycentric weights sum to 1");
-        let foot: DVec3 = r
-            .samples
-            .iter()
-            .map(|&(i, w)| w * samples[i as usize].position)
-            .sum();
-        assert!((foot - DVec3::new(0.7, 1.3, 0.0)).length() < 1e-12);
-        // The displacement is the normal part only: straight up by 0.5.
-        assert!((r.residual - DVec3::new(0.0, 0.0, 0.5)).length() < 1e-12);
-        // The same vertex on a sheet facing away (a thin part's far side)
-        // gets no row.
-        let away = BackDistance::of(&m, &[-DVec3::Z; 3], &samples, &[3]).unwrap();
-        assert!(away.reverse_rows(&samples, 0.1, 1.0).is_empty());
-    }
-
-    #[test]
-    fn a_vertex_beside_the_grid_moves_it_along_the_normal_only() {
-        let samples = flat_grid();
-        // Beyond the grid's edge (x > 2) and above it: the closest point
-        // is on the border, the offset has a tangential part the row must
-        // not carry.
-        let m = TriMesh {
-            positions: vec![
-                DVec3::new(2.8, 1.0, 0.6),
-                DVec3::new(1.0, 1.0, 0.0),
-                DVec3::new(1.0, 1.5, 0.0),
-            ],
-            triangles: vec![[0, 1, 2]],
-        };
-        let back = BackDistance::of(&m, &[DVec3::Z; 3], &samples, &[3]).unwrap();
-        let rows = back.reverse_rows(&samples, 0.1, 10.0);
-        assert_eq!(rows.len(), 1);
-        assert!((rows[0].residual - DVec3::new(0.0, 0.0, 0.6)).length() < 1e-12);
-    }
 }
