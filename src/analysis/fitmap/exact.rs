@@ -151,9 +151,17 @@ pub(super) fn analyse_vertex_exact(ctx: &Ctx, sc: &mut Scratch, p: u32) -> Verte
     let mut rays = 0;
     m_from_top_down(&mut res, &tested, |i| {
         let (cubic, tris) = balls[i].as_ref()?;
-        let (flip, k) = flip_fraction_literal(ctx, &frame, cubic, ctx.radii[i], tris, None);
+        let (pass, k) = flip_passes_literal(
+            ctx,
+            &frame,
+            cubic,
+            ctx.radii[i],
+            tris,
+            None,
+            ctx.opts.tolerance,
+        );
         rays += k;
-        flip.map(|f| f < ctx.opts.tolerance)
+        pass
     });
     res.rays = rays;
     res.defined = !errors.is_empty();

@@ -363,13 +363,9 @@ impl FastMTest<'_, '_> {
         match ball {
             FastBall::Level0 if nt <= FAST_LITERAL_M_MAX_TRIANGLES => {
                 let t: Vec<u32> = sc.tris[..nt].iter().map(|&(_, t)| t).collect();
-                let (f, k) = flip_fraction_literal(ctx, frame, cubic, r, &t, None);
-                (
-                    f.map_or(Sampled::Nothing, |f| {
-                        Sampled::Decided(f < ctx.opts.tolerance)
-                    }),
-                    k,
-                )
+                let (pass, k) =
+                    flip_passes_literal(ctx, frame, cubic, r, &t, None, ctx.opts.tolerance);
+                (pass.map_or(Sampled::Nothing, Sampled::Decided), k)
             }
             FastBall::Level0 => {
                 let (tris, cum) = (&sc.tris, &sc.tri_cum[..nt]);
@@ -423,19 +419,27 @@ impl FastMTest<'_, '_> {
             // mode's verdict.
             FastBall::Level0 if nt <= FAST_LITERAL_FALLBACK_MAX_TRIANGLES => {
                 let t: Vec<u32> = sc.tris[..nt].iter().map(|&(_, t)| t).collect();
-                let memo = Some(&mut sc.memo);
-                let (f, k) = flip_fraction_literal(ctx, frame, cubic, r, &t, memo);
+                let (pass, k) = flip_passes_literal(
+                    ctx,
+                    frame,
+                    cubic,
+                    r,
+                    &t,
+                    Some(&sc.memo),
+                    ctx.opts.tolerance,
+                );
                 self.rays += k;
-                f.map(|f| f < ctx.opts.tolerance)
+                pass
             }
             // A proxy ball's cubic is not the exact mode's: the exact
             // ball, cubic and literal test, when asked for.
             FastBall::Proxy(..) if ctx.opts.certify => {
                 let (_, exact) = exact_ball(ctx, sc, self.p, frame, i);
                 let (cubic, _, tris) = exact?;
-                let (f, k) = flip_fraction_literal(ctx, frame, &cubic, r, &tris, None);
+                let (pass, k) =
+                    flip_passes_literal(ctx, frame, &cubic, r, &tris, None, ctx.opts.tolerance);
                 self.rays += k;
-                f.map(|f| f < ctx.opts.tolerance)
+                pass
             }
             _ => Some(passes),
         }
@@ -668,14 +672,23 @@ fn flip_test_sampled(
                 todo.push(t);
             }
         }
-        let Some(c) = triangle_verdicts(ctx, frame, cubic, r, &todo, &mut reached) else {
-            return (Sampled::Nothing, rays);
-        };
-        for (&t, &ok) in todo.iter().zip(&reached) {
-            memo.set(t, ok);
-        }
-        rays += c;
         n += batch.len();
+        // The batch's verdicts in parts, the decision looked at between
+        // them: the test below at the end of the batch is decided already
+        // when it is for every verdict still unknown (see
+        // `batch_decided`), and the rest of the batch is not cast.
+        for part in todo.chunks(FAST_M_PART) {
+            if let Some(pass) = batch_decided(&batch, memo, k, n, tau) {
+                return (Sampled::Decided(pass), rays);
+            }
+            let Some(c) = triangle_verdicts(ctx, frame, cubic, r, part, &mut reached) else {
+                return (Sampled::Nothing, rays);
+            };
+            for (&t, &ok) in part.iter().zip(&reached) {
+                memo.set(t, ok);
+            }
+            rays += c;
+        }
         k += batch
             .iter()
             .filter(|&&t| memo.get(t) == Some(false))
@@ -690,6 +703,39 @@ fn flip_test_sampled(
     }
     let passes = (k as f64) < tau * n as f64;
     (Sampled::Undecided { passes }, rays)
+}
+
+/// Triangles of a batch of [`flip_test_sampled`] whose verdicts are cast
+/// together before the batch's decision is looked at again: a quarter of
+/// [`FAST_M_BATCH`], so a clearly failing ball stops after a part of its
+/// first batch, while each call still casts a few dozen lines.
+const FAST_M_PART: usize = 12;
+
+/// The decision [`flip_test_sampled`] takes at the end of the current
+/// batch (`batch`, drawn; `k` flipped among the draws before it; `n` draws
+/// with it), when it is known already from the verdicts in `memo`: both
+/// Wilson bounds grow with the number flipped
+/// (`wilson_bounds_grow_with_the_count`), so if the batch's known flipped
+/// draws alone put the lower bound above τ it fails whatever the rest,
+/// and if it passes with every unknown draw flipped it passes. `None`
+/// while the unknown verdicts could still change it; the end-of-batch test
+/// itself is unchanged, so the decisions (and F_M) are the same as casting
+/// the whole batch.
+fn batch_decided(batch: &[u32], memo: &VerdictMemo, k: usize, n: usize, tau: f64) -> Option<bool> {
+    let (mut flipped, mut unknown) = (0usize, 0usize);
+    for &t in batch {
+        match memo.get(t) {
+            Some(false) => flipped += 1,
+            None => unknown += 1,
+            Some(true) => {}
+        }
+    }
+    let (_, hi) = wilson(k + flipped + unknown, n, FAST_M_Z);
+    if hi < tau {
+        return Some(true);
+    }
+    let (lo, _) = wilson(k + flipped, n, FAST_M_Z);
+    (lo > tau).then_some(false)
 }
 
 /// Wilson score interval of a binomial proportion `k / n`.
@@ -713,4 +759,76 @@ fn pick(cum: &[f64], u: f64) -> usize {
     let x = u * total;
     cum.partition_point(|&c| c <= x)
         .min(cum.len().saturating_sub(1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `batch_decided` relies on both Wilson bounds being non-decreasing in
+    /// the flipped count at every sample size the sequential test reaches
+    /// (multiples of [`FAST_M_BATCH`] up to [`FAST_M_SAMPLES`]), in floating
+    /// point as computed, not only in exact arithmetic: checked on that
+    /// whole finite grid.
+    #[test]
+    fn wilson_bounds_grow_with_the_count() {
+        for n in (FAST_M_BATCH..=FAST_M_SAMPLES).step_by(FAST_M_BATCH) {
+            let mut prev = wilson(0, n, FAST_M_Z);
+            for k in 1..=n {
+                let b = wilson(k, n, FAST_M_Z);
+                assert!(b.0 >= prev.0 && b.1 >= prev.1, "n = {n}, k = {k}");
+                prev = b;
+            }
+        }
+    }
+
+    /// An early decision of `batch_decided` is the end-of-batch decision
+    /// for every way the unknown verdicts can come out: for each split of
+    /// a 48-draw batch into known flipped / known reached / unknown draws,
+    /// every completion of the unknowns, several τ and earlier counts.
+    #[test]
+    fn batch_decision_is_the_end_of_batch_one() {
+        let mut memo = VerdictMemo::new();
+        let batch: Vec<u32> = (0..FAST_M_BATCH as u32).collect();
+        let mut early = 0;
+        for tau in [0.01, 0.05, 0.1, 0.3] {
+            for n_prev in [0, FAST_M_BATCH, 4 * FAST_M_BATCH] {
+                for k_prev in [0, n_prev / 20, n_prev / 2] {
+                    for flipped in (0..=FAST_M_BATCH).step_by(3) {
+                        for unknown in (0..=FAST_M_BATCH - flipped).step_by(5) {
+                            memo.reset();
+                            for (j, &t) in batch.iter().enumerate() {
+                                if j < flipped {
+                                    memo.set(t, false);
+                                } else if j >= flipped + unknown {
+                                    memo.set(t, true);
+                                }
+                            }
+                            let n = n_prev + FAST_M_BATCH;
+                            let Some(pass) = batch_decided(&batch, &memo, k_prev, n, tau) else {
+                                continue;
+                            };
+                            early += 1;
+                            for extra in 0..=unknown {
+                                let (lo, hi) = wilson(k_prev + flipped + extra, n, FAST_M_Z);
+                                let end = if hi < tau {
+                                    Some(true)
+                                } else if lo > tau {
+                                    Some(false)
+                                } else {
+                                    None
+                                };
+                                assert_eq!(
+                                    end,
+                                    Some(pass),
+                                    "τ {tau} n {n} f {flipped} u {unknown}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(early > 100, "the grid must hold early decisions ({early})");
+    }
 }

@@ -764,6 +764,104 @@ fn flip_fraction_literal(
     (Some(flipped / area), rays)
 }
 
+/// Relative margin of [`flip_passes_literal`]'s early decisions: a partial
+/// sum decides only when it clears `τ · |B|` by this much, far above the
+/// round-off of summing a ball's areas in another order (a few thousand
+/// terms, ~1e-13 relative), so an early verdict is always the one the
+/// complete literal sum would give.
+const EARLY_DECISION_MARGIN: f64 = 1e-9;
+
+/// Triangles per round of [`flip_passes_literal`]: the verdicts of one
+/// round are cast together (one batch of lines per round of samples), and
+/// the decision is looked at between rounds.
+const EARLY_DECISION_CHUNK: usize = 128;
+
+/// The literal M-test's verdict (§3.1.3: the ball passes when its flipped
+/// fraction is below `tau`), the one `flip_fraction_literal(..).0.map(|f|
+/// f < tau)` gives, and the lines cast; `None` when the ball has no area or ray
+/// casting failed.
+///
+/// Only the verdict is asked for, not the fraction, so the triangles are
+/// examined in rounds of [`EARLY_DECISION_CHUNK`] and the test stops as
+/// soon as the rest cannot change it: the flipped area found so far
+/// already reaches τ of the ball (fails whatever the rest), or it stays
+/// below τ even with every triangle not yet examined flipped (passes). A
+/// triangle's verdict depends on the triangle and the cubic alone
+/// ([`triangle_verdicts`]), so examining fewer of them changes no verdict;
+/// the early decisions keep [`EARLY_DECISION_MARGIN`] from τ, and a test
+/// that stays undecided to the end takes the literal sum in `tris` order,
+/// so the result is the literal one bit for bit. Verdicts already in
+/// `memo` count first (the Monte Carlo draws of the same cubic), without a
+/// line.
+fn flip_passes_literal(
+    ctx: &Ctx,
+    frame: &Frame,
+    cubic: &Cubic,
+    r: f64,
+    tris: &[u32],
+    memo: Option<&VerdictMemo>,
+    tau: f64,
+) -> (Option<bool>, u64) {
+    let area: f64 = tris.iter().map(|&t| ctx.areas[t as usize]).sum();
+    if area.is_nan() || area <= 0.0 {
+        return (None, 0);
+    }
+    let fail_at = tau * area * (1.0 + EARLY_DECISION_MARGIN);
+    let pass_below = tau * area * (1.0 - EARLY_DECISION_MARGIN);
+    // Per triangle of `tris`: its verdict once known.
+    let mut verdict: Vec<Option<bool>> = match memo {
+        Some(m) => tris.iter().map(|&t| m.get(t)).collect(),
+        None => vec![None; tris.len()],
+    };
+    let (mut flipped, mut known) = (0.0, 0.0);
+    for (&t, v) in tris.iter().zip(&verdict) {
+        if let Some(ok) = *v {
+            known += ctx.areas[t as usize];
+            if !ok {
+                flipped += ctx.areas[t as usize];
+            }
+        }
+    }
+    let decided = |flipped: f64, known: f64| {
+        if flipped >= fail_at {
+            Some(false)
+        } else if flipped + (area - known) < pass_below {
+            Some(true)
+        } else {
+            None
+        }
+    };
+    let todo: Vec<usize> = (0..tris.len()).filter(|&k| verdict[k].is_none()).collect();
+    let (mut lines, mut chunk, mut reached) = (0u64, Vec::new(), Vec::new());
+    for part in todo.chunks(EARLY_DECISION_CHUNK) {
+        if let Some(pass) = decided(flipped, known) {
+            return (Some(pass), lines);
+        }
+        chunk.clear();
+        chunk.extend(part.iter().map(|&k| tris[k]));
+        let Some(c) = triangle_verdicts(ctx, frame, cubic, r, &chunk, &mut reached) else {
+            return (None, 0);
+        };
+        lines += c;
+        for ((&k, &t), &ok) in part.iter().zip(&chunk).zip(&reached) {
+            verdict[k] = Some(ok);
+            known += ctx.areas[t as usize];
+            if !ok {
+                flipped += ctx.areas[t as usize];
+            }
+        }
+    }
+    // Every verdict known: the literal sum, in `tris` order, as
+    // `flip_fraction_literal` takes it.
+    let flipped: f64 = tris
+        .iter()
+        .zip(&verdict)
+        .filter(|(_, v)| **v == Some(false))
+        .map(|(&t, _)| ctx.areas[t as usize])
+        .sum();
+    (Some(flipped / area < tau), lines)
+}
+
 /// The verdicts of [`triangle_verdicts`] already known for the cubic of
 /// the current (vertex, radius) test, per triangle. A verdict depends on
 /// the triangle and the cubic alone, so the Monte Carlo test
@@ -1289,6 +1387,74 @@ mod tests {
             }
         }
         assert!(seen_partial, "spot.ply must give partly flipped balls");
+    }
+
+    /// The early-deciding literal test gives the verdict of the complete
+    /// literal fraction (`f < τ`) on every ball, at τ around the balls'
+    /// own fractions (where an early decision is most at risk), with and
+    /// without verdicts known beforehand, and casts fewer lines somewhere.
+    #[test]
+    fn early_literal_verdict_is_the_literal_one() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply");
+        let mesh = crate::io::read_mesh(std::path::Path::new(path))
+            .unwrap()
+            .mesh;
+        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+        let areas = triangle_areas(&mesh);
+        let total: f64 = areas.iter().sum();
+        let nv = mesh.positions.len();
+        let base = FitmapOptions::default();
+        let ctx = Ctx {
+            mesh: &mesh,
+            caster: caster.as_ref(),
+            opts: &base,
+            samples: MSamples::new(&mesh, &areas, SAMPLES_PER_VERTEX * nv as f64 / total, 7),
+            areas,
+            normals: vertex_normals(&mesh),
+            adj: Adjacency::new(&mesh),
+            radii: fitmap_radii(&mesh).unwrap(),
+            level_of: vec![None; RADIUS_STEPS + 1],
+            levels: Vec::new(),
+            failure: std::sync::Mutex::new(None),
+        };
+        let (mut saved, mut balls) = (0u64, 0usize);
+        for p in (0..nv as u32).step_by(307) {
+            let frame = Frame::from_normal(mesh.positions[p as usize], ctx.normals[p as usize]);
+            for i in [4, 6, 8] {
+                let mut sc = Scratch::new(&ctx);
+                let Some((cubic, _, tris)) = exact_ball(&ctx, &mut sc, p, &frame, i).1 else {
+                    continue;
+                };
+                let r = ctx.radii[i];
+                let (f, all) = flip_fraction_literal(&ctx, &frame, &cubic, r, &tris, None);
+                let f = f.unwrap();
+                balls += 1;
+                // τ at the fraction itself, just around it, and far off.
+                for tau in [f, f * (1.0 + 1e-12), f * 0.999, f * 1.001, 0.01, 0.05, 0.5] {
+                    if !(tau > 0.0 && tau <= 1.0) {
+                        continue;
+                    }
+                    let (pass, lines) =
+                        flip_passes_literal(&ctx, &frame, &cubic, r, &tris, None, tau);
+                    assert_eq!(pass, Some(f < tau), "p {p} i {i} f {f} τ {tau}");
+                    assert!(lines <= all);
+                    saved += all - lines;
+                    // Half the verdicts known beforehand.
+                    let mut memo = VerdictMemo::new();
+                    let known: Vec<u32> = tris.iter().copied().step_by(2).collect();
+                    let mut reached = Vec::new();
+                    triangle_verdicts(&ctx, &frame, &cubic, r, &known, &mut reached).unwrap();
+                    for (&t, &ok) in known.iter().zip(&reached) {
+                        memo.set(t, ok);
+                    }
+                    let (pass, _) =
+                        flip_passes_literal(&ctx, &frame, &cubic, r, &tris, Some(&memo), tau);
+                    assert_eq!(pass, Some(f < tau), "memo: p {p} i {i} f {f} τ {tau}");
+                }
+            }
+        }
+        assert!(balls > 20, "{balls} balls");
+        assert!(saved > 0, "no early decision on spot.ply");
     }
 
     /// The log-space fit of `E = a r⁴`: exact on the model, a geometric
