@@ -163,6 +163,52 @@ const POWER_STEPS: usize = 3;
 /// higher modes of a weak, noisy guide only ~3× damped (measured on an
 /// icosphere: 20 + 12 − singularities instead of 8).
 pub fn cross_field(s: &Surface, opts: &FieldOptions) -> Result<Vec<DVec3>> {
+    cross_field_with(s, opts, GuideSmoothing::from_env())
+}
+
+/// Smoothing of the curvature guide before the solve (off by default, see
+/// [`GuideSmoothing::from_env`]): the guide `q` (the principal direction's
+/// 4th power times the relative anisotropy) is replaced by its screened
+/// Poisson smoothing at radius r, `(L + M/r²) q̃ = M q / r²`, with the
+/// same connection Laplacian as the field (Knöppel et al. 2013 §6.1 use
+/// the field solve itself as such a filter; here it is applied to the
+/// guide at a short radius). Where the principal directions are coherent
+/// over the ball of radius ~r the smoothed guide keeps its magnitude;
+/// where they are noise (the 2-ring quadric of a scanned surface) the
+/// transported values cancel and |q̃| falls, so the field there follows
+/// its own smoothness. The magnitude is then raised to `power` (p > 1
+/// lowers incoherent parts further).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GuideSmoothing {
+    /// Radius in mean edge lengths of M.
+    pub radius: f64,
+    /// Exponent on the smoothed guide's magnitude (itself in [0, 1]).
+    pub power: f64,
+}
+
+impl GuideSmoothing {
+    /// `SUBDFIT_CROSS_R` (radius in mean edges) and `SUBDFIT_CROSS_P`
+    /// (power, default 1); `None` (the default layout) when the radius is
+    /// unset or not a positive number. An experiment switch: it lowered
+    /// the cross field's singularities by 0–20 % (docs/status.md,
+    /// "Field-aligned layout", 2026-12-05 guide smoothing).
+    pub fn from_env() -> Option<GuideSmoothing> {
+        let get = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f64>().ok());
+        let radius = get("SUBDFIT_CROSS_R").filter(|r| *r > 0.0 && r.is_finite())?;
+        let power = get("SUBDFIT_CROSS_P")
+            .filter(|p| *p > 0.0 && p.is_finite())
+            .unwrap_or(1.0);
+        Some(GuideSmoothing { radius, power })
+    }
+}
+
+/// [`cross_field`] with an explicit guide smoothing (`None`: the guide as
+/// fitted).
+pub fn cross_field_with(
+    s: &Surface,
+    opts: &FieldOptions,
+    smoothing: Option<GuideSmoothing>,
+) -> Result<Vec<DVec3>> {
     let n = s.len();
     let bases = tangent_bases(s);
     let mut guide = curvature_guide(s, &bases, 1.0 / s.diagonal.max(1e-300));
@@ -173,9 +219,22 @@ pub fn cross_field(s: &Surface, opts: &FieldOptions) -> Result<Vec<DVec3>> {
     let ell = (opts.alignment_length * s.diagonal).max(s.mean_edge);
     let t = 1.0 / (ell * ell);
     let weights = cotan_weights(s);
+    let debug = std::env::var("FIELD_DEBUG").is_ok();
+    if let Some(sm) = smoothing {
+        let r = sm.radius * s.mean_edge;
+        // The boundary held at a fully anisotropic guide (magnitude 1).
+        let filter = FieldSystem::new(s, &bases, &weights, 1.0 / (r * r), 1.0)?;
+        let g = filter.solve(&guide)?;
+        for (i, gi) in guide.iter_mut().enumerate() {
+            let (x, y) = (g[2 * i], g[2 * i + 1]);
+            let m = (x * x + y * y).sqrt();
+            let f = if m > 0.0 { m.powf(sm.power) / m } else { 0.0 };
+            *gi = [x * f, y * f];
+        }
+    }
     // One matrix for the first solve and the power steps: only the
     // right-hand side changes between them.
-    let system = FieldSystem::new(s, &bases, &weights, t)?;
+    let system = FieldSystem::new(s, &bases, &weights, t, 2.0 / t)?;
     let mut target: Vec<[f64; 2]> = guide.iter().map(|g| [g[0] / t, g[1] / t]).collect();
     let mut u = system.solve(&target)?;
     for _ in 0..POWER_STEPS {
@@ -209,6 +268,10 @@ pub fn cross_field(s: &Surface, opts: &FieldOptions) -> Result<Vec<DVec3>> {
         let (e1, e2) = bases[i];
         dirs.push(e1 * a.cos() + e2 * a.sin());
     }
+    if debug {
+        debug_count(s, &dirs, "after solve");
+    }
+    let sweeps = opts.orientation_sweeps;
     if opts.orientation_hierarchy {
         // The linear solve's cross is the guide where the relative
         // anisotropy is above GUIDE_THRESHOLD (ramping to full weight at 1).
@@ -219,11 +282,22 @@ pub fn cross_field(s: &Surface, opts: &FieldOptions) -> Result<Vec<DVec3>> {
                 opts.alignment_weight * ((a - GUIDE_THRESHOLD) / (1.0 - GUIDE_THRESHOLD)).max(0.0)
             })
             .collect();
-        smooth_hierarchical(s, &mut dirs, &weights, opts.orientation_sweeps);
+        smooth_hierarchical(s, &mut dirs, &weights, sweeps);
     } else {
-        smooth_extrinsic(s, &mut dirs, opts.orientation_sweeps);
+        smooth_extrinsic(s, &mut dirs, sweeps);
+    }
+    if debug {
+        debug_count(s, &dirs, "after sweeps");
     }
     Ok(dirs)
+}
+
+/// `FIELD_DEBUG`: the field's +¼ / −¼ singularities at a step.
+fn debug_count(s: &Surface, dirs: &[DVec3], step: &str) {
+    let sing = singularities(s, dirs);
+    let p = sing.iter().filter(|x| x.1 == 1).count();
+    let m = sing.iter().filter(|x| x.1 == 3).count();
+    eprintln!("cross: {step} {p}+{m} singularities");
 }
 
 /// Gauss–Seidel sweeps of Instant Meshes' orientation rule (Jakob et al.
@@ -354,7 +428,13 @@ struct FieldSystem {
 }
 
 impl FieldSystem {
-    fn new(s: &Surface, bases: &[(DVec3, DVec3)], weights: &[f64], t: f64) -> Result<FieldSystem> {
+    fn new(
+        s: &Surface,
+        bases: &[(DVec3, DVec3)],
+        weights: &[f64],
+        t: f64,
+        boundary_goal: f64,
+    ) -> Result<FieldSystem> {
         let n = s.len();
         let own = (0..n as u32).map(|i| [2 * i, 2 * i + 1]);
         let pairs = own.chain(s.edges.iter().flat_map(|&[a, b]| {
@@ -386,7 +466,7 @@ impl FieldSystem {
                 // dominates the power steps' right-hand side).
                 Some(tb) => {
                     let phi = 4.0 * tb.dot(e2).atan2(tb.dot(e1));
-                    let m = 2.0 / t;
+                    let m = boundary_goal;
                     (1e3 * stiff.max(1e-12), Some([m * phi.cos(), m * phi.sin()]))
                 }
                 None => (t * s.areas[i], None),
