@@ -184,72 +184,38 @@ impl Edges {
     /// order the queries are answered and the rows summed in
     /// ([`crate::raycast::spatial_order`]'s reason).
     fn visit_order(&self, positions: &[DVec3], stride: usize) -> Vec<u32> {
-        // The stride's edges are keyed and sorted alone, in the frame of
-        // all of them: the whole order with the others left out.
-        let keep = |k: usize| k % stride == 0;
-        match crate::raycast::spatial_order_where(self.len(), |k| self.midpoint(positions, k), keep)
-        {
-            Some(o) => o.into_iter().map(|k| k as u32).collect(),
-            None => (0..self.len())
-                .filter(|&k| keep(k))
-                .map(|k| k as u32)
-                .collect(),
+        let mut order: Vec<u32> =
+            match crate::raycast::spatial_order(self.len(), |k| self.midpoint(positions, k)) {
+                Some(o) => o.into_iter().map(|k| k as u32).collect(),
+                None => (0..self.len() as u32).collect(),
+            };
+        if stride > 1 {
+            order.retain(|&k| k as usize % stride == 0);
         }
+        order
     }
-}
-
-/// What [`closest_in_order`] does with the closest points of the check
-/// subsample (the points whose edge index is a multiple of
-/// [`CHECK_STRIDE`]): nothing, keep them (a check pass, whose order holds
-/// only those), or take them from a check pass of the same round instead
-/// of querying them again (the full pass after it).
-enum Reuse<'a> {
-    Nothing,
-    Keep(&'a mut Vec<Option<ClosestPoint>>),
-    Take(std::slice::Iter<'a, Option<ClosestPoint>>),
 }
 
 /// The closest point on `caster` of each edge midpoint of `edges` over
 /// `positions`, in `order`, handed to `each(edge, midpoint, hit)` in that
 /// order. Sub-batches of [`crate::raycast::SUB_BATCH`] queries: the caster
 /// answers them as they come (already in Z-order), and only one
-/// sub-batch of answers is held, not one per query. A point's answer is
-/// the least (distance, triangle) whatever else is queried with it, so one
-/// taken from `reuse` is the one a query would give.
+/// sub-batch of answers is held, not one per query.
 fn closest_in_order(
     edges: &Edges,
     positions: &[DVec3],
     order: &[u32],
     caster: &dyn RayCaster,
-    mut reuse: Reuse<'_>,
     mut each: impl FnMut(usize, DVec3, &ClosestPoint) -> Result<()>,
 ) -> Result<()> {
     let mut pts = Vec::with_capacity(crate::raycast::SUB_BATCH);
-    let taken = |k: u32, reuse: &Reuse<'_>| {
-        matches!(reuse, Reuse::Take(_)) && k as usize % CHECK_STRIDE == 0
-    };
     for part in order.chunks(crate::raycast::SUB_BATCH) {
         pts.clear();
-        pts.extend(
-            part.iter()
-                .filter(|&&k| !taken(k, &reuse))
-                .map(|&k| edges.midpoint(positions, k as usize)),
-        );
+        pts.extend(part.iter().map(|&k| edges.midpoint(positions, k as usize)));
         let hits = caster.closest_points(&pts, f64::INFINITY)?;
-        let mut asked = hits.iter();
-        for &k in part {
-            let c = match &mut reuse {
-                Reuse::Take(known) if k as usize % CHECK_STRIDE == 0 => known.next(),
-                _ => asked.next(),
-            };
-            let c = *c.ok_or_else(|| {
-                crate::error::Error::backend("least squares", "closest points out of step")
-            })?;
-            if let Reuse::Keep(kept) = &mut reuse {
-                kept.push(c);
-            }
+        for ((&k, &p), c) in part.iter().zip(&pts).zip(&hits) {
             if let Some(c) = c {
-                each(k as usize, edges.midpoint(positions, k as usize), &c)?;
+                each(k as usize, p, c)?;
             }
         }
     }
@@ -318,15 +284,6 @@ pub fn refine_offsets_on(
         Some(h) => Some(host_pattern(disp, h)?),
         None => None,
     };
-    // M's edges do not move: their visit orders (every edge, and the
-    // check subsample's, the same order with the others left out) are
-    // the same in every round.
-    let m_full = m_edges.visit_order(&mesh.positions, 1);
-    let m_sub: Vec<u32> = m_full
-        .iter()
-        .copied()
-        .filter(|&k| k as usize % CHECK_STRIDE == 0)
-        .collect();
     while round <= opts.rounds {
         // The last round only decides whether the previous update is kept:
         // it measures the objective on a fixed subsample (every
@@ -345,31 +302,8 @@ pub fn refine_offsets_on(
             total_m,
             host,
             pattern: pattern.as_ref(),
-            m_order: (&m_full, &m_sub),
         };
-        let surf = RoundSurface::of(host, disp)?;
-        // A trial step (a full round after the first) is measured on the
-        // check subsample first, without rows: a step that raises the
-        // subsample's objective is rejected (halved, or undone) without the
-        // full round. On bunny at the default options every step is
-        // rejected so (the full step and its three halvings, each a full
-        // round before: four of the stage's five rounds of queries, for an
-        // update that was undone). A step that passes is then measured in
-        // full, as before, and the subsample's closest points are taken
-        // from this pass, not queried again. (The subsample decides only
-        // a rejection; the opposite, accepting on it alone, kept steps
-        // that the full objective rejects; see the loop's note above.)
-        let mut known = None;
-        let mut rejected = false;
-        if round > 0 && !check_only {
-            let (score, kept) = round_check(&at, disp, &surf)?;
-            rejected = score.rms().1 >= current_sub;
-            known = Some((score, kept));
-        }
-        let (score, ne) = match known {
-            Some((score, _)) if rejected => (score, None),
-            known => round_rows(&at, disp, &surf, check_only, known.map(|k| k.1))?,
-        };
+        let (score, ne) = round_rows(&at, disp, check_only)?;
         let (obj, sub) = score.rms();
         // The stats are the subsample's, the one figure every round has.
         if round == 0 {
@@ -377,7 +311,7 @@ pub fn refine_offsets_on(
         }
         // Like with like: the check round against the subsample's value
         // before the update, a full round against the full one.
-        let worse = if check_only || rejected {
+        let worse = if check_only {
             sub >= current_sub
         } else {
             obj >= current_obj
@@ -430,85 +364,13 @@ pub fn refine_offsets_on(
     Ok(stats)
 }
 
-/// D at a round's offsets, as [`round_rows`] queries it: its mesh (the
-/// sample grid's or the host's), a caster over it and its edges.
-struct RoundSurface {
-    dmesh: TriMesh,
-    caster: Box<dyn RayCaster>,
-    edges: Edges,
-}
-
-impl RoundSurface {
-    fn of(host: Option<&HostSurface>, disp: &Displacement) -> Result<RoundSurface> {
-        let dmesh = match host {
-            None => {
-                let positions = disp.displaced_positions();
-                let tris = disp.grid.triangles_shorter_diagonal(&positions);
-                TriMesh {
-                    positions,
-                    triangles: tris,
-                }
-            }
-            Some(h) => h.mesh(disp),
-        };
-        Ok(RoundSurface {
-            caster: make_raycaster(RayBackend::Embree, &dmesh)?,
-            edges: Edges::of(&dmesh),
-            dmesh,
-        })
-    }
-}
-
-/// The closest points of the check subsample of a round (M → D, then
-/// D → M, in their visit orders), kept by [`round_check`] for the full
-/// pass of the same round.
-type Kept = [Vec<Option<ClosestPoint>>; 2];
-
-/// The objective of a round on the check subsample only, no rows, with
-/// the subsample's closest points kept.
-fn round_check(
-    at: &RoundAt<'_>,
-    disp: &Displacement,
-    surf: &RoundSurface,
-) -> Result<(Score, Kept)> {
-    let mut kept: Kept = [Vec::new(), Vec::new()];
-    let [a, b] = &mut kept;
-    let (score, _) = round_pass(at, disp, surf, true, [Reuse::Keep(a), Reuse::Keep(b)])?;
-    Ok((score, kept))
-}
-
 /// One round of [`refine_offsets`] at the current offsets: the objective
 /// (both directions) and, unless `check_only` (which measures the
 /// subsample only), the linearised rows summed into normal equations.
-/// `known`: the subsample's closest points from [`round_check`] on the
-/// same surface.
 fn round_rows(
     at: &RoundAt<'_>,
     disp: &Displacement,
-    surf: &RoundSurface,
     check_only: bool,
-    known: Option<Kept>,
-) -> Result<(Score, Option<NormalEquations>)> {
-    match &known {
-        Some([a, b]) => round_pass(
-            at,
-            disp,
-            surf,
-            check_only,
-            [Reuse::Take(a.iter()), Reuse::Take(b.iter())],
-        ),
-        None => round_pass(at, disp, surf, check_only, [Reuse::Nothing, Reuse::Nothing]),
-    }
-}
-
-/// [`round_rows`] with what each direction does with the subsample's
-/// closest points ([`Reuse`]).
-fn round_pass(
-    at: &RoundAt<'_>,
-    disp: &Displacement,
-    surf: &RoundSurface,
-    check_only: bool,
-    [reuse_m, reuse_d]: [Reuse<'_>; 2],
 ) -> Result<(Score, Option<NormalEquations>)> {
     let RoundAt {
         mesh,
@@ -517,15 +379,22 @@ fn round_pass(
         total_m,
         host,
         pattern,
-        m_order,
     } = *at;
     let normals = &disp.directions;
     let stride = if check_only { CHECK_STRIDE } else { 1 };
-    let RoundSurface {
-        dmesh,
-        caster: d_caster,
-        edges: d_edges,
-    } = surf;
+    let dmesh = match host {
+        None => {
+            let positions = disp.displaced_positions();
+            let tris = disp.grid.triangles_shorter_diagonal(&positions);
+            TriMesh {
+                positions,
+                triangles: tris,
+            }
+        }
+        Some(h) => h.mesh(disp),
+    };
+    let d_caster = make_raycaster(RayBackend::Embree, &dmesh)?;
+    let d_edges = Edges::of(&dmesh);
     let deps = match host {
         None => Basis::Samples(Dependents::of(disp)),
         Some(h) => Basis::Host(h),
@@ -551,13 +420,12 @@ fn round_pass(
     let mut score = Score::default();
     let mut row = Vec::with_capacity(3);
     // M → D rows: a point p of M moves D's closest point q in triangle t.
-    let order = if check_only { m_order.1 } else { m_order.0 };
+    let order = m_edges.visit_order(&mesh.positions, stride);
     closest_in_order(
         m_edges,
         &mesh.positions,
-        order,
+        &order,
         d_caster.as_ref(),
-        reuse_m,
         |k, p, c| {
             let w = m_edges.weight[k];
             score.add(w, c.distance, k % CHECK_STRIDE == 0);
@@ -576,17 +444,18 @@ fn round_pass(
             ne.add_row(&row, sw * e)
         },
     )?;
+    drop(order);
+    drop(d_caster);
     // D → M rows, at D's edge midpoints; both integrals weigh the same
     // whatever the areas' ratio.
     let total_d: f64 = d_edges.weight.iter().sum();
     let scale_d = total_m / total_d.max(f64::MIN_POSITIVE);
     let order = d_edges.visit_order(&dmesh.positions, stride);
     closest_in_order(
-        d_edges,
+        &d_edges,
         &dmesh.positions,
         &order,
         mesh_caster,
-        reuse_d,
         |k, q, c| {
             let w = d_edges.weight[k] * scale_d;
             score.add(w, c.distance, k % CHECK_STRIDE == 0);
@@ -618,8 +487,6 @@ struct RoundAt<'a> {
     host: Option<&'a HostSurface>,
     /// Empty normal equations with the host surface's pattern.
     pattern: Option<&'a NormalEquations>,
-    /// M's edges in their visit order: all, and the check subsample.
-    m_order: (&'a [u32], &'a [u32]),
 }
 
 /// Empty normal equations whose pattern holds every pair of samples that a
@@ -1121,64 +988,6 @@ mod tests {
             st.rounds >= 1 && st.rms_after_permille < st.rms_before_permille,
             "{msg}"
         );
-    }
-
-    #[test]
-    fn reused_subsample_answers_are_the_queried_ones() {
-        // A full pass that takes the check subsample's closest points from
-        // a check pass (`Reuse::Take`) must hand every point the answer a
-        // query gives, in the same order: the least-squares sums (and so
-        // the offsets) are then those of a pass that queries everything.
-        // M: the cube's limit surface on a 41 × 41 grid per patch; the
-        // points: the edge midpoints of the same surface scaled by 1.02
-        // (28,800 edges, so the passes cross a sub-batch boundary).
-        let control = cube();
-        let ev = make_evaluator(Backend::Osd, &control, &EvalOptions::default()).unwrap();
-        let fine = PatchGrid::new(&control, 41).unwrap();
-        let pos: Vec<DVec3> = ev
-            .evaluate(control.positions(), fine.locations())
-            .unwrap()
-            .iter()
-            .map(|p| p.position)
-            .collect();
-        let mesh = TriMesh {
-            positions: pos.clone(),
-            triangles: fine.triangles(),
-        };
-        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
-        let outer = TriMesh {
-            positions: pos.iter().map(|&p| 1.02 * p).collect(),
-            triangles: fine.triangles(),
-        };
-        let edges = Edges::of(&outer);
-        assert!(edges.len() > crate::raycast::SUB_BATCH);
-        let full = edges.visit_order(&outer.positions, 1);
-        fn every(
-            (edges, positions, caster): (&Edges, &[DVec3], &dyn RayCaster),
-            reuse: Reuse<'_>,
-            order: &[u32],
-        ) -> Vec<(usize, DVec3, ClosestPoint)> {
-            let mut seen = Vec::new();
-            closest_in_order(edges, positions, order, caster, reuse, |k, p, c| {
-                seen.push((k, p, *c));
-                Ok(())
-            })
-            .unwrap();
-            seen
-        }
-        let at = (&edges, &outer.positions[..], caster.as_ref());
-        let plain = every(at, Reuse::Nothing, &full);
-        let mut kept = Vec::new();
-        let check = every(
-            at,
-            Reuse::Keep(&mut kept),
-            &edges.visit_order(&outer.positions, CHECK_STRIDE),
-        );
-        assert_eq!(kept.len(), edges.len().div_ceil(CHECK_STRIDE));
-        assert_eq!(check.len(), kept.iter().flatten().count());
-        let reused = every(at, Reuse::Take(kept.iter()), &full);
-        assert_eq!(plain.len(), edges.len());
-        assert!(plain == reused, "a reused answer differs from the query's");
     }
 
     #[test]

@@ -219,18 +219,6 @@ pub(crate) fn in_spatial_order<Q: Copy + Send + Sync, A: Copy + Default + Send>(
 /// the order is the same on every run. `None` when no point is finite or
 /// `n` does not fit 32 bits. Non-finite points come last.
 pub(crate) fn spatial_order(n: usize, at: impl Fn(usize) -> DVec3 + Sync) -> Option<Vec<u64>> {
-    spatial_order_where(n, at, |_| true)
-}
-
-/// [`spatial_order`] of the points that `keep` selects, keyed in the frame
-/// of all `n` (the bounding box is every point's): the order of the whole,
-/// with the others left out, for the keys and the sort of the selection
-/// only.
-pub(crate) fn spatial_order_where(
-    n: usize,
-    at: impl Fn(usize) -> DVec3 + Sync,
-    keep: impl Fn(usize) -> bool + Sync,
-) -> Option<Vec<u64>> {
     use rayon::prelude::*;
     if n > u32::MAX as usize {
         return None;
@@ -256,7 +244,6 @@ pub(crate) fn spatial_order_where(
     let scale = DVec3::splat(1023.0) / (hi - lo).max(DVec3::splat(f64::MIN_POSITIVE));
     let mut order: Vec<u64> = (0..n)
         .into_par_iter()
-        .filter(|&i| keep(i))
         .map(|i| {
             let p = at(i);
             let key = if p.is_finite() {
