@@ -1320,36 +1320,53 @@ mod tests {
     use super::*;
     use crate::raycast::{make_raycaster, RayBackend};
 
+    /// The bundled spot.ply: its ears and horns fold over the head, so
+    /// large balls are partly flipped.
+    fn spot() -> TriMesh {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply");
+        crate::io::read_mesh(std::path::Path::new(path))
+            .unwrap()
+            .mesh
+    }
+
+    /// The analysis context of the exact mode on `mesh` (every radius
+    /// gathered on the mesh itself, no proxy level), with the M-test's
+    /// samples at the library's density drawn from seed 7: what the M-test
+    /// tests call [`exact_ball`] and the literal fraction on.
+    fn exact_ctx<'a>(
+        mesh: &'a TriMesh,
+        caster: &'a dyn RayCaster,
+        opts: &'a FitmapOptions,
+    ) -> Ctx<'a> {
+        let areas = triangle_areas(mesh);
+        let total: f64 = areas.iter().sum();
+        let nv = mesh.positions.len();
+        Ctx {
+            mesh,
+            caster,
+            opts,
+            samples: MSamples::new(mesh, &areas, SAMPLES_PER_VERTEX * nv as f64 / total, 7),
+            areas,
+            normals: vertex_normals(mesh),
+            adj: Adjacency::new(mesh),
+            radii: fitmap_radii(mesh).unwrap(),
+            level_of: vec![None; RADIUS_STEPS + 1],
+            levels: Vec::new(),
+            failure: std::sync::Mutex::new(None),
+        }
+    }
+
     /// The verdict memo changes the work, never the result: the literal
     /// fraction with verdicts partly known from earlier draws equals the
     /// one computed from scratch, bit for bit, and so does the fraction
     /// with a memo filled with *every* verdict (no line cast at all).
     #[test]
     fn verdict_memo_gives_the_literal_fraction() {
-        // The bundled spot.ply: its ears and horns fold over the head, so
-        // large balls are partly flipped.
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply");
-        let mesh = crate::io::read_mesh(std::path::Path::new(path))
-            .unwrap()
-            .mesh;
+        let mesh = spot();
         let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
         let opts = FitmapOptions::default();
-        let areas = triangle_areas(&mesh);
-        let total: f64 = areas.iter().sum();
+        let ctx = exact_ctx(&mesh, caster.as_ref(), &opts);
         let nv = mesh.positions.len();
-        let ctx = Ctx {
-            mesh: &mesh,
-            caster: caster.as_ref(),
-            opts: &opts,
-            samples: MSamples::new(&mesh, &areas, SAMPLES_PER_VERTEX * nv as f64 / total, 7),
-            areas,
-            normals: vertex_normals(&mesh),
-            adj: Adjacency::new(&mesh),
-            radii: fitmap_radii(&mesh).unwrap(),
-            level_of: vec![None; RADIUS_STEPS + 1],
-            levels: Vec::new(),
-            failure: std::sync::Mutex::new(None),
-        };
         let mut sc = Scratch::new(&ctx);
         let mut seen_partial = false;
         for p in (0..nv as u32).step_by(211) {
@@ -1395,28 +1412,11 @@ mod tests {
     /// without verdicts known beforehand, and casts fewer lines somewhere.
     #[test]
     fn early_literal_verdict_is_the_literal_one() {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/data/spot.ply");
-        let mesh = crate::io::read_mesh(std::path::Path::new(path))
-            .unwrap()
-            .mesh;
+        let mesh = spot();
         let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
-        let areas = triangle_areas(&mesh);
-        let total: f64 = areas.iter().sum();
-        let nv = mesh.positions.len();
         let base = FitmapOptions::default();
-        let ctx = Ctx {
-            mesh: &mesh,
-            caster: caster.as_ref(),
-            opts: &base,
-            samples: MSamples::new(&mesh, &areas, SAMPLES_PER_VERTEX * nv as f64 / total, 7),
-            areas,
-            normals: vertex_normals(&mesh),
-            adj: Adjacency::new(&mesh),
-            radii: fitmap_radii(&mesh).unwrap(),
-            level_of: vec![None; RADIUS_STEPS + 1],
-            levels: Vec::new(),
-            failure: std::sync::Mutex::new(None),
-        };
+        let ctx = exact_ctx(&mesh, caster.as_ref(), &base);
+        let nv = mesh.positions.len();
         let (mut saved, mut balls) = (0u64, 0usize);
         for p in (0..nv as u32).step_by(307) {
             let frame = Frame::from_normal(mesh.positions[p as usize], ctx.normals[p as usize]);

@@ -1103,51 +1103,10 @@ mod tests {
     /// whose supply cannot all be routed.
     #[test]
     fn compact_search_matches_the_list_search() {
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            seed
-        };
+        let mut next = xorshift(0x2545_f491_4f6c_dd1d);
         for case in 0..20 {
             let (w, h) = (6 + case % 5, 5 + case % 7);
-            let n = w * h;
-            let (s, t) = (n, n + 1);
-            let mut a = MinCostFlow::new(n + 2);
-            let mut b = MinCostFlow::new(n + 2);
-            let mut ids = Vec::new();
-            for y in 0..h {
-                for x in 0..w {
-                    let u = y * w + x;
-                    for v in [(x + 1 < w).then(|| u + 1), (y + 1 < h).then(|| u + w)]
-                        .into_iter()
-                        .flatten()
-                    {
-                        for (p, q) in [(u, v), (v, u)] {
-                            let cost = [1, 1001, 1001, 500][(next() % 4) as usize];
-                            let cap = 1 + (next() % 2) as i64;
-                            ids.push(a.add(p, q, cap, cost));
-                            b.add(p, q, cap, cost);
-                        }
-                    }
-                }
-            }
-            for u in 0..n {
-                match next() % 7 {
-                    0 => {
-                        let c = 1 + (next() % 3) as i64;
-                        ids.push(a.add(s, u, c, 0));
-                        b.add(s, u, c, 0);
-                    }
-                    1 => {
-                        let c = 1 + (next() % 2) as i64;
-                        ids.push(a.add(u, t, c, 0));
-                        b.add(u, t, c, 0);
-                    }
-                    _ => {}
-                }
-            }
+            let (mut a, mut b, ids, s, t) = grid_networks(w, h, &mut next);
             let got = a.run(s, t);
             assert_eq!(got, list_search(&mut b, s, t), "case {case}");
             for &id in &ids {
@@ -1195,6 +1154,78 @@ mod tests {
         b.add(u, v, cap as i64, cost as i64);
     }
 
+    /// The same network in `a` and `b` (with `a`'s arc ids, the source and
+    /// the sink), shaped like the flow's: a `w × h` grid of equations with
+    /// arcs both ways between neighbours, costs from a few values so that
+    /// equal-cost paths tie, capacities 1..2, and about one equation in
+    /// seven fed by the source or draining into the sink. `next` draws
+    /// every cost, capacity and excess, so one seed gives one sequence of
+    /// networks.
+    fn grid_networks(
+        w: usize,
+        h: usize,
+        next: &mut impl FnMut() -> u64,
+    ) -> (MinCostFlow, MinCostFlow, Vec<usize>, usize, usize) {
+        let n = w * h;
+        let (s, t) = (n, n + 1);
+        let mut a = MinCostFlow::new(n + 2);
+        let mut b = MinCostFlow::new(n + 2);
+        let mut ids = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                let u = y * w + x;
+                for v in [(x + 1 < w).then(|| u + 1), (y + 1 < h).then(|| u + w)]
+                    .into_iter()
+                    .flatten()
+                {
+                    for (p, q) in [(u, v), (v, u)] {
+                        let cost = [1, 1001, 1001, 500][(next() % 4) as usize];
+                        let cap = 1 + (next() % 2) as usize;
+                        add_both(&mut a, &mut b, &mut ids, [p, q, cap, cost]);
+                    }
+                }
+            }
+        }
+        for u in 0..n {
+            match next() % 7 {
+                0 => add_both(
+                    &mut a,
+                    &mut b,
+                    &mut ids,
+                    [s, u, 1 + (next() % 3) as usize, 0],
+                ),
+                1 => add_both(
+                    &mut a,
+                    &mut b,
+                    &mut ids,
+                    [u, t, 1 + (next() % 2) as usize, 0],
+                ),
+                _ => {}
+            }
+        }
+        (a, b, ids, s, t)
+    }
+
+    /// Runs the kept search on `a` and the restarted one on `b` (the same
+    /// network) from `st[0]` to `st[1]`, and checks that both send the same
+    /// flow at the same cost (see the grid test below for why equal cost
+    /// is the test).
+    fn assert_kept_matches_restarted(
+        a: &mut MinCostFlow,
+        b: &mut MinCostFlow,
+        ids: &[usize],
+        [s, t]: [usize; 2],
+        case: usize,
+    ) {
+        let got = a.run_kept(s, t);
+        let want = list_search(b, s, t);
+        assert_eq!(got, want, "case {case}");
+        let (va, ca) = value_and_cost(a, ids, s, t);
+        let (vb, cb) = value_and_cost(b, ids, s, t);
+        assert_eq!((va, ca), (vb, cb), "case {case}");
+        assert_eq!(va, got);
+    }
+
     /// The kept search sends as much flow as the textbook restarted one,
     /// at the same (least) cost, on grids shaped like the flow's networks
     /// (arcs both ways between neighbouring equations, costs from a few
@@ -1209,50 +1240,8 @@ mod tests {
         let mut next = xorshift(0x2545_f491_4f6c_dd1d);
         for case in 0..60 {
             let (w, h) = (6 + case % 9, 5 + case % 11);
-            let n = w * h;
-            let (s, t) = (n, n + 1);
-            let mut a = MinCostFlow::new(n + 2);
-            let mut b = MinCostFlow::new(n + 2);
-            let mut ids = Vec::new();
-            for y in 0..h {
-                for x in 0..w {
-                    let u = y * w + x;
-                    for v in [(x + 1 < w).then(|| u + 1), (y + 1 < h).then(|| u + w)]
-                        .into_iter()
-                        .flatten()
-                    {
-                        for (p, q) in [(u, v), (v, u)] {
-                            let cost = [1, 1001, 1001, 500][(next() % 4) as usize];
-                            let cap = 1 + (next() % 2) as usize;
-                            add_both(&mut a, &mut b, &mut ids, [p, q, cap, cost]);
-                        }
-                    }
-                }
-            }
-            for u in 0..n {
-                match next() % 7 {
-                    0 => add_both(
-                        &mut a,
-                        &mut b,
-                        &mut ids,
-                        [s, u, 1 + (next() % 3) as usize, 0],
-                    ),
-                    1 => add_both(
-                        &mut a,
-                        &mut b,
-                        &mut ids,
-                        [u, t, 1 + (next() % 2) as usize, 0],
-                    ),
-                    _ => {}
-                }
-            }
-            let got = a.run_kept(s, t);
-            let want = list_search(&mut b, s, t);
-            assert_eq!(got, want, "case {case}");
-            let (va, ca) = value_and_cost(&a, &ids, s, t);
-            let (vb, cb) = value_and_cost(&b, &ids, s, t);
-            assert_eq!((va, ca), (vb, cb), "case {case}");
-            assert_eq!(va, got);
+            let (mut a, mut b, ids, s, t) = grid_networks(w, h, &mut next);
+            assert_kept_matches_restarted(&mut a, &mut b, &ids, [s, t], case);
         }
     }
 
@@ -1295,13 +1284,7 @@ mod tests {
                     [v, t, 1 + (next() % 3) as usize, 0],
                 );
             }
-            let got = a.run_kept(s, t);
-            let want = list_search(&mut b, s, t);
-            assert_eq!(got, want, "case {case}");
-            let (va, ca) = value_and_cost(&a, &ids, s, t);
-            let (vb, cb) = value_and_cost(&b, &ids, s, t);
-            assert_eq!((va, ca), (vb, cb), "case {case}");
-            assert_eq!(va, got);
+            assert_kept_matches_restarted(&mut a, &mut b, &ids, [s, t], case);
         }
     }
 
