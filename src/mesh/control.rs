@@ -965,18 +965,9 @@ impl ControlMesh {
         delete: &[VertexId],
         revive: &[VertexId],
     ) -> Result<Vec<FaceId>> {
-        self.check_replace(remove, add, delete, revive)?;
-        // Every vertex whose half-edges may change.
-        let mut touched: Vec<VertexId> = Vec::new();
-        for &f in remove {
-            touched.extend(self.face_vertices(f));
-        }
-        for p in add {
-            touched.extend_from_slice(p);
-        }
-        touched.extend_from_slice(delete);
-        touched.sort_unstable();
-        touched.dedup();
+        // Every vertex whose half-edges may change (the check's too).
+        let touched = self.replace_touched(remove, add, delete);
+        self.check_replace(remove, add, delete, revive, &touched)?;
         // All half-edges leaving touched vertices (and their twins): every
         // edge the new faces can reuse joins two touched vertices.
         let mut local: Vec<HalfedgeId> = Vec::new();
@@ -1113,14 +1104,41 @@ impl ControlMesh {
         e
     }
 
+    /// The vertices of the faces `remove` and `add` and the vertices
+    /// `delete` (sorted, once each): those whose fans a replacement can
+    /// change. Faces out of range or deleted contribute nothing (the check
+    /// refuses them).
+    fn replace_touched(
+        &self,
+        remove: &[FaceId],
+        add: &[&[VertexId]],
+        delete: &[VertexId],
+    ) -> Vec<VertexId> {
+        let mut touched: Vec<VertexId> = Vec::with_capacity(4 * (remove.len() + add.len()) + 2);
+        for &f in remove {
+            if f.idx() < self.num_faces() && !self.is_face_deleted(f) {
+                touched.extend(self.face_vertices(f));
+            }
+        }
+        for p in add {
+            touched.extend_from_slice(p);
+        }
+        touched.extend_from_slice(delete);
+        touched.sort_unstable();
+        touched.dedup();
+        touched
+    }
+
     /// The dry run of [`ControlMesh::replace_faces`]: simulates the fans of
-    /// the touched vertices after the change.
+    /// the touched vertices (`touched`: [`ControlMesh::replace_touched`])
+    /// after the change.
     fn check_replace(
         &self,
         remove: &[FaceId],
         add: &[&[VertexId]],
         delete: &[VertexId],
         revive: &[VertexId],
+        touched: &[VertexId],
     ) -> Result<()> {
         let live_v = |v: VertexId| {
             v.idx() < self.num_vertices() && (!self.is_vertex_deleted(v) || revive.contains(&v))
@@ -1157,22 +1175,12 @@ impl ControlMesh {
                 ));
             }
         }
-        let mut touched: Vec<VertexId> = Vec::new();
-        for &f in remove {
-            touched.extend(self.face_vertices(f));
-        }
-        for p in add {
-            touched.extend_from_slice(p);
-        }
-        touched.extend_from_slice(delete);
-        touched.sort_unstable();
-        touched.dedup();
         // Directed edges that will carry a face: those of kept faces at
         // touched vertices, and those of the new faces; each at most once.
-        let mut used: Vec<(VertexId, VertexId)> = Vec::new();
+        let mut used: Vec<(VertexId, VertexId)> = Vec::with_capacity(4 * touched.len());
         // A revived vertex has no half-edge yet, hence no kept face.
         let kept = |v: VertexId| !self.is_vertex_deleted(v);
-        for &v in &touched {
+        for &v in touched {
             for h in self.outgoing(v).take(if kept(v) { usize::MAX } else { 0 }) {
                 if let Some(f) = self.face_of(h) {
                     if !remove.contains(&f) {
@@ -1197,8 +1205,11 @@ impl ControlMesh {
         // Fan of each touched vertex after the change: each face at v links
         // the neighbour after v (out) to the one before v (in). Manifold iff
         // those links form a single chain or a single cycle.
-        for &v in &touched {
-            let mut links: Vec<(VertexId, VertexId)> = Vec::new();
+        // One buffer for every vertex's links (a replacement touches a few
+        // dozen vertices, each with a handful of faces).
+        let mut links: Vec<(VertexId, VertexId)> = Vec::with_capacity(16);
+        for &v in touched {
+            links.clear();
             for h in self.outgoing(v).take(if kept(v) { usize::MAX } else { 0 }) {
                 if let Some(f) = self.face_of(h) {
                     if !remove.contains(&f) {
@@ -1227,19 +1238,18 @@ impl ControlMesh {
                 continue;
             }
             // Rotation: the face whose `out` is this face's `in` comes next.
-            let starts: Vec<usize> = (0..links.len())
-                .filter(|&i| !links.iter().any(|l| l.1 == links[i].0))
-                .collect();
-            if starts.len() > 1 {
+            let mut starts = (0..links.len()).filter(|&i| !links.iter().any(|l| l.1 == links[i].0));
+            let first = starts.next();
+            if starts.next().is_some() {
                 return Err(Error::topology(
                     v.to_string(),
                     "would become non-manifold (its faces would form several fans)",
                 ));
             }
-            let mut cur = starts.first().copied().unwrap_or(0);
+            let mut cur = first.unwrap_or(0);
             let mut seen = 1;
             while let Some(nx) = links.iter().position(|l| l.0 == links[cur].1) {
-                if nx == starts.first().copied().unwrap_or(0) || seen > links.len() {
+                if nx == first.unwrap_or(0) || seen > links.len() {
                     break;
                 }
                 cur = nx;

@@ -45,6 +45,20 @@ use crate::DVec3;
 /// [`crate::subdiv::catmark::RustEvaluator`]'s vertex masks), so `L` and the
 /// surface every later stage evaluates agree.
 pub fn vertex_limit_mask(mesh: &ControlMesh, v: VertexId) -> Result<Vec<(VertexId, f64)>> {
+    let mut out = Vec::new();
+    vertex_limit_mask_into(mesh, v, &mut out)?;
+    Ok(out)
+}
+
+/// [`vertex_limit_mask`] written into `out` (cleared first; on error left
+/// empty): the greedy layout's refits take a few dozen masks per collapse,
+/// and one reused buffer saves an allocation and its growth per mask.
+pub fn vertex_limit_mask_into(
+    mesh: &ControlMesh,
+    v: VertexId,
+    out: &mut Vec<(VertexId, f64)>,
+) -> Result<()> {
+    out.clear();
     if v.idx() >= mesh.num_vertices() {
         return Err(Error::InvalidArgument(format!(
             "vertex_limit_mask: {v} out of range ({} vertices)",
@@ -62,11 +76,13 @@ pub fn vertex_limit_mask(mesh: &ControlMesh, v: VertexId) -> Result<Vec<(VertexI
              boundary (edge-and-corner) rule",
         ));
     }
-    Ok(crate::subdiv::catmark::vertex_limit_mask(
+    crate::subdiv::catmark::vertex_limit_mask_into(
         mesh,
         v,
         &crate::mesh::SchemeOptions::default(),
-    ))
+        out,
+    );
+    Ok(())
 }
 
 /// The limit matrix `L` in compressed rows (row `v` = mask of `v`).

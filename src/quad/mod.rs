@@ -14,7 +14,7 @@ pub mod simplify;
 pub use crate::subdiv::catmark::closed_form::face_centre_limit;
 pub use interpolate::{
     interpolate_limit, interpolate_limit_local, limit_positions, vertex_limit_mask,
-    InterpolationOptions, InterpolationReport, InterpolationSolver,
+    vertex_limit_mask_into, InterpolationOptions, InterpolationReport, InterpolationSolver,
 };
 pub use quadrangulate::{
     quad_quality, quadrangulate, ParityFix, ParityFixKind, QuadQuality, QuadSource,

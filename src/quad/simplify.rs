@@ -46,7 +46,7 @@ use super::ops::{
     rotation_energy_gain, CollapsePlan, Rotation, ValenceTargets,
 };
 use super::quadrangulate::quadrangulate_polled;
-use super::{vertex_limit_mask, InterpolationOptions};
+use super::{vertex_limit_mask, vertex_limit_mask_into, InterpolationOptions};
 use super::{QuadrangulateOptions, Quadrangulation};
 use crate::analysis::Fitmap;
 use crate::error::{Error, Result};
@@ -798,8 +798,18 @@ enum NextBatch {
 /// ([`Simplifier::refit_region`]).
 struct RefitRegion {
     w: Vec<VertexId>,
-    masks: Vec<Vec<(VertexId, f64)>>,
+    /// W's masks end to end, `w[i]`'s at `mask_at[i]..mask_at[i + 1]`
+    /// (one allocation per region rather than one per vertex).
+    masks: Vec<(VertexId, f64)>,
+    mask_at: Vec<usize>,
     faces: Vec<FaceId>,
+}
+
+impl RefitRegion {
+    /// The limit mask of `w[i]`.
+    fn mask(&self, i: usize) -> &[(VertexId, f64)] {
+        &self.masks[self.mask_at[i]..self.mask_at[i + 1]]
+    }
 }
 
 /// `f` over `xs` in input order, one item per rayon job when there are
@@ -2100,17 +2110,27 @@ impl<'a> Simplifier<'a> {
         }
         w.sort_unstable();
         w.dedup();
-        let masks: Vec<Vec<(VertexId, f64)>> = w
-            .iter()
-            .map(|&v| vertex_limit_mask(k, v))
-            .collect::<Result<_>>()?;
+        let mut masks = Vec::with_capacity(10 * w.len());
+        let mut mask_at = Vec::with_capacity(w.len() + 1);
+        mask_at.push(0);
+        let mut one = Vec::with_capacity(16);
+        for &v in &w {
+            vertex_limit_mask_into(k, v, &mut one)?;
+            masks.extend_from_slice(&one);
+            mask_at.push(masks.len());
+        }
         // The faces around W (the refit moves vertices, it does not change
         // the connectivity): their centroids are taken once per round, not
         // once per vertex of W that shares them (up to four).
         let mut faces: Vec<FaceId> = w.iter().flat_map(|&v| k.vertex_faces(v)).collect();
         faces.sort_unstable();
         faces.dedup();
-        Ok(RefitRegion { w, masks, faces })
+        Ok(RefitRegion {
+            w,
+            masks,
+            mask_at,
+            faces,
+        })
     }
 
     /// Writes `x` to the positions of `w` (added to them when `add`).
@@ -2168,8 +2188,9 @@ impl<'a> Simplifier<'a> {
         let k = &self.k;
         let lines: Vec<(DVec3, DVec3, f64)> =
             r.w.iter()
-                .zip(&r.masks)
-                .map(|(&v, m)| {
+                .enumerate()
+                .map(|(i, &v)| {
+                    let m = r.mask(i);
                     let p = k.position(v);
                     let scale = k
                         .outgoing(v)
@@ -2189,10 +2210,10 @@ impl<'a> Simplifier<'a> {
 
     /// One fixed-point sweep's moves `φ − L` of W (read-only).
     fn fit_deltas(&self, r: &RefitRegion, targets: &[DVec3]) -> Vec<DVec3> {
-        r.masks
+        targets
             .iter()
-            .zip(targets)
-            .map(|(m, t)| *t - limit_of(&self.k, m))
+            .enumerate()
+            .map(|(i, t)| *t - limit_of(&self.k, r.mask(i)))
             .collect()
     }
 
@@ -2203,14 +2224,18 @@ impl<'a> Simplifier<'a> {
         let mut corners: Vec<VertexId> = r.faces.iter().flat_map(|&f| k.face_vertices(f)).collect();
         corners.sort_unstable();
         corners.dedup();
+        let mut one = Vec::with_capacity(16);
         corners
             .into_iter()
             .map(|v| {
                 // W's masks still hold: the refit moved vertices, it did not
                 // change the connectivity a mask depends on.
                 let l = match r.w.binary_search(&v) {
-                    Ok(i) => limit_of(k, &r.masks[i]),
-                    Err(_) => limit_of(k, &vertex_limit_mask(k, v)?),
+                    Ok(i) => limit_of(k, r.mask(i)),
+                    Err(_) => {
+                        vertex_limit_mask_into(k, v, &mut one)?;
+                        limit_of(k, &one)
+                    }
                 };
                 Ok((v, l))
             })
