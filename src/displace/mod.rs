@@ -243,7 +243,7 @@ impl Displacement {
 /// How far beyond the distance to M a hit may lie and still be on the
 /// sample's own sheet: the line may make up to acos(1/3) ≈ 71° with M's
 /// normal at the closest point (see [`compute_displacement`]).
-pub const SAME_SHEET_FACTOR: f64 = 3.0;
+const SAME_SHEET_FACTOR: f64 = 3.0;
 
 /// Samples the limit surface of `control` on an `res × res` welded grid per
 /// patch and measures the offset to M (`caster` is built over M) along the
