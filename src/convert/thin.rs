@@ -202,7 +202,13 @@ pub(super) fn second_round(
     let (faces, irregular) = (laid.control.num_faces(), laid.stats.irregular_vertices);
     let second = fit(timer, laid.control)?;
     let m1 = timer.run("thin round", || off_m(mesh, &caster, &second.control))?;
-    let keep_second = m1.rms < m0.rms;
+    // Kept only at the count asked for (`--faces`' ±2 % window, or no
+    // farther from N than the first round).
+    let n = fo.target_faces.map_or(faces, |n| n) as f64;
+    let off = |f: usize| (f as f64 - n).abs();
+    let first_faces = first.control.num_faces();
+    let at_count = off(faces) <= f64::max(0.02 * n, off(first_faces));
+    let keep_second = at_count && m1.rms < m0.rms;
     rounds.push(FieldRound {
         target_faces: fo.target_faces,
         faces,
