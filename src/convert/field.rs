@@ -982,20 +982,20 @@ pub(super) fn grid_cells(mesh: &TriMesh, control: &ControlMesh) -> usize {
         .clamp(4, 16)
 }
 
+/// [`limit_grid`]'s grid mesh, face per triangle, locations and evaluator.
+pub(super) type LimitGrid = (
+    TriMesh,
+    Vec<u32>,
+    Vec<crate::subdiv::SurfaceLocation>,
+    Box<dyn crate::subdiv::LimitEvaluator>,
+);
+
 /// The fitted limit surface of `control` as a grid of `k × k` cells per
 /// patch (sub-patches of a non-quad face apart): the grid as a triangle
 /// mesh, the control face of each of its triangles, each grid vertex's
 /// surface location, and the evaluator ([`patch_errors`],
 /// [`super::thin`]).
-pub(super) fn limit_grid(
-    control: &ControlMesh,
-    k: usize,
-) -> Result<(
-    TriMesh,
-    Vec<u32>,
-    Vec<crate::subdiv::SurfaceLocation>,
-    Box<dyn crate::subdiv::LimitEvaluator>,
-)> {
+pub(super) fn limit_grid(control: &ControlMesh, k: usize) -> Result<LimitGrid> {
     use crate::subdiv::{make_evaluator, Backend, EvalOptions, SurfaceLocation};
     let mut locs = Vec::new();
     let mut tri_face = Vec::new();
