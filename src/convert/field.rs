@@ -185,6 +185,17 @@ pub struct FieldRound {
     /// was laid out again).
     #[serde(default)]
     pub patches_split: Option<usize>,
+    /// With the thin round ([`super::thin`]): the RMS distance from the
+    /// fitted limit surface to M′ over its area, ‰ (the round's criterion).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub off_m_permille: Option<f64>,
+    /// With the thin round: the patches whose RMS distance to M′ is above
+    /// [`super::thin::FAR`] times the surface's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub patches_off_m: Option<usize>,
+    /// With the thin round, on its own round: whether it was kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kept: Option<bool>,
 }
 
 /// `report.json`'s record of the field layout: the first layout's figures
@@ -265,6 +276,9 @@ pub fn fit_field(
             patches_unprojectable: 0,
             size_factor,
             patches_split: None,
+            off_m_permille: None,
+            patches_off_m: None,
+            kept: None,
         });
         let next = match (e, measured) {
             (Some(e), Some(m))
@@ -313,8 +327,19 @@ pub fn fit_field(
             None => break,
         }
     }
-    let (_, fitted) =
+    let (_, mut fitted) =
         best.ok_or_else(|| crate::Error::internal("field layout: no round was fitted"))?;
+    // At a fixed count, one more layout with lattice size moved to the
+    // patches whose limit stands off M′ ([`super::thin`]).
+    if opts.target_faces.is_some() && rounds.len() == 1 && super::thin::enabled() {
+        let progress = &mut *run.progress;
+        let fit = |timer: &mut StageTimer, c: ControlMesh| {
+            timer.run("fit", || {
+                crate::fit::fit_with_progress(mesh, c, caster, &po.fit, progress)
+            })
+        };
+        fitted = super::thin::second_round(&mut timer, relayout, &fo, fitted, &mut rounds, fit)?;
+    }
     let mut c = measure_fitted(
         run.input,
         fitted,
@@ -735,15 +760,15 @@ fn lay_out_grown(
 
 /// The sizing field of the field layout on M′, refined by
 /// [`Sizes::refine`] (module docs).
-struct Sizes {
-    h: Vec<f64>,
+pub(super) struct Sizes {
+    pub(super) h: Vec<f64>,
     /// The M-fitmap's cap `β √2 F_M` per vertex: coarsening stops there.
     cap: Vec<f64>,
-    surf: Surface,
+    pub(super) surf: Surface,
 }
 
 impl Sizes {
-    fn new(mesh: &TriMesh, fitmap: &Fitmap, fo: &FieldOptions) -> Result<Sizes> {
+    pub(super) fn new(mesh: &TriMesh, fitmap: &Fitmap, fo: &FieldOptions) -> Result<Sizes> {
         let surf = Surface::new(mesh)?;
         let (h, ..) = sizing::sizing_for(&surf, mesh, fitmap, fo)?;
         let (_, hm) = sizing::fitmap_limits(mesh, fitmap, fo.s_fitmap_scale)?;
@@ -895,49 +920,8 @@ fn growth_budget(over: f64, fails_projection: bool) -> f64 {
 /// patches, do not see it. The limit surface is a grid of `k × k` cells
 /// per patch (k from [`CELLS_PER_VERTEX`]).
 fn patch_errors(mesh: &TriMesh, control: &ControlMesh) -> Result<Measured> {
-    use crate::subdiv::{make_evaluator, Backend, EvalOptions, SurfaceLocation};
-    let patches: usize = control
-        .faces()
-        .map(|f| match control.face_size(f) {
-            4 => 1,
-            n => n,
-        })
-        .sum();
-    let k = ((CELLS_PER_VERTEX * mesh.positions.len() as f64 / patches.max(1) as f64).sqrt()
-        as usize)
-        .clamp(4, 16);
-    let mut locs = Vec::new();
-    let mut tri_face = Vec::new();
-    let mut tris = Vec::new();
-    for f in control.faces() {
-        let subs = match control.face_size(f) {
-            4 => 1,
-            n => n,
-        };
-        for sub in 0..subs as u16 {
-            let base = locs.len() as u32;
-            for j in 0..=k {
-                for i in 0..=k {
-                    let (u, v) = (i as f64 / k as f64, j as f64 / k as f64);
-                    locs.push(SurfaceLocation { face: f, sub, u, v });
-                }
-            }
-            let at = |i: usize, j: usize| base + (j * (k + 1) + i) as u32;
-            for j in 0..k {
-                for i in 0..k {
-                    tris.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
-                    tris.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
-                    tri_face.extend([f.0, f.0]);
-                }
-            }
-        }
-    }
-    let evaluator = make_evaluator(Backend::Osd, control, &EvalOptions::default())?;
-    let limit = evaluator.evaluate(control.positions(), &locs)?;
-    let surface = TriMesh {
-        positions: limit.iter().map(|p| p.position).collect(),
-        triangles: tris,
-    };
+    let k = grid_cells(mesh, control);
+    let (surface, tri_face, locs, evaluator) = limit_grid(control, k)?;
     let caster = crate::raycast::bvh::BvhCaster::new(&surface)?;
     let nearest = caster.closest_points(&mesh.positions, f64::INFINITY)?;
     let missed =
@@ -981,6 +965,71 @@ fn patch_errors(mesh: &TriMesh, control: &ControlMesh) -> Result<Measured> {
         unprojectable_percent: 100.0 * lost / area,
         thin_percent: 100.0 * thin / area,
     })
+}
+
+/// The cells per side of each patch's grid on `control`'s limit surface
+/// measured against `mesh` (about [`CELLS_PER_VERTEX`] cells per vertex of
+/// `mesh`, 4 to 16 per side).
+pub(super) fn grid_cells(mesh: &TriMesh, control: &ControlMesh) -> usize {
+    let patches: usize = control
+        .faces()
+        .map(|f| match control.face_size(f) {
+            4 => 1,
+            n => n,
+        })
+        .sum();
+    ((CELLS_PER_VERTEX * mesh.positions.len() as f64 / patches.max(1) as f64).sqrt() as usize)
+        .clamp(4, 16)
+}
+
+/// [`limit_grid`]'s grid mesh, face per triangle, locations and evaluator.
+pub(super) type LimitGrid = (
+    TriMesh,
+    Vec<u32>,
+    Vec<crate::subdiv::SurfaceLocation>,
+    Box<dyn crate::subdiv::LimitEvaluator>,
+);
+
+/// The fitted limit surface of `control` as a grid of `k × k` cells per
+/// patch (sub-patches of a non-quad face apart): the grid as a triangle
+/// mesh, the control face of each of its triangles, each grid vertex's
+/// surface location, and the evaluator ([`patch_errors`],
+/// [`super::thin`]).
+pub(super) fn limit_grid(control: &ControlMesh, k: usize) -> Result<LimitGrid> {
+    use crate::subdiv::{make_evaluator, Backend, EvalOptions, SurfaceLocation};
+    let mut locs = Vec::new();
+    let mut tri_face = Vec::new();
+    let mut tris = Vec::new();
+    for f in control.faces() {
+        let subs = match control.face_size(f) {
+            4 => 1,
+            n => n,
+        };
+        for sub in 0..subs as u16 {
+            let base = locs.len() as u32;
+            for j in 0..=k {
+                for i in 0..=k {
+                    let (u, v) = (i as f64 / k as f64, j as f64 / k as f64);
+                    locs.push(SurfaceLocation { face: f, sub, u, v });
+                }
+            }
+            let at = |i: usize, j: usize| base + (j * (k + 1) + i) as u32;
+            for j in 0..k {
+                for i in 0..k {
+                    tris.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+                    tris.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+                    tri_face.extend([f.0, f.0]);
+                }
+            }
+        }
+    }
+    let evaluator = make_evaluator(Backend::Osd, control, &EvalOptions::default())?;
+    let limit = evaluator.evaluate(control.positions(), &locs)?;
+    let surface = TriMesh {
+        positions: limit.iter().map(|p| p.position).collect(),
+        triangles: tris,
+    };
+    Ok((surface, tri_face, locs, evaluator))
 }
 
 /// Projectability of `mesh`'s vertices from the fitted limit surface: the

@@ -36,6 +36,7 @@ pub mod record;
 pub mod run;
 pub mod search;
 pub mod tail;
+pub mod thin;
 
 pub use auto::{Candidate, SecondOpinion};
 pub use layout::{FieldRelayout, Laid, Layout, LayoutRecord, ProxyAttempt, ProxyRecord};

@@ -295,7 +295,7 @@ pub fn field_layout_prepared(
 ) -> Result<FieldLayout> {
     check_fitmap(mesh, fitmap)?;
     prep.check(mesh)?;
-    let (surf, dirs) = (&prep.surf, &prep.dirs);
+    let surf = &prep.surf;
     let mut stats = prep.stats.clone();
     let t = Instant::now();
     let (h, alpha, relaxed, predicted) = match opts.uniform_size {
@@ -316,6 +316,42 @@ pub fn field_layout_prepared(
     stats.m_fitmap_relaxed = relaxed;
     stats.predicted_faces = predicted;
     stats.seconds_sizing = t.elapsed().as_secs_f64();
+    lay_counted(prep, mesh, fitmap, h, opts, stats)
+}
+
+/// Steps 3–5 on a given sizing `h` of a [`Prepared`] mesh, with
+/// `opts.target_faces` met as [`field_layout_prepared`] meets it (the laid
+/// h rescaled and solved again, at most [`COUNT_PASSES`] times): the
+/// sizing's shape is the caller's, its scale the count's. Used by a
+/// second layout at the same count whose sizing was lowered under some
+/// patches and raised elsewhere (`src/convert/thin.rs`).
+pub fn field_layout_counted(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    h: Vec<f64>,
+    opts: &FieldOptions,
+) -> Result<FieldLayout> {
+    check_fitmap(mesh, fitmap)?;
+    check_sizes(mesh, &h)?;
+    prep.check(mesh)?;
+    let mut stats = prep.stats.clone();
+    stats.alpha = 1.0;
+    stats.m_fitmap_relaxed = 1.0;
+    stats.predicted_faces = sizing::predicted_faces(&prep.surf, &h);
+    lay_counted(prep, mesh, fitmap, h, opts, stats)
+}
+
+/// The count loop of [`field_layout_prepared`] (see there).
+fn lay_counted(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    h: Vec<f64>,
+    opts: &FieldOptions,
+    stats: FieldStats,
+) -> Result<FieldLayout> {
+    let (surf, dirs) = (&prep.surf, &prep.dirs);
     let built;
     let caster = match (&prep.caster, opts.cleanup) {
         (_, false) => None,
