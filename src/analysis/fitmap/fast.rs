@@ -75,9 +75,17 @@ fn level0_triangles(ctx: &Ctx, sc: &mut Scratch) {
     // that radius orders the triangles as the key does. Sorting one integer
     // `(radius index, triangle)` per triangle gives the (key, triangle)
     // order without comparing floats.
+    // A vertex's radius index is kept (not its key, a float that would
+    // need a search of the radii per triangle); `u8::MAX` = outside the
+    // ball, above every index, so a triangle's largest says it all.
     let radii = &ctx.radii;
+    let mut layer = 0usize;
     for &(k, v) in &sc.sorted0 {
-        sc.key_at[v as usize] = k;
+        while radii[layer] < k {
+            layer += 1;
+        }
+        debug_assert_eq!(radii[layer], k, "layered keys are radii");
+        sc.layer_at[v as usize] = layer as u8;
     }
     let stamp = sc.next_stamp();
     let vt = &ctx.adj.vt;
@@ -100,13 +108,11 @@ fn level0_triangles(ctx: &Ctx, sc: &mut Scratch) {
         for &t in row {
             if sc.tmark[t as usize] != stamp {
                 sc.tmark[t as usize] = stamp;
-                let k = ctx.mesh.triangles[t as usize]
-                    .iter()
-                    .map(|&w| sc.key_at[w as usize])
-                    .fold(f64::NEG_INFINITY, f64::max);
-                if k.is_finite() {
-                    let layer = radii.partition_point(|&r| r < k);
-                    debug_assert_eq!(radii.get(layer), Some(&k), "layered keys are radii");
+                let [a, b, c] = ctx.mesh.triangles[t as usize];
+                let layer = sc.layer_at[a as usize]
+                    .max(sc.layer_at[b as usize])
+                    .max(sc.layer_at[c as usize]);
+                if layer != u8::MAX {
                     sc.tri_keys.push(((layer as u64) << 32) | t as u64);
                 }
             }
@@ -119,7 +125,7 @@ fn level0_triangles(ctx: &Ctx, sc: &mut Scratch) {
             .map(|&key| (radii[(key >> 32) as usize], key as u32)),
     );
     for &(_, v) in &sc.sorted0 {
-        sc.key_at[v as usize] = f64::INFINITY;
+        sc.layer_at[v as usize] = u8::MAX;
     }
     let mut acc = 0.0;
     for &(_, t) in &sc.tris {

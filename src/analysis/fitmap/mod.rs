@@ -392,7 +392,9 @@ struct Scratch {
     mark: Vec<u32>,
     tmark: Vec<u32>,
     stamp: u32,
-    key_at: Vec<f64>,
+    /// Fast mode: the radius index of each vertex of the level-0 ball
+    /// while its triangles are listed, `u8::MAX` elsewhere.
+    layer_at: Vec<u8>,
     level_mark: Vec<Vec<u32>>,
     pending: Vec<u32>,
     ball: Vec<u32>,
@@ -420,7 +422,7 @@ impl Scratch {
             mark: vec![0; n],
             tmark: vec![0; nt],
             stamp: 0,
-            key_at: vec![f64::INFINITY; n],
+            layer_at: vec![u8::MAX; n],
             level_mark: ctx.levels.iter().map(|l| vec![0; l.len()]).collect(),
             pending: Vec::new(),
             ball: Vec::new(),
@@ -446,6 +448,53 @@ impl Scratch {
         }
         self.stamp += 1;
         self.stamp
+    }
+}
+
+/// Scratch kept between rayon jobs (see `compute_fitmap_cancellable`):
+/// [`ScratchPool::take`] hands out a kept one, or a new one, that goes back
+/// to the pool when the job drops it.
+#[derive(Default)]
+struct ScratchPool(std::sync::Mutex<Vec<Scratch>>);
+
+impl ScratchPool {
+    fn take(&self, ctx: &Ctx) -> PooledScratch<'_> {
+        let kept = self.0.lock().unwrap_or_else(|p| p.into_inner()).pop();
+        PooledScratch {
+            sc: Some(kept.unwrap_or_else(|| Scratch::new(ctx))),
+            pool: self,
+        }
+    }
+}
+
+/// A [`Scratch`] on loan from a [`ScratchPool`].
+struct PooledScratch<'a> {
+    sc: Option<Scratch>,
+    pool: &'a ScratchPool,
+}
+
+impl std::ops::Deref for PooledScratch<'_> {
+    type Target = Scratch;
+    fn deref(&self) -> &Scratch {
+        self.sc.as_ref().expect("present until dropped")
+    }
+}
+
+impl std::ops::DerefMut for PooledScratch<'_> {
+    fn deref_mut(&mut self) -> &mut Scratch {
+        self.sc.as_mut().expect("present until dropped")
+    }
+}
+
+impl Drop for PooledScratch<'_> {
+    fn drop(&mut self) {
+        if let Some(sc) = self.sc.take() {
+            self.pool
+                .0
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .push(sc);
+        }
     }
 }
 
@@ -644,6 +693,7 @@ fn triangle_verdicts(
         // were blocked). Most triangles are settled by their first line, so
         // later samples need neither a foot point nor a ray.
         pending.clear();
+        let inv_scale = 1.0 / cubic.scale;
         for (chunk, part) in tris.chunks(VERDICT_PREFETCH_CHUNK).enumerate() {
             ctx.samples.prefetch(part);
             let base = chunk * VERDICT_PREFETCH_CHUNK;
@@ -653,10 +703,10 @@ fn triangle_verdicts(
                 // within eps the sample cannot be blocked, and the triangle is
                 // reached without a foot point or a ray (the common case: a
                 // cubic fits M to far better than a tenth of an edge).
-                let near = xs.iter().any(|&x| {
-                    let q = frame.to_local(x);
-                    (q.z - cubic.eval(q.x, q.y)).abs() <= eps
-                });
+                // (`near_height`: the same test, mostly without divisions.)
+                let near = xs
+                    .iter()
+                    .any(|&x| cubic.near_height(frame.to_local(x), inv_scale, eps));
                 if near {
                     reached[k] = true;
                 } else if !xs.is_empty() {
@@ -1086,11 +1136,32 @@ pub fn compute_fitmap_cancellable(
         progress(1);
         r
     };
+    // Scratch is taken from a pool, not made per rayon job: a job's
+    // scratch holds marks over all vertices and triangles (megabytes on a
+    // large mesh, zeroed pages the kernel must fault in), and rayon makes
+    // a job per stolen split, hundreds per run. A scratch carries nothing
+    // from one vertex to the next (fresh stamps, reset memo), so which one
+    // a vertex gets changes no result.
+    let pool = ScratchPool::default();
+    // The results of `list`, in its order; the vertices are visited in
+    // `spatial_order`, where one vertex's balls are mostly in cache from
+    // the previous one's. Each vertex's analysis depends on the vertex
+    // alone, so the order changes no result.
     let run = |list: &[u32], cap_of: &[u8]| -> Vec<VertexResult> {
-        list.par_iter()
+        let order = spatial_order(&mesh.positions, list);
+        let found: Vec<VertexResult> = order
+            .par_iter()
             .with_min_len(32)
-            .map_init(|| Scratch::new(&ctx), |sc, &p| analyse(sc, p, cap_of))
-            .collect()
+            .map_init(
+                || pool.take(&ctx),
+                |sc, &j| analyse(sc, list[j as usize], cap_of),
+            )
+            .collect();
+        let mut out = vec![VertexResult::default(); list.len()];
+        for (&j, r) in order.iter().zip(found) {
+            out[j as usize] = r;
+        }
+        out
     };
     let mut cap_of = vec![RADIUS_STEPS as u8; nv];
     let mut results = vec![VertexResult::default(); nv];
@@ -1145,6 +1216,47 @@ pub fn compute_fitmap_cancellable(
         analysis_seconds,
     };
     fitmap_from_results(&results, ctx.radii, opts, stats)
+}
+
+/// The indices of `list` (vertices of M) sorted along a Morton curve of
+/// their positions (a 2¹⁰ grid over the bounding cube), ties by index.
+/// The analyses of a vertex walk its balls over M (Fitmaps §3.1.2) and cast
+/// lines near it (§3.1.3); consecutive vertices along the curve are close,
+/// so those memory reads mostly hit the cache the previous vertex filled.
+/// A mesh's vertex order need not be spatial (on gargoyle.ply the median
+/// distance between consecutive vertices is ten edges).
+fn spatial_order(positions: &[DVec3], list: &[u32]) -> Vec<u32> {
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for &v in list {
+        lo = lo.min(positions[v as usize]);
+        hi = hi.max(positions[v as usize]);
+    }
+    let extent = (hi - lo).max_element();
+    let scale = if extent > 0.0 && extent.is_finite() {
+        1023.0 / extent
+    } else {
+        0.0
+    };
+    // Spreads the low 10 bits of `x` to every third bit.
+    let spread = |x: u32| {
+        let mut x = x & 0x3ff;
+        x = (x | (x << 16)) & 0x0300_00ff;
+        x = (x | (x << 8)) & 0x0300_f00f;
+        x = (x | (x << 4)) & 0x030c_30c3;
+        (x | (x << 2)) & 0x0924_9249
+    };
+    let cell = |c: f64| (c * scale).clamp(0.0, 1023.0) as u32;
+    let mut keyed: Vec<(u32, u32)> = list
+        .iter()
+        .enumerate()
+        .map(|(j, &v)| {
+            let q = positions[v as usize] - lo;
+            let code = spread(cell(q.x)) | (spread(cell(q.y)) << 1) | (spread(cell(q.z)) << 2);
+            (code, j as u32)
+        })
+        .collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, j)| j).collect()
 }
 
 /// τ's valid range, the one definition every host checks against: a
@@ -1462,6 +1574,42 @@ mod tests {
     /// terms, unlike `Σ E r⁴ / Σ r⁸`, which follows the largest radius
     /// alone), invariant in the way §3.1.2 needs under scaling, and 0 only
     /// where every residual is round-off.
+    /// `spatial_order` is a permutation of the list's indices, and it
+    /// brings a scattered list of points on a jittered grid into an order
+    /// whose consecutive points are close: on average within two grid
+    /// steps (a Morton curve jumps rarely), where the scattered order
+    /// averages about half the grid's extent.
+    #[test]
+    fn spatial_order_is_a_local_permutation() {
+        let n = 16u32;
+        let positions: Vec<DVec3> = (0..n * n * n)
+            .map(|k| {
+                let (i, j, l) = (k % n, (k / n) % n, k / (n * n));
+                let t = k as f64;
+                DVec3::new(i as f64, j as f64, l as f64)
+                    + 0.2 * DVec3::new(t.sin(), t.cos(), (2.0 * t).sin())
+            })
+            .collect();
+        // A scattered list: every 7th point modulo the count (7 is coprime
+        // to 4096), with a duplicate-free subset dropped.
+        let list: Vec<u32> = (0..n * n * n)
+            .map(|k| (k * 7 + 5) % (n * n * n))
+            .filter(|k| k % 5 != 0)
+            .collect();
+        let order = spatial_order(&positions, &list);
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..list.len() as u32).collect::<Vec<_>>());
+        let mean_step = |ids: &mut dyn Iterator<Item = u32>| {
+            let pts: Vec<DVec3> = ids.map(|v| positions[v as usize]).collect();
+            pts.windows(2).map(|w| (w[1] - w[0]).length()).sum::<f64>() / (pts.len() - 1) as f64
+        };
+        let before = mean_step(&mut list.iter().copied());
+        let after = mean_step(&mut order.iter().map(|&j| list[j as usize]));
+        assert!(after < 2.0, "{after}");
+        assert!(before > 4.0, "{before}");
+    }
+
     #[test]
     fn s_from_errors_is_the_log_space_fit() {
         let radii: Vec<f64> = (0..=RADIUS_STEPS)
