@@ -350,16 +350,27 @@ pub fn fit_field(
         Some(fitmap),
         run.progress,
     )?;
+    add_targets(&mut c, opts.target_faces, max_error, &rounds);
+    Ok(c)
+}
+
+/// `report.json`'s targets for a field conversion: `--max-error` when it
+/// is finite, else `--faces` when given.
+fn add_targets(
+    c: &mut Converted,
+    target_faces: Option<usize>,
+    max_error: Option<f64>,
+    rounds: &[FieldRound],
+) {
     let rms_l = c.report.accuracy.limit.rms_permille;
     if let Some(e) = max_error.filter(|e| e.is_finite()) {
         let kept = c.report.control.faces;
         c.report
-            .add_target(max_error_target(1000.0 * e, rms_l, kept, &rounds));
+            .add_target(max_error_target(1000.0 * e, rms_l, kept, rounds));
     }
-    if let Some(n) = opts.target_faces.filter(|_| max_error.is_none()) {
+    if let Some(n) = target_faces.filter(|_| max_error.is_none()) {
         c.report.add_target(faces_target(n, c.report.control.faces));
     }
-    Ok(c)
 }
 
 /// A round that met both bounds after a failing one, far under the bound
