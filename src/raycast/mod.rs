@@ -166,6 +166,36 @@ pub trait RayCaster: Send + Sync {
     /// Closest point of the mesh to each point, within `max_dist`
     /// (inclusive; `f64::INFINITY` for no limit). Non-finite points get `None`.
     fn closest_points(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>>;
+
+    /// [`RayCaster::closest_points`] with a hint per point: a triangle of
+    /// the mesh believed near it (its closest triangle on a previous,
+    /// slightly moved surface, say), or [`NO_HINT`]. The answers are those
+    /// of `closest_points` exactly, whatever the hints; a good hint only
+    /// shortens the search (Embree starts from it, a tight radius from the
+    /// first node). The default ignores the hints.
+    fn closest_points_hinted(
+        &self,
+        points: &[DVec3],
+        hints: &[u32],
+        max_dist: f64,
+    ) -> Result<Vec<Option<ClosestPoint>>> {
+        check_hints(points, hints)?;
+        self.closest_points(points, max_dist)
+    }
+}
+
+/// No hint for [`RayCaster::closest_points_hinted`].
+pub const NO_HINT: u32 = u32::MAX;
+
+pub(crate) fn check_hints(points: &[DVec3], hints: &[u32]) -> Result<()> {
+    if points.len() != hints.len() {
+        return Err(Error::InvalidArgument(format!(
+            "closest_points_hinted: {} points but {} hints",
+            points.len(),
+            hints.len()
+        )));
+    }
+    Ok(())
 }
 
 /// Answers `queries` (located at `at(query)`) in the Z-order (Morton
