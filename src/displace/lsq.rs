@@ -211,20 +211,47 @@ fn closest_in_order(
     order: &[u32],
     caster: &dyn RayCaster,
     hints: &mut [u32],
-    mut each: impl FnMut(usize, DVec3, &ClosestPoint) -> Result<()>,
+    mut each: impl FnMut(usize, DVec3, &ClosestPoint) -> Result<()> + Send,
 ) -> Result<()> {
-    let mut pts = Vec::with_capacity(crate::raycast::SUB_BATCH);
-    let mut start = Vec::with_capacity(crate::raycast::SUB_BATCH);
-    for part in order.chunks(crate::raycast::SUB_BATCH) {
-        pts.clear();
-        pts.extend(part.iter().map(|&k| edges.midpoint(positions, k as usize)));
-        start.clear();
-        start.extend(part.iter().map(|&k| hints[k as usize]));
+    type Answers = (Vec<DVec3>, Vec<Option<ClosestPoint>>);
+    let ask = |part: &[u32], hints: &[u32]| -> Result<Answers> {
+        let pts: Vec<DVec3> = part
+            .iter()
+            .map(|&k| edges.midpoint(positions, k as usize))
+            .collect();
+        let start: Vec<u32> = part.iter().map(|&k| hints[k as usize]).collect();
         let hits = caster.closest_points_hinted(&pts, &start, f64::INFINITY)?;
-        for ((&k, &p), c) in part.iter().zip(&pts).zip(&hits) {
+        Ok((pts, hits))
+    };
+    let parts: Vec<&[u32]> = order.chunks(crate::raycast::SUB_BATCH).collect();
+    let mut answers = match parts.first() {
+        Some(p) => Some(ask(p, hints)?),
+        None => None,
+    };
+    // Sub-batch i's answers are handed to `each` (in order, on one thread:
+    // the sums stay those of a sequential pass) while sub-batch i + 1 is
+    // queried beside it: `each` (the rows) no longer leaves the other
+    // core idle. The next sub-batch's hints are its own edges', which
+    // this one's answers do not touch (every edge comes once).
+    for (i, part) in parts.iter().enumerate() {
+        let (pts, hits) = answers.take().unwrap_or_default();
+        let ro: &[u32] = hints;
+        let (next, done) = rayon::join(
+            || parts.get(i + 1).map(|p| ask(p, ro)).transpose(),
+            || -> Result<()> {
+                for ((&k, &p), c) in part.iter().zip(&pts).zip(&hits) {
+                    if let Some(c) = c {
+                        each(k as usize, p, c)?;
+                    }
+                }
+                Ok(())
+            },
+        );
+        done?;
+        answers = next?;
+        for (&k, c) in part.iter().zip(&hits) {
             if let Some(c) = c {
                 hints[k as usize] = c.triangle;
-                each(k as usize, p, c)?;
             }
         }
     }
