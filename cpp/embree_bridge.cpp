@@ -334,13 +334,7 @@ void EmbreeScene::closest_points(rust::Slice<const float> points_f32,
     const double *q = &positions_[3 * size_t(i)];
     return V3{q[0], q[1], q[2]};
   };
-  const size_t num_prims = triangles_.size() / 3;
   for (size_t i = 0; i < n; ++i) {
-    // A caller's hint (a primitive it expects near this point, e.g. the
-    // answer for the same point on a previous, slightly different surface):
-    // a second start beside the previous query's answer, by the same
-    // argument as that one (the answer does not depend on the starts).
-    const uint32_t hint = out_prim[i];
     out_prim[i] = kInvalid;
     const double *p = &points_f64[3 * i];
     if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
@@ -353,25 +347,19 @@ void EmbreeScene::closest_points(rust::Slice<const float> points_f32,
     q.time = 0.0f;
     q.radius = r0;
     PointQueryState st{this, pv, max_dist * max_dist, kInvalid};
-    // The least (distance, id) of the starts, each strictly inside max_dist
-    // as the callback's own test.
-    auto start = [&](uint32_t prim) {
-      if (prim == kInvalid || size_t(prim) >= num_prims)
-        return;
-      const uint32_t *t = &triangles_[3 * size_t(prim)];
+    if (prev != kInvalid) {
+      const uint32_t *t = &triangles_[3 * size_t(prev)];
       const double d2 = point_triangle_dist2(pv, vtx(t[0]), vtx(t[1]), vtx(t[2]));
-      if (d2 < st.best_d2 || (d2 == st.best_d2 && st.best_prim != kInvalid && prim < st.best_prim)) {
+      // Strictly inside max_dist, as the callback's own test.
+      if (d2 < st.best_d2) {
         st.best_d2 = d2;
-        st.best_prim = prim;
+        st.best_prim = prev;
         const float r = float(std::sqrt(d2)) *
                             (1.0f + 4.0f * std::numeric_limits<float>::epsilon()) +
                         radius_slack_;
         q.radius = std::min(q.radius, r);
       }
-    };
-    start(prev);
-    if (hint != prev)
-      start(hint);
+    }
     RTCPointQueryContext ctx;
     rtcInitPointQueryContext(&ctx);
     rtcPointQuery(scene_, &q, &ctx, point_query_callback, &st);

@@ -41,10 +41,7 @@ public:
 
   /// points_f32: 3 floats per point in the translated frame (for Embree's
   /// BVH); points_f64: the same points untranslated, for the exact distance.
-  /// out_prim: on entry, per point a hint (a primitive believed near it, or
-  /// 0xffffffff), used only as a start that tightens the search radius: the
-  /// answer does not depend on it; on return, the closest triangle within
-  /// max_dist, or 0xffffffff.
+  /// out_prim: closest triangle within max_dist, or 0xffffffff.
   void closest_points(rust::Slice<const float> points_f32,
                       rust::Slice<const double> points_f64, double max_dist,
                       rust::Slice<uint32_t> out_prim) const;

@@ -52,7 +52,7 @@ use serde::Serialize;
 
 use crate::error::Result;
 use crate::mesh::TriMesh;
-use crate::raycast::{make_raycaster, ClosestPoint, RayBackend, RayCaster, NO_HINT};
+use crate::raycast::{make_raycaster, ClosestPoint, RayBackend, RayCaster};
 use crate::solve::NormalEquations;
 use crate::DVec3;
 
@@ -200,76 +200,26 @@ impl Edges {
 /// `positions`, in `order`, handed to `each(edge, midpoint, hit)` in that
 /// order. Sub-batches of [`crate::raycast::SUB_BATCH`] queries: the caster
 /// answers them as they come (already in Z-order), and only one
-/// sub-batch of answers is held, not one per query. `hints[k]` (a triangle
-/// of the caster's mesh near edge k's midpoint, or [`NO_HINT`]) starts
-/// edge k's search and is replaced by its answer: the answers do not
-/// depend on the hints ([`RayCaster::closest_points_hinted`]), only the
-/// search's length does.
+/// sub-batch of answers is held, not one per query.
 fn closest_in_order(
     edges: &Edges,
     positions: &[DVec3],
     order: &[u32],
     caster: &dyn RayCaster,
-    hints: &mut [u32],
-    mut each: impl FnMut(usize, DVec3, &ClosestPoint) -> Result<()> + Send,
+    mut each: impl FnMut(usize, DVec3, &ClosestPoint) -> Result<()>,
 ) -> Result<()> {
-    type Answers = (Vec<DVec3>, Vec<Option<ClosestPoint>>);
-    let ask = |part: &[u32], hints: &[u32]| -> Result<Answers> {
-        let pts: Vec<DVec3> = part
-            .iter()
-            .map(|&k| edges.midpoint(positions, k as usize))
-            .collect();
-        let start: Vec<u32> = part.iter().map(|&k| hints[k as usize]).collect();
-        let hits = caster.closest_points_hinted(&pts, &start, f64::INFINITY)?;
-        Ok((pts, hits))
-    };
-    let parts: Vec<&[u32]> = order.chunks(crate::raycast::SUB_BATCH).collect();
-    let mut answers = match parts.first() {
-        Some(p) => Some(ask(p, hints)?),
-        None => None,
-    };
-    // Sub-batch i's answers are handed to `each` (in order, on one thread:
-    // the sums stay those of a sequential pass) while sub-batch i + 1 is
-    // queried beside it: `each` (the rows) no longer leaves the other
-    // core idle. The next sub-batch's hints are its own edges', which
-    // this one's answers do not touch (every edge comes once).
-    for (i, part) in parts.iter().enumerate() {
-        let (pts, hits) = answers.take().unwrap_or_default();
-        let ro: &[u32] = hints;
-        let (next, done) = rayon::join(
-            || parts.get(i + 1).map(|p| ask(p, ro)).transpose(),
-            || -> Result<()> {
-                for ((&k, &p), c) in part.iter().zip(&pts).zip(&hits) {
-                    if let Some(c) = c {
-                        each(k as usize, p, c)?;
-                    }
-                }
-                Ok(())
-            },
-        );
-        done?;
-        answers = next?;
-        for (&k, c) in part.iter().zip(&hits) {
+    let mut pts = Vec::with_capacity(crate::raycast::SUB_BATCH);
+    for part in order.chunks(crate::raycast::SUB_BATCH) {
+        pts.clear();
+        pts.extend(part.iter().map(|&k| edges.midpoint(positions, k as usize)));
+        let hits = caster.closest_points(&pts, f64::INFINITY)?;
+        for ((&k, &p), c) in part.iter().zip(&pts).zip(&hits) {
             if let Some(c) = c {
-                hints[k as usize] = c.triangle;
+                each(k as usize, p, c)?;
             }
         }
     }
     Ok(())
-}
-
-/// Where the previous round's closest points were, as hints for the next
-/// round's queries ([`closest_in_order`]): the rounds move D by a small
-/// step, so a point's closest triangle of the round before is nearly
-/// always its answer again, and the search from it visits a few BVH nodes
-/// (where the previous query's answer, the caster's own start, lies an
-/// edge or more away). Per M edge, its midpoint's triangle of D (D's
-/// triangles keep their ids from round to round: the same grid, each cell
-/// split into its two triangles); per vertex of D (the same grid too),
-/// the triangle of M found for an edge of D at it.
-struct RoundHints {
-    m_edge: Vec<u32>,
-    d_vertex: Vec<u32>,
 }
 
 fn unit_normal([a, b, c]: [DVec3; 3]) -> DVec3 {
@@ -308,29 +258,6 @@ pub fn refine_offsets_on(
     diag: f64,
     opts: &LsqOffsetOptions,
 ) -> Result<LsqOffsetStats> {
-    Ok(refine_offsets_hinted(mesh, mesh_caster, disp, host, diag, opts)?.0)
-}
-
-/// Where the last round of [`refine_offsets_hinted`] found its closest
-/// points, as hints for the measurements of D that follow (the report's
-/// queries on D's tessellation at the same vertices and triangles):
-/// per vertex of D, a triangle of M near it; per vertex of M, a triangle
-/// of D near it ([`crate::raycast::NO_HINT`] where none).
-pub struct LsqHints {
-    pub d_vertex: Vec<u32>,
-    pub m_vertex: Vec<u32>,
-}
-
-/// [`refine_offsets_on`], with the hints of its last round (the offsets
-/// and statistics are the same).
-pub fn refine_offsets_hinted(
-    mesh: &TriMesh,
-    mesh_caster: &dyn RayCaster,
-    disp: &mut Displacement,
-    host: Option<&HostSurface>,
-    diag: f64,
-    opts: &LsqOffsetOptions,
-) -> Result<(LsqOffsetStats, LsqHints)> {
     let n = disp.offsets.len();
     let m_edges = Edges::of(mesh);
     let total_m: f64 = m_edges.weight.iter().sum();
@@ -357,10 +284,6 @@ pub fn refine_offsets_hinted(
         Some(h) => Some(host_pattern(disp, h)?),
         None => None,
     };
-    let mut hints = RoundHints {
-        m_edge: vec![NO_HINT; m_edges.len()],
-        d_vertex: Vec::new(),
-    };
     while round <= opts.rounds {
         // The last round only decides whether the previous update is kept:
         // it measures the objective on a fixed subsample (every
@@ -380,16 +303,7 @@ pub fn refine_offsets_hinted(
             host,
             pattern: pattern.as_ref(),
         };
-        // Rows only where a solve may use them: round 0's at once (its
-        // update is always kept), a later full round's once its objective
-        // tells that its update is kept (`RoundRows::Pending`).
-        let rows = match (check_only, round) {
-            (true, _) => Rows::None,
-            (false, r) if r >= opts.rounds => Rows::None,
-            (false, 0) => Rows::Now,
-            (false, _) => Rows::Later,
-        };
-        let (score, pending) = round_rows(&at, disp, (check_only, rows), &mut hints)?;
+        let (score, ne) = round_rows(&at, disp, check_only)?;
         let (obj, sub) = score.rms();
         // The stats are the subsample's, the one figure every round has.
         if round == 0 {
@@ -424,11 +338,6 @@ pub fn refine_offsets_hinted(
         current.clone_from(&disp.offsets);
         stats.rms_after_permille = 1000.0 * sub / diag;
         stats.rounds = round;
-        let ne = match pending {
-            RoundRows::None => None,
-            RoundRows::Summed(ne) => Some(ne),
-            RoundRows::Pending(p) => Some(sum_pending(&at, disp, &p)?),
-        };
         let Some(mut ne) = ne.filter(|ne| ne.rows > 0 && round < opts.rounds) else {
             break;
         };
@@ -452,54 +361,28 @@ pub fn refine_offsets_hinted(
         }
         round += 1;
     }
-    let mut m_vertex = vec![NO_HINT; mesh.positions.len()];
-    for (&[a, b], &h) in m_edges.ends.iter().zip(&hints.m_edge) {
-        if h != NO_HINT {
-            m_vertex[a as usize] = h;
-            m_vertex[b as usize] = h;
-        }
-    }
-    let hints = LsqHints {
-        d_vertex: hints.d_vertex,
-        m_vertex,
-    };
-    Ok((stats, hints))
+    Ok(stats)
 }
 
-/// Which rows a round of [`refine_offsets`] sums: none (the check round,
-/// or a round whose rows no solve would use), at once (round 0: its
-/// update is always kept), or later, once the round's objective has told
-/// that its update is kept ([`RoundRows::Pending`]).
-#[derive(Clone, Copy, PartialEq)]
-enum Rows {
-    None,
-    Now,
-    Later,
-}
-
-/// The rows of a round, as [`round_rows`] leaves them.
-enum RoundRows {
-    None,
-    Summed(NormalEquations),
-    /// The closest points' edges and triangles, in the order they came:
-    /// enough to sum the same rows in the same order ([`sum_pending`]),
-    /// 8 bytes a point. A round whose update is undone (bunny's defaults:
-    /// four of five, every halving of a rejected step) never sums them.
-    Pending(Pending),
-}
-
-struct Pending {
-    dmesh: TriMesh,
-    d_edges: Edges,
-    scale_d: f64,
-    m_hits: Vec<[u32; 2]>,
-    d_hits: Vec<[u32; 2]>,
-}
-
-/// D's surface at `disp`'s offsets: the sample grid (each cell split along
-/// its shorter displaced diagonal) or the host surface.
-fn displaced_mesh(disp: &Displacement, host: Option<&HostSurface>) -> TriMesh {
-    match host {
+/// One round of [`refine_offsets`] at the current offsets: the objective
+/// (both directions) and, unless `check_only` (which measures the
+/// subsample only), the linearised rows summed into normal equations.
+fn round_rows(
+    at: &RoundAt<'_>,
+    disp: &Displacement,
+    check_only: bool,
+) -> Result<(Score, Option<NormalEquations>)> {
+    let RoundAt {
+        mesh,
+        mesh_caster,
+        m_edges,
+        total_m,
+        host,
+        pattern,
+    } = *at;
+    let normals = &disp.directions;
+    let stride = if check_only { CHECK_STRIDE } else { 1 };
+    let dmesh = match host {
         None => {
             let positions = disp.displaced_positions();
             let tris = disp.grid.triangles_shorter_diagonal(&positions);
@@ -509,233 +392,88 @@ fn displaced_mesh(disp: &Displacement, host: Option<&HostSurface>) -> TriMesh {
             }
         }
         Some(h) => h.mesh(disp),
-    }
-}
-
-/// How one closest point becomes a row (module docs): what the M → D and
-/// D → M rows read.
-struct RowMaker<'a> {
-    mesh: &'a TriMesh,
-    m_edges: &'a Edges,
-    dmesh: &'a TriMesh,
-    d_edges: &'a Edges,
-    scale_d: f64,
-    deps: Basis<'a>,
-    normals: &'a [DVec3],
-}
-
-impl RowMaker<'_> {
-    /// M → D: a point p of M (edge `k`'s midpoint) moves D's closest point
-    /// q in triangle t.
-    fn m_row(
-        &self,
-        (k, p, c): (usize, DVec3, &ClosestPoint),
-        ne: &mut NormalEquations,
-        row: &mut Vec<(u32, f64)>,
-    ) -> Result<()> {
-        let w = self.m_edges.weight[k];
-        let tri = self.dmesh.triangles[c.triangle as usize];
-        let nt = unit_normal(self.dmesh.triangle(c.triangle as usize));
-        let e = nt.dot(p - c.point);
-        if e.abs() < NORMAL_COS * c.distance {
-            return Ok(());
-        }
-        let sw = w.sqrt();
-        row.clear();
-        for (&s, b) in tri.iter().zip(bary(c)) {
-            self.deps.push(row, self.normals, s, sw * b, nt);
-        }
-        ne.add_row(row, sw * e)
-    }
-
-    /// D → M: D's edge `k`'s midpoint q and its closest point of M.
-    fn d_row(
-        &self,
-        (k, q, c): (usize, DVec3, &ClosestPoint),
-        ne: &mut NormalEquations,
-        row: &mut Vec<(u32, f64)>,
-    ) -> Result<()> {
-        let w = self.d_edges.weight[k] * self.scale_d;
-        let nt = unit_normal(self.mesh.triangle(c.triangle as usize));
-        let e = nt.dot(c.point - q);
-        if e.abs() < NORMAL_COS * c.distance {
-            return Ok(());
-        }
-        let sw = w.sqrt();
-        row.clear();
-        for s in self.d_edges.ends[k] {
-            self.deps.push(row, self.normals, s, 0.5 * sw, nt);
-        }
-        ne.add_row(row, sw * e)
-    }
-}
-
-impl<'a> RowMaker<'a> {
-    fn new(
-        at: &RoundAt<'a>,
-        disp: &'a Displacement,
-        dmesh: &'a TriMesh,
-        d_edges: &'a Edges,
-        scale_d: f64,
-    ) -> Self {
-        RowMaker {
-            mesh: at.mesh,
-            m_edges: at.m_edges,
-            dmesh,
-            d_edges,
-            scale_d,
-            deps: match at.host {
-                None => Basis::Samples(Dependents::of(disp)),
-                Some(h) => Basis::Host(h),
-            },
-            normals: &disp.directions,
-        }
-    }
-
-    /// Empty normal equations with the unknowns' pattern. A host surface
-    /// always arrives with its pattern (`host_pattern`, built once per
-    /// fit); the sample grid's pattern is D's edges, dependent ends
-    /// replaced by the samples they follow.
-    fn equations(&self, at: &RoundAt<'_>, n: usize) -> Result<NormalEquations> {
-        match (at.pattern, &self.deps) {
-            (Some(p), _) => Ok(p.clone()),
-            (None, Basis::Samples(d)) if !d.list.is_empty() => {
-                let pairs = d.pairs(&self.d_edges.ends);
-                NormalEquations::with_pairs(n, pairs.iter().copied())
-            }
-            (None, _) => NormalEquations::with_pairs(n, self.d_edges.ends.iter().copied()),
-        }
-    }
-}
-
-/// The rows of a round that [`round_rows`] left pending, summed in the
-/// order their closest points came: each closest point recomputed on the
-/// triangle the query found ([`crate::raycast::closest_on_triangle`], the
-/// computation every caster's answer comes from), so the normal
-/// equations are those the round would have summed at once, to the bit.
-fn sum_pending(at: &RoundAt<'_>, disp: &Displacement, p: &Pending) -> Result<NormalEquations> {
-    let maker = RowMaker::new(at, disp, &p.dmesh, &p.d_edges, p.scale_d);
-    let mut ne = maker.equations(at, disp.offsets.len())?;
-    let mut row = Vec::with_capacity(3);
-    for &[k, t] in &p.m_hits {
-        let pt = at.m_edges.midpoint(&at.mesh.positions, k as usize);
-        let c = crate::raycast::closest_on_triangle(p.dmesh.triangle(t as usize), t, pt);
-        maker.m_row((k as usize, pt, &c), &mut ne, &mut row)?;
-    }
-    for &[k, t] in &p.d_hits {
-        let q = p.d_edges.midpoint(&p.dmesh.positions, k as usize);
-        let c = crate::raycast::closest_on_triangle(at.mesh.triangle(t as usize), t, q);
-        maker.d_row((k as usize, q, &c), &mut ne, &mut row)?;
-    }
-    Ok(ne)
-}
-
-/// One round of [`refine_offsets`] at the current offsets: the objective
-/// (both directions) and the linearised rows `rows` asks for (the check
-/// round measures the subsample only, every `CHECK_STRIDE`-th point).
-fn round_rows(
-    at: &RoundAt<'_>,
-    disp: &Displacement,
-    (check_only, rows): (bool, Rows),
-    hints: &mut RoundHints,
-) -> Result<(Score, RoundRows)> {
-    let RoundAt {
-        mesh,
-        mesh_caster,
-        m_edges,
-        total_m,
-        host,
-        ..
-    } = *at;
-    let stride = if check_only { CHECK_STRIDE } else { 1 };
-    let dmesh = displaced_mesh(disp, host);
+    };
     let d_caster = make_raycaster(RayBackend::Embree, &dmesh)?;
     let d_edges = Edges::of(&dmesh);
-    // Both integrals weigh the same whatever the areas' ratio.
-    let total_d: f64 = d_edges.weight.iter().sum();
-    let scale_d = total_m / total_d.max(f64::MIN_POSITIVE);
-    let maker = RowMaker::new(at, disp, &dmesh, &d_edges, scale_d);
-    let mut ne = match rows {
-        Rows::Now => Some(maker.equations(at, disp.offsets.len())?),
-        _ => None,
+    let deps = match host {
+        None => Basis::Samples(Dependents::of(disp)),
+        Some(h) => Basis::Host(h),
     };
-    let (mut m_hits, mut d_hits) = (Vec::new(), Vec::new());
+    // A host surface always arrives with its pattern (`host_pattern`, built
+    // once per fit); the sample grid's pattern is D's edges, dependent ends
+    // replaced by the samples they follow.
+    let mut ne = match (check_only, pattern, &deps) {
+        (true, _, _) => None,
+        (false, Some(p), _) => Some(p.clone()),
+        (false, None, Basis::Samples(d)) if !d.list.is_empty() => {
+            let pairs = d.pairs(&d_edges.ends);
+            Some(NormalEquations::with_pairs(
+                disp.offsets.len(),
+                pairs.iter().copied(),
+            )?)
+        }
+        (false, None, _) => Some(NormalEquations::with_pairs(
+            disp.offsets.len(),
+            d_edges.ends.iter().copied(),
+        )?),
+    };
     let mut score = Score::default();
     let mut row = Vec::with_capacity(3);
-    // M → D rows.
+    // M → D rows: a point p of M moves D's closest point q in triangle t.
     let order = m_edges.visit_order(&mesh.positions, stride);
     closest_in_order(
         m_edges,
         &mesh.positions,
         &order,
         d_caster.as_ref(),
-        &mut hints.m_edge,
         |k, p, c| {
-            score.add(m_edges.weight[k], c.distance, k % CHECK_STRIDE == 0);
-            if rows == Rows::Later {
-                m_hits.push([k as u32, c.triangle]);
+            let w = m_edges.weight[k];
+            score.add(w, c.distance, k % CHECK_STRIDE == 0);
+            let Some(ne) = ne.as_mut() else { return Ok(()) };
+            let tri = dmesh.triangles[c.triangle as usize];
+            let nt = unit_normal(dmesh.triangle(c.triangle as usize));
+            let e = nt.dot(p - c.point);
+            if e.abs() < NORMAL_COS * c.distance {
+                return Ok(());
             }
-            match ne.as_mut() {
-                Some(ne) => maker.m_row((k, p, c), ne, &mut row),
-                None => Ok(()),
+            let sw = w.sqrt();
+            row.clear();
+            for (&s, b) in tri.iter().zip(bary(c)) {
+                deps.push(&mut row, normals, s, sw * b, nt);
             }
+            ne.add_row(&row, sw * e)
         },
     )?;
     drop(order);
     drop(d_caster);
-    // D → M rows, at D's edge midpoints.
+    // D → M rows, at D's edge midpoints; both integrals weigh the same
+    // whatever the areas' ratio.
+    let total_d: f64 = d_edges.weight.iter().sum();
+    let scale_d = total_m / total_d.max(f64::MIN_POSITIVE);
     let order = d_edges.visit_order(&dmesh.positions, stride);
-    if hints.d_vertex.len() != dmesh.positions.len() {
-        hints.d_vertex = vec![NO_HINT; dmesh.positions.len()];
-    }
-    let mut d_hints: Vec<u32> = d_edges
-        .ends
-        .iter()
-        .map(|&[a, b]| match hints.d_vertex[a as usize] {
-            NO_HINT => hints.d_vertex[b as usize],
-            h => h,
-        })
-        .collect();
     closest_in_order(
         &d_edges,
         &dmesh.positions,
         &order,
         mesh_caster,
-        &mut d_hints,
         |k, q, c| {
-            score.add(
-                d_edges.weight[k] * scale_d,
-                c.distance,
-                k % CHECK_STRIDE == 0,
-            );
-            if rows == Rows::Later {
-                d_hits.push([k as u32, c.triangle]);
+            let w = d_edges.weight[k] * scale_d;
+            score.add(w, c.distance, k % CHECK_STRIDE == 0);
+            let Some(ne) = ne.as_mut() else { return Ok(()) };
+            let nt = unit_normal(mesh.triangle(c.triangle as usize));
+            let e = nt.dot(c.point - q);
+            if e.abs() < NORMAL_COS * c.distance {
+                return Ok(());
             }
-            match ne.as_mut() {
-                Some(ne) => maker.d_row((k, q, c), ne, &mut row),
-                None => Ok(()),
+            let sw = w.sqrt();
+            row.clear();
+            for s in d_edges.ends[k] {
+                deps.push(&mut row, normals, s, 0.5 * sw, nt);
             }
+            ne.add_row(&row, sw * e)
         },
     )?;
-    for (&[a, b], &h) in d_edges.ends.iter().zip(&d_hints) {
-        if h != NO_HINT {
-            hints.d_vertex[a as usize] = h;
-            hints.d_vertex[b as usize] = h;
-        }
-    }
-    drop(maker);
-    let out = match (rows, ne) {
-        (Rows::Now, Some(ne)) => RoundRows::Summed(ne),
-        (Rows::Later, _) => RoundRows::Pending(Pending {
-            dmesh,
-            d_edges,
-            scale_d,
-            m_hits,
-            d_hits,
-        }),
-        _ => RoundRows::None,
-    };
-    Ok((score, out))
+    Ok((score, ne))
 }
 
 /// What every round of [`refine_offsets_on`] reads: M, its caster and

@@ -57,8 +57,7 @@ pub use atlas::{
 pub use bspline::{refinement, weights as bspline_weights, BsplineTiles};
 pub use grid::{Dependent, PatchGrid};
 pub use lsq::{
-    refine_offsets, refine_offsets_hinted, refine_offsets_on, HostSurface, LsqHints,
-    LsqOffsetOptions, LsqOffsetStats, FIT_CELLS,
+    refine_offsets, refine_offsets_on, HostSurface, LsqOffsetOptions, LsqOffsetStats, FIT_CELLS,
 };
 
 use serde::Serialize;
@@ -295,15 +294,7 @@ pub fn displacement_on(
     let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
     let (mut hits, mut pstats): (_, ProjectionStats) =
         project_along(caster, &positions, &directions, max_dist)?;
-    // φ's foot point, where it has one, starts the closest-point search
-    // (usually it is the closest point's triangle or next to it); the
-    // answers do not depend on it (`RayCaster::closest_points_hinted`).
-    let foot: Vec<u32> = hits
-        .iter()
-        .map(|h| h.map_or(crate::raycast::NO_HINT, |h| h.triangle))
-        .collect();
-    let closest = caster.closest_points_hinted(&positions, &foot, f64::INFINITY)?;
-    drop(foot);
+    let closest = caster.closest_points(&positions, f64::INFINITY)?;
     let mut other_sheet = 0;
     for (h, c) in hits.iter_mut().zip(&closest) {
         let (Some(hit), Some(c)) = (*h, c) else {

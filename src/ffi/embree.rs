@@ -38,8 +38,6 @@ pub(crate) mod bridge {
 
         /// Closest triangle within `max_dist` of each point (`u32::MAX` if
         /// none); `points_f32` translated, `points_f64` untranslated.
-        /// `out_prim` holds on entry a hint per point (a primitive, or
-        /// `u32::MAX`): a start of the search only, the answer is the same.
         fn closest_points(
             self: &EmbreeScene,
             points_f32: &[f32],

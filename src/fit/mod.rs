@@ -532,9 +532,6 @@ fn fit_from(
         (iterations, first_round) = (p.iterations, p.next_round);
     }
     let mut paused = None;
-    // Each round's closest triangles of the back distance, the next
-    // round's hints (`mesh_to_samples_rms`).
-    let mut back_hints = Vec::new();
     for round in first_round..=opts.max_iterations {
         let limit = sys.stencils.apply(&positions);
         let (mut hits, stats) = project_along_normals(caster, &limit, max_dist)?;
@@ -558,7 +555,7 @@ fn fit_from(
         // the result is the same whatever the thread count.
         let last = round == opts.max_iterations;
         let (back, delta) = rayon::join(
-            || mesh_to_samples_rms(mesh, &limit[..sys.data_samples], &sys.ks, &mut back_hints),
+            || mesh_to_samples_rms(mesh, &limit[..sys.data_samples], &sys.ks),
             || {
                 if last {
                     return Ok(None);
@@ -1012,17 +1009,10 @@ impl RoundTargets {
 /// patch order, `ks` their sides): a cheap stand-in for the mesh-to-limit
 /// half of RMS L, biased upwards by the half-cell gaps between patches but
 /// the same bias for every iterate, which is all the comparison needs.
-///
-/// `hints`: the closest triangles of the previous call on the same grids
-/// (the rounds of one fit: the triangles keep their ids, the surface moves
-/// a little), which start this call's searches and are replaced by its
-/// answers; the answers do not depend on them
-/// ([`crate::raycast::RayCaster::closest_points_hinted`]).
 fn mesh_to_samples_rms(
     mesh: &TriMesh,
     samples: &[crate::subdiv::LimitPoint],
     ks: &[usize],
-    hints: &mut Vec<u32>,
 ) -> Result<f64> {
     let mut tm = TriMesh {
         positions: samples.iter().map(|s| s.position).collect(),
@@ -1050,13 +1040,7 @@ fn mesh_to_samples_rms(
     let caster = crate::raycast::make_raycaster(crate::raycast::RayBackend::Embree, &tm)?;
     let stride = mesh.positions.len().div_ceil(20_000).max(1);
     let pts: Vec<DVec3> = mesh.positions.iter().step_by(stride).copied().collect();
-    if hints.len() != pts.len() {
-        *hints = vec![crate::raycast::NO_HINT; pts.len()];
-    }
-    let hits = caster.closest_points_hinted(&pts, hints, f64::INFINITY)?;
-    for (h, c) in hints.iter_mut().zip(&hits) {
-        *h = c.map_or(crate::raycast::NO_HINT, |c| c.triangle);
-    }
+    let hits = caster.closest_points(&pts, f64::INFINITY)?;
     let (sum2, n) = hits.iter().flatten().fold((0.0, 0usize), |(s, n), h| {
         (s + h.distance * h.distance, n + 1)
     });

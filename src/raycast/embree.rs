@@ -15,8 +15,8 @@ use crate::error::{Error, Result};
 use crate::ffi::embree::bridge;
 use crate::mesh::TriMesh;
 use crate::raycast::{
-    check_hints, check_max_dist, closest_on_triangle, in_spatial_order, surface_triangles,
-    ClosestPoint, Hit, Ray, RayCaster,
+    check_max_dist, closest_on_triangle, in_spatial_order, surface_triangles, ClosestPoint, Hit,
+    Ray, RayCaster,
 };
 use crate::DVec3;
 
@@ -32,8 +32,6 @@ pub struct EmbreeCaster {
     /// Embree primitive id -> mesh triangle id (zero-area triangles are not
     /// given to Embree).
     prim_to_tri: Vec<u32>,
-    /// Its inverse (`MISS` for a triangle not given to Embree), for hints.
-    tri_to_prim: Vec<u32>,
     positions: Vec<DVec3>,
     triangles: Vec<[u32; 3]>,
 }
@@ -60,15 +58,10 @@ impl EmbreeCaster {
             .flat_map(|&t| mesh.triangles[t as usize])
             .collect();
         let scene = bridge::new_scene(&vertices, &tris, &positions_f64).map_err(backend_err)?;
-        let mut tri_to_prim = vec![MISS; mesh.triangles.len()];
-        for (k, &t) in prim_to_tri.iter().enumerate() {
-            tri_to_prim[t as usize] = k as u32;
-        }
         Ok(EmbreeCaster {
             scene,
             center,
             prim_to_tri,
-            tri_to_prim,
             positions: mesh.positions.clone(),
             triangles: mesh.triangles.clone(),
         })
@@ -149,15 +142,7 @@ impl EmbreeCaster {
             .collect())
     }
 
-    /// Closest points of a chunk; `hints` (one per point, or empty for
-    /// none) are mesh triangle ids, a start of each search only
-    /// ([`RayCaster::closest_points_hinted`]).
-    fn closest_chunk(
-        &self,
-        points: &[DVec3],
-        hints: &[u32],
-        max_dist: f64,
-    ) -> Result<Vec<Option<ClosestPoint>>> {
+    fn closest_chunk(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>> {
         let p32: Vec<f32> = points
             .iter()
             .flat_map(|&p| {
@@ -169,11 +154,7 @@ impl EmbreeCaster {
             })
             .collect();
         let p64: Vec<f64> = points.iter().flat_map(|p| p.to_array()).collect();
-        let prim_of = |t: u32| self.tri_to_prim.get(t as usize).copied().unwrap_or(MISS);
-        let mut prim: Vec<u32> = match hints.is_empty() {
-            true => vec![MISS; points.len()],
-            false => hints.iter().map(|&t| prim_of(t)).collect(),
-        };
+        let mut prim = vec![MISS; points.len()];
         self.scene
             .closest_points(&p32, &p64, max_dist, &mut prim)
             .map_err(backend_err)?;
@@ -268,33 +249,7 @@ impl RayCaster for EmbreeCaster {
             |points| {
                 let chunks: Vec<Vec<Option<ClosestPoint>>> = points
                     .par_chunks(CHUNK)
-                    .map(|c| self.closest_chunk(c, &[], max_dist))
-                    .collect::<Result<_>>()?;
-                Ok(chunks.into_iter().flatten().collect())
-            },
-        )
-    }
-
-    fn closest_points_hinted(
-        &self,
-        points: &[DVec3],
-        hints: &[u32],
-        max_dist: f64,
-    ) -> Result<Vec<Option<ClosestPoint>>> {
-        check_max_dist(max_dist)?;
-        check_hints(points, hints)?;
-        let queries: Vec<(DVec3, u32)> =
-            points.iter().copied().zip(hints.iter().copied()).collect();
-        in_spatial_order(
-            &queries,
-            |q| q.0,
-            |queries| {
-                let chunks: Vec<Vec<Option<ClosestPoint>>> = queries
-                    .par_chunks(CHUNK)
-                    .map(|c| {
-                        let (p, h): (Vec<DVec3>, Vec<u32>) = c.iter().copied().unzip();
-                        self.closest_chunk(&p, &h, max_dist)
-                    })
+                    .map(|c| self.closest_chunk(c, max_dist))
                     .collect::<Result<_>>()?;
                 Ok(chunks.into_iter().flatten().collect())
             },

@@ -166,36 +166,6 @@ pub trait RayCaster: Send + Sync {
     /// Closest point of the mesh to each point, within `max_dist`
     /// (inclusive; `f64::INFINITY` for no limit). Non-finite points get `None`.
     fn closest_points(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>>;
-
-    /// [`RayCaster::closest_points`] with a hint per point: a triangle of
-    /// the mesh believed near it (its closest triangle on a previous,
-    /// slightly moved surface, say), or [`NO_HINT`]. The answers are those
-    /// of `closest_points` exactly, whatever the hints; a good hint only
-    /// shortens the search (Embree starts from it, a tight radius from the
-    /// first node). The default ignores the hints.
-    fn closest_points_hinted(
-        &self,
-        points: &[DVec3],
-        hints: &[u32],
-        max_dist: f64,
-    ) -> Result<Vec<Option<ClosestPoint>>> {
-        check_hints(points, hints)?;
-        self.closest_points(points, max_dist)
-    }
-}
-
-/// No hint for [`RayCaster::closest_points_hinted`].
-pub const NO_HINT: u32 = u32::MAX;
-
-pub(crate) fn check_hints(points: &[DVec3], hints: &[u32]) -> Result<()> {
-    if points.len() != hints.len() {
-        return Err(Error::InvalidArgument(format!(
-            "closest_points_hinted: {} points but {} hints",
-            points.len(),
-            hints.len()
-        )));
-    }
-    Ok(())
 }
 
 /// Answers `queries` (located at `at(query)`) in the Z-order (Morton
@@ -509,54 +479,6 @@ mod tests {
         }
         // An answer missing is an error, not a short result.
         assert!(in_spatial_order(&q, |p| *p, |s| Ok(s[1..].to_vec())).is_err());
-    }
-
-    #[test]
-    fn hints_do_not_change_closest_points() {
-        // Queries on and off a noisy grid, many equidistant from several
-        // triangles (above the grid's vertices and edges, where ties go to
-        // the least triangle id), answered without hints and with hints of
-        // every kind: the right triangle, a far one, the last one, an id
-        // out of range, none. The answers must be the same to the bit (a
-        // hint only starts the search).
-        let m = tests_support::noisy_grid(24);
-        let nt = m.triangles.len() as u32;
-        let pts: Vec<DVec3> = (0..3000)
-            .map(|i| {
-                let (x, y) = ((i * 37 % 241) as f64 * 0.1, (i * 53 % 239) as f64 * 0.1);
-                let z = [0.0, 0.3, -2.0, 15.0][i % 4];
-                if i % 5 == 0 {
-                    DVec3::new(x.round(), y.round(), z)
-                } else {
-                    DVec3::new(x, y, z)
-                }
-            })
-            .collect();
-        for backend in [RayBackend::Rust, RayBackend::Embree] {
-            let c = make_raycaster(backend, &m).unwrap();
-            let plain = c.closest_points(&pts, f64::INFINITY).unwrap();
-            let right: Vec<u32> = plain.iter().map(|p| p.unwrap().triangle).collect();
-            let kinds: [Vec<u32>; 5] = [
-                right.clone(),
-                right.iter().map(|&t| (t + nt / 2) % nt).collect(),
-                vec![nt - 1; pts.len()],
-                vec![nt + 5; pts.len()],
-                vec![NO_HINT; pts.len()],
-            ];
-            for (k, hints) in kinds.iter().enumerate() {
-                for max_dist in [f64::INFINITY, 0.5] {
-                    let want = c.closest_points(&pts, max_dist).unwrap();
-                    let got = c.closest_points_hinted(&pts, hints, max_dist).unwrap();
-                    for (i, (a, b)) in want.iter().zip(&got).enumerate() {
-                        let key = |p: &Option<ClosestPoint>| {
-                            p.map(|p| (p.triangle, p.distance.to_bits(), p.u.to_bits()))
-                        };
-                        assert_eq!(key(a), key(b), "{} hints {k}, point {i}", c.name());
-                    }
-                }
-            }
-            assert!(c.closest_points_hinted(&pts, &right[1..], 1.0).is_err());
-        }
     }
 
     #[test]

@@ -75,25 +75,4 @@ impl RayCaster for Watched<'_> {
             |points| self.chunked(points, |c| self.inner.closest_points(c, max_dist)),
         )
     }
-
-    fn closest_points_hinted(
-        &self,
-        points: &[DVec3],
-        hints: &[u32],
-        max_dist: f64,
-    ) -> Result<Vec<Option<ClosestPoint>>> {
-        super::check_hints(points, hints)?;
-        let queries: Vec<(DVec3, u32)> =
-            points.iter().copied().zip(hints.iter().copied()).collect();
-        in_spatial_order(
-            &queries,
-            |q| q.0,
-            |queries| {
-                self.chunked(queries, |c| {
-                    let (p, h): (Vec<DVec3>, Vec<u32>) = c.iter().copied().unzip();
-                    self.inner.closest_points_hinted(&p, &h, max_dist)
-                })
-            },
-        )
-    }
 }

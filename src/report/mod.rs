@@ -80,8 +80,8 @@ use serde::Serialize;
 use crate::analysis::normals::triangle_areas;
 use crate::displace::{
     allocate_resolutions, auto_resolution, compute_displacement, displacement_on,
-    refine_offsets_hinted, Displacement, DisplacementStats, HostSurface, LsqHints,
-    LsqOffsetOptions, OffsetMode, PatchGrid, Reconstruction, SampleAllocation, FIT_CELLS,
+    refine_offsets_on, Displacement, DisplacementStats, HostSurface, LsqOffsetOptions, OffsetMode,
+    PatchGrid, Reconstruction, SampleAllocation, FIT_CELLS,
 };
 use crate::error::{Error, Result};
 use crate::fit::Progress;
@@ -495,9 +495,8 @@ fn displaced_side(
             FIT_CELLS,
         )?),
     };
-    let mut hints: Option<LsqHints> = None;
     if opts.offsets == OffsetMode::LeastSquares {
-        let (st, h) = refine_offsets_hinted(
+        let st = refine_offsets_on(
             mesh,
             caster,
             &mut displacement,
@@ -518,7 +517,6 @@ fn displaced_side(
             .fold(0.0f64, |m, d| m.max(d.abs()));
         displacement.stats.max_abs_offset_permille = 1000.0 * max_abs / diag;
         displacement.stats.least_squares = Some(st);
-        hints = Some(h);
     }
     // D: the displacement grid, each cell split along its shorter
     // displaced diagonal (`PatchGrid::triangles_shorter_diagonal`).
@@ -538,43 +536,11 @@ fn displaced_side(
     let displaced_caster = Watched::new(displaced_caster.as_ref(), w);
     // D's S → M by the 3-point rule, kept per point for the breakdown.
     let (dp, dw) = quadrature_points(&displaced);
-    // The least squares' last closest points start these searches (the
-    // same vertices and triangles of D; the answers do not depend on it,
-    // `RayCaster::closest_points_hinted`).
-    let (d_hints, m_hints) = match &hints {
-        Some(h) if h.d_vertex.len() == displaced.positions.len() => {
-            let d: Vec<u32> = displaced
-                .triangles
-                .iter()
-                .flat_map(|t| {
-                    [
-                        h.d_vertex[t[0] as usize],
-                        h.d_vertex[t[1] as usize],
-                        h.d_vertex[t[2] as usize],
-                    ]
-                })
-                .collect();
-            let m: Vec<u32> = mesh
-                .triangles
-                .iter()
-                .flat_map(|t| {
-                    [
-                        h.m_vertex[t[0] as usize],
-                        h.m_vertex[t[1] as usize],
-                        h.m_vertex[t[2] as usize],
-                    ]
-                })
-                .collect();
-            (Some(d), Some(m))
-        }
-        _ => (None, None),
-    };
     let (dd, m2d) = rayon::join(
-        || closest_distances_hinted(&dp, d_hints.as_deref(), caster),
+        || closest_distances(&dp, caster),
         || {
             let to = &displaced_caster as &dyn RayCaster;
-            let at = (mp, mw, m_hints.as_deref());
-            sampled_distance_stats_hinted(at, to, diag, opts.exact, sample::STREAM_M_TO_D)
+            sampled_distance_stats(mp, mw, to, diag, opts.exact, sample::STREAM_M_TO_D)
         },
     );
     let dd = dd?;
@@ -679,38 +645,6 @@ pub fn distance_stats(
 /// bytes each, 13M of them for M's quadrature on 4.4M triangles, two such
 /// batches at a time) are never held.
 fn closest_distances(points: &[DVec3], to: &dyn RayCaster) -> Result<Vec<f64>> {
-    closest_distances_hinted(points, None, to)
-}
-
-/// [`closest_distances`] with a hint per point
-/// ([`RayCaster::closest_points_hinted`]; the same distances).
-fn closest_distances_hinted(
-    points: &[DVec3],
-    hints: Option<&[u32]>,
-    to: &dyn RayCaster,
-) -> Result<Vec<f64>> {
-    let Some(hints) = hints.filter(|h| h.len() == points.len()) else {
-        return closest_distances_of(points, to);
-    };
-    let queries: Vec<(DVec3, u32)> = points.iter().copied().zip(hints.iter().copied()).collect();
-    crate::raycast::in_spatial_order(
-        &queries,
-        |q| q.0,
-        |sub| {
-            let (p, h): (Vec<DVec3>, Vec<u32>) = sub.iter().copied().unzip();
-            to.closest_points_hinted(&p, &h, f64::INFINITY)?
-                .iter()
-                .map(|c| {
-                    c.map(|c| c.distance).ok_or_else(|| {
-                        Error::backend("ray caster", "closest point query returned nothing")
-                    })
-                })
-                .collect()
-        },
-    )
-}
-
-fn closest_distances_of(points: &[DVec3], to: &dyn RayCaster) -> Result<Vec<f64>> {
     crate::raycast::in_spatial_order(
         points,
         |p| *p,
@@ -765,29 +699,12 @@ fn sampled_distance_stats(
     exact: bool,
     stream: u64,
 ) -> Result<DistanceStats> {
-    sampled_distance_stats_hinted((points, w, None), to, diag, exact, stream)
-}
-
-/// [`sampled_distance_stats`] of `(points, w, hints)`, a hint per point
-/// ([`RayCaster::closest_points_hinted`]; the same figures).
-fn sampled_distance_stats_hinted(
-    (points, w, hints): (&[DVec3], &[f64], Option<&[u32]>),
-    to: &dyn RayCaster,
-    diag: f64,
-    exact: bool,
-    stream: u64,
-) -> Result<DistanceStats> {
     let Some(keep) = sample::subset(points.len(), exact, stream) else {
-        return Ok(stats_of(
-            &closest_distances_hinted(points, hints, to)?,
-            w,
-            diag,
-        ));
+        return distance_stats(points, w, to, diag);
     };
     let p: Vec<DVec3> = keep.iter().map(|&i| points[i]).collect();
     let ws: Vec<f64> = keep.iter().map(|&i| w[i]).collect();
-    let h: Option<Vec<u32>> = hints.map(|h| keep.iter().map(|&i| h[i]).collect());
-    let d = closest_distances_hinted(&p, h.as_deref(), to)?;
+    let d = closest_distances(&p, to)?;
     let mut st = stats_of(&d, &ws, diag);
     st.population = w.iter().filter(|&&x| x > 0.0).count();
     let d2: Vec<f64> = d.iter().map(|x| x * x).collect();
