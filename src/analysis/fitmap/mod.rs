@@ -1569,11 +1569,6 @@ mod tests {
         assert!(saved > 0, "no early decision on spot.ply");
     }
 
-    /// The log-space fit of `E = a r⁴`: exact on the model, a geometric
-    /// mean of `E/r⁴` otherwise (so each radius counts the same in relative
-    /// terms, unlike `Σ E r⁴ / Σ r⁸`, which follows the largest radius
-    /// alone), invariant in the way §3.1.2 needs under scaling, and 0 only
-    /// where every residual is round-off.
     /// `spatial_order` is a permutation of the list's indices, and it
     /// brings a scattered list of points on a jittered grid into an order
     /// whose consecutive points are close: on average within two grid
@@ -1610,6 +1605,11 @@ mod tests {
         assert!(before > 4.0, "{before}");
     }
 
+    /// The log-space fit of `E = a r⁴`: exact on the model, a geometric
+    /// mean of `E/r⁴` otherwise (so each radius counts the same in relative
+    /// terms, unlike `Σ E r⁴ / Σ r⁸`, which follows the largest radius
+    /// alone), invariant in the way §3.1.2 needs under scaling, and 0 only
+    /// where every residual is round-off.
     #[test]
     fn s_from_errors_is_the_log_space_fit() {
         let radii: Vec<f64> = (0..=RADIUS_STEPS)
