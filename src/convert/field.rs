@@ -982,13 +982,7 @@ fn patch_errors(mesh: &TriMesh, control: &ControlMesh) -> Result<Measured> {
 /// measured against `mesh` (about [`CELLS_PER_VERTEX`] cells per vertex of
 /// `mesh`, 4 to 16 per side).
 pub(super) fn grid_cells(mesh: &TriMesh, control: &ControlMesh) -> usize {
-    let patches: usize = control
-        .faces()
-        .map(|f| match control.face_size(f) {
-            4 => 1,
-            n => n,
-        })
-        .sum();
+    let patches = control.num_patches();
     ((CELLS_PER_VERTEX * mesh.positions.len() as f64 / patches.max(1) as f64).sqrt() as usize)
         .clamp(4, 16)
 }
@@ -1012,10 +1006,7 @@ pub(super) fn limit_grid(control: &ControlMesh, k: usize) -> Result<LimitGrid> {
     let mut tri_face = Vec::new();
     let mut tris = Vec::new();
     for f in control.faces() {
-        let subs = match control.face_size(f) {
-            4 => 1,
-            n => n,
-        };
+        let subs = control.face_patches(f);
         for sub in 0..subs as u16 {
             let base = locs.len() as u32;
             for j in 0..=k {

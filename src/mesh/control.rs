@@ -486,6 +486,21 @@ impl ControlMesh {
         self.face_size[f.idx()] as usize
     }
 
+    /// The limit patches of face `f`: one for a quad, `n` sub-patches for
+    /// an n-gon (Catmull-Clark splits it into n quads first).
+    #[inline]
+    pub fn face_patches(&self, f: FaceId) -> usize {
+        match self.face_size(f) {
+            4 => 1,
+            n => n,
+        }
+    }
+
+    /// The limit patches of the whole mesh ([`Self::face_patches`] summed).
+    pub fn num_patches(&self) -> usize {
+        self.faces().map(|f| self.face_patches(f)).sum()
+    }
+
     /// Half-edges of `f` in order, starting at the one leaving its first vertex.
     pub fn face_halfedges(&self, f: FaceId) -> impl Iterator<Item = HalfedgeId> + '_ {
         let h0 = self.face_he[f.idx()];

@@ -84,13 +84,7 @@ pub fn extraordinary_vertices(control: &ControlMesh) -> Vec<usize> {
 /// A per-patch resolution giving about `budget` triangles in all, within
 /// `[4, 32]` samples per side.
 pub fn auto_patch_res(control: &ControlMesh, budget: usize) -> usize {
-    let patches: usize = control
-        .faces()
-        .map(|f| match control.face_size(f) {
-            4 => 1,
-            n => n,
-        })
-        .sum();
+    let patches = control.num_patches();
     let r = (budget as f64 / (2.0 * patches.max(1) as f64)).sqrt() as usize + 1;
     r.clamp(4, 32)
 }
