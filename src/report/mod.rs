@@ -734,8 +734,22 @@ fn measure_direction(
             stats,
         });
     };
-    let p: Vec<DVec3> = keep.iter().map(|&i| points[i]).collect();
-    let d = closest_distances(&p, to)?;
+    // A point drawn in several strata (heavier than W / m) is queried once:
+    // the draws are non-decreasing, so repeats are adjacent.
+    let mut unique = keep.clone();
+    unique.dedup();
+    let p: Vec<DVec3> = unique.iter().map(|&i| points[i]).collect();
+    let du = closest_distances(&p, to)?;
+    let mut at = 0;
+    let d: Vec<f64> = keep
+        .iter()
+        .map(|&i| {
+            while unique[at] != i {
+                at += 1;
+            }
+            du[at]
+        })
+        .collect();
     let total: f64 = w.iter().filter(|&&x| x > 0.0).sum();
     let share = total / keep.len() as f64;
     let (mut dist, mut ws) = (vec![0.0; points.len()], vec![0.0; points.len()]);
@@ -747,7 +761,8 @@ fn measure_direction(
     stats.population = w.iter().filter(|&&x| x > 0.0).count();
     let k = 1000.0 / diag;
     let d2: Vec<f64> = d.iter().map(|x| x * x).collect();
-    stats.rms_ci95_permille = k * rms_half_width(stats.rms_permille / k, sample::stratified_ci95(&d2));
+    stats.rms_ci95_permille =
+        k * rms_half_width(stats.rms_permille / k, sample::stratified_ci95(&d2));
     stats.mean_ci95_permille = k * sample::stratified_ci95(&d);
     Ok(Direction {
         dist,

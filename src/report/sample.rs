@@ -211,6 +211,36 @@ mod tests {
     }
 
     #[test]
+    fn domain_interval_covers_the_domain_mean_at_its_stated_rate() {
+        // The domain: points whose index is not ≡ 0 mod 5 (a fifth of the
+        // points out, as unprojectable triangles are taken out of the
+        // breakdown's S → M). Same rates as above.
+        let (y, w) = population(100_000);
+        let inside = |i: usize| i % 5 != 0;
+        let (mut num, mut den) = (0.0, 0.0);
+        for i in (0..y.len()).filter(|&i| inside(i)) {
+            num += w[i] * y[i];
+            den += w[i];
+        }
+        let full = num / den;
+        let mut covered = 0;
+        for stream in 0..200 {
+            let s = stratified(&w, Some(2_000), 500 + stream).unwrap();
+            let d: Vec<(bool, f64)> = s.iter().map(|&i| (inside(i), y[i])).collect();
+            let (n, sum) = d
+                .iter()
+                .filter(|x| x.0)
+                .fold((0, 0.0), |(n, s), x| (n + 1, s + x.1));
+            let h = domain_ci95(&d);
+            assert!(h > 0.0 && h < 0.05);
+            if (sum / n as f64 - full).abs() <= h {
+                covered += 1;
+            }
+        }
+        assert!(covered >= 180, "covered {covered} of 200");
+    }
+
+    #[test]
     fn a_constant_has_a_zero_interval_and_an_odd_count_is_handled() {
         assert_eq!(stratified_ci95(&[2.0; 7]), 0.0);
         // Three strata: one group of three, k/(k−1) Σ (y − ȳ)² = 1.5 · 2.
