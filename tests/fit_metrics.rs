@@ -348,8 +348,9 @@ fn final_sdm_rounds_fit_closer_than_point_rounds_alone() {
 }
 
 /// A perturbed control mesh of `bumpy_sphere(3)` and options whose D has
-/// more quadrature points than `METRIC_SAMPLES` (a uniform 64² grid per
-/// patch: 3 · 2 · 63² ≈ 24k points each), so that D's S → M is drawn.
+/// more quadrature points than `METRIC_SAMPLES` (a uniform 16² grid per
+/// patch: 3 · 2 · 15² = 1,350 points each, on some 250 patches), so that
+/// D's S → M is drawn.
 fn drawn_fixture() -> (
     subdfit::mesh::TriMesh,
     subdfit::mesh::ControlMesh,
@@ -365,7 +366,7 @@ fn drawn_fixture() -> (
         .collect();
     c.set_positions(p).unwrap();
     let opts = MetricsOptions::default()
-        .with_displacement_res(Some(64))
+        .with_displacement_res(Some(16))
         .with_output_tessellation(Some(4));
     (mesh, c, opts)
 }
