@@ -346,3 +346,109 @@ fn final_sdm_rounds_fit_closer_than_point_rounds_alone() {
     );
     assert!(mh.limit.rms_permille < mp.limit.rms_permille);
 }
+
+/// A perturbed control mesh of `bumpy_sphere(3)` and options whose D has
+/// more quadrature points than `METRIC_SAMPLES` (a uniform 16² grid per
+/// patch: 3 · 2 · 15² = 1,350 points each, on some 250 patches), so that
+/// D's S → M is drawn.
+fn drawn_fixture() -> (
+    subdfit::mesh::TriMesh,
+    subdfit::mesh::ControlMesh,
+    MetricsOptions,
+) {
+    let mesh = bumpy_sphere(3);
+    let mut c = initial_control(&mesh);
+    let p: Vec<_> = c
+        .positions()
+        .iter()
+        .enumerate()
+        .map(|(i, &p)| p * (1.0 + 0.01 * ((i * 7919 % 13) as f64 / 13.0 - 0.5)))
+        .collect();
+    c.set_positions(p).unwrap();
+    let opts = MetricsOptions::default()
+        .with_displacement_res(Some(16))
+        .with_output_tessellation(Some(4));
+    (mesh, c, opts)
+}
+
+#[test]
+fn drawn_metrics_agree_with_the_exact_ones_within_their_interval() {
+    let (mesh, c, opts) = drawn_fixture();
+    let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+    let run = |o: &MetricsOptions| {
+        evaluate_surfaces(&mesh, &c, caster.as_ref(), o, &mut |_, _| true).unwrap()
+    };
+    let (drawn, exact) = (run(&opts), run(&opts.clone().with_exact(true)));
+    // The geometry does not depend on how it is measured.
+    assert_eq!(drawn.displacement.offsets, exact.displacement.offsets);
+    assert_eq!(drawn.displaced.positions, exact.displaced.positions);
+    let (s, e) = (
+        &drawn.metrics.displaced.surface_to_mesh,
+        &exact.metrics.displaced.surface_to_mesh,
+    );
+    // Not vacuous: D's S → M was drawn (METRIC_SAMPLES draws, a few
+    // repeated), the exact run measured every point.
+    assert!(e.population > subdfit::report::METRIC_SAMPLES, "{e:?}");
+    assert_eq!((e.samples, e.rms_ci95_permille), (e.population, 0.0));
+    assert!(s.samples <= subdfit::report::METRIC_SAMPLES && s.population == e.population);
+    // Within the 95 % interval (a fixed seed: the draw is the same every
+    // run, so this is one draw checked, the coverage rate is
+    // `report::sample`'s test), and the interval is informative: under
+    // 5 % of the figure.
+    for (got, want, half) in [
+        (s.rms_permille, e.rms_permille, s.rms_ci95_permille),
+        (s.mean_permille, e.mean_permille, s.mean_ci95_permille),
+    ] {
+        assert!(half > 0.0 && half < 0.05 * want, "{s:?} vs {e:?}");
+        assert!((got - want).abs() <= half, "{got} vs {want} ± {half}");
+    }
+    // A drawn max is a lower bound of the max.
+    assert!(s.max_permille <= e.max_permille);
+    // L and the projectability steer geometry: measured in full here.
+    assert_eq!(drawn.metrics.limit, exact.metrics.limit);
+    assert_eq!(
+        drawn.metrics.unprojectable_area_percent,
+        exact.metrics.unprojectable_area_percent
+    );
+    // M → D has 1,536 quadrature points: measured in full either way.
+    assert_eq!(
+        drawn.metrics.displaced.mesh_to_surface,
+        exact.metrics.displaced.mesh_to_surface
+    );
+    // The breakdown's area shares are every point's; its error shares are
+    // estimates, close to the exact ones.
+    let (bs, be) = (
+        &drawn.metrics.displaced_breakdown,
+        &exact.metrics.displaced_breakdown,
+    );
+    assert_eq!(
+        bs.boundary_patch_area_percent,
+        be.boundary_patch_area_percent
+    );
+    assert_eq!(bs.unprojectable_area_percent, be.unprojectable_area_percent);
+    let (ps, pe) = (&bs.surface_to_mesh_projected, &be.surface_to_mesh_projected);
+    assert!(
+        (ps.rms_permille - pe.rms_permille).abs() <= ps.rms_ci95_permille,
+        "{ps:?} vs {pe:?}"
+    );
+}
+
+#[test]
+fn drawn_metrics_are_the_same_at_one_and_two_threads() {
+    let (mesh, c, opts) = drawn_fixture();
+    let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+    let at = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            evaluate_surfaces(&mesh, &c, caster.as_ref(), &opts, &mut |_, _| true)
+                .unwrap()
+                .metrics
+        })
+    };
+    let (one, two) = (at(1), at(2));
+    assert!(one.displaced.surface_to_mesh.samples < one.displaced.surface_to_mesh.population);
+    assert_eq!(one, two);
+}

@@ -179,8 +179,9 @@ struct Options {
   // triangle decimation for inputs above 100 000), 0 = none (the input
   // itself), N = about N triangles (at least 100) when the input has more.
   std::int64_t proxy = -1;
-  // --exact-metrics: measure the metrics on every point (by default a
-  // direction of more than 300 000 points is sampled and report.json gives
+  // --exact-metrics: measure the metrics on every point (by default the
+  // displaced surface's directions are drawn at 100 000 points, the limit
+  // surface's and the projectability at 300 000, and report.json gives
   // the 95 % confidence interval of each figure).
   bool exact_metrics = false;
   // Worker threads for this call; 0 = all cores (a shared pool).

@@ -318,8 +318,9 @@ def convert(
     the uniform bicubic B-spline, read with Blender/Cycles' "Cubic"
     interpolation; docs/handoff.md says what each host must do),
     ``threads`` (0: all cores), ``exact_metrics`` (``--exact-metrics``:
-    measure every point; by default a direction of more than 300 000 points
-    is sampled and the report gives its 95 % confidence interval).
+    measure every point; by default the displaced surface's directions are
+    drawn at 100 000 points, the limit surface's and the projectability at
+    300 000, and the report gives each figure's 95 % confidence interval).
     ``name`` names the input in errors and report.json (the CLI uses the
     path). Raises :class:`InvalidInput` (with the CLI's message),
     :class:`Cancelled` or ``KeyboardInterrupt``.

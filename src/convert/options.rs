@@ -58,9 +58,11 @@ pub struct ConvertOptions {
     /// field-aligned layout ([`crate::quad::field`], issue 40).
     pub layout: LayoutKind,
     /// Measure every point of every direction of the metrics
-    /// (`--exact-metrics`); off: directions of more than
-    /// [`crate::report::METRIC_SAMPLES`] points are measured on a sample,
-    /// with the confidence interval in `report.json`. Left out of
+    /// (`--exact-metrics`); off: D's directions of more than
+    /// [`crate::report::METRIC_SAMPLES`] points, and L's and the
+    /// projectability's of more than [`crate::report::DECISION_SAMPLES`],
+    /// are measured on a stratified draw of that many, with the confidence
+    /// intervals in `report.json`. Left out of
     /// `report.json`'s options when off.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub exact_metrics: bool,

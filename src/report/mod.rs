@@ -64,7 +64,7 @@ pub mod tessellate;
 pub mod written;
 
 pub use floor::resampling_floor;
-pub use sample::METRIC_SAMPLES;
+pub use sample::{DECISION_SAMPLES, METRIC_SAMPLES};
 pub use written::WrittenReport;
 
 pub use output::{
@@ -124,8 +124,10 @@ pub struct MetricsOptions {
     /// default of [`tessellate`].
     pub output_tessellation: Option<usize>,
     /// Measure every point of every direction (`--exact-metrics`); off:
-    /// directions of more than [`METRIC_SAMPLES`] points are sampled
-    /// (see `report::sample`). Left out of `report.json` when off.
+    /// D's directions of more than [`METRIC_SAMPLES`] points, and L's and
+    /// the projectability's of more than [`DECISION_SAMPLES`], are
+    /// measured on a stratified draw of that many (see `report::sample`).
+    /// Left out of `report.json` when off.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub exact: bool,
 }
@@ -170,17 +172,22 @@ impl MetricsOptions {
 pub struct DistanceStats {
     pub rms_permille: f64,
     pub mean_permille: f64,
-    /// Over the samples measured: a lower bound of the max when they are a
-    /// sample of the population.
+    /// Over the points measured: when they are a draw of the population
+    /// (`samples < population`), only a lower bound of the max — a max has
+    /// no confidence interval (`report::sample`); `--exact-metrics` gives
+    /// the max of every point.
     pub max_permille: f64,
-    /// Points measured.
+    /// Distinct points measured.
     pub samples: usize,
-    /// Points of the direction (`samples` unless it was sampled, see
+    /// Points of the direction (`samples` unless it was drawn from, see
     /// [`METRIC_SAMPLES`]).
     pub population: usize,
     /// Half-width of the 95 % confidence interval of `rms_permille`; 0 when
     /// every point was measured.
     pub rms_ci95_permille: f64,
+    /// Half-width of the 95 % confidence interval of `mean_permille`; 0
+    /// when every point was measured.
+    pub mean_ci95_permille: f64,
 }
 
 /// Accuracy of one surface against M (see the module docs).
@@ -535,16 +542,19 @@ fn displaced_side(
     let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
     let displaced_caster = Watched::new(displaced_caster.as_ref(), w);
     // D's S → M by the 3-point rule, kept per point for the breakdown.
+    // Both of D's directions only report (no decision reads them): drawn
+    // at `METRIC_SAMPLES` (`report::sample`).
+    let bound = (!opts.exact).then_some(METRIC_SAMPLES);
     let (dp, dw) = quadrature_points(&displaced);
-    let (dd, m2d) = rayon::join(
-        || closest_distances(&dp, caster),
+    let (d2m, m2d) = rayon::join(
+        || measure_direction(&dp, &dw, caster, diag, bound, sample::STREAM_D_TO_M),
         || {
             let to = &displaced_caster as &dyn RayCaster;
-            sampled_distance_stats(mp, mw, to, diag, opts.exact, sample::STREAM_M_TO_D)
+            sampled_distance_stats(mp, mw, to, diag, bound, sample::STREAM_M_TO_D)
         },
     );
-    let dd = dd?;
-    let acc = Accuracy::from_directions(stats_of(&dd, &dw, diag), m2d?);
+    let d2m = d2m?;
+    let acc = Accuracy::from_directions(d2m.stats.clone(), m2d?);
     let bd = match &host {
         None => {
             let patch_of = |t: usize| displacement.grid.triangle_patch(t);
@@ -552,12 +562,12 @@ fn displaced_side(
                 &patch_of as &dyn Fn(usize) -> usize,
                 &displacement.projected[..],
             );
-            breakdown(control, &displacement, &displaced, of, &dd, &dw, diag)
+            breakdown(control, &displacement, &displaced, of, (&dw, &d2m), diag)
         }
         Some(h) => {
             let patch_of = |t: usize| h.grid().triangle_patch(t);
             let of = (&patch_of as &dyn Fn(usize) -> usize, &h.projected[..]);
-            breakdown(control, &displacement, &displaced, of, &dd, &dw, diag)
+            breakdown(control, &displacement, &displaced, of, (&dw, &d2m), diag)
         }
     };
     Ok((displacement, acc, bd))
@@ -684,38 +694,105 @@ fn stats_of(dist: &[f64], w: &[f64], diag: f64) -> DistanceStats {
         samples: count,
         population: count,
         rms_ci95_permille: 0.0,
+        mean_ci95_permille: 0.0,
     }
 }
 
-/// [`distance_stats`] on the [`sample::subset`] of the points that
-/// `stream` draws (all of them when `exact` or few enough), with the RMS's
-/// confidence interval ([`sample::ratio_ci95`] of the squared distances,
-/// through the square root by the delta method).
+/// One direction measured ([`measure_direction`]): the distance of every
+/// point measured (0 elsewhere), the weights its figures were taken with
+/// (the points' own when every point was measured; `W / m` per draw, 0 for
+/// points not drawn, when drawn), the draws in stratum order with their
+/// distances (`None`: every point), and the figures.
+struct Direction {
+    dist: Vec<f64>,
+    w: Vec<f64>,
+    draws: Option<Vec<(usize, f64)>>,
+    stats: DistanceStats,
+}
+
+/// Distances of `points` (weights `w`) to the surface behind `to`, on
+/// every point or, when there are more than `bound` (`None`: exact), on
+/// the stratified draw of `stream` ([`sample::stratified`]), with the
+/// 95 % intervals of the RMS and mean ([`sample::stratified_ci95`] of the
+/// squared and plain distances; the RMS's through the square root by the
+/// delta method).
+fn measure_direction(
+    points: &[DVec3],
+    w: &[f64],
+    to: &dyn RayCaster,
+    diag: f64,
+    bound: Option<usize>,
+    stream: u64,
+) -> Result<Direction> {
+    let Some(keep) = sample::stratified(w, bound, stream) else {
+        let dist = closest_distances(points, to)?;
+        let stats = stats_of(&dist, w, diag);
+        return Ok(Direction {
+            dist,
+            w: w.to_vec(),
+            draws: None,
+            stats,
+        });
+    };
+    // A point drawn in several strata (heavier than W / m) is queried once:
+    // the draws are non-decreasing, so repeats are adjacent.
+    let mut unique = keep.clone();
+    unique.dedup();
+    let p: Vec<DVec3> = unique.iter().map(|&i| points[i]).collect();
+    let du = closest_distances(&p, to)?;
+    let mut at = 0;
+    let d: Vec<f64> = keep
+        .iter()
+        .map(|&i| {
+            while unique[at] != i {
+                at += 1;
+            }
+            du[at]
+        })
+        .collect();
+    let total: f64 = w.iter().filter(|&&x| x > 0.0).sum();
+    let share = total / keep.len() as f64;
+    let (mut dist, mut ws) = (vec![0.0; points.len()], vec![0.0; points.len()]);
+    for (&i, &di) in keep.iter().zip(&d) {
+        dist[i] = di;
+        ws[i] += share;
+    }
+    let mut stats = stats_of(&dist, &ws, diag);
+    stats.population = w.iter().filter(|&&x| x > 0.0).count();
+    let k = 1000.0 / diag;
+    let d2: Vec<f64> = d.iter().map(|x| x * x).collect();
+    stats.rms_ci95_permille =
+        k * rms_half_width(stats.rms_permille / k, sample::stratified_ci95(&d2));
+    stats.mean_ci95_permille = k * sample::stratified_ci95(&d);
+    Ok(Direction {
+        dist,
+        w: ws,
+        draws: Some(keep.into_iter().zip(d).collect()),
+        stats,
+    })
+}
+
+/// The half-width of an RMS's interval from that of its mean square
+/// (`half_sq`), by the delta method (`d√x = dx / 2√x`); at an RMS of 0
+/// (where the derivative is unbounded) the root of the square's.
+fn rms_half_width(rms: f64, half_sq: f64) -> f64 {
+    if rms > 0.0 {
+        half_sq / (2.0 * rms)
+    } else {
+        half_sq.sqrt()
+    }
+}
+
+/// [`measure_direction`]'s figures alone.
 fn sampled_distance_stats(
     points: &[DVec3],
     w: &[f64],
     to: &dyn RayCaster,
     diag: f64,
-    exact: bool,
+    bound: Option<usize>,
     stream: u64,
 ) -> Result<DistanceStats> {
-    let Some(keep) = sample::subset(points.len(), exact, stream) else {
-        return distance_stats(points, w, to, diag);
-    };
-    let p: Vec<DVec3> = keep.iter().map(|&i| points[i]).collect();
-    let ws: Vec<f64> = keep.iter().map(|&i| w[i]).collect();
-    let d = closest_distances(&p, to)?;
-    let mut st = stats_of(&d, &ws, diag);
-    st.population = w.iter().filter(|&&x| x > 0.0).count();
-    let d2: Vec<f64> = d.iter().map(|x| x * x).collect();
-    let half = sample::ratio_ci95(&d2, &ws, st.population);
-    let rms = st.rms_permille * diag / 1000.0;
-    st.rms_ci95_permille = if rms > 0.0 {
-        1000.0 / diag * half / (2.0 * rms)
-    } else {
-        1000.0 / diag * half.sqrt()
-    };
-    Ok(st)
+    Ok(measure_direction(points, w, to, diag, bound, stream)?.stats)
 }
 
 impl Accuracy {
@@ -728,9 +805,11 @@ impl Accuracy {
     }
 }
 
-/// [`DisplacedBreakdown`] from D's per-point S → M distances `dist`
-/// (weights `w`, three per triangle of `displaced`, D's tessellation, in
-/// order, as [`quadrature_points`] makes them). `of`: the patch of each
+/// [`DisplacedBreakdown`] from D's S → M direction `d2m` (three points
+/// per triangle of `displaced`, D's tessellation, in order, as
+/// [`quadrature_points`] makes them; `area`: their own weights). Areas are
+/// every point's; error shares are the measured points' (with `d2m`'s
+/// weights: estimates when it was drawn from). `of`: the patch of each
 /// triangle of `displaced`, and whether each of its vertices reads
 /// projected samples only.
 fn breakdown(
@@ -738,10 +817,10 @@ fn breakdown(
     displacement: &Displacement,
     displaced: &TriMesh,
     of: (&dyn Fn(usize) -> usize, &[bool]),
-    dist: &[f64],
-    w: &[f64],
+    (area_w, d2m): (&[f64], &Direction),
     diag: f64,
 ) -> DisplacedBreakdown {
+    let (dist, w) = (&d2m.dist[..], &d2m.w[..]);
     let grid = &displacement.grid;
     let tris = &displaced.triangles;
     let boundary_patch: Vec<bool> = control
@@ -757,19 +836,26 @@ fn breakdown(
     let mut patch_err = vec![0.0; grid.num_patches()];
     let mut patch_area = vec![0.0; grid.num_patches()];
     let mut proj_w = w.to_vec();
-    for (t, tri) in tris.iter().enumerate() {
+    let mut proj_population = 0;
+    let unprojectable = |t: usize| tris[t].iter().any(|&s| !of.1[s as usize]);
+    for t in 0..tris.len() {
         let f = of.0(t);
         let (a, e): (f64, f64) = (3 * t..3 * t + 3)
-            .map(|k| (w[k], w[k] * dist[k] * dist[k]))
+            .map(|k| (area_w[k], w[k] * dist[k] * dist[k]))
             .fold((0.0, 0.0), |(sa, se), (a, e)| (sa + a, se + e));
         area += a;
         err += e;
         patch_area[f] += a;
         patch_err[f] += e;
-        if tri.iter().any(|&s| !of.1[s as usize]) {
+        if unprojectable(t) {
             u_area += a;
             u_err += e;
             proj_w[3 * t..3 * t + 3].fill(0.0);
+        } else {
+            proj_population += area_w[3 * t..3 * t + 3]
+                .iter()
+                .filter(|&&x| x > 0.0)
+                .count();
         }
         if boundary_patch[f] {
             b_area += a;
@@ -802,10 +888,21 @@ fn breakdown(
             }
         })
         .collect();
+    let mut projected = stats_of(dist, &proj_w, diag);
+    if let Some(draws) = &d2m.draws {
+        projected.population = proj_population;
+        let k = 1000.0 / diag;
+        let inside = |&(i, _): &(usize, f64)| !unprojectable(i / 3);
+        let sq: Vec<(bool, f64)> = draws.iter().map(|x| (inside(x), x.1 * x.1)).collect();
+        let plain: Vec<(bool, f64)> = draws.iter().map(|x| (inside(x), x.1)).collect();
+        let half_sq = sample::domain_ci95(&sq);
+        projected.rms_ci95_permille = k * rms_half_width(projected.rms_permille / k, half_sq);
+        projected.mean_ci95_permille = k * sample::domain_ci95(&plain);
+    }
     DisplacedBreakdown {
         unprojectable_area_percent: pct(u_area, area),
         unprojectable_error_share_percent: pct(u_err, err),
-        surface_to_mesh_projected: stats_of(dist, &proj_w, diag),
+        surface_to_mesh_projected: projected,
         boundary_patch_area_percent: pct(b_area, area),
         boundary_patch_error_share_percent: pct(b_err, err),
         worst_patches,
@@ -823,23 +920,27 @@ fn limit_accuracy(
     diag: f64,
     exact: bool,
 ) -> Result<Accuracy> {
+    // RMS L steers geometry (module `sample`): drawn from only above
+    // `DECISION_SAMPLES`.
+    let bound = (!exact).then_some(DECISION_SAMPLES);
     let s2m = sampled_distance_stats(
         &surface.positions,
         &vertex_areas(surface),
         mesh_caster,
         diag,
-        exact,
+        bound,
         sample::STREAM_L_TO_M,
     )?;
-    let m2s = sampled_distance_stats(mp, mw, surface_caster, diag, exact, sample::STREAM_M_TO_L)?;
+    let m2s = sampled_distance_stats(mp, mw, surface_caster, diag, bound, sample::STREAM_M_TO_L)?;
     Ok(Accuracy::from_directions(s2m, m2s))
 }
 
 /// Projectability (module docs): the percentage of M's area whose
 /// triangle centroids φ does not reach from L. `grid` is L's tessellation
 /// grid, `limit_caster` built over it; `tol` is M's mean edge length.
-/// Above [`METRIC_SAMPLES`] triangles (unless `exact`) a sample of them,
-/// with the half-width of the percentage's 95 % interval (else 0).
+/// Above [`DECISION_SAMPLES`] triangles (unless `exact`) a stratified draw
+/// of them by area (`report::sample`), with the half-width of the
+/// percentage's 95 % interval (else 0).
 #[allow(clippy::too_many_arguments)]
 fn unprojectable_percent(
     mesh: &TriMesh,
@@ -853,9 +954,11 @@ fn unprojectable_percent(
     exact: bool,
 ) -> Result<(f64, f64)> {
     let (mut areas, mut centroids) = (triangle_areas(mesh), mesh.centroids());
-    let keep = sample::subset(areas.len(), exact, sample::STREAM_PROJECTABILITY);
+    let bound = (!exact).then_some(DECISION_SAMPLES);
+    let keep = sample::stratified(&areas, bound, sample::STREAM_PROJECTABILITY);
     if let Some(keep) = &keep {
-        areas = keep.iter().map(|&t| areas[t]).collect();
+        // Drawn by area: each draw stands for the same share of M's area.
+        areas = vec![1.0; keep.len()];
         centroids = keep.iter().map(|&t| centroids[t]).collect();
     }
     let locations = nearest_limit_locations(limit_caster, &centroids, |t, u, v| {
@@ -879,7 +982,7 @@ fn unprojectable_percent(
         // fold from +0.0: `Sum` of no f64 is -0.0.
         .fold(0.0, |acc, (_, a)| acc + a);
     let ci = match keep {
-        Some(_) => 100.0 * sample::ratio_ci95(&missed, &areas, mesh.triangles.len()),
+        Some(_) => 100.0 * sample::stratified_ci95(&missed),
         None => 0.0,
     };
     Ok((100.0 * unreached / total_area.max(f64::MIN_POSITIVE), ci))

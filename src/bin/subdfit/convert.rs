@@ -142,12 +142,14 @@ pub struct ConversionArgs {
     /// docs/status.md). report.json's `options.convert.layout` says which ran.
     #[arg(long, value_enum, default_value_t = LayoutKind::Greedy)]
     layout: LayoutKind,
-    /// Measure the metrics on every point. By default a direction of more
-    /// than 300 000 points (M's 3-point quadrature above 100 000
-    /// triangles, L's vertices, M's triangles for the projectability) is
-    /// measured on a random sample of about that many, and report.json
-    /// gives each figure's sample count, population and 95 % confidence
-    /// interval (`rms_ci95_permille`, `unprojectable_ci95_percent`).
+    /// Measure the metrics on every point. By default the displaced
+    /// surface's two directions are measured on a stratified draw of
+    /// 100 000 points when they have more (its S → M has ~12 points per
+    /// input triangle), and L's directions and the projectability, which
+    /// steer the output, on 300 000 when they have more; report.json gives
+    /// each figure's sample count, population and 95 % confidence interval
+    /// (`rms_ci95_permille`, `mean_ci95_permille`,
+    /// `unprojectable_ci95_percent`); a drawn max is a lower bound.
     #[arg(long)]
     exact_metrics: bool,
 }
