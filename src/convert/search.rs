@@ -217,15 +217,8 @@ impl ErrorSearcher {
         let facts = self
             .facts
             .get_or_insert_with(|| crate::fit::MeshFacts::of(mesh));
-        let (f, paused) = crate::fit::fit_deciding_with(
-            mesh,
-            facts,
-            c,
-            caster,
-            fo,
-            progress,
-            (decide, resume),
-        )?;
+        let (f, paused) =
+            crate::fit::fit_deciding_with(mesh, facts, c, caster, fo, progress, (decide, resume))?;
         let rms = f.report.final_rms_permille;
         // The kept start's rounds (an open mesh whose loops move runs two).
         self.record.fit_rounds += f.report.iterations.len().saturating_sub(before);
@@ -299,6 +292,14 @@ impl ErrorSearcher {
         self.record.kept_faces = self.faces[i];
         // The kept candidate in full: the fit `fit_with_progress` gives.
         self.rms(i, None, mesh, caster, fo, progress)?;
+        // The paused fits are resumed only by a later round (a miss by the
+        // metrics): their systems would stay in memory through the
+        // measurement, the run's peak, for that rare case.
+        for (_, state) in self.fits.iter_mut().flatten() {
+            if let Some(s) = state {
+                s.release_system();
+            }
+        }
         let f = self.fits[i]
             .clone()
             .map(|(f, _)| f)

@@ -388,7 +388,15 @@ pub fn fit_deciding(
     (decide, resume): (Option<Decide>, Option<FitState>),
 ) -> Result<(Fitted, Option<FitState>)> {
     let facts = MeshFacts::of(mesh);
-    fit_deciding_with(mesh, &facts, control, caster, opts, progress, (decide, resume))
+    fit_deciding_with(
+        mesh,
+        &facts,
+        control,
+        caster,
+        opts,
+        progress,
+        (decide, resume),
+    )
 }
 
 /// [`fit_deciding`] with `facts` = [`MeshFacts::of`] `mesh` computed once
@@ -431,13 +439,17 @@ fn fit_both_starts(
     opts.check()?;
     // A resumed fit goes on with the rim fit and the system it paused with
     // (the same ones a rebuild from the same inputs would give).
+    // A released system ([`FitState::release_system`]) is rebuilt.
+    let build = || FitSystem::build(mesh, facts, &control, opts).map(Arc::new);
     let (rim_moves, sys, mut states) = match resume {
-        Some(s) => (s.rim_moves, s.sys, s.starts.into_iter()),
+        Some(s) => {
+            let sys = s.sys.map_or_else(build, Ok)?;
+            (s.rim_moves, sys, s.starts.into_iter())
+        }
         None => {
             checked_diagonal(mesh)?;
             let rim_moves = rim::fit_rims(mesh, &facts.rim, &control).moved;
-            let sys = Arc::new(FitSystem::build(mesh, facts, &control, opts)?);
-            (rim_moves, sys, Vec::new().into_iter())
+            (rim_moves, build()?, Vec::new().into_iter())
         }
     };
     // One start from its state (a finished one is its result).
@@ -470,7 +482,7 @@ fn fit_both_starts(
     let paused_state = |starts: Vec<StartState>| FitState {
         starts,
         rim_moves: rim_moves.clone(),
-        sys: sys.clone(),
+        sys: Some(sys.clone()),
     };
     if rim_moves.is_empty() {
         let (f, s, done) = state(run(control, &[], states.next(), progress)?);
@@ -500,7 +512,10 @@ fn fit_both_starts(
     };
     best.report.seconds = t0.elapsed().as_secs_f64();
     let paused = !(done_with && done_without);
-    Ok((best, paused.then(|| paused_state(vec![st_with, st_without]))))
+    Ok((
+        best,
+        paused.then(|| paused_state(vec![st_with, st_without])),
+    ))
 }
 
 /// What every fit to M asks of it whatever the control mesh: computed once
@@ -701,7 +716,17 @@ enum StartState {
 pub struct FitState {
     starts: Vec<StartState>,
     rim_moves: Vec<(VertexId, DVec3)>,
-    sys: Arc<FitSystem>,
+    /// `None` once released.
+    sys: Option<Arc<FitSystem>>,
+}
+
+impl FitState {
+    /// Frees the system (the samples' stencils: tens of MB on a dense
+    /// control mesh) while the fit is unlikely to be resumed; a resumption
+    /// rebuilds it, to the same result.
+    pub fn release_system(&mut self) {
+        self.sys = None;
+    }
 }
 
 impl std::fmt::Debug for FitState {
@@ -877,7 +902,10 @@ impl FitSystem {
         let face: Vec<u32> = locations.iter().map(|l| l.face.0).collect();
         let stencils = evaluator.stencils(&locations)?;
         let laplacian = umbrella(control);
-        let sdm = !matches!((opts.objective, opts.final_sdm_rounds), (Objective::Point, 0));
+        let sdm = !matches!(
+            (opts.objective, opts.final_sdm_rounds),
+            (Objective::Point, 0)
+        );
         if sdm {
             facts
                 .curvatures
