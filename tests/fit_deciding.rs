@@ -6,7 +6,9 @@
 mod fit_support;
 
 use fit_support::*;
-use subdfit::fit::{fit, fit_deciding, Decide, FitOptions, Fitted};
+use subdfit::fit::{
+    fit, fit_deciding, fit_deciding_with, Decide, FitOptions, Fitted, MeshFacts, Objective,
+};
 use subdfit::mesh::{ControlMesh, TriMesh};
 use subdfit::raycast::{make_raycaster, RayBackend};
 
@@ -100,4 +102,82 @@ fn open_mesh_fit_with_two_starts_resumes_to_the_uninterrupted_fit() {
         *p = subdfit::DVec3::new(1.25 * p.x - 0.5, 1.25 * p.y - 0.5, 0.05);
     }
     pause_and_resume(&mesh, &control);
+}
+
+/// The `--max-error` search makes M's facts (rim, normals, curvatures)
+/// once and fits every candidate with them (`fit_deciding_with`): each
+/// candidate's fit must be the one a fit of its own gives, bit for bit,
+/// whichever candidate came first and whether or not it made the SDM's
+/// curvatures. Two control meshes of different topology on an open M (two
+/// starts sharing one system), the point objective first (its last rounds
+/// make the curvatures) then the SDM, and a paused fit resumed on them.
+#[test]
+fn fits_sharing_mesh_facts_are_the_fits_of_their_own() {
+    let mesh = subdfit::fixtures::tri_grid(
+        16,
+        |i, j| {
+            let (x, y) = (0.25 * i as f64, 0.25 * j as f64);
+            subdfit::DVec3::new(x, y, 0.1 * (x * 1.3).sin() * (y * 0.9).cos())
+        },
+        |_, _| true,
+    );
+    let grid = |n: u32| {
+        let mut c = subdfit::fixtures::flat_grid(n, n);
+        let s = 5.0 / n as f64;
+        for p in c.positions_mut() {
+            *p = subdfit::DVec3::new(s * p.x - 0.5, s * p.y - 0.5, 0.05);
+        }
+        c
+    };
+    let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+    let facts = MeshFacts::of(&mesh);
+    let quiet = &mut |_: &str, _: f64| true;
+    for objective in [Objective::Point, Objective::Sdm] {
+        let opts = FitOptions::default().with_objective(objective);
+        for n in [4, 3] {
+            let control = grid(n);
+            let own = fit(&mesh, control.clone(), caster.as_ref(), &opts).unwrap();
+            let (shared, rest) = fit_deciding_with(
+                &mesh,
+                &facts,
+                control.clone(),
+                caster.as_ref(),
+                &opts,
+                quiet,
+                (None, None),
+            )
+            .unwrap();
+            assert!(rest.is_none());
+            same_fit(&shared, &own, &format!("{objective:?}, {n}×{n} grid"));
+            // Paused at a bound it passes after its first round, resumed.
+            let bound = own.report.iterations[0].rms_permille * 1.01;
+            let (_, state) = fit_deciding_with(
+                &mesh,
+                &facts,
+                control.clone(),
+                caster.as_ref(),
+                &opts,
+                quiet,
+                (
+                    Some(Decide {
+                        bound_permille: bound,
+                    }),
+                    None,
+                ),
+            )
+            .unwrap();
+            let state = state.expect("paused after its first round");
+            let (resumed, _) = fit_deciding_with(
+                &mesh,
+                &facts,
+                control,
+                caster.as_ref(),
+                &opts,
+                quiet,
+                (None, Some(state)),
+            )
+            .unwrap();
+            same_fit(&resumed, &own, &format!("{objective:?}, {n}×{n}, resumed"));
+        }
+    }
 }

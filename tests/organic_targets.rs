@@ -119,3 +119,36 @@ fn faces_lands_within_two_percent() {
         }
     }
 }
+
+/// A search that has to climb (τ = 10 %: spot's natural end has about a
+/// third of the patches the default 5‰ needs, and the search fits several
+/// candidates, each stopped once its side of the bound is plain and
+/// sharing M's facts and its starts' system): the kept mesh still holds
+/// the bound by `subdfit metrics`, the natural end missed it, and the
+/// candidate tried just below the kept one missed too.
+#[test]
+fn climbing_search_keeps_the_max_error_bound() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("t10");
+    let r = convert(&out, &["--tolerance", "0.1"]);
+    let (faces, rms) = metrics(&out);
+    assert!(rms <= 5.0, "τ = 10 %: subdfit metrics gives RMS L {rms}‰");
+    assert_eq!(target(&r, "max_error")["met"], true);
+    let s = &r["options"]["run"]["max_error_search"];
+    assert_eq!(s["kept_faces"].as_u64().unwrap(), faces);
+    let tried: Vec<(u64, f64)> = s["tried"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| (t[0].as_u64().unwrap(), t[1].as_f64().unwrap()))
+        .collect();
+    assert!(tried.len() >= 3, "a climbing search: {tried:?}");
+    let end = s["natural_end_faces"].as_u64().unwrap();
+    assert!(faces > end, "kept {faces}, natural end {end}");
+    let below = tried
+        .iter()
+        .filter(|t| t.0 < faces)
+        .max_by_key(|t| t.0)
+        .expect("a smaller candidate was tried");
+    assert!(below.1 > 0.9 * 5.0, "{below:?} was tried and {faces} kept");
+}

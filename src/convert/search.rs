@@ -141,6 +141,8 @@ struct ErrorSearcher {
     faces: Vec<usize>,
     /// Each fit, and where it paused (`None`: it ran its whole course).
     fits: Vec<Option<(crate::fit::Fitted, Option<crate::fit::FitState>)>>,
+    /// What every candidate's fit asks of M, made by the first one.
+    facts: Option<std::sync::Arc<crate::fit::MeshFacts>>,
     record: ErrorSearch,
 }
 
@@ -150,6 +152,7 @@ impl ErrorSearcher {
         let faces: Vec<usize> = candidates.iter().map(|c| c.num_faces()).collect();
         ErrorSearcher {
             fits: vec![None; faces.len()],
+            facts: None,
             record: ErrorSearch {
                 max_error_permille: 1e3 * max_error,
                 tried: Vec::new(),
@@ -211,8 +214,11 @@ impl ErrorSearcher {
             None => (None, 0),
         };
         let c = self.candidates[i].clone();
+        let facts = self
+            .facts
+            .get_or_insert_with(|| crate::fit::MeshFacts::of(mesh));
         let (f, paused) =
-            crate::fit::fit_deciding(mesh, c, caster, fo, progress, (decide, resume))?;
+            crate::fit::fit_deciding_with(mesh, facts, c, caster, fo, progress, (decide, resume))?;
         let rms = f.report.final_rms_permille;
         // The kept start's rounds (an open mesh whose loops move runs two).
         self.record.fit_rounds += f.report.iterations.len().saturating_sub(before);
@@ -286,6 +292,14 @@ impl ErrorSearcher {
         self.record.kept_faces = self.faces[i];
         // The kept candidate in full: the fit `fit_with_progress` gives.
         self.rms(i, None, mesh, caster, fo, progress)?;
+        // The paused fits are resumed only by a later round (a miss by the
+        // metrics): their systems would stay in memory through the
+        // measurement, the run's peak, for that rare case.
+        for (_, state) in self.fits.iter_mut().flatten() {
+            if let Some(s) = state {
+                s.release_system();
+            }
+        }
         let f = self.fits[i]
             .clone()
             .map(|(f, _)| f)

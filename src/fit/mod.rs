@@ -86,6 +86,7 @@ mod compress;
 pub mod curvature;
 mod rim;
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use serde::Serialize;
@@ -386,10 +387,35 @@ pub fn fit_deciding(
     progress: &mut Progress<'_>,
     (decide, resume): (Option<Decide>, Option<FitState>),
 ) -> Result<(Fitted, Option<FitState>)> {
+    let facts = MeshFacts::of(mesh);
+    fit_deciding_with(
+        mesh,
+        &facts,
+        control,
+        caster,
+        opts,
+        progress,
+        (decide, resume),
+    )
+}
+
+/// [`fit_deciding`] with `facts` = [`MeshFacts::of`] `mesh` computed once
+/// by the caller: what a series of fits to one M (the `--max-error`
+/// search's candidates) would otherwise recompute for each.
+pub fn fit_deciding_with(
+    mesh: &TriMesh,
+    facts: &Arc<MeshFacts>,
+    control: ControlMesh,
+    caster: &dyn RayCaster,
+    opts: &FitOptions,
+    progress: &mut Progress<'_>,
+    (decide, resume): (Option<Decide>, Option<FitState>),
+) -> Result<(Fitted, Option<FitState>)> {
     crate::watch::watched(progress, |w| {
         let caster = crate::raycast::Watched::new(caster, w);
         fit_both_starts(
             mesh,
+            facts,
             control,
             &caster,
             opts,
@@ -402,6 +428,7 @@ pub fn fit_deciding(
 /// [`fit_with_progress`] on the calling thread.
 fn fit_both_starts(
     mesh: &TriMesh,
+    facts: &Arc<MeshFacts>,
     control: ControlMesh,
     caster: &dyn RayCaster,
     opts: &FitOptions,
@@ -410,13 +437,21 @@ fn fit_both_starts(
 ) -> Result<(Fitted, Option<FitState>)> {
     let t0 = Instant::now();
     opts.check()?;
-    let facts = MeshFacts::of(mesh);
-    let rim_moves = if mesh.positions.is_empty() || mesh.triangles.is_empty() {
-        Vec::new()
-    } else {
-        rim::fit_rims(mesh, &facts.rim, &control).moved
+    // A resumed fit goes on with the rim fit and the system it paused with
+    // (the same ones a rebuild from the same inputs would give).
+    // A released system ([`FitState::release_system`]) is rebuilt.
+    let build = || FitSystem::build(mesh, facts, &control, opts).map(Arc::new);
+    let (rim_moves, sys, mut states) = match resume {
+        Some(s) => {
+            let sys = s.sys.map_or_else(build, Ok)?;
+            (s.rim_moves, sys, s.starts.into_iter())
+        }
+        None => {
+            checked_diagonal(mesh)?;
+            let rim_moves = rim::fit_rims(mesh, &facts.rim, &control).moved;
+            (rim_moves, build()?, Vec::new().into_iter())
+        }
     };
-    let mut states = resume.map(|s| s.0).unwrap_or_default().into_iter();
     // One start from its state (a finished one is its result).
     let run = |control: ControlMesh,
                moves: &[(VertexId, DVec3)],
@@ -429,7 +464,7 @@ fn fit_both_starts(
         };
         fit_from(
             mesh,
-            &facts,
+            &sys,
             control,
             caster,
             opts,
@@ -444,16 +479,23 @@ fn fit_both_starts(
         Some(p) => (f.clone(), StartState::Paused(p), false),
         None => (f.clone(), StartState::Done(Box::new(f)), true),
     };
+    let paused_state = |starts: Vec<StartState>| FitState {
+        starts,
+        rim_moves: rim_moves.clone(),
+        sys: Some(sys.clone()),
+    };
     if rim_moves.is_empty() {
         let (f, s, done) = state(run(control, &[], states.next(), progress)?);
-        return Ok((f, (!done).then(|| FitState(vec![s]))));
+        return Ok((f, (!done).then(|| paused_state(vec![s]))));
     }
     // The two starts side by side: each round's Eigen solve is serial
     // (~40 % of a round on a million triangles), so one start's solve
     // overlaps the other's ray queries. Each is a pure function of its
     // inputs: the same result whatever the thread count. The rim start
     // reports the progress (the other's cancellation is still checked by
-    // the watched caster's chunks).
+    // the watched caster's chunks). They share one system: the samples'
+    // locations, stencils and operators depend on the control mesh's
+    // topology and its positions before the rim fit, not on the moves.
     let for_rim = control.clone();
     let (s_with, s_without) = (states.next(), states.next());
     let (with, without) = rayon::join(
@@ -470,22 +512,39 @@ fn fit_both_starts(
     };
     best.report.seconds = t0.elapsed().as_secs_f64();
     let paused = !(done_with && done_without);
-    Ok((best, paused.then(|| FitState(vec![st_with, st_without]))))
+    Ok((
+        best,
+        paused.then(|| paused_state(vec![st_with, st_without])),
+    ))
 }
 
-/// What every start of a fit asks of M (computed once per fit; on a
-/// 4.4M-triangle input each took about a second).
-struct MeshFacts {
+/// What every fit to M asks of it whatever the control mesh: computed once
+/// per fit by [`fit_deciding`], or once for a series of fits to the same M
+/// by the caller of [`fit_deciding_with`] (on a 4.4M-triangle input each
+/// part took about a second).
+pub struct MeshFacts {
     /// [`TriMesh::boundary_edge_masks`].
     rim: Vec<u8>,
     /// Area-weighted vertex normals of M.
     normals: Vec<DVec3>,
+    /// The boundary edges of M (from `rim`).
+    rim_segments: Vec<RimSegment>,
+    /// The SDM's curvatures of M's triangles (from `normals`), made by the
+    /// first fit that needs them.
+    curvatures: std::sync::OnceLock<Vec<curvature::TriCurvature>>,
 }
 
 impl MeshFacts {
-    fn of(mesh: &TriMesh) -> MeshFacts {
+    /// The facts of `mesh`.
+    pub fn of(mesh: &TriMesh) -> Arc<MeshFacts> {
         let (rim, normals) = rayon::join(|| mesh.boundary_edge_masks(), || vertex_normals(mesh));
-        MeshFacts { rim, normals }
+        let rim_segments = rim_segments(mesh, &rim);
+        Arc::new(MeshFacts {
+            rim,
+            normals,
+            rim_segments,
+            curvatures: std::sync::OnceLock::new(),
+        })
     }
 }
 
@@ -501,7 +560,7 @@ impl MeshFacts {
 #[allow(clippy::too_many_arguments)]
 fn fit_from(
     mesh: &TriMesh,
-    facts: &MeshFacts,
+    sys: &FitSystem,
     mut control: ControlMesh,
     caster: &dyn RayCaster,
     opts: &FitOptions,
@@ -513,7 +572,13 @@ fn fit_from(
     let diag = checked_diagonal(mesh)?;
     let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));
     report_progress(progress, "fit", 0.0)?;
-    let sys = FitSystem::build(mesh, facts, &mut control, opts, rim_moves)?;
+    if !sys.facts.rim_segments.is_empty() {
+        // The rim-fitted loops ([`rim`]), where M has a rim.
+        let pos = control.positions_mut();
+        for &(v, p) in rim_moves {
+            pos[v.idx()] = p;
+        }
+    }
 
     let nv = control.num_vertices();
     let mut positions = control.positions().to_vec();
@@ -526,7 +591,7 @@ fn fit_from(
     let mut first_round = 0;
     if let Some(p) = resume {
         // Where the paused fit stood: the rounds from here are the ones an
-        // uninterrupted fit runs (the system above is rebuilt the same).
+        // uninterrupted fit runs (`sys` is the one the paused fit ran on).
         (positions, best, outlier_bound, first_back) =
             (p.positions, p.best, p.outlier_bound, p.first_back);
         (iterations, first_round) = (p.iterations, p.next_round);
@@ -645,9 +710,33 @@ enum StartState {
 
 /// A fit stopped once decided, to be resumed with [`fit_deciding`] on
 /// the same inputs: its starts in order (the rim start first, on open
-/// meshes whose loops move).
-#[derive(Clone, Debug)]
-pub struct FitState(Vec<StartState>);
+/// meshes whose loops move), with the rim fit's moves and the system they
+/// share, so that the resumption rebuilds neither.
+#[derive(Clone)]
+pub struct FitState {
+    starts: Vec<StartState>,
+    rim_moves: Vec<(VertexId, DVec3)>,
+    /// `None` once released.
+    sys: Option<Arc<FitSystem>>,
+}
+
+impl FitState {
+    /// Frees the system (the samples' stencils: tens of MB on a dense
+    /// control mesh) while the fit is unlikely to be resumed; a resumption
+    /// rebuilds it, to the same result.
+    pub fn release_system(&mut self) {
+        self.sys = None;
+    }
+}
+
+impl std::fmt::Debug for FitState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FitState")
+            .field("starts", &self.starts)
+            .field("rim_moves", &self.rim_moves.len())
+            .finish_non_exhaustive()
+    }
+}
 
 /// The bounding-box diagonal of `mesh`, or the error that makes a fit to
 /// it meaningless (no triangles, or a degenerate box: the permille figures
@@ -712,19 +801,18 @@ struct FitSystem {
     /// then the border-curve samples (open M only).
     data_samples: usize,
     vertex_equations: usize,
-    /// Boundary-edge mask of each triangle of M ([`rim_edges`]).
-    rim: Vec<u8>,
-    rim_segments: Vec<RimSegment>,
+    /// M's rim masks, rim segments, normals and curvatures.
+    facts: Arc<MeshFacts>,
     /// Per sample: its target is the closest point of M's rim.
     rim_sample: Vec<bool>,
     /// The face of each sample, for the row compression of the solves.
     face: Vec<u32>,
     stencils: LimitStencils,
     laplacian: Vec<Vec<(u32, f64)>>,
-    m_normals: Vec<DVec3>,
-    /// The SDM's normals and curvatures, also for the final SDM rounds of
-    /// the point objective (`FitOptions::final_sdm_rounds`).
-    sdm: Option<(Vec<DVec3>, Vec<curvature::TriCurvature>)>,
+    /// Whether the SDM's curvatures were made (`facts.curvatures`), also
+    /// for the final SDM rounds of the point objective
+    /// (`FitOptions::final_sdm_rounds`).
+    sdm: bool,
 }
 
 /// One round's targets: `hits` after the outlier screen and the boundary
@@ -767,14 +855,15 @@ impl FitSystem {
     }
 
     /// Samples the patches ([`patch_samples`]) and the vertex equations,
-    /// and on an open M moves the rim-fitted loops into `control` and adds
-    /// the border-curve samples; then builds the stencils and operators.
+    /// and on an open M adds the border-curve samples; then builds the
+    /// stencils and operators. None of it depends on where the rim fit
+    /// moves the loops (only on the topology, and on `control`'s positions
+    /// for the patches' sample counts), so both starts share it.
     fn build(
         mesh: &TriMesh,
-        facts: &MeshFacts,
-        control: &mut ControlMesh,
+        facts: &Arc<MeshFacts>,
+        control: &ControlMesh,
         opts: &FitOptions,
-        rim_moves: &[(VertexId, DVec3)],
     ) -> Result<Self> {
         let (mut locations, ks) = patch_samples(
             control,
@@ -787,10 +876,8 @@ impl FitSystem {
         // Boundary fit (see the module docs): samples on the border curves of
         // the limit surface and the limit points of the boundary vertices take
         // the closest point of M's rim as their target.
-        let rim = facts.rim.clone();
-        let rim_segments = rim_segments(mesh, &rim);
         let mut rim_sample = vec![false; locations.len()];
-        if !rim_segments.is_empty() {
+        if !facts.rim_segments.is_empty() {
             // Boundary-curve fit (see [`rim`]): each boundary loop of the
             // control mesh is first fitted to its rim as a curve (rim → curve,
             // so the border covers the whole rim instead of hugging part of
@@ -798,11 +885,8 @@ impl FitSystem {
             // keeping the border on the rim. Holding the fitted loops fixed
             // instead was measured worse (bunny τ = 1 %: RMS D 0.48‰ held vs
             // 0.28‰ free; τ = 10 %: 1.54‰ both): the border patches need the
-            // loop to follow the interior's parameter correction.
-            let pos = control.positions_mut();
-            for &(v, p) in rim_moves {
-                pos[v.idx()] = p;
-            }
+            // loop to follow the interior's parameter correction. (The
+            // moves themselves are the start's: [`fit_from`].)
             for (v, flag) in control.vertices().zip(&mut rim_sample[data_samples..]) {
                 *flag = control.is_boundary_vertex(v);
             }
@@ -818,25 +902,24 @@ impl FitSystem {
         let face: Vec<u32> = locations.iter().map(|l| l.face.0).collect();
         let stencils = evaluator.stencils(&locations)?;
         let laplacian = umbrella(control);
-        let m_normals = facts.normals.clone();
-        let sdm = match (opts.objective, opts.final_sdm_rounds) {
-            (Objective::Point, 0) => None,
-            _ => {
-                let curv = curvature::triangle_curvatures(mesh, &m_normals);
-                Some((m_normals.clone(), curv))
-            }
-        };
+        let sdm = !matches!(
+            (opts.objective, opts.final_sdm_rounds),
+            (Objective::Point, 0)
+        );
+        if sdm {
+            facts
+                .curvatures
+                .get_or_init(|| curvature::triangle_curvatures(mesh, &facts.normals));
+        }
         Ok(FitSystem {
             ks,
             data_samples,
             vertex_equations,
-            rim,
-            rim_segments,
+            facts: facts.clone(),
             rim_sample,
             face,
             stencils,
             laplacian,
-            m_normals,
             sdm,
         })
     }
@@ -852,7 +935,7 @@ impl FitSystem {
         outlier_bound: f64,
         opts: &FitOptions,
     ) -> usize {
-        let m_normals = &self.m_normals;
+        let m_normals = &self.facts.normals;
         let mut outliers = 0;
         for (h, s) in hits.iter_mut().zip(limit) {
             let Some(p) = h else { continue };
@@ -893,7 +976,7 @@ impl FitSystem {
         let border_pts: Vec<DVec3> = border_idx.iter().map(|&i| limit[i].position).collect();
         for (&i, target) in border_idx
             .iter()
-            .zip(closest_on_segments(&self.rim_segments, &border_pts))
+            .zip(closest_on_segments(&self.facts.rim_segments, &border_pts))
         {
             hits[i] = target;
             on_rim[i] = target.is_some();
@@ -903,7 +986,7 @@ impl FitSystem {
         let lost_closest = caster.closest_points(&lost_pts, f64::INFINITY)?;
         for (&i, c) in lost_idx.iter().zip(&lost_closest) {
             if let Some(c) = c {
-                if on_rim_edge(self.rim[c.triangle as usize], c.u, c.v) {
+                if on_rim_edge(self.facts.rim[c.triangle as usize], c.u, c.v) {
                     hits[i] = Some(Projected {
                         point: c.point,
                         offset: c.distance,
@@ -936,11 +1019,12 @@ impl FitSystem {
     ) -> Result<Vec<DVec3>> {
         let (stencils, hits, face, laplacian) =
             (&self.stencils, &targets.hits, &self.face, &self.laplacian);
-        match &self.sdm.as_ref().filter(|_| use_sdm) {
+        let curvatures = self.facts.curvatures.get().filter(|_| self.sdm && use_sdm);
+        match curvatures {
             None => solve_point(stencils, limit, hits, face, laplacian, nv, opts),
-            Some((normals, curv)) => solve_sdm(
+            Some(curv) => solve_sdm(
                 mesh,
-                normals,
+                &self.facts.normals,
                 curv,
                 stencils,
                 limit,
