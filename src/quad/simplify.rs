@@ -857,7 +857,8 @@ struct UndoLists {
     revive: Vec<VertexId>,
 }
 
-/// The faces of a region before a step, for its undo.
+/// The faces of a region before a step, for its undo when a log cannot
+/// serve (a step that shares its batch, `field::cleanup`'s moves).
 pub(crate) struct Snapshot {
     pub(crate) vertices: Vec<VertexId>,
     pub(crate) faces: Vec<(FaceId, [VertexId; 4])>,
