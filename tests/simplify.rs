@@ -281,8 +281,11 @@ fn progress_can_cancel() {
 
 /// The surface guard (§3.4's refit must keep the limit on M): with a tight
 /// bound it undoes collapses; every undo restores a valid mesh (invariants
-/// checked after every step, undo included), and at the end no patch
-/// centre is further from M than the bound the guard enforced.
+/// checked after every step, undo included), the undo built from the
+/// step's log of changed faces equals the one built from a snapshot of its
+/// region (`check_every_step` compares them and fails the run otherwise),
+/// and at the end no patch centre is further from M than the bound the
+/// guard enforced.
 #[test]
 fn guard_undoes_collapses_and_keeps_the_surface_on_m() {
     let Some(m) = common::load_data_mesh("spot.ply") else {

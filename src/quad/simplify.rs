@@ -42,8 +42,8 @@ use serde::Serialize;
 
 use super::interpolate::interpolate_limit_polled;
 use super::ops::{
-    can_collapse_diagonal, can_rotate_edge, collapse_diagonal, remove_doublets, rotate_edge,
-    rotation_energy_gain, CollapsePlan, Rotation, ValenceTargets,
+    can_collapse_diagonal, can_rotate_edge, collapse_diagonal_logged, remove_doublets,
+    rotate_edge_logged, rotation_energy_gain, CollapsePlan, FaceLog, Rotation, ValenceTargets,
 };
 use super::quadrangulate::quadrangulate_polled;
 use super::{vertex_limit_mask, vertex_limit_mask_into, InterpolationOptions};
@@ -696,6 +696,14 @@ struct Candidate {
     plan: CollapsePlan,
     /// The diagonal's ends, (smaller, larger) id: the key of `refused`.
     pair: (u32, u32),
+    /// The faces the step changed, for its undo (when it may be undone and
+    /// is alone in its batch).
+    log: Option<FaceLog>,
+    /// The region before the step, for its undo when it shares its batch:
+    /// a face id another candidate freed may be reused by this one's
+    /// collapse (or the other way round), and only the region tells whose
+    /// face it is. Taken beside a log under `check_every_step`, to check
+    /// that both give the same undo.
     snap: Option<Snapshot>,
     pos_log: Vec<(VertexId, DVec3)>,
     lim_log: Vec<(VertexId, DVec3)>,
@@ -710,6 +718,7 @@ impl Candidate {
             entry,
             plan,
             pair,
+            log: None,
             snap: None,
             pos_log: Vec::new(),
             lim_log: Vec::new(),
@@ -839,7 +848,17 @@ const BATCH_RINGS: usize = 7;
 /// batch on a coarse mesh, where most regions meet.
 const BATCH_DEFER: usize = 2;
 
-/// The faces of a region before a step, for its undo.
+/// What an undo replaces ([`Simplifier::restore`]): faces to remove,
+/// quads to put back (both in face id order) and vertices to revive.
+#[derive(Debug, PartialEq)]
+struct UndoLists {
+    remove: Vec<FaceId>,
+    add: Vec<[VertexId; 4]>,
+    revive: Vec<VertexId>,
+}
+
+/// The faces of a region before a step, for its undo when a log cannot
+/// serve (a step that shares its batch, `field::cleanup`'s moves).
 pub(crate) struct Snapshot {
     pub(crate) vertices: Vec<VertexId>,
     pub(crate) faces: Vec<(FaceId, [VertexId; 4])>,
@@ -1593,6 +1612,9 @@ impl<'a> Simplifier<'a> {
             batch = keep;
         }
         let guard = self.opts.guard_scale > 0.0;
+        // One candidate (the sequential loop): nothing but its own step
+        // changes the connectivity before its undo, so its log suffices.
+        let alone = batch.len() == 1;
         let mut done = Vec::with_capacity(batch.len());
         for mut c in batch {
             let f = c.face();
@@ -1618,9 +1640,12 @@ impl<'a> Simplifier<'a> {
                 }
             }
             let plan = c.plan;
-            c.snap = (guard || target > 0).then(|| self.snapshot(f));
+            let undoable = guard || target > 0;
+            c.log = (undoable && alone).then(FaceLog::default);
+            c.snap = (undoable && (!alone || self.opts.check_every_step)).then(|| self.snapshot(f));
             c.pos_log.push((plan.keep, self.k.position(plan.keep)));
-            let col = collapse_diagonal(&mut self.k, f, d, Some(plan.position))?;
+            let col =
+                collapse_diagonal_logged(&mut self.k, f, d, Some(plan.position), c.log.as_mut())?;
             stats.collapses += 1;
             stats.doublets += col.doublets.len();
             c.doublets = col.doublets.len();
@@ -1628,7 +1653,7 @@ impl<'a> Simplifier<'a> {
             let mut touched = vec![col.keep, plan.sides[0], plan.sides[1]];
             touched.retain(|&v| !self.k.is_vertex_deleted(v));
             let centres = touched.clone();
-            c.rotations = self.rotate_around(&centres, &mut touched)?;
+            c.rotations = self.rotate_around(&centres, &mut touched, c.log.as_mut())?;
             stats.rotations += c.rotations;
             c.touched = touched;
             done.push(c);
@@ -1641,10 +1666,10 @@ impl<'a> Simplifier<'a> {
         let mut kept = 0;
         for (c, checks) in done.into_iter().zip(checks) {
             let f = c.face();
-            let Some(snap) = c.snap else {
+            if c.log.is_none() && c.snap.is_none() {
                 kept += 1;
                 continue;
-            };
+            }
             let Some(why) = self.refusal(guard, &checks, floor) else {
                 kept += 1;
                 continue;
@@ -1656,7 +1681,26 @@ impl<'a> Simplifier<'a> {
             stats.rotations -= c.rotations;
             self.pos_log = c.pos_log;
             self.lim_log = c.lim_log;
-            self.undo(snap)?;
+            let lists = match (&c.log, &c.snap) {
+                (Some(log), snap) => {
+                    let lists = self.log_lists(log);
+                    if let Some(want) = snap.as_ref().map(|s| self.snapshot_lists(s)) {
+                        if lists != want {
+                            return Err(Error::topology(
+                                f.to_string(),
+                                format!(
+                                    "the undo from the step's log {lists:?} differs from \
+                                     the undo from its snapshot {want:?}"
+                                ),
+                            ));
+                        }
+                    }
+                    lists
+                }
+                (None, Some(snap)) => self.snapshot_lists(snap),
+                (None, None) => continue, // kept above
+            };
+            self.restore(lists)?;
             self.refused.insert(c.pair, why);
             self.check_step("undo")?;
         }
@@ -1914,6 +1958,15 @@ impl<'a> Simplifier<'a> {
     /// [`ControlMesh::restore_faces`]), positions and limit points back from
     /// the step's logs, then fresh heap entries for the restored area.
     pub(crate) fn undo(&mut self, snap: Snapshot) -> Result<()> {
+        let lists = self.snapshot_lists(&snap);
+        self.restore(lists)
+    }
+
+    /// What [`Simplifier::undo`] replaces to go back to `snap`: the faces
+    /// to remove (live ones that differ from the snapshot's), the quads to
+    /// put back (the snapshot's that differ from the live ones), both in
+    /// face id order, and the vertices to revive.
+    fn snapshot_lists(&self, snap: &Snapshot) -> UndoLists {
         let k = &self.k;
         let mut now: Vec<(FaceId, [VertexId; 4])> = snap
             .vertices
@@ -1929,11 +1982,11 @@ impl<'a> Simplifier<'a> {
             .filter(|x| snap.faces.binary_search(x).is_err())
             .map(|x| x.0)
             .collect();
-        let add: Vec<&[VertexId]> = snap
+        let add: Vec<[VertexId; 4]> = snap
             .faces
             .iter()
             .filter(|x| now.binary_search(x).is_err())
-            .map(|x| x.1.as_slice())
+            .map(|x| x.1)
             .collect();
         let revive: Vec<VertexId> = snap
             .vertices
@@ -1941,6 +1994,68 @@ impl<'a> Simplifier<'a> {
             .copied()
             .filter(|&v| k.is_vertex_deleted(v))
             .collect();
+        UndoLists {
+            remove,
+            add,
+            revive,
+        }
+    }
+
+    /// The lists of [`Simplifier::snapshot_lists`] from the log of the
+    /// step instead of a snapshot taken before it: the faces the step
+    /// touched, each compared as it was before its first change (a face id
+    /// first added in the step was no face before it) with what it is
+    /// now. The same lists, in the same order, whenever the snapshot holds
+    /// every face the step changed (the snapshot's rings are chosen so
+    /// that it does; `check_every_step` compares the two).
+    fn log_lists(&self, log: &FaceLog) -> UndoLists {
+        let k = &self.k;
+        let mut before: BTreeMap<FaceId, Option<[VertexId; 4]>> = BTreeMap::new();
+        let (mut removed, mut added) = (log.removed.iter(), log.added.iter());
+        for &removal in &log.order {
+            if removal {
+                if let Some(&(f, q)) = removed.next() {
+                    before.entry(f).or_insert(Some(q));
+                }
+            } else if let Some(&f) = added.next() {
+                before.entry(f).or_insert(None);
+            }
+        }
+        let mut remove = Vec::new();
+        let mut add = Vec::new();
+        for (f, was) in before {
+            let now = (!k.is_face_deleted(f)).then(|| super::ops::quad(k, f));
+            if now == was {
+                continue;
+            }
+            if now.is_some() {
+                remove.push(f);
+            }
+            add.extend(was);
+        }
+        let mut revive: Vec<VertexId> = log
+            .deleted
+            .iter()
+            .copied()
+            .filter(|&v| k.is_vertex_deleted(v))
+            .collect();
+        revive.sort_unstable();
+        revive.dedup();
+        UndoLists {
+            remove,
+            add,
+            revive,
+        }
+    }
+
+    /// The undo proper (see [`Simplifier::undo`]) from its lists.
+    fn restore(&mut self, lists: UndoLists) -> Result<()> {
+        let UndoLists {
+            remove,
+            add,
+            revive,
+        } = lists;
+        let add: Vec<&[VertexId]> = add.iter().map(|q| q.as_slice()).collect();
         self.k.restore_faces(&remove, &add, &revive)?;
         for &(v, p) in self.pos_log.iter().rev() {
             self.k.positions_mut()[v.idx()] = p;
@@ -2034,6 +2149,7 @@ impl<'a> Simplifier<'a> {
         &mut self,
         centres: &[VertexId],
         touched: &mut Vec<VertexId>,
+        mut log: Option<&mut FaceLog>,
     ) -> Result<usize> {
         let k = &self.k;
         let mut edges: Vec<_> = centres
@@ -2057,7 +2173,7 @@ impl<'a> Simplifier<'a> {
                 }
             }
             if let Some((_, dir)) = best {
-                let x = rotate_edge(&mut self.k, h, dir)?;
+                let x = rotate_edge_logged(&mut self.k, h, dir, log.as_deref_mut())?;
                 touched.extend_from_slice(&x);
                 n += 1;
                 self.check_step("rotation")?;

@@ -4,7 +4,7 @@
 //! removed at once (§3.3.3), so the operator never leaves a valence-2
 //! interior vertex.
 
-use super::remove_doublet::remove_doublets;
+use super::remove_doublet::remove_doublets_logged;
 use super::{adjacent, min_valence, quad};
 use crate::error::{Error, Result};
 use crate::mesh::{ControlMesh, FaceId, VertexId};
@@ -173,6 +173,17 @@ pub fn collapse_diagonal(
     k: usize,
     position: Option<DVec3>,
 ) -> Result<Collapsed> {
+    collapse_diagonal_logged(mesh, f, k, position, None)
+}
+
+/// [`collapse_diagonal`], written to `log` when there is one.
+pub(crate) fn collapse_diagonal_logged(
+    mesh: &mut ControlMesh,
+    f: FaceId,
+    k: usize,
+    position: Option<DVec3>,
+    mut log: Option<&mut super::FaceLog>,
+) -> Result<Collapsed> {
     let plan = can_collapse_diagonal(mesh, f, k)
         .map_err(|why| Error::topology(f.to_string(), format!("cannot collapse: {why}")))?;
     let (keep, remove) = (plan.keep, plan.remove);
@@ -192,14 +203,14 @@ pub fn collapse_diagonal(
     let add: Vec<&[VertexId]> = added.iter().map(|p| p.as_slice()).collect();
     let mut delete = vec![remove];
     delete.extend(plan.corner);
-    mesh.replace_faces(&removed_faces, &add, &delete)?;
+    super::replace_logged(mesh, &removed_faces, &add, &delete, log.as_deref_mut())?;
     mesh.positions_mut()[keep.idx()] = position.unwrap_or(plan.position);
     let sides: Vec<VertexId> = plan
         .sides
         .into_iter()
         .filter(|&s| Some(s) != plan.corner)
         .collect();
-    let (doublets, _) = remove_doublets(mesh, &sides)?;
+    let (doublets, _) = remove_doublets_logged(mesh, &sides, log)?;
     Ok(Collapsed {
         keep,
         removed: remove,

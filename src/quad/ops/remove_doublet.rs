@@ -40,10 +40,19 @@ pub fn can_remove_doublet(mesh: &ControlMesh, v: VertexId) -> Result<[VertexId; 
 /// Removes the doublet at `v`; returns its two former neighbours `x`, `y`
 /// (each lost an edge, so either may now be a doublet itself).
 pub fn remove_doublet(mesh: &mut ControlMesh, v: VertexId) -> Result<[VertexId; 2]> {
+    remove_doublet_logged(mesh, v, None)
+}
+
+/// [`remove_doublet`], written to `log` when there is one.
+pub(crate) fn remove_doublet_logged(
+    mesh: &mut ControlMesh,
+    v: VertexId,
+    log: Option<&mut super::FaceLog>,
+) -> Result<[VertexId; 2]> {
     let merged = can_remove_doublet(mesh, v)
         .map_err(|why| Error::topology(v.to_string(), format!("cannot remove doublet: {why}")))?;
     let faces: Vec<_> = mesh.vertex_faces(v).collect();
-    mesh.replace_faces(&faces, &[&merged], &[v])?;
+    super::replace_logged(mesh, &faces, &[&merged], &[v], log)?;
     Ok([merged[0], merged[2]])
 }
 
@@ -56,12 +65,21 @@ pub fn remove_doublets(
     mesh: &mut ControlMesh,
     candidates: &[VertexId],
 ) -> Result<(Vec<VertexId>, Vec<VertexId>)> {
+    remove_doublets_logged(mesh, candidates, None)
+}
+
+/// [`remove_doublets`], written to `log` when there is one.
+pub(crate) fn remove_doublets_logged(
+    mesh: &mut ControlMesh,
+    candidates: &[VertexId],
+    mut log: Option<&mut super::FaceLog>,
+) -> Result<(Vec<VertexId>, Vec<VertexId>)> {
     let mut stack: Vec<VertexId> = candidates.iter().rev().copied().collect();
     let mut removed = Vec::new();
     let mut touched = Vec::new();
     while let Some(v) = stack.pop() {
         if can_remove_doublet(mesh, v).is_ok() {
-            let [x, y] = remove_doublet(mesh, v)?;
+            let [x, y] = remove_doublet_logged(mesh, v, log.as_deref_mut())?;
             removed.push(v);
             touched.extend([x, y]);
             stack.extend([y, x]);

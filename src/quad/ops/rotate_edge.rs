@@ -103,11 +103,21 @@ pub fn rotation_energy_gain(
 
 /// Rotates the edge of `h`; returns the hexagon's vertices.
 pub fn rotate_edge(mesh: &mut ControlMesh, h: HalfedgeId, dir: Rotation) -> Result<[VertexId; 6]> {
+    rotate_edge_logged(mesh, h, dir, None)
+}
+
+/// [`rotate_edge`], written to `log` when there is one.
+pub(crate) fn rotate_edge_logged(
+    mesh: &mut ControlMesh,
+    h: HalfedgeId,
+    dir: Rotation,
+    log: Option<&mut super::FaceLog>,
+) -> Result<[VertexId; 6]> {
     let x = can_rotate_edge(mesh, h, dir)
         .map_err(|why| Error::topology(h.to_string(), format!("cannot rotate: {why}")))?;
     let (faces, _) = rotated(x, dir);
     let f1 = mesh.face_of(h).expect("checked");
     let f2 = mesh.face_of(h.twin()).expect("checked");
-    mesh.replace_faces(&[f1, f2], &[&faces[0], &faces[1]], &[])?;
+    super::replace_logged(mesh, &[f1, f2], &[&faces[0], &faces[1]], &[], log)?;
     Ok(x)
 }
