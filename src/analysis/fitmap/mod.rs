@@ -1318,7 +1318,7 @@ impl<'a> Ctx<'a> {
         // The set-up's parts are independent sequential passes over M, each
         // a function of M alone: they run side by side (rayon joins) rather
         // than one after the other, which left a core idle for the whole
-        // set-up (~5 % of the Fitmap's wall time on bunny). Each part is
+        // set-up (a few percent of the Fitmap's wall time on bunny). Each part is
         // computed exactly as before, so the values are the same.
         let ((normals, samples), adj) = rayon::join(
             || {
