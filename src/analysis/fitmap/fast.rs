@@ -227,6 +227,16 @@ fn fit_level0_radii(
         &mut sc.pending,
         &mut sorted,
     );
+    // The balls are nested prefixes of `sorted` (by key), so the points of
+    // every radius are a prefix of the whole ball's local coordinates:
+    // taken into the frame once, not once per radius (the same values in
+    // the same order, hence the same fits).
+    sc.pts.clear();
+    sc.pts.extend(
+        sorted
+            .iter()
+            .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
+    );
     for i in 0..i0 {
         let r = ctx.radii[i];
         let nb = sorted.partition_point(|&(k, _)| k <= r);
@@ -237,14 +247,8 @@ fn fit_level0_radii(
         // O(|B|) and level-0 balls are small (at most about
         // FAST_LEVEL0_MAX_VERTICES), while a subsampled cubic would move
         // the M-test's lines and with them verdicts near τ.
-        sc.pts.clear();
-        sc.pts.extend(
-            sorted[..nb]
-                .iter()
-                .map(|&(_, v)| frame.to_local(ctx.mesh.positions[v as usize])),
-        );
         res.fits += 1;
-        let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts, None, r) else {
+        let Some(CubicFit { cubic, rms }) = fit_cubic(&sc.pts[..nb], None, r) else {
             continue;
         };
         fits.errors.push((r, rms));
