@@ -190,9 +190,15 @@ pub struct FieldRound {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub off_m_permille: Option<f64>,
     /// With the thin round: the patches whose RMS distance to M′ is above
-    /// [`super::thin::FAR`] times the surface's.
+    /// [`super::thin::FAR`] times the surface's, plus those holding
+    /// [`super::thin::SHARE`] of the uncarried squared distance.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub patches_off_m: Option<usize>,
+    /// With the thin round: the RMS over the limit's area of the distance
+    /// to M′ at the samples the displacement cannot carry onto M′, ‰
+    /// ([`super::thin::OffM::uncarried`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncarried_permille: Option<f64>,
     /// With the thin round, on its own round: whether it was kept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kept: Option<bool>,
@@ -278,6 +284,7 @@ pub fn fit_field(
             patches_split: None,
             off_m_permille: None,
             patches_off_m: None,
+            uncarried_permille: None,
             kept: None,
         });
         let next = match (e, measured) {
