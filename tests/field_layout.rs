@@ -697,15 +697,15 @@ fn cleanup_moves_annihilate_separated_dislocations() {
     assert_eq!(stats.energy_after, 0);
 }
 
-/// The field layout's cleanup as `--layout field --faces N` runs it
-/// (default options with a face target): the two separated 3–5 pairs of
-/// [`cleanup_moves_annihilate_separated_dislocations`] must go (issue 40
-/// item 2: the moves after the count phase), the count must stay N (the
-/// moves and the rotation sweeps after them remove no face), pure quads.
-/// With single operations only this ends at the planted 4 irregular
-/// vertices.
+/// The cleanup with a face target and the moves after the count phase
+/// (`CleanupOptions::moves_after_count`, off by default): the two
+/// separated 3–5 pairs of [`cleanup_moves_annihilate_separated_dislocations`]
+/// must go, the count must stay N (the moves and the rotation-only sweeps
+/// after them remove no face), pure quads, every step validated. With
+/// single operations only (the default) this ends at the planted 4
+/// irregular vertices, which the test checks too.
 #[test]
-fn face_target_cleanup_annihilates_separated_dislocations() {
+fn late_moves_keep_the_face_target_and_annihilate_dislocations() {
     let m = grid_mesh(41, 41, false, false, |u, v| DVec3::new(u, v, 0.0));
     let fm = flat_fitmap(m.positions.len());
     let caster = BvhCaster::new(&m).unwrap();
@@ -727,9 +727,13 @@ fn face_target_cleanup_annihilates_separated_dislocations() {
         .expect("an energy-neutral rotation beside a pair");
     rotate_edge(&mut k, h, dir).unwrap();
     assert_eq!(irregular_vertices(&k), 4);
-    let opts = CleanupOptions::default()
+    let single = CleanupOptions::default()
         .with_check_every_step(true)
         .with_target_faces(Some(100));
+    let (out, _) = cleanup(&m, &fm, &caster, k.clone(), &single).unwrap();
+    assert_eq!(irregular_vertices(&out), 4, "single operations only");
+    let mut opts = single.with_move_rounds(2);
+    opts.moves_after_count = true;
     let (out, stats) = cleanup(&m, &fm, &caster, k, &opts).unwrap();
     eprintln!("{}", serde_json::to_string(&stats).unwrap());
     assert!(out.is_all_quads());

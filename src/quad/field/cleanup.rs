@@ -785,10 +785,12 @@ fn fit_guard(
         return Ok(false);
     }
     if !redo(s)? {
-        return Err(crate::Error::topology(
-            "mesh",
-            "an operation that applied once did not apply again after its undo",
-        ));
+        // The undo restores the region's faces under new ids, so an
+        // operation named by a half-edge may not be found again: it stays
+        // undone (an error here made a whole `--faces` pass fail, and the
+        // count passes keep a worse lattice: gargoyle τ 10 % `--faces 402`
+        // ended at 316 faces with the moves after the count phase).
+        return Ok(false);
     }
     let ids = before.ids();
     if ids == after.ids() {
