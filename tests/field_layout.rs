@@ -697,6 +697,51 @@ fn cleanup_moves_annihilate_separated_dislocations() {
     assert_eq!(stats.energy_after, 0);
 }
 
+/// The cleanup with a face target and the moves after the count phase
+/// (`CleanupOptions::moves_after_count`, off by default): the two
+/// separated 3–5 pairs of [`cleanup_moves_annihilate_separated_dislocations`]
+/// must go, the count must stay N (the moves and the rotation-only sweeps
+/// after them remove no face), pure quads, every step validated. With
+/// single operations only (the default) this ends at the planted 4
+/// irregular vertices, which the test checks too.
+#[test]
+fn late_moves_keep_the_face_target_and_annihilate_dislocations() {
+    let m = grid_mesh(41, 41, false, false, |u, v| DVec3::new(u, v, 0.0));
+    let fm = flat_fitmap(m.positions.len());
+    let caster = BvhCaster::new(&m).unwrap();
+    let mut k = quad_grid(10);
+    let (a, b) = (
+        subdfit::mesh::VertexId(5 * 11 + 5),
+        subdfit::mesh::VertexId(5 * 11 + 6),
+    );
+    let h = k.outgoing(a).find(|&h| k.head(h) == b).unwrap();
+    rotate_edge(&mut k, h, Rotation::Ccw).unwrap();
+    let vt = ValenceTargets::new(&k);
+    let (h, dir) = k
+        .edges()
+        .map(|e| e.halfedge())
+        .flat_map(|h| [(h, Rotation::Ccw), (h, Rotation::Cw)])
+        .find(|&(h, d)| {
+            can_rotate_edge(&k, h, d).is_ok_and(|x| rotation_energy_gain(&k, &vt, &x, d) == 0)
+        })
+        .expect("an energy-neutral rotation beside a pair");
+    rotate_edge(&mut k, h, dir).unwrap();
+    assert_eq!(irregular_vertices(&k), 4);
+    let single = CleanupOptions::default()
+        .with_check_every_step(true)
+        .with_target_faces(Some(100));
+    let (out, _) = cleanup(&m, &fm, &caster, k.clone(), &single).unwrap();
+    assert_eq!(irregular_vertices(&out), 4, "single operations only");
+    let mut opts = single.with_move_rounds(2);
+    opts.moves_after_count = true;
+    let (out, stats) = cleanup(&m, &fm, &caster, k, &opts).unwrap();
+    eprintln!("{}", serde_json::to_string(&stats).unwrap());
+    assert!(out.is_all_quads());
+    assert_eq!(out.num_faces(), 100);
+    assert_eq!(irregular_vertices(&out), 0);
+    assert!(stats.moves >= 1, "{stats:?}");
+}
+
 /// On the raw extraction of a torus at uniform size (the dislocations the
 /// lattice needs: 3–5 pairs no single operation removes) with one more
 /// pair of pairs planted by a rotation, the cleanup keeps the genus and

@@ -440,7 +440,22 @@ fn clean(
     mut out: FieldLayout,
     target_faces: Option<usize>,
 ) -> Result<FieldLayout> {
-    let co = cleanup::CleanupOptions::default().with_target_faces(target_faces);
+    let mut co = cleanup::CleanupOptions::default().with_target_faces(target_faces);
+    if let Some(n) = std::env::var("SUBDFIT_CLEANUP_MOVES")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+    {
+        co = co.with_move_rounds(n);
+    }
+    if let Some(r) = std::env::var("SUBDFIT_CLEANUP_RISE")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+    {
+        co.move_fit_rise = r;
+    }
+    if std::env::var_os("SUBDFIT_CLEANUP_LATE").is_some() {
+        co.moves_after_count = true;
+    }
     let (control, cs) = cleanup::cleanup(mesh, fitmap, caster, out.control, &co)?;
     out.stats.vertices = control.num_vertices();
     out.stats.faces = control.num_faces();
