@@ -416,7 +416,23 @@ fn fit_both_starts(
     } else {
         rim::fit_rims(mesh, &facts.rim, &control).moved
     };
-    let mut states = resume.map(|s| s.0).unwrap_or_default().into_iter();
+    let states: Vec<StartState> = resume.map(|s| s.0).unwrap_or_default();
+    // The sample locations, their limit stencils and the operators depend
+    // on the control mesh's connectivity only, which both starts share
+    // (the rim start only moves boundary vertices): built once, not once
+    // per start (each start had built the same stencils). Not built when
+    // a resumed fit has both starts finished.
+    let all_done = !states.is_empty()
+        && states.len() == 1 + usize::from(!rim_moves.is_empty())
+        && states.iter().all(|s| matches!(s, StartState::Done(_)));
+    let sys = match all_done {
+        true => None,
+        false => {
+            checked_diagonal(mesh)?;
+            Some(FitSystem::build(mesh, &facts, &control, opts)?)
+        }
+    };
+    let mut states = states.into_iter();
     // One start from its state (a finished one is its result).
     let run = |control: ControlMesh,
                moves: &[(VertexId, DVec3)],
@@ -427,9 +443,12 @@ fn fit_both_starts(
             Some(StartState::Paused(p)) => Some(p),
             None => None,
         };
+        let Some(sys) = sys.as_ref() else {
+            return Err(Error::internal("fit: a start to run without its system"));
+        };
         fit_from(
             mesh,
-            &facts,
+            sys,
             control,
             caster,
             opts,
@@ -501,7 +520,7 @@ impl MeshFacts {
 #[allow(clippy::too_many_arguments)]
 fn fit_from(
     mesh: &TriMesh,
-    facts: &MeshFacts,
+    sys: &FitSystem,
     mut control: ControlMesh,
     caster: &dyn RayCaster,
     opts: &FitOptions,
@@ -513,7 +532,13 @@ fn fit_from(
     let diag = checked_diagonal(mesh)?;
     let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));
     report_progress(progress, "fit", 0.0)?;
-    let sys = FitSystem::build(mesh, facts, &mut control, opts, rim_moves)?;
+    if !sys.rim_segments.is_empty() {
+        // The boundary-curve fit's loops (see `FitSystem::build`).
+        let pos = control.positions_mut();
+        for &(v, p) in rim_moves {
+            pos[v.idx()] = p;
+        }
+    }
 
     let nv = control.num_vertices();
     let mut positions = control.positions().to_vec();
@@ -767,14 +792,16 @@ impl FitSystem {
     }
 
     /// Samples the patches ([`patch_samples`]) and the vertex equations,
-    /// and on an open M moves the rim-fitted loops into `control` and adds
-    /// the border-curve samples; then builds the stencils and operators.
+    /// and on an open M adds the border-curve samples; then builds the
+    /// stencils and operators. All of it depends on `control`'s
+    /// connectivity and sample counts only, not on where the rim-fitted
+    /// loops move its boundary vertices ([`fit_from`] moves them): one
+    /// system serves both starts.
     fn build(
         mesh: &TriMesh,
         facts: &MeshFacts,
-        control: &mut ControlMesh,
+        control: &ControlMesh,
         opts: &FitOptions,
-        rim_moves: &[(VertexId, DVec3)],
     ) -> Result<Self> {
         let (mut locations, ks) = patch_samples(
             control,
@@ -798,11 +825,8 @@ impl FitSystem {
             // keeping the border on the rim. Holding the fitted loops fixed
             // instead was measured worse (bunny τ = 1 %: RMS D 0.48‰ held vs
             // 0.28‰ free; τ = 10 %: 1.54‰ both): the border patches need the
-            // loop to follow the interior's parameter correction.
-            let pos = control.positions_mut();
-            for &(v, p) in rim_moves {
-                pos[v.idx()] = p;
-            }
+            // loop to follow the interior's parameter correction. (The
+            // loops are moved per start, in `fit_from`.)
             for (v, flag) in control.vertices().zip(&mut rim_sample[data_samples..]) {
                 *flag = control.is_boundary_vertex(v);
             }
