@@ -194,8 +194,10 @@ impl Edges {
                 start[a.min(b) as usize + 1] += 1;
             }
         }
-        for i in 1..start.len() {
-            start[i] += start[i - 1];
+        let mut sum = 0;
+        for c in &mut start {
+            sum += *c;
+            *c = sum;
         }
         let mut fill = start.clone();
         let mut out = vec![(0u64, 0u32); 3 * mesh.triangles.len()];
