@@ -526,7 +526,7 @@ fn round_rows(
             }
             ne.add_row(&row, sw * e)
         },
-        &stop,
+        stop,
     )?;
     drop(order);
     drop(d_caster);
@@ -555,7 +555,7 @@ fn round_rows(
             }
             ne.add_row(&row, sw * e)
         },
-        &stop,
+        stop,
     )?;
     Ok((score.into_inner(), ne.filter(|_| complete), complete))
 }
