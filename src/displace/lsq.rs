@@ -48,6 +48,9 @@
 //! of A and AᵀA, and the closest points of whole batches had taken the
 //! stage's peak to 9 GB; now the conversion peaks at 5.2 GB.
 
+use std::borrow::Cow;
+use std::cell::RefCell;
+
 use serde::Serialize;
 
 use crate::error::Result;
@@ -142,7 +145,7 @@ struct Edges {
 impl Edges {
     fn of(mesh: &TriMesh) -> Edges {
         use rayon::prelude::*;
-        let sides = mesh.sorted_sides();
+        let sides = Edges::sorted_sides(mesh);
         let area: Vec<f64> = (0..mesh.triangles.len())
             .into_par_iter()
             .map(|t| {
@@ -156,7 +159,7 @@ impl Edges {
             faces: Vec::new(),
         };
         let mut last = u64::MAX;
-        for &(key, t) in &sides {
+        for (key, t) in sides {
             if key != last {
                 e.ends.push([(key >> 32) as u32, key as u32]);
                 e.weight.push(0.0);
@@ -168,6 +171,47 @@ impl Edges {
             *f = f.saturating_add(1);
         }
         e
+    }
+
+    /// The triangle sides of `mesh` as `(edge_key, triangle)`, in the
+    /// order of [`TriMesh::sorted_sides`] (by key, then triangle), by a
+    /// counting sort on the lower end: every round of [`refine_offsets_on`]
+    /// takes D's edges anew, and the general sort of all its sides was
+    /// ~3 % of a fit's CPU on bunny. Each lower end's bucket holds a few
+    /// sides, already in triangle order; sorting it by the upper end then
+    /// the triangle gives the same sequence as the general sort.
+    fn sorted_sides(mesh: &TriMesh) -> Vec<(u64, u32)> {
+        let sides = |t: &[u32; 3]| [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])];
+        let ends = mesh
+            .triangles
+            .iter()
+            .flat_map(|t| *t)
+            .max()
+            .map_or(0, |m| m as usize + 1);
+        let mut start = vec![0usize; ends + 1];
+        for t in &mesh.triangles {
+            for (a, b) in sides(t) {
+                start[a.min(b) as usize + 1] += 1;
+            }
+        }
+        let mut sum = 0;
+        for c in &mut start {
+            sum += *c;
+            *c = sum;
+        }
+        let mut fill = start.clone();
+        let mut out = vec![(0u64, 0u32); 3 * mesh.triangles.len()];
+        for (i, t) in mesh.triangles.iter().enumerate() {
+            for (a, b) in sides(t) {
+                let lo = a.min(b) as usize;
+                out[fill[lo]] = (crate::mesh::edge_key(a, b), i as u32);
+                fill[lo] += 1;
+            }
+        }
+        for w in start.windows(2) {
+            out[w[0]..w[1]].sort_unstable();
+        }
+        out
     }
 
     fn len(&self) -> usize {
@@ -200,16 +244,22 @@ impl Edges {
 /// `positions`, in `order`, handed to `each(edge, midpoint, hit)` in that
 /// order. Sub-batches of [`crate::raycast::SUB_BATCH`] queries: the caster
 /// answers them as they come (already in Z-order), and only one
-/// sub-batch of answers is held, not one per query.
+/// sub-batch of answers is held, not one per query. `stop()`, asked
+/// after each sub-batch, ends the visit early (a round already known to
+/// be rejected, [`Verdict`]); returns whether every point was visited.
 fn closest_in_order(
     edges: &Edges,
     positions: &[DVec3],
     order: &[u32],
     caster: &dyn RayCaster,
     mut each: impl FnMut(usize, DVec3, &ClosestPoint) -> Result<()>,
-) -> Result<()> {
+    stop: impl Fn() -> bool,
+) -> Result<bool> {
     let mut pts = Vec::with_capacity(crate::raycast::SUB_BATCH);
     for part in order.chunks(crate::raycast::SUB_BATCH) {
+        if stop() {
+            return Ok(false);
+        }
         pts.clear();
         pts.extend(part.iter().map(|&k| edges.midpoint(positions, k as usize)));
         let hits = caster.closest_points(&pts, f64::INFINITY)?;
@@ -219,7 +269,7 @@ fn closest_in_order(
             }
         }
     }
-    Ok(())
+    Ok(true)
 }
 
 fn unit_normal([a, b, c]: [DVec3; 3]) -> DVec3 {
@@ -263,6 +313,9 @@ pub fn refine_offsets_on(
     let total_m: f64 = m_edges.weight.iter().sum();
     let mut stats = LsqOffsetStats::default();
     let fixed = border_samples(mesh, &m_edges, mesh_caster, disp)?;
+    // M does not move: its edges' Z-order is the same every round (a check
+    // round's stride only leaves some out, as `Edges::visit_order` does).
+    let m_order = m_edges.visit_order(&mesh.positions, 1);
     let mut current = disp.offsets.clone();
     let mut current_obj = f64::INFINITY;
     // The objective on every CHECK_STRIDE-th point of each list: what the
@@ -299,11 +352,14 @@ pub fn refine_offsets_on(
             mesh,
             mesh_caster,
             m_edges: &m_edges,
+            m_order: &m_order,
             total_m,
             host,
             pattern: pattern.as_ref(),
         };
-        let (score, ne) = round_rows(&at, disp, check_only)?;
+        // The value this round must stay below to be kept.
+        let reject_at = if check_only { current_sub } else { current_obj };
+        let (score, ne, complete) = round_rows(&at, disp, check_only, reject_at)?;
         let (obj, sub) = score.rms();
         // The stats are the subsample's, the one figure every round has.
         if round == 0 {
@@ -311,11 +367,14 @@ pub fn refine_offsets_on(
         }
         // Like with like: the check round against the subsample's value
         // before the update, a full round against the full one.
-        let worse = if check_only {
-            sub >= current_sub
-        } else {
-            obj >= current_obj
-        };
+        // An incomplete round stopped once certain to be rejected
+        // ([`Verdict`]).
+        let worse = !complete
+            || if check_only {
+                sub >= current_sub
+            } else {
+                obj >= current_obj
+            };
         if worse && host.is_some() && halvings < HOST_HALVINGS {
             if let Some(delta) = &last_delta {
                 halvings += 1;
@@ -371,11 +430,13 @@ fn round_rows(
     at: &RoundAt<'_>,
     disp: &Displacement,
     check_only: bool,
-) -> Result<(Score, Option<NormalEquations>)> {
+    reject_at: f64,
+) -> Result<(Score, Option<NormalEquations>, bool)> {
     let RoundAt {
         mesh,
         mesh_caster,
         m_edges,
+        m_order,
         total_m,
         host,
         pattern,
@@ -417,18 +478,40 @@ fn round_rows(
             d_edges.ends.iter().copied(),
         )?),
     };
-    let mut score = Score::default();
+    let score = RefCell::new(Score::default());
     let mut row = Vec::with_capacity(3);
+    // D → M rows weigh D's edge midpoints so that both integrals weigh the
+    // same whatever the areas' ratio.
+    let total_d: f64 = d_edges.weight.iter().sum();
+    let scale_d = total_m / total_d.max(f64::MIN_POSITIVE);
+    let order: Cow<'_, [u32]> = match stride {
+        1 => Cow::Borrowed(m_order),
+        _ => Cow::Owned(
+            m_order
+                .iter()
+                .copied()
+                .filter(|&k| k as usize % stride == 0)
+                .collect(),
+        ),
+    };
+    let d_order = d_edges.visit_order(&dmesh.positions, stride);
+    let verdict = Verdict::new(reject_at, || {
+        let m = order.iter().map(|&k| m_edges.weight[k as usize]);
+        let d = d_order
+            .iter()
+            .map(|&k| d_edges.weight[k as usize] * scale_d);
+        m.chain(d)
+    });
+    let stop = || verdict.rejects(&score.borrow());
     // M → D rows: a point p of M moves D's closest point q in triangle t.
-    let order = m_edges.visit_order(&mesh.positions, stride);
-    closest_in_order(
+    let complete = closest_in_order(
         m_edges,
         &mesh.positions,
         &order,
         d_caster.as_ref(),
         |k, p, c| {
             let w = m_edges.weight[k];
-            score.add(w, c.distance, k % CHECK_STRIDE == 0);
+            score.borrow_mut().add(w, c.distance, k % CHECK_STRIDE == 0);
             let Some(ne) = ne.as_mut() else { return Ok(()) };
             let tri = dmesh.triangles[c.triangle as usize];
             let nt = unit_normal(dmesh.triangle(c.triangle as usize));
@@ -443,22 +526,22 @@ fn round_rows(
             }
             ne.add_row(&row, sw * e)
         },
+        stop,
     )?;
     drop(order);
     drop(d_caster);
-    // D → M rows, at D's edge midpoints; both integrals weigh the same
-    // whatever the areas' ratio.
-    let total_d: f64 = d_edges.weight.iter().sum();
-    let scale_d = total_m / total_d.max(f64::MIN_POSITIVE);
-    let order = d_edges.visit_order(&dmesh.positions, stride);
-    closest_in_order(
+    if !complete {
+        return Ok((score.into_inner(), None, false));
+    }
+    // D → M rows, at D's edge midpoints.
+    let complete = closest_in_order(
         &d_edges,
         &dmesh.positions,
-        &order,
+        &d_order,
         mesh_caster,
         |k, q, c| {
             let w = d_edges.weight[k] * scale_d;
-            score.add(w, c.distance, k % CHECK_STRIDE == 0);
+            score.borrow_mut().add(w, c.distance, k % CHECK_STRIDE == 0);
             let Some(ne) = ne.as_mut() else { return Ok(()) };
             let nt = unit_normal(mesh.triangle(c.triangle as usize));
             let e = nt.dot(c.point - q);
@@ -472,8 +555,51 @@ fn round_rows(
             }
             ne.add_row(&row, sw * e)
         },
+        stop,
     )?;
-    Ok((score, ne))
+    Ok((score.into_inner(), ne.filter(|_| complete), complete))
+}
+
+/// An exact early verdict on a round of [`refine_offsets_on`]: the round is
+/// kept only if its objective `sqrt(Σ w d² / Σ w)` is below the kept one
+/// (`reject_at`), and every term of both sums is non-negative, so once
+/// the sum of squares so far, over an upper bound of the final weight
+/// sum, reaches `reject_at`, the whole round will too and its remaining
+/// closest-point queries (and rows) can only be thrown away.
+///
+/// Why it is exact in floating point: rounded addition, division and
+/// square root are monotone, so a prefix of a sum of non-negative terms
+/// is at most the whole sum, and `bound` (every point's weight, hit or
+/// not, summed in the visit order of [`Score::add`]) is at least the
+/// weights' sum; the early figure is then at most the final one, and a
+/// round stopped here would have been rejected by the same comparison.
+/// A kept round is visited in full, its sums taken in the same order as
+/// before: its bytes do not change.
+struct Verdict {
+    reject_at: f64,
+    bound: f64,
+}
+
+impl Verdict {
+    /// `weights` lists every weight the round can add, in visit order
+    /// (only read when `reject_at` is finite: the first round has
+    /// nothing to compare with).
+    fn new<I: Iterator<Item = f64>>(reject_at: f64, weights: impl FnOnce() -> I) -> Verdict {
+        let bound = if reject_at.is_finite() {
+            weights().fold(0.0, |s, w| s + w)
+        } else {
+            f64::INFINITY
+        };
+        Verdict { reject_at, bound }
+    }
+
+    /// Whether the round is already certain to be rejected, its running
+    /// sums being `score`'s (the full objective's: on a check round every
+    /// point visited is in the subsample, so both sums are the same).
+    fn rejects(&self, score: &Score) -> bool {
+        self.bound.is_finite()
+            && (score.obj / self.bound.max(f64::MIN_POSITIVE)).sqrt() >= self.reject_at
+    }
 }
 
 /// What every round of [`refine_offsets_on`] reads: M, its caster and
@@ -483,6 +609,8 @@ struct RoundAt<'a> {
     mesh: &'a TriMesh,
     mesh_caster: &'a dyn RayCaster,
     m_edges: &'a Edges,
+    /// `m_edges`' visit order ([`Edges::visit_order`], every edge).
+    m_order: &'a [u32],
     total_m: f64,
     host: Option<&'a HostSurface>,
     /// Empty normal equations with the host surface's pattern.
@@ -988,6 +1116,98 @@ mod tests {
             st.rounds >= 1 && st.rms_after_permille < st.rms_before_permille,
             "{msg}"
         );
+    }
+
+    #[test]
+    fn an_early_verdict_only_stops_rounds_the_full_sums_reject() {
+        // Sums of non-negative terms, some of them misses (in the bound,
+        // not in the sums), against thresholds at the final figure and one
+        // ulp either side: the verdict must never stop a round that the
+        // full comparison keeps, and must stop one that it rejects by a
+        // clear margin before its last point.
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for trial in 0..200 {
+            let n = 50 + trial * 7;
+            // (weight, distance or a miss), weights over five decades.
+            let pts: Vec<(f64, Option<f64>)> = (0..n)
+                .map(|_| {
+                    let w = 10f64.powf(-5.0 * next());
+                    let d = (next() > 0.05).then(|| next() * next());
+                    (w, d)
+                })
+                .collect();
+            let mut full = Score::default();
+            for &(w, d) in &pts {
+                if let Some(d) = d {
+                    full.add(w, d, true);
+                }
+            }
+            let (rms, _) = full.rms();
+            let up = f64::from_bits(rms.to_bits() + 1);
+            let down = f64::from_bits(rms.to_bits() - 1);
+            for reject_at in [down, rms, up, 0.5 * rms] {
+                let verdict = Verdict::new(reject_at, || pts.iter().map(|p| p.0));
+                let mut part = Score::default();
+                let mut at = None;
+                for (i, &(w, d)) in pts.iter().enumerate() {
+                    if let Some(d) = d {
+                        part.add(w, d, true);
+                    }
+                    if verdict.rejects(&part) {
+                        at = Some(i);
+                        break;
+                    }
+                }
+                let rejected = rms >= reject_at;
+                assert!(
+                    at.is_none() || rejected,
+                    "trial {trial}: stopped at {at:?} a round kept at {rms:e} < {reject_at:e}"
+                );
+                if reject_at == 0.5 * rms {
+                    // Rejected by a factor 2 (4 in the sums): the misses
+                    // (≈5 % of the weight) cannot hide that to the end.
+                    let i = at.expect("a clear rejection is seen before the end");
+                    assert!(i + 1 < n, "trial {trial}: seen only at the end");
+                }
+            }
+        }
+        // Without a finite threshold (the first round) nothing stops.
+        let v = Verdict::new(f64::INFINITY, || std::iter::once(1.0));
+        let mut s = Score::default();
+        s.add(1.0, 1e300, true);
+        assert!(!v.rejects(&s));
+    }
+
+    #[test]
+    fn edges_counting_sort_matches_the_general_sort() {
+        // A grid with its triangles reversed and rotated (sides arrive out
+        // of order in every bucket), a fin on one of its edges (3
+        // triangles there), a degenerate triangle and unused vertices.
+        let mut mesh = crate::fixtures::tri_grid(
+            7,
+            |i, j| DVec3::new(i as f64, j as f64, (i * j) as f64 * 0.01),
+            |_, _| true,
+        );
+        mesh.triangles.reverse();
+        for (k, t) in mesh.triangles.iter_mut().enumerate() {
+            t.rotate_left(k % 3);
+        }
+        let [a, b, _] = mesh.triangles[5];
+        let n = mesh.positions.len() as u32;
+        mesh.positions.push(DVec3::new(0.3, 0.2, 1.0));
+        mesh.positions.push(DVec3::new(9.0, 9.0, 9.0));
+        mesh.triangles.push([b, a, n]);
+        mesh.triangles.push([n, n, a]);
+        assert_eq!(Edges::sorted_sides(&mesh), mesh.sorted_sides());
+        let e = Edges::of(&mesh);
+        assert!(e.faces.contains(&3), "the fin's edge has 3 triangles");
+        assert!(e.ends.windows(2).all(|w| w[0] < w[1]));
     }
 
     #[test]
