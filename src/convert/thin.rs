@@ -169,8 +169,10 @@ pub struct OffM {
 /// (the displacement's same-sheet rule, [`crate::displace`]); elsewhere
 /// the displaced surface keeps an inpainted offset and stays about that
 /// distance off M (issue 40's D error, docs/status.md session 9). A
-/// sample within `slack` of M′ counts as carried (M′'s faceting: a line
-/// from the surface itself may graze past it).
+/// sample on M′ itself (within 10⁻³ × `slack`) counts as carried: a line
+/// from the surface may graze past it. A floor of the whole `slack`
+/// hid the thin parts it is meant to find (cheburashka at 460 marked 3
+/// patches instead of 5 and kept no round: docs/status.md session 11).
 pub fn carried(
     caster: &BvhCaster,
     points: &[crate::subdiv::LimitPoint],
@@ -184,7 +186,9 @@ pub fn carried(
     Ok(hits
         .iter()
         .zip(distance)
-        .map(|(h, &d)| d <= slack || h.is_some_and(|h| h.offset.abs() <= SAME_SHEET * d + slack))
+        .map(|(h, &d)| {
+            d <= 1e-3 * slack || h.is_some_and(|h| h.offset.abs() <= SAME_SHEET * d + slack)
+        })
         .collect())
 }
 
