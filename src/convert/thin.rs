@@ -496,13 +496,21 @@ mod tests {
     /// The square [0, n]² as a triangle mesh of `m` × `m` cells per
     /// unit.
     fn plane(n: usize, m: usize) -> TriMesh {
-        let s = n * m;
-        let positions = (0..=s)
-            .flat_map(|j| (0..=s).map(move |i| DVec3::new(i as f64, j as f64, 0.0) / m as f64))
+        rectangle(n, n, m, DVec3::ZERO)
+    }
+
+    /// The rectangle `origin` + [0, w] × [0, n] as a triangle mesh of
+    /// `m` × `m` cells per unit.
+    fn rectangle(w: usize, n: usize, m: usize, origin: DVec3) -> TriMesh {
+        let (sx, sy) = (w * m, n * m);
+        let positions = (0..=sy)
+            .flat_map(|j| {
+                (0..=sx).map(move |i| DVec3::new(i as f64, j as f64, 0.0) / m as f64 + origin)
+            })
             .collect();
-        let at = |i: usize, j: usize| (j * (s + 1) + i) as u32;
-        let triangles = (0..s)
-            .flat_map(|j| (0..s).map(move |i| (i, j)))
+        let at = |i: usize, j: usize| (j * (sx + 1) + i) as u32;
+        let triangles = (0..sy)
+            .flat_map(|j| (0..sx).map(move |i| (i, j)))
             .flat_map(|(i, j)| {
                 [
                     [at(i, j), at(i + 1, j), at(i + 1, j + 1)],
@@ -601,28 +609,7 @@ mod tests {
     /// The rectangle [-1, w - 1] × [-1, n - 1] as a triangle mesh of
     /// `m` × `m` cells per unit.
     fn strip(w: usize, n: usize, m: usize) -> TriMesh {
-        let (sx, sy) = (w * m, n * m);
-        let positions = (0..=sy)
-            .flat_map(|j| {
-                (0..=sx).map(move |i| {
-                    DVec3::new(i as f64, j as f64, 0.0) / m as f64 - DVec3::new(1.0, 1.0, 0.0)
-                })
-            })
-            .collect();
-        let at = |i: usize, j: usize| (j * (sx + 1) + i) as u32;
-        let triangles = (0..sy)
-            .flat_map(|j| (0..sx).map(move |i| (i, j)))
-            .flat_map(|(i, j)| {
-                [
-                    [at(i, j), at(i + 1, j), at(i + 1, j + 1)],
-                    [at(i, j), at(i + 1, j + 1), at(i, j + 1)],
-                ]
-            })
-            .collect();
-        TriMesh {
-            positions,
-            triangles,
-        }
+        rectangle(w, n, m, DVec3::new(-1.0, -1.0, 0.0))
     }
 
     /// The displacement's same-sheet rule: a point above a plane whose
