@@ -199,6 +199,16 @@ pub struct FieldRound {
     /// ([`super::thin::OffM::uncarried`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub uncarried_permille: Option<f64>,
+    /// With the thin rounds' chain, the same estimate taken against M
+    /// itself ([`super::thin::on_m`]), ‰.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncarried_m_permille: Option<f64>,
+    /// With the thin rounds' chain judged by a displacement pass
+    /// ([`super::thin::Judge::Displaced`]): that pass's RMS D and RMS L, ‰.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub displaced_permille: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub limit_permille: Option<f64>,
     /// With the thin round, on its own round: whether it was kept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kept: Option<bool>,
@@ -285,6 +295,9 @@ pub fn fit_field(
             off_m_permille: None,
             patches_off_m: None,
             uncarried_permille: None,
+            uncarried_m_permille: None,
+            displaced_permille: None,
+            limit_permille: None,
             kept: None,
         });
         let next = match (e, measured) {
@@ -345,7 +358,13 @@ pub fn fit_field(
                 crate::fit::fit_with_progress(mesh, c, caster, &po.fit, progress)
             })
         };
-        fitted = super::thin::second_round(&mut timer, relayout, &fo, fitted, &mut rounds, fit)?;
+        let on_m = super::thin::OnM {
+            mesh,
+            caster,
+            metrics: &po.metrics,
+        };
+        fitted =
+            super::thin::second_round(&mut timer, relayout, &fo, fitted, &mut rounds, fit, &on_m)?;
     }
     let mut c = measure_fitted(
         run.input,

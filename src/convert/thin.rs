@@ -27,11 +27,20 @@
 //! after the displacement, the limit's distance to M′ where the
 //! displacement cannot carry it onto M′ ([`carried`], both directions:
 //! [`OffM::uncarried`]); patches holding [`SHARE`] of it are marked too,
-//! and, behind `SUBDFIT_THIN_DROUNDS=N` (off by default, [`D_ROUNDS`]),
+//! and, with `SUBDFIT_THIN_DROUNDS=N` (session 11: off by default, [`D_ROUNDS`]),
 //! up to N more layouts lower h under the marks accumulated round by
 //! round, one kept when its limit → M′ and fit RMS stay within [`L_CAP`]
 //! of the first's and its estimate is lower ([`Judged::beats`]). The far
 //! patches' round keeps session 10's rule.
+//!
+//! Session 12: that estimate misjudged gargoyle τ 10 % at 402 (every
+//! round it preferred had a higher RMS D). Taken against M itself
+//! ([`on_m`]) it is the same figure there (M′ is M at these counts: no
+//! proxy), so the chain is now judged by the pipeline's own displacement
+//! and metrics on each round ([`Judge::Displaced`]): a later round is kept
+//! when its measured RMS D is lower and its measured RMS L within
+//! [`L_CAP_REAL`] of the first's (and the M′ caps hold); one chain round
+//! ([`D_ROUNDS`]) is on by default.
 //!
 //! On by default ([`THIN_ROUND_DEFAULT`]; `SUBDFIT_THIN_ROUND=0` turns it
 //! off): measured at the peers' counts (docs/status.md, Field-aligned
@@ -47,7 +56,7 @@ use crate::mesh::{ControlMesh, TriMesh};
 use crate::quad::field::{field_layout_counted, sizing, FieldOptions, Surface};
 use crate::raycast::bvh::BvhCaster;
 use crate::raycast::RayCaster;
-use crate::report::StageTimer;
+use crate::report::{MetricsOptions, StageTimer};
 use crate::DVec3;
 
 use super::field::{FieldRound, Sizes};
@@ -82,11 +91,13 @@ pub const SHARE: f64 = 0.10;
 pub const D_FACTOR: f64 = 0.5;
 
 /// How many more layouts at most the uncarried share may ask for
-/// (`SUBDFIT_THIN_DROUNDS`; 0, off, by default: measured on cheburashka
-/// at 460 it met issue 40's bars with 2, but on gargoyle τ 10 % at 402
-/// it kept a round every estimate on M′ judged better and RMS D rose
-/// 0.375 → 0.943‰, docs/status.md session 11).
-pub const D_ROUNDS: usize = 0;
+/// (`SUBDFIT_THIN_DROUNDS`). Judged on M′'s estimate this was off by
+/// default (gargoyle τ 10 % at 402: RMS D 0.375 → 0.943‰, session 11);
+/// judged by the displacement pass ([`Judge::Displaced`]) it keeps
+/// cheburashka at 460's first chain round (RMS D 0.671 → 0.253‰) and no
+/// round elsewhere, and the second chain round was never kept in the
+/// six peers' cases (docs/status.md session 12): one.
+pub const D_ROUNDS: usize = 1;
 
 /// A later round is kept only when its limit → M′ RMS and its fit's RMS
 /// are within this factor of the first round's (RMS L may not rise more
@@ -114,6 +125,53 @@ fn d_rounds() -> usize {
 
 fn l_cap() -> f64 {
     env_f64("SUBDFIT_THIN_LCAP", L_CAP)
+}
+
+/// With [`Judge::Displaced`], a later round is kept only when its
+/// measured RMS L is within this factor of the first round's
+/// (`SUBDFIT_THIN_LCAP_REAL`).
+pub const L_CAP_REAL: f64 = 1.15;
+
+fn l_cap_real() -> f64 {
+    env_f64("SUBDFIT_THIN_LCAP_REAL", L_CAP_REAL)
+}
+
+/// What the uncarried chain's rounds are judged by (the estimate of RMS
+/// D after the displacement).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Judge {
+    /// [`OffM::uncarried`], on M′ (session 11: misjudged gargoyle τ 10 %
+    /// at 402, RMS D 0.375 → 0.943‰).
+    OnLayoutMesh,
+    /// The same rule cast against M itself ([`on_m`]).
+    OnM,
+    /// The pipeline's own displacement and metrics on each round
+    /// ([`crate::report::evaluate_surfaces`]): RMS D and RMS L as the
+    /// report measures them.
+    Displaced,
+}
+
+/// The judge without `SUBDFIT_THIN_JUDGE` (`mprime`, `m`, `displaced`).
+pub const JUDGE: Judge = Judge::Displaced;
+
+fn judge() -> Judge {
+    match std::env::var("SUBDFIT_THIN_JUDGE")
+        .as_deref()
+        .map(str::trim)
+    {
+        Ok("mprime") => Judge::OnLayoutMesh,
+        Ok("m") => Judge::OnM,
+        Ok("displaced") => Judge::Displaced,
+        _ => JUDGE,
+    }
+}
+
+/// M itself, the caster over it and the pipeline's metric options: what
+/// the chain's rounds are judged against.
+pub struct OnM<'a> {
+    pub mesh: &'a TriMesh,
+    pub caster: &'a dyn RayCaster,
+    pub metrics: &'a MetricsOptions,
 }
 
 /// M′'s mean edge length (half of it is the same-sheet test's slack, as
@@ -174,7 +232,7 @@ pub struct OffM {
 /// hid the thin parts it is meant to find (cheburashka at 460 marked 3
 /// patches instead of 5 and kept no round: docs/status.md session 11).
 pub fn carried(
-    caster: &BvhCaster,
+    caster: &dyn RayCaster,
     points: &[crate::subdiv::LimitPoint],
     distance: &[f64],
     max_dist: f64,
@@ -310,6 +368,72 @@ pub fn off_m(mesh: &TriMesh, caster: &BvhCaster, control: &ControlMesh) -> Resul
     })
 }
 
+/// [`OffM::uncarried`]'s estimate of RMS D taken against M itself: the
+/// limit grid of `control` (as dense as on `layout`, M′) cast along its
+/// normals against M with the displacement's same-sheet rule (slack half
+/// M's mean edge, as the pipeline's); the larger of the RMS over the
+/// limit of the distance to M at the samples not carried and the RMS over
+/// M of its vertices' distance to the limit where their nearest limit
+/// point is not carried. M′ at τ 10 % is too coarse a stand-in for M
+/// (gargoyle at 402, docs/status.md session 11).
+pub fn on_m(on: &OnM<'_>, layout: &TriMesh, control: &ControlMesh) -> Result<f64> {
+    let mesh = on.mesh;
+    let k = super::field::grid_cells(layout, control);
+    let (surface, _, locs, evaluator) = super::field::limit_grid(control, k)?;
+    let weights = crate::report::vertex_areas(&surface);
+    let near = on
+        .caster
+        .closest_points(&surface.positions, f64::INFINITY)?;
+    let dist: Vec<f64> = near
+        .iter()
+        .map(|c| c.as_ref().map_or(0.0, |c| c.distance))
+        .collect();
+    let points = evaluator.evaluate(control.positions(), &locs)?;
+    let slack = 0.5 * mean_edge(mesh);
+    let max_dist = crate::project::default_max_dist(mesh);
+    let carry = carried(on.caster, &points, &dist, max_dist, slack)?;
+    let (mut lost, mut area) = (0.0, 0.0);
+    for ((c, &a), &ok) in near.iter().zip(&weights).zip(&carry) {
+        let Some(c) = c else { continue };
+        area += a;
+        if !ok {
+            lost += a * c.distance * c.distance;
+        }
+    }
+    let grid = BvhCaster::new(&surface)?;
+    let nearest = grid.closest_points(&mesh.positions, f64::INFINITY)?;
+    let m_areas = crate::report::vertex_areas(mesh);
+    let (mut m_lost, mut m_area) = (0.0, 0.0);
+    for (c, &a) in nearest.iter().zip(&m_areas) {
+        let Some(c) = c else { continue };
+        m_area += a;
+        let t = surface.triangles[c.triangle as usize];
+        if t.iter().filter(|&&v| !carry[v as usize]).count() >= 2 {
+            m_lost += a * c.distance * c.distance;
+        }
+    }
+    let rms = |e: f64, a: f64| (e / f64::max(a, f64::MIN_POSITIVE)).sqrt();
+    Ok(f64::max(rms(lost, area), rms(m_lost, m_area)))
+}
+
+/// The pipeline's displacement and metrics on `control` (refined once
+/// when not all quads, as the tail does): RMS D and RMS L, ‰.
+fn displaced(on: &OnM<'_>, control: &ControlMesh) -> Result<(f64, f64)> {
+    let quads = match control.is_all_quads() {
+        true => None,
+        false => Some(crate::subdiv::refine::refine_once_keeping_infinite(
+            control,
+        )?),
+    };
+    let c = quads.as_ref().unwrap_or(control);
+    let mut quiet = |_: &str, _: f64| true;
+    let s = crate::report::evaluate_surfaces(on.mesh, c, on.caster, on.metrics, &mut quiet)?;
+    Ok((
+        s.metrics.displaced.rms_permille,
+        s.metrics.limit.rms_permille,
+    ))
+}
+
 /// `h0` lowered by `factor`, graded at `gamma`, at least M′'s mean edge,
 /// and scaled so that it predicts as many patches as `h0` (the patches
 /// added under the far ones taken from everywhere else:
@@ -352,31 +476,84 @@ pub const MIN_FACTOR: f64 = 0.25;
 /// A fitted round's measures the rounds are judged by.
 struct Judged {
     off_m: f64,
-    uncarried: f64,
+    /// The estimate of RMS D the chain is judged by ([`Judge`]), units of
+    /// M′ or ‰ (compared only with itself).
+    d: f64,
     fit_rms: f64,
+    /// With [`Judge::Displaced`], the measured RMS L (‰).
+    limit: Option<f64>,
+}
+
+/// What one round measured for the chain (recorded on its round).
+#[derive(Clone, Copy, Default)]
+struct Measured {
+    on_m: Option<f64>,
+    displaced: Option<(f64, f64)>,
+}
+
+impl Measured {
+    /// The chain's measures of `control` by `judge` (none when there is no
+    /// chain: the far round alone keeps session 10's rule and cost).
+    fn of(
+        timer: &mut StageTimer,
+        on: &OnM<'_>,
+        layout: &TriMesh,
+        control: &ControlMesh,
+        judge: Option<Judge>,
+    ) -> Result<Self> {
+        // The estimate against M only when it judges: M′ is M itself at
+        // the peers' counts (no proxy), and it equalled M′'s there.
+        let on_m = match judge {
+            Some(Judge::OnM) => Some(timer.run("thin round", || on_m(on, layout, control))?),
+            _ => None,
+        };
+        let displaced = match judge {
+            Some(Judge::Displaced) => Some(timer.run("thin round", || displaced(on, control))?),
+            _ => None,
+        };
+        Ok(Self { on_m, displaced })
+    }
+
+    fn record(&self, round: &mut FieldRound, permille: f64) {
+        round.uncarried_m_permille = self.on_m.map(|x| permille * x);
+        round.displaced_permille = self.displaced.map(|x| x.0);
+        round.limit_permille = self.displaced.map(|x| x.1);
+    }
 }
 
 impl Judged {
-    fn of(m: &OffM, f: &Fitted) -> Self {
+    fn of(m: &OffM, f: &Fitted, x: &Measured) -> Self {
+        let d = match (x.displaced, x.on_m) {
+            (Some((d, _)), _) => d,
+            (None, Some(d)) => d,
+            (None, None) => m.uncarried,
+        };
         Self {
             off_m: m.rms,
-            uncarried: m.uncarried,
+            d,
             fit_rms: f.report.final_rms_permille,
+            limit: x.displaced.map(|x| x.1),
         }
     }
 
     /// Whether `self` (a later round) beats `best`, `first` being the
     /// first round: its limit may stand no farther from M′ and its fit be
-    /// no worse than [`L_CAP`] × the first's (RMS L may not rise much),
-    /// and then the lower uncarried RMS wins (an estimate of RMS D), on a
-    /// tie the lower limit → M′ RMS.
+    /// no worse than [`L_CAP`] × the first's (RMS L may not rise much;
+    /// measured, no more than [`L_CAP_REAL`] × the first's), and then the
+    /// lower estimate of RMS D wins ([`Judge`]), on a tie the lower limit
+    /// → M′ RMS.
     fn beats(&self, best: &Judged, first: &Judged) -> bool {
         let cap = l_cap();
         if self.off_m > cap * first.off_m || self.fit_rms > cap * first.fit_rms {
             return false;
         }
-        if self.uncarried != best.uncarried {
-            return self.uncarried < best.uncarried;
+        if let (Some(l), Some(l0)) = (self.limit, first.limit) {
+            if l > l_cap_real() * l0 {
+                return false;
+            }
+        }
+        if self.d != best.d {
+            return self.d < best.d;
         }
         self.off_m < best.off_m
     }
@@ -387,9 +564,9 @@ impl Judged {
 /// `rounds`: one whose sizing is lowered under the far patches only (when
 /// there are), then up to [`D_ROUNDS`] whose sizing is lowered under the
 /// patches the previous one marked (far, or holding the uncarried share),
-/// accumulated. The round kept is the best by [`Judged::beats`], so never
-/// one worse than `first` by it; `first` unchanged when no patch is
-/// marked.
+/// accumulated, judged against M (`on`, [`Judge`]). The round kept is the
+/// best by [`Judged::beats`], so never one worse than `first` by it;
+/// `first` unchanged when no patch is marked.
 pub(super) fn second_round(
     timer: &mut StageTimer,
     relayout: &FieldRelayout,
@@ -397,6 +574,7 @@ pub(super) fn second_round(
     first: Fitted,
     rounds: &mut Vec<FieldRound>,
     mut fit: impl FnMut(&mut StageTimer, ControlMesh) -> Result<Fitted>,
+    on: &OnM<'_>,
 ) -> Result<Fitted> {
     let mesh = &relayout.mesh;
     let permille = 1000.0 / mesh.bbox_diagonal();
@@ -411,7 +589,12 @@ pub(super) fn second_round(
     if m0.far.is_empty() && (chain == 0 || m0.d_far.is_empty()) {
         return Ok(first);
     }
-    let j0 = Judged::of(&m0, &first);
+    let judge = (chain > 0).then(judge);
+    let x0 = Measured::of(timer, on, mesh, &first.control, judge)?;
+    if let Some(r) = rounds.last_mut() {
+        x0.record(r, permille);
+    }
+    let j0 = Judged::of(&m0, &first, &x0);
     // Kept only at the count asked for (`--faces`' ±2 % window, or no
     // farther from N than the first round).
     let first_faces = first.control.num_faces();
@@ -427,7 +610,7 @@ pub(super) fn second_round(
     }
     let mut acc = vec![1.0; mesh.positions.len()];
     let mut marks = m0.factor.clone();
-    let mut best = (Judged::of(&m0, &first), first, None::<usize>);
+    let mut best = (Judged::of(&m0, &first, &x0), first, None::<usize>);
     let mut i = 0;
     while i < plan.len() + chain {
         let h = if i < plan.len() {
@@ -444,9 +627,10 @@ pub(super) fn second_round(
         let (faces, irregular) = (laid.control.num_faces(), laid.stats.irregular_vertices);
         let next = fit(timer, laid.control)?;
         let m1 = timer.run("thin round", || off_m(mesh, &caster, &next.control))?;
-        let j1 = Judged::of(&m1, &next);
+        let x1 = Measured::of(timer, on, mesh, &next.control, judge)?;
+        let j1 = Judged::of(&m1, &next, &x1);
         let at_count = off(faces) <= f64::max(0.02 * n, off(first_faces));
-        rounds.push(FieldRound {
+        let mut round = FieldRound {
             target_faces: fo.target_faces,
             faces,
             irregular_vertices: irregular,
@@ -463,8 +647,13 @@ pub(super) fn second_round(
             off_m_permille: Some(permille * m1.rms),
             patches_off_m: Some(m1.far.len() + m1.d_far.len()),
             uncarried_permille: Some(permille * m1.uncarried),
+            uncarried_m_permille: None,
+            displaced_permille: None,
+            limit_permille: None,
             kept: Some(false),
-        });
+        };
+        x1.record(&mut round, permille);
+        rounds.push(round);
         // The far patches' round by session 10's rule (a lower limit → M′
         // RMS: on homer at 272 it took RMS D 1.09 → 0.45‰ while the
         // uncarried estimate stayed level), the chain by [`Judged::beats`].
@@ -670,5 +859,70 @@ mod tests {
         assert_eq!(m.factor[border], D_FACTOR);
         assert_eq!(m.far_factor[border], 1.0);
         assert_eq!(m.factor[0], 1.0);
+    }
+
+    /// The session-11 estimate on M′ misjudges where M′ is a poor
+    /// stand-in for M: here M′ (the square [-1, 5]²) reaches under the
+    /// whole limit (the grid [0, 4]², 0.5 above), so every sample is
+    /// carried onto M′ and its estimate is ~0, while M (the strip
+    /// [-1, 3] × [-1, 5]) ends under the last column of patches: against
+    /// M those samples' lines miss and [`on_m`] sees their distance
+    /// (≥ 0.5 over about a quarter of the limit's area: above 0.2).
+    #[test]
+    fn the_estimate_against_m_sees_what_m_prime_hides() {
+        let layout = rectangle(6, 6, 3, DVec3::new(-1.0, -1.0, 0.0));
+        let m = strip(4, 6, 3);
+        let mut control = grid(4, 0.0);
+        let lifted: Vec<DVec3> = control
+            .positions()
+            .iter()
+            .map(|p| *p + DVec3::new(0.0, 0.0, 0.5))
+            .collect();
+        control.set_positions(lifted).expect("positions");
+        let on_layout = off_m(&layout, &BvhCaster::new(&layout).expect("caster"), &control);
+        let on_layout = on_layout.expect("off_m");
+        assert!(on_layout.uncarried < 1e-9, "{}", on_layout.uncarried);
+        let caster = BvhCaster::new(&m).expect("caster");
+        let metrics = MetricsOptions::default();
+        let on = OnM {
+            mesh: &m,
+            caster: &caster,
+            metrics: &metrics,
+        };
+        let d = on_m(&on, &layout, &control).expect("on_m");
+        assert!(d > 0.2, "{d}");
+        // The same limit over the whole of M is carried against M too.
+        let d = on_m(&on, &layout, &control_over(&m)).expect("on_m");
+        assert!(d < 1e-9, "{d}");
+    }
+
+    /// A 4 × 4 quad grid 0.5 above the middle of `m`'s strip
+    /// ([-1, 3] × [-1, 5]): its limit lies over M everywhere.
+    fn control_over(_m: &TriMesh) -> ControlMesh {
+        let mut c = grid(4, 0.0);
+        let p: Vec<DVec3> = c
+            .positions()
+            .iter()
+            .map(|p| DVec3::new(-0.5 + 0.75 * p.x, -0.5 + 1.25 * p.y, 0.5))
+            .collect();
+        c.set_positions(p).expect("positions");
+        c
+    }
+
+    /// With a measured RMS L, a later round whose D is lower is still not
+    /// kept when its RMS L rose more than [`L_CAP_REAL`] over the first
+    /// round's; within the cap the lower D wins.
+    #[test]
+    fn a_lower_d_is_not_kept_for_a_much_higher_l() {
+        let at = |d: f64, l: f64| Judged {
+            off_m: 1.0,
+            d,
+            fit_rms: 1.0,
+            limit: Some(l),
+        };
+        let first = at(1.0, 2.0);
+        assert!(!at(0.5, 2.0 * L_CAP_REAL * 1.01).beats(&first, &first));
+        assert!(at(0.5, 2.0 * L_CAP_REAL * 0.99).beats(&first, &first));
+        assert!(!at(1.1, 2.0).beats(&first, &first));
     }
 }
