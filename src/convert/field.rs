@@ -241,6 +241,9 @@ pub fn fit_field(
     // and whether the back-off round was laid.
     let mut last_refined: Option<Refined> = None;
     let mut backed_off = false;
+    // The sizing each round was laid at (`None`: the Fitmap's own, or one
+    // not kept), for [`Bracket`].
+    let mut laid_h: Vec<Option<Vec<f64>>> = vec![None];
     loop {
         let faces = control.num_faces();
         let irregular = crate::quad::field::irregular_vertices(&control);
@@ -330,12 +333,31 @@ pub fn fit_field(
             _ => REGROW_FACTOR,
         };
         match lay_next(&mut timer, relayout, &fo, next, faces, &mut sizes, regrow)? {
-            Some((c, f)) => (control, size_factor) = (c, f),
+            Some((c, f)) => {
+                (control, size_factor) = (c, f);
+                laid_h.push(sizes.as_ref().map(|s| s.h.clone()));
+            }
             None => break,
         }
     }
-    let (_, mut fitted) =
+    let mut best =
         best.ok_or_else(|| crate::Error::internal("field layout: no round was fitted"))?;
+    if let Some(e) = max_error.map(|e| 1000.0 * e).filter(|e| e.is_finite()) {
+        if opts.target_faces.is_none() && bracket_enabled() {
+            let mut fit = |timer: &mut StageTimer, c: ControlMesh| {
+                timer.run("fit", || {
+                    crate::fit::fit_with_progress(mesh, c, caster, &po.fit, run.progress)
+                })
+            };
+            let b = Bracket {
+                relayout,
+                fo: &fo,
+                e,
+            };
+            b.run(&mut timer, &mut rounds, &laid_h, &mut best, &mut fit)?;
+        }
+    }
+    let (_, mut fitted) = best;
     // At a fixed count, one more layout with lattice size moved to the
     // patches whose limit stands off M′ ([`super::thin`]).
     if opts.target_faces.is_some() && rounds.len() == 1 && super::thin::enabled() {
@@ -359,6 +381,185 @@ pub fn fit_field(
     )?;
     add_targets(&mut c, opts.target_faces, max_error, &rounds);
     Ok(c)
+}
+
+/// Whether [`Bracket`] runs: on unless `SUBDFIT_FIELD_BRACKET=0`
+/// ([`BRACKET_DEFAULT`]).
+pub fn bracket_enabled() -> bool {
+    match std::env::var(BRACKET_ENV) {
+        Ok(v) if v.trim() == "0" => false,
+        Ok(v) if v.trim() == "1" => true,
+        _ => BRACKET_DEFAULT,
+    }
+}
+
+/// Whether [`Bracket`] runs without [`BRACKET_ENV`].
+pub const BRACKET_DEFAULT: bool = true;
+
+/// The environment switch of [`Bracket`]: `0` off, `1` on.
+pub const BRACKET_ENV: &str = "SUBDFIT_FIELD_BRACKET";
+
+/// Layouts [`Bracket`] fits at most after the refinement rounds.
+pub const BRACKET_LAYOUTS: usize = 2;
+
+/// A bracket layout is tried only if it saves at least this share of the
+/// kept round's patches (the lattice lands within ±2 % of a count, and
+/// its error is noisy from count to count by more than that).
+pub const BRACKET_MIN_SAVING: f64 = 0.06;
+
+/// Conciseness after the refinement rounds of `--max-error` (Fitmaps'
+/// goal: the fewest patches within the bound, as the greedy layout's
+/// search keeps, [`super::search`]). The refinement rounds stop at the
+/// first round that meets both bounds, and the field lattice's error
+/// falls in steps from round to round (spot at τ 5 %: 180 patches at
+/// 6.4‰ → 213 at 2.4‰ against 5‰), so the kept round is often far under
+/// the bound. While it is under [`BACK_OFF_BELOW`]·E, the whole field is
+/// laid out again at a smaller count on the kept round's own sizing (the
+/// global scale α the `--faces` count loop solves for, so the local
+/// refinement's shape is kept) and fitted:
+///
+/// - between the largest round below it that missed and it, at the count
+///   where the log-log line through the two reaches [`BACK_OFF_AIM`]·E
+///   (the geometric mean when the miss was by projectability);
+/// - with no such round, at the count the h⁴ model gives for
+///   [`BACK_OFF_AIM`]·E (RMS ∝ N⁻², Fitmaps §3.1.2).
+///
+/// At most [`BRACKET_LAYOUTS`] such layouts; the kept round is then the
+/// fewest-patch one meeting both bounds ([`Kept`]), as before.
+struct Bracket<'a> {
+    relayout: &'a FieldRelayout,
+    fo: &'a FieldOptions,
+    /// `--max-error`, ‰.
+    e: f64,
+}
+
+impl Bracket<'_> {
+    fn run(
+        &self,
+        timer: &mut StageTimer,
+        rounds: &mut Vec<FieldRound>,
+        laid_h: &[Option<Vec<f64>>],
+        best: &mut (Kept, crate::fit::Fitted),
+        fit: &mut impl FnMut(&mut StageTimer, ControlMesh) -> Result<crate::fit::Fitted>,
+    ) -> Result<()> {
+        // The sizing of the round a bracket layout scales: the kept one
+        // from the refinement rounds (the bracket rounds reuse it).
+        let kept_h: Option<Vec<f64>> = rounds
+            .iter()
+            .zip(laid_h)
+            .filter(|(r, _)| self.meets(r))
+            .min_by_key(|(r, _)| r.faces)
+            .and_then(|(_, h)| h.clone());
+        let h = match kept_h {
+            Some(h) => h,
+            None => Sizes::new(&self.relayout.mesh, &self.relayout.fitmap, self.fo)?.h,
+        };
+        for _ in 0..BRACKET_LAYOUTS {
+            let Some(n) = self.next_count(rounds) else {
+                break;
+            };
+            let fo = self.fo.clone().with_target_faces(Some(n));
+            let laid = timer.run("field layout", || {
+                crate::quad::field::field_layout_counted(
+                    &self.relayout.prepared,
+                    &self.relayout.mesh,
+                    &self.relayout.fitmap,
+                    h.clone(),
+                    &fo,
+                )
+            })?;
+            let control = laid.control;
+            let faces = control.num_faces();
+            let irregular = crate::quad::field::irregular_vertices(&control);
+            let spearman =
+                sizing::adaptivity_spearman(&self.relayout.mesh, &self.relayout.fitmap, &control)?;
+            let fitted = fit(timer, control)?;
+            let m = timer.run("field refinement", || {
+                patch_errors(&self.relayout.mesh, &fitted.control)
+            })?;
+            let diag = self.relayout.mesh.bbox_diagonal();
+            let layout_rms = 1000.0 * m.rms / diag;
+            let rms = fitted.report.final_rms_permille.max(layout_rms);
+            rounds.push(FieldRound {
+                target_faces: Some(n),
+                faces,
+                irregular_vertices: irregular,
+                fit_rms_permille: fitted.report.final_rms_permille,
+                layout_rms_permille: Some(layout_rms),
+                adaptivity_spearman: spearman,
+                layout_unprojectable_percent: Some(m.unprojectable_percent),
+                layout_thin_percent: Some(m.thin_percent),
+                patches_refined: 0,
+                patches_coarsened: 0,
+                patches_unprojectable: 0,
+                size_factor: Some(laid.stats.size_factor),
+                patches_split: None,
+                off_m_permille: None,
+                patches_off_m: None,
+                uncarried_permille: None,
+                kept: None,
+            });
+            let key = Kept::of(Some(self.e), rms, Some(m.unprojectable_percent), faces);
+            if key < best.0 {
+                *best = (key, fitted);
+            }
+        }
+        Ok(())
+    }
+
+    /// A round's RMS as the rounds judge it (the fit's and M′'s, the
+    /// larger).
+    fn rms(r: &FieldRound) -> f64 {
+        r.fit_rms_permille.max(r.layout_rms_permille.unwrap_or(0.0))
+    }
+
+    fn meets(&self, r: &FieldRound) -> bool {
+        Kept::of(
+            Some(self.e),
+            Self::rms(r),
+            r.layout_unprojectable_percent,
+            r.faces,
+        )
+        .meets()
+    }
+
+    /// The count of the next bracket layout (type docs), `None` when the
+    /// fewest-patch round meeting both bounds is near the bound, or no
+    /// count saves [`BRACKET_MIN_SAVING`] of its patches over the largest
+    /// miss below it.
+    fn next_count(&self, rounds: &[FieldRound]) -> Option<usize> {
+        let pass = rounds
+            .iter()
+            .filter(|r| self.meets(r))
+            .min_by_key(|r| r.faces)?;
+        let (n1, r1) = (pass.faces as f64, Self::rms(pass));
+        if r1 > BACK_OFF_BELOW * self.e {
+            return None;
+        }
+        let aim = BACK_OFF_AIM * self.e;
+        let miss = rounds
+            .iter()
+            .filter(|r| r.faces < pass.faces && !self.meets(r))
+            .max_by_key(|r| r.faces);
+        let (n, floor) = match miss {
+            Some(m) => {
+                let (n0, r0) = (m.faces as f64, Self::rms(m));
+                let by_error = m
+                    .layout_unprojectable_percent
+                    .map_or(true, |u| u <= UNPROJECTABLE_PERCENT);
+                let p = (r1 / r0).ln() / (n1 / n0).ln();
+                let n = if by_error && r0 > self.e && p < -0.5 {
+                    n0 * (aim / r0).powf(1.0 / p)
+                } else {
+                    (n0 * n1).sqrt()
+                };
+                (n, n0 * 1.03)
+            }
+            None => (n1 * (r1 / aim).sqrt(), 0.0),
+        };
+        let n = n.max(floor);
+        (n.is_finite() && n < (1.0 - BRACKET_MIN_SAVING) * n1).then(|| n.round() as usize)
+    }
 }
 
 /// `report.json`'s targets for a field conversion: `--max-error` when it
