@@ -589,7 +589,7 @@ fn bracket_count(e: f64, rounds: &[FieldRound]) -> Option<usize> {
         None => (n1 * (r1 / aim).sqrt(), 0.0),
     };
     let n = n.max(floor);
-    (n.is_finite() && n < (1.0 - BRACKET_MIN_SAVING) * n1).then(|| n.round() as usize)
+    (n.is_finite() && n < (1.0 - BRACKET_MIN_SAVING) * n1).then_some(n.round() as usize)
 }
 
 /// `report.json`'s targets for a field conversion: `--max-error` when it
