@@ -251,6 +251,9 @@ pub fn fit_field(
     // and whether the back-off round was laid.
     let mut last_refined: Option<Refined> = None;
     let mut backed_off = false;
+    // The sizing each round was laid at (`None`: the Fitmap's own, or one
+    // not kept), for [`Bracket`].
+    let mut laid_h: Vec<Option<Vec<f64>>> = vec![None];
     loop {
         let faces = control.num_faces();
         let irregular = crate::quad::field::irregular_vertices(&control);
@@ -343,12 +346,31 @@ pub fn fit_field(
             _ => REGROW_FACTOR,
         };
         match lay_next(&mut timer, relayout, &fo, next, faces, &mut sizes, regrow)? {
-            Some((c, f)) => (control, size_factor) = (c, f),
+            Some((c, f)) => {
+                (control, size_factor) = (c, f);
+                laid_h.push(sizes.as_ref().map(|s| s.h.clone()));
+            }
             None => break,
         }
     }
-    let (_, mut fitted) =
+    let mut best =
         best.ok_or_else(|| crate::Error::internal("field layout: no round was fitted"))?;
+    if let Some(e) = max_error.map(|e| 1000.0 * e).filter(|e| e.is_finite()) {
+        if opts.target_faces.is_none() && bracket_enabled() {
+            let mut fit = |timer: &mut StageTimer, c: ControlMesh| {
+                timer.run("fit", || {
+                    crate::fit::fit_with_progress(mesh, c, caster, &po.fit, run.progress)
+                })
+            };
+            let b = Bracket {
+                relayout,
+                fo: &fo,
+                e,
+            };
+            b.run(&mut timer, &mut rounds, &laid_h, &mut best, &mut fit)?;
+        }
+    }
+    let (_, mut fitted) = best;
     // At a fixed count, one more layout with lattice size moved to the
     // patches whose limit stands off M′ ([`super::thin`]).
     if opts.target_faces.is_some() && rounds.len() == 1 && super::thin::enabled() {
@@ -378,6 +400,215 @@ pub fn fit_field(
     )?;
     add_targets(&mut c, opts.target_faces, max_error, &rounds);
     Ok(c)
+}
+
+/// Whether [`Bracket`] runs: on unless `SUBDFIT_FIELD_BRACKET=0`
+/// ([`BRACKET_DEFAULT`]).
+pub fn bracket_enabled() -> bool {
+    match std::env::var(BRACKET_ENV) {
+        Ok(v) if v.trim() == "0" => false,
+        Ok(v) if v.trim() == "1" => true,
+        _ => BRACKET_DEFAULT,
+    }
+}
+
+/// Whether [`Bracket`] runs without [`BRACKET_ENV`].
+pub const BRACKET_DEFAULT: bool = true;
+
+/// The environment switch of [`Bracket`]: `0` off, `1` on.
+pub const BRACKET_ENV: &str = "SUBDFIT_FIELD_BRACKET";
+
+/// Layouts [`Bracket`] fits at most after the refinement rounds.
+pub const BRACKET_LAYOUTS: usize = 2;
+
+/// A bracket layout is tried only if it saves at least this share of the
+/// kept round's patches (the lattice lands within ±2 % of a count, and
+/// its error is noisy from count to count by more than that).
+pub const BRACKET_MIN_SAVING: f64 = 0.06;
+
+/// A bracket layout is kept only if its D estimate (the uncarried RMS
+/// of [`super::thin::off_m`], ‰) is at most this times the kept one's
+/// plus [`BRACKET_D_SLACK`] ‰.
+pub const BRACKET_D_CAP: f64 = 1.25;
+pub const BRACKET_D_SLACK: f64 = 0.02;
+
+/// Conciseness after the refinement rounds of `--max-error` (Fitmaps'
+/// goal: the fewest patches within the bound, as the greedy layout's
+/// search keeps, [`super::search`]). The refinement rounds stop at the
+/// first round that meets both bounds, and the field lattice's error
+/// falls in steps from round to round (spot at τ 5 %: 180 patches at
+/// 6.4‰ → 213 at 2.4‰ against 5‰), so the kept round is often far under
+/// the bound. While it is under [`BACK_OFF_BELOW`]·E, the whole field is
+/// laid out again at a smaller count on the kept round's own sizing (the
+/// global scale α the `--faces` count loop solves for, so the local
+/// refinement's shape is kept) and fitted:
+///
+/// - between the largest round below it that missed and it, at the count
+///   where the log-log line through the two reaches [`BACK_OFF_AIM`]·E
+///   (the geometric mean when the miss was by projectability);
+/// - with no such round, at the count the h⁴ model gives for
+///   [`BACK_OFF_AIM`]·E (RMS ∝ N⁻², Fitmaps §3.1.2).
+///
+/// At most [`BRACKET_LAYOUTS`] such layouts; one is kept when it meets
+/// both bounds with fewer patches ([`Kept`]) and its D estimate stays
+/// within [`BRACKET_D_CAP`] of the kept fit's (`report.json`'s round
+/// `uncarried_permille`, `kept`).
+struct Bracket<'a> {
+    relayout: &'a FieldRelayout,
+    fo: &'a FieldOptions,
+    /// `--max-error`, ‰.
+    e: f64,
+}
+
+impl Bracket<'_> {
+    fn run(
+        &self,
+        timer: &mut StageTimer,
+        rounds: &mut Vec<FieldRound>,
+        laid_h: &[Option<Vec<f64>>],
+        best: &mut (Kept, crate::fit::Fitted),
+        fit: &mut impl FnMut(&mut StageTimer, ControlMesh) -> Result<crate::fit::Fitted>,
+    ) -> Result<()> {
+        // The sizing of the round a bracket layout scales: the kept one
+        // from the refinement rounds (the bracket rounds reuse it).
+        let kept_h: Option<Vec<f64>> = rounds
+            .iter()
+            .zip(laid_h)
+            .filter(|(r, _)| round_meets(self.e, r))
+            .min_by_key(|(r, _)| r.faces)
+            .and_then(|(_, h)| h.clone());
+        let h = match kept_h {
+            Some(h) => h,
+            None => Sizes::new(&self.relayout.mesh, &self.relayout.fitmap, self.fo)?.h,
+        };
+        // The D estimate of the kept fit ([`super::thin::off_m`]): a
+        // bracket layout that raises it by more than [`BRACKET_D_CAP`] is
+        // not kept (measured: cheburashka at τ 10 %, 486 → 422 patches,
+        // RMS D 0.22 → 0.64‰ without this test).
+        let mesh = &self.relayout.mesh;
+        let permille = 1000.0 / mesh.bbox_diagonal();
+        let caster = crate::raycast::bvh::BvhCaster::new(mesh)?;
+        let mut kept_d = timer
+            .run("field refinement", || {
+                super::thin::off_m(mesh, &caster, &best.1.control)
+            })?
+            .uncarried
+            * permille;
+        for _ in 0..BRACKET_LAYOUTS {
+            let Some(n) = bracket_count(self.e, rounds) else {
+                break;
+            };
+            let fo = self.fo.clone().with_target_faces(Some(n));
+            let laid = timer.run("field layout", || {
+                crate::quad::field::field_layout_counted(
+                    &self.relayout.prepared,
+                    &self.relayout.mesh,
+                    &self.relayout.fitmap,
+                    h.clone(),
+                    &fo,
+                )
+            })?;
+            let control = laid.control;
+            let faces = control.num_faces();
+            let irregular = crate::quad::field::irregular_vertices(&control);
+            let spearman =
+                sizing::adaptivity_spearman(&self.relayout.mesh, &self.relayout.fitmap, &control)?;
+            let fitted = fit(timer, control)?;
+            let m = timer.run("field refinement", || {
+                patch_errors(&self.relayout.mesh, &fitted.control)
+            })?;
+            let diag = self.relayout.mesh.bbox_diagonal();
+            let layout_rms = 1000.0 * m.rms / diag;
+            let rms = fitted.report.final_rms_permille.max(layout_rms);
+            let d = timer
+                .run("field refinement", || {
+                    super::thin::off_m(mesh, &caster, &fitted.control)
+                })?
+                .uncarried
+                * permille;
+            let key = Kept::of(Some(self.e), rms, Some(m.unprojectable_percent), faces);
+            let kept = key < best.0 && d <= BRACKET_D_CAP * kept_d + BRACKET_D_SLACK;
+            rounds.push(FieldRound {
+                target_faces: Some(n),
+                faces,
+                irregular_vertices: irregular,
+                fit_rms_permille: fitted.report.final_rms_permille,
+                layout_rms_permille: Some(layout_rms),
+                adaptivity_spearman: spearman,
+                layout_unprojectable_percent: Some(m.unprojectable_percent),
+                layout_thin_percent: Some(m.thin_percent),
+                patches_refined: 0,
+                patches_coarsened: 0,
+                patches_unprojectable: 0,
+                size_factor: Some(laid.stats.size_factor),
+                patches_split: None,
+                off_m_permille: None,
+                patches_off_m: None,
+                uncarried_permille: Some(d),
+                kept: Some(kept),
+            });
+            if kept {
+                *best = (key, fitted);
+                kept_d = d;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A round's RMS as the rounds judge it (the fit's and M′'s, the larger).
+fn round_rms(r: &FieldRound) -> f64 {
+    r.fit_rms_permille.max(r.layout_rms_permille.unwrap_or(0.0))
+}
+
+/// Whether round `r` meets both bounds (`e` ‰, [`Kept`]); a bracket
+/// round not kept for its D estimate counts as a miss.
+fn round_meets(e: f64, r: &FieldRound) -> bool {
+    let key = Kept::of(
+        Some(e),
+        round_rms(r),
+        r.layout_unprojectable_percent,
+        r.faces,
+    );
+    key.meets() && r.kept != Some(false)
+}
+
+/// The count of the next [`Bracket`] layout (its docs) for the bound `e`
+/// ‰, `None` when the fewest-patch round meeting both bounds is near the
+/// bound, or no count saves [`BRACKET_MIN_SAVING`] of its patches over
+/// the largest miss below it.
+fn bracket_count(e: f64, rounds: &[FieldRound]) -> Option<usize> {
+    let pass = rounds
+        .iter()
+        .filter(|r| round_meets(e, r))
+        .min_by_key(|r| r.faces)?;
+    let (n1, r1) = (pass.faces as f64, round_rms(pass));
+    if r1 > BACK_OFF_BELOW * e {
+        return None;
+    }
+    let aim = BACK_OFF_AIM * e;
+    let miss = rounds
+        .iter()
+        .filter(|r| r.faces < pass.faces && !round_meets(e, r))
+        .max_by_key(|r| r.faces);
+    let (n, floor) = match miss {
+        Some(m) => {
+            let (n0, r0) = (m.faces as f64, round_rms(m));
+            let by_error = m
+                .layout_unprojectable_percent
+                .map_or(true, |u| u <= UNPROJECTABLE_PERCENT);
+            let p = (r1 / r0).ln() / (n1 / n0).ln();
+            let n = if by_error && r0 > e && p < -0.5 {
+                n0 * (aim / r0).powf(1.0 / p)
+            } else {
+                (n0 * n1).sqrt()
+            };
+            (n, n0 * 1.03)
+        }
+        None => (n1 * (r1 / aim).sqrt(), 0.0),
+    };
+    let n = n.max(floor);
+    (n.is_finite() && n < (1.0 - BRACKET_MIN_SAVING) * n1).then_some(n.round() as usize)
 }
 
 /// `report.json`'s targets for a field conversion: `--max-error` when it
@@ -1227,6 +1458,71 @@ mod tests {
         // no count between the two meets the error bound by the model.
         let met = Refined { rms: 4.0, ..prev };
         assert!(back_off(&met, (300, 1.0), e).is_none());
+    }
+
+    /// A round as [`bracket_count`] reads it.
+    fn round(faces: usize, rms: f64, unprojectable: f64) -> FieldRound {
+        FieldRound {
+            target_faces: None,
+            faces,
+            irregular_vertices: 0,
+            fit_rms_permille: rms,
+            layout_rms_permille: Some(rms),
+            adaptivity_spearman: None,
+            layout_unprojectable_percent: Some(unprojectable),
+            layout_thin_percent: None,
+            patches_refined: 0,
+            patches_coarsened: 0,
+            patches_unprojectable: 0,
+            size_factor: None,
+            patches_split: None,
+            off_m_permille: None,
+            patches_off_m: None,
+            uncarried_permille: None,
+            kept: None,
+        }
+    }
+
+    /// The bracket's counts: alone, a meeting round far under the bound
+    /// gets the h⁴ model's count for [`BACK_OFF_AIM`]·E (gargoyle at the
+    /// defaults: 779 patches at 2.57‰ → 624); after a miss by the error,
+    /// the log-log line's count lies between the two rounds and where the
+    /// line reaches the aim; after a miss by projectability, the geometric
+    /// mean; none near the bound or when it would save < 6 %.
+    #[test]
+    fn bracket_counts_lie_between_the_miss_and_the_pass() {
+        let e = 5.0;
+        let n = bracket_count(e, &[round(779, 2.57, 0.03)]).expect("far under");
+        assert!(
+            (n as f64 - 779.0 * (2.57f64 / 4.0).sqrt()).abs() <= 0.5,
+            "{n}"
+        );
+        // Spot's rounds: 111 at 8.9‰ and 180 at 6.4‰ missed, 213 at
+        // 2.4‰ met: the line through (180, 6.4) and (213, 2.4) reaches
+        // 4‰ at 195 patches; after 195 met at 3.0‰, the line through
+        // (180, 6.4) and (195, 3.0) reaches it at 189, within 6 % of 195.
+        let mut spot = vec![
+            round(111, 8.9, 0.01),
+            round(180, 6.4, 0.0),
+            round(213, 2.4, 0.0),
+        ];
+        assert_eq!(bracket_count(e, &spot), Some(195));
+        spot.push(round(195, 3.0, 0.0));
+        assert_eq!(bracket_count(e, &spot), None);
+        // A flatter line (300 at 6‰ → 400 at 2‰): its count is strictly
+        // between and at the aim on the line.
+        let two = [round(300, 6.0, 0.0), round(400, 2.0, 0.0)];
+        let n = bracket_count(e, &two).expect("saves patches") as f64;
+        let p = (2.0f64 / 6.0).ln() / (400.0f64 / 300.0).ln();
+        assert!(n > 300.0 && n < 376.0, "{n}");
+        assert!((6.0 * (n / 300.0).powf(p) - 4.0).abs() < 0.05, "{n}");
+        // A miss by projectability: the geometric mean of the counts.
+        let proj = [round(300, 2.0, 0.4), round(400, 2.0, 0.05)];
+        assert_eq!(bracket_count(e, &proj), Some(346));
+        // The kept round near the bound, or none meeting: nothing to try.
+        assert_eq!(bracket_count(e, &[round(300, 3.6, 0.0)]), None);
+        assert_eq!(bracket_count(e, &[round(300, 6.0, 0.0)]), None);
+        assert_eq!(bracket_count(e, &[round(300, 2.0, 0.2)]), None);
     }
 
     /// The kept round: meeting both bounds beats everything, and among
