@@ -265,7 +265,8 @@ pub fn cleanup(
                 guard,
                 false,
                 opts.exact_undo,
-            )? == 0 {
+            )? == 0
+            {
                 break;
             }
         }
@@ -311,7 +312,8 @@ pub fn cleanup(
                     guard,
                     true,
                     opts.exact_undo,
-                )? == 0 {
+                )? == 0
+                {
                     break;
                 }
             }
@@ -1115,11 +1117,10 @@ mod tests {
     /// Everything a later step reads: the mesh with all its ids and free
     /// lists, the limit points, and the Fitmap values of the live faces.
     fn state(s: &Simplifier<'_>) -> (ControlMesh, Vec<DVec3>, Vec<(f64, f64)>) {
-        let per_face = s
-            .k
-            .live_faces()
-            .map(|f| (s.fs[f.idx()], s.fm[f.idx()]))
-            .collect();
+        let per_face =
+            s.k.live_faces()
+                .map(|f| (s.fs[f.idx()], s.fm[f.idx()]))
+                .collect();
         (s.k.clone(), s.lim.clone(), per_face)
     }
 
