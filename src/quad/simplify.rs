@@ -864,6 +864,25 @@ pub(crate) struct Snapshot {
     pub(crate) faces: Vec<(FaceId, [VertexId; 4])>,
 }
 
+/// The state a trial step can change, whole ([`Simplifier::save_exact`]):
+/// restoring it puts back the same face, edge and vertex ids, so a refused
+/// step leaves no trace. [`Simplifier::undo`] restores the region's faces
+/// under whichever free slots come first, and every later tie-break by id
+/// (candidate order, diagonal index) then differs from a run where the
+/// step was never tried (field cleanup's moves: a move refused at spot's
+/// 81 faces still changed RMS D 1.010 → 1.362‰, docs/status.md).
+/// `version` and the heap are not in it: they only grow (a restored
+/// face's entries are stale, and the cleanup never pops).
+#[derive(Clone)]
+pub(crate) struct Exact {
+    k: ControlMesh,
+    lim: Vec<DVec3>,
+    fs: Vec<f64>,
+    fm: Vec<f64>,
+    pos_log: Vec<(VertexId, DVec3)>,
+    lim_log: Vec<(VertexId, DVec3)>,
+}
+
 /// Bits naming the tests that refuse a collapse.
 struct Blocked;
 
@@ -1951,6 +1970,46 @@ impl<'a> Simplifier<'a> {
             .map(|g| (g, super::ops::quad(&self.k, g)))
             .collect();
         Snapshot { vertices, faces }
+    }
+
+    /// The whole state a step can change, for [`Simplifier::restore_exact`]
+    /// (a copy of the control mesh and the per-vertex and per-face arrays:
+    /// linear in the mesh, small beside a step's local fit on the field
+    /// layout's meshes of a few thousand faces).
+    pub(crate) fn save_exact(&self) -> Exact {
+        Exact {
+            k: self.k.clone(),
+            lim: self.lim.clone(),
+            fs: self.fs.clone(),
+            fm: self.fm.clone(),
+            pos_log: self.pos_log.clone(),
+            lim_log: self.lim_log.clone(),
+        }
+    }
+
+    /// Back to `x` exactly: same ids, positions, limit points and Fitmap
+    /// values per face (the inverse of everything since
+    /// [`Simplifier::save_exact`]).
+    pub(crate) fn restore_exact(&mut self, x: Exact) {
+        let Exact {
+            k,
+            lim,
+            fs,
+            fm,
+            pos_log,
+            lim_log,
+        } = x;
+        self.k = k;
+        self.lim = lim;
+        self.fs = fs;
+        self.fm = fm;
+        // Slots the trial added keep their `version` (it only grows), and
+        // `update_faces` resizes the per-face arrays by it.
+        let n = self.version.len().max(self.fs.len());
+        self.fs.resize(n, 0.0);
+        self.fm.resize(n, 0.0);
+        self.pos_log = pos_log;
+        self.lim_log = lim_log;
     }
 
     /// Undoes the current step: the region's faces back as in `snap` (the

@@ -39,7 +39,7 @@ use crate::quad::ops::{
     can_collapse_diagonal, can_rotate_edge, collapse_diagonal, remove_doublets, rotate_edge,
     rotation_energy_gain, CollapsePlan, Rotation, ValenceTargets,
 };
-use crate::quad::simplify::{Simplifier, SimplifyOptions, SimplifyStats, Snapshot};
+use crate::quad::simplify::{Exact, Simplifier, SimplifyOptions, SimplifyStats, Snapshot};
 use crate::quad::InterpolationOptions;
 use crate::raycast::RayCaster;
 use crate::DVec3;
@@ -77,6 +77,20 @@ pub struct CleanupOptions {
     /// With a face target, the move rounds run after the count phase
     /// (the sweeps after them rotate only, so the count stays).
     pub moves_after_count: bool,
+    /// Refused operations and moves are undone by restoring the whole
+    /// state saved before them ([`Simplifier::restore_exact`]: the same
+    /// face, edge and vertex ids), not the region's faces under new ids
+    /// ([`Simplifier::undo`]); a refused trial then leaves the mesh
+    /// bit-identical, and later tie-breaks by id do not move.
+    pub exact_undo: bool,
+    /// With a value ε > 0 the fit guard's rise is bounded relative to the
+    /// region's share of the surface too: a move whose samples are the
+    /// fraction φ of M's may raise Σ d² by the factor 1 + ε / φ at most
+    /// (and never more than [`CleanupOptions::move_fit_rise`]): about ε of
+    /// the whole surface's Σ d² if the region is typical of it. At coarse
+    /// counts a region is a large part of the surface, and a 2 % local
+    /// rise is nearly a 2 % global one. 0: the factor alone.
+    pub move_fit_share: f64,
 }
 
 impl Default for CleanupOptions {
@@ -89,6 +103,8 @@ impl Default for CleanupOptions {
             move_fit_rise: super::moves::FIT_RISE,
             move_shape_tests: false,
             moves_after_count: false,
+            exact_undo: false,
+            move_fit_share: 0.0,
         }
     }
 }
@@ -240,8 +256,17 @@ pub fn cleanup(
             let guard = probe
                 .as_ref()
                 .filter(|_| round > 0)
-                .map(|p| (p, opts.move_fit_rise));
-            if valence_sweep(&mut s, &mut stats, &mut moved, &mut epochs, guard, false)? == 0 {
+                .map(|p| (p, (opts.move_fit_rise, opts.move_fit_share)));
+            if valence_sweep(
+                &mut s,
+                &mut stats,
+                &mut moved,
+                &mut epochs,
+                guard,
+                false,
+                opts.exact_undo,
+            )? == 0
+            {
                 break;
             }
         }
@@ -259,7 +284,7 @@ pub fn cleanup(
         }
     }
     if let Some(n) = opts.target_faces {
-        count_phase(&mut s, &mut stats, n, &mut moved)?;
+        count_phase(&mut s, &mut stats, n, &mut moved, opts.exact_undo)?;
     }
     if late {
         for _ in 0..opts.move_rounds {
@@ -276,8 +301,19 @@ pub fn cleanup(
             }
             for _ in 0..opts.sweeps {
                 stats.sweeps += 1;
-                let guard = probe.as_ref().map(|p| (p, opts.move_fit_rise));
-                if valence_sweep(&mut s, &mut stats, &mut moved, &mut epochs, guard, true)? == 0 {
+                let guard = probe
+                    .as_ref()
+                    .map(|p| (p, (opts.move_fit_rise, opts.move_fit_share)));
+                if valence_sweep(
+                    &mut s,
+                    &mut stats,
+                    &mut moved,
+                    &mut epochs,
+                    guard,
+                    true,
+                    opts.exact_undo,
+                )? == 0
+                {
                     break;
                 }
             }
@@ -380,7 +416,7 @@ struct Trial {
 /// face. `None` when the
 /// operation no longer applies. The caller keeps it or calls
 /// [`Simplifier::undo`] with the returned snapshot.
-fn apply(s: &mut Simplifier<'_>, op: Op) -> Result<Option<(Trial, Snapshot)>> {
+fn apply(s: &mut Simplifier<'_>, op: Op, exact: bool) -> Result<Option<(Trial, Undo)>> {
     let anchor = match op {
         Op::Rotate(h, d) => {
             if can_rotate_edge(&s.k, h, rotation(d)).is_err() {
@@ -402,6 +438,7 @@ fn apply(s: &mut Simplifier<'_>, op: Op) -> Result<Option<(Trial, Snapshot)>> {
     let e0 = region_energy(s, &snap.vertices);
     let (f0, w0, _) = region_fails(s, &snap.vertices)?;
     let n0 = s.k.num_live_faces();
+    let exact = exact.then(|| s.save_exact());
     s.pos_log.clear();
     s.lim_log.clear();
     let touched: Vec<VertexId> = match op {
@@ -428,7 +465,24 @@ fn apply(s: &mut Simplifier<'_>, op: Op) -> Result<Option<(Trial, Snapshot)>> {
         worst: (w0, w1),
         faces_removed: n0 - s.k.num_live_faces(),
     };
-    Ok(Some((trial, snap)))
+    Ok(Some((trial, Undo { snap, exact })))
+}
+
+/// How a trial is undone: its region's faces ([`Simplifier::undo`], under
+/// new ids) or, with `exact`, the whole state saved before it
+/// ([`CleanupOptions::exact_undo`]).
+struct Undo {
+    snap: Snapshot,
+    exact: Option<Exact>,
+}
+
+/// Undoes a trial ([`Undo`]).
+fn undo(s: &mut Simplifier<'_>, u: Undo) -> Result<()> {
+    match u.exact {
+        Some(x) => s.restore_exact(x),
+        None => s.undo(u.snap)?,
+    }
+    s.check_step("undo")
 }
 
 /// Marks the vertices the kept operation moved (its refit's positions and
@@ -489,8 +543,9 @@ fn valence_sweep(
     stats: &mut CleanupStats,
     moved: &mut [bool],
     epochs: &mut Epochs,
-    guard: Option<(&super::moves::FitProbe<'_>, f64)>,
+    guard: Option<(&super::moves::FitProbe<'_>, (f64, f64))>,
     rotations_only: bool,
+    exact: bool,
 ) -> Result<usize> {
     let mut kept = 0;
     for (_, op) in candidates(s) {
@@ -517,7 +572,7 @@ fn valence_sweep(
         if gain <= 0 {
             continue;
         }
-        let Some((trial, snap)) = apply(s, op)? else {
+        let Some((trial, u)) = apply(s, op, exact)? else {
             continue;
         };
         let (e0, e1) = trial.energy;
@@ -535,8 +590,8 @@ fn valence_sweep(
             let mut changed: Vec<VertexId> = s.pos_log.iter().map(|x| x.0).collect();
             changed.sort_unstable();
             changed.dedup();
-            let mut redo = |s: &mut Simplifier<'_>| Ok(apply(s, op)?.is_some());
-            keep = fit_guard(s, probe, &snap, &mut redo, &changed, rise)?;
+            let mut redo = |s: &mut Simplifier<'_>| Ok(apply(s, op, false)?.is_some());
+            keep = fit_guard(s, probe, &u, &mut redo, &changed, rise)?;
             if !keep {
                 stats.sweep_undone_fit += 1;
                 undone = true;
@@ -544,7 +599,7 @@ fn valence_sweep(
         }
         if keep {
             mark_moved(s, moved);
-            epochs.touch(&snap.vertices);
+            epochs.touch(&u.snap.vertices);
             kept += 1;
             match op {
                 Op::Rotate(..) => stats.rotations += 1,
@@ -558,8 +613,7 @@ fn valence_sweep(
                 stats.undone_valence += 1;
             }
             if !undone {
-                s.undo(snap)?;
-                s.check_step("undo")?;
+                undo(s, u)?;
             }
         }
         s.compact_heap();
@@ -575,6 +629,7 @@ fn count_phase(
     stats: &mut CleanupStats,
     n: usize,
     moved: &mut [bool],
+    exact: bool,
 ) -> Result<()> {
     let floor = (0.98 * n as f64).ceil() as usize;
     for round in 0..3 {
@@ -601,7 +656,7 @@ fn count_phase(
                 if s.k.num_live_faces() <= n {
                     return Ok(());
                 }
-                let Some((trial, snap)) = apply(s, op)? else {
+                let Some((trial, u)) = apply(s, op, exact)? else {
                     continue;
                 };
                 let ((e0, e1), (f0, f1)) = (trial.energy, trial.fails);
@@ -615,8 +670,7 @@ fn count_phase(
                     kept += 1;
                     stats.count_collapses += 1;
                 } else {
-                    s.undo(snap)?;
-                    s.check_step("undo")?;
+                    undo(s, u)?;
                 }
                 s.compact_heap();
             }
@@ -763,11 +817,15 @@ fn apply_move(
 fn fit_guard(
     s: &mut Simplifier<'_>,
     probe: &super::moves::FitProbe<'_>,
-    snap: &Snapshot,
+    u: &Undo,
     redo: &mut dyn FnMut(&mut Simplifier<'_>) -> Result<bool>,
     changed: &[VertexId],
-    rise: f64,
+    rise: (f64, f64),
 ) -> Result<bool> {
+    if let Some(x0) = &u.exact {
+        return fit_guard_exact(s, probe, x0, changed, rise);
+    }
+    let snap = &u.snap;
     let copy = |snap: &Snapshot| Snapshot {
         vertices: snap.vertices.clone(),
         faces: snap.faces.clone(),
@@ -781,6 +839,7 @@ fn fit_guard(
     let Some(before) = probe.measure_fitted(&mut s.k, changed, &after.ids())? else {
         return Ok(false);
     };
+    let rise = allowed_rise(probe, &after, rise);
     if !probe.holds(&before, &after, rise) {
         return Ok(false);
     }
@@ -803,6 +862,61 @@ fn fit_guard(
     if !keep {
         s.undo(copy(snap))?;
         s.check_step("undo")?;
+    }
+    Ok(keep)
+}
+
+/// The fit guard's factor for a region measured as `after`: `rise.0`,
+/// bounded by `1 + rise.1 / φ` when `rise.1 > 0`, φ the region's share of
+/// M's samples ([`CleanupOptions::move_fit_share`]).
+fn allowed_rise(
+    probe: &super::moves::FitProbe<'_>,
+    after: &super::moves::FitMeasure,
+    rise: (f64, f64),
+) -> f64 {
+    let (factor, share) = rise;
+    if share <= 0.0 {
+        return factor;
+    }
+    let part = after.samples.len() as f64 / probe.num_samples().max(1) as f64;
+    factor.min(1.0 + share / part.max(1e-9))
+}
+
+/// [`fit_guard`] with the exact undo: the state after the operation is
+/// kept aside while the state before it is measured, and put back when
+/// the operation passes (no redo: the same bits a redo from the restored
+/// state gives, and nothing to look up by id again).
+fn fit_guard_exact(
+    s: &mut Simplifier<'_>,
+    probe: &super::moves::FitProbe<'_>,
+    x0: &Exact,
+    changed: &[VertexId],
+    rise: (f64, f64),
+) -> Result<bool> {
+    let after = probe.measure_fitted(&mut s.k, changed, &[])?;
+    let x1 = s.save_exact();
+    s.restore_exact(x0.clone());
+    let Some(after) = after else {
+        return Ok(false);
+    };
+    let Some(before) = probe.measure_fitted(&mut s.k, changed, &after.ids())? else {
+        return Ok(false);
+    };
+    let rise = allowed_rise(probe, &after, rise);
+    if !probe.holds(&before, &after, rise) {
+        return Ok(false);
+    }
+    s.restore_exact(x1);
+    let ids = before.ids();
+    if ids == after.ids() {
+        return Ok(true);
+    }
+    let keep = match probe.measure_fitted(&mut s.k, changed, &ids)? {
+        Some(a) => probe.holds(&before, &a, rise),
+        None => false,
+    };
+    if !keep {
+        s.restore_exact(x0.clone());
     }
     Ok(keep)
 }
@@ -867,7 +981,10 @@ fn move_sweep(
         } else {
             0.0
         };
+        let exact = opts.exact_undo.then(|| s.save_exact());
         let touched = apply_move(s, &mv.steps)?;
+        let u = Undo { snap, exact };
+        let snap = &u.snap;
         let e1 = region_energy(s, &snap.vertices);
         let (f1, w1, l1) = region_fails(s, &snap.vertices)?;
         let mut tests_kept = f1 <= f0 && w1 <= w0.max(s.relax);
@@ -885,7 +1002,8 @@ fn move_sweep(
                 let t = std::time::Instant::now();
                 let steps = &mv.steps;
                 let mut redo = |s: &mut Simplifier<'_>| Ok(apply_move(s, steps)?.is_some());
-                keep = fit_guard(s, probe, &snap, &mut redo, changed, opts.move_fit_rise)?;
+                let rise = (opts.move_fit_rise, opts.move_fit_share);
+                keep = fit_guard(s, probe, &u, &mut redo, changed, rise)?;
                 stats.move_seconds_guard += t.elapsed().as_secs_f64();
                 if !keep {
                     stats.moves_undone_fit += 1;
@@ -903,8 +1021,7 @@ fn move_sweep(
             stats.moves_undone += 1;
             epochs.fail(seed);
             if !undone {
-                s.undo(snap)?;
-                s.check_step("undo")?;
+                undo(s, u)?;
             }
         }
         s.compact_heap();
@@ -934,4 +1051,167 @@ fn move_snapshot(s: &mut Simplifier<'_>, steps: &[super::moves::Step]) -> Snapsh
     faces.sort_unstable();
     faces.dedup();
     Snapshot { vertices, faces }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fixtures;
+    use crate::raycast::bvh::BvhCaster;
+
+    /// A bumpy height field over [0, 10]², the same for M and the control
+    /// points (they lie on M, as the extraction's do).
+    fn height(x: f64, y: f64) -> f64 {
+        0.4 * (0.6 * x).sin() * (0.45 * y).cos()
+    }
+
+    /// M: 60 × 60 cells over the 10 × 10 control grid.
+    fn surface() -> TriMesh {
+        let n = 60;
+        let s = 10.0 / n as f64;
+        fixtures::tri_grid(
+            n,
+            |i, j| {
+                let (x, y) = (i as f64 * s, j as f64 * s);
+                DVec3::new(x, y, height(x, y))
+            },
+            |_, _| true,
+        )
+    }
+
+    fn flat_fitmap(n: usize) -> Fitmap {
+        Fitmap {
+            radii: vec![0.01, 1.0],
+            s: vec![0.0; n],
+            m: vec![1.0; n],
+            m_step: vec![1; n],
+            tolerance: 0.01,
+            stats: Default::default(),
+        }
+    }
+
+    /// The 10 × 10 grid on M with two 3–5 pairs planted by a rotation
+    /// and pulled apart by an energy-neutral one (no single operation
+    /// removes them; a move of two or more rotations does).
+    fn control() -> ControlMesh {
+        let mut k = fixtures::flat_grid(10, 10);
+        for p in k.positions_mut() {
+            p.z = height(p.x, p.y);
+        }
+        let (a, b) = (VertexId(5 * 11 + 5), VertexId(5 * 11 + 6));
+        let h = k.outgoing(a).find(|&h| k.head(h) == b).unwrap();
+        rotate_edge(&mut k, h, Rotation::Ccw).unwrap();
+        let vt = ValenceTargets::new(&k);
+        let (h, dir) = k
+            .edges()
+            .map(|e| e.halfedge())
+            .flat_map(|h| [(h, Rotation::Ccw), (h, Rotation::Cw)])
+            .find(|&(h, d)| {
+                can_rotate_edge(&k, h, d).is_ok_and(|x| rotation_energy_gain(&k, &vt, &x, d) == 0)
+            })
+            .unwrap();
+        rotate_edge(&mut k, h, dir).unwrap();
+        k
+    }
+
+    /// Everything a later step reads: the mesh with all its ids and free
+    /// lists, the limit points, and the Fitmap values of the live faces.
+    fn state(s: &Simplifier<'_>) -> (ControlMesh, Vec<DVec3>, Vec<(f64, f64)>) {
+        let per_face =
+            s.k.live_faces()
+                .map(|f| (s.fs[f.idx()], s.fm[f.idx()]))
+                .collect();
+        (s.k.clone(), s.lim.clone(), per_face)
+    }
+
+    /// Applies and undoes, with the exact undo, every rotation and every
+    /// diagonal collapse the grid allows (collapses on the boundary
+    /// cascade into doublet removals) and every planned multi-rotation
+    /// move around its irregular vertices: after each undo the state must
+    /// equal the one before, ids included. The region undo, on the same
+    /// trials, must give back the same quads (as vertex lists) but, for
+    /// some trial, not the same mesh: the comparison does see ids.
+    #[test]
+    fn exact_undo_leaves_the_mesh_bit_identical() {
+        let m = surface();
+        let fm = flat_fitmap(m.positions.len());
+        let caster = BvhCaster::new(&m).unwrap();
+        let so = SimplifyOptions::default().with_check_every_step(true);
+        let mut s = Simplifier::new(&m, &fm, &caster, &so, control(), &mut || Ok(())).unwrap();
+        let faces: Vec<FaceId> = s.k.live_faces().collect();
+        s.update_faces(&faces).unwrap();
+        let quads = |k: &ControlMesh| {
+            let mut q: Vec<[VertexId; 4]> = k
+                .live_faces()
+                .map(|f| {
+                    let mut q = crate::quad::ops::quad(k, f);
+                    let i = (0..4).min_by_key(|&i| q[i]).unwrap();
+                    q.rotate_left(i);
+                    q
+                })
+                .collect();
+            q.sort_unstable();
+            q
+        };
+        let mut ops: Vec<Op> = Vec::new();
+        for e in s.k.edges() {
+            for d in 0..2u8 {
+                if can_rotate_edge(&s.k, e.halfedge(), rotation(d)).is_ok() {
+                    ops.push(Op::Rotate(e.halfedge(), d));
+                }
+            }
+        }
+        for f in s.k.live_faces() {
+            for d in 0..2u8 {
+                if can_collapse_diagonal(&s.k, f, d as usize).is_ok() {
+                    ops.push(Op::Collapse(f, d));
+                }
+            }
+        }
+        let (mut kinds, mut region_differs) = ([0usize; 3], 0);
+        for &op in &ops {
+            for exact in [true, false] {
+                let before = state(&s);
+                let Some((_, u)) = apply(&mut s, op, exact).unwrap() else {
+                    continue;
+                };
+                assert_ne!(s.k, before.0, "{op:?} changed nothing");
+                undo(&mut s, u).unwrap();
+                if exact {
+                    kinds[matches!(op, Op::Collapse(..)) as usize] += 1;
+                    assert!(state(&s) == before, "{op:?}: exact undo differs");
+                } else {
+                    assert_eq!(quads(&s.k), quads(&before.0), "{op:?}");
+                    if s.k != before.0 {
+                        region_differs += 1;
+                    }
+                    // Back to the very state for the next trial.
+                    s.k = before.0;
+                    s.lim = before.1;
+                    let faces: Vec<FaceId> = s.k.live_faces().collect();
+                    s.update_faces(&faces).unwrap();
+                }
+            }
+        }
+        let vt = s.valence_targets.clone();
+        let seeds: Vec<VertexId> =
+            s.k.live_vertices()
+                .filter(|&v| vt.is_irregular(&s.k, v))
+                .collect();
+        for seed in seeds {
+            let Some(mv) = super::super::moves::plan(&s.k, &vt, seed) else {
+                continue;
+            };
+            let before = state(&s);
+            let snap = move_snapshot(&mut s, &mv.steps);
+            let exact = Some(s.save_exact());
+            assert!(apply_move(&mut s, &mv.steps).unwrap().is_some());
+            assert_ne!(s.k, before.0);
+            undo(&mut s, Undo { snap, exact }).unwrap();
+            assert!(state(&s) == before, "move {mv:?}: exact undo differs");
+            kinds[2] += 1;
+        }
+        assert!(kinds.iter().all(|&n| n > 0), "{kinds:?}");
+        assert!(region_differs > 0, "the region undo kept every id");
+    }
 }

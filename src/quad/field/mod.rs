@@ -456,6 +456,15 @@ fn clean(
     if std::env::var_os("SUBDFIT_CLEANUP_LATE").is_some() {
         co.moves_after_count = true;
     }
+    if let Some(e) = std::env::var("SUBDFIT_CLEANUP_SHARE")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+    {
+        co.move_fit_share = e;
+    }
+    if std::env::var_os("SUBDFIT_CLEANUP_EXACT").is_some() {
+        co.exact_undo = true;
+    }
     let (control, cs) = cleanup::cleanup(mesh, fitmap, caster, out.control, &co)?;
     out.stats.vertices = control.num_vertices();
     out.stats.faces = control.num_faces();

@@ -769,6 +769,12 @@ impl<'a> FitProbe<'a> {
         }
     }
 
+    /// How many of M's vertices are samples (every `stride`-th): the
+    /// whole surface's count, against which a region's is a share.
+    pub fn num_samples(&self) -> usize {
+        self.points.len().div_ceil(self.stride as usize)
+    }
+
     /// Measures after the global fit's objective on the region
     /// ([`RegionFit`]) from now on.
     pub fn with_region_fit(mut self, fit: RegionFit<'a>) -> Self {
