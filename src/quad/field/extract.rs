@@ -165,8 +165,14 @@ fn extract_once(
     };
     let mut positions = project(&positions)?;
     if at_size {
-        for _ in 0..RELAX_STEPS {
-            positions = project(&relax(&positions, &quads))?;
+        let mode = RelaxMode::from_env();
+        for _ in 0..mode.steps {
+            let sizes = if mode.sized {
+                Some(sizes_at(&caster, mesh, scale, &positions)?)
+            } else {
+                None
+            };
+            positions = project(&relax(&positions, &quads, sizes.as_deref(), mode.power))?;
         }
     }
     // Where the kept lattice went wrong, for the local refinement (only
@@ -775,10 +781,72 @@ fn merge_non_quad_pairs(polys: Vec<Vec<u32>>, n: usize, at_size: bool) -> Vec<Ve
 /// the raw lattice left, down to a fraction of a degree.
 const RELAX_STEPS: usize = 3;
 
+/// How the extracted points are relaxed: `FIELD_RELAX` =
+/// `uniform[:STEPS]` (the default, [`RELAX_STEPS`] steps), `none`, or
+/// `sized[:STEPS[:POWER]]` (neighbours weighted by the lattice spacing,
+/// see [`relax`]; power 1 by default). An off-by-default switch for
+/// measuring issue 40's adaptivity (docs/status.md, "Field-aligned layout",
+/// 2026-12-06): the sized relaxation raises the gargoyle's ρ but moves the
+/// small layouts' errors both ways by more than the noise.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct RelaxMode {
+    steps: usize,
+    sized: bool,
+    power: f64,
+}
+
+impl RelaxMode {
+    fn from_env() -> RelaxMode {
+        RelaxMode::parse(&std::env::var("FIELD_RELAX").unwrap_or_default())
+    }
+
+    /// Anything unparsable is the default.
+    fn parse(v: &str) -> RelaxMode {
+        let mut it = v.split(':');
+        let kind = it.next().unwrap_or("");
+        let steps = it.next().and_then(|x| x.parse().ok());
+        let power = it
+            .next()
+            .and_then(|x| x.parse::<f64>().ok())
+            .filter(|p| p.is_finite())
+            .unwrap_or(1.0);
+        RelaxMode {
+            steps: if kind == "none" {
+                0
+            } else {
+                steps.unwrap_or(RELAX_STEPS)
+            },
+            sized: kind == "sized",
+            power,
+        }
+    }
+}
+
+/// The lattice spacing `scale` (per vertex of M) at each point's closest
+/// point on M, interpolated over its triangle.
+fn sizes_at(caster: &BvhCaster, mesh: &TriMesh, scale: &[f64], pos: &[DVec3]) -> Result<Vec<f64>> {
+    let hits = caster.closest_points(pos, f64::INFINITY)?;
+    let mean = scale.iter().sum::<f64>() / scale.len().max(1) as f64;
+    Ok(hits
+        .iter()
+        .map(|h| {
+            h.as_ref().map_or(mean, |h| {
+                let t = mesh.triangles[h.triangle as usize];
+                let w = [1.0 - h.u - h.v, h.u, h.v];
+                (0..3).map(|k| w[k] * scale[t[k] as usize]).sum::<f64>()
+            })
+        })
+        .collect())
+}
+
 /// Each interior point moved halfway to the mean of its edge neighbours
 /// (halfway, so that the projection onto M stays on the point's own sheet
-/// of a thin part); points on a boundary edge stay.
-fn relax(pos: &[DVec3], quads: &[[u32; 4]]) -> Vec<DVec3> {
+/// of a thin part); points on a boundary edge stay. With `sizes`, each
+/// neighbour weighs `L^-power`, `L` the edge's mean size: along a chain the
+/// weighted mean's fixed point has edge lengths ∝ L (at power 1, equal
+/// tension e/L on every edge), so the relaxation keeps the sizing's
+/// grading instead of equalising the patches.
+fn relax(pos: &[DVec3], quads: &[[u32; 4]], sizes: Option<&[f64]>, power: f64) -> Vec<DVec3> {
     let n = pos.len();
     let mut count: std::collections::HashMap<(u32, u32), u8> = Default::default();
     for q in quads {
@@ -791,10 +859,11 @@ fn relax(pos: &[DVec3], quads: &[[u32; 4]]) -> Vec<DVec3> {
     edges.sort_unstable();
     for (&(a, b), &c) in edges {
         let (a, b) = (a as usize, b as usize);
-        sum[a] += pos[b];
-        sum[b] += pos[a];
-        deg[a] += 1.0;
-        deg[b] += 1.0;
+        let w = sizes.map_or(1.0, |h| (0.5 * (h[a] + h[b])).max(1e-300).powf(-power));
+        sum[a] += w * pos[b];
+        sum[b] += w * pos[a];
+        deg[a] += w;
+        deg[b] += w;
         if c == 1 {
             fixed[a] = true;
             fixed[b] = true;
@@ -907,5 +976,88 @@ mod tests {
                 assert!(directed.insert((p[i], p[(i + 1) % 4])));
             }
         }
+    }
+
+    /// A plane grid of `nx` × `ny` quads with unit spacing.
+    fn grid(nx: usize, ny: usize) -> (Vec<DVec3>, Vec<[u32; 4]>) {
+        let id = |i: usize, j: usize| (j * (nx + 1) + i) as u32;
+        let mut pos = Vec::new();
+        for j in 0..=ny {
+            for i in 0..=nx {
+                pos.push(DVec3::new(i as f64, j as f64, 0.0));
+            }
+        }
+        let mut quads = Vec::new();
+        for j in 0..ny {
+            for i in 0..nx {
+                quads.push([id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+        (pos, quads)
+    }
+
+    #[test]
+    fn relax_mode_parses_the_switch() {
+        let d = RelaxMode::parse("");
+        assert_eq!((d.steps, d.sized), (RELAX_STEPS, false));
+        assert_eq!(RelaxMode::parse("none").steps, 0);
+        let s = RelaxMode::parse("sized:5:8");
+        assert_eq!((s.steps, s.sized, s.power), (5, true, 8.0));
+        assert_eq!(RelaxMode::parse("sized").power, 1.0);
+        assert_eq!(RelaxMode::parse("sized:x:inf").steps, RELAX_STEPS);
+    }
+
+    /// Equal sizes weigh every neighbour alike: the sized relaxation is
+    /// the uniform one (to rounding), on a jittered grid.
+    #[test]
+    fn equal_sizes_relax_as_the_uniform_relaxation() {
+        let (mut pos, quads) = grid(6, 5);
+        for (k, p) in pos.iter_mut().enumerate() {
+            p.x += 0.2 * ((k * 37 % 11) as f64 / 11.0 - 0.5);
+            p.y += 0.2 * ((k * 53 % 13) as f64 / 13.0 - 0.5);
+        }
+        let uniform = relax(&pos, &quads, None, 1.0);
+        let sized = relax(&pos, &quads, Some(&vec![0.3; pos.len()]), 4.0);
+        for (a, b) in uniform.iter().zip(&sized) {
+            assert!((*a - *b).length() < 1e-12);
+        }
+        // The boundary stays, the interior moves.
+        assert_eq!(uniform[0], pos[0]);
+        assert!(uniform
+            .iter()
+            .zip(&pos)
+            .any(|(a, b)| (*a - *b).length() > 1e-3));
+    }
+
+    /// Sizes growing 3× from left to right: relaxed to its fixed point
+    /// (the boundary held), the uniform relaxation keeps the grid's equal
+    /// spacing, the sized one grades it. Along a chain the fixed point has
+    /// edges ∝ L^power, here 2.92 / 1.08 = 2.7 between the rightmost and
+    /// the leftmost edge; the fixed top and bottom rows pull the middle row
+    /// back towards equal spacing (measured 2.51), so the bar is 2.
+    #[test]
+    fn sized_relaxation_grades_the_spacing() {
+        let (nx, ny) = (12, 24);
+        let (pos, quads) = grid(nx, ny);
+        let sizes: Vec<f64> = pos.iter().map(|p| 1.0 + 2.0 * p.x / nx as f64).collect();
+        let run = |sized: Option<&[f64]>| {
+            let mut p = pos.clone();
+            for _ in 0..2000 {
+                p = relax(&p, &quads, sized, 1.0);
+            }
+            let row = ny / 2 * (nx + 1);
+            let first = p[row + 1].x - p[row].x;
+            let last = p[row + nx].x - p[row + nx - 1].x;
+            let monotone = (1..nx)
+                .all(|i| p[row + i + 1].x - p[row + i].x >= p[row + i].x - p[row + i - 1].x - 1e-9);
+            (last / first, monotone)
+        };
+        let (uniform, _) = run(None);
+        assert!((uniform - 1.0).abs() < 1e-6, "uniform ratio {uniform}");
+        let (graded, monotone) = run(Some(&sizes));
+        assert!(
+            graded > 2.0 && monotone,
+            "graded ratio {graded}, monotone {monotone}"
+        );
     }
 }

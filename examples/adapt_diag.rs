@@ -1,0 +1,109 @@
+//! Diagnostics of the field layout's adaptivity (issue 40): per relaxation
+//! variant, patches, irregular vertices, Spearman(radius, 1/F_S),
+//! Spearman(radius, h) and Spearman(h, 1/F_S) at the patch centres, with
+//! and without the cleanup.
+//!
+//! `cargo run --release --example adapt_diag -- MESH VARIANT...` where a
+//! VARIANT is a `FIELD_RELAX` value (`uniform`, `none`, `sized:STEPS:POWER`).
+//! `ADAPT_GAMMA`, `ADAPT_LOOPCAP` and `ADAPT_FACES` override the
+//! gradation, the holes' cap slope and the target count;
+//! `ADAPT_CLEANUP_ONLY` skips the layouts without the cleanup. h is the
+//! sizing before the count loop's uniform scaling (ranks unchanged).
+
+use subdfit::analysis::{compute_fitmap, spearman, FitmapOptions};
+use subdfit::mesh::{ControlMesh, Frame, TriMesh};
+use subdfit::quad::field::{field_layout, irregular_vertices, sizing, FieldOptions, Surface};
+use subdfit::raycast::bvh::BvhCaster;
+use subdfit::raycast::{make_raycaster, RayBackend, RayCaster};
+use subdfit::DVec3;
+
+/// (ρ(r, 1/F_S), ρ(r, h), ρ(h, 1/F_S)) at the patch centres.
+fn rhos(mesh: &TriMesh, fs: &[f64], h: &[f64], k: &ControlMesh) -> (f64, f64, f64) {
+    let (mut centres, mut radius) = (Vec::new(), Vec::new());
+    for f in k.faces() {
+        let q: Vec<DVec3> = k.face_vertices(f).map(|v| k.position(v)).collect();
+        let c = q.iter().copied().sum::<DVec3>() / q.len() as f64;
+        radius.push(q.iter().map(|p| (*p - c).length()).fold(0.0, f64::max));
+        centres.push(c);
+    }
+    let caster = BvhCaster::new(mesh).unwrap();
+    let hits = caster.closest_points(&centres, f64::INFINITY).unwrap();
+    let (mut r, mut inv, mut hh) = (Vec::new(), Vec::new(), Vec::new());
+    for (c, &rad) in hits.iter().zip(&radius) {
+        let Some(c) = c else { continue };
+        let t = mesh.triangles[c.triangle as usize];
+        let s: Vec<f64> = t
+            .iter()
+            .map(|&v| fs[v as usize])
+            .filter(|s| *s > 0.0 && s.is_finite())
+            .collect();
+        if s.is_empty() {
+            continue;
+        }
+        r.push(rad);
+        inv.push(s.len() as f64 / s.iter().sum::<f64>());
+        hh.push(t.iter().map(|&v| h[v as usize]).sum::<f64>() / 3.0);
+    }
+    (
+        spearman(&r, &inv).unwrap_or(f64::NAN),
+        spearman(&r, &hh).unwrap_or(f64::NAN),
+        spearman(&hh, &inv).unwrap_or(f64::NAN),
+    )
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().collect();
+    let input = subdfit::io::read_mesh(args[1].as_ref())?;
+    let (lo, hi) = input.mesh.bbox();
+    let mut mesh = input.mesh.clone();
+    Frame::of_bbox(lo, hi).points_to_unit(&mut mesh.positions);
+    let caster = make_raycaster(RayBackend::Embree, &mesh)?;
+    let fitmap = compute_fitmap(
+        &mesh,
+        caster.as_ref(),
+        &FitmapOptions::default().with_tolerance(0.01),
+    )?;
+    let mut opts = FieldOptions::default();
+    if let Some(g) = std::env::var("ADAPT_GAMMA")
+        .ok()
+        .and_then(|g| g.parse().ok())
+    {
+        opts.gradation = g;
+    }
+    if let Some(g) = std::env::var("ADAPT_LOOPCAP")
+        .ok()
+        .and_then(|g| g.parse().ok())
+    {
+        opts.loop_cap_slope = g;
+    }
+    if let Some(g) = std::env::var("ADAPT_FACES")
+        .ok()
+        .and_then(|g| g.parse().ok())
+    {
+        opts.target_faces = Some(g);
+    }
+    let cleanups: &[bool] = if std::env::var("ADAPT_CLEANUP_ONLY").is_ok() {
+        &[true]
+    } else {
+        &[false, true]
+    };
+    let surf = Surface::new(&mesh)?;
+    let (mut h, ..) = sizing::sizing_for(&surf, &mesh, &fitmap, &opts)?;
+    sizing::cap_at_boundaries(&surf, &mut h, opts.gradation, opts.loop_cap_slope);
+    for v in &args[2..] {
+        std::env::set_var("FIELD_RELAX", v);
+        for &cleanup in cleanups {
+            let mut o = opts.clone();
+            o.cleanup = cleanup;
+            let laid = field_layout(&mesh, &fitmap, &o)?;
+            let (a, b, c) = rhos(&mesh, &fitmap.s, &h, &laid.control);
+            println!(
+                "{v:>14} cleanup={cleanup:<5} faces {:4} irr {:3} rho(r,1/FS) {a:.3} rho(r,h) {b:.3} rho(h,1/FS) {c:.3} rounds {}",
+                laid.control.num_faces(),
+                irregular_vertices(&laid.control),
+                laid.stats.lattice.local_rounds
+            );
+        }
+    }
+    Ok(())
+}
