@@ -56,7 +56,7 @@ pub(super) fn fit_fewest_within(
         // never runs the displacement, D's accuracy and the tessellations;
         // the kept one's measurement reuses it. (A candidate that is not all
         // quads, measured on its refinement, takes the whole measurement.)
-        let check = if fitted.control.is_all_quads() {
+        let check = if fitted.control.is_all_quads() && !full_measure_each() {
             Some(timer.run(LIMIT_CHECK_STAGE, || {
                 crate::report::limit_check(mesh, &fitted.control, caster, &po.metrics, progress)
             })?)
@@ -89,6 +89,13 @@ pub(super) fn fit_fewest_within(
         }
         bound = next_bound(bound, e, rms, fit_rms);
     }
+}
+
+/// `SUBDFIT_SEARCH_FULL_MEASURE=1`: every candidate measured in full, as
+/// before the L-only check (an experiment switch for measuring the check's
+/// saving in one binary; the outputs are the same bytes either way).
+fn full_measure_each() -> bool {
+    std::env::var_os("SUBDFIT_SEARCH_FULL_MEASURE").is_some_and(|v| v == "1")
 }
 
 /// `report.json`'s stage of each `--max-error` candidate's RMS L check
