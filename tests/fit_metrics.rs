@@ -452,3 +452,46 @@ fn drawn_metrics_are_the_same_at_one_and_two_threads() {
     assert!(one.displaced.surface_to_mesh.samples < one.displaced.surface_to_mesh.population);
     assert_eq!(one, two);
 }
+
+/// The `--max-error` search's L-only check (`report::limit_check`) is the
+/// first half of the full measurement, not an approximation: its RMS L is
+/// the metrics' one bit for bit, and handed to `evaluate_surfaces_after`
+/// for the same control mesh the whole result (every metric, the
+/// tessellations, the displacement) is the exhaustive path's. A check
+/// made for another control mesh (moved positions) is not used: the
+/// result is that mesh's own exhaustive one.
+#[test]
+fn limit_check_is_the_measurement_s_own_l() {
+    use subdfit::report::{evaluate_surfaces_after, limit_check};
+    let (mesh, c, opts) = drawn_fixture();
+    let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+    let caster = caster.as_ref();
+    let full = |c: &subdfit::mesh::ControlMesh| {
+        evaluate_surfaces(&mesh, c, caster, &opts, &mut |_, _| true).unwrap()
+    };
+    let check = |c: &subdfit::mesh::ControlMesh| {
+        limit_check(&mesh, c, caster, &opts, &mut |_, _| true).unwrap()
+    };
+    let after = |c: &subdfit::mesh::ControlMesh, k| {
+        evaluate_surfaces_after(&mesh, c, caster, &opts, Some(k), &mut |_, _| true).unwrap()
+    };
+    let same = |a: &subdfit::report::Surfaces, b: &subdfit::report::Surfaces| {
+        assert_eq!(a.metrics, b.metrics);
+        assert_eq!(a.limit.positions, b.limit.positions);
+        assert_eq!(a.limit.triangles, b.limit.triangles);
+        assert_eq!(a.displaced.positions, b.displaced.positions);
+        assert_eq!(a.displacement.offsets, b.displacement.offsets);
+        assert_eq!(a.displaced_offsets, b.displaced_offsets);
+    };
+    let exhaustive = full(&c);
+    let k = check(&c);
+    assert_eq!(*k.accuracy(), exhaustive.metrics.limit);
+    same(&after(&c, k), &exhaustive);
+    // Not vacuous: moved by 2 % of its size, the mesh's L differs.
+    let mut moved = c.clone();
+    let p: Vec<_> = c.positions().iter().map(|&p| p * 1.02).collect();
+    moved.set_positions(p).unwrap();
+    let other = full(&moved);
+    assert_ne!(other.metrics.limit, exhaustive.metrics.limit);
+    same(&after(&moved, check(&c)), &other);
+}

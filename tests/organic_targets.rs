@@ -151,4 +151,20 @@ fn climbing_search_keeps_the_max_error_bound() {
         .max_by_key(|t| t.0)
         .expect("a smaller candidate was tried");
     assert!(below.1 > 0.9 * 5.0, "{below:?} was tried and {faces} kept");
+    // Each round's candidate was judged by its RMS L alone (one
+    // `limit check` stage each); the displacement and the full metrics ran
+    // once, for the kept candidate, and reused its check: no discarded
+    // measurement (`displacement+metrics (max_error check)`).
+    let stages: Vec<&str> = r["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["stage"].as_str().unwrap())
+        .collect();
+    let count = |name: &str| stages.iter().filter(|&&s| s == name).count();
+    assert_eq!(count("displacement+metrics"), 1, "{stages:?}");
+    assert_eq!(count("displacement+metrics (max_error check)"), 0);
+    let checks = count(subdfit::convert::LIMIT_CHECK_STAGE);
+    assert_eq!(checks, count("fit"), "one check per round: {stages:?}");
+    assert!(checks >= 1, "{stages:?}");
 }

@@ -49,7 +49,7 @@ pub use record::{
     RunOptions, SecondOpinionNote,
 };
 pub use run::Run;
-pub use search::ErrorSearch;
+pub use search::{ErrorSearch, LIMIT_CHECK_STAGE};
 pub use tail::{
     fit_and_measure, fit_and_write, measure_fitted, write_converted, Converted, PipelineOptions,
 };

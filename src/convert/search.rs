@@ -12,7 +12,7 @@ use crate::mesh::ControlMesh;
 use crate::report::TargetCheck;
 
 use super::run::Run;
-use super::tail::{measure_fitted, Converted, PipelineOptions};
+use super::tail::{measure_fitted_after, Converted, PipelineOptions};
 
 /// How many intermediate meshes the simplification keeps for the organic
 /// `max_error` search: 40 at ratio 1.06 reach 10× the natural end's count.
@@ -49,19 +49,34 @@ pub(super) fn fit_fewest_within(
             search.fewest_within(bound, mesh, caster, &po.fit, progress)
         })?;
         let fit_rms = fitted.report.final_rms_permille;
-        let mut c = measure_fitted(
-            input,
-            fitted,
-            caster,
-            po,
+        let e = search.record.max_error_permille;
+        let last = round == ROUNDS || i + 1 == search.len();
+        // RMS L alone first (the only figure the decision reads, the
+        // metrics' own: `report::limit_check`): a candidate it rejects
+        // never runs the displacement, D's accuracy and the tessellations;
+        // the kept one's measurement reuses it. (A candidate that is not all
+        // quads, measured on its refinement, takes the whole measurement.)
+        let check = if fitted.control.is_all_quads() && !full_measure_each() {
+            Some(timer.run(LIMIT_CHECK_STAGE, || {
+                crate::report::limit_check(mesh, &fitted.control, caster, &po.metrics, progress)
+            })?)
+        } else {
+            None
+        };
+        if let Some(rms) = check.as_ref().map(|c| c.accuracy().rms_permille) {
+            if rms > e && !last {
+                bound = next_bound(bound, e, rms, fit_rms);
+                continue;
+            }
+        }
+        let at = (
             timer.clone(),
             extra(Some(&search.record)),
             Some(fitmap.clone()),
-            progress,
-        )?;
+        );
+        let mut c = measure_fitted_after(input, fitted, caster, po, at, check, progress)?;
         let rms = c.report.accuracy.limit.rms_permille;
-        let e = search.record.max_error_permille;
-        if rms <= e || round == ROUNDS || i + 1 == search.len() {
+        if rms <= e || last {
             c.report.add_target(search.record.target(rms));
             return Ok(c);
         }
@@ -72,10 +87,27 @@ pub(super) fn fit_fewest_within(
                 ..last.clone()
             });
         }
-        // Next round: a bound below this candidate's fit RMS by the
-        // metrics' ratio, so that it (and every smaller one) misses.
-        bound = (bound * e / rms).min(fit_rms * (1.0 - 1e-9));
+        bound = next_bound(bound, e, rms, fit_rms);
     }
+}
+
+/// `SUBDFIT_SEARCH_FULL_MEASURE=1`: every candidate measured in full, as
+/// before the L-only check (an experiment switch for measuring the check's
+/// saving in one binary; the outputs are the same bytes either way).
+fn full_measure_each() -> bool {
+    std::env::var_os("SUBDFIT_SEARCH_FULL_MEASURE").is_some_and(|v| v == "1")
+}
+
+/// `report.json`'s stage of each `--max-error` candidate's RMS L check
+/// (the kept one's included; its `displacement+metrics` stage then does
+/// not measure L again).
+pub const LIMIT_CHECK_STAGE: &str = "limit check (max_error)";
+
+/// The next round's bound after a miss by the metrics' RMS L `rms` (‰) of
+/// a candidate whose fit RMS was `fit_rms`: below the fit RMS by the
+/// metrics' ratio, so that it (and every smaller one) misses.
+fn next_bound(bound: f64, e: f64, rms: f64, fit_rms: f64) -> f64 {
+    (bound * e / rms).min(fit_rms * (1.0 - 1e-9))
 }
 
 /// A whole fit's final RMS over its RMS after round r (r = 0..8; the

@@ -15,8 +15,8 @@ use crate::mesh::{ControlMesh, Frame, ValidatedMesh};
 use crate::raycast::RayCaster;
 
 use crate::report::{
-    evaluate_surfaces, write_outputs_with, ExtraFiles, MetricsOptions, OutputFiles, OutputOptions,
-    StageTimer, Surfaces,
+    evaluate_surfaces, evaluate_surfaces_after, write_outputs_with, ExtraFiles, LimitCheck,
+    MetricsOptions, OutputFiles, OutputOptions, StageTimer, Surfaces,
 };
 
 use super::record::{FittedRun, RunOptions};
@@ -156,9 +156,24 @@ pub fn measure_fitted(
     fitted: crate::fit::Fitted,
     caster: &dyn RayCaster,
     opts: &PipelineOptions,
-    mut timer: StageTimer,
+    timer: StageTimer,
     run: FittedRun,
     precomputed_fitmap: Option<Fitmap>,
+    progress: &mut Progress<'_>,
+) -> Result<Converted> {
+    let at = (timer, run, precomputed_fitmap);
+    measure_fitted_after(input, fitted, caster, opts, at, None, progress)
+}
+
+/// [`measure_fitted`] with L's accuracy measured already (`check`, of
+/// `fitted.control`: the `--max-error` search's; not measured again).
+pub(super) fn measure_fitted_after(
+    input: &ValidatedMesh,
+    fitted: crate::fit::Fitted,
+    caster: &dyn RayCaster,
+    opts: &PipelineOptions,
+    (mut timer, run, precomputed_fitmap): (StageTimer, FittedRun, Option<Fitmap>),
+    check: Option<LimitCheck>,
     progress: &mut Progress<'_>,
 ) -> Result<Converted> {
     let mesh = &input.mesh;
@@ -174,7 +189,7 @@ pub fn measure_fitted(
     };
     let surfaces = timer.run("displacement+metrics", || {
         let on = quads.as_ref().unwrap_or(&fitted.control);
-        evaluate_surfaces(mesh, on, caster, &opts.metrics, progress)
+        evaluate_surfaces_after(mesh, on, caster, &opts.metrics, check, progress)
     })?;
     let fitmap = match (&opts.fitmap, precomputed_fitmap) {
         (_, Some(f)) => Some(f),

@@ -301,28 +301,159 @@ pub fn evaluate_surfaces(
     opts: &MetricsOptions,
     progress: &mut Progress<'_>,
 ) -> Result<Surfaces> {
-    let diag = mesh.bbox_diagonal();
-    if mesh.triangles.is_empty() || !(diag.is_finite() && diag > 0.0) {
-        return Err(Error::invalid_data(
-            "input mesh",
-            "mesh",
-            "is empty or has a degenerate bounding box; no metric is defined on it",
-        ));
+    evaluate_surfaces_after(mesh, control, caster, opts, None, progress)
+}
+
+/// L's accuracy alone (RMS L, what the organic `--max-error` search
+/// judges a candidate by): the first half of [`evaluate_surfaces`]'s L
+/// side, without projectability, displacement, D's accuracy or the
+/// tessellations. Handed to [`evaluate_surfaces_after`] for the same
+/// `control`, it is not computed again there; the figures are the same
+/// bits either way (the same functions on the same inputs, each
+/// deterministic whatever the thread count).
+pub struct LimitCheck {
+    control: ControlMesh,
+    evaluator: Box<dyn crate::subdiv::LimitEvaluator>,
+    grid: PatchGrid,
+    /// Built over `limit` (dropped before it).
+    limit_caster: Box<dyn RayCaster>,
+    limit: TriMesh,
+    accuracy: Accuracy,
+}
+
+impl LimitCheck {
+    /// L's accuracy against M (`accuracy.limit` of the metrics).
+    pub fn accuracy(&self) -> &Accuracy {
+        &self.accuracy
     }
-    let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));
-    let patches = control.num_faces();
-    let n = mesh.positions.len();
-    // The uniform grid's R: given, or from the budget (M's vertex count
-    // by default).
-    let r = opts
-        .displacement_res
-        .unwrap_or_else(|| auto_resolution(opts.displacement_samples.unwrap_or(n), patches));
+}
+
+/// The settings [`evaluate_surfaces`] derives from M and the control mesh.
+struct Setup {
+    diag: f64,
+    max_dist: f64,
+    /// The displacement grid's R and the tessellation's T (module docs).
+    r: usize,
+    t: usize,
+}
+
+impl Setup {
+    fn of(mesh: &TriMesh, control: &ControlMesh, opts: &MetricsOptions) -> Result<Setup> {
+        let diag = mesh.bbox_diagonal();
+        if mesh.triangles.is_empty() || !(diag.is_finite() && diag > 0.0) {
+            return Err(Error::invalid_data(
+                "input mesh",
+                "mesh",
+                "is empty or has a degenerate bounding box; no metric is defined on it",
+            ));
+        }
+        let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));
+        let patches = control.num_faces();
+        let n = mesh.positions.len();
+        // The uniform grid's R: given, or from the budget (M's vertex count
+        // by default).
+        let r = opts
+            .displacement_res
+            .unwrap_or_else(|| auto_resolution(opts.displacement_samples.unwrap_or(n), patches));
+        let t = opts.tessellation_res.unwrap_or_else(|| {
+            // Twice M's vertex count (module docs).
+            let t = (2.0 * n as f64 / patches.max(1) as f64).sqrt().ceil() as usize + 1;
+            t.clamp(r.min(64), 64).max(r)
+        });
+        Ok(Setup {
+            diag,
+            max_dist,
+            r,
+            t,
+        })
+    }
+}
+
+/// L's tessellation at `t` cells per patch side and its ray caster.
+fn limit_surface(
+    control: &ControlMesh,
+    evaluator: &dyn crate::subdiv::LimitEvaluator,
+    t: usize,
+) -> Result<(PatchGrid, Box<dyn RayCaster>, TriMesh)> {
+    let grid = PatchGrid::new(control, t)?;
+    let limit_pts = evaluator.evaluate(control.positions(), grid.locations())?;
+    let limit = TriMesh {
+        positions: limit_pts.iter().map(|p| p.position).collect(),
+        triangles: grid.triangles(),
+    };
+    let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
+    Ok((grid, limit_caster, limit))
+}
+
+/// [`LimitCheck`] of `control` against `mesh` (`caster` built over it);
+/// stage `"metrics"` for `progress`.
+pub fn limit_check(
+    mesh: &TriMesh,
+    control: &ControlMesh,
+    caster: &dyn RayCaster,
+    opts: &MetricsOptions,
+    progress: &mut Progress<'_>,
+) -> Result<LimitCheck> {
+    let Setup { diag, t, .. } = Setup::of(mesh, control, opts)?;
     let evaluator = make_evaluator(Backend::Osd, control, &EvalOptions::default())?;
-    let t = opts.tessellation_res.unwrap_or_else(|| {
-        // Twice M's vertex count (module docs).
-        let t = (2.0 * n as f64 / patches.max(1) as f64).sqrt().ceil() as usize + 1;
-        t.clamp(r.min(64), 64).max(r)
-    });
+    crate::watch::watched(progress, |w| {
+        w.report("metrics", 0.0)?;
+        let caster = &Watched::new(caster, w);
+        let (mp, mw) = quadrature_points(mesh);
+        let (grid, limit_caster, limit) = limit_surface(control, evaluator.as_ref(), t)?;
+        let accuracy = {
+            let l = (
+                &limit,
+                &Watched::new(limit_caster.as_ref(), w) as &dyn RayCaster,
+            );
+            limit_accuracy(caster, l, &mp, &mw, diag, opts.exact)?
+        };
+        w.report("metrics", 1.0)?;
+        Ok(LimitCheck {
+            control: control.clone(),
+            evaluator,
+            grid,
+            limit,
+            limit_caster,
+            accuracy,
+        })
+    })
+}
+
+/// [`evaluate_surfaces`], reusing `check` when it was made for this
+/// `control` (else it is dropped and L measured afresh).
+pub fn evaluate_surfaces_after(
+    mesh: &TriMesh,
+    control: &ControlMesh,
+    caster: &dyn RayCaster,
+    opts: &MetricsOptions,
+    check: Option<LimitCheck>,
+    progress: &mut Progress<'_>,
+) -> Result<Surfaces> {
+    let Setup {
+        diag,
+        max_dist,
+        r,
+        t,
+    } = Setup::of(mesh, control, opts)?;
+    let check = check.filter(|c| c.control == *control);
+    let (evaluator, check) = match check {
+        Some(c) => {
+            let LimitCheck {
+                evaluator,
+                grid,
+                limit,
+                limit_caster,
+                accuracy,
+                ..
+            } = c;
+            (evaluator, Some((grid, limit_caster, limit, accuracy)))
+        }
+        None => (
+            make_evaluator(Backend::Osd, control, &EvalOptions::default())?,
+            None,
+        ),
+    };
     // Watched (`crate::watch`): every ray query below is chunked and a
     // cancellation ends the stage within one chunk.
     let (
@@ -347,18 +478,23 @@ pub fn evaluate_surfaces(
         // thread count.
         let (limit_side, displaced_side) = rayon::join(
             || -> Result<_> {
-                let grid = PatchGrid::new(control, t)?;
-                let limit_pts = evaluator.evaluate(control.positions(), grid.locations())?;
-                let limit = TriMesh {
-                    positions: limit_pts.iter().map(|p| p.position).collect(),
-                    triangles: grid.triangles(),
+                // Projectability, and L's accuracy unless the check
+                // measured it, side by side.
+                let (grid, limit_caster, limit, acc) = match check {
+                    Some((g, c, l, a)) => (g, c, l, Some(a)),
+                    None => {
+                        let (g, c, l) = limit_surface(control, evaluator.as_ref(), t)?;
+                        (g, c, l, None)
+                    }
                 };
-                let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
                 let limit_caster = Watched::new(limit_caster.as_ref(), w);
                 let (acc, unreached) = rayon::join(
-                    || {
-                        let l = (&limit, &limit_caster as &dyn RayCaster);
-                        limit_accuracy(caster, l, &mp, &mw, diag, opts.exact)
+                    || match acc {
+                        Some(a) => Ok(a),
+                        None => {
+                            let l = (&limit, &limit_caster as &dyn RayCaster);
+                            limit_accuracy(caster, l, &mp, &mw, diag, opts.exact)
+                        }
                     },
                     || {
                         unprojectable_percent(
@@ -374,7 +510,8 @@ pub fn evaluate_surfaces(
                         )
                     },
                 );
-                Ok((limit, acc?, unreached?))
+                let (acc, unreached) = (acc?, unreached?);
+                Ok((acc, unreached))
             },
             || {
                 let at = Sampling {
@@ -390,7 +527,7 @@ pub fn evaluate_surfaces(
                 displaced_side(&at, evaluator.as_ref(), caster, w, opts)
             },
         );
-        let (_, limit_acc, unprojectable_area_percent) = limit_side?;
+        let (limit_acc, unprojectable_area_percent) = limit_side?;
         let (displacement, displaced_acc, displaced_breakdown) = displaced_side?;
         let files = tessellate::tessellate(
             control,
