@@ -943,11 +943,11 @@ fn breakdown(
     let unprojectable = |t: usize| tris[t].iter().any(|&s| !of.1[s as usize]);
     // `measured` is sorted by point: a cursor walks it beside the points.
     let mut next = 0;
-    for t in 0..tris.len() {
+    for (t, &tri_area) in tri_areas.iter().enumerate() {
         let f = of.0(t);
         // Each of the triangle's three points weighs a third of its area
         // (`quadrature_points`); an unmeasured point adds 0 error.
-        let third = tri_areas[t] / 3.0;
+        let third = tri_area / 3.0;
         let (mut a, mut e) = (0.0, 0.0);
         for k in 3 * t..3 * t + 3 {
             a += third;
