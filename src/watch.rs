@@ -206,6 +206,32 @@ pub fn watched<T>(
     result
 }
 
+/// Scale work's probe (issue 39): with `SUBDFIT_MEMTRACE` set, prints the
+/// process's resident and peak memory (`VmRSS`, `VmHWM` of
+/// `/proc/self/status`, MiB) at `label` on stderr; otherwise nothing. A
+/// stage's peak in `report.json` says which stage holds the most; this
+/// says which step within it.
+pub fn memtrace(label: &str) {
+    if std::env::var_os("SUBDFIT_MEMTRACE").is_none() {
+        return;
+    }
+    let Ok(s) = std::fs::read_to_string("/proc/self/status") else {
+        return;
+    };
+    let field = |name: &str| {
+        s.lines()
+            .find(|l| l.starts_with(name))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|k| k.parse::<f64>().ok())
+            .map_or(f64::NAN, |kb| kb / 1024.0)
+    };
+    eprintln!(
+        "memtrace {label}: rss {:.0} MiB, peak {:.0} MiB",
+        field("VmRSS:"),
+        field("VmHWM:")
+    );
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -316,6 +316,7 @@ pub fn refine_offsets_on(
     // M does not move: its edges' Z-order is the same every round (a check
     // round's stride only leaves some out, as `Edges::visit_order` does).
     let m_order = m_edges.visit_order(&mesh.positions, 1);
+    crate::watch::memtrace("lsq: M edges");
     let mut current = disp.offsets.clone();
     let mut current_obj = f64::INFINITY;
     // The objective on every CHECK_STRIDE-th point of each list: what the
@@ -360,6 +361,7 @@ pub fn refine_offsets_on(
         // The value this round must stay below to be kept.
         let reject_at = if check_only { current_sub } else { current_obj };
         let (score, ne, complete) = round_rows(&at, disp, check_only, reject_at)?;
+        crate::watch::memtrace("lsq: round rows");
         let (obj, sub) = score.rms();
         // The stats are the subsample's, the one figure every round has.
         if round == 0 {

@@ -294,13 +294,26 @@ pub fn displacement_on(
     let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
     let (mut hits, mut pstats): (_, ProjectionStats) =
         project_along(caster, &positions, &directions, max_dist)?;
-    let closest = caster.closest_points(&positions, f64::INFINITY)?;
+    // Only the distance of each closest point is read: reduced per
+    // sub-batch, so the whole batch's closest points (64 bytes each, 5M
+    // samples on a 10M-triangle input) are never held at once.
+    let closest: Vec<Option<f64>> = crate::raycast::in_spatial_order(
+        &positions,
+        |p| *p,
+        |sub| {
+            Ok(caster
+                .closest_points(sub, f64::INFINITY)?
+                .into_iter()
+                .map(|c| c.map(|c| c.distance))
+                .collect())
+        },
+    )?;
     let mut other_sheet = 0;
     for (h, c) in hits.iter_mut().zip(&closest) {
-        let (Some(hit), Some(c)) = (*h, c) else {
+        let (Some(hit), Some(distance)) = (*h, *c) else {
             continue;
         };
-        if hit.offset.abs() > SAME_SHEET_FACTOR * c.distance + slack.max(1e-9 * diag) {
+        if hit.offset.abs() > SAME_SHEET_FACTOR * distance + slack.max(1e-9 * diag) {
             *h = None;
             pstats.unprojectable += 1;
             other_sheet += 1;

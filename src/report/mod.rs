@@ -399,14 +399,14 @@ pub fn limit_check(
     crate::watch::watched(progress, |w| {
         w.report("metrics", 0.0)?;
         let caster = &Watched::new(caster, w);
-        let (mp, mw) = quadrature_points(mesh);
+        let mq = Quadrature::new(mesh);
         let (grid, limit_caster, limit) = limit_surface(control, evaluator.as_ref(), t)?;
         let accuracy = {
             let l = (
                 &limit,
                 &Watched::new(limit_caster.as_ref(), w) as &dyn RayCaster,
             );
-            limit_accuracy(caster, l, &mp, &mw, diag, opts.exact)?
+            limit_accuracy(caster, l, &mq, diag, opts.exact)?
         };
         w.report("metrics", 1.0)?;
         Ok(LimitCheck {
@@ -467,8 +467,10 @@ pub fn evaluate_surfaces_after(
         w.report("displacement", 0.0)?;
         let caster = &Watched::new(caster, w);
         let edge = mean_edge_length(mesh);
-        // M's 3-point quadrature, the M → S samples of both L and D.
-        let (mp, mw) = quadrature_points(mesh);
+        // M's 3-point quadrature, the M → S samples of both L and D, its
+        // points computed where drawn (`Quadrature`).
+        let mq = Quadrature::new(mesh);
+        crate::watch::memtrace("metrics: M quadrature");
         // L (tessellation, accuracy, projectability) and D (displacement,
         // least-squares offsets, accuracy) depend only on the control mesh and
         // M, not on each other: they run side by side, which keeps both cores
@@ -487,13 +489,14 @@ pub fn evaluate_surfaces_after(
                         (g, c, l, None)
                     }
                 };
+                crate::watch::memtrace("limit: L built");
                 let limit_caster = Watched::new(limit_caster.as_ref(), w);
                 let (acc, unreached) = rayon::join(
                     || match acc {
                         Some(a) => Ok(a),
                         None => {
                             let l = (&limit, &limit_caster as &dyn RayCaster);
-                            limit_accuracy(caster, l, &mp, &mw, diag, opts.exact)
+                            limit_accuracy(caster, l, &mq, diag, opts.exact)
                         }
                     },
                     || {
@@ -521,14 +524,14 @@ pub fn evaluate_surfaces_after(
                     max_dist,
                     diag,
                     edge,
-                    mp: &mp,
-                    mw: &mw,
+                    mq: &mq,
                 };
                 displaced_side(&at, evaluator.as_ref(), caster, w, opts)
             },
         );
         let (limit_acc, unprojectable_area_percent) = limit_side?;
         let (displacement, displaced_acc, displaced_breakdown) = displaced_side?;
+        crate::watch::memtrace("both sides done");
         let files = tessellate::tessellate(
             control,
             evaluator.as_ref(),
@@ -572,7 +575,7 @@ pub fn evaluate_surfaces_after(
 }
 
 /// What both sides of [`evaluate_surfaces`] sample: M, its quadrature
-/// (`mp`, `mw`), the control mesh and the displacement grid's settings.
+/// `mq`, the control mesh and the displacement grid's settings.
 struct Sampling<'a> {
     mesh: &'a TriMesh,
     control: &'a ControlMesh,
@@ -580,8 +583,7 @@ struct Sampling<'a> {
     max_dist: f64,
     diag: f64,
     edge: f64,
-    mp: &'a [DVec3],
-    mw: &'a [f64],
+    mq: &'a Quadrature<'a>,
 }
 
 /// D's side of [`evaluate_surfaces`]: the displacement (§3.5), its
@@ -600,8 +602,7 @@ fn displaced_side(
         max_dist,
         diag,
         edge,
-        mp,
-        mw,
+        mq,
     } = *at;
     // Adaptive unless a uniform grid is asked for (explicitly, or by
     // giving its resolution); the budget defaults to M's vertex count,
@@ -609,6 +610,7 @@ fn displaced_side(
     let budget = (opts.displacement_res.is_none()
         && opts.displacement_allocation == SampleAllocation::Adaptive)
         .then(|| opts.displacement_samples.unwrap_or(mesh.positions.len()));
+    crate::watch::memtrace("D side start");
     let mut displacement = match budget {
         None => compute_displacement(control, evaluator, caster, r, max_dist, diag, 0.5 * edge)?,
         Some(budget) => adaptive_displacement(at, evaluator, caster, budget)?,
@@ -630,6 +632,7 @@ fn displaced_side(
     displacement.stats.reconstruction = opts.reconstruction;
     let adaptive =
         !displacement.grid.is_uniform() || opts.reconstruction == Reconstruction::Bspline;
+    crate::watch::memtrace("displacement done");
     let host = match adaptive {
         false => None,
         true => Some(HostSurface::with_floor(
@@ -640,6 +643,7 @@ fn displaced_side(
         )?),
     };
     if opts.offsets == OffsetMode::LeastSquares {
+        crate::watch::memtrace("host built");
         let st = refine_offsets_on(
             mesh,
             caster,
@@ -676,21 +680,23 @@ fn displaced_side(
         }
         Some(h) => h.mesh(&displacement),
     };
+    crate::watch::memtrace("D mesh built");
     let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
     let displaced_caster = Watched::new(displaced_caster.as_ref(), w);
     // D's S → M by the 3-point rule, kept per point for the breakdown.
     // Both of D's directions only report (no decision reads them): drawn
     // at `METRIC_SAMPLES` (`report::sample`).
     let bound = (!opts.exact).then_some(METRIC_SAMPLES);
-    let (dp, dw) = quadrature_points(&displaced);
+    let dq = Quadrature::new(&displaced);
     let (d2m, m2d) = rayon::join(
-        || measure_direction(&dp, &dw, caster, diag, bound, sample::STREAM_D_TO_M),
+        || measure_direction(&dq, caster, diag, bound, sample::STREAM_D_TO_M),
         || {
             let to = &displaced_caster as &dyn RayCaster;
-            sampled_distance_stats(mp, mw, to, diag, bound, sample::STREAM_M_TO_D)
+            sampled_distance_stats(mq, to, diag, bound, sample::STREAM_M_TO_D)
         },
     );
     let d2m = d2m?;
+    crate::watch::memtrace("D measured");
     let acc = Accuracy::from_directions(d2m.stats.clone(), m2d?);
     let bd = match &host {
         None => {
@@ -699,12 +705,26 @@ fn displaced_side(
                 &patch_of as &dyn Fn(usize) -> usize,
                 &displacement.projected[..],
             );
-            breakdown(control, &displacement, &displaced, of, (&dw, &d2m), diag)
+            breakdown(
+                control,
+                &displacement,
+                &displaced,
+                of,
+                (&dq.areas, &d2m),
+                diag,
+            )
         }
         Some(h) => {
             let patch_of = |t: usize| h.grid().triangle_patch(t);
             let of = (&patch_of as &dyn Fn(usize) -> usize, &h.projected[..]);
-            breakdown(control, &displacement, &displaced, of, (&dw, &d2m), diag)
+            breakdown(
+                control,
+                &displacement,
+                &displaced,
+                of,
+                (&dq.areas, &d2m),
+                diag,
+            )
         }
     };
     Ok((displacement, acc, bd))
@@ -811,8 +831,13 @@ fn closest_distances(points: &[DVec3], to: &dyn RayCaster) -> Result<Vec<f64>> {
 /// Area-weighted statistics of distances `dist` (weights `w`, samples of
 /// weight 0 skipped), in ‰ of `diag`.
 fn stats_of(dist: &[f64], w: &[f64], diag: f64) -> DistanceStats {
+    stats_of_pairs(dist.iter().copied().zip(w.iter().copied()), diag)
+}
+
+/// [`stats_of`] over `(distance, weight)` pairs in order.
+fn stats_of_pairs(pairs: impl Iterator<Item = (f64, f64)>, diag: f64) -> DistanceStats {
     let (mut sw, mut s1, mut s2, mut max, mut count) = (0.0, 0.0, 0.0, 0.0f64, 0usize);
-    for (&d, &wi) in dist.iter().zip(w) {
+    for (d, wi) in pairs {
         if wi <= 0.0 {
             continue;
         }
@@ -835,38 +860,104 @@ fn stats_of(dist: &[f64], w: &[f64], diag: f64) -> DistanceStats {
     }
 }
 
-/// One direction measured ([`measure_direction`]): the distance of every
-/// point measured (0 elsewhere), the weights its figures were taken with
-/// (the points' own when every point was measured; `W / m` per draw, 0 for
-/// points not drawn, when drawn), the draws in stratum order with their
-/// distances (`None`: every point), and the figures.
+/// Points with weights, for one direction of a measure: a given set
+/// (`(points, weights)`) or a triangulation's 3-point quadrature computed on
+/// demand ([`Quadrature`]).
+trait Weighted: Sync {
+    fn len(&self) -> usize;
+    fn weight(&self, i: usize) -> f64;
+    fn point(&self, i: usize) -> DVec3;
+}
+
+impl Weighted for (&[DVec3], &[f64]) {
+    fn len(&self) -> usize {
+        self.0.len()
+    }
+    fn weight(&self, i: usize) -> f64 {
+        self.1[i]
+    }
+    fn point(&self, i: usize) -> DVec3 {
+        self.0[i]
+    }
+}
+
+/// [`quadrature_points`] of a mesh without the arrays: point `3t + k` and
+/// its weight are computed when asked for, from triangle `t`'s corners and
+/// area (the same expressions, so the same bits). A direction drawn at
+/// [`METRIC_SAMPLES`] reads 100k of them; the arrays of a 10M-triangle M
+/// (30M points, 24 + 8 bytes each) were ~1 GB, and D's as many again.
+pub(crate) struct Quadrature<'a> {
+    mesh: &'a TriMesh,
+    /// Per triangle, its area ([`triangle_areas`]).
+    areas: Vec<f64>,
+}
+
+impl<'a> Quadrature<'a> {
+    pub(crate) fn new(mesh: &'a TriMesh) -> Self {
+        Quadrature {
+            mesh,
+            areas: triangle_areas(mesh),
+        }
+    }
+}
+
+impl Weighted for Quadrature<'_> {
+    fn len(&self) -> usize {
+        3 * self.areas.len()
+    }
+    fn weight(&self, i: usize) -> f64 {
+        self.areas[i / 3] / 3.0
+    }
+    fn point(&self, i: usize) -> DVec3 {
+        let [x, y, z] = self.mesh.triangle(i / 3);
+        let (b0, b1, b2) = QUADRATURE[i % 3];
+        (b0 * x + b1 * y + b2 * z) / 6.0
+    }
+}
+
+/// The 3-point rule's barycentrics, times 6 ([`quadrature_points`]).
+const QUADRATURE: [(f64, f64, f64); 3] = [(4.0, 1.0, 1.0), (1.0, 4.0, 1.0), (1.0, 1.0, 4.0)];
+
+/// One direction measured ([`measure_direction`]): every measured point
+/// of positive weight, by increasing index, with its distance and the
+/// weight its figures were taken with (its own when every point was
+/// measured; `W / m` per draw when drawn), the draws in stratum order with
+/// their distances (`None`: every point), and the figures. Points neither
+/// drawn nor weighted count as distance 0 and weight 0, which is what the
+/// dense arrays this replaces held for them.
 struct Direction {
-    dist: Vec<f64>,
-    w: Vec<f64>,
+    measured: Vec<(usize, f64, f64)>,
     draws: Option<Vec<(usize, f64)>>,
     stats: DistanceStats,
 }
 
-/// Distances of `points` (weights `w`) to the surface behind `to`, on
+/// Distances of the points of `src` to the surface behind `to`, on
 /// every point or, when there are more than `bound` (`None`: exact), on
-/// the stratified draw of `stream` ([`sample::stratified`]), with the
+/// the stratified draw of `stream` ([`sample::stratified_by`]), with the
 /// 95 % intervals of the RMS and mean ([`sample::stratified_ci95`] of the
 /// squared and plain distances; the RMS's through the square root by the
 /// delta method).
 fn measure_direction(
-    points: &[DVec3],
-    w: &[f64],
+    src: &dyn Weighted,
     to: &dyn RayCaster,
     diag: f64,
     bound: Option<usize>,
     stream: u64,
 ) -> Result<Direction> {
-    let Some(keep) = sample::stratified(w, bound, stream) else {
-        let dist = closest_distances(points, to)?;
-        let stats = stats_of(&dist, w, diag);
+    let n = src.len();
+    let Some(keep) = sample::stratified_by(n, |i| src.weight(i), bound, stream) else {
+        let points: Vec<DVec3> = (0..n).map(|i| src.point(i)).collect();
+        let dist = closest_distances(&points, to)?;
+        drop(points);
+        let measured: Vec<(usize, f64, f64)> = dist
+            .into_iter()
+            .enumerate()
+            .map(|(i, d)| (i, d, src.weight(i)))
+            .filter(|e| e.2 > 0.0)
+            .collect();
+        let stats = stats_of_measured(&measured, diag);
         return Ok(Direction {
-            dist,
-            w: w.to_vec(),
+            measured,
             draws: None,
             stats,
         });
@@ -875,7 +966,7 @@ fn measure_direction(
     // the draws are non-decreasing, so repeats are adjacent.
     let mut unique = keep.clone();
     unique.dedup();
-    let p: Vec<DVec3> = unique.iter().map(|&i| points[i]).collect();
+    let p: Vec<DVec3> = unique.iter().map(|&i| src.point(i)).collect();
     let du = closest_distances(&p, to)?;
     let mut at = 0;
     let d: Vec<f64> = keep
@@ -887,26 +978,40 @@ fn measure_direction(
             du[at]
         })
         .collect();
-    let total: f64 = w.iter().filter(|&&x| x > 0.0).sum();
+    let positive = || (0..n).map(|i| src.weight(i)).filter(|&x| x > 0.0);
+    let total: f64 = positive().sum();
     let share = total / keep.len() as f64;
-    let (mut dist, mut ws) = (vec![0.0; points.len()], vec![0.0; points.len()]);
+    // Each drawn point's weight is `share` once per draw, summed from 0
+    // as the dense array's `+=` did.
+    let mut measured: Vec<(usize, f64, f64)> = Vec::with_capacity(unique.len());
     for (&i, &di) in keep.iter().zip(&d) {
-        dist[i] = di;
-        ws[i] += share;
+        match measured.last_mut() {
+            Some(e) if e.0 == i => {
+                e.1 = di;
+                e.2 += share;
+            }
+            _ => measured.push((i, di, share)),
+        }
     }
-    let mut stats = stats_of(&dist, &ws, diag);
-    stats.population = w.iter().filter(|&&x| x > 0.0).count();
+    measured.retain(|e| e.2 > 0.0);
+    let mut stats = stats_of_measured(&measured, diag);
+    stats.population = positive().count();
     let k = 1000.0 / diag;
     let d2: Vec<f64> = d.iter().map(|x| x * x).collect();
     stats.rms_ci95_permille =
         k * rms_half_width(stats.rms_permille / k, sample::stratified_ci95(&d2));
     stats.mean_ci95_permille = k * sample::stratified_ci95(&d);
     Ok(Direction {
-        dist,
-        w: ws,
+        measured,
         draws: Some(keep.into_iter().zip(d).collect()),
         stats,
     })
+}
+
+/// [`stats_of`] over the measured points of a [`Direction`] (the points
+/// of weight 0 it skips are the ones not listed).
+fn stats_of_measured(measured: &[(usize, f64, f64)], diag: f64) -> DistanceStats {
+    stats_of_pairs(measured.iter().map(|e| (e.1, e.2)), diag)
 }
 
 /// The half-width of an RMS's interval from that of its mean square
@@ -922,14 +1027,13 @@ fn rms_half_width(rms: f64, half_sq: f64) -> f64 {
 
 /// [`measure_direction`]'s figures alone.
 fn sampled_distance_stats(
-    points: &[DVec3],
-    w: &[f64],
+    src: &dyn Weighted,
     to: &dyn RayCaster,
     diag: f64,
     bound: Option<usize>,
     stream: u64,
 ) -> Result<DistanceStats> {
-    Ok(measure_direction(points, w, to, diag, bound, stream)?.stats)
+    Ok(measure_direction(src, to, diag, bound, stream)?.stats)
 }
 
 impl Accuracy {
@@ -954,10 +1058,10 @@ fn breakdown(
     displacement: &Displacement,
     displaced: &TriMesh,
     of: (&dyn Fn(usize) -> usize, &[bool]),
-    (area_w, d2m): (&[f64], &Direction),
+    (tri_areas, d2m): (&[f64], &Direction),
     diag: f64,
 ) -> DisplacedBreakdown {
-    let (dist, w) = (&d2m.dist[..], &d2m.w[..]);
+    let measured = &d2m.measured[..];
     let grid = &displacement.grid;
     let tris = &displaced.triangles;
     let boundary_patch: Vec<bool> = control
@@ -972,14 +1076,26 @@ fn breakdown(
     let (mut u_area, mut u_err, mut b_area, mut b_err) = (0.0, 0.0, 0.0, 0.0);
     let mut patch_err = vec![0.0; grid.num_patches()];
     let mut patch_area = vec![0.0; grid.num_patches()];
-    let mut proj_w = w.to_vec();
     let mut proj_population = 0;
     let unprojectable = |t: usize| tris[t].iter().any(|&s| !of.1[s as usize]);
-    for t in 0..tris.len() {
+    // `measured` is sorted by point: a cursor walks it beside the points.
+    let mut next = 0;
+    for (t, &tri_area) in tri_areas.iter().enumerate() {
         let f = of.0(t);
-        let (a, e): (f64, f64) = (3 * t..3 * t + 3)
-            .map(|k| (area_w[k], w[k] * dist[k] * dist[k]))
-            .fold((0.0, 0.0), |(sa, se), (a, e)| (sa + a, se + e));
+        // Each of the triangle's three points weighs a third of its area
+        // (`quadrature_points`); an unmeasured point adds 0 error.
+        let third = tri_area / 3.0;
+        let (mut a, mut e) = (0.0, 0.0);
+        for k in 3 * t..3 * t + 3 {
+            a += third;
+            e += match measured.get(next) {
+                Some(&(i, d, w)) if i == k => {
+                    next += 1;
+                    w * d * d
+                }
+                _ => 0.0,
+            };
+        }
         area += a;
         err += e;
         patch_area[f] += a;
@@ -987,12 +1103,8 @@ fn breakdown(
         if unprojectable(t) {
             u_area += a;
             u_err += e;
-            proj_w[3 * t..3 * t + 3].fill(0.0);
-        } else {
-            proj_population += area_w[3 * t..3 * t + 3]
-                .iter()
-                .filter(|&&x| x > 0.0)
-                .count();
+        } else if third > 0.0 {
+            proj_population += 3;
         }
         if boundary_patch[f] {
             b_area += a;
@@ -1025,7 +1137,13 @@ fn breakdown(
             }
         })
         .collect();
-    let mut projected = stats_of(dist, &proj_w, diag);
+    let mut projected = stats_of_pairs(
+        measured
+            .iter()
+            .filter(|e| !unprojectable(e.0 / 3))
+            .map(|e| (e.1, e.2)),
+        diag,
+    );
     if let Some(draws) = &d2m.draws {
         projected.population = proj_population;
         let k = 1000.0 / diag;
@@ -1052,23 +1170,22 @@ fn breakdown(
 fn limit_accuracy(
     mesh_caster: &dyn RayCaster,
     (surface, surface_caster): (&TriMesh, &dyn RayCaster),
-    mp: &[DVec3],
-    mw: &[f64],
+    mq: &Quadrature<'_>,
     diag: f64,
     exact: bool,
 ) -> Result<Accuracy> {
     // RMS L steers geometry (module `sample`): drawn from only above
     // `DECISION_SAMPLES`.
     let bound = (!exact).then_some(DECISION_SAMPLES);
+    let areas = vertex_areas(surface);
     let s2m = sampled_distance_stats(
-        &surface.positions,
-        &vertex_areas(surface),
+        &(&surface.positions[..], &areas[..]),
         mesh_caster,
         diag,
         bound,
         sample::STREAM_L_TO_M,
     )?;
-    let m2s = sampled_distance_stats(mp, mw, surface_caster, diag, bound, sample::STREAM_M_TO_L)?;
+    let m2s = sampled_distance_stats(mq, surface_caster, diag, bound, sample::STREAM_M_TO_L)?;
     Ok(Accuracy::from_directions(s2m, m2s))
 }
 

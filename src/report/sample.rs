@@ -76,13 +76,25 @@ fn unit(stream: u64, h: usize) -> f64 {
 /// them, non-decreasing (a point heavier than a stratum may be drawn more
 /// than once). Points of weight 0 are never drawn.
 pub(crate) fn stratified(w: &[f64], bound: Option<usize>, stream: u64) -> Option<Vec<usize>> {
+    stratified_by(w.len(), |i| w[i], bound, stream)
+}
+
+/// [`stratified`] over `n` weights given by `w(i)` rather than stored: the
+/// same draws, for point sets computed on demand (a 10M-triangle input's
+/// quadrature has 30M weights, 240 MB that a draw of 100k does not need).
+pub(crate) fn stratified_by(
+    n: usize,
+    w: impl Fn(usize) -> f64,
+    bound: Option<usize>,
+    stream: u64,
+) -> Option<Vec<usize>> {
     let m = bound?;
-    let positive = w.iter().filter(|&&x| x > 0.0).count();
+    let positive = (0..n).filter(|&i| w(i) > 0.0).count();
     if positive <= m || m == 0 {
         return None;
     }
-    let last = w.iter().rposition(|&x| x > 0.0)?;
-    let total: f64 = w.iter().filter(|&&x| x > 0.0).sum();
+    let last = (0..n).rposition(|i| w(i) > 0.0)?;
+    let total: f64 = (0..n).map(&w).filter(|&x| x > 0.0).sum();
     let (mut i, mut below) = (0usize, 0.0);
     let mut out = Vec::with_capacity(m);
     for h in 0..m {
@@ -90,8 +102,8 @@ pub(crate) fn stratified(w: &[f64], bound: Option<usize>, stream: u64) -> Option
         // Advance to the point whose weight interval [below, below + w_i)
         // holds u; rounding in the running sum can only push the last
         // draws past the end, onto the last weighted point.
-        while i < last && (w[i] <= 0.0 || below + w[i] <= u) {
-            below += w[i].max(0.0);
+        while i < last && (w(i) <= 0.0 || below + w(i) <= u) {
+            below += w(i).max(0.0);
             i += 1;
         }
         out.push(i);
