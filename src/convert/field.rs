@@ -194,8 +194,9 @@ pub struct FieldRound {
     /// [`super::thin::SHARE`] of the uncarried squared distance.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub patches_off_m: Option<usize>,
-    /// With the thin round: the RMS over the limit's area of the distance
-    /// to M′ at the samples the displacement cannot carry onto M′, ‰
+    /// With the thin round, and on the `--max-error` bracket's rounds: the
+    /// RMS over the limit's area of the distance to M′ at the samples the
+    /// displacement cannot carry onto M′, ‰
     /// ([`super::thin::OffM::uncarried`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub uncarried_permille: Option<f64>,
@@ -209,7 +210,8 @@ pub struct FieldRound {
     pub displaced_permille: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub limit_permille: Option<f64>,
-    /// With the thin round, on its own round: whether it was kept.
+    /// With the thin round, on its own round, and on the bracket's rounds:
+    /// whether it was kept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kept: Option<bool>,
 }
@@ -545,6 +547,9 @@ impl Bracket<'_> {
                 off_m_permille: None,
                 patches_off_m: None,
                 uncarried_permille: Some(d),
+                uncarried_m_permille: None,
+                displaced_permille: None,
+                limit_permille: None,
                 kept: Some(kept),
             });
             if kept {
@@ -1479,6 +1484,9 @@ mod tests {
             off_m_permille: None,
             patches_off_m: None,
             uncarried_permille: None,
+            uncarried_m_permille: None,
+            displaced_permille: None,
+            limit_permille: None,
             kept: None,
         }
     }
