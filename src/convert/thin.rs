@@ -99,6 +99,16 @@ pub const D_FACTOR: f64 = 0.5;
 /// six peers' cases (docs/status.md session 12): one.
 pub const D_ROUNDS: usize = 1;
 
+/// The chain runs only when the first round's uncarried estimate
+/// ([`OffM::uncarried`]) is at least this, ‰ of the diagonal: the chain
+/// moves size to where the displacement cannot carry the limit onto M,
+/// and below a fifth of the D bars' scale (0.2–0.3‰) there is nothing for
+/// it to move. It costs a displacement pass on the first round plus a
+/// layout, a fit and a pass per chain round (gargoyle at 1391: +11 CPU s
+/// for an estimate of 0.018‰, no round kept; cheburashka at 460, where it
+/// pays, 0.275‰; spot, homer, gargoyle τ 10 %: 0.60–1.36‰; session 12).
+pub const CHAIN_MIN_UNCARRIED_PERMILLE: f64 = 0.05;
+
 /// A later round is kept only when its limit → M′ RMS and its fit's RMS
 /// are within this factor of the first round's (RMS L may not rise more
 /// than a few % for a lower D).
@@ -585,7 +595,10 @@ pub(super) fn second_round(
         r.patches_off_m = Some(m0.far.len() + m0.d_far.len());
         r.uncarried_permille = Some(permille * m0.uncarried);
     }
-    let chain = d_rounds();
+    let chain = match permille * m0.uncarried < CHAIN_MIN_UNCARRIED_PERMILLE {
+        true => 0,
+        false => d_rounds(),
+    };
     if m0.far.is_empty() && (chain == 0 || m0.d_far.is_empty()) {
         return Ok(first);
     }
