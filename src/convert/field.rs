@@ -141,8 +141,9 @@ pub const THIN_REFINES: bool = false;
 pub const MAX_REFINE: f64 = 0.5;
 pub const MAX_COARSEN: f64 = 1.25;
 
-/// One fitted field layout (`report.json`'s `field_layout.rounds`).
-#[derive(Clone, Debug, Serialize, serde::Deserialize)]
+/// One fitted field layout (`report.json`'s `field_layout.rounds`); the
+/// default is the record with nothing measured, which each stage fills in.
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 pub struct FieldRound {
     /// `--faces`-like target the round's sizing aimed at (`None`: the
     /// Fitmap's own sizes).
@@ -292,18 +293,8 @@ pub fn fit_field(
             adaptivity_spearman: spearman,
             layout_unprojectable_percent: unprojectable,
             layout_thin_percent: measured.as_ref().map(|m| m.thin_percent),
-            patches_refined: 0,
-            patches_coarsened: 0,
-            patches_unprojectable: 0,
             size_factor,
-            patches_split: None,
-            off_m_permille: None,
-            patches_off_m: None,
-            uncarried_permille: None,
-            uncarried_m_permille: None,
-            displaced_permille: None,
-            limit_permille: None,
-            kept: None,
+            ..Default::default()
         });
         let next = match (e, measured) {
             (Some(e), Some(m))
@@ -355,41 +346,16 @@ pub fn fit_field(
             None => break,
         }
     }
-    let mut best =
-        best.ok_or_else(|| crate::Error::internal("field layout: no round was fitted"))?;
-    if let Some(e) = max_error.map(|e| 1000.0 * e).filter(|e| e.is_finite()) {
-        if opts.target_faces.is_none() && bracket_enabled() {
-            let mut fit = |timer: &mut StageTimer, c: ControlMesh| {
-                timer.run("fit", || {
-                    crate::fit::fit_with_progress(mesh, c, caster, &po.fit, run.progress)
-                })
-            };
-            let b = Bracket {
-                relayout,
-                fo: &fo,
-                e,
-            };
-            b.run(&mut timer, &mut rounds, &laid_h, &mut best, &mut fit)?;
-        }
-    }
-    let (_, mut fitted) = best;
-    // At a fixed count, one more layout with lattice size moved to the
-    // patches whose limit stands off M′ ([`super::thin`]).
-    if opts.target_faces.is_some() && rounds.len() == 1 && super::thin::enabled() {
-        let progress = &mut *run.progress;
-        let fit = |timer: &mut StageTimer, c: ControlMesh| {
-            timer.run("fit", || {
-                crate::fit::fit_with_progress(mesh, c, caster, &po.fit, progress)
-            })
-        };
-        let on_m = super::thin::OnM {
-            mesh,
-            caster,
-            metrics: &po.metrics,
-        };
-        fitted =
-            super::thin::second_round(&mut timer, relayout, &fo, fitted, &mut rounds, fit, &on_m)?;
-    }
+    let best = best.ok_or_else(|| crate::Error::internal("field layout: no round was fitted"))?;
+    let ends = Ends {
+        opts,
+        relayout,
+        po,
+        fo: &fo,
+        max_error,
+    };
+    let fitted = ends.run(run, &mut timer, &mut rounds, &laid_h, best)?;
+    let caster = run.caster.as_ref();
     let mut c = measure_fitted(
         run.input,
         fitted,
@@ -402,6 +368,62 @@ pub fn fit_field(
     )?;
     add_targets(&mut c, opts.target_faces, max_error, &rounds);
     Ok(c)
+}
+
+/// What follows the rounds of [`fit_field`]: the `--max-error` bracket
+/// towards fewer patches ([`Bracket`]) or, at a fixed count, the thin
+/// rounds ([`super::thin`]).
+struct Ends<'a> {
+    opts: &'a ConvertOptions,
+    relayout: &'a FieldRelayout,
+    po: &'a PipelineOptions,
+    fo: &'a FieldOptions,
+    max_error: Option<f64>,
+}
+
+impl Ends<'_> {
+    /// The fit kept after them, from the rounds' `best`.
+    fn run(
+        &self,
+        run: &mut Run<'_, '_>,
+        timer: &mut StageTimer,
+        rounds: &mut Vec<FieldRound>,
+        laid_h: &[Option<Vec<f64>>],
+        mut best: (Kept, crate::fit::Fitted),
+    ) -> Result<crate::fit::Fitted> {
+        let (opts, relayout, po, fo, max_error) =
+            (self.opts, self.relayout, self.po, self.fo, self.max_error);
+        let (mesh, caster) = (run.mesh(), run.caster.as_ref());
+        if let Some(e) = max_error.map(|e| 1000.0 * e).filter(|e| e.is_finite()) {
+            if opts.target_faces.is_none() && bracket_enabled() {
+                let mut fit = |timer: &mut StageTimer, c: ControlMesh| {
+                    timer.run("fit", || {
+                        crate::fit::fit_with_progress(mesh, c, caster, &po.fit, run.progress)
+                    })
+                };
+                let b = Bracket { relayout, fo, e };
+                b.run(timer, rounds, laid_h, &mut best, &mut fit)?;
+            }
+        }
+        let (_, mut fitted) = best;
+        // At a fixed count, one more layout with lattice size moved to the
+        // patches whose limit stands off M′ ([`super::thin`]).
+        if opts.target_faces.is_some() && rounds.len() == 1 && super::thin::enabled() {
+            let progress = &mut *run.progress;
+            let fit = |timer: &mut StageTimer, c: ControlMesh| {
+                timer.run("fit", || {
+                    crate::fit::fit_with_progress(mesh, c, caster, &po.fit, progress)
+                })
+            };
+            let on_m = super::thin::OnM {
+                mesh,
+                caster,
+                metrics: &po.metrics,
+            };
+            fitted = super::thin::second_round(timer, relayout, fo, fitted, rounds, fit, &on_m)?;
+        }
+        Ok(fitted)
+    }
 }
 
 /// Whether [`Bracket`] runs: on unless `SUBDFIT_FIELD_BRACKET=0`
@@ -539,18 +561,10 @@ impl Bracket<'_> {
                 adaptivity_spearman: spearman,
                 layout_unprojectable_percent: Some(m.unprojectable_percent),
                 layout_thin_percent: Some(m.thin_percent),
-                patches_refined: 0,
-                patches_coarsened: 0,
-                patches_unprojectable: 0,
                 size_factor: Some(laid.stats.size_factor),
-                patches_split: None,
-                off_m_permille: None,
-                patches_off_m: None,
                 uncarried_permille: Some(d),
-                uncarried_m_permille: None,
-                displaced_permille: None,
-                limit_permille: None,
                 kept: Some(kept),
+                ..Default::default()
             });
             if kept {
                 *best = (key, fitted);
@@ -1468,27 +1482,11 @@ mod tests {
     /// A round as [`bracket_count`] reads it.
     fn round(faces: usize, rms: f64, unprojectable: f64) -> FieldRound {
         FieldRound {
-            target_faces: None,
             faces,
-            irregular_vertices: 0,
             fit_rms_permille: rms,
             layout_rms_permille: Some(rms),
-            adaptivity_spearman: None,
             layout_unprojectable_percent: Some(unprojectable),
-            layout_thin_percent: None,
-            patches_refined: 0,
-            patches_coarsened: 0,
-            patches_unprojectable: 0,
-            size_factor: None,
-            patches_split: None,
-            off_m_permille: None,
-            patches_off_m: None,
-            uncarried_permille: None,
-            uncarried_m_permille: None,
-            displaced_permille: None,
-            limit_permille: None,
-            kept: None,
-        }
+        }..Default::default()
     }
 
     /// The bracket's counts: alone, a meeting round far under the bound

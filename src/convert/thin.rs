@@ -648,22 +648,12 @@ pub(super) fn second_round(
             faces,
             irregular_vertices: irregular,
             fit_rms_permille: next.report.final_rms_permille,
-            layout_rms_permille: None,
-            adaptivity_spearman: None,
-            layout_unprojectable_percent: None,
-            layout_thin_percent: None,
-            patches_refined: 0,
-            patches_coarsened: 0,
-            patches_unprojectable: 0,
             size_factor: Some(laid.stats.size_factor),
-            patches_split: None,
             off_m_permille: Some(permille * m1.rms),
             patches_off_m: Some(m1.far.len() + m1.d_far.len()),
             uncarried_permille: Some(permille * m1.uncarried),
-            uncarried_m_permille: None,
-            displaced_permille: None,
-            limit_permille: None,
             kept: Some(false),
+            ..Default::default()
         };
         x1.record(&mut round, permille);
         rounds.push(round);

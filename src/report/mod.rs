@@ -513,8 +513,7 @@ pub fn evaluate_surfaces_after(
                         )
                     },
                 );
-                let (acc, unreached) = (acc?, unreached?);
-                Ok((acc, unreached))
+                Ok((acc?, unreached?))
             },
             || {
                 let at = Sampling {
