@@ -1486,7 +1486,8 @@ mod tests {
             fit_rms_permille: rms,
             layout_rms_permille: Some(rms),
             layout_unprojectable_percent: Some(unprojectable),
-        }..Default::default()
+            ..Default::default()
+        }
     }
 
     /// The bracket's counts: alone, a meeting round far under the bound
