@@ -64,7 +64,7 @@ use crate::mesh::ControlMesh;
 use crate::raycast::RayCaster;
 use crate::subdiv::LimitEvaluator;
 
-use super::{compute_displacement, Displacement, PatchGrid};
+use super::{Displacement, PatchGrid, Probe, Probed};
 
 /// The deepest level: `R = 65`, 64 cells per patch side (the cap of
 /// [`super::auto_resolution`]).
@@ -109,6 +109,9 @@ pub struct AdaptiveStats {
 pub struct Allocation {
     pub resolutions: Vec<usize>,
     pub stats: AdaptiveStats,
+    /// The pilot grid and φ's answers on it, for the final grid to reuse
+    /// where its samples are the pilot's ([`super::displacement_after`]).
+    pub pilot: Probed,
 }
 
 /// A candidate upgrade in the greedy's queue: error decrease per sample,
@@ -144,7 +147,7 @@ fn res_of(level: u32) -> usize {
 /// Per-patch resolutions of `control` (all quads) whose welded grid holds
 /// about `budget` independent samples, allocated where the displacement
 /// needs them (module docs). The other arguments are
-/// [`compute_displacement`]'s, for the pilot grid.
+/// [`super::compute_displacement`]'s, for the pilot grid.
 pub fn allocate_resolutions(
     control: &ControlMesh,
     evaluator: &dyn LimitEvaluator,
@@ -162,15 +165,10 @@ pub fn allocate_resolutions(
     {
         kp += 1;
     }
-    let pilot = compute_displacement(
-        control,
-        evaluator,
-        caster,
-        res_of(kp),
-        max_dist,
-        diag,
-        slack,
-    )?;
+    let pilot_grid = PatchGrid::new(control, res_of(kp))?;
+    let probe = super::probe(&pilot_grid, control, evaluator, caster, max_dist, None)?;
+    let (hits, closest) = (probe.hits.clone(), probe.closest.clone());
+    let pilot = super::finish(pilot_grid, probe, diag, slack);
     let errors = level_errors(&pilot, kp);
     let levels = greedy_levels(control, &errors, budget);
     let resolutions: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
@@ -188,6 +186,15 @@ pub fn allocate_resolutions(
             resolution_histogram: histogram,
         },
         resolutions,
+        pilot: Probed {
+            grid: pilot.grid,
+            probe: Probe {
+                limit: pilot.limit,
+                directions: pilot.directions,
+                hits,
+                closest,
+            },
+        },
     })
 }
 
@@ -374,16 +381,16 @@ mod detail_tests {
     use crate::report::{distance_stats, quadrature_points};
     use crate::subdiv::{make_evaluator, Backend, EvalOptions};
 
-    #[test]
-    fn adaptive_beats_uniform_where_detail_is_concentrated() {
-        // Control: the cube refined once (24 patches). M: a fine welded
-        // sampling of its limit surface, displaced along the limit normal
-        // by ripples of amplitude 0.02 (wavelength ≈ 0.6, two
-        // across the cap) on a cap of about 45° around +z (the four
-        // patches of the cube's top face) and none elsewhere. At equal
-        // independent samples the per-patch allocation must put its
-        // samples on the cap and so lower RMS M → D (D: the host's
-        // bilinear surface, φ offsets).
+    /// The cube refined once (24 patches) and M: a fine welded sampling
+    /// of its limit surface, displaced along the limit normal by ripples
+    /// of amplitude 0.02 (wavelength ≈ 0.6, two across the cap) on a cap
+    /// of about 45° around +z (the four patches of the cube's top face)
+    /// and none elsewhere.
+    fn rippled_cube() -> (
+        crate::mesh::ControlMesh,
+        Box<dyn crate::subdiv::LimitEvaluator>,
+        TriMesh,
+    ) {
         let control = crate::subdiv::refine::refine_once_keeping_infinite(&cube()).unwrap();
         let ev = make_evaluator(Backend::Osd, &control, &EvalOptions::default()).unwrap();
         let fine = PatchGrid::new(&control, 49).unwrap();
@@ -401,6 +408,90 @@ mod detail_tests {
                 .collect(),
             triangles: fine.triangles(),
         };
+        (control, ev, mesh)
+    }
+
+    #[test]
+    fn the_final_grid_reusing_the_pilot_is_the_fresh_one_bit_for_bit() {
+        // `displacement_after` takes the pilot's limit points, hits and
+        // closest distances where the final grid samples the same
+        // location: every figure must be the one a fresh evaluation gives
+        // (the outputs' byte identity rests on it), including the samples
+        // that are not shared (patches finer than the pilot, edge samples
+        // the finer side owns) and the dependents.
+        let (control, ev, mesh) = rippled_cube();
+        let diag = mesh.bbox_diagonal();
+        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+        // A budget above the pilot's level on the cap (the pilot is at
+        // 2–8× the budget, the finest level beyond it is extrapolated).
+        for budget in [600, 2500] {
+            let alloc = allocate_resolutions(
+                &control,
+                ev.as_ref(),
+                caster.as_ref(),
+                budget,
+                0.5,
+                diag,
+                0.01,
+            )
+            .unwrap();
+            let grid = PatchGrid::with_resolutions(&control, &alloc.resolutions).unwrap();
+            let fresh = displacement_on(
+                grid.clone(),
+                &control,
+                ev.as_ref(),
+                caster.as_ref(),
+                0.5,
+                diag,
+                0.01,
+            )
+            .unwrap();
+            let reused = crate::displace::displacement_after(
+                grid,
+                &alloc.pilot,
+                &control,
+                ev.as_ref(),
+                caster.as_ref(),
+                0.5,
+                diag,
+                0.01,
+            )
+            .unwrap();
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let pts = |d: &Displacement| {
+                d.limit
+                    .iter()
+                    .flat_map(|p| [p.position, p.du, p.dv])
+                    .chain(d.directions.iter().copied())
+                    .flat_map(|v| v.to_array())
+                    .collect::<Vec<f64>>()
+            };
+            assert_eq!(bits(&pts(&fresh)), bits(&pts(&reused)), "budget {budget}");
+            assert_eq!(
+                bits(&fresh.offsets),
+                bits(&reused.offsets),
+                "budget {budget}"
+            );
+            assert_eq!(fresh.projected, reused.projected);
+            assert_eq!(fresh.stats, reused.stats);
+            // Something was reused (a patch at or below the pilot's
+            // level), and something was not (mixed resolutions: edge
+            // samples the finer side owns), else the test says nothing
+            // about one of the two paths.
+            let pr = alloc.pilot.grid.res();
+            let r = &alloc.resolutions;
+            assert!(r.iter().any(|&x| x <= pr), "budget {budget}: {r:?}");
+            assert!(r.windows(2).any(|w| w[0] != w[1]), "budget {budget}: {r:?}");
+        }
+    }
+
+    #[test]
+    fn adaptive_beats_uniform_where_detail_is_concentrated() {
+        // Control and M: [`rippled_cube`]. At equal
+        // independent samples the per-patch allocation must put its
+        // samples on the cap and so lower RMS M → D (D: the host's
+        // bilinear surface, φ offsets).
+        let (control, ev, mesh) = rippled_cube();
         let diag = mesh.bbox_diagonal();
         let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
         let (mp, mw) = quadrature_points(&mesh);

@@ -363,6 +363,8 @@ pub fn refine_offsets_on(
         let (score, ne, complete) = round_rows(&at, disp, check_only, reject_at)?;
         crate::watch::memtrace("lsq: round rows");
         let (obj, sub) = score.rms();
+        let kind = if check_only { "check" } else { "full" };
+        trace(round, kind, halvings, obj, sub, complete, reject_at, diag);
         // The stats are the subsample's, the one figure every round has.
         if round == 0 {
             stats.rms_before_permille = 1000.0 * sub / diag;
@@ -377,14 +379,15 @@ pub fn refine_offsets_on(
             } else {
                 obj >= current_obj
             };
-        if worse && host.is_some() && halvings < HOST_HALVINGS {
+        let most = if check_only {
+            HOST_HALVINGS
+        } else {
+            full_step_halvings()
+        };
+        if worse && host.is_some() && halvings < most {
             if let Some(delta) = &last_delta {
                 halvings += 1;
-                let scale = 0.5f64.powi(halvings);
-                for ((d, &c), dd) in disp.offsets.iter_mut().zip(&current).zip(delta) {
-                    *d = c + scale * dd;
-                }
-                disp.grid.clone().apply_dependents(&mut disp.offsets);
+                set_step(disp, &current, delta, 0.5f64.powi(halvings));
                 // The same round again, at the shorter step.
                 continue;
             }
@@ -423,6 +426,57 @@ pub fn refine_offsets_on(
         round += 1;
     }
     Ok(stats)
+}
+
+/// The offsets `current + scale · delta`, dependents following their
+/// coarse neighbours.
+fn set_step(disp: &mut Displacement, current: &[f64], delta: &[f64], scale: f64) {
+    for ((d, &c), dd) in disp.offsets.iter_mut().zip(current).zip(delta) {
+        *d = c + scale * dd;
+    }
+    disp.grid.clone().apply_dependents(&mut disp.offsets);
+}
+
+/// Halvings of a rejected full-round step on the host surface:
+/// [`HOST_HALVINGS`], or `SUBDFIT_LSQ_HALVINGS` (off by default; the
+/// check round's halvings, a quarter of the queries each, are not
+/// affected). On bunny at the default options the full step and its three
+/// halvings are all rejected and undone (the objective rises along the
+/// step from its start: 0.5021‰ at 0, 0.5053‰ at ⅛ of it), four of the
+/// stage's five rounds of queries; the check subsample (every fourth
+/// point) kept the halvings at ½ and ¼ (0.5046‰ and 0.5079‰ against
+/// 0.5090‰), so a few points outside it make the rise. With `0` the
+/// step is undone at once.
+fn full_step_halvings() -> i32 {
+    std::env::var("SUBDFIT_LSQ_HALVINGS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .map_or(HOST_HALVINGS, |h: i32| h.clamp(0, HOST_HALVINGS))
+}
+
+/// With `SUBDFIT_LSQTRACE` set, one line per round of
+/// [`refine_offsets_on`] on stderr (‰ of the diagonal).
+#[allow(clippy::too_many_arguments)]
+fn trace(
+    round: usize,
+    kind: &str,
+    halvings: i32,
+    obj: f64,
+    sub: f64,
+    complete: bool,
+    reject_at: f64,
+    diag: f64,
+) {
+    if std::env::var_os("SUBDFIT_LSQTRACE").is_some() {
+        let k = 1000.0 / diag;
+        eprintln!(
+            "lsqtrace round {round} {kind} halvings {halvings} obj {:.6} sub {:.6} \
+             complete {complete} reject_at {:.6}",
+            k * obj,
+            k * sub,
+            k * reject_at
+        );
+    }
 }
 
 /// One round of [`refine_offsets`] at the current offsets: the objective

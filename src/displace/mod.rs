@@ -289,15 +289,122 @@ pub fn displacement_on(
     diag: f64,
     slack: f64,
 ) -> Result<Displacement> {
-    let limit = evaluator.evaluate(control.positions(), grid.locations())?;
-    let directions = sample_directions(control, evaluator, &grid, &limit)?;
-    let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
-    let (mut hits, mut pstats): (_, ProjectionStats) =
-        project_along(caster, &positions, &directions, max_dist)?;
+    let probe = probe(&grid, control, evaluator, caster, max_dist, None)?;
+    Ok(finish(grid, probe, diag, slack))
+}
+
+/// What φ answers at every sample of a grid, before the same-sheet test
+/// and the inpainting of [`displacement_on`]: the limit point, the
+/// direction, the line's nearest hit (its offset; `None`: the line met M
+/// nowhere within the search distance) and the distance to M's closest
+/// point. The allocation's pilot keeps its own ([`Allocation`]) so that
+/// the final grid does not evaluate and cast again at the samples the
+/// two grids share.
+#[derive(Clone, Debug)]
+pub struct Probe {
+    pub limit: Vec<LimitPoint>,
+    pub directions: Vec<DVec3>,
+    pub hits: Vec<Option<f64>>,
+    pub closest: Vec<Option<f64>>,
+}
+
+/// A grid's [`Probe`] with the probe it was measured on.
+#[derive(Clone, Debug)]
+pub struct Probed {
+    pub grid: PatchGrid,
+    pub probe: Probe,
+}
+
+/// The sample of `earlier` at `grid`'s sample `s`'s location, when
+/// `earlier` evaluates one at exactly that location (the same patch and
+/// the same `(u, v)` bits: a level-`k` grid point `i / 2^k` is the
+/// pilot's `i·2^{kp−k} / 2^{kp}`, both exact in binary).
+fn same_location(grid: &PatchGrid, s: usize, earlier: &PatchGrid) -> Option<usize> {
+    let l = grid.locations()[s];
+    let f = l.face.idx();
+    if f >= earlier.num_patches() {
+        return None;
+    }
+    let r1 = (earlier.patch_res(f) - 1) as f64;
+    let (x, y) = (l.u * r1, l.v * r1);
+    if x.fract() != 0.0 || y.fract() != 0.0 || !(0.0..=r1).contains(&x) || !(0.0..=r1).contains(&y)
+    {
+        return None;
+    }
+    let e = earlier.sample(f, x as usize, y as usize) as usize;
+    let m = earlier.locations()[e];
+    let same = m.face == l.face
+        && m.sub == l.sub
+        && m.u.to_bits() == l.u.to_bits()
+        && m.v.to_bits() == l.v.to_bits();
+    same.then_some(e)
+}
+
+fn same_bits(a: DVec3, b: DVec3) -> bool {
+    a.to_array()
+        .iter()
+        .zip(b.to_array())
+        .all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+/// φ at every sample of `grid` ([`Probe`]). With `earlier`, a sample
+/// at the same location as one of its samples (and the same direction)
+/// takes that sample's limit point, hit and closest distance instead of
+/// evaluating and casting again: each is a function of the location (and
+/// the line) alone, so the numbers are the ones a fresh query gives.
+pub(crate) fn probe(
+    grid: &PatchGrid,
+    control: &ControlMesh,
+    evaluator: &dyn LimitEvaluator,
+    caster: &dyn RayCaster,
+    max_dist: f64,
+    earlier: Option<&Probed>,
+) -> Result<Probe> {
+    let n = grid.num_samples();
+    let from: Vec<Option<usize>> = match earlier {
+        Some(e) => (0..n).map(|s| same_location(grid, s, &e.grid)).collect(),
+        None => vec![None; n],
+    };
+    let fresh: Vec<usize> = (0..n).filter(|&s| from[s].is_none()).collect();
+    let limit = if fresh.len() == n {
+        evaluator.evaluate(control.positions(), grid.locations())?
+    } else {
+        let locs: Vec<SurfaceLocation> = fresh.iter().map(|&s| grid.locations()[s]).collect();
+        let new = match locs.is_empty() {
+            true => Vec::new(),
+            false => evaluator.evaluate(control.positions(), &locs)?,
+        };
+        let mut limit = vec![LimitPoint::default(); n];
+        for (&s, p) in fresh.iter().zip(new) {
+            limit[s] = p;
+        }
+        if let Some(e) = earlier {
+            for (s, f) in from.iter().enumerate() {
+                if let Some(f) = *f {
+                    limit[s] = e.probe.limit[f];
+                }
+            }
+        }
+        limit
+    };
+    let directions = sample_directions(control, evaluator, grid, &limit)?;
+    // Cast and query only where no earlier sample had the same line.
+    let reuse: Vec<Option<usize>> = match earlier {
+        Some(e) => from
+            .iter()
+            .zip(&directions)
+            .map(|(f, &d)| f.filter(|&f| same_bits(e.probe.directions[f], d)))
+            .collect(),
+        None => vec![None; n],
+    };
+    let cast: Vec<usize> = (0..n).filter(|&s| reuse[s].is_none()).collect();
+    let positions: Vec<DVec3> = cast.iter().map(|&s| limit[s].position).collect();
+    let dirs: Vec<DVec3> = cast.iter().map(|&s| directions[s]).collect();
+    let (cast_hits, _) = project_along(caster, &positions, &dirs, max_dist)?;
     // Only the distance of each closest point is read: reduced per
     // sub-batch, so the whole batch's closest points (64 bytes each, 5M
     // samples on a 10M-triangle input) are never held at once.
-    let closest: Vec<Option<f64>> = crate::raycast::in_spatial_order(
+    let cast_closest: Vec<Option<f64>> = crate::raycast::in_spatial_order(
         &positions,
         |p| *p,
         |sub| {
@@ -308,12 +415,66 @@ pub fn displacement_on(
                 .collect())
         },
     )?;
+    let (mut hits, mut closest) = (vec![None; n], vec![None; n]);
+    for ((&s, h), c) in cast.iter().zip(cast_hits).zip(cast_closest) {
+        hits[s] = h.map(|h| h.offset);
+        closest[s] = c;
+    }
+    if let Some(e) = earlier {
+        for (s, r) in reuse.iter().enumerate() {
+            if let Some(r) = *r {
+                hits[s] = e.probe.hits[r];
+                closest[s] = e.probe.closest[r];
+            }
+        }
+    }
+    Ok(Probe {
+        limit,
+        directions,
+        hits,
+        closest,
+    })
+}
+
+/// [`displacement_on`] of `grid` with the samples it shares with the
+/// allocation's pilot grid taken from `pilot` ([`probe`]): the same
+/// displacement, without evaluating and casting again where the pilot
+/// did (every sample of a patch at or below the pilot's level that the
+/// pilot evaluates in the same patch).
+#[allow(clippy::too_many_arguments)]
+pub fn displacement_after(
+    grid: PatchGrid,
+    pilot: &Probed,
+    control: &ControlMesh,
+    evaluator: &dyn LimitEvaluator,
+    caster: &dyn RayCaster,
+    max_dist: f64,
+    diag: f64,
+    slack: f64,
+) -> Result<Displacement> {
+    let probe = probe(&grid, control, evaluator, caster, max_dist, Some(pilot))?;
+    Ok(finish(grid, probe, diag, slack))
+}
+
+/// The same-sheet test, the counts and the inpainting of
+/// [`displacement_on`] on a grid's [`Probe`].
+pub(crate) fn finish(grid: PatchGrid, probe: Probe, diag: f64, slack: f64) -> Displacement {
+    let Probe {
+        limit,
+        directions,
+        mut hits,
+        closest,
+    } = probe;
+    let mut pstats = ProjectionStats {
+        points: hits.len(),
+        unprojectable: hits.iter().filter(|h| h.is_none()).count(),
+    };
     let mut other_sheet = 0;
     for (h, c) in hits.iter_mut().zip(&closest) {
         let (Some(hit), Some(distance)) = (*h, *c) else {
             continue;
         };
-        if hit.offset.abs() > SAME_SHEET_FACTOR * distance + slack.max(1e-9 * diag) {
+        if hit.abs() > SAME_SHEET_FACTOR * distance + slack.max(1e-9 * diag) {
             *h = None;
             pstats.unprojectable += 1;
             other_sheet += 1;
@@ -323,7 +484,7 @@ pub fn displacement_on(
     for d in grid.dependents() {
         projected[d.sample as usize] = projected[d.a as usize] && projected[d.b as usize];
     }
-    let mut offsets: Vec<f64> = hits.iter().map(|h| h.map_or(0.0, |h| h.offset)).collect();
+    let mut offsets: Vec<f64> = hits.iter().map(|h| h.unwrap_or(0.0)).collect();
     inpaint(&grid, &mut offsets, &projected);
     grid.apply_dependents(&mut offsets);
     let max_abs = offsets.iter().fold(0.0f64, |m, d| m.max(d.abs()));
@@ -339,7 +500,7 @@ pub fn displacement_on(
         reconstruction: Reconstruction::Bilinear,
         adaptive: None,
     };
-    Ok(Displacement {
+    Displacement {
         grid,
         limit,
         directions,
@@ -347,7 +508,7 @@ pub fn displacement_on(
         projected,
         stats,
         reconstruction: Reconstruction::Bilinear,
-    })
+    }
 }
 
 /// The displacement direction at every sample of `grid` (`limit` its

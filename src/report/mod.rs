@@ -79,7 +79,7 @@ use serde::Serialize;
 
 use crate::analysis::normals::triangle_areas;
 use crate::displace::{
-    allocate_resolutions, auto_resolution, compute_displacement, displacement_on,
+    allocate_resolutions, auto_resolution, compute_displacement, displacement_after,
     refine_offsets_on, Displacement, DisplacementStats, HostSurface, LsqOffsetOptions, OffsetMode,
     PatchGrid, Reconstruction, SampleAllocation, FIT_CELLS,
 };
@@ -697,35 +697,21 @@ fn displaced_side(
     let d2m = d2m?;
     crate::watch::memtrace("D measured");
     let acc = Accuracy::from_directions(d2m.stats.clone(), m2d?);
-    let bd = match &host {
-        None => {
-            let patch_of = |t: usize| displacement.grid.triangle_patch(t);
-            let of = (
-                &patch_of as &dyn Fn(usize) -> usize,
-                &displacement.projected[..],
-            );
-            breakdown(
-                control,
-                &displacement,
-                &displaced,
-                of,
-                (&dq.areas, &d2m),
-                diag,
-            )
-        }
-        Some(h) => {
-            let patch_of = |t: usize| h.grid().triangle_patch(t);
-            let of = (&patch_of as &dyn Fn(usize) -> usize, &h.projected[..]);
-            breakdown(
-                control,
-                &displacement,
-                &displaced,
-                of,
-                (&dq.areas, &d2m),
-                diag,
-            )
-        }
+    // The triangles of D are the displacement grid's, or the host
+    // surface's when there is one; only the patch of a triangle and the
+    // projected flags of its points differ.
+    let (tri_grid, projected) = match &host {
+        None => (&displacement.grid, &displacement.projected[..]),
+        Some(h) => (h.grid(), &h.projected[..]),
     };
+    let bd = breakdown(
+        control,
+        &displacement,
+        &displaced,
+        (tri_grid, projected),
+        (&dq.areas, &d2m),
+        diag,
+    );
     Ok((displacement, acc, bd))
 }
 
@@ -755,8 +741,12 @@ fn adaptive_displacement(
         slack,
     )?;
     let grid = PatchGrid::with_resolutions(control, &alloc.resolutions)?;
-    let mut d = displacement_on(
+    // The final grid's samples at or below the pilot's level are the
+    // pilot's: their limit points, lines and closest points are taken
+    // from it, not evaluated and cast again (the same numbers).
+    let mut d = displacement_after(
         grid,
+        &alloc.pilot,
         control,
         evaluator,
         caster,
@@ -1049,14 +1039,14 @@ impl Accuracy {
 /// per triangle of `displaced`, D's tessellation, in order, as
 /// [`quadrature_points`] makes them; `area`: their own weights). Areas are
 /// every point's; error shares are the measured points' (with `d2m`'s
-/// weights: estimates when it was drawn from). `of`: the patch of each
-/// triangle of `displaced`, and whether each of its vertices reads
-/// projected samples only.
+/// weights: estimates when it was drawn from). `of`: the grid whose
+/// triangles `displaced` has (the patch of each triangle), and whether
+/// each of its vertices reads projected samples only.
 fn breakdown(
     control: &ControlMesh,
     displacement: &Displacement,
     displaced: &TriMesh,
-    of: (&dyn Fn(usize) -> usize, &[bool]),
+    of: (&PatchGrid, &[bool]),
     (tri_areas, d2m): (&[f64], &Direction),
     diag: f64,
 ) -> DisplacedBreakdown {
@@ -1080,7 +1070,7 @@ fn breakdown(
     // `measured` is sorted by point: a cursor walks it beside the points.
     let mut next = 0;
     for (t, &tri_area) in tri_areas.iter().enumerate() {
-        let f = of.0(t);
+        let f = of.0.triangle_patch(t);
         // Each of the triangle's three points weighs a third of its area
         // (`quadrature_points`); an unmeasured point adds 0 error.
         let third = tri_area / 3.0;
