@@ -927,6 +927,55 @@ impl SizedRelax {
     }
 }
 
+/// A [`SizedRelax`] ready for the layouts of one sizing: its sizes and,
+/// with the guard, its limits ([`super::sizing::relaxation_sizes`] at the
+/// layout's α and μ, graded at the mode's γ and not graded).
+pub struct SizedRelaxPlan {
+    mode: SizedRelax,
+    sizes: Vec<f64>,
+    limits: Option<Vec<f64>>,
+}
+
+impl SizedRelaxPlan {
+    /// `None` unless `FIELD_SIZED_RELAX` asks for it.
+    pub fn from_env(
+        s: &Surface,
+        mesh: &TriMesh,
+        fitmap: &crate::analysis::Fitmap,
+        opts: &super::FieldOptions,
+        alpha: f64,
+        mu: f64,
+    ) -> Result<Option<SizedRelaxPlan>> {
+        let Some(mode) = SizedRelax::from_env() else {
+            return Ok(None);
+        };
+        let sizes_at_gamma =
+            |g: f64| super::sizing::relaxation_sizes(s, mesh, fitmap, opts, alpha, mu, g);
+        let sizes = sizes_at_gamma(mode.gamma)?;
+        let limits = if mode.guard {
+            Some(sizes_at_gamma(f64::INFINITY)?)
+        } else {
+            None
+        };
+        Ok(Some(SizedRelaxPlan {
+            mode,
+            sizes,
+            limits,
+        }))
+    }
+
+    /// [`relax_to_sizes`] with this plan.
+    pub fn apply(
+        &self,
+        control: &mut ControlMesh,
+        mesh: &TriMesh,
+        caster: &BvhCaster,
+    ) -> Result<()> {
+        let limits = self.limits.as_deref();
+        relax_to_sizes(control, mesh, caster, &self.sizes, limits, self.mode)
+    }
+}
+
 /// [`relax`] `steps` times on a pure-quad `control` with per-vertex
 /// `sizes` of `mesh` (each step followed by the projection onto M); a mesh
 /// with a non-quad face is left as it is. With `limits` (per vertex of

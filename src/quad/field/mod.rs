@@ -361,40 +361,18 @@ fn lay_counted(
             Some(&built)
         }
     };
-    // Issue 40's sized relaxation, off by default (see
-    // [`extract::SizedRelax`]).
-    let sized_relax = match (extract::SizedRelax::from_env(), caster) {
-        (Some(m), Some(c)) if opts.uniform_size.is_none() => {
-            let r = sizing::relaxation_sizes(
-                surf,
-                mesh,
-                fitmap,
-                opts,
-                stats.alpha,
-                stats.m_fitmap_relaxed,
-                m.gamma,
-            )?;
-            let limits = if m.guard {
-                Some(sizing::relaxation_sizes(
-                    surf,
-                    mesh,
-                    fitmap,
-                    opts,
-                    stats.alpha,
-                    stats.m_fitmap_relaxed,
-                    f64::INFINITY,
-                )?)
-            } else {
-                None
-            };
-            Some((m, c, r, limits))
+    // Issue 40's sized relaxation, off by default ([`extract::SizedRelaxPlan`]).
+    let sized_relax = match caster {
+        Some(_) if opts.uniform_size.is_none() => {
+            let (a, mu) = (stats.alpha, stats.m_fitmap_relaxed);
+            extract::SizedRelaxPlan::from_env(surf, mesh, fitmap, opts, a, mu)?
         }
         _ => None,
     };
     let lay = |h: &[f64]| -> Result<FieldLayout> {
         let mut out = layout_sized(surf, mesh, dirs, h, opts, stats.clone())?;
-        if let Some((m, c, r, limits)) = &sized_relax {
-            extract::relax_to_sizes(&mut out.control, mesh, c, r, limits.as_deref(), *m)?;
+        if let (Some(plan), Some(c)) = (&sized_relax, caster) {
+            plan.apply(&mut out.control, mesh, c)?;
         }
         match caster {
             Some(c) => clean(mesh, fitmap, c, out, opts.target_faces),
