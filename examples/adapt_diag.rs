@@ -4,7 +4,11 @@
 //! and without the cleanup.
 //!
 //! `cargo run --release --example adapt_diag -- MESH VARIANT...` where a
-//! VARIANT is a `FIELD_RELAX` value (`uniform`, `none`, `sized:STEPS:POWER`).
+//! VARIANT is a `FIELD_RELAX` value (`uniform`, `none`, `sized:STEPS:POWER`),
+//! optionally followed by `/` and a `FIELD_SIZED_RELAX` value
+//! (`STEPS:POWER[:GAMMA[:g]]`, the post-extraction relaxation towards the
+//! uncapped Fitmap sizes h_r; then ρ(r, h_r) and ρ(h_r, 1/F_S) are printed
+//! too).
 //! `ADAPT_GAMMA`, `ADAPT_LOOPCAP` and `ADAPT_FACES` override the
 //! gradation, the holes' cap slope and the target count;
 //! `ADAPT_CLEANUP_ONLY` skips the layouts without the cleanup. h is the
@@ -91,14 +95,32 @@ fn main() -> anyhow::Result<()> {
     let (mut h, ..) = sizing::sizing_for(&surf, &mesh, &fitmap, &opts)?;
     sizing::cap_at_boundaries(&surf, &mut h, opts.gradation, opts.loop_cap_slope);
     for v in &args[2..] {
-        std::env::set_var("FIELD_RELAX", v);
+        // `RELAX/SIZED`: FIELD_RELAX, then FIELD_SIZED_RELAX (STEPS:POWER[:GAMMA]).
+        let (relax, sized) = v.split_once('/').unwrap_or((v.as_str(), ""));
+        std::env::set_var("FIELD_RELAX", relax);
+        match subdfit::quad::field::extract::SizedRelax::parse(sized) {
+            Some(_) => std::env::set_var("FIELD_SIZED_RELAX", sized),
+            None => std::env::remove_var("FIELD_SIZED_RELAX"),
+        }
         for &cleanup in cleanups {
             let mut o = opts.clone();
             o.cleanup = cleanup;
             let laid = field_layout(&mesh, &fitmap, &o)?;
             let (a, b, c) = rhos(&mesh, &fitmap.s, &h, &laid.control);
+            let g = subdfit::quad::field::extract::SizedRelax::parse(sized)
+                .map_or(f64::INFINITY, |m| m.gamma);
+            let hr = sizing::relaxation_sizes(
+                &surf,
+                &mesh,
+                &fitmap,
+                &o,
+                laid.stats.alpha,
+                laid.stats.m_fitmap_relaxed,
+                g,
+            )?;
+            let (_, d, e) = rhos(&mesh, &fitmap.s, &hr, &laid.control);
             println!(
-                "{v:>14} cleanup={cleanup:<5} faces {:4} irr {:3} rho(r,1/FS) {a:.3} rho(r,h) {b:.3} rho(h,1/FS) {c:.3} rounds {}",
+                "{v:>14} cleanup={cleanup:<5} faces {:4} irr {:3} rho(r,1/FS) {a:.3} rho(r,h) {b:.3} rho(h,1/FS) {c:.3} rho(r,hr) {d:.3} rho(hr,1/FS) {e:.3} rounds {}",
                 laid.control.num_faces(),
                 irregular_vertices(&laid.control),
                 laid.stats.lattice.local_rounds

@@ -880,6 +880,192 @@ fn relax(pos: &[DVec3], quads: &[[u32; 4]], sizes: Option<&[f64]>, power: f64) -
         .collect()
 }
 
+/// The sized relaxation after the extraction (issue 40's adaptivity,
+/// `FIELD_SIZED_RELAX=STEPS:POWER[:GAMMA]`, off by default): [`relax`]'s
+/// weighted steps towards sizes of its own ([`super::sizing::relaxation_sizes`],
+/// the S- and M-fitmap limits graded at GAMMA, without the holes' caps),
+/// not the lattice's step. The lattice keeps its count and topology from
+/// the graded, capped sizing; the points then slide towards where the
+/// Fitmap asks for smaller patches.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SizedRelax {
+    pub steps: usize,
+    pub power: f64,
+    /// γ of the relaxation's sizes (infinite: ungraded).
+    pub gamma: f64,
+    /// Undo the moves of a step that lengthen an edge or a quad's diagonal
+    /// past the Fitmap's own limit there (a fourth field `g`): the
+    /// relaxation may only grow patches the Fitmap allows to grow.
+    pub guard: bool,
+}
+
+impl SizedRelax {
+    pub fn from_env() -> Option<SizedRelax> {
+        SizedRelax::parse(&std::env::var("FIELD_SIZED_RELAX").ok()?)
+    }
+
+    /// `None` for anything unparsable or zero steps.
+    pub fn parse(v: &str) -> Option<SizedRelax> {
+        let mut it = v.split(':');
+        let steps: usize = it.next()?.parse().ok()?;
+        let power: f64 = it.next()?.parse().ok().filter(|p: &f64| p.is_finite())?;
+        let gamma = match it.next() {
+            Some(g) => g.parse().ok().filter(|g: &f64| *g > 0.0)?,
+            None => f64::INFINITY,
+        };
+        let guard = match it.next() {
+            None => false,
+            Some("g") => true,
+            Some(_) => return None,
+        };
+        (steps > 0).then_some(SizedRelax {
+            steps,
+            power,
+            gamma,
+            guard,
+        })
+    }
+}
+
+/// A [`SizedRelax`] ready for the layouts of one sizing: its sizes and,
+/// with the guard, its limits ([`super::sizing::relaxation_sizes`] at the
+/// layout's α and μ, graded at the mode's γ and not graded).
+pub struct SizedRelaxPlan {
+    mode: SizedRelax,
+    sizes: Vec<f64>,
+    limits: Option<Vec<f64>>,
+}
+
+impl SizedRelaxPlan {
+    /// `None` unless `FIELD_SIZED_RELAX` asks for it.
+    pub fn from_env(
+        s: &Surface,
+        mesh: &TriMesh,
+        fitmap: &crate::analysis::Fitmap,
+        opts: &super::FieldOptions,
+        alpha: f64,
+        mu: f64,
+    ) -> Result<Option<SizedRelaxPlan>> {
+        let Some(mode) = SizedRelax::from_env() else {
+            return Ok(None);
+        };
+        let sizes_at_gamma =
+            |g: f64| super::sizing::relaxation_sizes(s, mesh, fitmap, opts, alpha, mu, g);
+        let sizes = sizes_at_gamma(mode.gamma)?;
+        let limits = if mode.guard {
+            Some(sizes_at_gamma(f64::INFINITY)?)
+        } else {
+            None
+        };
+        Ok(Some(SizedRelaxPlan {
+            mode,
+            sizes,
+            limits,
+        }))
+    }
+
+    /// [`relax_to_sizes`] with this plan.
+    pub fn apply(
+        &self,
+        control: &mut ControlMesh,
+        mesh: &TriMesh,
+        caster: &BvhCaster,
+    ) -> Result<()> {
+        let limits = self.limits.as_deref();
+        relax_to_sizes(control, mesh, caster, &self.sizes, limits, self.mode)
+    }
+}
+
+/// [`relax`] `steps` times on a pure-quad `control` with per-vertex
+/// `sizes` of `mesh` (each step followed by the projection onto M); a mesh
+/// with a non-quad face is left as it is. With `limits` (per vertex of
+/// `mesh`, the longest edge the Fitmap allows), the points of an edge that
+/// a step lengthens past its limit at its midpoint, or of a quad whose
+/// diagonal it lengthens past √2 times that, keep their places.
+pub fn relax_to_sizes(
+    control: &mut ControlMesh,
+    mesh: &TriMesh,
+    caster: &BvhCaster,
+    sizes: &[f64],
+    limits: Option<&[f64]>,
+    mode: SizedRelax,
+) -> Result<()> {
+    let mut quads = Vec::with_capacity(control.num_faces());
+    for f in control.faces() {
+        let v: Vec<u32> = control.face_vertices(f).map(|v| v.idx() as u32).collect();
+        match v[..] {
+            [a, b, c, d] => quads.push([a, b, c, d]),
+            _ => return Ok(()),
+        }
+    }
+    let mut pos = control.positions().to_vec();
+    for _ in 0..mode.steps {
+        let at = sizes_at(caster, mesh, sizes, &pos)?;
+        let mut moved = relax(&pos, &quads, Some(&at), mode.power);
+        if let Some(limits) = limits {
+            guard_growth(caster, mesh, limits, &quads, &pos, &mut moved)?;
+        }
+        let hits = caster.closest_points(&moved, f64::INFINITY)?;
+        pos = moved
+            .iter()
+            .zip(&hits)
+            .map(|(p, h)| h.as_ref().map_or(*p, |h| h.point))
+            .collect();
+    }
+    control.set_positions(pos)
+}
+
+/// Puts back (in `moved`) the corners of every quad with a side or a
+/// diagonal that is longer in `moved` than in `pos` and longer than its
+/// limit (`limits` at the side's midpoint, √2 times it for a diagonal).
+fn guard_growth(
+    caster: &BvhCaster,
+    mesh: &TriMesh,
+    limits: &[f64],
+    quads: &[[u32; 4]],
+    pos: &[DVec3],
+    moved: &mut [DVec3],
+) -> Result<()> {
+    // Each quad's four sides and two diagonals, as (a, b, factor).
+    let pairs = |q: &[u32; 4]| {
+        let s2 = std::f64::consts::SQRT_2;
+        [
+            (q[0], q[1], 1.0),
+            (q[1], q[2], 1.0),
+            (q[2], q[3], 1.0),
+            (q[3], q[0], 1.0),
+            (q[0], q[2], s2),
+            (q[1], q[3], s2),
+        ]
+    };
+    // Putting a quad's corners back can lengthen its neighbours' sides, so
+    // until none is left (at worst every point is put back).
+    loop {
+        let mids: Vec<DVec3> = quads
+            .iter()
+            .flat_map(|q| pairs(q).map(|(a, b, _)| 0.5 * (moved[a as usize] + moved[b as usize])))
+            .collect();
+        let lim = sizes_at(caster, mesh, limits, &mids)?;
+        let mut changed = false;
+        for (k, q) in quads.iter().enumerate() {
+            let grew_past = pairs(q).iter().enumerate().any(|(e, &(a, b, f))| {
+                let (a, b) = (a as usize, b as usize);
+                let after = (moved[a] - moved[b]).length();
+                after > (pos[a] - pos[b]).length() && after > f * lim[6 * k + e]
+            });
+            if grew_past {
+                for &v in q {
+                    changed |= moved[v as usize] != pos[v as usize];
+                    moved[v as usize] = pos[v as usize];
+                }
+            }
+        }
+        if !changed {
+            return Ok(());
+        }
+    }
+}
+
 /// The points used by `quads`, renumbered in order of first use.
 fn compact(pos: Vec<DVec3>, quads: Vec<[u32; 4]>) -> (Vec<DVec3>, Vec<[u32; 4]>) {
     let mut index = vec![u32::MAX; pos.len()];
@@ -1059,5 +1245,91 @@ mod tests {
             graded > 2.0 && monotone,
             "graded ratio {graded}, monotone {monotone}"
         );
+    }
+
+    #[test]
+    fn sized_relax_parses_its_switch() {
+        let m = SizedRelax::parse("6:12").unwrap();
+        assert_eq!((m.steps, m.power, m.gamma), (6, 12.0, f64::INFINITY));
+        assert_eq!(SizedRelax::parse("3:8:1").unwrap().gamma, 1.0);
+        assert!(SizedRelax::parse("3:8:1:g").unwrap().guard);
+        assert!(!SizedRelax::parse("3:8:1").unwrap().guard);
+        for bad in ["", "0:8", "x:8", "3", "3:inf", "3:8:-1", "3:8:y", "3:8:1:x"] {
+            assert_eq!(SizedRelax::parse(bad), None, "{bad:?}");
+        }
+    }
+
+    /// A flat 8×8 control grid over a triangulated plane, sizes growing 3×
+    /// from left to right: every step keeps the points on the plane and
+    /// the boundary where it was, and the interior slides towards the
+    /// small sizes (each point's weighted mean lies left of the uniform
+    /// one), so the leftmost column of cells ends narrower than the
+    /// rightmost.
+    #[test]
+    fn relax_to_sizes_slides_the_interior_towards_small_sizes() {
+        let n = 8;
+        let (pos, quads) = grid(n, n);
+        let mesh = TriMesh {
+            positions: pos.clone(),
+            triangles: quads
+                .iter()
+                .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+                .collect(),
+        };
+        let sizes: Vec<f64> = pos.iter().map(|p| 1.0 + 2.0 * p.x / n as f64).collect();
+        let caster = BvhCaster::new(&mesh).unwrap();
+        let mut control = ControlMesh::from_polygons(pos.clone(), &quads).unwrap();
+        let mode = SizedRelax::parse("20:1").unwrap();
+        relax_to_sizes(&mut control, &mesh, &caster, &sizes, None, mode).unwrap();
+        let p = control.positions();
+        let row = n / 2 * (n + 1);
+        for (k, (a, b)) in p.iter().zip(&pos).enumerate() {
+            assert!(a.z.abs() < 1e-12, "point {k} left the plane");
+            let (i, j) = (k % (n + 1), k / (n + 1));
+            if i == 0 || j == 0 || i == n || j == n {
+                assert!((*a - *b).length() < 1e-12, "boundary point {k} moved");
+            }
+        }
+        let first = p[row + 1].x - p[row].x;
+        let last = p[row + n].x - p[row + n - 1].x;
+        assert!(last > 1.2 * first, "first cell {first}, last {last}");
+    }
+
+    /// With limits below every edge the guard lets no step lengthen a
+    /// side or a diagonal of any quad.
+    #[test]
+    fn guarded_relaxation_grows_nothing_past_its_limits() {
+        let n = 8;
+        let (pos, quads) = grid(n, n);
+        let mesh = TriMesh {
+            positions: pos.clone(),
+            triangles: quads
+                .iter()
+                .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+                .collect(),
+        };
+        let mut jittered = pos.clone();
+        for (k, p) in jittered.iter_mut().enumerate() {
+            let (i, j) = (k % (n + 1), k / (n + 1));
+            if i > 0 && j > 0 && i < n && j < n {
+                p.x += 0.3 * ((k * 37 % 11) as f64 / 11.0 - 0.5);
+                p.y += 0.3 * ((k * 53 % 13) as f64 / 13.0 - 0.5);
+            }
+        }
+        let sizes: Vec<f64> = pos.iter().map(|p| 1.0 + 2.0 * p.x / n as f64).collect();
+        let caster = BvhCaster::new(&mesh).unwrap();
+        let mut control = ControlMesh::from_polygons(jittered.clone(), &quads).unwrap();
+        let mode = SizedRelax::parse("5:4:inf:g").unwrap();
+        let limits = vec![1e-3; pos.len()];
+        relax_to_sizes(&mut control, &mesh, &caster, &sizes, Some(&limits), mode).unwrap();
+        let p = control.positions();
+        for q in &quads {
+            for (a, b) in [(0, 1), (1, 2), (2, 3), (3, 0), (0, 2), (1, 3)] {
+                let (a, b) = (q[a] as usize, q[b] as usize);
+                let (before, after) =
+                    ((jittered[a] - jittered[b]).length(), (p[a] - p[b]).length());
+                assert!(after <= before + 1e-12, "{a}-{b}: {before} -> {after}");
+            }
+        }
     }
 }

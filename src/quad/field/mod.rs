@@ -361,8 +361,19 @@ fn lay_counted(
             Some(&built)
         }
     };
+    // Issue 40's sized relaxation, off by default ([`extract::SizedRelaxPlan`]).
+    let sized_relax = match caster {
+        Some(_) if opts.uniform_size.is_none() => {
+            let (a, mu) = (stats.alpha, stats.m_fitmap_relaxed);
+            extract::SizedRelaxPlan::from_env(surf, mesh, fitmap, opts, a, mu)?
+        }
+        _ => None,
+    };
     let lay = |h: &[f64]| -> Result<FieldLayout> {
-        let out = layout_sized(surf, mesh, dirs, h, opts, stats.clone())?;
+        let mut out = layout_sized(surf, mesh, dirs, h, opts, stats.clone())?;
+        if let (Some(plan), Some(c)) = (&sized_relax, caster) {
+            plan.apply(&mut out.control, mesh, c)?;
+        }
         match caster {
             Some(c) => clean(mesh, fitmap, c, out, opts.target_faces),
             None => Ok(out),

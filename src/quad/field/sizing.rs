@@ -269,6 +269,36 @@ pub fn sizing_for(
     Ok((h, alpha, relaxed, n))
 }
 
+/// The sizes the post-extraction sized relaxation aims at
+/// ([`super::extract::SizedRelax`]): `min(α h_S, μ β h_M)` at the layout's
+/// α and μ, graded at `gamma` (infinite: not graded) and without the
+/// boundary loops' caps, which are there to keep the lattice's topology,
+/// not the fit's sizes. Only their ratios matter to the relaxation.
+pub fn relaxation_sizes(
+    s: &Surface,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    opts: &FieldOptions,
+    alpha: f64,
+    mu: f64,
+    gamma: f64,
+) -> Result<Vec<f64>> {
+    let (hs, hm) = fitmap_limits(mesh, fitmap, opts.s_fitmap_scale)?;
+    let beta = opts.m_fitmap_scale * mu;
+    let mut h: Vec<f64> = hs
+        .iter()
+        .zip(&hm)
+        .map(|(&a, &b)| (alpha * a).min(beta * b))
+        .collect();
+    if gamma.is_finite() {
+        grade(s, &mut h, gamma);
+    }
+    for x in &mut h {
+        *x = x.max(s.mean_edge);
+    }
+    Ok(h)
+}
+
 /// Spearman's ρ between each patch's radius (centre to farthest corner)
 /// and 1/F_S at its centre (the mean over the nearest triangle of `mesh`
 /// of its vertices' positive F_S): issue 40's adaptivity check, the same
