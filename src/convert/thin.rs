@@ -260,61 +260,144 @@ pub fn carried(
         .collect())
 }
 
+/// The limit grid of `control` (as many cells per patch as on `layout`,
+/// M′) against a mesh (`caster` over it): what [`off_m`] and [`on_m`]
+/// both measure, so that the two estimates follow one rule.
+struct Carried {
+    /// The limit grid and the control face of each of its triangles.
+    surface: TriMesh,
+    tri_face: Vec<u32>,
+    locs: Vec<crate::subdiv::SurfaceLocation>,
+    /// The grid vertices' areas and their nearest points on the mesh.
+    weights: Vec<f64>,
+    near: Vec<Option<crate::raycast::ClosestPoint>>,
+    /// Whether the displacement carries each grid vertex onto the mesh
+    /// ([`carried`], slack half the mesh's mean edge, as the pipeline's).
+    carry: Vec<bool>,
+    /// The mesh's vertices' areas and their nearest points on the grid.
+    m_areas: Vec<f64>,
+    nearest: Vec<Option<crate::raycast::ClosestPoint>>,
+}
+
+/// Squared distances over the limit (D → M) per control face and in
+/// total, area-weighted: all samples, and those not carried.
+struct LimitSums {
+    /// Per face: (all, area, not carried).
+    per_face: Vec<(f64, f64, f64)>,
+    all: f64,
+    lost: f64,
+    area: f64,
+}
+
+/// Squared distances over the mesh (M → D), area-weighted: at its
+/// vertices whose nearest limit point is not carried (two of its grid
+/// triangle's three), per control face and in total.
+struct MeshSums {
+    lost: Vec<f64>,
+    all: f64,
+    area: f64,
+}
+
+impl Carried {
+    fn new(
+        layout: &TriMesh,
+        mesh: &TriMesh,
+        caster: &dyn RayCaster,
+        control: &ControlMesh,
+    ) -> Result<Self> {
+        let k = super::field::grid_cells(layout, control);
+        let (surface, tri_face, locs, evaluator) = super::field::limit_grid(control, k)?;
+        let weights = crate::report::vertex_areas(&surface);
+        let near = caster.closest_points(&surface.positions, f64::INFINITY)?;
+        let dist: Vec<f64> = near
+            .iter()
+            .map(|c| c.as_ref().map_or(0.0, |c| c.distance))
+            .collect();
+        let points = evaluator.evaluate(control.positions(), &locs)?;
+        let slack = 0.5 * mean_edge(mesh);
+        let max_dist = crate::project::default_max_dist(mesh);
+        let carry = carried(caster, &points, &dist, max_dist, slack)?;
+        let grid = BvhCaster::new(&surface)?;
+        let nearest = grid.closest_points(&mesh.positions, f64::INFINITY)?;
+        let m_areas = crate::report::vertex_areas(mesh);
+        Ok(Self {
+            surface,
+            tri_face,
+            locs,
+            weights,
+            near,
+            carry,
+            m_areas,
+            nearest,
+        })
+    }
+
+    fn limit_sums(&self, faces: usize) -> LimitSums {
+        let mut s = LimitSums {
+            per_face: vec![(0.0, 0.0, 0.0); faces],
+            all: 0.0,
+            lost: 0.0,
+            area: 0.0,
+        };
+        let samples = self.near.iter().zip(&self.weights).zip(&self.locs);
+        for (((c, &a), loc), &ok) in samples.zip(&self.carry) {
+            let Some(c) = c else { continue };
+            let d2 = c.distance * c.distance;
+            let f = &mut s.per_face[loc.face.0 as usize];
+            f.0 += a * d2;
+            f.1 += a;
+            s.all += a * d2;
+            s.area += a;
+            if !ok {
+                f.2 += a * d2;
+                s.lost += a * d2;
+            }
+        }
+        s
+    }
+
+    fn mesh_sums(&self, faces: usize) -> MeshSums {
+        let mut s = MeshSums {
+            lost: vec![0.0; faces],
+            all: 0.0,
+            area: 0.0,
+        };
+        for (c, &a) in self.nearest.iter().zip(&self.m_areas) {
+            let Some(c) = c else { continue };
+            s.area += a;
+            let t = self.surface.triangles[c.triangle as usize];
+            if t.iter().filter(|&&v| !self.carry[v as usize]).count() >= 2 {
+                let e = a * c.distance * c.distance;
+                s.lost[self.tri_face[c.triangle as usize] as usize] += e;
+                s.all += e;
+            }
+        }
+        s
+    }
+}
+
+/// `e / a`'s root, 0 for no area.
+fn rms_of(e: f64, a: f64) -> f64 {
+    (e / f64::max(a, f64::MIN_POSITIVE)).sqrt()
+}
+
 /// The limit surface of `control` against `mesh` (M′, `caster` over it):
 /// the area-weighted RMS distance of its samples to M′, its far patches,
 /// the uncarried RMS and the patches holding its share, and the factors
 /// on h they ask for (module docs).
 pub fn off_m(mesh: &TriMesh, caster: &BvhCaster, control: &ControlMesh) -> Result<OffM> {
-    let k = super::field::grid_cells(mesh, control);
-    let (surface, tri_face, locs, evaluator) = super::field::limit_grid(control, k)?;
-    let weights = crate::report::vertex_areas(&surface);
-    let near = caster.closest_points(&surface.positions, f64::INFINITY)?;
-    let dist: Vec<f64> = near
-        .iter()
-        .map(|c| c.as_ref().map_or(0.0, |c| c.distance))
-        .collect();
-    let points = evaluator.evaluate(control.positions(), &locs)?;
-    let slack = 0.5 * mean_edge(mesh);
-    let max_dist = crate::project::default_max_dist(mesh);
-    let carry = carried(caster, &points, &dist, max_dist, slack)?;
+    let g = Carried::new(mesh, mesh, caster, control)?;
     let faces = control.num_faces();
-    let mut sum = vec![(0.0, 0.0, 0.0); faces];
-    let (mut all, mut lost, mut area) = (0.0, 0.0, 0.0);
-    for (((c, &a), loc), &ok) in near.iter().zip(&weights).zip(&locs).zip(&carry) {
-        let Some(c) = c else { continue };
-        let d2 = c.distance * c.distance;
-        let s = &mut sum[loc.face.0 as usize];
-        s.0 += a * d2;
-        s.1 += a;
-        all += a * d2;
-        area += a;
-        if !ok {
-            s.2 += a * d2;
-            lost += a * d2;
-        }
-    }
-    let area = f64::max(area, f64::MIN_POSITIVE);
-    let rms = (all / area).sqrt();
+    let on_limit = g.limit_sums(faces);
+    let rms = rms_of(on_limit.all, on_limit.area);
     // M → D: a vertex of M′ whose nearest limit point lies where the
     // samples are not carried (two of its grid triangle's three) is left
     // about that distance from the displaced surface.
-    let grid = BvhCaster::new(&surface)?;
-    let nearest = grid.closest_points(&mesh.positions, f64::INFINITY)?;
-    let m_areas = crate::report::vertex_areas(mesh);
-    let mut m_lost = vec![0.0; faces];
-    let (mut m_all, mut m_area) = (0.0, 0.0);
-    for (c, &a) in nearest.iter().zip(&m_areas) {
-        let Some(c) = c else { continue };
-        m_area += a;
-        let t = surface.triangles[c.triangle as usize];
-        if t.iter().filter(|&&v| !carry[v as usize]).count() >= 2 {
-            let e = a * c.distance * c.distance;
-            m_lost[tri_face[c.triangle as usize] as usize] += e;
-            m_all += e;
-        }
-    }
-    let m_area = f64::max(m_area, f64::MIN_POSITIVE);
-    let uncarried = f64::max((lost / area).sqrt(), (m_all / m_area).sqrt());
+    let on_mesh = g.mesh_sums(faces);
+    let (lost, m_all) = (on_limit.lost, on_mesh.all);
+    let uncarried = f64::max(rms_of(lost, on_limit.area), rms_of(m_all, on_mesh.area));
+    let sum = &on_limit.per_face;
+    let m_lost = &on_mesh.lost;
     let patch_rms: Vec<f64> = sum
         .iter()
         .map(|&(e, a, _)| if a > 0.0 { (e / a).sqrt() } else { 0.0 })
@@ -324,7 +407,7 @@ pub fn off_m(mesh: &TriMesh, caster: &BvhCaster, control: &ControlMesh) -> Resul
     let holds = |e: f64, total: f64| total > 0.0 && e >= share * total;
     let is_d_far: Vec<bool> = sum
         .iter()
-        .zip(&m_lost)
+        .zip(m_lost)
         .map(|(s, &m)| holds(s.2, lost) || holds(m, m_all))
         .collect();
     let pick =
@@ -349,15 +432,15 @@ pub fn off_m(mesh: &TriMesh, caster: &BvhCaster, control: &ControlMesh) -> Resul
         let mut factor = vec![1.0; mesh.positions.len()];
         // The vertices of M′ whose nearest limit point lies on a marked
         // patch (the part of M′ it stands for) ...
-        for (v, c) in nearest.iter().enumerate() {
+        for (v, c) in g.nearest.iter().enumerate() {
             let Some(c) = c else { continue };
-            let f = tri_face[c.triangle as usize] as usize;
+            let f = g.tri_face[c.triangle as usize] as usize;
             factor[v] = f64::min(factor[v], of[f]);
         }
         // ... and those under its samples (across a thin part the
         // samples' nearest points lie on both sheets, some nearer to other
         // patches).
-        for (c, loc) in near.iter().zip(&locs) {
+        for (c, loc) in g.near.iter().zip(&g.locs) {
             let Some(c) = c else { continue };
             let x = of[loc.face.0 as usize];
             if x < 1.0 {
@@ -387,43 +470,13 @@ pub fn off_m(mesh: &TriMesh, caster: &BvhCaster, control: &ControlMesh) -> Resul
 /// point is not carried. M′ at τ 10 % is too coarse a stand-in for M
 /// (gargoyle at 402, docs/status.md session 11).
 pub fn on_m(on: &OnM<'_>, layout: &TriMesh, control: &ControlMesh) -> Result<f64> {
-    let mesh = on.mesh;
-    let k = super::field::grid_cells(layout, control);
-    let (surface, _, locs, evaluator) = super::field::limit_grid(control, k)?;
-    let weights = crate::report::vertex_areas(&surface);
-    let near = on
-        .caster
-        .closest_points(&surface.positions, f64::INFINITY)?;
-    let dist: Vec<f64> = near
-        .iter()
-        .map(|c| c.as_ref().map_or(0.0, |c| c.distance))
-        .collect();
-    let points = evaluator.evaluate(control.positions(), &locs)?;
-    let slack = 0.5 * mean_edge(mesh);
-    let max_dist = crate::project::default_max_dist(mesh);
-    let carry = carried(on.caster, &points, &dist, max_dist, slack)?;
-    let (mut lost, mut area) = (0.0, 0.0);
-    for ((c, &a), &ok) in near.iter().zip(&weights).zip(&carry) {
-        let Some(c) = c else { continue };
-        area += a;
-        if !ok {
-            lost += a * c.distance * c.distance;
-        }
-    }
-    let grid = BvhCaster::new(&surface)?;
-    let nearest = grid.closest_points(&mesh.positions, f64::INFINITY)?;
-    let m_areas = crate::report::vertex_areas(mesh);
-    let (mut m_lost, mut m_area) = (0.0, 0.0);
-    for (c, &a) in nearest.iter().zip(&m_areas) {
-        let Some(c) = c else { continue };
-        m_area += a;
-        let t = surface.triangles[c.triangle as usize];
-        if t.iter().filter(|&&v| !carry[v as usize]).count() >= 2 {
-            m_lost += a * c.distance * c.distance;
-        }
-    }
-    let rms = |e: f64, a: f64| (e / f64::max(a, f64::MIN_POSITIVE)).sqrt();
-    Ok(f64::max(rms(lost, area), rms(m_lost, m_area)))
+    let g = Carried::new(layout, on.mesh, on.caster, control)?;
+    let faces = control.num_faces();
+    let (on_limit, on_mesh) = (g.limit_sums(faces), g.mesh_sums(faces));
+    Ok(f64::max(
+        rms_of(on_limit.lost, on_limit.area),
+        rms_of(on_mesh.all, on_mesh.area),
+    ))
 }
 
 /// The pipeline's displacement and metrics on `control` (refined once
