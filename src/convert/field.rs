@@ -201,6 +201,11 @@ pub struct FieldRound {
     /// ([`super::thin::OffM::uncarried`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub uncarried_permille: Option<f64>,
+    /// With the thin round, on the first round: the share of the
+    /// uncarried squared distance held by the worst one, two and three
+    /// patches, D → M then M → D, % ([`super::thin::Concentration`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncarried_top_percent: Option<Vec<f64>>,
     /// With the thin rounds' chain, the same estimate taken against M
     /// itself ([`super::thin::on_m`]), ‰.
     #[serde(default, skip_serializing_if = "Option::is_none")]

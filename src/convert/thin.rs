@@ -109,6 +109,41 @@ pub const D_ROUNDS: usize = 1;
 /// pays, 0.275‰; spot, homer, gargoyle τ 10 %: 0.60–1.36‰; session 12).
 pub const CHAIN_MIN_UNCARRIED_PERMILLE: f64 = 0.05;
 
+/// How many of the worst patches [`Concentration::share`] counts.
+pub const CHAIN_TOP_PATCHES: usize = 1;
+
+/// The chain runs only when the worst [`CHAIN_TOP_PATCHES`] patches hold
+/// at least this share of the first round's uncarried squared distance
+/// (`SUBDFIT_THIN_TOP_SHARE`; session 13): the chain lowers h under the
+/// few patches holding it, which pays where one thin part holds the error
+/// (cheburashka at 460) and not where it is spread over many (gargoyle
+/// τ 10 %, where no chain round was ever kept).
+pub const CHAIN_MIN_TOP_SHARE: f64 = 0.6;
+
+fn min_top_share() -> f64 {
+    env_f64("SUBDFIT_THIN_TOP_SHARE", CHAIN_MIN_TOP_SHARE)
+}
+
+/// Whether the uncarried chain runs after a first round that measured
+/// `m0` (`permille`: ‰ of the diagonal per unit of M′): its estimate is at
+/// least [`CHAIN_MIN_UNCARRIED_PERMILLE`] and the worst
+/// [`CHAIN_TOP_PATCHES`] patches hold at least [`CHAIN_MIN_TOP_SHARE`] of
+/// it.
+pub fn chain_runs(m0: &OffM, permille: f64) -> bool {
+    permille * m0.uncarried >= CHAIN_MIN_UNCARRIED_PERMILLE
+        && m0.concentration.share() >= min_top_share()
+}
+
+/// Whether the split round runs (`SUBDFIT_THIN_SPLIT=1`; off by default,
+/// session 13: [`split_round`]).
+fn split_enabled() -> bool {
+    std::env::var("SUBDFIT_THIN_SPLIT").is_ok_and(|v| v.trim() == "1")
+}
+
+/// The split round is kept only within this share of N (issue 40's
+/// count window for a local refinement).
+pub const SPLIT_COUNT_WINDOW: f64 = 0.05;
+
 /// A later round is kept only when its limit → M′ RMS and its fit's RMS
 /// are within this factor of the first round's (RMS L may not rise more
 /// than a few % for a lower D).
@@ -229,6 +264,61 @@ pub struct OffM {
     /// The patches holding at least [`SHARE`] of either uncarried squared
     /// distance (some may also be in `far`).
     pub d_far: Vec<u32>,
+    /// How the uncarried squared distance is spread over the patches
+    /// ([`Concentration`]).
+    pub concentration: Concentration,
+}
+
+/// The share of the uncarried squared distance held by the worst patches
+/// ([`OffM::uncarried`], session 13): the chain's gate
+/// ([`CHAIN_MIN_TOP_SHARE`]) and the patches a split round splits.
+#[derive(Clone, Debug, Default)]
+pub struct Concentration {
+    /// The shares of the worst one, two and three patches (cumulative, 0
+    /// to 1), D → M then M → D.
+    pub top: [[f64; 3]; 2],
+    /// Which direction's RMS is the estimate (0: D → M, 1: M → D).
+    pub direction: usize,
+    /// The patches by their share of that direction's uncarried squared
+    /// distance, highest first (only those holding any).
+    pub order: Vec<u32>,
+}
+
+impl Concentration {
+    /// `per_face`'s squared distances (two directions, totals `total`):
+    /// the worst patches' cumulative shares and the order of `direction`.
+    fn of(per_face: [&[f64]; 2], total: [f64; 2], direction: usize) -> Self {
+        let sorted = |e: &[f64]| -> Vec<u32> {
+            let mut order: Vec<u32> = (0..e.len() as u32)
+                .filter(|&f| e[f as usize] > 0.0)
+                .collect();
+            order.sort_by(|&a, &b| e[b as usize].total_cmp(&e[a as usize]).then(a.cmp(&b)));
+            order
+        };
+        let mut top = [[0.0; 3]; 2];
+        for d in 0..2 {
+            let order = sorted(per_face[d]);
+            let mut acc = 0.0;
+            for (k, t) in top[d].iter_mut().enumerate() {
+                acc += order.get(k).map_or(0.0, |&f| per_face[d][f as usize]);
+                *t = if total[d] > 0.0 { acc / total[d] } else { 0.0 };
+            }
+        }
+        Self {
+            top,
+            direction,
+            order: sorted(per_face[direction]),
+        }
+    }
+
+    /// The share the worst [`CHAIN_TOP_PATCHES`] patches hold of either
+    /// direction's uncarried squared distance, the larger.
+    pub fn share(&self) -> f64 {
+        f64::max(
+            self.top[0][CHAIN_TOP_PATCHES - 1],
+            self.top[1][CHAIN_TOP_PATCHES - 1],
+        )
+    }
 }
 
 /// Which samples the displacement can carry onto M′ (`caster` over it):
@@ -260,61 +350,147 @@ pub fn carried(
         .collect())
 }
 
+/// The limit grid of `control` (as many cells per patch as on `layout`,
+/// M′) against a mesh (`caster` over it): what [`off_m`] and [`on_m`]
+/// both measure, so that the two estimates follow one rule.
+struct Carried {
+    /// The limit grid and the control face of each of its triangles.
+    surface: TriMesh,
+    tri_face: Vec<u32>,
+    locs: Vec<crate::subdiv::SurfaceLocation>,
+    /// The grid vertices' areas and their nearest points on the mesh.
+    weights: Vec<f64>,
+    near: Vec<Option<crate::raycast::ClosestPoint>>,
+    /// Whether the displacement carries each grid vertex onto the mesh
+    /// ([`carried`], slack half the mesh's mean edge, as the pipeline's).
+    carry: Vec<bool>,
+    /// The mesh's vertices' areas and their nearest points on the grid.
+    m_areas: Vec<f64>,
+    nearest: Vec<Option<crate::raycast::ClosestPoint>>,
+}
+
+/// Squared distances over the limit (D → M) per control face and in
+/// total, area-weighted: all samples, and those not carried.
+struct LimitSums {
+    /// Per face: (all, area, not carried).
+    per_face: Vec<(f64, f64, f64)>,
+    all: f64,
+    lost: f64,
+    area: f64,
+}
+
+/// Squared distances over the mesh (M → D), area-weighted: at its
+/// vertices whose nearest limit point is not carried (two of its grid
+/// triangle's three), per control face and in total.
+struct MeshSums {
+    lost: Vec<f64>,
+    all: f64,
+    area: f64,
+}
+
+impl Carried {
+    fn new(
+        layout: &TriMesh,
+        mesh: &TriMesh,
+        caster: &dyn RayCaster,
+        control: &ControlMesh,
+    ) -> Result<Self> {
+        let k = super::field::grid_cells(layout, control);
+        let (surface, tri_face, locs, evaluator) = super::field::limit_grid(control, k)?;
+        let weights = crate::report::vertex_areas(&surface);
+        let near = caster.closest_points(&surface.positions, f64::INFINITY)?;
+        let dist: Vec<f64> = near
+            .iter()
+            .map(|c| c.as_ref().map_or(0.0, |c| c.distance))
+            .collect();
+        let points = evaluator.evaluate(control.positions(), &locs)?;
+        let slack = 0.5 * mean_edge(mesh);
+        let max_dist = crate::project::default_max_dist(mesh);
+        let carry = carried(caster, &points, &dist, max_dist, slack)?;
+        let grid = BvhCaster::new(&surface)?;
+        let nearest = grid.closest_points(&mesh.positions, f64::INFINITY)?;
+        let m_areas = crate::report::vertex_areas(mesh);
+        Ok(Self {
+            surface,
+            tri_face,
+            locs,
+            weights,
+            near,
+            carry,
+            m_areas,
+            nearest,
+        })
+    }
+
+    fn limit_sums(&self, faces: usize) -> LimitSums {
+        let mut s = LimitSums {
+            per_face: vec![(0.0, 0.0, 0.0); faces],
+            all: 0.0,
+            lost: 0.0,
+            area: 0.0,
+        };
+        let samples = self.near.iter().zip(&self.weights).zip(&self.locs);
+        for (((c, &a), loc), &ok) in samples.zip(&self.carry) {
+            let Some(c) = c else { continue };
+            let d2 = c.distance * c.distance;
+            let f = &mut s.per_face[loc.face.0 as usize];
+            f.0 += a * d2;
+            f.1 += a;
+            s.all += a * d2;
+            s.area += a;
+            if !ok {
+                f.2 += a * d2;
+                s.lost += a * d2;
+            }
+        }
+        s
+    }
+
+    fn mesh_sums(&self, faces: usize) -> MeshSums {
+        let mut s = MeshSums {
+            lost: vec![0.0; faces],
+            all: 0.0,
+            area: 0.0,
+        };
+        for (c, &a) in self.nearest.iter().zip(&self.m_areas) {
+            let Some(c) = c else { continue };
+            s.area += a;
+            let t = self.surface.triangles[c.triangle as usize];
+            if t.iter().filter(|&&v| !self.carry[v as usize]).count() >= 2 {
+                let e = a * c.distance * c.distance;
+                s.lost[self.tri_face[c.triangle as usize] as usize] += e;
+                s.all += e;
+            }
+        }
+        s
+    }
+}
+
+/// `e / a`'s root, 0 for no area.
+fn rms_of(e: f64, a: f64) -> f64 {
+    (e / f64::max(a, f64::MIN_POSITIVE)).sqrt()
+}
+
 /// The limit surface of `control` against `mesh` (M′, `caster` over it):
 /// the area-weighted RMS distance of its samples to M′, its far patches,
 /// the uncarried RMS and the patches holding its share, and the factors
 /// on h they ask for (module docs).
 pub fn off_m(mesh: &TriMesh, caster: &BvhCaster, control: &ControlMesh) -> Result<OffM> {
-    let k = super::field::grid_cells(mesh, control);
-    let (surface, tri_face, locs, evaluator) = super::field::limit_grid(control, k)?;
-    let weights = crate::report::vertex_areas(&surface);
-    let near = caster.closest_points(&surface.positions, f64::INFINITY)?;
-    let dist: Vec<f64> = near
-        .iter()
-        .map(|c| c.as_ref().map_or(0.0, |c| c.distance))
-        .collect();
-    let points = evaluator.evaluate(control.positions(), &locs)?;
-    let slack = 0.5 * mean_edge(mesh);
-    let max_dist = crate::project::default_max_dist(mesh);
-    let carry = carried(caster, &points, &dist, max_dist, slack)?;
+    let g = Carried::new(mesh, mesh, caster, control)?;
     let faces = control.num_faces();
-    let mut sum = vec![(0.0, 0.0, 0.0); faces];
-    let (mut all, mut lost, mut area) = (0.0, 0.0, 0.0);
-    for (((c, &a), loc), &ok) in near.iter().zip(&weights).zip(&locs).zip(&carry) {
-        let Some(c) = c else { continue };
-        let d2 = c.distance * c.distance;
-        let s = &mut sum[loc.face.0 as usize];
-        s.0 += a * d2;
-        s.1 += a;
-        all += a * d2;
-        area += a;
-        if !ok {
-            s.2 += a * d2;
-            lost += a * d2;
-        }
-    }
-    let area = f64::max(area, f64::MIN_POSITIVE);
-    let rms = (all / area).sqrt();
+    let on_limit = g.limit_sums(faces);
+    let rms = rms_of(on_limit.all, on_limit.area);
     // M → D: a vertex of M′ whose nearest limit point lies where the
     // samples are not carried (two of its grid triangle's three) is left
     // about that distance from the displaced surface.
-    let grid = BvhCaster::new(&surface)?;
-    let nearest = grid.closest_points(&mesh.positions, f64::INFINITY)?;
-    let m_areas = crate::report::vertex_areas(mesh);
-    let mut m_lost = vec![0.0; faces];
-    let (mut m_all, mut m_area) = (0.0, 0.0);
-    for (c, &a) in nearest.iter().zip(&m_areas) {
-        let Some(c) = c else { continue };
-        m_area += a;
-        let t = surface.triangles[c.triangle as usize];
-        if t.iter().filter(|&&v| !carry[v as usize]).count() >= 2 {
-            let e = a * c.distance * c.distance;
-            m_lost[tri_face[c.triangle as usize] as usize] += e;
-            m_all += e;
-        }
-    }
-    let m_area = f64::max(m_area, f64::MIN_POSITIVE);
-    let uncarried = f64::max((lost / area).sqrt(), (m_all / m_area).sqrt());
+    let on_mesh = g.mesh_sums(faces);
+    let (lost, m_all) = (on_limit.lost, on_mesh.all);
+    let uncarried = f64::max(rms_of(lost, on_limit.area), rms_of(m_all, on_mesh.area));
+    let sum = &on_limit.per_face;
+    let m_lost = &on_mesh.lost;
+    let d_lost: Vec<f64> = sum.iter().map(|s| s.2).collect();
+    let direction = usize::from(rms_of(m_all, on_mesh.area) > rms_of(lost, on_limit.area));
+    let concentration = Concentration::of([&d_lost, m_lost], [lost, m_all], direction);
     let patch_rms: Vec<f64> = sum
         .iter()
         .map(|&(e, a, _)| if a > 0.0 { (e / a).sqrt() } else { 0.0 })
@@ -324,7 +500,7 @@ pub fn off_m(mesh: &TriMesh, caster: &BvhCaster, control: &ControlMesh) -> Resul
     let holds = |e: f64, total: f64| total > 0.0 && e >= share * total;
     let is_d_far: Vec<bool> = sum
         .iter()
-        .zip(&m_lost)
+        .zip(m_lost)
         .map(|(s, &m)| holds(s.2, lost) || holds(m, m_all))
         .collect();
     let pick =
@@ -349,15 +525,15 @@ pub fn off_m(mesh: &TriMesh, caster: &BvhCaster, control: &ControlMesh) -> Resul
         let mut factor = vec![1.0; mesh.positions.len()];
         // The vertices of M′ whose nearest limit point lies on a marked
         // patch (the part of M′ it stands for) ...
-        for (v, c) in nearest.iter().enumerate() {
+        for (v, c) in g.nearest.iter().enumerate() {
             let Some(c) = c else { continue };
-            let f = tri_face[c.triangle as usize] as usize;
+            let f = g.tri_face[c.triangle as usize] as usize;
             factor[v] = f64::min(factor[v], of[f]);
         }
         // ... and those under its samples (across a thin part the
         // samples' nearest points lie on both sheets, some nearer to other
         // patches).
-        for (c, loc) in near.iter().zip(&locs) {
+        for (c, loc) in g.near.iter().zip(&g.locs) {
             let Some(c) = c else { continue };
             let x = of[loc.face.0 as usize];
             if x < 1.0 {
@@ -375,6 +551,7 @@ pub fn off_m(mesh: &TriMesh, caster: &BvhCaster, control: &ControlMesh) -> Resul
         far,
         uncarried,
         d_far,
+        concentration,
     })
 }
 
@@ -387,43 +564,13 @@ pub fn off_m(mesh: &TriMesh, caster: &BvhCaster, control: &ControlMesh) -> Resul
 /// point is not carried. M′ at τ 10 % is too coarse a stand-in for M
 /// (gargoyle at 402, docs/status.md session 11).
 pub fn on_m(on: &OnM<'_>, layout: &TriMesh, control: &ControlMesh) -> Result<f64> {
-    let mesh = on.mesh;
-    let k = super::field::grid_cells(layout, control);
-    let (surface, _, locs, evaluator) = super::field::limit_grid(control, k)?;
-    let weights = crate::report::vertex_areas(&surface);
-    let near = on
-        .caster
-        .closest_points(&surface.positions, f64::INFINITY)?;
-    let dist: Vec<f64> = near
-        .iter()
-        .map(|c| c.as_ref().map_or(0.0, |c| c.distance))
-        .collect();
-    let points = evaluator.evaluate(control.positions(), &locs)?;
-    let slack = 0.5 * mean_edge(mesh);
-    let max_dist = crate::project::default_max_dist(mesh);
-    let carry = carried(on.caster, &points, &dist, max_dist, slack)?;
-    let (mut lost, mut area) = (0.0, 0.0);
-    for ((c, &a), &ok) in near.iter().zip(&weights).zip(&carry) {
-        let Some(c) = c else { continue };
-        area += a;
-        if !ok {
-            lost += a * c.distance * c.distance;
-        }
-    }
-    let grid = BvhCaster::new(&surface)?;
-    let nearest = grid.closest_points(&mesh.positions, f64::INFINITY)?;
-    let m_areas = crate::report::vertex_areas(mesh);
-    let (mut m_lost, mut m_area) = (0.0, 0.0);
-    for (c, &a) in nearest.iter().zip(&m_areas) {
-        let Some(c) = c else { continue };
-        m_area += a;
-        let t = surface.triangles[c.triangle as usize];
-        if t.iter().filter(|&&v| !carry[v as usize]).count() >= 2 {
-            m_lost += a * c.distance * c.distance;
-        }
-    }
-    let rms = |e: f64, a: f64| (e / f64::max(a, f64::MIN_POSITIVE)).sqrt();
-    Ok(f64::max(rms(lost, area), rms(m_lost, m_area)))
+    let g = Carried::new(layout, on.mesh, on.caster, control)?;
+    let faces = control.num_faces();
+    let (on_limit, on_mesh) = (g.limit_sums(faces), g.mesh_sums(faces));
+    Ok(f64::max(
+        rms_of(on_limit.lost, on_limit.area),
+        rms_of(on_mesh.all, on_mesh.area),
+    ))
 }
 
 /// The pipeline's displacement and metrics on `control` (refined once
@@ -594,10 +741,18 @@ pub(super) fn second_round(
         r.off_m_permille = Some(permille * m0.rms);
         r.patches_off_m = Some(m0.far.len() + m0.d_far.len());
         r.uncarried_permille = Some(permille * m0.uncarried);
+        r.uncarried_top_percent = Some(
+            m0.concentration
+                .top
+                .concat()
+                .iter()
+                .map(|x| 100.0 * x)
+                .collect(),
+        );
     }
-    let chain = match permille * m0.uncarried < CHAIN_MIN_UNCARRIED_PERMILLE {
-        true => 0,
-        false => d_rounds(),
+    let chain = match chain_runs(&m0, permille) {
+        true => d_rounds(),
+        false => 0,
     };
     if m0.far.is_empty() && (chain == 0 || m0.d_far.is_empty()) {
         return Ok(first);
@@ -623,6 +778,7 @@ pub(super) fn second_round(
     }
     let mut acc = vec![1.0; mesh.positions.len()];
     let mut marks = m0.factor.clone();
+    let split_from = (chain > 0 && split_enabled()).then(|| first.control.clone());
     let mut best = (Judged::of(&m0, &first, &x0), first, None::<usize>);
     let mut i = 0;
     while i < plan.len() + chain {
@@ -675,10 +831,139 @@ pub(super) fn second_round(
             marks = m1.factor;
         }
     }
+    if let Some(c) = split_from {
+        let cx = SplitCtx {
+            relayout,
+            fo,
+            h: &h0.1,
+            caster: &caster,
+            on,
+            judge,
+        };
+        if let Some((j1, next, round)) = split_fitted(timer, &cx, &c, &m0.concentration, &mut fit)?
+        {
+            rounds.push(round);
+            let at_count = off(next.control.num_faces()) <= SPLIT_COUNT_WINDOW * n;
+            if at_count && j1.beats(&best.0, &j0) {
+                best = (j1, next, Some(rounds.len() - 1));
+            }
+        }
+    }
     if let Some(i) = best.2 {
         rounds[i].kept = Some(true);
     }
     Ok(best.1)
+}
+
+/// What the split round ([`split_fitted`]) takes of the run.
+struct SplitCtx<'a> {
+    relayout: &'a FieldRelayout,
+    fo: &'a FieldOptions,
+    /// The first layout's sizing.
+    h: &'a [f64],
+    caster: &'a BvhCaster,
+    on: &'a OnM<'a>,
+    judge: Option<Judge>,
+}
+
+/// The split round (`SUBDFIT_THIN_SPLIT=1`, session 13): splitting the
+/// first round's worst patch ([`split_round`]) adds patches (spot at 80:
+/// 93), so the lattice is laid again at N less that growth on the first
+/// layout's sizing, fitted, and its own worst patch split
+/// ([`Concentration::order`]); that mesh fitted and measured as the
+/// chain's rounds are. `None` when nothing could be split.
+fn split_fitted<F>(
+    timer: &mut StageTimer,
+    cx: &SplitCtx<'_>,
+    first: &ControlMesh,
+    concentration: &Concentration,
+    fit: &mut F,
+) -> Result<Option<(Judged, Fitted, FieldRound)>>
+where
+    F: FnMut(&mut StageTimer, ControlMesh) -> Result<Fitted>,
+{
+    let mesh = &cx.relayout.mesh;
+    let permille = 1000.0 / mesh.bbox_diagonal();
+    let grown = timer.run("field refinement", || {
+        split_round(cx.caster, first, concentration)
+    })?;
+    let Some(grown) = grown else {
+        return Ok(None);
+    };
+    let added = grown.num_faces().saturating_sub(first.num_faces());
+    let n = cx.fo.target_faces.unwrap_or(first.num_faces());
+    let fo = FieldOptions {
+        target_faces: Some(n.saturating_sub(added).max(1)),
+        ..cx.fo.clone()
+    };
+    let r = &cx.relayout;
+    let laid = timer.run("field layout", || {
+        field_layout_counted(&r.prepared, mesh, &r.fitmap, cx.h.to_vec(), &fo)
+    })?;
+    let base = fit(timer, laid.control)?;
+    let m = timer.run("thin round", || off_m(mesh, cx.caster, &base.control))?;
+    let split = timer.run("field refinement", || {
+        split_round(cx.caster, &base.control, &m.concentration)
+    })?;
+    let Some(c) = split else {
+        return Ok(None);
+    };
+    let (faces, irregular) = (c.num_faces(), crate::quad::field::irregular_vertices(&c));
+    let next = fit(timer, c)?;
+    let m1 = timer.run("thin round", || off_m(mesh, cx.caster, &next.control))?;
+    let x1 = Measured::of(timer, cx.on, mesh, &next.control, cx.judge)?;
+    let j1 = Judged::of(&m1, &next, &x1);
+    let mut round = FieldRound {
+        target_faces: cx.fo.target_faces,
+        faces,
+        irregular_vertices: irregular,
+        fit_rms_permille: next.report.final_rms_permille,
+        size_factor: Some(laid.stats.size_factor),
+        off_m_permille: Some(permille * m1.rms),
+        patches_off_m: Some(m1.far.len() + m1.d_far.len()),
+        uncarried_permille: Some(permille * m1.uncarried),
+        patches_split: Some(1),
+        kept: Some(false),
+        ..Default::default()
+    };
+    x1.record(&mut round, permille);
+    Ok(Some((j1, next, round)))
+}
+
+/// Session 13, off by default (`SUBDFIT_THIN_SPLIT=1`): a local
+/// refinement where the uncarried distance concentrates, instead of a new
+/// lattice (spot at 81: every re-laid round moved the whole lattice, RMS
+/// L 10.8–18.7‰ against 9.18). The first round's control mesh with the
+/// patch holding the largest share split 1 → 4, conforming transitions
+/// around it ([`crate::quad::field::refine`], every other quad kept), and
+/// every vertex moved onto M′ (the refit then starts as a layout's does;
+/// a fitted start set the fit's outlier rule too tight, see
+/// `refine_locally` in [`super::field`]). `None` when the mesh is not pure
+/// quad or no patch holds any uncarried distance.
+fn split_round(
+    caster: &BvhCaster,
+    control: &ControlMesh,
+    c: &Concentration,
+) -> Result<Option<ControlMesh>> {
+    use crate::quad::field::refine;
+    let Some(&worst) = c.order.first() else {
+        return Ok(None);
+    };
+    if !refine::refinable(control) {
+        return Ok(None);
+    }
+    let mut marked = vec![false; control.num_faces()];
+    marked[worst as usize] = true;
+    let mut split = refine::split(control, &refine::split_edges(control, &marked)?)?;
+    let near = caster.closest_points(split.positions(), f64::INFINITY)?;
+    let positions = split
+        .positions()
+        .iter()
+        .zip(near)
+        .map(|(p, c)| c.map_or(*p, |c| c.point))
+        .collect();
+    split.set_positions(positions)?;
+    Ok(Some(split))
 }
 
 #[cfg(test)]
@@ -910,6 +1195,78 @@ mod tests {
             .collect();
         c.set_positions(p).expect("positions");
         c
+    }
+
+    /// `n` × `n` unit quads lifted to z = `z`.
+    fn lifted_grid(n: usize, z: f64) -> ControlMesh {
+        let mut control = grid(n, 0.0);
+        let p: Vec<DVec3> = control
+            .positions()
+            .iter()
+            .map(|p| *p + DVec3::new(0.0, 0.0, z))
+            .collect();
+        control.set_positions(p).expect("positions");
+        control
+    }
+
+    /// Two triangle meshes as one (their vertices apart).
+    fn union(a: TriMesh, b: TriMesh) -> TriMesh {
+        let base = a.positions.len() as u32;
+        let mut positions = a.positions;
+        positions.extend(b.positions);
+        let mut triangles = a.triangles;
+        triangles.extend(b.triangles.iter().map(|t| t.map(|v| v + base)));
+        TriMesh {
+            positions,
+            triangles,
+        }
+    }
+
+    /// The worst patches' cumulative shares and their order, per
+    /// direction; no share without any uncarried distance.
+    #[test]
+    fn the_concentration_counts_the_worst_patches() {
+        let d = [0.0, 6.0, 1.0, 3.0];
+        let m = [1.0, 1.0, 1.0, 1.0];
+        let c = Concentration::of([&d, &m], [10.0, 4.0], 0);
+        assert_eq!(c.top[0], [0.6, 0.9, 1.0]);
+        assert_eq!(c.top[1], [0.25, 0.5, 0.75]);
+        assert_eq!(c.order, vec![1, 3, 2]);
+        assert_eq!(c.share(), c.top[0][CHAIN_TOP_PATCHES - 1]);
+        let none = Concentration::of([&[0.0; 4], &[0.0; 4]], [0.0, 0.0], 1);
+        assert_eq!(none.top, [[0.0; 3]; 2]);
+        assert!(none.order.is_empty());
+    }
+
+    /// The chain's gate on two limits 0.5 above M′ (a 4 × 4 grid over
+    /// [0, 4]²) that both leave patches uncarried (well above the 0.05‰
+    /// floor): where M′ lacks the corner [3, 5]² only the corner patch
+    /// overhangs, it holds most of the uncarried distance and the chain
+    /// runs; where M′ ends at x = 2 the two right columns (8 patches)
+    /// overhang alike, no patch holds [`CHAIN_MIN_TOP_SHARE`] and the
+    /// chain is skipped (gargoyle τ 10 %'s spread error, session 13).
+    /// Before session 13 only the floor gated it: both would run.
+    #[test]
+    fn the_chain_runs_only_where_the_uncarried_distance_concentrates() {
+        let control = lifted_grid(4, 0.5);
+        let corner = union(
+            rectangle(6, 4, 3, DVec3::new(-1.0, -1.0, 0.0)),
+            rectangle(4, 2, 3, DVec3::new(-1.0, 3.0, 0.0)),
+        );
+        let spread = rectangle(3, 6, 3, DVec3::new(-1.0, -1.0, 0.0));
+        for (mesh, runs) in [(corner, true), (spread, false)] {
+            let caster = BvhCaster::new(&mesh).expect("caster");
+            let m = off_m(&mesh, &caster, &control).expect("off_m");
+            let permille = 1000.0 / mesh.bbox_diagonal();
+            assert!(permille * m.uncarried > 10.0, "{}", m.uncarried);
+            let share = m.concentration.share();
+            assert_eq!(chain_runs(&m, permille), runs, "share {share}");
+            // The corner patch (3, 3) is face 15 and holds the most.
+            if runs {
+                assert!(share > 0.7, "{share}");
+                assert_eq!(m.concentration.order[0], 15);
+            }
+        }
     }
 
     /// With a measured RMS L, a later round whose D is lower is still not
