@@ -567,28 +567,35 @@ pub const SPARSE_RULE: &str =
     "seeds disagreeing on F_M: the rounded mean of their steps, not an analysis";
 
 /// [`SPARSE_RULE`]'s values for `v` from its defined analysed neighbours
-/// (F_S their mean, F_M the rounded mean of their steps); `None` when it
-/// has none.
+/// (F_S their mean, F_M the step of the mean of their F_M⁻², `ln_ratio`
+/// = ln(r_{i+1} / r_i)); `None` when it has none.
 pub(super) fn interpolate_disagreeing(
     vv: &Csr,
     v: usize,
     results: &[VertexResult],
     analysed: &[bool],
+    ln_ratio: f64,
 ) -> Option<VertexResult> {
-    let (mut s, mut steps, mut k) = (0.0, 0usize, 0usize);
+    let (mut s, mut inv2, mut k) = (0.0, 0.0, 0usize);
     for &w in vv.row(v) {
         let r = &results[w as usize];
         if analysed[w as usize] && r.defined {
             s += r.s;
-            steps += r.m_step as usize;
+            // r⁻² relative to r_0: radii[i] = r_0 q^i, q = e^ln_ratio.
+            inv2 += (-2.0 * ln_ratio * r.m_step as f64).exp();
             k += 1;
         }
     }
     if k == 0 {
         return None;
     }
-    // Round half up, in integers: (2 Σ + k) / 2k.
-    let step = ((2 * steps + k) / (2 * k)).min(RADIUS_STEPS) as u8;
+    // The step whose r⁻² is nearest (in log) to the mean of the seeds'.
+    let x = -(inv2 / k as f64).ln() / (2.0 * ln_ratio);
+    let step = if x.is_finite() {
+        x.round().clamp(0.0, RADIUS_STEPS as f64) as u8
+    } else {
+        0
+    };
     Some(VertexResult {
         s: s / k as f64,
         m_step: step,
@@ -825,6 +832,59 @@ fn pick(cum: &[f64], u: f64) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// [`SPARSE_RULE`] on a star (vertex 0, neighbours 1..=k): the seeds'
+    /// step when they agree; between the lowest and highest step, and at
+    /// or below their rounded mean (F_M⁻² weighs the small radii), when
+    /// they do not; exactly the step of the mean F_M⁻² on a worked case;
+    /// F_S their mean; neighbours not analysed or undefined ignored; `None`
+    /// with no usable neighbour.
+    #[test]
+    fn sparse_rule_takes_the_mean_inverse_square_radius() {
+        let ln_q = 1.6f64.ln();
+        let star = |steps: &[u8]| {
+            let k = steps.len() as u32;
+            let vv = Csr::from_pairs(k as usize + 1, (1..=k).map(|w| (0, w)).collect());
+            let mut results = vec![VertexResult::default(); k as usize + 1];
+            for (j, &st) in steps.iter().enumerate() {
+                results[j + 1] = VertexResult {
+                    s: 1.0 + j as f64,
+                    m_step: st,
+                    defined: true,
+                    ..Default::default()
+                };
+            }
+            (vv, results)
+        };
+        let (vv, results) = star(&[5, 5, 5]);
+        let all = vec![true; 4];
+        let r = interpolate_disagreeing(&vv, 0, &results, &all, ln_q).unwrap();
+        assert_eq!(r.m_step, 5);
+        assert_eq!(r.s, 2.0);
+        // {3, 7}: x = -ln((q⁻⁶ + q⁻¹⁴) / 2) / (2 ln q) = 3.70 -> 4, below
+        // the plain mean 5.
+        let (vv, results) = star(&[3, 7]);
+        let r = interpolate_disagreeing(&vv, 0, &results, &all[..3], ln_q).unwrap();
+        let x = -((1.6f64.powi(-6) + 1.6f64.powi(-14)) / 2.0).ln() / (2.0 * ln_q);
+        assert!((x - 3.70).abs() < 0.01, "{x}");
+        assert_eq!(r.m_step, 4);
+        for steps in [[0u8, 8, 8, 8], [2, 3, 3, 6], [8, 7, 8, 7], [1, 1, 1, 2]] {
+            let (vv, results) = star(&steps);
+            let r = interpolate_disagreeing(&vv, 0, &results, &[true; 5], ln_q).unwrap();
+            let (lo, hi) = (*steps.iter().min().unwrap(), *steps.iter().max().unwrap());
+            let mean = steps.iter().map(|&x| x as f64).sum::<f64>() / 4.0;
+            assert!(r.m_step >= lo && r.m_step <= hi, "{steps:?} {}", r.m_step);
+            assert!(r.m_step as f64 <= mean.round(), "{steps:?} {}", r.m_step);
+            assert_eq!(r.m_floor, r.m_step == 0);
+        }
+        // Only analysed, defined neighbours count.
+        let (vv, mut results) = star(&[2, 8, 8]);
+        results[1].defined = false;
+        let r = interpolate_disagreeing(&vv, 0, &results, &[true; 4], ln_q).unwrap();
+        assert_eq!((r.m_step, r.s), (8, 2.5));
+        let r = interpolate_disagreeing(&vv, 0, &results, &[true, true, false, false], ln_q);
+        assert!(r.is_none());
+    }
 
     /// `batch_decided` relies on both Wilson bounds being non-decreasing in
     /// the flipped count at every sample size the sequential test reaches

@@ -1200,8 +1200,14 @@ pub fn compute_fitmap_cancellable(
         analysed[p as usize] = true;
     }
     if !opts.exact {
-        let (fallback, s_only) =
-            interpolate_unseeded(&ctx.adj.vv, &mut results, &analysed, &mut cap_of, sparse);
+        let (fallback, s_only) = interpolate_unseeded(
+            &ctx.adj.vv,
+            &mut results,
+            &analysed,
+            &mut cap_of,
+            sparse,
+            (ctx.radii[RADIUS_STEPS] / ctx.radii[0]).ln() / RADIUS_STEPS as f64,
+        );
         progress(nv - first.len() - fallback.len() - s_only.len());
         // Fallbacks and F_S-only vertices in one parallel run: each result
         // depends on its vertex alone, and one run has one tail where the
@@ -1410,6 +1416,7 @@ fn interpolate_unseeded(
     analysed: &[bool],
     cap_of: &mut [u8],
     sparse: bool,
+    ln_ratio: f64,
 ) -> (Vec<u32>, Vec<u32>) {
     let mut fallback = Vec::new();
     let mut s_only = Vec::new();
@@ -1420,7 +1427,7 @@ fn interpolate_unseeded(
         let range = seed_neighbour_range(vv, v, results, analysed);
         let found = interpolate_from_seeds(vv, v, results, analysed).or_else(|| {
             sparse
-                .then(|| interpolate_disagreeing(vv, v, results, analysed))
+                .then(|| interpolate_disagreeing(vv, v, results, analysed, ln_ratio))
                 .flatten()
         });
         match found {
