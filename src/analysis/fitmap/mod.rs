@@ -69,12 +69,13 @@ mod fast;
 use exact::analyse_vertex_exact;
 pub use exact::exact_flip_fractions;
 use fast::{
-    analyse_vertex_fast, fast_seeds, interpolate_from_seeds, seed_neighbour_range, NO_M_TEST,
+    analyse_vertex_fast, fast_seeds, interpolate_disagreeing, interpolate_from_seeds,
+    seed_neighbour_range, NO_M_TEST,
 };
 pub use fast::{
     FAST_LEVEL0_MAX_VERTICES, FAST_LITERAL_FALLBACK_MAX_TRIANGLES, FAST_LITERAL_M_MAX_TRIANGLES,
     FAST_MAX_FIT_POINTS, FAST_M_BATCH, FAST_M_SAMPLES, FAST_M_STEPS_ABOVE_SEEDS, FAST_M_Z,
-    FAST_PROXY_CELLS_PER_RADIUS, FAST_SEED_RULE, FAST_S_DIRECT_SPREAD,
+    FAST_PROXY_CELLS_PER_RADIUS, FAST_SEED_RULE, FAST_S_DIRECT_SPREAD, SPARSE_RULE,
 };
 
 use std::time::Instant;
@@ -136,6 +137,11 @@ pub struct FitmapOptions {
     /// Seed of the random samples: the M-test samples of each triangle
     /// ([`MSamples`]) and the fast mode's draws per vertex and radius.
     pub seed: u64,
+    /// Fast mode, off by default: analyse fewer vertices and interpolate
+    /// more ([`SPARSE_RULE`]); also on with [`SPARSE_ENV`]`=1`. Not the
+    /// same values as the default fast mode (docs/status.md, "Scale").
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub sparse: bool,
 }
 
 impl Default for FitmapOptions {
@@ -145,6 +151,7 @@ impl Default for FitmapOptions {
             exact: false,
             certify: false,
             seed: 0x005e_edf1_7aa9,
+            sparse: false,
         }
     }
 }
@@ -166,7 +173,20 @@ impl FitmapOptions {
         self.seed = s;
         self
     }
+    pub fn with_sparse(mut self, s: bool) -> Self {
+        self.sparse = s;
+        self
+    }
+    /// Whether the sparse fast mode runs: [`FitmapOptions::sparse`], or
+    /// [`SPARSE_ENV`]`=1` (a switch for measuring it in `convert` without
+    /// a new option).
+    pub fn sparse_on(&self) -> bool {
+        !self.exact && (self.sparse || std::env::var_os(SPARSE_ENV).is_some_and(|v| v == "1"))
+    }
 }
+
+/// Environment switch of [`FitmapOptions::sparse`].
+pub const SPARSE_ENV: &str = "SUBDFIT_FITMAP_SPARSE";
 
 /// Counters and timings of one computation.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
@@ -1163,6 +1183,7 @@ pub fn compute_fitmap_cancellable(
         }
         out
     };
+    let sparse = opts.sparse_on();
     let mut cap_of = vec![RADIUS_STEPS as u8; nv];
     let mut results = vec![VertexResult::default(); nv];
     let mut analysed = vec![false; nv];
@@ -1179,16 +1200,27 @@ pub fn compute_fitmap_cancellable(
         analysed[p as usize] = true;
     }
     if !opts.exact {
-        let (fallback, s_only) =
-            interpolate_unseeded(&ctx.adj.vv, &mut results, &analysed, &mut cap_of);
+        let (fallback, s_only) = interpolate_unseeded(
+            &ctx.adj.vv,
+            &mut results,
+            &analysed,
+            &mut cap_of,
+            sparse,
+            (ctx.radii[RADIUS_STEPS] / ctx.radii[0]).ln() / RADIUS_STEPS as f64,
+        );
         progress(nv - first.len() - fallback.len() - s_only.len());
-        for (&p, r) in fallback.iter().zip(run(&fallback, &cap_of)) {
-            results[p as usize] = r;
-            analysed[p as usize] = true;
-        }
-        for (&p, r) in s_only.iter().zip(run(&s_only, &cap_of)) {
-            if r.defined {
-                results[p as usize].s = r.s;
+        // Fallbacks and F_S-only vertices in one parallel run: each result
+        // depends on its vertex alone, and one run has one tail where the
+        // cores wait for the last vertices instead of two.
+        let list: Vec<u32> = fallback.iter().chain(&s_only).copied().collect();
+        for (&p, r) in list.iter().zip(run(&list, &cap_of)) {
+            if cap_of[p as usize] == NO_M_TEST {
+                if r.defined {
+                    results[p as usize].s = r.s;
+                }
+            } else {
+                results[p as usize] = r;
+                analysed[p as usize] = true;
             }
         }
     }
@@ -1370,7 +1402,10 @@ impl<'a> Ctx<'a> {
 }
 
 /// Fast mode, after the seeds: each other vertex takes the interpolation
-/// of its seed neighbours ([`interpolate_from_seeds`]). Returns the
+/// of its seed neighbours ([`interpolate_from_seeds`]; in the sparse mode
+/// also where they disagree on F_M, [`interpolate_disagreeing`]).
+/// Sequential: one pass of a few neighbour reads per vertex (about a
+/// millisecond on bunny), between two parallel runs that need all of it. Returns the
 /// vertices to analyse after all — the fallbacks (no usable seed
 /// neighbour; their M-test capped above the seeds' F_M) and those whose
 /// seeds disagree too much on F_S to interpolate it (`s_only`: F_S
@@ -1380,6 +1415,8 @@ fn interpolate_unseeded(
     results: &mut [VertexResult],
     analysed: &[bool],
     cap_of: &mut [u8],
+    sparse: bool,
+    ln_ratio: f64,
 ) -> (Vec<u32>, Vec<u32>) {
     let mut fallback = Vec::new();
     let mut s_only = Vec::new();
@@ -1388,7 +1425,12 @@ fn interpolate_unseeded(
             continue;
         }
         let range = seed_neighbour_range(vv, v, results, analysed);
-        match interpolate_from_seeds(vv, v, results, analysed) {
+        let found = interpolate_from_seeds(vv, v, results, analysed).or_else(|| {
+            sparse
+                .then(|| interpolate_disagreeing(vv, v, results, analysed, ln_ratio))
+                .flatten()
+        });
+        match found {
             Some(r) => {
                 results[v] = r;
                 if let Some(((lo, hi), _)) = range {
