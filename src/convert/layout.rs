@@ -91,6 +91,27 @@ pub struct FieldRelayout {
     pub fitmap: Fitmap,
     /// The cross field and caster on `mesh`, shared by every relayout.
     pub prepared: crate::quad::field::Prepared,
+    /// When `mesh` is M itself renumbered by position (no proxy), a caster
+    /// over it: the field's fits then run on it, so that the rounds'
+    /// decisions (patches refined at a threshold) do not turn on the float
+    /// noise of M's own numbering ([`FieldRelayout::fit_target`]).
+    pub fit_caster: Option<Box<dyn crate::raycast::RayCaster>>,
+}
+
+impl FieldRelayout {
+    /// The mesh and caster the field layout's fits run on: `mesh` with
+    /// [`FieldRelayout::fit_caster`] when it is M renumbered, else M
+    /// (`m`, `caster`).
+    pub fn fit_target<'a>(
+        &'a self,
+        m: &'a crate::mesh::TriMesh,
+        caster: &'a dyn crate::raycast::RayCaster,
+    ) -> (&'a crate::mesh::TriMesh, &'a dyn crate::raycast::RayCaster) {
+        match &self.fit_caster {
+            Some(c) => (&self.mesh, c.as_ref()),
+            None => (m, caster),
+        }
+    }
 }
 
 impl Layout {
@@ -203,10 +224,20 @@ fn organic_greedy(
 /// accept.
 fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOptions) -> Result<Laid> {
     let mesh = run.mesh();
-    let (proxy, proxy_stats) = layout_proxy(mesh, opts.proxy, &mut run.timer, run.progress)?;
-    let (layout, layout_caster) = match &proxy {
-        Some((m, c)) => (m, c.as_ref()),
-        None => (mesh, run.caster.as_ref()),
+    // The layout side (proxy, Fitmap, field) runs on M renumbered by
+    // position (issue 40 item 4): the Fitmap's seeds and random streams
+    // go by vertex index, and spot renumbered laid 188 → 239 patches at
+    // the defaults through a Fitmap that differed on every vertex.
+    let (canon, order) = crate::quad::field::parts::canonical_mesh(mesh);
+    let (proxy, proxy_stats) = layout_proxy(&canon, opts.proxy, &mut run.timer, run.progress)?;
+    let canon_caster = match &proxy {
+        Some(_) => None,
+        None => Some(make_raycaster(RayBackend::Embree, &canon)?),
+    };
+    let (layout, layout_caster) = match (&proxy, &canon_caster) {
+        (Some((m, c)), _) => (m, c.as_ref()),
+        (None, Some(c)) => (&canon, c.as_ref()),
+        (None, None) => return Err(Error::internal("field layout: no caster on M renumbered")),
     };
     let (timer, progress) = (&mut run.timer, &mut *run.progress);
     let stage = crate::fit::report_progress;
@@ -220,7 +251,12 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
             .map(|laid| (laid, prep))
     })?;
     stage(progress, "field layout", 1.0)?;
-    let on_m = fitmap_on_m(&proxy, fitmap.clone(), mesh, timer)?;
+    let on_canon = fitmap_on_m(&proxy, fitmap.clone(), &canon, timer)?;
+    let mut back = vec![0u32; order.len()];
+    for (i, &v) in order.iter().enumerate() {
+        back[v as usize] = i as u32;
+    }
+    let on_m = on_canon.permuted(&back);
     Ok(Laid {
         control: laid.control,
         checkpoints: Vec::new(),
@@ -232,6 +268,7 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
                 mesh: layout.clone(),
                 fitmap,
                 prepared,
+                fit_caster: canon_caster,
             }),
         },
     })
