@@ -89,10 +89,7 @@ pub(super) fn split(mesh: &TriMesh) -> Vec<(Vec<u32>, TriMesh)> {
     }
     let mut slot = vec![usize::MAX; n];
     let mut members: Vec<Vec<u32>> = Vec::new();
-    for v in 0..n {
-        if !used[v] {
-            continue;
-        }
+    for v in (0..n).filter(|&v| used[v]) {
         let r = uf.find(v);
         if slot[r] == usize::MAX {
             slot[r] = members.len();
