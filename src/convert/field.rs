@@ -244,7 +244,7 @@ pub fn fit_field(
     record: impl Fn(&[FieldRound]) -> super::FittedRun,
 ) -> Result<Converted> {
     let mut timer = run.take_timer();
-    let (mesh, caster) = (run.mesh(), run.caster.as_ref());
+    let (mesh, caster) = relayout.fit_target(run.mesh(), run.caster.as_ref());
     let mut rounds: Vec<FieldRound> = Vec::new();
     let (mut control, mut target) = (control, opts.target_faces);
     let fo = FieldOptions::default().with_target_faces(opts.target_faces);
@@ -398,7 +398,7 @@ impl Ends<'_> {
     ) -> Result<crate::fit::Fitted> {
         let (opts, relayout, po, fo, max_error) =
             (self.opts, self.relayout, self.po, self.fo, self.max_error);
-        let (mesh, caster) = (run.mesh(), run.caster.as_ref());
+        let (mesh, caster) = relayout.fit_target(run.mesh(), run.caster.as_ref());
         if let Some(e) = max_error.map(|e| 1000.0 * e).filter(|e| e.is_finite()) {
             if opts.target_faces.is_none() && bracket_enabled() {
                 let mut fit = |timer: &mut StageTimer, c: ControlMesh| {

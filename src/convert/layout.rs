@@ -91,6 +91,27 @@ pub struct FieldRelayout {
     pub fitmap: Fitmap,
     /// The cross field and caster on `mesh`, shared by every relayout.
     pub prepared: crate::quad::field::Prepared,
+    /// When `mesh` is M itself renumbered by position (no proxy), a caster
+    /// over it: the field's fits then run on it, so that the rounds'
+    /// decisions (patches refined at a threshold) do not turn on the float
+    /// noise of M's own numbering ([`FieldRelayout::fit_target`]).
+    pub fit_caster: Option<Box<dyn crate::raycast::RayCaster>>,
+}
+
+impl FieldRelayout {
+    /// The mesh and caster the field layout's fits run on: `mesh` with
+    /// [`FieldRelayout::fit_caster`] when it is M renumbered, else M
+    /// (`m`, `caster`).
+    pub fn fit_target<'a>(
+        &'a self,
+        m: &'a crate::mesh::TriMesh,
+        caster: &'a dyn crate::raycast::RayCaster,
+    ) -> (&'a crate::mesh::TriMesh, &'a dyn crate::raycast::RayCaster) {
+        match &self.fit_caster {
+            Some(c) => (&self.mesh, c.as_ref()),
+            None => (m, caster),
+        }
+    }
 }
 
 impl Layout {
@@ -203,10 +224,26 @@ fn organic_greedy(
 /// accept.
 fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOptions) -> Result<Laid> {
     let mesh = run.mesh();
-    let (proxy, proxy_stats) = layout_proxy(mesh, opts.proxy, &mut run.timer, run.progress)?;
-    let (layout, layout_caster) = match &proxy {
-        Some((m, c)) => (m, c.as_ref()),
-        None => (mesh, run.caster.as_ref()),
+    // With `SUBDFIT_FIELD_ORDER` set, the layout side (proxy, Fitmap,
+    // field) runs on M renumbered by position (issue 40 item 4): the
+    // Fitmap's seeds and random streams go by vertex index, and spot
+    // renumbered laid 188 → 239 patches at the defaults through a Fitmap
+    // that differed on every vertex. Off by default (session 13): the
+    // fixed order is one more draw of the lattice, and on the shared
+    // meshes it drew worse (homer 318 → 499 patches, bunny 409 → 652,
+    // gargoyle τ 1 % RMS D ×3.5; docs/status.md "Field-aligned layout").
+    let canonical = crate::quad::field::parts::Order::from_env()
+        .map(|o| crate::quad::field::parts::canonical_mesh_in(mesh, o));
+    let canon = canonical.as_ref().map_or(mesh, |c| &c.0);
+    let (proxy, proxy_stats) = layout_proxy(canon, opts.proxy, &mut run.timer, run.progress)?;
+    let canon_caster = match (&proxy, &canonical) {
+        (None, Some(_)) => Some(make_raycaster(RayBackend::Embree, canon)?),
+        _ => None,
+    };
+    let (layout, layout_caster) = match (&proxy, &canon_caster) {
+        (Some((m, c)), _) => (m, c.as_ref()),
+        (None, Some(c)) => (canon, c.as_ref()),
+        (None, None) => (mesh, run.caster.as_ref()),
     };
     let (timer, progress) = (&mut run.timer, &mut *run.progress);
     let stage = crate::fit::report_progress;
@@ -220,7 +257,17 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
             .map(|laid| (laid, prep))
     })?;
     stage(progress, "field layout", 1.0)?;
-    let on_m = fitmap_on_m(&proxy, fitmap.clone(), mesh, timer)?;
+    let on_canon = fitmap_on_m(&proxy, fitmap.clone(), canon, timer)?;
+    let on_m = match &canonical {
+        Some((_, order)) => {
+            let mut back = vec![0u32; order.len()];
+            for (i, &v) in order.iter().enumerate() {
+                back[v as usize] = i as u32;
+            }
+            on_canon.permuted(&back)
+        }
+        None => on_canon,
+    };
     Ok(Laid {
         control: laid.control,
         checkpoints: Vec::new(),
@@ -232,6 +279,7 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
                 mesh: layout.clone(),
                 fitmap,
                 prepared,
+                fit_caster: canon_caster,
             }),
         },
     })

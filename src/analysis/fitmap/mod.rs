@@ -246,6 +246,20 @@ pub struct Fitmap {
 }
 
 impl Fitmap {
+    /// The Fitmap on a renumbering of its mesh: `order[i]` is the vertex of
+    /// this Fitmap's mesh that vertex i of the other is (a permutation).
+    pub fn permuted(&self, order: &[u32]) -> Fitmap {
+        let pick = |f: &[f64]| order.iter().map(|&v| f[v as usize]).collect();
+        Fitmap {
+            radii: self.radii.clone(),
+            s: pick(&self.s),
+            m: pick(&self.m),
+            m_step: order.iter().map(|&v| self.m_step[v as usize]).collect(),
+            tolerance: self.tolerance,
+            stats: self.stats.clone(),
+        }
+    }
+
     #[inline]
     fn interp(field: &[f64], mesh: &TriMesh, tri: u32, u: f64, v: f64) -> f64 {
         let [a, b, c] = mesh.triangles[tri as usize];

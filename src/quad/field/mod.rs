@@ -28,6 +28,11 @@
 //! 5. [`cleanup`]: the greedy layout's limit-aware operators (diagonal
 //!    collapse, edge rotation, doublet removal, each with its local fit)
 //!    with a valence term, and a face target's last few collapses.
+//!
+//! Steps 1, 3 and 4 run on each connected component of M on its own,
+//! with its vertices renumbered by position ([`parts`]): several parts are
+//! laid out and joined, and the layout does not depend on the input's
+//! vertex order.
 
 pub mod cleanup;
 pub mod cross;
@@ -36,6 +41,7 @@ pub mod flip;
 pub mod flow;
 pub mod local;
 pub mod moves;
+pub mod parts;
 pub mod position;
 pub mod purequad;
 pub mod refine;
@@ -202,6 +208,18 @@ pub struct FieldStats {
     /// What [`cleanup::cleanup`] did (`None`: it did not run); `faces`,
     /// `vertices` and `irregular_vertices` above are then its result's.
     pub cleanup: Option<cleanup::CleanupStats>,
+    /// Connected components of M laid out on their own ([`parts`]); with
+    /// several, the figures above are the largest part's (by area) except
+    /// the counts of the joined mesh and the seconds, summed.
+    #[serde(default)]
+    pub parts: usize,
+    /// Parts whose size was lowered to [`parts::MIN_PART_FACES`] predicted
+    /// quads, and parts no lattice kept the topology of, laid out as their
+    /// own triangles split into quads ([`parts::split_triangles`]).
+    #[serde(default)]
+    pub parts_floored: usize,
+    #[serde(default)]
+    pub parts_split_triangles: usize,
 }
 
 /// The result of [`field_layout`].
@@ -219,7 +237,8 @@ pub struct FieldLayout {
 /// cross field and build the caster again for every size they try.
 pub struct Prepared {
     surf: Surface,
-    dirs: Vec<DVec3>,
+    /// M's connected components, each with its own cross field.
+    parts: Vec<parts::Part>,
     caster: Option<crate::raycast::bvh::BvhCaster>,
     /// The singularity counts and `seconds_cross`.
     stats: FieldStats,
@@ -229,10 +248,18 @@ impl Prepared {
     /// Steps shared by every size on `mesh` (the caster only when
     /// `opts.cleanup`).
     pub fn new(mesh: &TriMesh, opts: &FieldOptions) -> Result<Prepared> {
+        // M as a whole first: its errors name M's own vertices.
         let surf = Surface::new(mesh)?;
         let mut stats = FieldStats::default();
         let t = Instant::now();
-        let dirs = cross::cross_field(&surf, opts)?;
+        let parts = parts::parts(mesh, opts)?;
+        let mut dirs = vec![DVec3::X; surf.len()];
+        for p in &parts {
+            for (&v, d) in p.vertices.iter().zip(&p.dirs) {
+                dirs[v as usize] = *d;
+            }
+        }
+        stats.parts = parts.len();
         count_singularities(&surf, &dirs, &mut stats);
         stats.seconds_cross = t.elapsed().as_secs_f64();
         let caster = if opts.cleanup {
@@ -242,7 +269,7 @@ impl Prepared {
         };
         Ok(Prepared {
             surf,
-            dirs,
+            parts,
             caster,
             stats,
         })
@@ -351,7 +378,6 @@ fn lay_counted(
     opts: &FieldOptions,
     stats: FieldStats,
 ) -> Result<FieldLayout> {
-    let (surf, dirs) = (&prep.surf, &prep.dirs);
     let built;
     let caster = match (&prep.caster, opts.cleanup) {
         (_, false) => None,
@@ -365,12 +391,12 @@ fn lay_counted(
     let sized_relax = match caster {
         Some(_) if opts.uniform_size.is_none() => {
             let (a, mu) = (stats.alpha, stats.m_fitmap_relaxed);
-            extract::SizedRelaxPlan::from_env(surf, mesh, fitmap, opts, a, mu)?
+            extract::SizedRelaxPlan::from_env(&prep.surf, mesh, fitmap, opts, a, mu)?
         }
         _ => None,
     };
     let lay = |h: &[f64]| -> Result<FieldLayout> {
-        let mut out = layout_sized(surf, mesh, dirs, h, opts, stats.clone())?;
+        let mut out = layout_sized(prep, h, opts, stats.clone())?;
         if let (Some(plan), Some(c)) = (&sized_relax, caster) {
             plan.apply(&mut out.control, mesh, c)?;
         }
@@ -531,7 +557,7 @@ fn sized(prep: &Prepared, mesh: &TriMesh, h: &[f64], opts: &FieldOptions) -> Res
     stats.alpha = 1.0;
     stats.m_fitmap_relaxed = 1.0;
     stats.predicted_faces = sizing::predicted_faces(&prep.surf, h);
-    layout_sized(&prep.surf, mesh, &prep.dirs, h, opts, stats)
+    layout_sized(prep, h, opts, stats)
 }
 
 /// [`field_layout_sized`] followed by [`cleanup::cleanup`] (when
@@ -580,14 +606,116 @@ fn count_singularities(surf: &Surface, dirs: &[DVec3], stats: &mut FieldStats) {
     stats.singularities_half = sing.iter().filter(|s| s.1 == 2).count();
 }
 
-/// Steps 3 and 4 on a sizing field.
+/// Steps 3 and 4 on a sizing field `h` (on M's vertices), part by part
+/// ([`parts`]). A mesh of one part is laid out as before (in its
+/// position-keyed order). With several, a part predicted below
+/// [`parts::MIN_PART_FACES`] quads gets smaller sizes, every part may be
+/// refined [`PART_RETRIES`] more times than [`RETRIES`], and a part no
+/// lattice keeps the topology of is its own triangles split into quads:
+/// a part is never dropped, and its topology is M's there.
 fn layout_sized(
+    prep: &Prepared,
+    h: &[f64],
+    opts: &FieldOptions,
+    stats: FieldStats,
+) -> Result<FieldLayout> {
+    if let [part] = prep.parts.as_slice() {
+        return layout_part(
+            &part.surf,
+            &part.mesh,
+            &part.dirs,
+            &part.gather(h),
+            opts,
+            stats,
+            RETRIES,
+        );
+    }
+    let mut laid = Vec::with_capacity(prep.parts.len());
+    let (mut floored, mut split) = (0, 0);
+    for part in &prep.parts {
+        let mut hp = part.gather(h);
+        if parts::floor_count(&part.surf, &mut hp) < 1.0 {
+            floored += 1;
+        }
+        let s = stats.clone();
+        let out = match layout_part(
+            &part.surf,
+            &part.mesh,
+            &part.dirs,
+            &hp,
+            opts,
+            s.clone(),
+            RETRIES + PART_RETRIES,
+        ) {
+            Ok(out) => out,
+            Err(Error::Topology { .. }) => {
+                split += 1;
+                let control = parts::split_triangles(&part.mesh)?;
+                let mut s = s;
+                s.lattice_at_size = false;
+                s.size_factor = 1.0;
+                FieldLayout { control, stats: s }
+            }
+            Err(e) => return Err(e),
+        };
+        laid.push(out);
+    }
+    join_parts(prep, laid, stats, (floored, split))
+}
+
+/// The parts' layouts of [`layout_sized`] as one: the joined control
+/// mesh, the largest part's figures (module docs of [`FieldStats::parts`]).
+fn join_parts(
+    prep: &Prepared,
+    laid: Vec<FieldLayout>,
+    stats: FieldStats,
+    (floored, split): (usize, usize),
+) -> Result<FieldLayout> {
+    let main = prep
+        .parts
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.area.total_cmp(&b.1.area).then(b.0.cmp(&a.0)))
+        .map_or(0, |(i, _)| i);
+    let mut out = FieldStats {
+        parts_floored: floored,
+        parts_split_triangles: split,
+        ..laid[main].stats.clone()
+    };
+    out.seconds_position = stats.seconds_position;
+    out.seconds_extract = stats.seconds_extract;
+    out.raw_non_quads = 0;
+    out.lattice.pinches_split = 0;
+    out.lattice.local_vertices = 0;
+    for l in &laid {
+        out.seconds_position += l.stats.seconds_position - stats.seconds_position;
+        out.seconds_extract += l.stats.seconds_extract - stats.seconds_extract;
+        out.raw_non_quads += l.stats.raw_non_quads;
+        out.lattice.pinches_split += l.stats.lattice.pinches_split;
+        out.lattice.local_vertices += l.stats.lattice.local_vertices;
+        out.lattice.local_rounds = out.lattice.local_rounds.max(l.stats.lattice.local_rounds);
+    }
+    let meshes: Vec<ControlMesh> = laid.into_iter().map(|l| l.control).collect();
+    let control = parts::join(&meshes)?;
+    out.vertices = control.num_vertices();
+    out.faces = control.num_faces();
+    out.irregular_vertices = irregular_vertices(&control);
+    Ok(FieldLayout {
+        control,
+        stats: out,
+    })
+}
+
+/// Steps 3 and 4 on one part's sizing field, refined globally at most
+/// `retries` times.
+fn layout_part(
     surf: &Surface,
     mesh: &TriMesh,
     dirs: &[DVec3],
     h: &[f64],
     opts: &FieldOptions,
     mut stats: FieldStats,
+    retries: usize,
 ) -> Result<FieldLayout> {
     // The lattice is solved at the target length and made pure quad near
     // its non-quads; if that does not keep M's topology, at twice the
@@ -607,7 +735,7 @@ fn layout_sized(
     } else {
         &[false]
     };
-    for attempt in 0..=RETRIES {
+    for attempt in 0..=retries {
         for &at_size in modes {
             let t = Instant::now();
             let m = if at_size { 1.0 } else { 2.0 };
@@ -657,6 +785,12 @@ pub const RETRIES: usize = 4;
 
 /// Each refinement's factor on h (about 1.5× the faces).
 pub const RETRY_FACTOR: f64 = 0.8;
+
+/// Refinements a part of a mesh with several parts may take beyond
+/// [`RETRIES`] before it is laid out as its own triangles
+/// ([`layout_sized`]): a small part (a few hundred triangles of a scan's
+/// flake) meets its topology only at a few times its Fitmap's count.
+pub const PART_RETRIES: usize = 4;
 
 /// Interior vertices of valence ≠ 4 and boundary vertices of valence
 /// other than 2 or 3.
