@@ -494,6 +494,99 @@ impl Ord for GeoKey {
     }
 }
 
+/// An operation named by its vertices, which an undo of either kind keeps
+/// (it revives a collapse's vertex under its own id; no operation here
+/// makes vertices), where [`Op`] names a half-edge or a face, which a
+/// region undo ([`Simplifier::undo`]) recreates under other ids: the ops
+/// of a ranked list that come after a refused trial in its region were
+/// skipped, or applied to another quad, with the region undo and tried
+/// with the exact one — the difference between the two undos at spot's 81
+/// faces (RMS L 9.2 → 16.2‰), found by tracing both.
+#[derive(Clone, Copy, Debug)]
+enum Handle {
+    /// The edge `u → w` turned as [`Op::Rotate`]'s `d` (a rotation's sense
+    /// is the faces' orientation, the same from either half-edge).
+    Rotate(VertexId, VertexId, u8),
+    /// The diagonal between the opposite corners `a` (kept) and `c`.
+    Collapse(VertexId, VertexId),
+}
+
+impl Handle {
+    fn of(k: &ControlMesh, op: Op) -> Self {
+        match op {
+            Op::Rotate(h, d) => Handle::Rotate(k.tail(h), k.head(h), d),
+            Op::Collapse(f, d) => {
+                let q = crate::quad::ops::quad(k, f);
+                Handle::Collapse(q[d as usize], q[d as usize + 2])
+            }
+        }
+    }
+
+    /// The op on the mesh as it is now; `None` when the edge or the quad
+    /// with both corners opposite is gone.
+    fn resolve(self, k: &ControlMesh) -> Option<Op> {
+        match self {
+            Handle::Rotate(u, w, d) => {
+                if k.is_vertex_deleted(u) || k.is_vertex_deleted(w) {
+                    return None;
+                }
+                let h = k.outgoing(u).find(|&h| k.head(h) == w)?;
+                Some(Op::Rotate(h, d))
+            }
+            Handle::Collapse(a, c) => {
+                if k.is_vertex_deleted(a) || k.is_vertex_deleted(c) {
+                    return None;
+                }
+                k.vertex_faces(a).find_map(|f| {
+                    if k.face_size(f) != 4 {
+                        return None;
+                    }
+                    let q = crate::quad::ops::quad(k, f);
+                    let i = q.iter().position(|&v| v == a)?;
+                    (q[(i + 2) % 4] == c).then_some(Op::Collapse(f, (i % 2) as u8))
+                })
+            }
+        }
+    }
+}
+
+/// Whether `SUBDFIT_CLEANUP_TRACE` asks for one line per trial on stderr
+/// (a diagnostic: two runs' traces diff to the first trial they disagree on).
+fn tracing() -> bool {
+    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *ON.get_or_init(|| std::env::var_os("SUBDFIT_CLEANUP_TRACE").is_some())
+}
+
+/// An operation's [`GeoKey`] (read before it is applied), for [`trace`].
+fn op_key(s: &Simplifier<'_>, op: Op) -> GeoKey {
+    match op {
+        Op::Rotate(h, d) => can_rotate_edge(&s.k, h, rotation(d))
+            .map(|x| GeoKey::rotation(&s.k, &x, rotation(d)))
+            .unwrap_or_default(),
+        Op::Collapse(f, d) => can_collapse_diagonal(&s.k, f, d as usize)
+            .map(|p| GeoKey::collapse(&s.k, &p, d))
+            .unwrap_or_default(),
+    }
+}
+
+/// One trial's line of the trace ([`tracing`]).
+fn trace(s: &Simplifier<'_>, tag: &str, key: Option<GeoKey>, t: &Trial, keep: bool) {
+    if let Some(g) = key {
+        eprintln!(
+            "TRACE {tag} {:e} {:e} {:e} {:e} e {:?} f {:?} w {:e} {:e} keep {keep} faces {}",
+            g.len,
+            g.at.x,
+            g.at.y,
+            g.at.z,
+            t.energy,
+            t.fails,
+            t.worst.0,
+            t.worst.1,
+            s.k.num_live_faces()
+        );
+    }
+}
+
 /// Points in lexicographic order (x, then y, then z; `total_cmp`).
 fn lexicographic(a: DVec3, b: DVec3) -> std::cmp::Ordering {
     a.x.total_cmp(&b.x)
@@ -648,9 +741,17 @@ fn valence_sweep(
     rotations_only: bool,
     opts: &CleanupOptions,
 ) -> Result<usize> {
-    let exact = opts.exact_undo;
+    let (exact, geo) = (opts.exact_undo, opts.geometric_ties);
+    let cands = candidates(s, geo);
+    let handles: Vec<Handle> = cands.iter().map(|c| Handle::of(&s.k, c.1)).collect();
     let mut kept = 0;
-    for (_, op) in candidates(s, opts.geometric_ties) {
+    for ((_, op), hd) in cands.into_iter().zip(handles) {
+        // By its vertices with `geo` (a refused trial's region undo gives
+        // its faces new ids, and a face id named in this list may then be
+        // gone or name another quad).
+        let Some(op) = (if geo { hd.resolve(&s.k) } else { Some(op) }) else {
+            continue;
+        };
         if rotations_only && matches!(op, Op::Collapse(..)) {
             continue;
         }
@@ -674,6 +775,7 @@ fn valence_sweep(
         if gain <= 0 {
             continue;
         }
+        let key = tracing().then(|| op_key(s, op));
         let Some((trial, u)) = apply(s, op, exact)? else {
             continue;
         };
@@ -684,6 +786,7 @@ fn valence_sweep(
         let (w0, w1) = trial.worst;
         let tests_kept = f1 <= f0 && w1 <= w0.max(s.relax);
         let mut keep = (e1 < e0 && tests_kept) || (f1 < f0 && e1 <= e0 + 1);
+        trace(s, "sweep", key, &trial, keep);
         let mut undone = false;
         if let (true, Some((probe, rise))) = (keep, guard) {
             // After a round of moves the sweeps' operations answer to the
@@ -767,10 +870,16 @@ fn count_phase(
                     .then_with(|| a.3.cmp(&b.3))
             });
             let mut kept = 0;
-            for (_, _, _, op) in cands {
+            let handles: Vec<Handle> = cands.iter().map(|c| Handle::of(&s.k, c.3)).collect();
+            for ((_, _, _, op), hd) in cands.into_iter().zip(handles) {
                 if s.k.num_live_faces() <= n {
                     return Ok(());
                 }
+                // By its vertices with `geo` (see `valence_sweep`).
+                let Some(op) = (if geo { hd.resolve(&s.k) } else { Some(op) }) else {
+                    continue;
+                };
+                let key = tracing().then(|| op_key(s, op));
                 let Some((trial, u)) = apply(s, op, exact)? else {
                     continue;
                 };
@@ -780,6 +889,7 @@ fn count_phase(
                     1 => e1 <= e0,
                     _ => e1 <= e0 + 2,
                 };
+                trace(s, "count", key, &trial, ok && s.k.num_live_faces() >= floor);
                 if ok && s.k.num_live_faces() >= floor {
                     mark_moved(s, moved);
                     kept += 1;
