@@ -340,12 +340,43 @@ pub fn cleanup(
         s.k.positions_mut()[i] = if moved[i] { s.lim[i] } else { targets[i] };
     }
     let simplified = s.finish(SimplifyStats::default(), t)?;
-    let k = simplified.mesh;
+    let mut k = simplified.mesh;
+    if opts.geometric_ties {
+        k = canonical_faces(&k)?;
+    }
     stats.faces_after = k.num_faces();
     stats.irregular_after = super::irregular_vertices(&k);
     stats.energy_after = energy_of(&k, &ValenceTargets::new(&k));
     stats.seconds = t.elapsed().as_secs_f64();
     Ok((k, stats))
+}
+
+/// `k` with its faces in an order of their vertices (each from its least
+/// vertex id, orientation kept, then sorted), not of the face ids the
+/// cleanup's operations and undos left: vertex ids come from the
+/// extraction and no undo changes them, so two cleanups that made the same
+/// quads give the same mesh whichever undo they used. The face order
+/// reaches what comes after (the fit's sums; `--faces`' thin round
+/// re-laid spot at 81 faces from an estimate that moved 2.6 % with it).
+fn canonical_faces(k: &ControlMesh) -> Result<ControlMesh> {
+    let mut faces: Vec<Vec<u32>> = k
+        .live_faces()
+        .map(|f| {
+            let mut q: Vec<u32> = k.face_vertices(f).map(|v| v.0).collect();
+            let i = (0..q.len()).min_by_key(|&i| q[i]).unwrap_or(0);
+            q.rotate_left(i);
+            q
+        })
+        .collect();
+    faces.sort_unstable();
+    let mut out = ControlMesh::from_polygons(k.positions().to_vec(), &faces)?;
+    for (a, b, x) in k.creases() {
+        out.set_crease(a, b, x)?;
+    }
+    for (v, x) in k.corners() {
+        out.set_corner(v, x)?;
+    }
+    Ok(out)
 }
 
 /// Samples of M per patch the moves' fit guard reads (every k-th vertex
@@ -1465,9 +1496,9 @@ mod tests {
     /// collapse of the count phase costs 0, so its whole order is the
     /// tie-break) and a face target of 80 of 100, the region undo (new
     /// face ids for every refused trial) and the exact undo must give the
-    /// same quads, and the count phase must have refused some trials (else
-    /// the two undos never differed). The id order is checked to see the
-    /// difference on the same case, so the comparison can fail.
+    /// same quads. With the id order (and ops named by face and half-edge
+    /// ids) the two undos must give different quads on the same case, so
+    /// the comparison does see what an undo's ids change.
     #[test]
     fn geometric_ties_make_the_count_phase_independent_of_ids() {
         let m = surface();
@@ -1481,14 +1512,13 @@ mod tests {
             o.exact_undo = exact;
             cleanup(&m, &fm, &caster, control(), &o).unwrap()
         };
-        let (a, sa) = run(true, false);
+        let (a, _) = run(true, false);
         let (b, _) = run(true, true);
         assert!(
             a.num_faces() <= 80 && a.num_faces() >= 79,
             "{}",
             a.num_faces()
         );
-        assert!(sa.undone_valence + sa.undone_fitmap > 0 || sa.count_collapses > 0);
         assert_eq!(
             shape(&a),
             shape(&b),
@@ -1496,9 +1526,10 @@ mod tests {
         );
         let (c, _) = run(false, false);
         let (d, _) = run(false, true);
-        eprintln!(
-            "id ties: region and exact undo differ: {}",
-            shape(&c) != shape(&d)
+        assert_ne!(
+            shape(&c),
+            shape(&d),
+            "id ties: the undos agreed, the test sees nothing"
         );
     }
 }
