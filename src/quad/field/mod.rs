@@ -502,6 +502,9 @@ fn clean(
     if std::env::var_os("SUBDFIT_CLEANUP_EXACT").is_some() {
         co.exact_undo = true;
     }
+    if let Ok(v) = std::env::var("SUBDFIT_CLEANUP_GEO") {
+        co.geometric_ties = v != "0";
+    }
     let (control, cs) = cleanup::cleanup(mesh, fitmap, caster, out.control, &co)?;
     out.stats.vertices = control.num_vertices();
     out.stats.faces = control.num_faces();

@@ -72,6 +72,9 @@ struct Local {
     /// Directed edge → the face that has it.
     edge: HashMap<(u32, u32), usize>,
     expanded: usize,
+    /// With [`plan_ordered`]'s `geometric`: the control points, by local
+    /// index, which order the options ([`Self::options`]).
+    pos: Option<Vec<DVec3>>,
 }
 
 impl Local {
@@ -216,6 +219,29 @@ impl Local {
                 }
             }
         }
+        if let Some(pos) = &self.pos {
+            // By the new edge's length, then its midpoint's and the old
+            // edge's midpoint's lexicographic order (the cleanup's
+            // `GeoKey`): the search meets equal moves, and runs out of
+            // budget, in an order of the geometry, not of the local
+            // numbering (which follows the half-edge ids around each
+            // vertex).
+            let key = |x: &[u32; 6], dir: Rotation| {
+                let (_, [a, b]) = Self::rotated(*x, dir);
+                let (pa, pb) = (pos[a as usize], pos[b as usize]);
+                let mid = 0.5 * (pos[x[0] as usize] + pos[x[3] as usize]);
+                let m = 0.5 * (pa + pb);
+                [(pa - pb).length(), m.x, m.y, m.z, mid.x, mid.y, mid.z]
+            };
+            out.sort_by(|p, q| {
+                let (kp, kq) = (key(&p.2, p.3), key(&q.2, q.3));
+                kp.iter()
+                    .zip(&kq)
+                    .map(|(a, b)| a.total_cmp(b))
+                    .find(|o| o.is_ne())
+                    .unwrap_or(std::cmp::Ordering::Equal)
+            });
+        }
         out
     }
 
@@ -277,6 +303,19 @@ impl Local {
 /// [`MAX_STEPS`] rotations within the search's budget lowers E. `k` is not
 /// changed.
 pub fn plan(k: &ControlMesh, vt: &ValenceTargets, seed: VertexId) -> Option<Move> {
+    plan_ordered(k, vt, seed, false)
+}
+
+/// [`plan`]; with `geometric` the search tries each state's rotations in
+/// an order of the control points (the cleanup's
+/// [`super::cleanup::CleanupOptions::geometric_ties`]), so the first found
+/// among equal moves, and what the budget reaches, do not depend on ids.
+pub fn plan_ordered(
+    k: &ControlMesh,
+    vt: &ValenceTargets,
+    seed: VertexId,
+    geometric: bool,
+) -> Option<Move> {
     // Rings enough for every step to stay among complete vertices.
     let rings = MAX_STEPS + 1;
     let mut local: HashMap<VertexId, u32> = HashMap::new();
@@ -328,6 +367,7 @@ pub fn plan(k: &ControlMesh, vt: &ValenceTargets, seed: VertexId) -> Option<Move
         valence: global.iter().map(|&v| k.valence(v)).collect(),
         ideal: global.iter().map(|&v| vt.ideal(k, v)).collect(),
         boundary: global.iter().map(|&v| k.is_boundary_vertex(v)).collect(),
+        pos: geometric.then(|| global.iter().map(|&v| k.position(v)).collect()),
         global,
         complete,
         faces,
