@@ -136,7 +136,12 @@ fn coord_key(p: DVec3) -> [i64; 3] {
 /// [`canonical_order`]; its triangles each start at their lowest vertex
 /// (orientation kept) and are sorted.
 fn renumbered(mesh: &TriMesh, vertices: Vec<u32>, tris: &[[u32; 3]]) -> (Vec<u32>, TriMesh) {
-    renumbered_in(mesh, vertices, tris, Order::from_env().unwrap_or(Order::Morton))
+    renumbered_in(
+        mesh,
+        vertices,
+        tris,
+        Order::from_env().unwrap_or(Order::Morton),
+    )
 }
 
 /// [`renumbered`] in the order `by`.
