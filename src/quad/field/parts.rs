@@ -54,7 +54,16 @@ impl Part {
 /// The parts of `mesh` with their cross fields, in an order keyed by
 /// position ([`split`]).
 pub(super) fn parts(mesh: &TriMesh, opts: &FieldOptions) -> Result<Vec<Part>> {
-    split(mesh)
+    let mut pieces = split(mesh);
+    // One part, and no order asked for (`SUBDFIT_FIELD_ORDER` unset): M as
+    // it is, in its own numbering, as before parts existed. A renumbered
+    // one-part M is just another draw of the lattice, and on the shared
+    // meshes it drew worse (docs/status.md "Field-aligned layout",
+    // session 13).
+    if pieces.len() == 1 && Order::from_env().is_none() {
+        pieces = vec![((0..mesh.positions.len() as u32).collect(), mesh.clone())];
+    }
+    pieces
         .into_iter()
         .map(|(vertices, sub)| {
             let surf = Surface::new(&sub)?;
