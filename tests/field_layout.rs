@@ -494,16 +494,14 @@ fn uniform_sphere_lattice_has_eight_valence_three() {
 /// plain mean on the coarse levels it had 10–13 valence-3 at every sweep
 /// count tried).
 ///
-/// Ignored since the field runs on each part renumbered by position
-/// (`quad::field::parts`, 2026-12-06): the 8 / 8 held in the icosphere
-/// generator's own numbering only; in position-keyed orders this off-by-
-/// default option gives 11 valence-3 / 14 irregular (Morton, the order
-/// kept), 9 / 10 (breadth-first), 9 / 10 (lexicographic), while the
-/// default field keeps 8 / 8 in Morton and breadth-first order
-/// (`uniform_sphere_lattice_has_eight_valence_three`). The lattice is
+/// A one-part mesh keeps its own numbering unless `SUBDFIT_FIELD_ORDER`
+/// asks for one keyed by position (`quad::field::parts`, 2026-12-06); in
+/// position-keyed orders this off-by-default option gives 11 valence-3 /
+/// 14 irregular (Morton), 9 / 10 (breadth-first, lexicographic), while the
+/// default field keeps 8 / 8 in them too
+/// (`uniform_sphere_lattice_has_eight_valence_three`): the lattice is
 /// chaotic in its inputs (docs/status.md, "Field-aligned layout").
 #[test]
-#[ignore]
 fn hierarchical_field_sphere_lattice_has_eight_valence_three() {
     let m = icosphere(5);
     let mut opts = FieldOptions::default().with_uniform_size(Some(0.3));
