@@ -799,18 +799,8 @@ pub(super) fn second_round(
         let x1 = Measured::of(timer, on, mesh, &next.control, judge)?;
         let j1 = Judged::of(&m1, &next, &x1);
         let at_count = off(faces) <= f64::max(0.02 * n, off(first_faces));
-        let mut round = FieldRound {
-            target_faces: fo.target_faces,
-            faces,
-            irregular_vertices: irregular,
-            fit_rms_permille: next.report.final_rms_permille,
-            size_factor: Some(laid.stats.size_factor),
-            off_m_permille: Some(permille * m1.rms),
-            patches_off_m: Some(m1.far.len() + m1.d_far.len()),
-            uncarried_permille: Some(permille * m1.uncarried),
-            kept: Some(false),
-            ..Default::default()
-        };
+        let fitted = (next.report.final_rms_permille, laid.stats.size_factor);
+        let mut round = measured_round(fo.target_faces, (faces, irregular), fitted, &m1, permille);
         x1.record(&mut round, permille);
         rounds.push(round);
         // The far patches' round by session 10's rule (a lower limit → M′
@@ -913,21 +903,43 @@ where
     let m1 = timer.run("thin round", || off_m(mesh, cx.caster, &next.control))?;
     let x1 = Measured::of(timer, cx.on, mesh, &next.control, cx.judge)?;
     let j1 = Judged::of(&m1, &next, &x1);
+    let fitted = (next.report.final_rms_permille, laid.stats.size_factor);
     let mut round = FieldRound {
-        target_faces: cx.fo.target_faces,
-        faces,
-        irregular_vertices: irregular,
-        fit_rms_permille: next.report.final_rms_permille,
-        size_factor: Some(laid.stats.size_factor),
-        off_m_permille: Some(permille * m1.rms),
-        patches_off_m: Some(m1.far.len() + m1.d_far.len()),
-        uncarried_permille: Some(permille * m1.uncarried),
         patches_split: Some(1),
-        kept: Some(false),
-        ..Default::default()
+        ..measured_round(
+            cx.fo.target_faces,
+            (faces, irregular),
+            fitted,
+            &m1,
+            permille,
+        )
     };
     x1.record(&mut round, permille);
     Ok(Some((j1, next, round)))
+}
+
+/// A thin round's record before its displacement pass: its count, its
+/// fit (RMS L ‰, size factor) and its distances off M (`m1`), not kept
+/// yet.
+fn measured_round(
+    target_faces: Option<usize>,
+    (faces, irregular): (usize, usize),
+    (fit_rms_permille, size_factor): (f64, f64),
+    m1: &OffM,
+    permille: f64,
+) -> FieldRound {
+    FieldRound {
+        target_faces,
+        faces,
+        irregular_vertices: irregular,
+        fit_rms_permille,
+        size_factor: Some(size_factor),
+        off_m_permille: Some(permille * m1.rms),
+        patches_off_m: Some(m1.far.len() + m1.d_far.len()),
+        uncarried_permille: Some(permille * m1.uncarried),
+        kept: Some(false),
+        ..Default::default()
+    }
 }
 
 /// Session 13, off by default (`SUBDFIT_THIN_SPLIT=1`): a local

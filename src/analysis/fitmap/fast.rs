@@ -538,14 +538,7 @@ pub(super) fn interpolate_from_seeds(
             hi = hi.max(r.m_step);
         }
     }
-    (k > 0 && hi == step).then(|| VertexResult {
-        s: s / k as f64,
-        m_step: step,
-        defined: true,
-        m_floor: step == 0,
-        fits: 0,
-        rays: 0,
-    })
+    (k > 0 && hi == step).then(|| VertexResult::from_seeds(s / k as f64, step))
 }
 
 /// The sparse fast mode ([`FitmapOptions::sparse`], off by default): a
@@ -596,14 +589,7 @@ pub(super) fn interpolate_disagreeing(
     } else {
         0
     };
-    Some(VertexResult {
-        s: s / k as f64,
-        m_step: step,
-        defined: true,
-        m_floor: step == 0,
-        fits: 0,
-        rays: 0,
-    })
+    Some(VertexResult::from_seeds(s / k as f64, step))
 }
 
 /// The defined analysed neighbours of `v`: (F_S range, highest F_M step),

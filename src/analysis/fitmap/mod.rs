@@ -542,6 +542,21 @@ struct VertexResult {
     rays: u64,
 }
 
+impl VertexResult {
+    /// A vertex's values taken from its seeds (F_S `s`, M-fitmap step
+    /// `m_step`), with no fits or rays of its own.
+    fn from_seeds(s: f64, m_step: u8) -> VertexResult {
+        VertexResult {
+            s,
+            m_step,
+            defined: true,
+            m_floor: m_step == 0,
+            fits: 0,
+            rays: 0,
+        }
+    }
+}
+
 /// SplitMix64 of (seed, vertex, radius): independent streams per task, so
 /// results do not depend on which thread runs which vertex.
 fn stream_seed(seed: u64, v: u32, i: usize) -> u64 {
