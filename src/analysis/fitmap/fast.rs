@@ -556,6 +556,11 @@ pub(super) fn interpolate_from_seeds(
 /// step 0.69–0.99); the seeds' mean F_S is 2.2–3.9 % from the fitted one.
 /// The fallbacks were 37 % (bunny) to 49 % (gargoyle) of the Fitmap's
 /// CPU. Vertices with no defined seed neighbour are still analysed.
+/// Off by default because the greedy layout's patch count follows these
+/// vertices' steps (+9 to +20 % patches on the five shared meshes, beyond
+/// the spread of the full Fitmap's own Monte Carlo seeds); no power of the
+/// mean ([`SPARSE_POWER_ENV`]) and no choice of κ₀ removed that bias
+/// (docs/status.md, "Scale", session 14).
 pub const SPARSE_RULE: &str =
     "seeds disagreeing on F_M: the rounded mean of their steps, not an analysis";
 

@@ -1815,9 +1815,15 @@ mod tests {
             same += (d == 0) as usize;
             near += (d <= 1) as usize;
         }
-        assert!(disagreeing * 5 > nv, "the fold must be exercised: {disagreeing}");
+        assert!(
+            disagreeing * 5 > nv,
+            "the fold must be exercised: {disagreeing}"
+        );
         let (same, near) = (same as f64 / nv as f64, near as f64 / nv as f64);
-        assert!(same >= 0.80 && near >= 0.95, "same {same:.4}, within one {near:.4}");
+        assert!(
+            same >= 0.80 && near >= 0.95,
+            "same {same:.4}, within one {near:.4}"
+        );
         let rho = crate::analysis::spearman(&full.s, &sparse.s).unwrap();
         assert!(rho >= 0.99, "ρ(F_S) {rho}");
     }
