@@ -556,11 +556,35 @@ pub(super) fn interpolate_from_seeds(
 /// step 0.69–0.99); the seeds' mean F_S is 2.2–3.9 % from the fitted one.
 /// The fallbacks were 37 % (bunny) to 49 % (gargoyle) of the Fitmap's
 /// CPU. Vertices with no defined seed neighbour are still analysed.
+/// Off by default because the greedy layout's patch count follows these
+/// vertices' steps (+9 to +20 % patches on the five shared meshes, beyond
+/// the spread of the full Fitmap's own Monte Carlo seeds); no power of the
+/// mean ([`SPARSE_POWER_ENV`]) and no choice of κ₀ removed that bias
+/// (docs/status.md, "Scale", session 14).
 pub const SPARSE_RULE: &str =
     "seeds disagreeing on F_M: the rounded mean of their steps, not an analysis";
 
+/// Default power of [`SPARSE_RULE`]'s mean of the seeds' F_M: −2, the
+/// mean F_M⁻² (the quantity κ₀ integrates). [`SPARSE_POWER_ENV`] picks
+/// another (−1: the mean F_M⁻¹; 0: the mean step, a geometric mean).
+pub const SPARSE_POWER: f64 = -2.0;
+
+/// Measurement aid: `SUBDFIT_FITMAP_SPARSE_POWER=p` sets the power of the
+/// sparse rule's mean (see [`SPARSE_POWER`]); unset or unparsable: −2.
+pub const SPARSE_POWER_ENV: &str = "SUBDFIT_FITMAP_SPARSE_POWER";
+
+/// The power of the sparse rule's mean ([`SPARSE_POWER_ENV`]).
+pub(super) fn sparse_power() -> f64 {
+    std::env::var(SPARSE_POWER_ENV)
+        .ok()
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .filter(|p| p.is_finite())
+        .unwrap_or(SPARSE_POWER)
+}
+
 /// [`SPARSE_RULE`]'s values for `v` from its defined analysed neighbours
-/// (F_S their mean, F_M the step of the mean of their F_M⁻², `ln_ratio`
+/// (F_S their mean, F_M the step of the power mean of their F_M with
+/// power `power` — [`SPARSE_POWER`] by default, the mean F_M⁻²; `ln_ratio`
 /// = ln(r_{i+1} / r_i)); `None` when it has none.
 pub(super) fn interpolate_disagreeing(
     vv: &Csr,
@@ -568,22 +592,33 @@ pub(super) fn interpolate_disagreeing(
     results: &[VertexResult],
     analysed: &[bool],
     ln_ratio: f64,
+    power: f64,
 ) -> Option<VertexResult> {
-    let (mut s, mut inv2, mut k) = (0.0, 0.0, 0usize);
+    let (mut s, mut acc, mut k) = (0.0, 0.0, 0usize);
     for &w in vv.row(v) {
         let r = &results[w as usize];
         if analysed[w as usize] && r.defined {
             s += r.s;
-            // r⁻² relative to r_0: radii[i] = r_0 q^i, q = e^ln_ratio.
-            inv2 += (-2.0 * ln_ratio * r.m_step as f64).exp();
+            // r^p relative to r_0: radii[i] = r_0 q^i, q = e^ln_ratio
+            // (p = 0: the step itself, whose mean is the log of the
+            // geometric mean radius).
+            acc += if power == 0.0 {
+                r.m_step as f64
+            } else {
+                (power * ln_ratio * r.m_step as f64).exp()
+            };
             k += 1;
         }
     }
     if k == 0 {
         return None;
     }
-    // The step whose r⁻² is nearest (in log) to the mean of the seeds'.
-    let x = -(inv2 / k as f64).ln() / (2.0 * ln_ratio);
+    // The step whose r^p is nearest (in log) to the mean of the seeds'.
+    let x = if power == 0.0 {
+        acc / k as f64
+    } else {
+        (acc / k as f64).ln() / (power * ln_ratio)
+    };
     let step = if x.is_finite() {
         x.round().clamp(0.0, RADIUS_STEPS as f64) as u8
     } else {
@@ -844,19 +879,20 @@ mod tests {
         };
         let (vv, results) = star(&[5, 5, 5]);
         let all = vec![true; 4];
-        let r = interpolate_disagreeing(&vv, 0, &results, &all, ln_q).unwrap();
+        let r = interpolate_disagreeing(&vv, 0, &results, &all, ln_q, SPARSE_POWER).unwrap();
         assert_eq!(r.m_step, 5);
         assert_eq!(r.s, 2.0);
         // {3, 7}: x = -ln((q⁻⁶ + q⁻¹⁴) / 2) / (2 ln q) = 3.713 -> 4, below
         // the plain mean 5.
         let (vv, results) = star(&[3, 7]);
-        let r = interpolate_disagreeing(&vv, 0, &results, &all[..3], ln_q).unwrap();
+        let r = interpolate_disagreeing(&vv, 0, &results, &all[..3], ln_q, SPARSE_POWER).unwrap();
         let x = -((1.6f64.powi(-6) + 1.6f64.powi(-14)) / 2.0).ln() / (2.0 * ln_q);
         assert!((x - 3.713).abs() < 0.001, "{x}");
         assert_eq!(r.m_step, 4);
         for steps in [[0u8, 8, 8, 8], [2, 3, 3, 6], [8, 7, 8, 7], [1, 1, 1, 2]] {
             let (vv, results) = star(&steps);
-            let r = interpolate_disagreeing(&vv, 0, &results, &[true; 5], ln_q).unwrap();
+            let r =
+                interpolate_disagreeing(&vv, 0, &results, &[true; 5], ln_q, SPARSE_POWER).unwrap();
             let (lo, hi) = (*steps.iter().min().unwrap(), *steps.iter().max().unwrap());
             let mean = steps.iter().map(|&x| x as f64).sum::<f64>() / 4.0;
             assert!(r.m_step >= lo && r.m_step <= hi, "{steps:?} {}", r.m_step);
@@ -866,9 +902,16 @@ mod tests {
         // Only analysed, defined neighbours count.
         let (vv, mut results) = star(&[2, 8, 8]);
         results[1].defined = false;
-        let r = interpolate_disagreeing(&vv, 0, &results, &[true; 4], ln_q).unwrap();
+        let r = interpolate_disagreeing(&vv, 0, &results, &[true; 4], ln_q, SPARSE_POWER).unwrap();
         assert_eq!((r.m_step, r.s), (8, 2.5));
-        let r = interpolate_disagreeing(&vv, 0, &results, &[true, true, false, false], ln_q);
+        let r = interpolate_disagreeing(
+            &vv,
+            0,
+            &results,
+            &[true, true, false, false],
+            ln_q,
+            SPARSE_POWER,
+        );
         assert!(r.is_none());
     }
 
