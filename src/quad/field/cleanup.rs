@@ -100,7 +100,22 @@ pub struct CleanupOptions {
     /// 0, and an id order made the outcome depend on which ids an undo
     /// happened to reuse (docs/status.md, 2026-12-06, "exact undo").
     pub geometric_ties: bool,
+    /// The guarded cancellation (issue 40 item 2, session 14): after the
+    /// valence sweeps and the count phase, [`GUARDED_ROUNDS`] rounds (or
+    /// [`CleanupOptions::move_rounds`], if more) of multi-rotation moves and
+    /// rotation-only sweeps, every one kept only when its region's fit
+    /// after the region fit does not rise by more than
+    /// [`CleanupOptions::move_fit_rise`] (Σ d² and the largest d²) and no
+    /// more of its samples become unprojectable
+    /// ([`super::moves::FitProbe::with_projectability`]); a refused trial
+    /// is undone exactly ([`CleanupOptions::exact_undo`]), so a cleanup
+    /// that keeps nothing there is the one before, bit for bit. Env
+    /// `SUBDFIT_CLEANUP_GUARDED=1`.
+    pub guarded: bool,
 }
+
+/// Move rounds of the guarded cancellation ([`CleanupOptions::guarded`]).
+pub const GUARDED_ROUNDS: usize = 2;
 
 impl Default for CleanupOptions {
     fn default() -> Self {
@@ -115,6 +130,7 @@ impl Default for CleanupOptions {
             exact_undo: false,
             move_fit_share: 0.0,
             geometric_ties: false,
+            guarded: false,
         }
     }
 }
@@ -130,6 +146,15 @@ impl CleanupOptions {
     }
     pub fn with_check_every_step(mut self, on: bool) -> Self {
         self.check_every_step = on;
+        self
+    }
+
+    /// These options with `SUBDFIT_CLEANUP_GUARDED` applied (set and not
+    /// `0`: [`CleanupOptions::guarded`] on).
+    fn with_env(mut self) -> Self {
+        if let Ok(v) = std::env::var("SUBDFIT_CLEANUP_GUARDED") {
+            self.guarded = v != "0";
+        }
         self
     }
 }
@@ -217,6 +242,7 @@ pub fn cleanup(
     opts: &CleanupOptions,
 ) -> Result<(ControlMesh, CleanupStats)> {
     let t = std::time::Instant::now();
+    let opts = &opts.clone().with_env();
     let mut stats = CleanupStats {
         faces_before: k.num_faces(),
         irregular_before: super::irregular_vertices(&k),
@@ -240,7 +266,7 @@ pub fn cleanup(
         s.refit(&touched)?;
     }
     let mut epochs = Epochs::new(s.k.num_vertices());
-    let probe = (opts.move_rounds > 0 && opts.move_fit_rise > 0.0).then(|| {
+    let probe = ((opts.move_rounds > 0 || opts.guarded) && opts.move_fit_rise > 0.0).then(|| {
         let k = &s.k;
         let (mut len, mut n) = (0.0f64, 0.0f64);
         for e in k.edges().filter(|&e| !k.is_edge_deleted(e)) {
@@ -252,13 +278,25 @@ pub fn cleanup(
         // diagonal (far below every RMS L of the shared meshes); about
         // [`GUARD_SAMPLES`] samples per patch.
         let stride = mesh.positions.len() / (GUARD_SAMPLES * k.num_live_faces()).max(1);
-        super::moves::FitProbe::new(mesh, len / n.max(1.0), 1e-4 * mesh.bbox_diagonal(), stride)
-            .with_region_fit(super::moves::RegionFit::new(mesh, caster, k))
+        let p = super::moves::FitProbe::new(
+            mesh,
+            len / n.max(1.0),
+            1e-4 * mesh.bbox_diagonal(),
+            stride,
+        )
+        .with_region_fit(super::moves::RegionFit::new(mesh, caster, k));
+        if opts.guarded {
+            let max_dist = crate::project::default_max_dist(mesh);
+            p.with_projectability(caster, max_dist, mean_edge(mesh))
+        } else {
+            p
+        }
     });
     // With a face target and `moves_after_count`, the moves come after the
     // count phase and the sweeps after them only rotate: the count is the
     // single-operation cleanup's, and the moves start from its final mesh.
-    let late = opts.moves_after_count && opts.target_faces.is_some();
+    // The guarded cancellation runs late with or without a face target.
+    let late = opts.guarded || (opts.moves_after_count && opts.target_faces.is_some());
     let rounds = if late { 0 } else { opts.move_rounds };
     for round in 0..=rounds {
         for _ in 0..opts.sweeps {
@@ -297,14 +335,24 @@ pub fn cleanup(
         count_phase(&mut s, &mut stats, n, &mut moved, opts)?;
     }
     if late {
-        for _ in 0..opts.move_rounds {
+        // Guarded, a refused trial is undone exactly: the state before the
+        // late phase stays bit for bit what nothing kept there touches.
+        let mut lo = opts.clone();
+        lo.exact_undo |= opts.guarded;
+        let lo = &lo;
+        let late_rounds = if opts.guarded {
+            opts.move_rounds.max(GUARDED_ROUNDS)
+        } else {
+            opts.move_rounds
+        };
+        for _ in 0..late_rounds {
             let kept = move_sweep(
                 &mut s,
                 &mut stats,
                 &mut moved,
                 &mut epochs,
                 probe.as_ref(),
-                opts,
+                lo,
             )?;
             if kept == 0 {
                 break;
@@ -314,15 +362,7 @@ pub fn cleanup(
                 let guard = probe
                     .as_ref()
                     .map(|p| (p, (opts.move_fit_rise, opts.move_fit_share)));
-                if valence_sweep(
-                    &mut s,
-                    &mut stats,
-                    &mut moved,
-                    &mut epochs,
-                    guard,
-                    true,
-                    opts,
-                )? == 0
+                if valence_sweep(&mut s, &mut stats, &mut moved, &mut epochs, guard, true, lo)? == 0
                 {
                     break;
                 }
@@ -377,6 +417,20 @@ fn canonical_faces(k: &ControlMesh) -> Result<ControlMesh> {
         out.set_corner(v, x)?;
     }
     Ok(out)
+}
+
+/// M's mean edge length (each interior edge counted from both of its
+/// triangles): the report's reach tolerance of φ.
+fn mean_edge(mesh: &TriMesh) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for t in &mesh.triangles {
+        for i in 0..3 {
+            let (a, b) = (t[i] as usize, t[(i + 1) % 3] as usize);
+            sum += (mesh.positions[a] - mesh.positions[b]).length();
+            n += 1;
+        }
+    }
+    sum / n.max(1) as f64
 }
 
 /// Samples of M per patch the moves' fit guard reads (every k-th vertex
@@ -1138,7 +1192,7 @@ fn guard_verdict(
         return Ok(false);
     };
     let rise = allowed_rise(probe, &after, rise);
-    if !probe.holds(&before, &after, rise) {
+    if !probe.holds(&before, &after, rise) || !probe.reach_holds(&before, &after, 0) {
         return Ok(false);
     }
     if !redo(s)? {
@@ -1149,7 +1203,7 @@ fn guard_verdict(
         return Ok(true);
     }
     let keep = match probe.measure_fitted(&mut s.k, changed, &ids)? {
-        Some(a) => probe.holds(&before, &a, rise),
+        Some(a) => probe.holds(&before, &a, rise) && probe.reach_holds(&before, &a, 0),
         None => false,
     };
     if !keep {
@@ -1531,5 +1585,117 @@ mod tests {
             shape(&d),
             "id ties: the undos agreed, the test sees nothing"
         );
+    }
+
+    /// M as the limit surface of `k` itself (3 levels of Catmull-Clark
+    /// refinement, every refined vertex at its limit point, each quad
+    /// split in two): a layout with `k`'s connectivity fits it to the
+    /// tessellation's chord error, another one in general not.
+    fn limit_mesh(k: &ControlMesh) -> TriMesh {
+        let r = crate::subdiv::refine::refine_uniform(k, 3).unwrap();
+        let scheme = crate::mesh::SchemeOptions::default();
+        let positions: Vec<DVec3> = r
+            .live_vertices()
+            .map(|v| {
+                crate::subdiv::catmark::vertex_limit_mask(&r, v, &scheme)
+                    .into_iter()
+                    .map(|(u, w)| w * r.position(u))
+                    .sum()
+            })
+            .collect();
+        let mut triangles = Vec::new();
+        for f in r.live_faces() {
+            let q: Vec<u32> = r.face_vertices(f).map(|v| v.0).collect();
+            triangles.push([q[0], q[1], q[2]]);
+            triangles.push([q[0], q[2], q[3]]);
+        }
+        TriMesh {
+            positions,
+            triangles,
+        }
+    }
+
+    /// The guarded cancellation (`CleanupOptions::guarded`) with a face
+    /// target on the bumpy grid with its two separated 3–5 pairs, M the
+    /// bumps under it: undoing the dislocations gives the regular grid
+    /// back, whose quads follow M's bumps as well as the dislocated ones
+    /// do, so the guard must accept the moves: no irregular vertex left
+    /// (single operations end at the planted 4, which the test checks
+    /// too), the 100 faces kept, at least one move kept, every step
+    /// validated.
+    #[test]
+    fn guarded_cancellation_accepts_a_move_that_keeps_the_fit() {
+        let m = surface();
+        let fm = flat_fitmap(m.positions.len());
+        let caster = BvhCaster::new(&m).unwrap();
+        let single = CleanupOptions::default()
+            .with_target_faces(Some(100))
+            .with_check_every_step(true);
+        let (out, _) = cleanup(&m, &fm, &caster, control(), &single).unwrap();
+        assert_eq!(super::super::irregular_vertices(&out), 4);
+        let mut o = single.clone();
+        o.guarded = true;
+        let (out, st) = cleanup(&m, &fm, &caster, control(), &o).unwrap();
+        eprintln!("{}", serde_json::to_string(&st).unwrap());
+        assert!(out.is_all_quads());
+        assert_eq!(out.num_faces(), 100);
+        assert!(st.moves >= 1, "{st:?}");
+        assert_eq!(super::super::irregular_vertices(&out), 0, "{st:?}");
+    }
+
+    /// The same dislocated grid, but M is the limit surface of the
+    /// dislocated layout itself with a sharp bump over each irregular
+    /// vertex (their control points lifted): the dislocated layout fits M
+    /// to the tessellation's chord error, and a move that takes the pairs
+    /// away must leave the limit off M's bumps (a rise far above the
+    /// guard's 2 %). The guarded cancellation must refuse every such move
+    /// (the 4 irregular vertices stay, and the guard is what refused: the
+    /// same moves without the fit guard remove the pairs). Measured: 2
+    /// moves tried, both refused by the guard.
+    #[test]
+    fn guarded_cancellation_refuses_a_move_that_raises_the_fit() {
+        let mut k = control();
+        let vt = ValenceTargets::new(&k);
+        let odd: Vec<VertexId> = k
+            .live_vertices()
+            .filter(|&v| vt.is_irregular(&k, v))
+            .collect();
+        assert_eq!(odd.len(), 4);
+        for &v in &odd {
+            k.positions_mut()[v.idx()].z += 1.5;
+        }
+        let m = limit_mesh(&k);
+        // The control points on M, as the extraction's are: at their limit
+        // points.
+        let mut k0 = k.clone();
+        let lim: Vec<DVec3> = k
+            .live_vertices()
+            .map(|v| {
+                crate::subdiv::catmark::vertex_limit_mask(&k, v, &Default::default())
+                    .into_iter()
+                    .map(|(u, w)| w * k.position(u))
+                    .sum()
+            })
+            .collect();
+        k0.positions_mut().copy_from_slice(&lim);
+        let fm = flat_fitmap(m.positions.len());
+        let caster = BvhCaster::new(&m).unwrap();
+        let mut o = CleanupOptions::default()
+            .with_target_faces(Some(100))
+            .with_check_every_step(true);
+        o.guarded = true;
+        let (out, st) = cleanup(&m, &fm, &caster, k0.clone(), &o).unwrap();
+        eprintln!("guarded {}", serde_json::to_string(&st).unwrap());
+        assert_eq!(out.num_faces(), 100);
+        assert_eq!(super::super::irregular_vertices(&out), 4, "{st:?}");
+        assert!(st.moves_undone_fit >= 1, "{st:?}");
+        let mut free = o.clone();
+        free.move_fit_rise = 0.0;
+        free.move_rounds = GUARDED_ROUNDS;
+        free.guarded = false;
+        free.moves_after_count = true;
+        let (out, st) = cleanup(&m, &fm, &caster, k0, &free).unwrap();
+        eprintln!("unguarded {}", serde_json::to_string(&st).unwrap());
+        assert!(super::super::irregular_vertices(&out) < 4, "{st:?}");
     }
 }

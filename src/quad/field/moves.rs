@@ -411,6 +411,9 @@ pub struct FitProbe<'a> {
     /// The region fit run before each measure ([`Self::measure_fitted`]):
     /// `None` measures the layout as it is.
     fit: Option<RegionFit<'a>>,
+    /// The projectability test of each sample ([`Self::with_projectability`]):
+    /// M's caster, the search distance of φ and the reach tolerance.
+    proj: Option<(&'a dyn crate::raycast::RayCaster, f64, f64)>,
 }
 
 /// What [`FitProbe::measure`] found: per sample (M's vertex index) its
@@ -418,6 +421,11 @@ pub struct FitProbe<'a> {
 /// point lies on a patch the move changes.
 pub struct FitMeasure {
     pub samples: Vec<(u32, f64, bool)>,
+    /// With [`FitProbe::with_projectability`]: per sample (same order),
+    /// whether φ from its foot on the limit misses it (module
+    /// [`crate::report`]'s projectability test, on the guard's
+    /// tessellation); empty without.
+    pub unreached: Vec<bool>,
 }
 
 /// The limit surface over a set of patches as triangles (patch `i`'s are
@@ -434,7 +442,9 @@ impl Tess {
     /// The closest point's squared distance and its patch: the patch with
     /// the nearest centre first, then every patch whose bounding sphere
     /// comes closer than the best so far, in patch order.
-    fn closest(&self, p: DVec3) -> (f64, usize) {
+    /// Also the closest point itself and the unit normal of the triangle
+    /// it lies on (zero for a degenerate one).
+    fn closest_foot(&self, p: DVec3) -> (f64, usize, DVec3, DVec3) {
         let lb: Vec<f64> = self
             .patches
             .iter()
@@ -447,13 +457,14 @@ impl Tess {
                 da.total_cmp(&db).then(a.cmp(&b))
             })
             .unwrap_or(0);
-        let mut best = (f64::INFINITY, usize::MAX);
-        let visit = |i: usize, best: &mut (f64, usize)| {
+        let mut best = (f64::INFINITY, usize::MAX, p, DVec3::ZERO);
+        let visit = |i: usize, best: &mut (f64, usize, DVec3, DVec3)| {
             for t in &self.tris[i * Self::PER_PATCH..(i + 1) * Self::PER_PATCH] {
                 let (q, _, _) = crate::raycast::closest_point_triangle(p, t[0], t[1], t[2]);
                 let d = (q - p).length_squared();
                 if d < best.0 {
-                    *best = (d, i);
+                    let n = (t[1] - t[0]).cross(t[2] - t[0]).normalize_or_zero();
+                    *best = (d, i, q, n);
                 }
             }
         };
@@ -806,7 +817,24 @@ impl<'a> FitProbe<'a> {
             floor,
             stride: stride.clamp(1, u32::MAX as usize) as u32,
             fit: None,
+            proj: None,
         }
+    }
+
+    /// Measures projectability too: a sample is unreached when the line
+    /// through its closest point on the limit, along that point's normal,
+    /// meets M (`caster`, within `max_dist`) farther than `tol` from it, or
+    /// nowhere: the report's test (`report::unprojectable_percent`: M's
+    /// point mapped to its closest limit point, φ cast back, reached
+    /// within one mean edge of M) on the guard's tessellation.
+    pub fn with_projectability(
+        mut self,
+        caster: &'a dyn crate::raycast::RayCaster,
+        max_dist: f64,
+        tol: f64,
+    ) -> Self {
+        self.proj = Some((caster, max_dist, tol));
+        self
     }
 
     /// How many of M's vertices are samples (every `stride`-th): the
@@ -946,14 +974,55 @@ impl<'a> FitProbe<'a> {
         cand.sort_unstable();
         cand.dedup();
         let mut samples = Vec::new();
+        let (mut feet, mut normals) = (Vec::new(), Vec::new());
         for i in cand {
-            let (d2, patch) = tess.closest(self.points[i as usize]);
+            let (d2, patch, q, n) = tess.closest_foot(self.points[i as usize]);
             let inner = patch != usize::MAX && tess.patches[patch].2;
             if inner || extra.binary_search(&i).is_ok() {
                 samples.push((i, d2, inner));
+                feet.push(q);
+                normals.push(n);
             }
         }
-        Ok(Some(FitMeasure { samples }))
+        let mut unreached = Vec::new();
+        if let Some((caster, max_dist, tol)) = self.proj {
+            // A degenerate normal cannot be cast: such a foot is unreached
+            // (φ is undefined there), the report's rule too.
+            let dirs: Vec<DVec3> = normals
+                .iter()
+                .map(|&n| if n == DVec3::ZERO { DVec3::Z } else { n })
+                .collect();
+            let hits = caster.line_hits(&feet, &dirs, max_dist)?;
+            unreached = hits
+                .iter()
+                .zip(&samples)
+                .zip(feet.iter().zip(&normals))
+                .map(|((h, s), (&q, &n))| match h {
+                    Some(h) if n != DVec3::ZERO => {
+                        (q + h.t * n - self.points[s.0 as usize]).length() > tol
+                    }
+                    _ => true,
+                })
+                .collect();
+        }
+        Ok(Some(FitMeasure { samples, unreached }))
+    }
+
+    /// Whether `after` leaves no more of the samples both measured
+    /// unreached than `before` ([`Self::with_projectability`]), plus
+    /// `slack` of them; always true without the test.
+    pub fn reach_holds(&self, before: &FitMeasure, after: &FitMeasure, slack: usize) -> bool {
+        if self.proj.is_none() {
+            return true;
+        }
+        let (mut n0, mut n1) = (0usize, 0usize);
+        for (k, &(i, _, _)) in before.samples.iter().enumerate() {
+            if let Ok(j) = after.samples.binary_search_by_key(&i, |s| s.0) {
+                n0 += before.unreached.get(k).copied().unwrap_or(false) as usize;
+                n1 += after.unreached.get(j).copied().unwrap_or(false) as usize;
+            }
+        }
+        n1 <= n0 + slack
     }
 
     /// Whether the fit after a move (`after`) is within `rise` of the one
