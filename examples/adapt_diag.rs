@@ -11,6 +11,7 @@
 //! too).
 //! `ADAPT_GAMMA`, `ADAPT_LOOPCAP` and `ADAPT_FACES` override the
 //! gradation, the holes' cap slope and the target count;
+//! `ADAPT_SWEEPS` sets the position field's sweeps per level;
 //! `ADAPT_CLEANUP_ONLY` skips the layouts without the cleanup. h is the
 //! sizing before the count loop's uniform scaling (ranks unchanged).
 
@@ -55,6 +56,62 @@ fn rhos(mesh: &TriMesh, fs: &[f64], h: &[f64], k: &ControlMesh) -> (f64, f64, f6
     )
 }
 
+/// Where the sizing loses 1/F_S, per vertex of M (those with an F_S):
+/// ρ(h, 1/F_S) of the ungraded `min(α h_S, μ β h_M)`, graded at γ, then
+/// with the holes' caps, and the share of vertices each step lowered.
+fn sizing_stages(
+    surf: &Surface,
+    mesh: &TriMesh,
+    fitmap: &subdfit::analysis::Fitmap,
+    opts: &FieldOptions,
+    alpha: f64,
+    mu: f64,
+) -> anyhow::Result<()> {
+    let (hs, hm) = sizing::fitmap_limits(mesh, fitmap, opts.s_fitmap_scale)?;
+    let beta = opts.m_fitmap_scale * mu;
+    let raw: Vec<f64> = hs
+        .iter()
+        .zip(&hm)
+        .map(|(&a, &b)| (alpha * a).min(beta * b))
+        .collect();
+    let mut graded = raw.clone();
+    sizing::grade(surf, &mut graded, opts.gradation);
+    let mut capped = graded.clone();
+    sizing::cap_at_boundaries(surf, &mut capped, opts.gradation, opts.loop_cap_slope);
+    let keep: Vec<usize> = (0..hs.len()).filter(|&i| hs[i].is_finite()).collect();
+    let inv: Vec<f64> = keep.iter().map(|&i| 1.0 / fitmap.s[i]).collect();
+    let rho = |h: &[f64]| {
+        let x: Vec<f64> = keep.iter().map(|&i| h[i]).collect();
+        spearman(&x, &inv).unwrap_or(f64::NAN)
+    };
+    let share = |a: &[f64], b: &[f64]| {
+        keep.iter().filter(|&&i| b[i] < a[i] * (1.0 - 1e-9)).count() as f64 / keep.len() as f64
+    };
+    let hsa: Vec<f64> = hs.iter().map(|x| alpha * x).collect();
+    let q = |v: &[f64], p: f64| {
+        let mut x: Vec<f64> = keep.iter().map(|&i| v[i]).collect();
+        x.sort_by(f64::total_cmp);
+        x[((x.len() - 1) as f64 * p) as usize]
+    };
+    println!(
+        "sizing: alpha {alpha:.3} mu {mu:.3} | rho(h,1/FS) raw {:.3} graded {:.3} capped {:.3} | lowered by F_M {:.3} grading {:.3} caps {:.3} | h p90/p10 raw {:.2} graded {:.2} capped {:.2} | 1/FS p90/p10 {:.2} | predicted raw {:.0} graded {:.0} capped {:.0}",
+        rho(&raw),
+        rho(&graded),
+        rho(&capped),
+        share(&hsa, &raw),
+        share(&raw, &graded),
+        share(&graded, &capped),
+        q(&raw, 0.9) / q(&raw, 0.1),
+        q(&graded, 0.9) / q(&graded, 0.1),
+        q(&capped, 0.9) / q(&capped, 0.1),
+        q(&hs, 0.9) / q(&hs, 0.1),
+        sizing::predicted_faces(surf, &raw),
+        sizing::predicted_faces(surf, &graded),
+        sizing::predicted_faces(surf, &capped),
+    );
+    Ok(())
+}
+
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let input = subdfit::io::read_mesh(args[1].as_ref())?;
@@ -86,14 +143,21 @@ fn main() -> anyhow::Result<()> {
     {
         opts.target_faces = Some(g);
     }
+    if let Some(g) = std::env::var("ADAPT_SWEEPS")
+        .ok()
+        .and_then(|g| g.parse().ok())
+    {
+        opts.position_sweeps = g;
+    }
     let cleanups: &[bool] = if std::env::var("ADAPT_CLEANUP_ONLY").is_ok() {
         &[true]
     } else {
         &[false, true]
     };
     let surf = Surface::new(&mesh)?;
-    let (mut h, ..) = sizing::sizing_for(&surf, &mesh, &fitmap, &opts)?;
+    let (mut h, alpha, mu, _) = sizing::sizing_for(&surf, &mesh, &fitmap, &opts)?;
     sizing::cap_at_boundaries(&surf, &mut h, opts.gradation, opts.loop_cap_slope);
+    sizing_stages(&surf, &mesh, &fitmap, &opts, alpha, mu)?;
     for v in &args[2..] {
         // `RELAX/SIZED`: FIELD_RELAX, then FIELD_SIZED_RELAX (STEPS:POWER[:GAMMA]).
         let (relax, sized) = v.split_once('/').unwrap_or((v.as_str(), ""));

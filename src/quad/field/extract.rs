@@ -894,10 +894,22 @@ pub struct SizedRelax {
     /// γ of the relaxation's sizes (infinite: ungraded).
     pub gamma: f64,
     /// Undo the moves of a step that lengthen an edge or a quad's diagonal
-    /// past the Fitmap's own limit there (a fourth field `g`): the
+    /// past the Fitmap's own limit there (`g` in the fourth field): the
     /// relaxation may only grow patches the Fitmap allows to grow.
     pub guard: bool,
+    /// Undo the move of a point whose projection lands on a sheet of M
+    /// facing away from the one it left (`s` in the fourth field): across
+    /// a thin part the closest point can be on the other side.
+    pub sheet: bool,
+    /// Undo the moves of a step on every quad it leaves with a corner
+    /// sharper than [`SHAPE_GUARD_MIN_SINE`] (and sharper than before;
+    /// `q` in the fourth field): the fit pays for distorted patches more
+    /// than it gains from their sizes.
+    pub shape: bool,
 }
+
+/// The shape guard's bound on a corner's sine (45°).
+pub const SHAPE_GUARD_MIN_SINE: f64 = std::f64::consts::FRAC_1_SQRT_2;
 
 impl SizedRelax {
     pub fn from_env() -> Option<SizedRelax> {
@@ -913,16 +925,17 @@ impl SizedRelax {
             Some(g) => g.parse().ok().filter(|g: &f64| *g > 0.0)?,
             None => f64::INFINITY,
         };
-        let guard = match it.next() {
-            None => false,
-            Some("g") => true,
-            Some(_) => return None,
-        };
+        let guards = it.next().unwrap_or("");
+        if it.next().is_some() || !guards.chars().all(|c| "gsq".contains(c)) {
+            return None;
+        }
         (steps > 0).then_some(SizedRelax {
             steps,
             power,
             gamma,
-            guard,
+            guard: guards.contains('g'),
+            sheet: guards.contains('s'),
+            shape: guards.contains('q'),
         })
     }
 }
@@ -1006,11 +1019,29 @@ pub fn relax_to_sizes(
             guard_growth(caster, mesh, limits, &quads, &pos, &mut moved)?;
         }
         let hits = caster.closest_points(&moved, f64::INFINITY)?;
-        pos = moved
+        let mut next: Vec<DVec3> = moved
             .iter()
             .zip(&hits)
             .map(|(p, h)| h.as_ref().map_or(*p, |h| h.point))
             .collect();
+        if mode.sheet {
+            let before = caster.closest_points(&pos, f64::INFINITY)?;
+            let normal = |t: u32| {
+                let [a, b, c] = mesh.triangles[t as usize].map(|v| mesh.positions[v as usize]);
+                (b - a).cross(c - a).normalize_or_zero()
+            };
+            for (k, (a, b)) in before.iter().zip(&hits).enumerate() {
+                if let (Some(a), Some(b)) = (a, b) {
+                    if normal(a.triangle).dot(normal(b.triangle)) < 0.0 {
+                        next[k] = pos[k];
+                    }
+                }
+            }
+        }
+        if mode.shape {
+            guard_shape(&quads, &pos, &mut next);
+        }
+        pos = next;
     }
     control.set_positions(pos)
 }
@@ -1062,6 +1093,45 @@ fn guard_growth(
         }
         if !changed {
             return Ok(());
+        }
+    }
+}
+
+/// The smallest sine of a quad's four corners (0 for a degenerate one).
+fn min_corner_sine(q: &[u32; 4], p: &[DVec3]) -> f64 {
+    (0..4)
+        .map(|k| {
+            let c = p[q[k] as usize];
+            let a = p[q[(k + 3) % 4] as usize] - c;
+            let b = p[q[(k + 1) % 4] as usize] - c;
+            let d = a.length() * b.length();
+            if d > 0.0 && a.dot(b) < d {
+                a.cross(b).length() / d
+            } else {
+                0.0
+            }
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Puts back (in `moved`) the corners of every quad whose sharpest corner
+/// is sharper in `moved` than in `pos` and below [`SHAPE_GUARD_MIN_SINE`],
+/// until no quad is (at worst every point is put back).
+fn guard_shape(quads: &[[u32; 4]], pos: &[DVec3], moved: &mut [DVec3]) {
+    let was: Vec<f64> = quads.iter().map(|q| min_corner_sine(q, pos)).collect();
+    loop {
+        let mut changed = false;
+        for (q, &w) in quads.iter().zip(&was) {
+            let now = min_corner_sine(q, moved);
+            if now < w && now < SHAPE_GUARD_MIN_SINE {
+                for &v in q {
+                    changed |= moved[v as usize] != pos[v as usize];
+                    moved[v as usize] = pos[v as usize];
+                }
+            }
+        }
+        if !changed {
+            return;
         }
     }
 }
@@ -1254,7 +1324,19 @@ mod tests {
         assert_eq!(SizedRelax::parse("3:8:1").unwrap().gamma, 1.0);
         assert!(SizedRelax::parse("3:8:1:g").unwrap().guard);
         assert!(!SizedRelax::parse("3:8:1").unwrap().guard);
-        for bad in ["", "0:8", "x:8", "3", "3:inf", "3:8:-1", "3:8:y", "3:8:1:x"] {
+        let m = SizedRelax::parse("3:8:inf:sq").unwrap();
+        assert!(m.sheet && m.shape && !m.guard);
+        for bad in [
+            "",
+            "0:8",
+            "x:8",
+            "3",
+            "3:inf",
+            "3:8:-1",
+            "3:8:y",
+            "3:8:1:x",
+            "3:8:1:g:s",
+        ] {
             assert_eq!(SizedRelax::parse(bad), None, "{bad:?}");
         }
     }
@@ -1293,6 +1375,48 @@ mod tests {
         let first = p[row + 1].x - p[row].x;
         let last = p[row + n].x - p[row + n - 1].x;
         assert!(last > 1.2 * first, "first cell {first}, last {last}");
+    }
+
+    /// The shape guard leaves no quad with a corner sharper than both its
+    /// own start and 45°, where the same steps without it do (the sizes
+    /// grow 30× across the grid, so power 12 pulls the cells far out of
+    /// square).
+    #[test]
+    fn shape_guard_keeps_corners_from_sharpening() {
+        let n = 8;
+        let (pos, quads) = grid(n, n);
+        let mesh = TriMesh {
+            positions: pos.clone(),
+            triangles: quads
+                .iter()
+                .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+                .collect(),
+        };
+        let sizes: Vec<f64> = pos
+            .iter()
+            .map(|p| 1.0 + 29.0 * (p.x * p.y) / (n * n) as f64)
+            .collect();
+        let caster = BvhCaster::new(&mesh).unwrap();
+        let worst = |guards: &str| {
+            let mut control = ControlMesh::from_polygons(pos.clone(), &quads).unwrap();
+            let mode = SizedRelax::parse(&format!("10:12:inf{guards}")).unwrap();
+            relax_to_sizes(&mut control, &mesh, &caster, &sizes, None, mode).unwrap();
+            let p = control.positions();
+            quads
+                .iter()
+                .map(|q| min_corner_sine(q, p))
+                .fold(f64::INFINITY, f64::min)
+        };
+        // The start is the unit grid: every corner square (sine 1).
+        let (free, guarded) = (worst(""), worst(":q"));
+        assert!(
+            free < SHAPE_GUARD_MIN_SINE,
+            "unguarded sharpest sine {free}"
+        );
+        assert!(
+            guarded >= SHAPE_GUARD_MIN_SINE - 1e-12,
+            "guarded sharpest sine {guarded}"
+        );
     }
 
     /// With limits below every edge the guard lets no step lengthen a

@@ -113,7 +113,7 @@ pub fn compat_position(
 ) -> (DVec3, DVec3, [i64; 2], [i64; 2]) {
     let (t0, t1) = (n0.cross(q0), n1.cross(q1));
     let m = middle(p0, n0, p1, n1);
-    compat_at(m, [q0, t0, o0], [q1, t1, o1], s)
+    compat_at(m, [q0, t0, o0], [q1, t1, o1], [s, s])
 }
 
 /// [`compat_position`] with the edge's [`middle`] `m` and each side's
@@ -124,20 +124,20 @@ fn compat_at(
     m: DVec3,
     [q0, t0, o0]: [DVec3; 3],
     [q1, t1, o1]: [DVec3; 3],
-    s: f64,
+    [s0, s1]: [f64; 2],
 ) -> (DVec3, DVec3, [i64; 2], [i64; 2]) {
-    let floor = |o: DVec3, q: DVec3, t: DVec3| {
+    let floor = |o: DVec3, q: DVec3, t: DVec3, s: f64| {
         let d = m - o;
         [(q.dot(d) / s).floor() as i64, (t.dot(d) / s).floor() as i64]
     };
-    let (b0, b1) = (floor(o0, q0, t0), floor(o1, q1, t1));
+    let (b0, b1) = (floor(o0, q0, t0, s0), floor(o1, q1, t1, s1));
     let mut best = (f64::INFINITY, DVec3::ZERO, DVec3::ZERO, b0, b1);
     for k0 in 0..4 {
         let c0 = [b0[0] + (k0 & 1), b0[1] + (k0 >> 1)];
-        let x0 = o0 + s * (c0[0] as f64 * q0 + c0[1] as f64 * t0);
+        let x0 = o0 + s0 * (c0[0] as f64 * q0 + c0[1] as f64 * t0);
         for k1 in 0..4 {
             let c1 = [b1[0] + (k1 & 1), b1[1] + (k1 >> 1)];
-            let x1 = o1 + s * (c1[0] as f64 * q1 + c1[1] as f64 * t1);
+            let x1 = o1 + s1 * (c1[0] as f64 * q1 + c1[1] as f64 * t1);
             let d = (x0 - x1).length_squared();
             if d < best.0 {
                 best = (d, x0, x1, c0, c1);
@@ -193,7 +193,15 @@ struct EdgeTerms {
     q: Vec<DVec3>,
     t: Vec<DVec3>,
     m: Vec<DVec3>,
-    s: Vec<f64>,
+    s: Vec<[f64; 2]>,
+}
+
+/// `FIELD_POSITION_OWN_SCALE` (off by default; issue 40's adaptivity):
+/// each side of an edge compares its own lattice at its own spacing (as
+/// QuadriFlow's extrinsic position rule takes a scale per side) instead
+/// of both at the edge's mean spacing.
+fn own_scale() -> bool {
+    std::env::var_os("FIELD_POSITION_OWN_SCALE").is_some()
 }
 
 impl EdgeTerms {
@@ -205,6 +213,7 @@ impl EdgeTerms {
             m: Vec::with_capacity(k),
             s: Vec::with_capacity(k),
         };
+        let own = own_scale();
         for i in 0..l.p.len() {
             for &j in l.neighbours(i) {
                 let j = j as usize;
@@ -212,7 +221,11 @@ impl EdgeTerms {
                 e.q.push(qj);
                 e.t.push(l.n[j].cross(qj));
                 e.m.push(middle(l.p[i], l.n[i], l.p[j], l.n[j]));
-                e.s.push(0.5 * (l.s[i] + l.s[j]));
+                e.s.push(if own {
+                    [l.s[i], l.s[j]]
+                } else {
+                    [0.5 * (l.s[i] + l.s[j]); 2]
+                });
             }
         }
         e
