@@ -177,7 +177,8 @@ struct Options {
   std::uint32_t tessellation = 0;
   // --proxy: the mesh the organic layout runs on. -1 = auto (a 50 000
   // triangle decimation for inputs above 100 000), 0 = none (the input
-  // itself), N = about N triangles (at least 100) when the input has more.
+  // itself), N = about N triangles (at least 100) when the input has more,
+  // -2 = adaptive (sized by a probe's predicted patch count).
   std::int64_t proxy = -1;
   // --exact-metrics: measure the metrics on every point (by default the
   // displaced surface's directions are drawn at 100 000 points, the limit

@@ -24,7 +24,10 @@ use crate::quad::{simplify_prepared, SimplifyOptions, SimplifyStats};
 use crate::raycast::{make_raycaster, RayBackend};
 use crate::report::StageTimer;
 
-use super::options::{ConvertOptions, Proxy};
+use super::options::{
+    adaptive_proxy_triangles, ConvertOptions, Proxy, PROXY_ADAPTIVE_FLOOR,
+    PROXY_PATCHES_PER_FM_INTEGRAL, PROXY_PROBE_TRIANGLES,
+};
 use super::run::Run;
 use super::search::ERROR_SEARCH_CHECKPOINTS;
 
@@ -152,11 +155,12 @@ fn organic_greedy(
     checkpoints: bool,
 ) -> Result<Laid> {
     let mesh = run.mesh();
-    let (proxy, proxy_stats) = layout_proxy(mesh, opts.proxy, &mut run.timer, run.progress)?;
+    let (proxy, proxy_stats) = layout_proxy(mesh, opts.proxy, fo, &mut run.timer, run.progress)?;
     let (layout, layout_caster) = match &proxy {
         Some((m, c)) => (m, c.as_ref()),
         None => (mesh, run.caster.as_ref()),
     };
+    let run_caster = run.caster.as_ref();
     let (timer, progress) = (&mut run.timer, &mut *run.progress);
     let stage = crate::fit::report_progress;
     // The quadrangulation and interpolation read M′ only: they run on a
@@ -177,14 +181,24 @@ fn organic_greedy(
                 Err(_) => crate::quad::prepare(layout),
             },
         );
-        let fitmap = layout_fitmap(layout, layout_caster, fo, timer, progress);
+        let fitmap = match (&proxy, fitmap_on_m_env()) {
+            // §4's split: the Fitmap on M, carried to M′ (diagnostic).
+            (Some((m, _)), true) => {
+                layout_fitmap(mesh, run_caster, fo, timer, progress).and_then(|on_m| {
+                    let on_proxy =
+                        timer.run("fitmap transfer", || on_m.transferred(mesh, run_caster, m))?;
+                    Ok((on_proxy, Some(on_m)))
+                })
+            }
+            _ => layout_fitmap(layout, layout_caster, fo, timer, progress).map(|f| (f, None)),
+        };
         // A panic there is re-raised here, as if it had run inline.
         let start = start
             .join()
             .unwrap_or_else(|e| std::panic::resume_unwind(e));
         (fitmap, start)
     });
-    let (fitmap, start) = (fitmap?, start?);
+    let ((fitmap, fitmap_m), start) = (fitmap?, start?);
     let so = SimplifyOptions::default()
         .with_target_faces(opts.target_faces)
         .with_m_fitmap(!opts.no_m_fitmap)
@@ -205,7 +219,10 @@ fn organic_greedy(
         })
     })?;
     stage(progress, "simplify", 1.0)?;
-    let fitmap = fitmap_on_m(&proxy, fitmap, mesh, timer)?;
+    let fitmap = match fitmap_m {
+        Some(f) => f,
+        None => fitmap_on_m(&proxy, fitmap, mesh, timer)?,
+    };
     Ok(Laid {
         control: simplified.mesh,
         checkpoints: simplified.checkpoints,
@@ -235,7 +252,7 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
     let canonical = crate::quad::field::parts::Order::from_env()
         .map(|o| crate::quad::field::parts::canonical_mesh_in(mesh, o));
     let canon = canonical.as_ref().map_or(mesh, |c| &c.0);
-    let (proxy, proxy_stats) = layout_proxy(canon, opts.proxy, &mut run.timer, run.progress)?;
+    let (proxy, proxy_stats) = layout_proxy(canon, opts.proxy, fo, &mut run.timer, run.progress)?;
     let canon_caster = match (&proxy, &canonical) {
         (None, Some(_)) => Some(make_raycaster(RayBackend::Embree, canon)?),
         _ => None,
@@ -283,6 +300,14 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
             }),
         },
     })
+}
+
+/// `SUBDFIT_PROXY_FITMAP_ON_M=1`: with a layout proxy, compute the Fitmap
+/// on M and carry it to M′ (Fitmaps §4: "all computation, including
+/// fitting and mapping, is referred to the original mesh M"), so that only
+/// the quadrangulation and simplification run on M′. A measuring switch.
+fn fitmap_on_m_env() -> bool {
+    std::env::var_os("SUBDFIT_PROXY_FITMAP_ON_M").is_some_and(|v| v == "1")
 }
 
 /// The Fitmap (§3.1) of the mesh the organic layouts run on (M or M′), as
@@ -346,49 +371,165 @@ fn mechanical(run: &mut Run<'_, '_>, mo: crate::mechanical::MechanicalOptions) -
 /// layout mesh's topology, so a decimation that closed a handle or pinched
 /// a part off would give a wrong surface, not just a coarser one. A failed
 /// check retries at twice the triangles, up to [`PROXY_ATTEMPTS`] times,
-/// then falls back to M (the report says why).
+/// then falls back to M (the report says why). [`Proxy::Adaptive`] then
+/// sizes M′ by the output ([`adaptive_size`], with `fo`'s τ), decimating
+/// the first M′ (inputs above `auto`'s bound) or M.
 pub(super) fn layout_proxy(
     mesh: &crate::mesh::TriMesh,
     proxy: Proxy,
+    fo: &FitmapOptions,
     timer: &mut StageTimer,
     progress: &mut crate::watch::Progress<'_>,
 ) -> Result<(Option<LayoutProxy>, Option<ProxyRecord>)> {
-    let Some(mut triangles) = proxy.target(mesh.triangles.len()) else {
+    let adaptive = proxy == Proxy::Adaptive;
+    let first = proxy.target(mesh.triangles.len());
+    if first.is_none() && !adaptive {
         return Ok((None, None));
-    };
+    }
     crate::fit::report_progress(progress, "proxy", 0.0)?;
     let found = timer.run("proxy", || -> Result<_> {
         let want = Topology::of(mesh);
         let mut tried = Vec::new();
-        for _ in 0..PROXY_ATTEMPTS {
-            if 2 * triangles > mesh.triangles.len() {
-                break;
+        let mut m = match first {
+            Some(t) => decimate_keeping(mesh, t, want, &mut tried)?,
+            None => None,
+        };
+        let mut sizing = None;
+        if adaptive {
+            let base = m.as_ref().map_or(mesh, |(b, _)| b);
+            let (target, record) = adaptive_size(base, fo, want)?;
+            if let Some(t) = target {
+                if let Some(smaller) = decimate_keeping(base, t, want, &mut tried)? {
+                    m = Some(smaller);
+                }
             }
-            let (m, stats) = crate::mesh::decimate(mesh, triangles)?;
-            let got = Topology::of(&m);
-            tried.push(ProxyAttempt {
-                target_triangles: triangles,
-                triangles: m.triangles.len(),
-                topology: got,
-                decimation: stats,
-            });
-            if got == want {
-                let c = make_raycaster(RayBackend::Embree, &m)?;
-                return Ok((Some((m, c)), tried, want));
-            }
-            triangles *= 2;
+            sizing = Some(record);
         }
-        Ok((None, tried, want))
+        Ok((m, tried, want, sizing))
     })?;
     crate::fit::report_progress(progress, "proxy", 1.0)?;
-    let (m, tried, want) = found;
+    let (m, tried, want, adaptive) = found;
     let record = ProxyRecord {
         used: m.is_some(),
         input_triangles: mesh.triangles.len(),
         input_topology: want,
         attempts: tried,
+        adaptive,
     };
     Ok((m, Some(record)))
+}
+
+/// A decimation of `base` to about `triangles` with the topology `want`
+/// (retried at twice the triangles up to [`PROXY_ATTEMPTS`] times, never
+/// above half of `base`), each attempt pushed onto `tried`; `None` when
+/// none kept it.
+fn decimate_keeping(
+    base: &crate::mesh::TriMesh,
+    mut triangles: usize,
+    want: Topology,
+    tried: &mut Vec<ProxyAttempt>,
+) -> Result<Option<LayoutProxy>> {
+    for _ in 0..PROXY_ATTEMPTS {
+        if triangles.saturating_mul(2) > base.triangles.len() {
+            break;
+        }
+        let (m, stats) = crate::mesh::decimate(base, triangles)?;
+        let got = Topology::of(&m);
+        tried.push(ProxyAttempt {
+            target_triangles: triangles,
+            triangles: m.triangles.len(),
+            topology: got,
+            decimation: stats,
+        });
+        if got == want {
+            let c = make_raycaster(RayBackend::Embree, &m)?;
+            return Ok(Some((m, c)));
+        }
+        triangles *= 2;
+    }
+    Ok(None)
+}
+
+/// [`Proxy::Adaptive`]'s size of M′ for the layout mesh `base` (M, or the
+/// first M′ of a big input), or `None` when the layout should run on
+/// `base` itself.
+///
+/// Fitmaps §4 lays out on a simplified M′ because the layout needs far
+/// fewer vertices than M has; what it needs grows with the *output*
+/// (dozens of M′ vertices per patch), not with M. The patch count is
+/// predicted before the layout from a probe, a [`PROXY_PROBE_TRIANGLES`]
+/// decimation with `base`'s topology, and the Fitmap on it at `fo`'s τ:
+/// the radius field F_M asks for ∝ ∫ F_M⁻² dA patches (the count
+/// [`crate::quad::s_fitmap_kappa`] equates the S-fitmap test's with). M′
+/// gets [`super::options::PROXY_TRIANGLES_PER_PATCH`] triangles per predicted patch
+/// ([`adaptive_proxy_triangles`]); when that is more than half of `base`
+/// (a detailed surface whose patches already see only dozens of its
+/// vertices, gargoyle) the layout stays on `base`, as it does when no
+/// probe keeps the topology. Inputs under twice [`PROXY_ADAPTIVE_FLOOR`]
+/// triangles are not probed.
+fn adaptive_size(
+    base: &crate::mesh::TriMesh,
+    fo: &FitmapOptions,
+    want: Topology,
+) -> Result<(Option<usize>, AdaptiveRecord)> {
+    let mut record = AdaptiveRecord::default();
+    if base.triangles.len() < 2 * PROXY_ADAPTIVE_FLOOR {
+        return Ok((None, record));
+    }
+    let Some((probe, caster)) =
+        decimate_keeping(base, PROXY_PROBE_TRIANGLES, want, &mut record.probe)?
+    else {
+        return Ok((None, record));
+    };
+    let fitmap = crate::analysis::compute_fitmap(&probe, caster.as_ref(), fo)?;
+    record.fm_integral = fm_patch_integral(&probe, &fitmap);
+    record.predicted_patches = PROXY_PATCHES_PER_FM_INTEGRAL * record.fm_integral;
+    let target = adaptive_proxy_triangles(record.fm_integral);
+    record.target_triangles = target;
+    let fits = target.saturating_mul(2) <= base.triangles.len();
+    Ok((fits.then_some(target), record))
+}
+
+/// [`Proxy::Adaptive`]'s decision for a layout on `mesh` at `fo`'s τ (the
+/// probe, its prediction and the M′ size, `None` when the layout would
+/// stay on `mesh`); what [`layout_proxy`] does before decimating M′.
+pub fn adaptive_proxy_size(
+    mesh: &crate::mesh::TriMesh,
+    fo: &FitmapOptions,
+) -> Result<(Option<usize>, AdaptiveRecord)> {
+    adaptive_size(mesh, fo, Topology::of(mesh))
+}
+
+/// `∫ F_M⁻² dA` over `mesh` (vertex areas a third of the incident
+/// triangles', vertices without a positive finite F_M left out): ∝ the
+/// patch count of the radius field F_M, see [`adaptive_size`].
+pub fn fm_patch_integral(mesh: &crate::mesh::TriMesh, fitmap: &Fitmap) -> f64 {
+    let areas = crate::analysis::normals::triangle_areas(mesh);
+    let mut va = vec![0.0; mesh.positions.len()];
+    for (t, a) in mesh.triangles.iter().zip(&areas) {
+        for &v in t {
+            va[v as usize] += a / 3.0;
+        }
+    }
+    va.iter()
+        .zip(&fitmap.m)
+        .filter(|(_, &m)| m > 0.0 && m.is_finite())
+        .map(|(&a, &m)| a / (m * m))
+        .sum()
+}
+
+/// What [`adaptive_size`] measured (`report.json`'s
+/// `layout_proxy.adaptive`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+pub struct AdaptiveRecord {
+    /// The probe's decimations (empty: the input was under twice the floor).
+    pub probe: Vec<ProxyAttempt>,
+    /// `∫ F_M⁻² dA` over the probe (scale-invariant).
+    pub fm_integral: f64,
+    pub predicted_patches: f64,
+    /// The M′ size asked for (0: no probe); used when at most half of the
+    /// layout mesh.
+    pub target_triangles: usize,
 }
 
 /// What [`layout_proxy`] tried (`report.json`'s `layout_proxy`, and `fit`'s
@@ -400,6 +541,9 @@ pub struct ProxyRecord {
     pub input_triangles: usize,
     pub input_topology: Topology,
     pub attempts: Vec<ProxyAttempt>,
+    /// [`Proxy::Adaptive`]'s probe and the size it chose.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adaptive: Option<AdaptiveRecord>,
 }
 
 /// One decimation [`layout_proxy`] tried.

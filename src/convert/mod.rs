@@ -39,10 +39,14 @@ pub mod tail;
 pub mod thin;
 
 pub use auto::{Candidate, SecondOpinion};
-pub use layout::{FieldRelayout, Laid, Layout, LayoutRecord, ProxyAttempt, ProxyRecord};
+pub use layout::{
+    adaptive_proxy_size, fm_patch_integral, AdaptiveRecord, FieldRelayout, Laid, Layout,
+    LayoutRecord, ProxyAttempt, ProxyRecord,
+};
 pub use options::{
-    ConvertOptions, LayoutKind, Mode, Proxy, DEFAULT_ORGANIC_MAX_ERROR, PROXY_AUTO_ABOVE,
-    PROXY_AUTO_TRIANGLES,
+    adaptive_proxy_triangles, ConvertOptions, LayoutKind, Mode, Proxy, DEFAULT_ORGANIC_MAX_ERROR,
+    PROXY_ADAPTIVE_FLOOR, PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES, PROXY_PATCHES_PER_FM_INTEGRAL,
+    PROXY_PROBE_TRIANGLES, PROXY_TRIANGLES_PER_PATCH,
 };
 pub use record::{
     BranchLayout, BranchRecord, FitInputs, FittedRun, HostRecord, MechanicalRecord, ModeRecord,
@@ -135,7 +139,7 @@ fn proxied_fitmap(
     timer: &mut StageTimer,
     progress: &mut crate::watch::Progress<'_>,
 ) -> Result<(Option<crate::analysis::Fitmap>, Option<layout::ProxyRecord>)> {
-    let (proxy, tried) = layout::layout_proxy(mesh, Proxy::Auto, timer, progress)?;
+    let (proxy, tried) = layout::layout_proxy(mesh, Proxy::Auto, fo, timer, progress)?;
     let Some((m, c)) = proxy else {
         return Ok((None, tried));
     };

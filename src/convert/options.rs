@@ -101,6 +101,13 @@ pub enum Proxy {
     None,
     /// M′ of about this many triangles when M has more.
     Triangles(usize),
+    /// M′ sized by the *output* rather than the input (§4: the layout
+    /// needs only "dozens of M′ vertices" per patch): a cheap probe
+    /// Fitmap predicts the patch count, M′ gets
+    /// [`PROXY_TRIANGLES_PER_PATCH`] triangles per predicted patch (at
+    /// least [`PROXY_ADAPTIVE_FLOOR`]), and the layout runs on M when that
+    /// is more than half of M ([`adaptive_proxy_triangles`]).
+    Adaptive,
 }
 
 /// The size of [`Proxy::Auto`]'s M′, in triangles: the final control
@@ -116,18 +123,63 @@ pub const PROXY_AUTO_TRIANGLES: usize = 50_000;
 /// (the papers' meshes, 50–70k triangles, convert as before).
 pub const PROXY_AUTO_ABOVE: usize = 100_000;
 
-/// `auto`, `none` or a triangle count of at least 100: `--proxy`, and the
-/// same words in every host.
+/// Triangles of [`Proxy::Adaptive`]'s probe: the decimation whose Fitmap
+/// predicts the patch count. Probe and Fitmap cost 0.3–0.6 CPU s (bunny,
+/// gargoyle), a tenth of a full-resolution Fitmap.
+pub const PROXY_PROBE_TRIANGLES: usize = 4_000;
+
+/// Patches per unit of `∫ F_M⁻² dA` over the probe (a patch of radius r
+/// covers ∝ r², so the patch count of the radius field F_M is ∝ ∫ F_M⁻² dA,
+/// the denominator of [`crate::quad::s_fitmap_kappa`]; scale-invariant).
+/// Measured 2026-12-06 (docs/status.md, "Scale"), natural-end patches of
+/// the full-resolution layout over the probe's integral: bunny τ 1 / 5 /
+/// 10 % 1.61 / 1.61 / 1.48, gargoyle 1.64 / 1.52 / 1.22. The probe's F_M is
+/// coarser than M's (its r_0 is larger and its small folds are decimated
+/// away), which this constant absorbs.
+pub const PROXY_PATCHES_PER_FM_INTEGRAL: f64 = 1.6;
+
+/// M′ triangles per predicted patch of [`Proxy::Adaptive`]. The greedy
+/// simplification's natural end moves when M′ is coarse *for the output*:
+/// measured on bunny and gargoyle (docs/status.md, "Scale"), the end keeps
+/// its patch count while the quadrangulated start has ≳ 25 faces (50
+/// triangles) per final patch and loses 10–20 % below ~15 (gargoyle at
+/// 24k and 15k triangles, bunny at 10k), with M's own Fitmap carried to M′
+/// as well as with M′'s: it is the coarse start, not the Fitmap. 58 (~29
+/// vertices, Fitmaps §4's "dozens") leaves a margin for a prediction up
+/// to 15 % high.
+pub const PROXY_TRIANGLES_PER_PATCH: f64 = 58.0;
+
+/// The smallest M′ of [`Proxy::Adaptive`]; inputs under twice this many
+/// triangles are laid out on M without a probe.
+pub const PROXY_ADAPTIVE_FLOOR: usize = 10_000;
+
+/// [`Proxy::Adaptive`]'s M′ size for a probe whose `∫ F_M⁻² dA` is
+/// `fm_integral`: [`PROXY_TRIANGLES_PER_PATCH`] per predicted patch, at
+/// least [`PROXY_ADAPTIVE_FLOOR`]. Grows with the predicted output, never
+/// with M's own triangle count.
+pub fn adaptive_proxy_triangles(fm_integral: f64) -> usize {
+    let patches = PROXY_PATCHES_PER_FM_INTEGRAL * fm_integral.max(0.0);
+    let t = (PROXY_TRIANGLES_PER_PATCH * patches).ceil();
+    if t.is_finite() && t < usize::MAX as f64 {
+        (t as usize).max(PROXY_ADAPTIVE_FLOOR)
+    } else {
+        usize::MAX
+    }
+}
+
+/// `auto`, `none`, `adaptive` or a triangle count of at least 100:
+/// `--proxy`, and the same words in every host.
 impl std::str::FromStr for Proxy {
     type Err = String;
     fn from_str(s: &str) -> std::result::Result<Proxy, String> {
         match s {
             "auto" => Ok(Proxy::Auto),
             "none" => Ok(Proxy::None),
+            "adaptive" => Ok(Proxy::Adaptive),
             n => match n.parse::<usize>() {
                 Ok(n) if n >= 100 => Ok(Proxy::Triangles(n)),
                 _ => Err(format!(
-                    "expected auto, none or a triangle count of at least 100, got '{n}'"
+                    "expected auto, none, adaptive or a triangle count of at least 100, got '{n}'"
                 )),
             },
         }
@@ -136,10 +188,13 @@ impl std::str::FromStr for Proxy {
 
 impl Proxy {
     /// The triangle count M′ should have for a mesh of `triangles`, or
-    /// `None` when the layout runs on M.
+    /// `None` when the layout runs on M. [`Proxy::Adaptive`] answers as
+    /// `auto` here (its first decimation for inputs above
+    /// [`PROXY_AUTO_ABOVE`]); its own size comes from the probe
+    /// ([`adaptive_proxy_triangles`]).
     pub fn target(self, triangles: usize) -> Option<usize> {
         let (above, size) = match self {
-            Proxy::Auto => (PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES),
+            Proxy::Auto | Proxy::Adaptive => (PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES),
             Proxy::None => return None,
             Proxy::Triangles(n) => (n, n),
         };

@@ -291,6 +291,7 @@ fn options(o: &FfiOptions) -> crate::Result<embed::Options> {
         .with_m_fitmap(o.m_fitmap)
         .with_tessellation(positive(o.tessellation))
         .with_proxy(match o.proxy {
+            -2 => Proxy::Adaptive,
             -1 => Proxy::Auto,
             0 => Proxy::None,
             n if n > 0 => Proxy::Triangles(n as usize),

@@ -121,8 +121,10 @@ pub struct ConversionArgs {
     /// every figure use the input itself. `auto`: 50 000 triangles for
     /// inputs above 100 000 (below, the full-resolution layout takes under
     /// ~20 s and stays the reference); `none`: the layout runs on the input
-    /// (minutes on big scans, for comparison); or a triangle count (used
-    /// when the input has more). The proxy is used only if it keeps the
+    /// (minutes on big scans, for comparison); `adaptive`: sized by the
+    /// output, ~58 triangles per patch predicted by the Fitmap of a
+    /// 4 000-triangle probe, the input itself when that is more than half
+    /// of it; or a triangle count (used when the input has more). The proxy is used only if it keeps the
     /// input's topology (components, boundary loops, Euler characteristic);
     /// report.json's `layout_proxy` says what was tried.
     #[arg(long, default_value = "auto", value_parser = clap::value_parser!(Proxy))]
