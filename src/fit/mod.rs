@@ -420,12 +420,12 @@ pub fn fit_deciding_with(
             &caster,
             opts,
             &mut |s: &str, f: f64| w.report(s, f).is_ok(),
-            (decide, resume),
+            (decide, resume, start_pick()),
         )
     })
 }
 
-/// [`fit_with_progress`] on the calling thread.
+/// [`fit_with_progress`] on the calling thread; `pick`: [`start_pick`].
 fn fit_both_starts(
     mesh: &TriMesh,
     facts: &Arc<MeshFacts>,
@@ -433,7 +433,7 @@ fn fit_both_starts(
     caster: &dyn RayCaster,
     opts: &FitOptions,
     progress: &mut Progress<'_>,
-    (decide, resume): (Option<Decide>, Option<FitState>),
+    (decide, resume, pick): (Option<Decide>, Option<FitState>, Option<(usize, f64)>),
 ) -> Result<(Fitted, Option<FitState>)> {
     let t0 = Instant::now();
     opts.check()?;
@@ -452,10 +452,12 @@ fn fit_both_starts(
             (rim_moves, build()?, Vec::new().into_iter())
         }
     };
-    // One start from its state (a finished one is its result).
+    // One start from its state (a finished one is its result), paused
+    // after round `stop` at the latest when asked.
     let run = |control: ControlMesh,
                moves: &[(VertexId, DVec3)],
                state: Option<StartState>,
+               stop: Option<usize>,
                progress: &mut Progress<'_>| {
         let paused = match state {
             Some(StartState::Done(f)) => return Ok((*f, None)),
@@ -471,7 +473,7 @@ fn fit_both_starts(
             progress,
             moves,
             t0,
-            (decide, paused),
+            (decide, paused, stop),
         )
     };
     // What a start leaves for a resumption.
@@ -485,7 +487,7 @@ fn fit_both_starts(
         sys: Some(sys.clone()),
     };
     if rim_moves.is_empty() {
-        let (f, s, done) = state(run(control, &[], states.next(), progress)?);
+        let (f, s, done) = state(run(control, &[], states.next(), None, progress)?);
         return Ok((f, (!done).then(|| paused_state(vec![s]))));
     }
     // The two starts side by side: each round's Eigen solve is serial
@@ -498,13 +500,50 @@ fn fit_both_starts(
     // topology and its positions before the rim fit, not on the moves.
     let for_rim = control.clone();
     let (s_with, s_without) = (states.next(), states.next());
+    // `SUBDFIT_FIT_START_PICK` (off by default): both starts stop after
+    // round k, and one whose kept score is plainly the lower goes on alone.
+    let pick = pick.filter(|&(k, _)| {
+        [&s_with, &s_without].iter().all(|s| match s {
+            None => true,
+            Some(StartState::Paused(p)) => p.next_round <= k,
+            Some(StartState::Done(_)) => false,
+        })
+    });
+    let stop = pick.map(|(k, _)| k);
+    let for_plain = control.clone();
     let (with, without) = rayon::join(
-        || run(for_rim, &rim_moves, s_with, progress),
-        || run(control, &[], s_without, &mut |_: &str, _: f64| true),
+        || run(for_rim, &rim_moves, s_with, stop, progress),
+        || run(for_plain, &[], s_without, stop, &mut |_: &str, _: f64| true),
     );
-    let ((with, st_with, done_with), (without, st_without, done_without)) =
-        (state(with?), state(without?));
+    let (with, without) = (with?, without?);
+    let (with, without) = match pick {
+        None => (with, without),
+        Some((k, margin)) => pick_start(
+            (with, without),
+            (k, margin),
+            &mut |r: StartRun, moves: &[(VertexId, DVec3)], progress: &mut Progress<'_>| {
+                let st = r.1.map(StartState::Paused);
+                run(control.clone(), moves, st, None, progress)
+            },
+            &rim_moves,
+            progress,
+        )?,
+    };
     let score = |f: &Fitted| f.report.iterations[f.report.best_iteration].score_permille;
+    let ((with, st_with, done_with), (without, st_without, done_without)) =
+        (state(with), state(without));
+    if std::env::var_os("SUBDFIT_FITTRACE").is_some() {
+        let it = |f: &Fitted| {
+            let v: Vec<String> = f
+                .report
+                .iterations
+                .iter()
+                .map(|i| format!("{:.4}", i.score_permille))
+                .collect();
+            v.join(" ")
+        };
+        eprintln!("fit rim:   {}\nfit plain: {}", it(&with), it(&without));
+    }
     let mut best = if score(&without) < score(&with) {
         without
     } else {
@@ -516,6 +555,66 @@ fn fit_both_starts(
         best,
         paused.then(|| paused_state(vec![st_with, st_without])),
     ))
+}
+
+/// One start's result and where it paused ([`fit_from`]).
+type StartRun = (Fitted, Option<Paused>);
+
+/// Resumes a paused start (with its rim moves) to its end.
+type ResumeStart<'a> =
+    dyn FnMut(StartRun, &[(VertexId, DVec3)], &mut Progress<'_>) -> Result<StartRun> + 'a;
+
+/// `SUBDFIT_FIT_START_PICK=k[:m]` (off by default; an experiment, not a
+/// proof): on an open mesh both starts of a fit stop after round k, and
+/// the one whose kept score is below the other's by more than the factor
+/// `1 + m` (default 0) goes on alone (ties keep the rim start, as the
+/// whole fit does).
+fn start_pick() -> Option<(usize, f64)> {
+    let v = std::env::var("SUBDFIT_FIT_START_PICK").ok()?;
+    let mut it = v.splitn(2, ':');
+    let k = it.next()?.trim().parse().ok()?;
+    let m = it.next().map_or(Some(0.0), |m| m.trim().parse().ok())?;
+    Some((k, m))
+}
+
+/// [`start_pick`]'s decision on the two starts (rim start first), both
+/// run until round k at the latest: the kept start is resumed to its
+/// end (the other keeps its score so far, which the kept start's only
+/// undercuts further, so the final comparison keeps the kept one); when
+/// neither is plainly lower, each start stopped at round k (by the pick
+/// or by `decide`) is resumed, and one paused earlier by `decide` stays
+/// paused, as without the pick.
+fn pick_start(
+    (with, without): (StartRun, StartRun),
+    (k, margin): (usize, f64),
+    resume: &mut ResumeStart<'_>,
+    rim_moves: &[(VertexId, DVec3)],
+    progress: &mut Progress<'_>,
+) -> Result<(StartRun, StartRun)> {
+    let score = |f: &Fitted| f.report.iterations[f.report.best_iteration].score_permille;
+    let at_k = |r: &StartRun| r.1.as_ref().is_some_and(|p| p.next_round == k + 1);
+    let both = at_k(&with) && at_k(&without);
+    let (sw, so) = (score(&with.0), score(&without.0));
+    if std::env::var_os("SUBDFIT_FITTRACE").is_some() {
+        eprintln!("fit starts after round {k}: rim {sw:.5}, plain {so:.5} (both there: {both})");
+    }
+    let done = |(f, _): StartRun| (f, None);
+    if both && so * (1.0 + margin) < sw {
+        return Ok((done(with), resume(without, &[], progress)?));
+    }
+    if both && sw * (1.0 + margin) <= so {
+        return Ok((resume(with, rim_moves, progress)?, done(without)));
+    }
+    // Serially here (a rare case: the starts' scores within the margin).
+    let with = match at_k(&with) {
+        true => resume(with, rim_moves, progress)?,
+        false => with,
+    };
+    let without = match at_k(&without) {
+        true => resume(without, &[], &mut |_: &str, _: f64| true)?,
+        false => without,
+    };
+    Ok((with, without))
 }
 
 /// What every fit to M asks of it whatever the control mesh: computed once
@@ -567,7 +666,7 @@ fn fit_from(
     progress: &mut Progress<'_>,
     rim_moves: &[(VertexId, DVec3)],
     t0: Instant,
-    (decide, resume): (Option<Decide>, Option<Paused>),
+    (decide, resume, stop): (Option<Decide>, Option<Paused>, Option<usize>),
 ) -> Result<(Fitted, Option<Paused>)> {
     let diag = checked_diagonal(mesh)?;
     let max_dist = opts.max_dist.unwrap_or_else(|| default_max_dist(mesh));
@@ -659,21 +758,20 @@ fn fit_from(
             "fit",
             (round as f64 + 1.0) / (opts.max_iterations as f64 + 1.0),
         )?;
-        if let Some(d) = decide {
+        let decided = decide.is_some_and(|d| {
             let kept = best.1 * permille;
-            if kept <= d.bound_permille
-                || (round >= 1 && kept * DECIDE_MISS_FLOOR > d.bound_permille)
-            {
-                paused = Some(Paused {
-                    positions,
-                    best: best.clone(),
-                    outlier_bound,
-                    first_back,
-                    iterations: iterations.clone(),
-                    next_round: round + 1,
-                });
-                break;
-            }
+            kept <= d.bound_permille || (round >= 1 && kept * DECIDE_MISS_FLOOR > d.bound_permille)
+        });
+        if decided || stop == Some(round) {
+            paused = Some(Paused {
+                positions,
+                best: best.clone(),
+                outlier_bound,
+                first_back,
+                iterations: iterations.clone(),
+                next_round: round + 1,
+            });
+            break;
         }
     }
     let (positions, rms, best_iteration, _) = best;
@@ -1577,4 +1675,73 @@ fn solve_sdm(
     Ok((0..nv)
         .map(|v| DVec3::new(x[3 * v], x[3 * v + 1], x[3 * v + 2]))
         .collect())
+}
+
+#[cfg(test)]
+mod start_pick_tests {
+    use super::*;
+    use crate::raycast::{make_raycaster, RayBackend};
+
+    /// An open M (a bumpy square) and a control grid overhanging it, so
+    /// that its border loops move onto M's rim and both starts run (the
+    /// fixture of `tests/fit_deciding.rs`).
+    fn open_case() -> (TriMesh, ControlMesh) {
+        let mesh = crate::fixtures::tri_grid(
+            16,
+            |i, j| {
+                let (x, y) = (0.25 * i as f64, 0.25 * j as f64);
+                DVec3::new(x, y, 0.1 * (x * 1.3).sin() * (y * 0.9).cos())
+            },
+            |_, _| true,
+        );
+        let mut control = crate::fixtures::flat_grid(4, 4);
+        for p in control.positions_mut() {
+            *p = DVec3::new(1.25 * p.x - 0.5, 1.25 * p.y - 0.5, 0.05);
+        }
+        (mesh, control)
+    }
+
+    /// Both starts stopped after round k and resumed (neither plainly
+    /// lower: an infinite margin) give the whole fit bit for bit. A pick
+    /// (margin 0) gives it too when it keeps the start that wins the whole
+    /// fit, as it does on this fixture (its rim start leads from round 0):
+    /// the dropped start's score so far is above the kept one's, whose
+    /// score only falls, so the final comparison keeps the kept start.
+    #[test]
+    fn a_pick_that_keeps_the_whole_fit_s_start_gives_its_bits() {
+        let (mesh, control) = open_case();
+        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+        let facts = MeshFacts::of(&mesh);
+        let opts = FitOptions::default();
+        let fit_with = |pick| {
+            let quiet = &mut |_: &str, _: f64| true;
+            let c = control.clone();
+            fit_both_starts(
+                &mesh,
+                &facts,
+                c,
+                caster.as_ref(),
+                &opts,
+                quiet,
+                (None, None, pick),
+            )
+            .unwrap()
+        };
+        let (whole, rest) = fit_with(None);
+        assert!(rest.is_none());
+        assert!(whole.report.iterations.len() > 3, "{:?}", whole.report);
+        for pick in [(0, f64::INFINITY), (2, f64::INFINITY), (1, 0.0), (2, 0.0)] {
+            let (picked, rest) = fit_with(Some(pick));
+            assert!(rest.is_none(), "{pick:?}");
+            assert_eq!(
+                picked.control.positions(),
+                whole.control.positions(),
+                "{pick:?}"
+            );
+            assert_eq!(
+                picked.report.iterations, whole.report.iterations,
+                "{pick:?}"
+            );
+        }
+    }
 }
