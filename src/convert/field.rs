@@ -375,6 +375,48 @@ pub fn fit_field(
     Ok(c)
 }
 
+/// How [`crate::quad::field::field_layout_drawn`] ranks the first
+/// layout's draws, lower first: a fit of the draw's control mesh to the
+/// layout mesh M′, scored as [`fit_field`] scores a round, by the larger of
+/// the fit's RMS (limit → M′) and M′'s own RMS distance to the fitted
+/// limit ([`patch_errors`], as RMS L measures it), in ‰ of M′'s diagonal.
+/// The fit's RMS alone ranks a lattice that cuts across a thin part first
+/// (homer 272, session 14: fit 1.91‰ but RMS L 5.65‰ on the draw it
+/// preferred). `SUBDFIT_FIELD_DRAW_SCORE`: `fit` the fit's RMS only,
+/// `irr` the irregular count, `unproj` adds the unprojectable share (%)
+/// to the default.
+pub fn draw_score(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    fit: &crate::fit::FitOptions,
+    laid: &crate::quad::field::FieldLayout,
+) -> Result<f64> {
+    let how = std::env::var("SUBDFIT_FIELD_DRAW_SCORE").unwrap_or_default();
+    if how == "irr" {
+        return Ok(laid.stats.irregular_vertices as f64);
+    }
+    let fitted = crate::fit::fit(mesh, laid.control.clone(), caster, fit)?;
+    let fit_rms = fitted.report.final_rms_permille;
+    if how == "fit" {
+        return Ok(fit_rms);
+    }
+    let m = patch_errors(mesh, &fitted.control)?;
+    let layout_rms = 1000.0 * m.rms / mesh.bbox_diagonal();
+    let score = fit_rms.max(layout_rms)
+        + if how == "unproj" {
+            m.unprojectable_percent
+        } else {
+            0.0
+        };
+    if std::env::var_os("SUBDFIT_FIELD_DRAW_LOG").is_some() {
+        eprintln!(
+            "draw: faces {} irregular {} fit {fit_rms:.4} layout {layout_rms:.4} unprojectable {:.4} % score {score:.4}",
+            laid.stats.faces, laid.stats.irregular_vertices, m.unprojectable_percent
+        );
+    }
+    Ok(score)
+}
+
 /// What follows the rounds of [`fit_field`]: the `--max-error` bracket
 /// towards fewer patches ([`Bracket`]) or, at a fixed count, the thin
 /// rounds ([`super::thin`]).

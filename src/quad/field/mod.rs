@@ -36,6 +36,7 @@
 
 pub mod cleanup;
 pub mod cross;
+pub mod draws;
 pub mod extract;
 pub mod flip;
 pub mod flow;
@@ -220,6 +221,9 @@ pub struct FieldStats {
     pub parts_floored: usize,
     #[serde(default)]
     pub parts_split_triangles: usize,
+    /// The draws laid and the one kept ([`draws`]; `None`: one draw).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub draws: Option<draws::DrawsRecord>,
 }
 
 /// The result of [`field_layout`].
@@ -320,6 +324,18 @@ pub fn field_layout_prepared(
     fitmap: &Fitmap,
     opts: &FieldOptions,
 ) -> Result<FieldLayout> {
+    let (h, stats) = sizing_prepared(prep, mesh, fitmap, opts)?;
+    lay_counted(prep, mesh, fitmap, h, opts, stats)
+}
+
+/// Step 2 of [`field_layout_prepared`]: the sizing and the figures it
+/// sets.
+fn sizing_prepared(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    opts: &FieldOptions,
+) -> Result<(Vec<f64>, FieldStats)> {
     check_fitmap(mesh, fitmap)?;
     prep.check(mesh)?;
     let surf = &prep.surf;
@@ -343,7 +359,30 @@ pub fn field_layout_prepared(
     stats.m_fitmap_relaxed = relaxed;
     stats.predicted_faces = predicted;
     stats.seconds_sizing = t.elapsed().as_secs_f64();
-    lay_counted(prep, mesh, fitmap, h, opts, stats)
+    Ok((h, stats))
+}
+
+/// [`field_layout_prepared`] drawn `k` times ([`draws`]: the sizing's
+/// scale moved by each of [`draws::SCALES`], side by side), keeping the
+/// draw `score` ranks lowest (ties: the lower draw; never one whose
+/// topology is not M's). `k = 1` is [`field_layout_prepared`], bit for bit.
+pub fn field_layout_drawn<S>(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    opts: &FieldOptions,
+    k: usize,
+    score: S,
+) -> Result<FieldLayout>
+where
+    S: FnMut(&FieldLayout) -> Result<f64>,
+{
+    let (h, stats) = sizing_prepared(prep, mesh, fitmap, opts)?;
+    let laid = draws::lay(k, |s| {
+        let h: Vec<f64> = h.iter().map(|x| x * s).collect();
+        lay_counted(prep, mesh, fitmap, h, opts, stats.clone())
+    });
+    draws::choose(laid, prep.surf.topology, score)
 }
 
 /// Steps 3–5 on a given sizing `h` of a [`Prepared`] mesh, with

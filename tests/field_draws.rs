@@ -1,0 +1,200 @@
+//! Best of K lattices (`subdfit::quad::field::draws`, issue 40 session
+//! 14): the chosen draw does not depend on the thread count, one draw is
+//! the layout without draws, and no draw with another topology than M's
+//! is ever returned.
+
+mod common;
+
+use std::f64::consts::PI;
+
+use subdfit::analysis::Fitmap;
+use subdfit::mesh::TriMesh;
+use subdfit::quad::field::{
+    control_topology, draws, field_layout, field_layout_drawn, FieldLayout, FieldOptions, Prepared,
+    TopologySummary,
+};
+use subdfit::DVec3;
+
+/// A torus of revolution, `nu × nv` vertices, quads split along one
+/// diagonal (genus 1: one component, no boundary, V − E + F = 0).
+fn torus(big: f64, small: f64, nu: usize, nv: usize) -> TriMesh {
+    let mut positions = Vec::new();
+    for j in 0..nv {
+        for i in 0..nu {
+            let (a, b) = (
+                2.0 * PI * i as f64 / nu as f64,
+                2.0 * PI * j as f64 / nv as f64,
+            );
+            positions.push(DVec3::new(
+                (big + small * b.cos()) * a.cos(),
+                (big + small * b.cos()) * a.sin(),
+                small * b.sin(),
+            ));
+        }
+    }
+    let id = |i: usize, j: usize| ((j % nv) * nu + (i % nu)) as u32;
+    let mut triangles = Vec::new();
+    for j in 0..nv {
+        for i in 0..nu {
+            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+            triangles.push([a, b, c]);
+            triangles.push([a, c, d]);
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+/// A Fitmap that is not read ([`FieldOptions::uniform_size`] is set).
+fn flat_fitmap(n: usize) -> Fitmap {
+    Fitmap {
+        radii: vec![0.01, 1.0],
+        s: vec![0.0; n],
+        m: vec![1.0; n],
+        m_step: vec![1; n],
+        tolerance: 0.01,
+        stats: Default::default(),
+    }
+}
+
+/// A score that depends on the lattice's geometry, not only its counts
+/// (so ties are rare and the choice exercises the ranking): the mean
+/// squared distance of the control vertices to the torus' core circle's
+/// tube, plus the irregular count.
+fn score(big: f64, small: f64) -> impl FnMut(&FieldLayout) -> subdfit::Result<f64> {
+    move |l: &FieldLayout| {
+        let p = l.control.positions();
+        let off: f64 = p
+            .iter()
+            .map(|q| {
+                let r = q.x.hypot(q.y) - big;
+                (r.hypot(q.z) - small).powi(2)
+            })
+            .sum::<f64>()
+            / p.len() as f64;
+        Ok(off + l.stats.irregular_vertices as f64)
+    }
+}
+
+fn drawn(m: &TriMesh, opts: &FieldOptions, k: usize, threads: usize) -> FieldLayout {
+    let fm = flat_fitmap(m.positions.len());
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        let prep = Prepared::new(m, opts).unwrap();
+        field_layout_drawn(&prep, m, &fm, opts, k, score(2.0, 0.45)).unwrap()
+    })
+}
+
+#[test]
+fn the_chosen_draw_is_the_same_at_one_and_two_threads_and_keeps_the_topology() {
+    // A thin torus at a coarse size (h ≈ the tube's radius: about 6 cells
+    // around the tube), where the lattice's draws differ and a torn one
+    // would be refined: every draw returned must still be a torus.
+    let m = torus(2.0, 0.45, 120, 30);
+    let opts = FieldOptions::default().with_uniform_size(Some(0.42));
+    let k = 4;
+    let one = drawn(&m, &opts, k, 1);
+    let two = drawn(&m, &opts, k, 2);
+    let rec = one.stats.draws.clone().expect("a record of the draws");
+    assert_eq!(rec.draws.len(), k);
+    assert_eq!(Some(rec), two.stats.draws.clone());
+    assert_eq!(one.control, two.control, "same lattice at 1 and 2 threads");
+    let t = control_topology(&one.control);
+    assert_eq!((t.components, t.boundary_loops, t.euler), (1, 0, 0));
+    // The kept draw has the lowest score among the ranked ones (the first
+    // of equal ones), and the ranked ones are those within the irregular
+    // guard of the fewest.
+    let rec = one.stats.draws.unwrap();
+    let fewest = rec
+        .draws
+        .iter()
+        .filter(|d| d.faces > 0)
+        .map(|d| d.irregular_vertices)
+        .min()
+        .unwrap();
+    let most = draws::IRREGULAR_FACTOR * fewest as f64 + draws::IRREGULAR_SLACK as f64;
+    for d in rec.draws.iter().filter(|d| d.faces > 0) {
+        assert_eq!(
+            d.score.is_some(),
+            d.irregular_vertices as f64 <= most,
+            "{rec:?}"
+        );
+    }
+    let best = rec
+        .draws
+        .iter()
+        .enumerate()
+        .filter_map(|(i, d)| d.score.map(|s| (i, s)))
+        .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+        .unwrap()
+        .0;
+    assert_eq!(rec.chosen, best, "{rec:?}");
+    assert_eq!(
+        one.stats.irregular_vertices,
+        rec.draws[best].irregular_vertices
+    );
+    // The draws are different lattices (else drawing would buy nothing):
+    // their counts or scores are not all equal.
+    assert!(
+        rec.draws
+            .iter()
+            .any(|d| d.faces != rec.draws[0].faces || d.score != rec.draws[0].score),
+        "{rec:?}"
+    );
+}
+
+#[test]
+fn one_draw_is_the_layout_without_draws() {
+    let m = torus(2.0, 0.7, 100, 36);
+    let opts = FieldOptions::default().with_uniform_size(Some(0.5));
+    let fm = flat_fitmap(m.positions.len());
+    let plain = field_layout(&m, &fm, &opts).unwrap();
+    let one = drawn(&m, &opts, 1, 2);
+    assert!(one.stats.draws.is_none());
+    assert_eq!(plain.control, one.control);
+    assert_eq!(plain.stats.faces, one.stats.faces);
+    // The environment's default is one draw.
+    if std::env::var_os(draws::DRAWS_ENV).is_none() {
+        assert_eq!(draws::draws_from_env(), 1);
+    }
+}
+
+#[test]
+fn choose_never_returns_another_topology() {
+    // A draw whose control mesh is not a torus (here: a sphere's lattice
+    // offered as a draw of the torus) is never chosen, even when the score
+    // ranks it first; with no other draw, the choice is an error.
+    let torus_mesh = torus(2.0, 0.7, 100, 36);
+    let sphere = common::icosphere(3, DVec3::ZERO, 1.0);
+    let opts = FieldOptions::default().with_uniform_size(Some(0.5));
+    let good = field_layout(&torus_mesh, &flat_fitmap(torus_mesh.positions.len()), &opts).unwrap();
+    let bad = field_layout(&sphere, &flat_fitmap(sphere.positions.len()), &opts).unwrap();
+    // M's topology: a torus.
+    let m_topology = TopologySummary {
+        components: 1,
+        boundary_loops: 0,
+        euler: 0,
+    };
+    assert_eq!(control_topology(&good.control), m_topology);
+    let bad_first = |l: &FieldLayout| {
+        Ok(if control_topology(&l.control).euler == 2 {
+            0.0
+        } else {
+            1.0
+        })
+    };
+    let chosen = draws::choose(
+        vec![Ok(bad.clone()), Ok(good.clone())],
+        m_topology,
+        bad_first,
+    )
+    .unwrap();
+    assert_eq!(chosen.control, good.control);
+    assert_eq!(chosen.stats.draws.as_ref().unwrap().chosen, 1);
+    assert!(draws::choose(vec![Ok(bad.clone()), Ok(bad)], m_topology, bad_first).is_err());
+}
