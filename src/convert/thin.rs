@@ -219,20 +219,6 @@ pub struct OnM<'a> {
     pub metrics: &'a MetricsOptions,
 }
 
-/// M′'s mean edge length (half of it is the same-sheet test's slack, as
-/// in the pipeline's displacement).
-fn mean_edge(mesh: &TriMesh) -> f64 {
-    let (mut sum, mut n) = (0.0, 0usize);
-    for t in &mesh.triangles {
-        for i in 0..3 {
-            let (a, b) = (t[i] as usize, t[(i + 1) % 3] as usize);
-            sum += (mesh.positions[a] - mesh.positions[b]).length();
-            n += 1;
-        }
-    }
-    sum / n.max(1) as f64
-}
-
 /// Whether the second round is on (module docs).
 pub fn enabled() -> bool {
     match std::env::var(THIN_ROUND_ENV) {
@@ -404,7 +390,7 @@ impl Carried {
             .map(|c| c.as_ref().map_or(0.0, |c| c.distance))
             .collect();
         let points = evaluator.evaluate(control.positions(), &locs)?;
-        let slack = 0.5 * mean_edge(mesh);
+        let slack = 0.5 * mesh.mean_edge_length();
         let max_dist = crate::project::default_max_dist(mesh);
         let carry = carried(caster, &points, &dist, max_dist, slack)?;
         let grid = BvhCaster::new(&surface)?;

@@ -75,6 +75,23 @@ pub fn edge_key(a: u32, b: u32) -> u64 {
 }
 
 impl TriMesh {
+    /// The mean length of the triangles' sides (an interior edge counted
+    /// from both of its triangles, a boundary edge once): the scale the
+    /// report's reach tolerance, the field cleanup's projectability guard,
+    /// the thin rounds' same-sheet slack and the renderer's offsets use.
+    /// Summed in triangle order, so every caller gets the same bits.
+    pub fn mean_edge_length(&self) -> f64 {
+        let (mut sum, mut n) = (0.0, 0usize);
+        for t in &self.triangles {
+            for k in 0..3 {
+                let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
+                sum += (self.positions[a] - self.positions[b]).length();
+                n += 1;
+            }
+        }
+        sum / n.max(1) as f64
+    }
+
     /// Every undirected edge once, by [`edge_key`] in increasing order,
     /// with the number of triangles that use it. A sort, not a hash map:
     /// the fit, the boundary loops and the proxy's topology check all ask

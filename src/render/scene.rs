@@ -218,18 +218,6 @@ pub struct ErrorField {
     pub bar_max: f64,
 }
 
-fn mean_edge_length(mesh: &TriMesh) -> f64 {
-    let (mut sum, mut n) = (0.0, 0usize);
-    for t in &mesh.triangles {
-        for k in 0..3 {
-            let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
-            sum += (mesh.positions[a] - mesh.positions[b]).length();
-            n += 1;
-        }
-    }
-    sum / n.max(1) as f64
-}
-
 /// Distances of `input`'s vertices to `limit` (a tessellation of the limit
 /// surface) and, when `control` is given, the projectability of `input`'s
 /// triangles exactly as `report.json` measures it: the centroid's closest
@@ -271,7 +259,7 @@ pub fn error_field(
         let input_caster = make_raycaster(rays, input)?;
         let (hits, _) =
             project_along_normals(input_caster.as_ref(), &exact, default_max_dist(input))?;
-        let tol = mean_edge_length(input);
+        let tol = input.mean_edge_length();
         unprojectable = hits
             .par_iter()
             .zip(&centroids)

@@ -466,7 +466,7 @@ pub fn evaluate_surfaces_after(
     ) = crate::watch::watched(progress, |w| {
         w.report("displacement", 0.0)?;
         let caster = &Watched::new(caster, w);
-        let edge = mean_edge_length(mesh);
+        let edge = mesh.mean_edge_length();
         // M's 3-point quadrature, the M → S samples of both L and D, its
         // points computed where drawn (`Quadrature`).
         let mq = Quadrature::new(mesh);
@@ -767,20 +767,6 @@ pub fn vertex_areas(mesh: &TriMesh) -> Vec<f64> {
         }
     }
     w
-}
-
-fn mean_edge_length(mesh: &TriMesh) -> f64 {
-    let (mut sum, mut n) = (0.0, 0usize);
-    for t in &mesh.triangles {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            // Each interior edge twice, boundary edges once: close enough
-            // for a tolerance.
-            sum += (mesh.positions[a as usize] - mesh.positions[b as usize]).length();
-            n += 1;
-        }
-    }
-    sum / n.max(1) as f64
 }
 
 /// Area-weighted distance statistics of `points` (weights `w`) to the

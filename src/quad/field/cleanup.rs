@@ -287,7 +287,7 @@ pub fn cleanup(
         .with_region_fit(super::moves::RegionFit::new(mesh, caster, k));
         if opts.guarded {
             let max_dist = crate::project::default_max_dist(mesh);
-            p.with_projectability(caster, max_dist, mean_edge(mesh))
+            p.with_projectability(caster, max_dist, mesh.mean_edge_length())
         } else {
             p
         }
@@ -417,20 +417,6 @@ fn canonical_faces(k: &ControlMesh) -> Result<ControlMesh> {
         out.set_corner(v, x)?;
     }
     Ok(out)
-}
-
-/// M's mean edge length (each interior edge counted from both of its
-/// triangles): the report's reach tolerance of φ.
-fn mean_edge(mesh: &TriMesh) -> f64 {
-    let (mut sum, mut n) = (0.0, 0usize);
-    for t in &mesh.triangles {
-        for i in 0..3 {
-            let (a, b) = (t[i] as usize, t[(i + 1) % 3] as usize);
-            sum += (mesh.positions[a] - mesh.positions[b]).length();
-            n += 1;
-        }
-    }
-    sum / n.max(1) as f64
 }
 
 /// Samples of M per patch the moves' fit guard reads (every k-th vertex
