@@ -227,6 +227,42 @@ fn rotation(d: u8) -> Rotation {
     }
 }
 
+/// The local fit probe the moves and the late sweeps are judged by (none
+/// when no move runs or rises are not guarded): cells about a patch, and
+/// with [`CleanupOptions::guarded`] the report's projectability test too.
+fn guard_probe<'a>(
+    mesh: &'a TriMesh,
+    caster: &'a dyn RayCaster,
+    k: &ControlMesh,
+    opts: &CleanupOptions,
+) -> Option<super::moves::FitProbe<'a>> {
+    ((opts.move_rounds > 0 || opts.guarded) && opts.move_fit_rise > 0.0).then(|| {
+        let (mut len, mut n) = (0.0f64, 0.0f64);
+        for e in k.edges().filter(|&e| !k.is_edge_deleted(e)) {
+            let (a, b) = k.edge_vertices(e);
+            len += (k.position(a) - k.position(b)).length();
+            n += 1.0;
+        }
+        // Cells about a patch; the floor a tenth of a per mille of the
+        // diagonal (far below every RMS L of the shared meshes); about
+        // [`GUARD_SAMPLES`] samples per patch.
+        let stride = mesh.positions.len() / (GUARD_SAMPLES * k.num_live_faces()).max(1);
+        let p = super::moves::FitProbe::new(
+            mesh,
+            len / n.max(1.0),
+            1e-4 * mesh.bbox_diagonal(),
+            stride,
+        )
+        .with_region_fit(super::moves::RegionFit::new(mesh, caster, k));
+        if opts.guarded {
+            let max_dist = crate::project::default_max_dist(mesh);
+            p.with_projectability(caster, max_dist, mesh.mean_edge_length())
+        } else {
+            p
+        }
+    })
+}
+
 /// Cleans `k` (a pure-quad control mesh on `mesh`, whose vertices lie on
 /// it) up with the operators of [`crate::quad::ops`] (module docs). `mesh`
 /// and `fitmap` are the layout's (M or M′), `caster` a ray caster over
@@ -266,32 +302,7 @@ pub fn cleanup(
         s.refit(&touched)?;
     }
     let mut epochs = Epochs::new(s.k.num_vertices());
-    let probe = ((opts.move_rounds > 0 || opts.guarded) && opts.move_fit_rise > 0.0).then(|| {
-        let k = &s.k;
-        let (mut len, mut n) = (0.0f64, 0.0f64);
-        for e in k.edges().filter(|&e| !k.is_edge_deleted(e)) {
-            let (a, b) = k.edge_vertices(e);
-            len += (k.position(a) - k.position(b)).length();
-            n += 1.0;
-        }
-        // Cells about a patch; the floor a tenth of a per mille of the
-        // diagonal (far below every RMS L of the shared meshes); about
-        // [`GUARD_SAMPLES`] samples per patch.
-        let stride = mesh.positions.len() / (GUARD_SAMPLES * k.num_live_faces()).max(1);
-        let p = super::moves::FitProbe::new(
-            mesh,
-            len / n.max(1.0),
-            1e-4 * mesh.bbox_diagonal(),
-            stride,
-        )
-        .with_region_fit(super::moves::RegionFit::new(mesh, caster, k));
-        if opts.guarded {
-            let max_dist = crate::project::default_max_dist(mesh);
-            p.with_projectability(caster, max_dist, mesh.mean_edge_length())
-        } else {
-            p
-        }
-    });
+    let probe = guard_probe(mesh, caster, &s.k, opts);
     // With a face target and `moves_after_count`, the moves come after the
     // count phase and the sweeps after them only rotate: the count is the
     // single-operation cleanup's, and the moves start from its final mesh.
