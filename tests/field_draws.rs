@@ -7,7 +7,6 @@ mod common;
 
 use std::f64::consts::PI;
 
-use subdfit::analysis::Fitmap;
 use subdfit::mesh::TriMesh;
 use subdfit::quad::field::{
     control_topology, draws, field_layout, field_layout_drawn, FieldLayout, FieldOptions, Prepared,
@@ -47,18 +46,6 @@ fn torus(big: f64, small: f64, nu: usize, nv: usize) -> TriMesh {
     }
 }
 
-/// A Fitmap that is not read ([`FieldOptions::uniform_size`] is set).
-fn flat_fitmap(n: usize) -> Fitmap {
-    Fitmap {
-        radii: vec![0.01, 1.0],
-        s: vec![0.0; n],
-        m: vec![1.0; n],
-        m_step: vec![1; n],
-        tolerance: 0.01,
-        stats: Default::default(),
-    }
-}
-
 /// A score that depends on the lattice's geometry, not only its counts
 /// (so ties are rare and the choice exercises the ranking): the mean
 /// squared distance of the control vertices to the torus' core circle's
@@ -79,7 +66,7 @@ fn score(big: f64, small: f64) -> impl FnMut(&FieldLayout) -> subdfit::Result<f6
 }
 
 fn drawn(m: &TriMesh, opts: &FieldOptions, k: usize, threads: usize) -> FieldLayout {
-    let fm = flat_fitmap(m.positions.len());
+    let fm = common::flat_fitmap(m.positions.len());
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -152,7 +139,7 @@ fn the_chosen_draw_is_the_same_at_one_and_two_threads_and_keeps_the_topology() {
 fn one_draw_is_the_layout_without_draws() {
     let m = torus(2.0, 0.7, 100, 36);
     let opts = FieldOptions::default().with_uniform_size(Some(0.5));
-    let fm = flat_fitmap(m.positions.len());
+    let fm = common::flat_fitmap(m.positions.len());
     let plain = field_layout(&m, &fm, &opts).unwrap();
     let one = drawn(&m, &opts, 1, 2);
     assert!(one.stats.draws.is_none());
@@ -172,8 +159,13 @@ fn choose_never_returns_another_topology() {
     let torus_mesh = torus(2.0, 0.7, 100, 36);
     let sphere = common::icosphere(3, DVec3::ZERO, 1.0);
     let opts = FieldOptions::default().with_uniform_size(Some(0.5));
-    let good = field_layout(&torus_mesh, &flat_fitmap(torus_mesh.positions.len()), &opts).unwrap();
-    let bad = field_layout(&sphere, &flat_fitmap(sphere.positions.len()), &opts).unwrap();
+    let good = field_layout(
+        &torus_mesh,
+        &common::flat_fitmap(torus_mesh.positions.len()),
+        &opts,
+    )
+    .unwrap();
+    let bad = field_layout(&sphere, &common::flat_fitmap(sphere.positions.len()), &opts).unwrap();
     // M's topology: a torus.
     let m_topology = TopologySummary {
         components: 1,

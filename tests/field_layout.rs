@@ -9,7 +9,6 @@ mod common;
 
 use std::f64::consts::PI;
 
-use subdfit::analysis::Fitmap;
 use subdfit::mesh::ControlMesh;
 use subdfit::mesh::TriMesh;
 use subdfit::quad::field::cleanup::{cleanup, CleanupOptions};
@@ -90,19 +89,6 @@ fn icosphere(levels: usize) -> TriMesh {
         *p *= 1.0 + 0.005 * (h as f64 / (1u64 << 24) as f64 * 2.0 - 1.0);
     }
     m
-}
-
-/// A Fitmap that asks for nothing (F_S undefined, F_M the largest
-/// radius): with [`FieldOptions::uniform_size`] it is not read.
-fn flat_fitmap(n: usize) -> Fitmap {
-    Fitmap {
-        radii: vec![0.01, 1.0],
-        s: vec![0.0; n],
-        m: vec![1.0; n],
-        m_step: vec![1; n],
-        tolerance: 0.01,
-        stats: Default::default(),
-    }
 }
 
 /// Smallest angle (degrees) between any arm of the cross at a vertex and
@@ -295,7 +281,7 @@ fn hole_caps_stay_local_and_the_natural_count_is_kept() {
 }
 
 fn layout_uniform(m: &TriMesh, h: f64) -> subdfit::quad::field::FieldLayout {
-    let fm = flat_fitmap(m.positions.len());
+    let fm = common::flat_fitmap(m.positions.len());
     let opts = FieldOptions::default().with_uniform_size(Some(h));
     let out = field_layout(m, &fm, &opts).unwrap();
     eprintln!("{}", serde_json::to_string(&out.stats).unwrap());
@@ -380,7 +366,7 @@ fn too_coarse_a_lattice_is_an_error_or_keeps_the_topology() {
     // refine h (×0.8 each) and the result either has M's topology or is a
     // topology error — never another topology, never a panic.
     let m = torus(1.0, 0.15, 160, 24);
-    let fm = flat_fitmap(m.positions.len());
+    let fm = common::flat_fitmap(m.positions.len());
     let opts = FieldOptions::default().with_uniform_size(Some(0.6));
     match field_layout(&m, &fm, &opts) {
         Ok(out) => {
@@ -506,7 +492,7 @@ fn hierarchical_field_sphere_lattice_has_eight_valence_three() {
     let m = icosphere(5);
     let mut opts = FieldOptions::default().with_uniform_size(Some(0.3));
     opts.orientation_hierarchy = true;
-    let out = field_layout(&m, &flat_fitmap(m.positions.len()), &opts).unwrap();
+    let out = field_layout(&m, &common::flat_fitmap(m.positions.len()), &opts).unwrap();
     let k = &out.control;
     assert!(k.is_all_quads());
     let v3 = k.vertices().filter(|&v| k.valence(v) == 3).count();
@@ -540,7 +526,7 @@ fn quad_grid(n: usize) -> ControlMesh {
 #[test]
 fn cleanup_removes_planted_valence_3_5_pairs() {
     let m = grid_mesh(41, 41, false, false, |u, v| DVec3::new(u, v, 0.0));
-    let fm = flat_fitmap(m.positions.len());
+    let fm = common::flat_fitmap(m.positions.len());
     let caster = BvhCaster::new(&m).unwrap();
     let mut k = quad_grid(8);
     assert_eq!(irregular_vertices(&k), 0);
@@ -655,7 +641,7 @@ fn move_fit_guard_region_fit_settles_a_lifted_vertex() {
 #[test]
 fn cleanup_moves_annihilate_separated_dislocations() {
     let m = grid_mesh(41, 41, false, false, |u, v| DVec3::new(u, v, 0.0));
-    let fm = flat_fitmap(m.positions.len());
+    let fm = common::flat_fitmap(m.positions.len());
     let caster = BvhCaster::new(&m).unwrap();
     let mut k = quad_grid(10);
     let (a, b) = (
@@ -715,7 +701,7 @@ fn cleanup_moves_annihilate_separated_dislocations() {
 #[test]
 fn late_moves_keep_the_face_target_and_annihilate_dislocations() {
     let m = grid_mesh(41, 41, false, false, |u, v| DVec3::new(u, v, 0.0));
-    let fm = flat_fitmap(m.positions.len());
+    let fm = common::flat_fitmap(m.positions.len());
     let caster = BvhCaster::new(&m).unwrap();
     let mut k = quad_grid(10);
     let (a, b) = (
@@ -758,7 +744,7 @@ fn late_moves_keep_the_face_target_and_annihilate_dislocations() {
 #[test]
 fn cleanup_never_adds_irregular_vertices_on_a_torus() {
     let m = torus(1.0, 0.35, 120, 40);
-    let fm = flat_fitmap(m.positions.len());
+    let fm = common::flat_fitmap(m.positions.len());
     let mut k = field_layout_sized(&m, &vec![0.1; m.positions.len()], &FieldOptions::default())
         .unwrap()
         .control;

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use subdfit::analysis::Fitmap;
 use subdfit::mesh::TriMesh;
 use subdfit::DVec3;
 
@@ -243,4 +244,18 @@ pub fn max_nearest(a: &[DVec3], b: &[DVec3]) -> f64 {
         })
         .fold(0.0, f64::max)
         .sqrt()
+}
+
+/// A Fitmap that asks for nothing (F_S undefined, F_M the largest
+/// radius): with `FieldOptions::uniform_size` set the field layout does
+/// not read it.
+pub fn flat_fitmap(n: usize) -> Fitmap {
+    Fitmap {
+        radii: vec![0.01, 1.0],
+        s: vec![0.0; n],
+        m: vec![1.0; n],
+        m_step: vec![1; n],
+        tolerance: 0.01,
+        stats: Default::default(),
+    }
 }
