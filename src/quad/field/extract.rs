@@ -1341,6 +1341,18 @@ mod tests {
         }
     }
 
+    /// The plane of `pos` and `quads`, each quad split along its first
+    /// diagonal: the M the relaxation tests project onto.
+    fn split_quads(pos: &[DVec3], quads: &[[u32; 4]]) -> TriMesh {
+        TriMesh {
+            positions: pos.to_vec(),
+            triangles: quads
+                .iter()
+                .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+                .collect(),
+        }
+    }
+
     /// A flat 8×8 control grid over a triangulated plane, sizes growing 3×
     /// from left to right: every step keeps the points on the plane and
     /// the boundary where it was, and the interior slides towards the
@@ -1351,13 +1363,7 @@ mod tests {
     fn relax_to_sizes_slides_the_interior_towards_small_sizes() {
         let n = 8;
         let (pos, quads) = grid(n, n);
-        let mesh = TriMesh {
-            positions: pos.clone(),
-            triangles: quads
-                .iter()
-                .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-                .collect(),
-        };
+        let mesh = split_quads(&pos, &quads);
         let sizes: Vec<f64> = pos.iter().map(|p| 1.0 + 2.0 * p.x / n as f64).collect();
         let caster = BvhCaster::new(&mesh).unwrap();
         let mut control = ControlMesh::from_polygons(pos.clone(), &quads).unwrap();
@@ -1385,13 +1391,7 @@ mod tests {
     fn shape_guard_keeps_corners_from_sharpening() {
         let n = 8;
         let (pos, quads) = grid(n, n);
-        let mesh = TriMesh {
-            positions: pos.clone(),
-            triangles: quads
-                .iter()
-                .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-                .collect(),
-        };
+        let mesh = split_quads(&pos, &quads);
         let sizes: Vec<f64> = pos
             .iter()
             .map(|p| 1.0 + 29.0 * (p.x * p.y) / (n * n) as f64)
@@ -1425,13 +1425,7 @@ mod tests {
     fn guarded_relaxation_grows_nothing_past_its_limits() {
         let n = 8;
         let (pos, quads) = grid(n, n);
-        let mesh = TriMesh {
-            positions: pos.clone(),
-            triangles: quads
-                .iter()
-                .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-                .collect(),
-        };
+        let mesh = split_quads(&pos, &quads);
         let mut jittered = pos.clone();
         for (k, p) in jittered.iter_mut().enumerate() {
             let (i, j) = (k % (n + 1), k / (n + 1));
