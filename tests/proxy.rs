@@ -262,3 +262,29 @@ fn the_adaptive_proxy_follows_the_predicted_output_not_the_input_size() {
         loose.predicted_patches
     );
 }
+
+#[test]
+fn only_an_adaptive_proxy_in_use_takes_one_least_squares_round() {
+    use subdfit::convert::{adaptive_lsq_rounds, AdaptiveRecord, ProxyRecord};
+    use subdfit::mesh::Topology;
+    let record = |used: bool, adaptive: bool| ProxyRecord {
+        used,
+        input_triangles: 69_451,
+        input_topology: Topology {
+            components: 1,
+            boundary_loops: 5,
+            euler: -3,
+        },
+        attempts: Vec::new(),
+        adaptive: adaptive.then(AdaptiveRecord::default),
+    };
+    // The layout on an adaptive M′: one round (its second round's step was
+    // rejected and undone on every bunny case measured, session 15).
+    assert_eq!(adaptive_lsq_rounds(Some(&record(true, true))), Some(1));
+    // Everything else keeps the report's default, so main's bytes stay:
+    // no proxy, `auto`'s M′ (big inputs), and `adaptive` left on M
+    // (gargoyle, whose τ 1 % gains from the second round).
+    assert_eq!(adaptive_lsq_rounds(None), None);
+    assert_eq!(adaptive_lsq_rounds(Some(&record(true, false))), None);
+    assert_eq!(adaptive_lsq_rounds(Some(&record(false, true))), None);
+}

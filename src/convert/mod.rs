@@ -40,8 +40,8 @@ pub mod thin;
 
 pub use auto::{Candidate, SecondOpinion};
 pub use layout::{
-    adaptive_proxy_size, fm_patch_integral, AdaptiveRecord, FieldRelayout, Laid, Layout,
-    LayoutRecord, ProxyAttempt, ProxyRecord,
+    adaptive_lsq_rounds, adaptive_proxy_size, fm_patch_integral, AdaptiveRecord, FieldRelayout,
+    Laid, Layout, LayoutRecord, ProxyAttempt, ProxyRecord,
 };
 pub use options::{
     adaptive_proxy_triangles, ConvertOptions, LayoutKind, Mode, Proxy, DEFAULT_ORGANIC_MAX_ERROR,
@@ -407,6 +407,7 @@ fn convert_as(
             proxy,
             simplification,
         } => {
+            let metrics = metrics.with_host_lsq_rounds(layout::adaptive_lsq_rounds(proxy.as_ref()));
             let (fitmap, po) = organic_tail(fitmap, opts, fit, metrics)?;
             let with_search = |search: Option<&ErrorSearch>| {
                 fitted(BranchLayout::OrganicGreedy {

@@ -130,6 +130,12 @@ pub struct MetricsOptions {
     /// Left out of `report.json` when off.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub exact: bool,
+    /// Gauss–Newton rounds of the least-squares offsets on the host
+    /// surface (per-patch resolutions); `None`: [`HOST_LSQ_ROUNDS`]. Set
+    /// by a caller whose layout makes the later rounds idle (see
+    /// `convert`'s adaptive proxy). Left out of `report.json` when `None`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host_lsq_rounds: Option<usize>,
 }
 
 impl MetricsOptions {
@@ -163,6 +169,10 @@ impl MetricsOptions {
     }
     pub fn with_exact(mut self, e: bool) -> Self {
         self.exact = e;
+        self
+    }
+    pub fn with_host_lsq_rounds(mut self, n: Option<usize>) -> Self {
+        self.host_lsq_rounds = n;
         self
     }
 }
@@ -651,7 +661,7 @@ fn displaced_side(
             diag,
             &LsqOffsetOptions {
                 rounds: if adaptive {
-                    HOST_LSQ_ROUNDS
+                    opts.host_lsq_rounds.unwrap_or(HOST_LSQ_ROUNDS)
                 } else {
                     LsqOffsetOptions::default().rounds
                 },
