@@ -713,8 +713,7 @@ impl Verdict {
                     part.add(w, c.distance, k as usize % CHECK_STRIDE == 0);
                 }
             }
-            let low = part.obj * (1.0 - EARLY_MARGIN);
-            if (low / self.bound.max(f64::MIN_POSITIVE)).sqrt() >= self.reject_at {
+            if self.proves(&part) {
                 // The trace's figure: the lower bound that decided.
                 part.obj_w = self.bound;
                 part.sub = part.obj;
@@ -723,6 +722,13 @@ impl Verdict {
             }
         }
         Ok(None)
+    }
+
+    /// Whether `part`, the sums over some of the round's points taken in
+    /// any order, proves the round rejected ([`Self::rejects_early`]).
+    fn proves(&self, part: &Score) -> bool {
+        let low = part.obj * (1.0 - EARLY_MARGIN);
+        self.bound.is_finite() && (low / self.bound.max(f64::MIN_POSITIVE)).sqrt() >= self.reject_at
     }
 
     /// Whether the round is already certain to be rejected, its running
@@ -1321,6 +1327,35 @@ mod tests {
                     }
                 }
                 let rejected = rms >= reject_at;
+                // The early proof on a subset (every third point, then the
+                // heaviest terms), summed in reverse order: never a round
+                // the full comparison keeps.
+                for heavy in [false, true] {
+                    let mut sub: Vec<(f64, f64)> = pts
+                        .iter()
+                        .enumerate()
+                        .filter_map(|(i, &(w, d))| d.map(|d| (i, w, d)))
+                        .filter(|&(i, _, _)| heavy || i % 3 == 0)
+                        .map(|(_, w, d)| (w, d))
+                        .collect();
+                    if heavy {
+                        sub.sort_by(|a, b| (b.0 * b.1 * b.1).total_cmp(&(a.0 * a.1 * a.1)));
+                        sub.truncate(n / 2);
+                    }
+                    let mut early = Score::default();
+                    for &(w, d) in sub.iter().rev() {
+                        early.add(w, d, true);
+                    }
+                    assert!(
+                        !verdict.proves(&early) || rejected,
+                        "trial {trial}: proved on a subset a round kept at {rms:e} < {reject_at:e}"
+                    );
+                    if heavy && reject_at == 0.5 * rms {
+                        // Half the points, the heaviest: more than a quarter
+                        // of the sum of squares, which the factor 4 needs.
+                        assert!(verdict.proves(&early), "trial {trial}: not proved");
+                    }
+                }
                 assert!(
                     at.is_none() || rejected,
                     "trial {trial}: stopped at {at:?} a round kept at {rms:e} < {reject_at:e}"
@@ -1335,6 +1370,10 @@ mod tests {
         }
         // Without a finite threshold (the first round) nothing stops.
         let v = Verdict::new(f64::INFINITY, || std::iter::once(1.0));
+        assert!(!v.proves(&Score {
+            obj: 1e300,
+            ..Score::default()
+        }));
         let mut s = Score::default();
         s.add(1.0, 1e300, true);
         assert!(!v.rejects(&s));
