@@ -2324,6 +2324,12 @@ impl<'a> Simplifier<'a> {
         if !self.opts.check_every_step {
             return Ok(());
         }
+        self.check_invariants(what)
+    }
+
+    /// The invariants [`Simplifier::check_step`] checks, whatever the
+    /// options (the split loop's join checks them once).
+    pub(crate) fn check_invariants(&self, what: &str) -> Result<()> {
         let k = &self.k;
         k.validate()?;
         if !k.is_all_quads() {
