@@ -153,7 +153,16 @@ pub struct SimplifyOptions {
     /// batch's later candidates before the entries its earlier ones push,
     /// a different greedy order with a different outcome.
     pub batch: usize,
+    /// The split loop (`SUBDFIT_SIMPLIFY_SPLIT=1` turns it on in
+    /// [`Default`]; see [`split`]): the greedy runs first on two halves of
+    /// the mesh side by side, with a frozen band between them, then on the
+    /// whole as usual. A different greedy order: off by default.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub split: bool,
 }
+
+#[path = "simplify_split.rs"]
+mod split;
 
 /// Default [`SimplifyOptions::batch`]: the sequential loop. Batches of 16
 /// were measured on 2026-12-05 (docs/status.md, "Scale", session 22): the
@@ -194,6 +203,7 @@ impl Default for SimplifyOptions {
             s_fitmap_scale: DEFAULT_S_FITMAP_SCALE,
             checkpoints: 0,
             batch: DEFAULT_BATCH,
+            split: split::env_on(),
         }
     }
 }
@@ -224,6 +234,11 @@ impl SimplifyOptions {
     /// Collapses per batch ([`SimplifyOptions::batch`]; 1: sequential).
     pub fn with_batch(mut self, n: usize) -> Self {
         self.batch = n.max(1);
+        self
+    }
+    /// The split loop ([`SimplifyOptions::split`]).
+    pub fn with_split(mut self, on: bool) -> Self {
+        self.split = on;
         self
     }
     /// The surface guard's bound (`scale = 0`: off) and normal test.
@@ -354,6 +369,31 @@ pub struct SimplifyStats {
     pub sd_log_fs_patches: f64,
     /// See `sd_log_fs_patches`.
     pub sd_log_fs_vertices: f64,
+    /// The split loop's first phase ([`SimplifyOptions::split`]); `None`
+    /// when it did not run.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub split: Option<SplitStats>,
+}
+
+/// What the two halves of the split loop did ([`SimplifyOptions::split`]).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+pub struct SplitStats {
+    /// Faces of the start wholly on each side (outside the frozen band),
+    /// and those in the band (a corner frozen).
+    pub faces: [usize; 2],
+    pub band_faces: usize,
+    /// Collapses each half kept, and the steps undone because they reached
+    /// the band.
+    pub collapses: [usize; 2],
+    pub refused_band: [usize; 2],
+    /// Faces when the halves were joined, and the wall time of the halves.
+    pub faces_joined: usize,
+    pub seconds: f64,
+    /// CPU seconds of each half's loop thread, and of the loop on the
+    /// whole after the join (its own thread): on two free cores the loop's
+    /// wall time is about the larger of the first two plus the third.
+    pub thread_cpu: [f64; 2],
+    pub thread_cpu_joined: f64,
 }
 
 /// Standard deviation of `ln x` over the positive finite entries (0 with
@@ -595,6 +635,23 @@ fn limit_of(k: &ControlMesh, mask: &[(VertexId, f64)]) -> DVec3 {
     mask.iter().map(|&(u, w)| w * k.position(u)).sum()
 }
 
+/// The limit point of every vertex of `k` (a deleted one's position), in
+/// parallel; the same bits as the loop's per-vertex updates.
+fn all_limits(k: &ControlMesh) -> Result<Vec<DVec3>> {
+    use rayon::prelude::*;
+    (0..k.num_vertices())
+        .into_par_iter()
+        .map(|i| {
+            let v = VertexId(i as u32);
+            if k.is_vertex_deleted(v) {
+                Ok(k.position(v))
+            } else {
+                vertex_limit_mask(k, v).map(|m| limit_of(k, &m))
+            }
+        })
+        .collect()
+}
+
 // ---- the loop ------------------------------------------------------------------
 
 /// The loop's state; [`super::field::cleanup`] drives the same operators,
@@ -606,7 +663,7 @@ pub(crate) struct Simplifier<'a> {
     /// Pure-Rust BVH over M for the per-collapse φ queries: one ray at a
     /// time inside the sequential loop, without the fixed cost of a batched
     /// (rayon + FFI) call for a handful of rays.
-    bvh: BvhCaster,
+    bvh: std::sync::Arc<BvhCaster>,
     opts: SimplifyOptions,
     max_dist: f64,
     pub(crate) k: ControlMesh,
@@ -659,6 +716,9 @@ pub(crate) struct Simplifier<'a> {
     /// The relaxation of the halting tests ([`RELAX_STEP`]), 1 unless
     /// `target_faces` asked for fewer faces than the natural end.
     pub(crate) relax: f64,
+    /// One side of the split loop ([`SimplifyOptions::split`]): which
+    /// faces may enter the heap and which edits a step may make.
+    region: Option<split::Region>,
 }
 
 /// The result of φ at one patch centre, for the guard.
@@ -1076,23 +1136,9 @@ impl<'a> Simplifier<'a> {
         let invariants = (k.num_components(), k.num_boundary_loops(), euler(&k));
         let nf = k.num_faces();
         poll()?;
-        let bvh = BvhCaster::new(m)?;
+        let bvh = std::sync::Arc::new(BvhCaster::new(m)?);
         poll()?;
-        let lim = {
-            use rayon::prelude::*;
-            let kk = &k;
-            (0..kk.num_vertices())
-                .into_par_iter()
-                .map(|i| {
-                    let v = VertexId(i as u32);
-                    if kk.is_vertex_deleted(v) {
-                        Ok(kk.position(v))
-                    } else {
-                        vertex_limit_mask(kk, v).map(|m| limit_of(kk, &m))
-                    }
-                })
-                .collect::<Result<Vec<_>>>()?
-        };
+        let lim = all_limits(&k)?;
         poll()?;
         Ok(Simplifier {
             m,
@@ -1133,6 +1179,7 @@ impl<'a> Simplifier<'a> {
             checkpoint_map: Vec::new(),
             next_checkpoint: (nf as f64 / CHECKPOINT_RATIO) as usize,
             relax: 1.0,
+            region: None,
         })
     }
 
@@ -1268,6 +1315,11 @@ impl<'a> Simplifier<'a> {
             self.version[fi] = self.version[fi].wrapping_add(1);
             self.fs[fi] = s;
             self.fm[fi] = mv;
+            if let Some(r) = &self.region {
+                if !r.eligible(&self.k, f) {
+                    continue;
+                }
+            }
             let q = super::ops::quad_positions(&self.k, f);
             for d in 0..2 {
                 let len = (q[d] - q[d + 2]).length();
@@ -1421,7 +1473,14 @@ impl<'a> Simplifier<'a> {
         // Every live face gets fresh entries (and a new version), so every
         // entry in the heap now is stale: dropping them changes no pop.
         self.heap.clear();
-        let all: Vec<FaceId> = self.k.live_faces().collect();
+        let all: Vec<FaceId> = match &self.region {
+            Some(r) => self
+                .k
+                .live_faces()
+                .filter(|&f| r.reads(&self.k, f))
+                .collect(),
+            None => self.k.live_faces().collect(),
+        };
         for c in all.chunks(SWEEP_CHUNK) {
             let _ = self.update_faces(c)?;
             self.ask(stats, t0, progress)?;
@@ -1444,6 +1503,9 @@ impl<'a> Simplifier<'a> {
         stats: &mut SimplifyStats,
         progress: &mut dyn FnMut(Progress) -> bool,
     ) -> Result<()> {
+        if self.opts.split && self.region.is_none() {
+            return self.run_split(stats, progress);
+        }
         if self.opts.batch <= 1 || rayon::current_thread_index().is_some() {
             return self.run_loop(stats, progress);
         }
@@ -1505,7 +1567,11 @@ impl<'a> Simplifier<'a> {
                         // its 2 % window), relax the halting tests one step
                         // and sweep again.
                         let above = self.k.num_live_faces() as f64 > 1.02 * target as f64;
-                        if target == 0 || !above || stats.relax_steps == MAX_RELAX_STEPS {
+                        if target == 0
+                            || !above
+                            || stats.relax_steps == MAX_RELAX_STEPS
+                            || self.region.is_some()
+                        {
                             break;
                         }
                         self.relax *= RELAX_STEP;
@@ -1736,7 +1802,7 @@ impl<'a> Simplifier<'a> {
                 }
             }
             let plan = c.plan;
-            let undoable = guard || target > 0;
+            let undoable = guard || target > 0 || self.region.is_some();
             c.log = (undoable && alone).then(FaceLog::default);
             c.snap = (undoable && (!alone || self.opts.check_every_step)).then(|| self.snapshot(f));
             c.pos_log.push((plan.keep, self.k.position(plan.keep)));
@@ -1752,6 +1818,10 @@ impl<'a> Simplifier<'a> {
             c.rotations = self.rotate_around(&centres, &mut touched, c.log.as_mut())?;
             stats.rotations += c.rotations;
             c.touched = touched;
+            if self.region.is_some() && !self.region_allows(&c) {
+                self.undo_outside(c, stats)?;
+                continue;
+            }
             done.push(c);
         }
         let checks = self.refit_batch(&mut done)?;
@@ -1880,6 +1950,10 @@ impl<'a> Simplifier<'a> {
     /// Keeps a compact copy of the mesh when its face count has fallen
     /// below the next checkpoint's ([`SimplifyOptions::checkpoints`]).
     fn checkpoint(&mut self) -> Result<()> {
+        if self.region.is_some() {
+            self.region_checkpoint();
+            return Ok(());
+        }
         let n = self.k.num_live_faces();
         if self.opts.checkpoints == 0 || n > self.next_checkpoint {
             return Ok(());
@@ -2250,6 +2324,12 @@ impl<'a> Simplifier<'a> {
         if !self.opts.check_every_step {
             return Ok(());
         }
+        self.check_invariants(what)
+    }
+
+    /// The invariants [`Simplifier::check_step`] checks, whatever the
+    /// options (the split loop's join checks them once).
+    pub(crate) fn check_invariants(&self, what: &str) -> Result<()> {
         let k = &self.k;
         k.validate()?;
         if !k.is_all_quads() {
