@@ -158,6 +158,15 @@ pub(super) fn rounds_at_count(
         return Ok(first);
     }
     let j0 = Judged::of(&m0, &first, permille);
+    let log = std::env::var_os("SUBDFIT_FACES_PROJ_LOG").is_some();
+    if log {
+        eprintln!(
+            "projectability rounds: incoming faces {} rms {:.4} unprojectable {:.4} %",
+            first.control.num_faces(),
+            j0.rms,
+            j0.unprojectable
+        );
+    }
     let first_faces = first.control.num_faces();
     let n = fo.target_faces.unwrap_or(first_faces) as f64;
     let h0 = timer.run("field layout", || {
@@ -197,7 +206,7 @@ pub(super) fn rounds_at_count(
             kept: Some(false),
             ..Default::default()
         });
-        if std::env::var_os("SUBDFIT_FACES_PROJ_LOG").is_some() {
+        if log {
             eprintln!(
                 "projectability round: faces {faces} irregular {irregular} rms {:.4} unprojectable {:.4} % ({patches} patches)",
                 j1.rms, j1.unprojectable
@@ -216,4 +225,80 @@ pub(super) fn rounds_at_count(
         rounds[i].kept = Some(true);
     }
     Ok(best.1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::convert::field::PatchError;
+    use crate::DVec3;
+
+    /// A flat `n × n` grid of unit quads.
+    fn grid(n: usize) -> ControlMesh {
+        let positions = (0..=n)
+            .flat_map(|j| (0..=n).map(move |i| DVec3::new(i as f64, j as f64, 0.0)))
+            .collect();
+        let at = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+        let faces: Vec<[u32; 4]> = (0..n)
+            .flat_map(|j| (0..n).map(move |i| (i, j)))
+            .map(|(i, j)| [at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)])
+            .collect();
+        ControlMesh::from_polygons(positions, &faces).unwrap()
+    }
+
+    /// On a 4 × 4 grid with face 0 (a corner) unprojectable and one
+    /// vertex of M′ per face: that face's vertex gets f, the three faces
+    /// sharing a vertex with it √f, the twelve others 1.
+    #[test]
+    fn marks_lower_the_unprojectable_patch_and_its_ring() {
+        let c = grid(4);
+        let per_patch = (0..16u32)
+            .map(|f| PatchError {
+                face: f,
+                rms: 0.0,
+                area: 1.0,
+                unprojectable: if f == 0 { 0.5 } else { 0.0 },
+                vertices: vec![f],
+            })
+            .collect();
+        let m = Measured {
+            per_patch,
+            rms: 0.0,
+            unprojectable_percent: 0.5 / 16.0 * 100.0,
+            thin_percent: 0.0,
+        };
+        let (factor, bad) = marks(&c, &m, 16, 0.64);
+        assert_eq!(bad, 1);
+        // Face (i, j) is i + 4 j: the ring of face 0 is faces 1, 4 and 5.
+        for (f, x) in factor.iter().enumerate() {
+            let want = match f {
+                0 => 0.64,
+                1 | 4 | 5 => 0.8,
+                _ => 1.0,
+            };
+            assert!((x - want).abs() < 1e-12, "face {f}: {x}, want {want}");
+        }
+    }
+
+    /// Nothing unprojectable marks nothing.
+    #[test]
+    fn no_unprojectable_patch_marks_nothing() {
+        let c = grid(2);
+        let per_patch = (0..4u32)
+            .map(|f| PatchError {
+                face: f,
+                vertices: vec![f],
+                ..Default::default()
+            })
+            .collect();
+        let m = Measured {
+            per_patch,
+            rms: 0.0,
+            unprojectable_percent: 0.0,
+            thin_percent: 0.0,
+        };
+        let (factor, bad) = marks(&c, &m, 4, 0.6);
+        assert_eq!(bad, 0);
+        assert!(factor.iter().all(|x| *x == 1.0));
+    }
 }
