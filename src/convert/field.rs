@@ -469,6 +469,17 @@ impl Ends<'_> {
             };
             fitted = super::thin::second_round(timer, relayout, fo, fitted, rounds, fit, &on_m)?;
         }
+        // At a fixed count, patches moved to where the limit leaves M′
+        // unprojectable ([`super::faces_proj`], off by default).
+        if opts.target_faces.is_some() && super::faces_proj::enabled() {
+            let progress = &mut *run.progress;
+            let fit = |timer: &mut StageTimer, c: ControlMesh| {
+                timer.run("fit", || {
+                    crate::fit::fit_with_progress(mesh, c, caster, &po.fit, progress)
+                })
+            };
+            fitted = super::faces_proj::rounds_at_count(timer, relayout, fo, fitted, rounds, fit)?;
+        }
         Ok(fitted)
     }
 }
@@ -1253,7 +1264,7 @@ fn growth_budget(over: f64, fails_projection: bool) -> f64 {
 /// layout cut across) counts where the fit's own samples, taken on the
 /// patches, do not see it. The limit surface is a grid of `k × k` cells
 /// per patch (k from [`CELLS_PER_VERTEX`]).
-fn patch_errors(mesh: &TriMesh, control: &ControlMesh) -> Result<Measured> {
+pub(super) fn patch_errors(mesh: &TriMesh, control: &ControlMesh) -> Result<Measured> {
     let k = grid_cells(mesh, control);
     let (surface, tri_face, locs, evaluator) = limit_grid(control, k)?;
     let caster = crate::raycast::bvh::BvhCaster::new(&surface)?;
@@ -1447,22 +1458,22 @@ enum Reach {
 /// the vertices of M′ nearest to it (and the part it does not project
 /// onto), and those vertices.
 #[derive(Clone, Debug, Default)]
-struct PatchError {
+pub(super) struct PatchError {
     /// The control face.
-    face: u32,
-    rms: f64,
-    area: f64,
-    unprojectable: f64,
-    vertices: Vec<u32>,
+    pub(super) face: u32,
+    pub(super) rms: f64,
+    pub(super) area: f64,
+    pub(super) unprojectable: f64,
+    pub(super) vertices: Vec<u32>,
 }
 
 /// [`patch_errors`]' result.
-struct Measured {
-    per_patch: Vec<PatchError>,
-    rms: f64,
-    unprojectable_percent: f64,
+pub(super) struct Measured {
+    pub(super) per_patch: Vec<PatchError>,
+    pub(super) rms: f64,
+    pub(super) unprojectable_percent: f64,
     /// The share of M′'s area that is [`Reach::Thin`], %.
-    thin_percent: f64,
+    pub(super) thin_percent: f64,
 }
 
 /// Limit-grid cells per vertex of M′ in [`patch_errors`] (the grid's chord

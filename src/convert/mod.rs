@@ -29,6 +29,7 @@ use crate::report::{MetricsOptions, StageTimer, TargetCheck};
 pub type Report = crate::report::Report<RunOptions>;
 
 pub mod auto;
+mod faces_proj;
 pub mod field;
 pub mod layout;
 mod options;

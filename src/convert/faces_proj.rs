@@ -1,0 +1,304 @@
+//! At a fixed patch count (`--faces N`, `--max-error inf`), rounds that
+//! spend patches where the fitted limit surface leaves M′ unprojectable
+//! and take them from everywhere else (issue 40, session 15).
+//!
+//! The Fitmaps guarantee is projectability: every point of M reached by
+//! the limit surface's normal lines (Fitmaps §3.1.3, §4). With `--faces N`
+//! and `--max-error inf` the `--max-error` rounds of [`super::field`] do not
+//! run, so a feature narrower than the patches across it (homer at 272:
+//! the two hands and a bump on the head, 0.381 % of the area) stays
+//! unprojectable, and no move at the same lattice fixes it.
+//!
+//! So after the layout's fit (and the thin rounds, [`super::thin`]), when
+//! more than [`super::field::UNPROJECTABLE_PERCENT`] of M′'s area is
+//! unprojectable ([`super::field::patch_errors`], the M-fitmap's test on
+//! M′'s vertices), h is lowered by [`PROJ_REFINE`] on the vertices of M′
+//! nearest the patches with unprojectable vertices and, by its square
+//! root, on those nearest the patches around them (the ring: the feature
+//! is narrower than the patch, and the patch next to it shares its
+//! lattice lines). The factors accumulate round by round (at least
+//! [`super::thin::MIN_FACTOR`]); each sizing is regraded and scaled back to
+//! the first layout's predicted count ([`super::thin::lowered_sizing`]:
+//! the patches added there are taken from everywhere else, `∫ dA / h²`),
+//! laid out at N with the layout's own count passes, and fitted. At most
+//! [`PROJ_ROUNDS`] rounds; a round is kept only within [`COUNT_WINDOW`] of
+//! N, when it leaves less unprojectable area than the best so far, and
+//! its RMS (the larger of the fit's and M′ → limit) stays within
+//! [`L_CAP`] × the incoming result's; the same lattice topology family
+//! (the field layout's) is laid every round.
+//!
+//! Off by default (`SUBDFIT_FACES_PROJ=1` turns it on): measured on the
+//! peers' counts, docs/status.md, Field-aligned layout, session 15.
+
+use crate::error::Result;
+use crate::fit::Fitted;
+use crate::mesh::ControlMesh;
+use crate::quad::field::{field_layout_counted, FieldOptions};
+use crate::report::StageTimer;
+
+use super::field::{patch_errors, FieldRound, Measured, Sizes, UNPROJECTABLE_PERCENT};
+use super::layout::FieldRelayout;
+
+/// The switch's environment variable (`1` on).
+pub const FACES_PROJ_ENV: &str = "SUBDFIT_FACES_PROJ";
+
+/// Layouts laid and fitted at most after the incoming result.
+pub const PROJ_ROUNDS: usize = 3;
+
+/// The factor on h per round on the vertices of M′ nearest a patch with
+/// unprojectable vertices (the ring gets its square root). Fitmaps
+/// §3.1.3's sizes step by about 1.4 in area; the feature is narrower than
+/// the patch across it, so a round takes a larger step than the
+/// `--max-error` rounds' [`super::field::UNPROJECTABLE_REFINE`].
+pub const PROJ_REFINE: f64 = 0.6;
+
+/// A round is kept only within this share of N (`--faces`' own window).
+pub const COUNT_WINDOW: f64 = 0.02;
+
+/// A round is kept only when its RMS (the larger of the fit's and M′ →
+/// limit) is within this factor of the incoming result's: projectability
+/// first, but not at any cost in RMS L.
+pub const L_CAP: f64 = 1.1;
+
+/// Whether the rounds run (`SUBDFIT_FACES_PROJ=1`).
+pub fn enabled() -> bool {
+    std::env::var(FACES_PROJ_ENV).is_ok_and(|v| v.trim() == "1")
+}
+
+fn env_f64(name: &str, default: f64) -> f64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or(default)
+}
+
+/// A fitted round's figures the rounds are judged by.
+#[derive(Clone, Copy, Debug)]
+struct Judged {
+    unprojectable: f64,
+    /// The larger of the fit's RMS and M′ → limit, ‰.
+    rms: f64,
+}
+
+impl Judged {
+    fn of(m: &Measured, f: &Fitted, permille: f64) -> Self {
+        Self {
+            unprojectable: m.unprojectable_percent,
+            rms: f.report.final_rms_permille.max(permille * m.rms),
+        }
+    }
+
+    /// Lower unprojectable share first, then lower RMS; never above
+    /// [`L_CAP`] × the incoming result's RMS.
+    fn beats(&self, best: &Judged, first: &Judged) -> bool {
+        if self.rms > env_f64("SUBDFIT_FACES_PROJ_LCAP", L_CAP) * first.rms {
+            return false;
+        }
+        if self.unprojectable != best.unprojectable {
+            return self.unprojectable < best.unprojectable;
+        }
+        self.rms < best.rms
+    }
+}
+
+/// Per vertex of M′ (`nv` of them), the factor on h this round asks for:
+/// `f` under the patches of `control` with unprojectable vertices, `√f`
+/// under the patches sharing a vertex with them, 1 elsewhere.
+pub(super) fn marks(control: &ControlMesh, m: &Measured, nv: usize, f: f64) -> (Vec<f64>, usize) {
+    let nf = control.num_faces();
+    let mut bad = vec![false; nf];
+    for p in &m.per_patch {
+        if p.unprojectable > 0.0 && (p.face as usize) < nf {
+            bad[p.face as usize] = true;
+        }
+    }
+    let mut ring = vec![false; nf];
+    for fc in control.faces() {
+        if !bad[fc.idx()] {
+            continue;
+        }
+        for v in control.face_vertices(fc) {
+            for g in control.vertex_faces(v) {
+                ring[g.idx()] = true;
+            }
+        }
+    }
+    let mut factor = vec![1.0; nv];
+    for p in &m.per_patch {
+        let face = p.face as usize;
+        let x = match (bad.get(face), ring.get(face)) {
+            (Some(true), _) => f,
+            (_, Some(true)) => f.sqrt(),
+            _ => continue,
+        };
+        for &v in &p.vertices {
+            factor[v as usize] = x;
+        }
+    }
+    (factor, bad.iter().filter(|b| **b).count())
+}
+
+/// The rounds (module docs) after the kept fit `first`, each fitted by
+/// `fit` and pushed on `rounds`; the best by [`Judged::beats`] is returned
+/// (`first` when none beats it or nothing is unprojectable).
+pub(super) fn rounds_at_count(
+    timer: &mut StageTimer,
+    relayout: &FieldRelayout,
+    fo: &FieldOptions,
+    first: Fitted,
+    rounds: &mut Vec<FieldRound>,
+    mut fit: impl FnMut(&mut StageTimer, ControlMesh) -> Result<Fitted>,
+) -> Result<Fitted> {
+    let mesh = &relayout.mesh;
+    let permille = 1000.0 / mesh.bbox_diagonal();
+    let m0 = timer.run("projectability round", || {
+        patch_errors(mesh, &first.control)
+    })?;
+    if m0.unprojectable_percent <= UNPROJECTABLE_PERCENT {
+        return Ok(first);
+    }
+    let j0 = Judged::of(&m0, &first, permille);
+    let log = std::env::var_os("SUBDFIT_FACES_PROJ_LOG").is_some();
+    if log {
+        eprintln!(
+            "projectability rounds: incoming faces {} rms {:.4} unprojectable {:.4} %",
+            first.control.num_faces(),
+            j0.rms,
+            j0.unprojectable
+        );
+    }
+    let first_faces = first.control.num_faces();
+    let n = fo.target_faces.unwrap_or(first_faces) as f64;
+    let h0 = timer.run("field layout", || {
+        Sizes::new(mesh, &relayout.fitmap, fo).map(|s| (s.surf, s.h))
+    })?;
+    let f = env_f64("SUBDFIT_FACES_PROJ_F", PROJ_REFINE);
+    let max_rounds = env_f64("SUBDFIT_FACES_PROJ_ROUNDS", PROJ_ROUNDS as f64) as usize;
+    let nv = mesh.positions.len();
+    let mut acc = vec![1.0; nv];
+    let (mut marked, _) = marks(&first.control, &m0, nv, f);
+    let mut best = (j0, first, None::<usize>);
+    for _ in 0..max_rounds {
+        for (a, x) in acc.iter_mut().zip(&marked) {
+            *a = (*a * x).max(super::thin::MIN_FACTOR);
+        }
+        let laid = timer.run("field layout", || {
+            let h = super::thin::lowered_sizing(&h0.0, &h0.1, &acc, fo.gradation);
+            field_layout_counted(&relayout.prepared, mesh, &relayout.fitmap, h, fo)
+        })?;
+        let (faces, irregular) = (laid.control.num_faces(), laid.stats.irregular_vertices);
+        let size_factor = laid.stats.size_factor;
+        let next = fit(timer, laid.control)?;
+        let m1 = timer.run("projectability round", || patch_errors(mesh, &next.control))?;
+        let j1 = Judged::of(&m1, &next, permille);
+        let (m, patches) = marks(&next.control, &m1, nv, f);
+        marked = m;
+        rounds.push(FieldRound {
+            target_faces: fo.target_faces,
+            faces,
+            irregular_vertices: irregular,
+            fit_rms_permille: next.report.final_rms_permille,
+            layout_rms_permille: Some(permille * m1.rms),
+            layout_unprojectable_percent: Some(m1.unprojectable_percent),
+            layout_thin_percent: Some(m1.thin_percent),
+            patches_unprojectable: patches,
+            size_factor: Some(size_factor),
+            kept: Some(false),
+            ..Default::default()
+        });
+        if log {
+            eprintln!(
+                "projectability round: faces {faces} irregular {irregular} rms {:.4} unprojectable {:.4} % ({patches} patches)",
+                j1.rms, j1.unprojectable
+            );
+        }
+        let at_count =
+            (faces as f64 - n).abs() <= f64::max(COUNT_WINDOW * n, (first_faces as f64 - n).abs());
+        if at_count && j1.beats(&best.0, &j0) {
+            best = (j1, next, Some(rounds.len() - 1));
+        }
+        if m1.unprojectable_percent <= UNPROJECTABLE_PERCENT || patches == 0 {
+            break;
+        }
+    }
+    if let Some(i) = best.2 {
+        rounds[i].kept = Some(true);
+    }
+    Ok(best.1)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::convert::field::PatchError;
+    use crate::DVec3;
+
+    /// A flat `n × n` grid of unit quads.
+    fn grid(n: usize) -> ControlMesh {
+        let positions = (0..=n)
+            .flat_map(|j| (0..=n).map(move |i| DVec3::new(i as f64, j as f64, 0.0)))
+            .collect();
+        let at = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+        let faces: Vec<[u32; 4]> = (0..n)
+            .flat_map(|j| (0..n).map(move |i| (i, j)))
+            .map(|(i, j)| [at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)])
+            .collect();
+        ControlMesh::from_polygons(positions, &faces).unwrap()
+    }
+
+    /// On a 4 × 4 grid with face 0 (a corner) unprojectable and one
+    /// vertex of M′ per face: that face's vertex gets f, the three faces
+    /// sharing a vertex with it √f, the twelve others 1.
+    #[test]
+    fn marks_lower_the_unprojectable_patch_and_its_ring() {
+        let c = grid(4);
+        let per_patch = (0..16u32)
+            .map(|f| PatchError {
+                face: f,
+                rms: 0.0,
+                area: 1.0,
+                unprojectable: if f == 0 { 0.5 } else { 0.0 },
+                vertices: vec![f],
+            })
+            .collect();
+        let m = Measured {
+            per_patch,
+            rms: 0.0,
+            unprojectable_percent: 0.5 / 16.0 * 100.0,
+            thin_percent: 0.0,
+        };
+        let (factor, bad) = marks(&c, &m, 16, 0.64);
+        assert_eq!(bad, 1);
+        // Face (i, j) is i + 4 j: the ring of face 0 is faces 1, 4 and 5.
+        for (f, x) in factor.iter().enumerate() {
+            let want = match f {
+                0 => 0.64,
+                1 | 4 | 5 => 0.8,
+                _ => 1.0,
+            };
+            assert!((x - want).abs() < 1e-12, "face {f}: {x}, want {want}");
+        }
+    }
+
+    /// Nothing unprojectable marks nothing.
+    #[test]
+    fn no_unprojectable_patch_marks_nothing() {
+        let c = grid(2);
+        let per_patch = (0..4u32)
+            .map(|f| PatchError {
+                face: f,
+                vertices: vec![f],
+                ..Default::default()
+            })
+            .collect();
+        let m = Measured {
+            per_patch,
+            rms: 0.0,
+            unprojectable_percent: 0.0,
+            thin_percent: 0.0,
+        };
+        let (factor, bad) = marks(&c, &m, 4, 0.6);
+        assert_eq!(bad, 0);
+        assert!(factor.iter().all(|x| *x == 1.0));
+    }
+}
