@@ -12,7 +12,8 @@
 //! `ADAPT_GAMMA`, `ADAPT_LOOPCAP` and `ADAPT_FACES` override the
 //! gradation, the holes' cap slope and the target count;
 //! `ADAPT_SWEEPS` sets the position field's sweeps per level;
-//! `ADAPT_CLEANUP_ONLY` skips the layouts without the cleanup. h is the
+//! `ADAPT_CLEANUP_ONLY` skips the layouts without the cleanup;
+//! `FIELD_GRADING` (`sizing::Grading`) is the graded stage's grading too. h is the
 //! sizing before the count loop's uniform scaling (ranks unchanged).
 
 use subdfit::analysis::{compute_fitmap, spearman, FitmapOptions};
@@ -74,8 +75,8 @@ fn sizing_stages(
         .zip(&hm)
         .map(|(&a, &b)| (alpha * a).min(beta * b))
         .collect();
-    let mut graded = raw.clone();
-    sizing::grade(surf, &mut graded, opts.gradation);
+    let hm_mu: Vec<f64> = hm.iter().map(|x| mu * x).collect();
+    let graded = sizing::graded_with(surf, &hs, &hm_mu, alpha, opts, sizing::Grading::current());
     let mut capped = graded.clone();
     sizing::cap_at_boundaries(surf, &mut capped, opts.gradation, opts.loop_cap_slope);
     let keep: Vec<usize> = (0..hs.len()).filter(|&i| hs[i].is_finite()).collect();

@@ -134,7 +134,13 @@ impl Default for FieldOptions {
             // (≤ 506), at RMS L below the paper's 2.36‰ / 3.41‰.
             m_fitmap_scale: 2.2,
             gradation: 0.25,
-            loop_cap_slope: 1.0,
+            // `FIELD_LOOP_CAP_SLOPE` (measurement switch, issue 40's
+            // adaptivity, docs/status.md session 15): off unless set.
+            loop_cap_slope: std::env::var("FIELD_LOOP_CAP_SLOPE")
+                .ok()
+                .and_then(|v| v.parse::<f64>().ok())
+                .filter(|x| x.is_finite() && *x >= 1.0)
+                .unwrap_or(1.0),
             alignment_length: 1.0,
             alignment_weight: 1.0,
             position_sweeps: 8,
