@@ -190,3 +190,69 @@ fn choose_never_returns_another_topology() {
     assert_eq!(chosen.stats.draws.as_ref().unwrap().chosen, 1);
     assert!(draws::choose(vec![Ok(bad.clone()), Ok(bad)], m_topology, bad_first).is_err());
 }
+
+/// A candidate's final figures (`draws::Final`).
+fn fin(faces: usize, irregular: usize, l: f64, d: f64, u: f64) -> draws::Final {
+    draws::Final {
+        faces,
+        irregular_vertices: irregular,
+        limit_permille: l,
+        displaced_permille: d,
+        unprojectable_percent: u,
+    }
+}
+
+#[test]
+fn the_final_choice_weighs_the_unprojectable_share_over_the_bar() {
+    // Homer at 272 (session 14's draws): the first round at L 3.73‰,
+    // D 0.45‰ and 0.38 % unprojectable; a draw with a lower L and D but
+    // 0.96 % unprojectable must lose to one that meets the 0.1 % bar at
+    // a slightly higher L, and below the bar the unprojectable share
+    // does not count: the lower L + D wins.
+    let first = fin(272, 42, 3.728, 0.450, 0.381);
+    let cands = [
+        first,
+        fin(271, 39, 3.564, 0.440, 0.962),
+        fin(272, 40, 3.800, 0.470, 0.080),
+        fin(272, 41, 3.700, 0.460, 0.095),
+    ];
+    let (kept, scores) = draws::choose_final(&cands, Some(272), 0.02);
+    assert_eq!(kept, 3, "{scores:?}");
+    assert!(scores.iter().all(Option::is_some));
+    // Candidate 2 and 3 are both under the bar: only L and D rank them.
+    let s = |i: usize| scores[i].unwrap();
+    let w = draws::IRREGULAR_WEIGHT;
+    assert!((s(2) - (3.800 / 3.728 + 0.470 / 0.450 + w * 40.0 / 42.0)).abs() < 1e-12);
+    // The first round scores 2 + w plus its share over the bar.
+    assert!((s(0) - (2.0 + w + (0.381 - 0.1) / 0.1)).abs() < 1e-12);
+}
+
+#[test]
+fn the_final_choice_keeps_the_count_the_irregular_guard_and_the_lower_index_on_ties() {
+    let first = fin(80, 22, 9.184, 1.010, 0.030);
+    let cands = [
+        first,
+        // Far off the count (> 2 % of 81 and farther than the first):
+        // not ranked, however good.
+        fin(90, 22, 5.0, 0.2, 0.0),
+        // Twice the fewest irregular vertices: not ranked.
+        fin(81, 50, 5.0, 0.2, 0.0),
+        fin(80, 22, 9.282, 0.417, 0.026),
+        // The same figures as candidate 3: the lower index wins the tie.
+        fin(80, 22, 9.282, 0.417, 0.026),
+    ];
+    let (kept, scores) = draws::choose_final(&cands, Some(81), 0.02);
+    assert_eq!(kept, 3, "{scores:?}");
+    assert_eq!((scores[1], scores[2]), (None, None));
+    assert_eq!(scores[3], scores[4]);
+    // With nothing better than the first round, the first is kept.
+    let (kept, _) = draws::choose_final(&[first, fin(80, 22, 9.5, 1.2, 0.03)], Some(81), 0.02);
+    assert_eq!(kept, 0);
+    // A NaN figure ranks last, never first.
+    let (kept, _) = draws::choose_final(&[first, fin(80, 22, f64::NAN, 0.1, 0.0)], Some(81), 0.02);
+    assert_eq!(kept, 0);
+    assert_eq!(
+        draws::thin_draws_from_env().clamp(1, draws::MAX_DRAWS),
+        draws::thin_draws_from_env()
+    );
+}

@@ -216,6 +216,13 @@ pub struct FieldRound {
     pub displaced_permille: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub limit_permille: Option<f64>,
+    /// With the thin round's draws (`SUBDFIT_FIELD_THIN_DRAWS`): the
+    /// unprojectable share of M's area the displacement pass measured, %,
+    /// and on each draw the factor on the round's sizing it was laid at.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unprojectable_percent: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub thin_draw_scale: Option<f64>,
     /// With the thin round, on its own round, and on the bracket's rounds:
     /// whether it was kept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -467,7 +474,7 @@ impl Ends<'_> {
                 caster,
                 metrics: &po.metrics,
             };
-            fitted = super::thin::second_round(timer, relayout, fo, fitted, rounds, fit, &on_m)?;
+            fitted = super::thin::final_draws(timer, relayout, fo, fitted, rounds, fit, &on_m)?;
         }
         // At a fixed count, patches moved to where the limit leaves M′
         // unprojectable ([`super::faces_proj`], off by default).

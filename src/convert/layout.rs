@@ -99,6 +99,14 @@ pub struct FieldRelayout {
     /// decisions (patches refined at a threshold) do not turn on the float
     /// noise of M's own numbering ([`FieldRelayout::fit_target`]).
     pub fit_caster: Option<Box<dyn crate::raycast::RayCaster>>,
+    /// The first layout's other draws (`SUBDFIT_FIELD_THIN_DRAWS`), with
+    /// the factor on the sizing each was laid at: each is fitted, given
+    /// its own thin round and judged on its final result
+    /// ([`super::thin::final_draws`]). Empty without draws.
+    pub alternatives: Vec<(f64, crate::mesh::ControlMesh)>,
+    /// The factor on the sizing the first layout was laid at (1 without
+    /// `SUBDFIT_FIELD_THIN_DRAWS`).
+    pub first_scale: f64,
 }
 
 impl FieldRelayout {
@@ -277,14 +285,36 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
         Some(_) => crate::quad::field::draws::draws_from_env(),
         None => 1,
     };
+    // With `SUBDFIT_FIELD_THIN_DRAWS=K` (session 15, face target only),
+    // every draw the guard leaves is carried on: the first is laid out as
+    // the layout, the others as `alternatives`, each judged on its final
+    // result after its own fit and thin round ([`super::thin::final_draws`]).
+    let final_draws = match opts.target_faces {
+        Some(_) => crate::quad::field::draws::thin_draws_from_env(),
+        None => 1,
+    };
     let fit_opts = crate::fit::FitOptions::default().with_objective(opts.objective);
-    let (laid, prepared) = timer.run("field layout", || {
+    let (laid, prepared, alternatives) = timer.run("field layout", || {
         let prep = crate::quad::field::Prepared::new(layout, &field_opts)?;
+        if final_draws > 1 {
+            let all = crate::quad::field::field_layout_draws(
+                &prep,
+                layout,
+                &fitmap,
+                &field_opts,
+                final_draws,
+            )?;
+            let scale = |i: usize| crate::quad::field::draws::SCALES[i];
+            let mut all = all.into_iter();
+            let (i, laid) = all.next().expect("at least one eligible draw");
+            let alternatives = all.map(|(i, l)| (scale(i), l.control)).collect();
+            return Ok((laid, prep, (scale(i), alternatives)));
+        }
         let score = |l: &crate::quad::field::FieldLayout| {
             super::field::draw_score(layout, layout_caster, &fit_opts, l)
         };
         crate::quad::field::field_layout_drawn(&prep, layout, &fitmap, &field_opts, draws, score)
-            .map(|laid| (laid, prep))
+            .map(|laid| (laid, prep, (1.0, Vec::new())))
     })?;
     stage(progress, "field layout", 1.0)?;
     let on_canon = fitmap_on_m(&proxy, fitmap.clone(), canon, timer)?;
@@ -310,6 +340,8 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
                 fitmap,
                 prepared,
                 fit_caster: canon_caster,
+                first_scale: alternatives.0,
+                alternatives: alternatives.1,
             }),
         },
     })

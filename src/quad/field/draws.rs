@@ -69,7 +69,7 @@ pub struct DrawsRecord {
 
 /// `lay_one(scale)` for the first `k` of [`SCALES`] (at least one, at most
 /// [`MAX_DRAWS`]), side by side, in draw order.
-pub(super) fn lay<F>(k: usize, lay_one: F) -> Vec<Result<FieldLayout>>
+pub fn lay<F>(k: usize, lay_one: F) -> Vec<Result<FieldLayout>>
 where
     F: Fn(f64) -> Result<FieldLayout> + Sync,
 {
@@ -166,6 +166,161 @@ where
     let mut out = kept.swap_remove(i).expect("the best draw was kept");
     out.stats.draws = Some(record);
     Ok(out)
+}
+
+/// Environment variable asking for `k` draws of the thin round's re-layout
+/// (`src/convert/thin.rs`, session 15; 1, unset or unparsable: one, the
+/// thin round as before).
+pub const THIN_DRAWS_ENV: &str = "SUBDFIT_FIELD_THIN_DRAWS";
+
+/// The number of thin-round draws `SUBDFIT_FIELD_THIN_DRAWS` asks for, in
+/// `1..=MAX_DRAWS`.
+pub fn thin_draws_from_env() -> usize {
+    std::env::var(THIN_DRAWS_ENV)
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .map_or(1, |k| k.clamp(1, MAX_DRAWS))
+}
+
+/// The irregular guard on the first layout's draws when they are judged
+/// on their final results ([`eligible`]): looser than
+/// [`IRREGULAR_FACTOR`], since the thin round re-lays the field and the
+/// final irregular count follows the first layout's loosely (session 14:
+/// homer at 272's draws had 39–56 irregular vertices on the first layout,
+/// and draw 0, with 56, ended at 42; cheburashka at 460's draw 0 went
+/// 76 → 65). It still drops gargoyle τ 1 % at 1391's 0.97 draw (308
+/// against 164), before its fit and thin round are paid for.
+pub const FIRST_IRREGULAR_FACTOR: f64 = 1.5;
+
+/// The draws to carry on, with their indices, in draw order: those whose
+/// topology is `topology` (M's) and whose irregular count is within
+/// `factor` of the fewest (plus [`IRREGULAR_SLACK`]). When none is left,
+/// the first draw's error.
+pub fn eligible(
+    draws: Vec<Result<FieldLayout>>,
+    topology: TopologySummary,
+    factor: f64,
+) -> Result<Vec<(usize, FieldLayout)>> {
+    let mut first_error = None;
+    let mut ok = Vec::with_capacity(draws.len());
+    for (i, d) in draws.into_iter().enumerate() {
+        match d {
+            Ok(l) if control_topology(&l.control) == topology => ok.push((i, l)),
+            Ok(_) => {
+                first_error.get_or_insert_with(|| {
+                    Error::internal(format!(
+                        "field layout: draw {i} has another topology than M's ({topology:?})"
+                    ))
+                });
+            }
+            Err(e) => {
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    let fewest = ok.iter().map(|(_, l)| l.stats.irregular_vertices).min();
+    let Some(fewest) = fewest else {
+        return Err(first_error.expect("no draw kept, so one failed"));
+    };
+    let most = factor * fewest as f64 + IRREGULAR_SLACK as f64;
+    ok.retain(|(_, l)| l.stats.irregular_vertices as f64 <= most);
+    Ok(ok)
+}
+
+/// Environment variable asking for `k` draws of each thin round's
+/// re-layout itself (`src/convert/thin.rs`; 1, unset or unparsable: one).
+pub const THIN_RELAYOUT_DRAWS_ENV: &str = "SUBDFIT_FIELD_THIN_RELAYOUT_DRAWS";
+
+/// The number of re-layout draws `SUBDFIT_FIELD_THIN_RELAYOUT_DRAWS` asks
+/// for, in `1..=MAX_DRAWS`.
+pub fn thin_relayout_draws_from_env() -> usize {
+    std::env::var(THIN_RELAYOUT_DRAWS_ENV)
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .map_or(1, |k| k.clamp(1, MAX_DRAWS))
+}
+
+/// A fitted candidate's final figures, as `report.json` gives them: what
+/// [`choose_final`] ranks (session 15: the first layout's fit ranks the
+/// final result only loosely, so the thin round's draws are judged on
+/// the displaced result itself).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
+pub struct Final {
+    pub faces: usize,
+    pub irregular_vertices: usize,
+    /// RMS L and RMS D, ‰ of M's diagonal.
+    pub limit_permille: f64,
+    pub displaced_permille: f64,
+    /// The share of M's area the limit does not project onto, %.
+    pub unprojectable_percent: f64,
+}
+
+/// Issue 40's bar on the unprojectable share, %: below it a candidate's
+/// unprojectable area does not count against it.
+pub const UNPROJECTABLE_BAR: f64 = 0.1;
+
+/// The weight of the irregular count in [`final_score`]: half that of RMS
+/// L or RMS D (session 15: at 1, cheburashka at 460 kept a draw with 11 %
+/// fewer irregular vertices at RMS L +5 %, D +4 %; the bars on L and D
+/// are the harder ones).
+pub const IRREGULAR_WEIGHT: f64 = 0.5;
+
+/// A candidate's score against the first round's (`base`), lower is
+/// better: its RMS L and RMS D relative to the first round's, summed, plus
+/// [`IRREGULAR_WEIGHT`] times its relative irregular count, plus its
+/// unprojectable share above [`UNPROJECTABLE_BAR`] in units of the bar
+/// (homer at 272 drew 0.38–0.96 %: a draw 0.1 % over the bar costs as much
+/// as a 100 % rise of RMS L).
+pub fn final_score(c: &Final, base: &Final) -> f64 {
+    let rel = |x: f64, x0: f64| x / f64::max(x0, f64::MIN_POSITIVE);
+    let over = f64::max(c.unprojectable_percent - UNPROJECTABLE_BAR, 0.0) / UNPROJECTABLE_BAR;
+    let s = rel(c.limit_permille, base.limit_permille)
+        + rel(c.displaced_permille, base.displaced_permille)
+        + IRREGULAR_WEIGHT * rel(c.irregular_vertices as f64, base.irregular_vertices as f64)
+        + over;
+    if s.is_nan() {
+        f64::INFINITY
+    } else {
+        s
+    }
+}
+
+/// The candidate to keep among `cands` (index 0 the first round's fit,
+/// the thin round's draws after it): those within `window` patches of the
+/// target `n` (or no farther than candidate 0) whose irregular count is
+/// within [`IRREGULAR_FACTOR`] of the fewest among them are ranked by
+/// [`final_score`] against candidate 0, the lowest kept, ties to the lower
+/// index (so the choice does not depend on the order the draws were
+/// computed in, only on their index). Candidate 0 is always eligible.
+pub fn choose_final(cands: &[Final], n: Option<usize>, window: f64) -> (usize, Vec<Option<f64>>) {
+    let Some(base) = cands.first() else {
+        return (0, Vec::new());
+    };
+    let target = n.unwrap_or(base.faces) as f64;
+    let off = |f: usize| (f as f64 - target).abs();
+    let at_count =
+        |i: usize| i == 0 || off(cands[i].faces) <= f64::max(window * target, off(base.faces));
+    let fewest = (0..cands.len())
+        .filter(|&i| at_count(i))
+        .map(|i| cands[i].irregular_vertices)
+        .min()
+        .unwrap_or(0);
+    let most = IRREGULAR_FACTOR * fewest as f64 + IRREGULAR_SLACK as f64;
+    let scores: Vec<Option<f64>> = (0..cands.len())
+        .map(|i| {
+            let ok = at_count(i) && (i == 0 || cands[i].irregular_vertices as f64 <= most);
+            ok.then(|| final_score(&cands[i], base))
+        })
+        .collect();
+    let mut best = 0;
+    for (i, s) in scores.iter().enumerate() {
+        if let (Some(s), Some(b)) = (s, scores[best]) {
+            if *s < b {
+                best = i;
+            }
+        }
+    }
+    (best, scores)
 }
 
 #[cfg(test)]

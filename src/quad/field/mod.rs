@@ -114,6 +114,12 @@ pub struct FieldOptions {
     /// Run [`cleanup::cleanup`] on the extracted mesh ([`field_layout`]
     /// only; [`field_layout_sized`] returns the raw extraction).
     pub cleanup: bool,
+    /// The cleanup's guarded cancellation
+    /// ([`cleanup::CleanupOptions::guarded`]) on or off for this layout
+    /// (`None`: as `SUBDFIT_CLEANUP_GUARDED` says, which also overrides
+    /// this; session 15 runs it on the kept draw only,
+    /// `src/convert/thin.rs`).
+    pub cleanup_guarded: Option<bool>,
 }
 
 impl Default for FieldOptions {
@@ -148,6 +154,7 @@ impl Default for FieldOptions {
             orientation_hierarchy: false,
             lattice_at_size: true,
             cleanup: true,
+            cleanup_guarded: None,
         }
     }
 }
@@ -383,12 +390,55 @@ pub fn field_layout_drawn<S>(
 where
     S: FnMut(&FieldLayout) -> Result<f64>,
 {
+    let laid = lay_draws(prep, mesh, fitmap, opts, k)?;
+    draws::choose(laid, prep.surf.topology, score)
+}
+
+/// [`field_layout_drawn`]'s draws that keep M's topology and pass
+/// [`draws::FIRST_IRREGULAR_FACTOR`]'s guard ([`draws::eligible`]), with
+/// their indices, in draw order: `src/convert/thin.rs` judges them on
+/// their final results.
+pub fn field_layout_draws(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    opts: &FieldOptions,
+    k: usize,
+) -> Result<Vec<(usize, FieldLayout)>> {
+    draws::eligible(
+        lay_draws(prep, mesh, fitmap, opts, k)?,
+        prep.surf.topology,
+        draws::FIRST_IRREGULAR_FACTOR,
+    )
+}
+
+/// Draw `s` alone: [`field_layout_prepared`] with the sizing × `s`, as
+/// [`field_layout_draws`] lays it.
+pub fn field_layout_at_scale(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    opts: &FieldOptions,
+    s: f64,
+) -> Result<FieldLayout> {
     let (h, stats) = sizing_prepared(prep, mesh, fitmap, opts)?;
-    let laid = draws::lay(k, |s| {
+    let h: Vec<f64> = h.iter().map(|x| x * s).collect();
+    lay_counted(prep, mesh, fitmap, h, opts, stats)
+}
+
+/// [`draws::lay`] on the sizing of `prep`.
+fn lay_draws(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    opts: &FieldOptions,
+    k: usize,
+) -> Result<Vec<Result<FieldLayout>>> {
+    let (h, stats) = sizing_prepared(prep, mesh, fitmap, opts)?;
+    Ok(draws::lay(k, |s| {
         let h: Vec<f64> = h.iter().map(|x| x * s).collect();
         lay_counted(prep, mesh, fitmap, h, opts, stats.clone())
-    });
-    draws::choose(laid, prep.surf.topology, score)
+    }))
 }
 
 /// Steps 3–5 on a given sizing `h` of a [`Prepared`] mesh, with
@@ -446,7 +496,14 @@ fn lay_counted(
             plan.apply(&mut out.control, mesh, c)?;
         }
         match caster {
-            Some(c) => clean(mesh, fitmap, c, out, opts.target_faces),
+            Some(c) => clean(
+                mesh,
+                fitmap,
+                c,
+                out,
+                opts.target_faces,
+                opts.cleanup_guarded,
+            ),
             None => Ok(out),
         }
     };
@@ -521,8 +578,10 @@ fn clean(
     caster: &crate::raycast::bvh::BvhCaster,
     mut out: FieldLayout,
     target_faces: Option<usize>,
+    guarded: Option<bool>,
 ) -> Result<FieldLayout> {
     let mut co = cleanup::CleanupOptions::default().with_target_faces(target_faces);
+    co.guarded = guarded.unwrap_or(co.guarded);
     if let Some(n) = std::env::var("SUBDFIT_CLEANUP_MOVES")
         .ok()
         .and_then(|v| v.parse::<usize>().ok())
@@ -638,11 +697,11 @@ pub fn field_layout_refined_prepared(
         return Ok(out);
     }
     match &prep.caster {
-        Some(caster) => clean(mesh, fitmap, caster, out, None),
+        Some(caster) => clean(mesh, fitmap, caster, out, None, None),
         None => {
             // Prepared without the cleanup's caster.
             let caster = crate::raycast::bvh::BvhCaster::new(mesh)?;
-            clean(mesh, fitmap, &caster, out, None)
+            clean(mesh, fitmap, &caster, out, None, None)
         }
     }
 }
