@@ -8,69 +8,17 @@
 
 use std::path::Path;
 
+mod common;
+
 use subdfit::DVec3;
 
 /// An icosphere of unit radius subdivided `sub` times, its radius raised
 /// on the upper half by a fin `a · exp(−(x/sx)² − (y/sy)²)` (thin in x,
 /// long in y), as OBJ text.
-fn finned_sphere(sub: usize, a: f64, sx: f64, sy: f64) -> String {
-    let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut v: Vec<DVec3> = [
-        (-1.0, t, 0.0),
-        (1.0, t, 0.0),
-        (-1.0, -t, 0.0),
-        (1.0, -t, 0.0),
-        (0.0, -1.0, t),
-        (0.0, 1.0, t),
-        (0.0, -1.0, -t),
-        (0.0, 1.0, -t),
-        (t, 0.0, -1.0),
-        (t, 0.0, 1.0),
-        (-t, 0.0, -1.0),
-        (-t, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| DVec3::new(x, y, z).normalize())
-    .collect();
-    let mut f: Vec<[usize; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..sub {
-        let mut mid = std::collections::HashMap::new();
-        let mut m = |a: usize, b: usize, v: &mut Vec<DVec3>| {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                v.push((v[a] + v[b]).normalize());
-                v.len() - 1
-            })
-        };
-        let mut next = Vec::with_capacity(4 * f.len());
-        for &[a, b, c] in &f {
-            let (ab, bc, ca) = (m(a, b, &mut v), m(b, c, &mut v), m(c, a, &mut v));
-            next.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        f = next;
-    }
+fn finned_sphere(sub: u32, a: f64, sx: f64, sy: f64) -> String {
+    let sphere = common::icosphere(sub, DVec3::ZERO, 1.0);
     let mut obj = String::new();
-    for p in &v {
+    for p in &sphere.positions {
         let r = 1.0
             + if p.z > 0.0 {
                 a * (-(p.x / sx).powi(2) - (p.y / sy).powi(2)).exp()
@@ -80,7 +28,7 @@ fn finned_sphere(sub: usize, a: f64, sx: f64, sy: f64) -> String {
         let q = r * *p;
         obj += &format!("v {:.9} {:.9} {:.9}\n", q.x, q.y, q.z);
     }
-    for [a, b, c] in &f {
+    for [a, b, c] in &sphere.triangles {
         obj += &format!("f {} {} {}\n", a + 1, b + 1, c + 1);
     }
     obj

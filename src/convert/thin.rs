@@ -561,8 +561,8 @@ pub fn on_m(on: &OnM<'_>, layout: &TriMesh, control: &ControlMesh) -> Result<f64
 }
 
 /// The pipeline's displacement and metrics on `control` (refined once
-/// when not all quads, as the tail does): RMS D and RMS L, ‰.
-fn displaced(on: &OnM<'_>, control: &ControlMesh) -> Result<(f64, f64)> {
+/// when not all quads, as the tail does).
+fn evaluated(on: &OnM<'_>, control: &ControlMesh) -> Result<crate::report::Metrics> {
     let quads = match control.is_all_quads() {
         true => None,
         false => Some(crate::subdiv::refine::refine_once_keeping_infinite(
@@ -572,10 +572,13 @@ fn displaced(on: &OnM<'_>, control: &ControlMesh) -> Result<(f64, f64)> {
     let c = quads.as_ref().unwrap_or(control);
     let mut quiet = |_: &str, _: f64| true;
     let s = crate::report::evaluate_surfaces(on.mesh, c, on.caster, on.metrics, &mut quiet)?;
-    Ok((
-        s.metrics.displaced.rms_permille,
-        s.metrics.limit.rms_permille,
-    ))
+    Ok(s.metrics)
+}
+
+/// [`evaluated`]'s RMS D and RMS L, ‰.
+fn displaced(on: &OnM<'_>, control: &ControlMesh) -> Result<(f64, f64)> {
+    let m = evaluated(on, control)?;
+    Ok((m.displaced.rms_permille, m.limit.rms_permille))
 }
 
 /// `h0` lowered by `factor`, graded at `gamma`, at least M′'s mean edge,
@@ -971,24 +974,15 @@ struct DrawnCtx<'a> {
     chain: usize,
 }
 
-/// The pipeline's displacement and metrics on `control` ([`displaced`]'s
-/// pass) as a candidate's final figures.
+/// [`evaluated`]'s figures as a candidate's final ones.
 fn final_figures(on: &OnM<'_>, control: &ControlMesh) -> Result<Final> {
-    let quads = match control.is_all_quads() {
-        true => None,
-        false => Some(crate::subdiv::refine::refine_once_keeping_infinite(
-            control,
-        )?),
-    };
-    let c = quads.as_ref().unwrap_or(control);
-    let mut quiet = |_: &str, _: f64| true;
-    let s = crate::report::evaluate_surfaces(on.mesh, c, on.caster, on.metrics, &mut quiet)?;
+    let metrics = evaluated(on, control)?;
     Ok(Final {
         faces: control.num_faces(),
         irregular_vertices: crate::quad::field::irregular_vertices(control),
-        limit_permille: s.metrics.limit.rms_permille,
-        displaced_permille: s.metrics.displaced.rms_permille,
-        unprojectable_percent: s.metrics.unprojectable_area_percent,
+        limit_permille: metrics.limit.rms_permille,
+        displaced_permille: metrics.displaced.rms_permille,
+        unprojectable_percent: metrics.unprojectable_area_percent,
     })
 }
 

@@ -51,6 +51,7 @@ use super::{
 };
 use crate::error::Error;
 use crate::mesh::{ControlMesh, FaceId, VertexId};
+use crate::watch::thread_cpu_seconds;
 use crate::DVec3;
 
 /// Rings of frozen vertices on each side of the cut: `2·BAND + 2` edges of
@@ -575,23 +576,6 @@ fn joined_checkpoints(part: &Partition, a: &Simplifier, b: &Simplifier) -> Vec<C
         });
     }
     out
-}
-
-/// CPU seconds of the calling thread (the halves' and the joined loop's
-/// own work, for [`SplitStats`]: wall time means little on a shared
-/// machine).
-fn thread_cpu_seconds() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec for the call's duration.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    if rc == 0 {
-        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
-    } else {
-        0.0
-    }
 }
 
 /// Adds a half's counters to the run's.

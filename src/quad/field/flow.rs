@@ -32,6 +32,7 @@
 
 use std::collections::VecDeque;
 
+use crate::watch::thread_cpu_seconds;
 use crate::DVec3;
 
 use super::cross::match_arm;
@@ -478,22 +479,6 @@ fn min_cost_flow(sums: &[i64], arcs: &[Arc], offsets: &mut [[i64; 2]], real: &[[
         offsets[a.edge as usize][a.axis as usize] += g.flow(up) - g.flow(down);
     }
     moved
-}
-
-/// CPU seconds of the calling thread (for the `FIELD_DEBUG` timing of
-/// the search; wall time means little on a shared machine).
-fn thread_cpu_seconds() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec for the call's duration.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    if rc == 0 {
-        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
-    } else {
-        0.0
-    }
 }
 
 /// A minimum-cost flow by successive shortest paths (Dijkstra on reduced
