@@ -535,49 +535,27 @@ fn round_rows(
             .map(|&k| d_edges.weight[k as usize] * scale_d);
         m.chain(d)
     });
-    // Points over unprojectable samples (holes of M, other sheets) carry
-    // almost all of D → M's objective (bunny's ladder: 99 % of D's error
-    // on 1.3 % of its area), and a step that raises the objective there
-    // is rejected by them alone: they are measured first, before any row
-    // is summed or D's ray caster built ([`Verdict::rejects_early`]).
-    if verdict.bound.is_finite() {
-        let vproj = match host {
-            None => &disp.projected[..],
-            Some(h) => &h.projected[..],
-        };
-        let suspect: Vec<u32> = d_order
-            .iter()
-            .copied()
-            .filter(|&k| d_edges.ends[k as usize].iter().any(|&v| !vproj[v as usize]))
-            .collect();
-        let early =
-            verdict.rejects_early(&d_edges, &dmesh.positions, &suspect, mesh_caster, scale_d)?;
-        if let Some(score) = early {
-            return Ok((score, None, false));
-        }
+    let projected = match host {
+        None => &disp.projected[..],
+        Some(h) => &h.projected[..],
+    };
+    let over = OverUnprojectable {
+        projected,
+        d_edges: &d_edges,
+        dmesh: &dmesh,
+        d_order: &d_order,
+    };
+    if let Some(score) = over.rejects(&verdict, mesh_caster, scale_d)? {
+        return Ok((score, None, false));
     }
     let d_caster = make_raycaster(RayBackend::Embree, &dmesh)?;
     let deps = match host {
         None => Basis::Samples(Dependents::of(disp)),
         Some(h) => Basis::Host(h),
     };
-    // A host surface always arrives with its pattern (`host_pattern`, built
-    // once per fit); the sample grid's pattern is D's edges, dependent ends
-    // replaced by the samples they follow.
-    let mut ne = match (check_only, pattern, &deps) {
-        (true, _, _) => None,
-        (false, Some(p), _) => Some(p.clone()),
-        (false, None, Basis::Samples(d)) if !d.list.is_empty() => {
-            let pairs = d.pairs(&d_edges.ends);
-            Some(NormalEquations::with_pairs(
-                disp.offsets.len(),
-                pairs.iter().copied(),
-            )?)
-        }
-        (false, None, _) => Some(NormalEquations::with_pairs(
-            disp.offsets.len(),
-            d_edges.ends.iter().copied(),
-        )?),
+    let mut ne = match check_only {
+        true => None,
+        false => Some(empty_equations(pattern, &deps, disp, &d_edges)?),
     };
     let score = RefCell::new(Score::default());
     let mut row = Vec::with_capacity(3);
@@ -646,6 +624,71 @@ fn round_rows(
         dir_trace(m_part, Some((s.obj, s.obj_w, s.n)), verdict.bound);
     }
     Ok((score.into_inner(), ne.filter(|_| complete), complete))
+}
+
+/// D's edge midpoints with an end over an unprojectable sample (holes of
+/// M, other sheets). They carry almost all of D → M's objective (bunny's
+/// ladder: 99 % of D's error on 1.3 % of its area), and a step that raises
+/// the objective there is rejected by them alone: [`round_rows`] measures
+/// them first, before any row is summed or D's ray caster built
+/// ([`Verdict::rejects_early`]).
+struct OverUnprojectable<'a> {
+    /// Per sample (or host vertex): projected onto M.
+    projected: &'a [bool],
+    d_edges: &'a Edges,
+    dmesh: &'a TriMesh,
+    d_order: &'a [u32],
+}
+
+impl OverUnprojectable<'_> {
+    /// The round's partial score when these points alone prove that it is
+    /// rejected; `None` when they do not (or there is nothing to beat).
+    fn rejects(
+        &self,
+        verdict: &Verdict,
+        caster: &dyn RayCaster,
+        scale_d: f64,
+    ) -> Result<Option<Score>> {
+        if !verdict.bound.is_finite() {
+            return Ok(None);
+        }
+        let suspect: Vec<u32> = self
+            .d_order
+            .iter()
+            .copied()
+            .filter(|&k| {
+                self.d_edges.ends[k as usize]
+                    .iter()
+                    .any(|&v| !self.projected[v as usize])
+            })
+            .collect();
+        verdict.rejects_early(
+            self.d_edges,
+            &self.dmesh.positions,
+            &suspect,
+            caster,
+            scale_d,
+        )
+    }
+}
+
+/// Empty normal equations for a full round: the host surface's pattern
+/// when it has one (`host_pattern`, built once per fit), else D's edges
+/// with dependent ends replaced by the samples they follow.
+fn empty_equations(
+    pattern: Option<&NormalEquations>,
+    deps: &Basis<'_>,
+    disp: &Displacement,
+    d_edges: &Edges,
+) -> Result<NormalEquations> {
+    match (pattern, deps) {
+        (Some(p), _) => Ok(p.clone()),
+        (None, Basis::Samples(d)) if !d.list.is_empty() => {
+            let pairs = d.pairs(&d_edges.ends);
+            NormalEquations::with_pairs(disp.offsets.len(), pairs.iter().copied())
+        }
+        (None, _) => NormalEquations::with_pairs(disp.offsets.len(), d_edges.ends.iter().copied()),
+    }
 }
 
 /// An exact early verdict on a round of [`refine_offsets_on`]: the round is
