@@ -232,6 +232,24 @@ pub fn memtrace(label: &str) {
     );
 }
 
+/// CPU seconds spent by the calling thread so far (0 if the clock cannot be
+/// read). For diagnostics that time one thread's share of a parallel step
+/// (the split simplification's halves, the field's flow search): on a shared
+/// machine wall time says little about the work done.
+pub fn thread_cpu_seconds() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec for the call's duration.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    if rc == 0 {
+        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
+    } else {
+        0.0
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -302,23 +320,5 @@ mod tests {
             Ok(1)
         });
         assert!(matches!(r, Err(Error::Cancelled { .. })), "{r:?}");
-    }
-}
-
-/// CPU seconds spent by the calling thread so far (0 if the clock cannot be
-/// read). For diagnostics that time one thread's share of a parallel step
-/// (the split simplification's halves, the field's flow search): on a shared
-/// machine wall time says little about the work done.
-pub fn thread_cpu_seconds() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec for the call's duration.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    if rc == 0 {
-        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
-    } else {
-        0.0
     }
 }
