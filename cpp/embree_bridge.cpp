@@ -309,16 +309,29 @@ void EmbreeScene::occluded_lines(rust::Slice<const float> rays,
 void EmbreeScene::closest_points(rust::Slice<const float> points_f32,
                                  rust::Slice<const double> points_f64, double max_dist,
                                  rust::Slice<uint32_t> out_prim) const {
+  // One radius for every point: the per-point query below, same answers.
+  if (out_prim.empty()) {
+    if (!points_f32.empty() || !points_f64.empty())
+      throw std::invalid_argument("embree closest_points: buffer sizes disagree");
+    return;
+  }
+  const std::vector<double> max_dists(out_prim.size(), max_dist);
+  closest_points_within(points_f32, points_f64,
+                        rust::Slice<const double>(max_dists.data(), max_dists.size()), out_prim);
+}
+
+void EmbreeScene::closest_points_within(rust::Slice<const float> points_f32,
+                                        rust::Slice<const double> points_f64,
+                                        rust::Slice<const double> max_dists,
+                                        rust::Slice<uint32_t> out_prim) const {
   const size_t n = points_f32.size() / 3;
-  if (points_f32.size() != 3 * n || points_f64.size() != 3 * n || out_prim.size() != n)
+  if (points_f32.size() != 3 * n || points_f64.size() != 3 * n || out_prim.size() != n ||
+      max_dists.size() != n)
     throw std::invalid_argument("embree closest_points: buffer sizes disagree");
-  if (!(max_dist >= 0.0))
-    throw std::invalid_argument("embree closest_points: max_dist must be >= 0");
+  for (double max_dist : max_dists)
+    if (!(max_dist >= 0.0))
+      throw std::invalid_argument("embree closest_points: max_dist must be >= 0");
   FtzDazGuard ftz;
-  const float r0 = std::isfinite(max_dist)
-                       ? float(max_dist) * (1.0f + 4.0f * std::numeric_limits<float>::epsilon()) +
-                             radius_slack_
-                       : std::numeric_limits<float>::infinity();
   // The previous query's answer, as a start for the next one: the caller
   // sends points in spatial order (`in_spatial_order`), so that triangle is
   // usually near the next point, and its distance bounds the next answer's.
@@ -345,7 +358,11 @@ void EmbreeScene::closest_points(rust::Slice<const float> points_f32,
     q.y = points_f32[3 * i + 1];
     q.z = points_f32[3 * i + 2];
     q.time = 0.0f;
-    q.radius = r0;
+    const double max_dist = max_dists[i];
+    q.radius = std::isfinite(max_dist)
+                   ? float(max_dist) * (1.0f + 4.0f * std::numeric_limits<float>::epsilon()) +
+                         radius_slack_
+                   : std::numeric_limits<float>::infinity();
     PointQueryState st{this, pv, max_dist * max_dist, kInvalid};
     if (prev != kInvalid) {
       const uint32_t *t = &triangles_[3 * size_t(prev)];

@@ -46,6 +46,12 @@ public:
                       rust::Slice<const double> points_f64, double max_dist,
                       rust::Slice<uint32_t> out_prim) const;
 
+  /// As `closest_points`, with point i's own max_dist `max_dists[i]`.
+  void closest_points_within(rust::Slice<const float> points_f32,
+                             rust::Slice<const double> points_f64,
+                             rust::Slice<const double> max_dists,
+                             rust::Slice<uint32_t> out_prim) const;
+
 private:
   RTCDevice device_ = nullptr;
   RTCScene scene_ = nullptr;

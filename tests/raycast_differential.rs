@@ -730,3 +730,53 @@ fn results_do_not_depend_on_thread_count() {
     };
     assert_eq!(run(1), run(3));
 }
+
+#[test]
+fn closest_within_a_limit_per_point_is_the_unbounded_answer() {
+    // `closest_points_within` (the displacement's same-sheet test asks for
+    // M's closest point only within a radius of its own per sample) must
+    // give, wherever the closest point lies within the point's limit, the
+    // very answer of the unbounded query: the same triangle and the same
+    // distance bits (the outputs' byte identity rests on it). Beyond the
+    // limit it may say nothing. Limits at the distance times 0, ½, 1 ± 10⁻⁹,
+    // 2 and ∞, so that both sides and the boundary are visited.
+    let mesh = perturbed_torus(120, 50, 1.0, 0.35, 0.05);
+    let mut rng = seeded_rng(39);
+    let points: Vec<DVec3> = (0..20_000)
+        .map(|_| {
+            DVec3::new(
+                rng.gen_range(-1.6..1.6),
+                rng.gen_range(-1.6..1.6),
+                rng.gen_range(-0.6..0.6),
+            )
+        })
+        .collect();
+    for caster in both(&mesh) {
+        let all = caster.closest_points(&points, f64::INFINITY).unwrap();
+        let factors = [0.0, 0.5, 1.0 - 1e-9, 1.0 + 1e-9, 2.0, f64::INFINITY];
+        let limits: Vec<f64> = all
+            .iter()
+            .enumerate()
+            .map(|(i, c)| c.as_ref().unwrap().distance * factors[i % factors.len()])
+            .map(|l| if l.is_nan() { f64::INFINITY } else { l })
+            .collect();
+        let within = caster.closest_points_within(&points, &limits).unwrap();
+        let (mut inside, mut outside) = (0, 0);
+        for (i, (a, w)) in all.iter().zip(&within).enumerate() {
+            let a = a.as_ref().unwrap();
+            if a.distance < limits[i] {
+                inside += 1;
+                let w = w.as_ref().unwrap_or_else(|| panic!("point {i}: none within"));
+                assert_eq!(w.triangle, a.triangle, "{}: point {i}", caster.name());
+                assert_eq!(w.distance.to_bits(), a.distance.to_bits());
+            } else {
+                outside += 1;
+                if let Some(w) = w {
+                    assert_eq!(w.triangle, a.triangle, "{}: point {i}", caster.name());
+                }
+            }
+        }
+        assert!(inside > 5_000 && outside > 5_000, "{inside} {outside}");
+        assert!(caster.closest_points_within(&points, &limits[1..]).is_err());
+    }
+}

@@ -109,9 +109,22 @@ pub struct AdaptiveStats {
 pub struct Allocation {
     pub resolutions: Vec<usize>,
     pub stats: AdaptiveStats,
+    /// What the final grid takes from the pilot.
+    pub pilot: Pilot,
+}
+
+/// The pilot's part in the final displacement ([`Allocation::pilot`]).
+#[derive(Clone, Debug)]
+pub enum Pilot {
     /// The pilot grid and φ's answers on it, for the final grid to reuse
     /// where its samples are the pilot's ([`super::displacement_after`]).
-    pub pilot: Probed,
+    Probed(Probed),
+    /// The final grid is the pilot grid (every patch at the pilot's level:
+    /// on the 4.4M-triangle ladder rung all are at [`MAX_LEVEL`]), so the
+    /// final displacement is the pilot's: the same answers at every sample
+    /// and the same same-sheet test and inpainting of them
+    /// ([`super::finish`]), which the final grid would only repeat.
+    Final(Displacement),
 }
 
 /// A candidate upgrade in the greedy's queue: error decrease per sample,
@@ -166,27 +179,48 @@ pub fn allocate_resolutions(
         kp += 1;
     }
     let pilot_grid = PatchGrid::new(control, res_of(kp))?;
-    let probe = super::probe(&pilot_grid, control, evaluator, caster, max_dist, None)?;
+    let sheet = super::SameSheet::new(diag, slack);
+    let probe = super::probe(
+        &pilot_grid,
+        control,
+        evaluator,
+        caster,
+        max_dist,
+        sheet,
+        None,
+    )?;
+    // φ's answers before the same-sheet test, for a final grid that
+    // differs from the pilot's (the test clears the other-sheet hits).
     let (hits, closest) = (probe.hits.clone(), probe.closest.clone());
     let pilot = super::finish(pilot_grid, probe, diag, slack);
     let errors = level_errors(&pilot, kp);
     let levels = greedy_levels(control, &errors, budget);
     let resolutions: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
-    let grid = PatchGrid::with_resolutions(control, &resolutions)?;
     let mut histogram = BTreeMap::new();
     for &r in &resolutions {
         *histogram.entry(r).or_insert(0) += 1;
     }
-    Ok(Allocation {
-        stats: AdaptiveStats {
-            budget,
-            samples: grid.num_independent(),
-            dependent_samples: grid.dependents().len(),
-            pilot_resolution: res_of(kp),
-            resolution_histogram: histogram,
-        },
-        resolutions,
-        pilot: Probed {
+    // `PatchGrid::new` and `with_resolutions` build the same grid from the
+    // same resolutions (`PatchGrid::build`).
+    let same = levels.iter().all(|&k| k == kp);
+    let built;
+    let grid = match same {
+        true => &pilot.grid,
+        false => {
+            built = PatchGrid::with_resolutions(control, &resolutions)?;
+            &built
+        }
+    };
+    let stats = AdaptiveStats {
+        budget,
+        samples: grid.num_independent(),
+        dependent_samples: grid.dependents().len(),
+        pilot_resolution: res_of(kp),
+        resolution_histogram: histogram,
+    };
+    let pilot = match same {
+        true => Pilot::Final(pilot),
+        false => Pilot::Probed(Probed {
             grid: pilot.grid,
             probe: Probe {
                 limit: pilot.limit,
@@ -194,7 +228,12 @@ pub fn allocate_resolutions(
                 hits,
                 closest,
             },
-        },
+        }),
+    };
+    Ok(Allocation {
+        stats,
+        resolutions,
+        pilot,
     })
 }
 
@@ -435,6 +474,9 @@ mod detail_tests {
                 0.01,
             )
             .unwrap();
+            let Pilot::Probed(pilot) = &alloc.pilot else {
+                panic!("budget {budget}: mixed resolutions, yet the pilot's grid");
+            };
             let grid = PatchGrid::with_resolutions(&control, &alloc.resolutions).unwrap();
             let fresh = displacement_on(
                 grid.clone(),
@@ -448,7 +490,7 @@ mod detail_tests {
             .unwrap();
             let reused = crate::displace::displacement_after(
                 grid,
-                &alloc.pilot,
+                pilot,
                 &control,
                 ev.as_ref(),
                 caster.as_ref(),
@@ -466,23 +508,73 @@ mod detail_tests {
                     .flat_map(|v| v.to_array())
                     .collect::<Vec<f64>>()
             };
-            assert_eq!(bits(&pts(&fresh)), bits(&pts(&reused)), "budget {budget}");
-            assert_eq!(
-                bits(&fresh.offsets),
-                bits(&reused.offsets),
-                "budget {budget}"
-            );
-            assert_eq!(fresh.projected, reused.projected);
-            assert_eq!(fresh.stats, reused.stats);
+            assert_same_displacement(&fresh, &reused, budget);
             // Something was reused (a patch at or below the pilot's
             // level), and something was not (mixed resolutions: edge
             // samples the finer side owns), else the test says nothing
             // about one of the two paths.
-            let pr = alloc.pilot.grid.res();
+            let pr = pilot.grid.res();
             let r = &alloc.resolutions;
             assert!(r.iter().any(|&x| x <= pr), "budget {budget}: {r:?}");
             assert!(r.windows(2).any(|w| w[0] != w[1]), "budget {budget}: {r:?}");
         }
+    }
+
+    /// `a` and `b` bit for bit: limit points, directions, offsets, flags
+    /// and figures (what the written files are made of).
+    fn assert_same_displacement(a: &Displacement, b: &Displacement, budget: usize) {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let pts = |d: &Displacement| {
+            d.limit
+                .iter()
+                .flat_map(|p| [p.position, p.du, p.dv])
+                .chain(d.directions.iter().copied())
+                .flat_map(|v| v.to_array())
+                .collect::<Vec<f64>>()
+        };
+        assert_eq!(bits(&pts(a)), bits(&pts(b)), "budget {budget}");
+        assert_eq!(bits(&a.offsets), bits(&b.offsets), "budget {budget}");
+        assert_eq!(a.projected, b.projected, "budget {budget}");
+        assert_eq!(a.stats, b.stats, "budget {budget}");
+        assert_eq!(a.grid.locations().len(), b.grid.locations().len());
+        for (p, q) in a.grid.locations().iter().zip(b.grid.locations()) {
+            assert!(p.face == q.face && p.u.to_bits() == q.u.to_bits());
+            assert!(p.v.to_bits() == q.v.to_bits() && p.sub == q.sub);
+        }
+    }
+
+    #[test]
+    fn a_final_grid_equal_to_the_pilot_is_the_pilot_displacement() {
+        // A budget above every patch at the deepest level (24 patches of
+        // 65² samples, ~10⁵): the pilot is at `MAX_LEVEL` and so is every
+        // patch, as on the 4.4M-triangle ladder rung. The allocation then
+        // hands over the pilot's displacement, which must be the one the
+        // final grid computes afresh.
+        let (control, ev, mesh) = rippled_cube();
+        let diag = mesh.bbox_diagonal();
+        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+        let budget = 1_000_000;
+        let alloc = allocate_resolutions(
+            &control,
+            ev.as_ref(),
+            caster.as_ref(),
+            budget,
+            0.5,
+            diag,
+            0.01,
+        )
+        .unwrap();
+        assert!(alloc.resolutions.iter().all(|&r| r == res_of(MAX_LEVEL)));
+        let Pilot::Final(kept) = &alloc.pilot else {
+            panic!("every patch at the pilot's level, yet no final displacement");
+        };
+        let grid = PatchGrid::with_resolutions(&control, &alloc.resolutions).unwrap();
+        assert_eq!(alloc.stats.samples, grid.num_independent());
+        assert_eq!(alloc.stats.dependent_samples, 0);
+        let fresh =
+            displacement_on(grid, &control, ev.as_ref(), caster.as_ref(), 0.5, diag, 0.01)
+                .unwrap();
+        assert_same_displacement(&fresh, kept, budget);
     }
 
     #[test]

@@ -48,7 +48,7 @@ mod bspline;
 mod grid;
 mod lsq;
 
-pub use alloc::{allocate_resolutions, AdaptiveStats, Allocation};
+pub use alloc::{allocate_resolutions, AdaptiveStats, Allocation, Pilot};
 
 pub use atlas::{
     read_exr, read_exr_channels, Atlas, AtlasLayout, AtlasMap, TexelType, DEFAULT_GUTTER,
@@ -245,6 +245,43 @@ impl Displacement {
 /// normal at the closest point (see [`compute_displacement`]).
 const SAME_SHEET_FACTOR: f64 = 3.0;
 
+/// The same-sheet test of [`compute_displacement`] with its slack.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SameSheet {
+    /// `slack`, at least `1e-9` of the diagonal.
+    slack: f64,
+}
+
+impl SameSheet {
+    pub(crate) fn new(diag: f64, slack: f64) -> SameSheet {
+        SameSheet {
+            slack: slack.max(1e-9 * diag),
+        }
+    }
+
+    /// Whether a hit at offset `hit` lies on another sheet than the
+    /// sample, `distance` from M.
+    fn other_sheet(&self, hit: f64, distance: f64) -> bool {
+        hit.abs() > SAME_SHEET_FACTOR * distance + self.slack
+    }
+
+    /// How near M's closest point must lie for a line's nearest hit `hit`
+    /// to fail [`Self::other_sheet`]; `None` when no distance can (no hit,
+    /// or `|hit| ≤ slack`: `3·d + slack` rounds to at least `slack` for
+    /// any `d ≥ 0`). A closest point beyond the radius cannot fail it:
+    /// `d ≥ (|hit| − slack)/3 + 10⁻⁹|hit|` gives `3·d + slack ≥ |hit|·(1 +
+    /// 3·10⁻⁹)`, a margin over the rounding of the sum and of the radius
+    /// (relative errors of ~10⁻¹⁶) and over the backends' distance to a
+    /// triangle against the one returned (the same formula in f64). So the
+    /// test needs the distance only within the radius, where a bounded
+    /// search gives the same closest point as an unbounded one
+    /// ([`RayCaster::closest_points_within`]).
+    fn radius(&self, hit: Option<f64>) -> Option<f64> {
+        let h = hit?.abs();
+        (h > self.slack).then(|| (h - self.slack) / SAME_SHEET_FACTOR + 1e-9 * h)
+    }
+}
+
 /// Samples the limit surface of `control` on an `res × res` welded grid per
 /// patch and measures the offset to M (`caster` is built over M) along the
 /// limit normal, within `max_dist`. `diag` is M's bounding-box diagonal
@@ -289,7 +326,8 @@ pub fn displacement_on(
     diag: f64,
     slack: f64,
 ) -> Result<Displacement> {
-    let probe = probe(&grid, control, evaluator, caster, max_dist, None)?;
+    let sheet = SameSheet::new(diag, slack);
+    let probe = probe(&grid, control, evaluator, caster, max_dist, sheet, None)?;
     Ok(finish(grid, probe, diag, slack))
 }
 
@@ -297,7 +335,9 @@ pub fn displacement_on(
 /// and the inpainting of [`displacement_on`]: the limit point, the
 /// direction, the line's nearest hit (its offset; `None`: the line met M
 /// nowhere within the search distance) and the distance to M's closest
-/// point. The allocation's pilot keeps its own ([`Allocation`]) so that
+/// point where the same-sheet test needs it ([`SameSheet::radius`]; `None`:
+/// the hit passes the test whatever the distance). The allocation's pilot
+/// keeps its own ([`Allocation`]) so that
 /// the final grid does not evaluate and cast again at the samples the
 /// two grids share.
 #[derive(Clone, Debug)]
@@ -352,12 +392,14 @@ fn same_bits(a: DVec3, b: DVec3) -> bool {
 /// takes that sample's limit point, hit and closest distance instead of
 /// evaluating and casting again: each is a function of the location (and
 /// the line) alone, so the numbers are the ones a fresh query gives.
+/// `earlier` must have been probed with the same `sheet`.
 pub(crate) fn probe(
     grid: &PatchGrid,
     control: &ControlMesh,
     evaluator: &dyn LimitEvaluator,
     caster: &dyn RayCaster,
     max_dist: f64,
+    sheet: SameSheet,
     earlier: Option<&Probed>,
 ) -> Result<Probe> {
     let n = grid.num_samples();
@@ -401,23 +443,36 @@ pub(crate) fn probe(
     let positions: Vec<DVec3> = cast.iter().map(|&s| limit[s].position).collect();
     let dirs: Vec<DVec3> = cast.iter().map(|&s| directions[s]).collect();
     let (cast_hits, _) = project_along(caster, &positions, &dirs, max_dist)?;
+    let (mut hits, mut closest) = (vec![None; n], vec![None; n]);
+    for (&s, h) in cast.iter().zip(cast_hits) {
+        hits[s] = h.map(|h| h.offset);
+    }
+    // M's closest point is read only by the same-sheet test, and only
+    // within the radius it needs ([`SameSheet::radius`]): no query for a
+    // line without a hit or with a hit within the slack, a bounded one for
+    // the others (on the 4.4M-triangle ladder rung most closest points lie
+    // beyond their radius, `|hit|/3`, and such a search ends early).
+    let queried: Vec<(usize, f64)> = cast
+        .iter()
+        .filter_map(|&s| sheet.radius(hits[s]).map(|r| (s, r)))
+        .collect();
     // Only the distance of each closest point is read: reduced per
     // sub-batch, so the whole batch's closest points (64 bytes each, 5M
     // samples on a 10M-triangle input) are never held at once.
-    let cast_closest: Vec<Option<f64>> = crate::raycast::in_spatial_order(
-        &positions,
-        |p| *p,
+    let queried_closest: Vec<Option<f64>> = crate::raycast::in_spatial_order(
+        &queried,
+        |&(s, _)| limit[s].position,
         |sub| {
+            let (points, radii): (Vec<DVec3>, Vec<f64>) =
+                sub.iter().map(|&(s, r)| (limit[s].position, r)).unzip();
             Ok(caster
-                .closest_points(sub, f64::INFINITY)?
+                .closest_points_within(&points, &radii)?
                 .into_iter()
                 .map(|c| c.map(|c| c.distance))
                 .collect())
         },
     )?;
-    let (mut hits, mut closest) = (vec![None; n], vec![None; n]);
-    for ((&s, h), c) in cast.iter().zip(cast_hits).zip(cast_closest) {
-        hits[s] = h.map(|h| h.offset);
+    for (&(s, _), c) in queried.iter().zip(queried_closest) {
         closest[s] = c;
     }
     if let Some(e) = earlier {
@@ -452,7 +507,16 @@ pub fn displacement_after(
     diag: f64,
     slack: f64,
 ) -> Result<Displacement> {
-    let probe = probe(&grid, control, evaluator, caster, max_dist, Some(pilot))?;
+    let sheet = SameSheet::new(diag, slack);
+    let probe = probe(
+        &grid,
+        control,
+        evaluator,
+        caster,
+        max_dist,
+        sheet,
+        Some(pilot),
+    )?;
     Ok(finish(grid, probe, diag, slack))
 }
 
@@ -470,11 +534,12 @@ pub(crate) fn finish(grid: PatchGrid, probe: Probe, diag: f64, slack: f64) -> Di
         unprojectable: hits.iter().filter(|h| h.is_none()).count(),
     };
     let mut other_sheet = 0;
+    let sheet = SameSheet::new(diag, slack);
     for (h, c) in hits.iter_mut().zip(&closest) {
         let (Some(hit), Some(distance)) = (*h, *c) else {
             continue;
         };
-        if hit.abs() > SAME_SHEET_FACTOR * distance + slack.max(1e-9 * diag) {
+        if sheet.other_sheet(hit, distance) {
             *h = None;
             pstats.unprojectable += 1;
             other_sheet += 1;
@@ -673,6 +738,48 @@ mod tests {
     use crate::mesh::TriMesh;
     use crate::raycast::{make_raycaster, RayBackend};
     use crate::subdiv::{make_evaluator, Backend, EvalOptions};
+
+    #[test]
+    fn beyond_the_same_sheet_radius_no_distance_fails_the_test() {
+        // `SameSheet::radius` lets the probe skip or bound M's closest
+        // point: a hit whose closest point lies at or beyond the radius
+        // (or that has none) must pass the same-sheet test whatever the
+        // distance, and the radius must be tight enough to matter (a
+        // distance a little inside it fails). Hits of every magnitude
+        // around slacks of several, with the boundary cases `|hit| =
+        // slack` and just above it.
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(39);
+        for slack in [1e-12, 1e-4, 0.01, 0.5, 3.0] {
+            let sheet = SameSheet::new(1.0, slack);
+            assert!(sheet.radius(None).is_none());
+            let s = sheet.slack;
+            let mut hits = vec![s, s * (1.0 + 1e-15), s * (1.0 - 1e-15), 0.0, 2.0 * s];
+            hits.extend((0..2000).map(|_| 10f64.powf(rng.gen_range(-13.0..4.0))));
+            for h in hits.into_iter().flat_map(|h| [h, -h]) {
+                let far = |d: f64| assert!(!sheet.other_sheet(h, d), "hit {h} d {d} slack {s}");
+                match sheet.radius(Some(h)) {
+                    None => {
+                        assert!(h.abs() <= s);
+                        for d in [0.0, 1e-300, 0.1 * s, s, 1e6] {
+                            far(d);
+                        }
+                    }
+                    Some(r) => {
+                        assert!(h.abs() > s && r > 0.0);
+                        for d in [r, r * (1.0 + 1e-15), 1.5 * r, 1e6 * r, f64::MAX / 4.0] {
+                            far(d);
+                        }
+                        // Inside the radius by more than its margin: fails.
+                        let inner = 0.999 * (h.abs() - s) / SAME_SHEET_FACTOR;
+                        if h.abs() - s > 1e-6 * h.abs() {
+                            assert!(sheet.other_sheet(h, inner), "hit {h} d {inner}");
+                        }
+                    }
+                }
+            }
+        }
+    }
 
     /// A triangulated square `[-1, 5]²` at z = 0 (cells of 0.5), without
     /// the cells whose centre lies in `hole`.

@@ -45,6 +45,15 @@ pub(crate) mod bridge {
             max_dist: f64,
             out_prim: &mut [u32],
         ) -> Result<()>;
+
+        /// As `closest_points`, with point `i`'s own `max_dists[i]`.
+        fn closest_points_within(
+            self: &EmbreeScene,
+            points_f32: &[f32],
+            points_f64: &[f64],
+            max_dists: &[f64],
+            out_prim: &mut [u32],
+        ) -> Result<()>;
     }
 }
 

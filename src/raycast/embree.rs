@@ -143,6 +143,33 @@ impl EmbreeCaster {
     }
 
     fn closest_chunk(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>> {
+        self.closest_chunk_with(points, |scene, p32, p64, prim| {
+            scene.closest_points(p32, p64, max_dist, prim)
+        })
+    }
+
+    fn closest_chunk_within(
+        &self,
+        points: &[DVec3],
+        max_dists: &[f64],
+    ) -> Result<Vec<Option<ClosestPoint>>> {
+        self.closest_chunk_with(points, |scene, p32, p64, prim| {
+            scene.closest_points_within(p32, p64, max_dists, prim)
+        })
+    }
+
+    /// The bridge's closest triangles of `points` (by `query`), each
+    /// answered in f64 against its triangle.
+    fn closest_chunk_with(
+        &self,
+        points: &[DVec3],
+        query: impl FnOnce(
+            &bridge::EmbreeScene,
+            &[f32],
+            &[f64],
+            &mut [u32],
+        ) -> std::result::Result<(), cxx::Exception>,
+    ) -> Result<Vec<Option<ClosestPoint>>> {
         let p32: Vec<f32> = points
             .iter()
             .flat_map(|&p| {
@@ -155,9 +182,7 @@ impl EmbreeCaster {
             .collect();
         let p64: Vec<f64> = points.iter().flat_map(|p| p.to_array()).collect();
         let mut prim = vec![MISS; points.len()];
-        self.scene
-            .closest_points(&p32, &p64, max_dist, &mut prim)
-            .map_err(backend_err)?;
+        query(&self.scene, &p32, &p64, &mut prim).map_err(backend_err)?;
         Ok(points
             .iter()
             .zip(&prim)
@@ -250,6 +275,33 @@ impl RayCaster for EmbreeCaster {
                 let chunks: Vec<Vec<Option<ClosestPoint>>> = points
                     .par_chunks(CHUNK)
                     .map(|c| self.closest_chunk(c, max_dist))
+                    .collect::<Result<_>>()?;
+                Ok(chunks.into_iter().flatten().collect())
+            },
+        )
+    }
+
+    fn closest_points_within(
+        &self,
+        points: &[DVec3],
+        max_dists: &[f64],
+    ) -> Result<Vec<Option<ClosestPoint>>> {
+        super::check_max_dists(points, max_dists)?;
+        let queries: Vec<(DVec3, f64)> = points
+            .iter()
+            .copied()
+            .zip(max_dists.iter().copied())
+            .collect();
+        in_spatial_order(
+            &queries,
+            |q| q.0,
+            |queries| {
+                let chunks: Vec<Vec<Option<ClosestPoint>>> = queries
+                    .par_chunks(CHUNK)
+                    .map(|c| {
+                        let (p, d): (Vec<DVec3>, Vec<f64>) = c.iter().copied().unzip();
+                        self.closest_chunk_within(&p, &d)
+                    })
                     .collect::<Result<_>>()?;
                 Ok(chunks.into_iter().flatten().collect())
             },

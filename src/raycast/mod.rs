@@ -166,6 +166,22 @@ pub trait RayCaster: Send + Sync {
     /// Closest point of the mesh to each point, within `max_dist`
     /// (inclusive; `f64::INFINITY` for no limit). Non-finite points get `None`.
     fn closest_points(&self, points: &[DVec3], max_dist: f64) -> Result<Vec<Option<ClosestPoint>>>;
+
+    /// [`RayCaster::closest_points`] with point `i`'s own limit
+    /// `max_dists[i]`, for a caller that reads a closest point only where
+    /// it lies within that limit (the displacement's same-sheet test,
+    /// [`crate::displace::compute_displacement`]): there the answer is
+    /// `closest_points(points, f64::INFINITY)`'s; elsewhere it is `None` or
+    /// that same answer. A search bounded by its point's limit opens fewer
+    /// boxes of the hierarchy. The default answers every point unbounded.
+    fn closest_points_within(
+        &self,
+        points: &[DVec3],
+        max_dists: &[f64],
+    ) -> Result<Vec<Option<ClosestPoint>>> {
+        check_max_dists(points, max_dists)?;
+        self.closest_points(points, f64::INFINITY)
+    }
 }
 
 /// Answers `queries` (located at `at(query)`) in the Z-order (Morton
@@ -339,6 +355,19 @@ fn check_lines(origins: &[DVec3], dirs: &[DVec3], max_t: f64) -> Result<()> {
         )));
     }
     Ok(())
+}
+
+/// [`check_max_dist`] of every limit of [`RayCaster::closest_points_within`],
+/// one per point.
+pub(crate) fn check_max_dists(points: &[DVec3], max_dists: &[f64]) -> Result<()> {
+    if points.len() != max_dists.len() {
+        return Err(Error::InvalidArgument(format!(
+            "closest_points_within: {} points but {} limits",
+            points.len(),
+            max_dists.len()
+        )));
+    }
+    max_dists.iter().try_for_each(|&d| check_max_dist(d))
 }
 
 pub(crate) fn check_max_dist(max_dist: f64) -> Result<()> {

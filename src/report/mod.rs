@@ -81,7 +81,7 @@ use crate::analysis::normals::triangle_areas;
 use crate::displace::{
     allocate_resolutions, auto_resolution, compute_displacement, displacement_after,
     refine_offsets_on, Displacement, DisplacementStats, HostSurface, LsqOffsetOptions, OffsetMode,
-    PatchGrid, Reconstruction, SampleAllocation, FIT_CELLS,
+    PatchGrid, Pilot, Reconstruction, SampleAllocation, FIT_CELLS,
 };
 use crate::error::{Error, Result};
 use crate::fit::Progress;
@@ -750,20 +750,27 @@ fn adaptive_displacement(
         at.diag,
         slack,
     )?;
-    let grid = PatchGrid::with_resolutions(control, &alloc.resolutions)?;
-    // The final grid's samples at or below the pilot's level are the
-    // pilot's: their limit points, lines and closest points are taken
-    // from it, not evaluated and cast again (the same numbers).
-    let mut d = displacement_after(
-        grid,
-        &alloc.pilot,
-        control,
-        evaluator,
-        caster,
-        at.max_dist,
-        at.diag,
-        slack,
-    )?;
+    let mut d = match alloc.pilot {
+        // The final grid is the pilot's: its displacement, as computed.
+        Pilot::Final(d) => d,
+        Pilot::Probed(pilot) => {
+            let grid = PatchGrid::with_resolutions(control, &alloc.resolutions)?;
+            // The final grid's samples at or below the pilot's level are
+            // the pilot's: their limit points, lines and closest points
+            // are taken from it, not evaluated and cast again (the same
+            // numbers).
+            displacement_after(
+                grid,
+                &pilot,
+                control,
+                evaluator,
+                caster,
+                at.max_dist,
+                at.diag,
+                slack,
+            )?
+        }
+    };
     d.stats.adaptive = Some(alloc.stats);
     Ok(d)
 }
