@@ -766,7 +766,9 @@ fn closest_within_a_limit_per_point_is_the_unbounded_answer() {
             let a = a.as_ref().unwrap();
             if a.distance < limits[i] {
                 inside += 1;
-                let w = w.as_ref().unwrap_or_else(|| panic!("point {i}: none within"));
+                let w = w
+                    .as_ref()
+                    .unwrap_or_else(|| panic!("point {i}: none within"));
                 assert_eq!(w.triangle, a.triangle, "{}: point {i}", caster.name());
                 assert_eq!(w.distance.to_bits(), a.distance.to_bits());
             } else {

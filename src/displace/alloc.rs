@@ -499,15 +499,6 @@ mod detail_tests {
                 0.01,
             )
             .unwrap();
-            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-            let pts = |d: &Displacement| {
-                d.limit
-                    .iter()
-                    .flat_map(|p| [p.position, p.du, p.dv])
-                    .chain(d.directions.iter().copied())
-                    .flat_map(|v| v.to_array())
-                    .collect::<Vec<f64>>()
-            };
             assert_same_displacement(&fresh, &reused, budget);
             // Something was reused (a patch at or below the pilot's
             // level), and something was not (mixed resolutions: edge
@@ -571,9 +562,16 @@ mod detail_tests {
         let grid = PatchGrid::with_resolutions(&control, &alloc.resolutions).unwrap();
         assert_eq!(alloc.stats.samples, grid.num_independent());
         assert_eq!(alloc.stats.dependent_samples, 0);
-        let fresh =
-            displacement_on(grid, &control, ev.as_ref(), caster.as_ref(), 0.5, diag, 0.01)
-                .unwrap();
+        let fresh = displacement_on(
+            grid,
+            &control,
+            ev.as_ref(),
+            caster.as_ref(),
+            0.5,
+            diag,
+            0.01,
+        )
+        .unwrap();
         assert_same_displacement(&fresh, kept, budget);
     }
 

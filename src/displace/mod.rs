@@ -450,8 +450,10 @@ pub(crate) fn probe(
     // M's closest point is read only by the same-sheet test, and only
     // within the radius it needs ([`SameSheet::radius`]): no query for a
     // line without a hit or with a hit within the slack, a bounded one for
-    // the others (on the 4.4M-triangle ladder rung most closest points lie
-    // beyond their radius, `|hit|/3`, and such a search ends early).
+    // the others. A hit on the sample's own sheet lies at `d / cos θ`
+    // (θ the line's angle with M's normal), so its closest point is
+    // usually beyond the radius, about `|hit|/3`, and the search ends
+    // without opening the boxes between.
     let queried: Vec<(usize, f64)> = cast
         .iter()
         .filter_map(|&s| sheet.radius(hits[s]).map(|r| (s, r)))
