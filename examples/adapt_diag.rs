@@ -57,6 +57,10 @@ fn rhos(mesh: &TriMesh, fs: &[f64], h: &[f64], k: &ControlMesh) -> (f64, f64, f6
     )
 }
 
+/// One patch of [`breakdown`]: (radius, √area, 1/F_S at the centre,
+/// F_M binds there, an irregular corner).
+type PatchRow = (f64, f64, f64, bool, bool);
+
 /// Where ρ(r, 1/F_S) is lost, per patch: ρ over the patches where F_M
 /// binds at the centre (β μ h_M < α h_S on the nearest triangle) and where
 /// it does not, over patches with / without an irregular corner, ρ with
@@ -97,8 +101,7 @@ fn breakdown(
     }
     let centres: Vec<DVec3> = rows.iter().map(|r| r.0).collect();
     let hits = caster.closest_points(&centres, f64::INFINITY)?;
-    // (r, √area, 1/F_S, F_M binds, irregular corner)
-    let mut p: Vec<(f64, f64, f64, bool, bool)> = Vec::new();
+    let mut p: Vec<PatchRow> = Vec::new();
     for (row, hit) in rows.iter().zip(&hits) {
         let Some(hit) = hit else { continue };
         let t = mesh.triangles[hit.triangle as usize];
@@ -121,7 +124,7 @@ fn breakdown(
             row.3,
         ));
     }
-    let rho = |sel: &dyn Fn(&(f64, f64, f64, bool, bool)) -> bool, area: bool| {
+    let rho = |sel: &dyn Fn(&PatchRow) -> bool, area: bool| {
         let (x, y): (Vec<f64>, Vec<f64>) = p
             .iter()
             .filter(|r| sel(r))

@@ -78,8 +78,11 @@ fn natural_adaptivity_makes_patches_follow_the_s_fitmap() {
     // (count and topology), only its points moved by the relaxation.
     assert_eq!(n0, n1);
     // The radii fall where F_S rises, and follow it more closely than the
-    // lattice laid at the graded sizes does.
+    // lattice laid at the graded sizes does (measured: ρ 0.535 → 0.606,
+    // against the trend 0.529 → 0.607; the bounds ask for about half the
+    // gain, so the relaxation must still do its work, and for ρ against
+    // the trend well above the default's).
     assert!(after > before + 0.03, "ρ {before:.3} → {after:.3}");
     assert!(trend1 > trend0 + 0.03, "trend {trend0:.3} → {trend1:.3}");
-    assert!(trend1 > 0.6, "trend {trend1:.3}");
+    assert!(trend1 > 0.56, "trend {trend1:.3}");
 }
