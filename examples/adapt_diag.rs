@@ -57,6 +57,99 @@ fn rhos(mesh: &TriMesh, fs: &[f64], h: &[f64], k: &ControlMesh) -> (f64, f64, f6
     )
 }
 
+/// One patch of [`breakdown`]: (radius, √area, 1/F_S at the centre,
+/// F_M binds there, an irregular corner).
+type PatchRow = (f64, f64, f64, bool, bool);
+
+/// Where ρ(r, 1/F_S) is lost, per patch: ρ over the patches where F_M
+/// binds at the centre (β μ h_M < α h_S on the nearest triangle) and where
+/// it does not, over patches with / without an irregular corner, ρ with
+/// √area instead of the radius (the quads' shape as noise), and ρ over
+/// the thirds of 1/F_S (is the spread lost at the small or large end?).
+fn breakdown(
+    mesh: &TriMesh,
+    fitmap: &subdfit::analysis::Fitmap,
+    opts: &FieldOptions,
+    alpha: f64,
+    mu: f64,
+    k: &ControlMesh,
+) -> anyhow::Result<String> {
+    let (hs, hm) = sizing::fitmap_limits(mesh, fitmap, opts.s_fitmap_scale)?;
+    let beta = opts.m_fitmap_scale * mu;
+    let caster = BvhCaster::new(mesh)?;
+    let irregular = |v| {
+        let n = k.valence(v);
+        if k.is_boundary_vertex(v) {
+            n != 3 && n != 2
+        } else {
+            n != 4
+        }
+    };
+    let mut rows = Vec::new();
+    for f in k.faces() {
+        let vs: Vec<_> = k.face_vertices(f).collect();
+        let q: Vec<DVec3> = vs.iter().map(|&v| k.position(v)).collect();
+        let c = q.iter().copied().sum::<DVec3>() / q.len() as f64;
+        let rad = q.iter().map(|p| (*p - c).length()).fold(0.0, f64::max);
+        let area = if q.len() == 4 {
+            0.5 * (q[2] - q[0]).cross(q[3] - q[1]).length()
+        } else {
+            f64::NAN
+        };
+        let irr = vs.iter().any(|&v| irregular(v));
+        rows.push((c, rad, area.sqrt(), irr));
+    }
+    let centres: Vec<DVec3> = rows.iter().map(|r| r.0).collect();
+    let hits = caster.closest_points(&centres, f64::INFINITY)?;
+    let mut p: Vec<PatchRow> = Vec::new();
+    for (row, hit) in rows.iter().zip(&hits) {
+        let Some(hit) = hit else { continue };
+        let t = mesh.triangles[hit.triangle as usize];
+        let s: Vec<f64> = t
+            .iter()
+            .map(|&v| fitmap.s[v as usize])
+            .filter(|s| *s > 0.0 && s.is_finite())
+            .collect();
+        if s.is_empty() {
+            continue;
+        }
+        let binds = t
+            .iter()
+            .any(|&v| beta * hm[v as usize] < alpha * hs[v as usize]);
+        p.push((
+            row.1,
+            row.2,
+            s.len() as f64 / s.iter().sum::<f64>(),
+            binds,
+            row.3,
+        ));
+    }
+    let rho = |sel: &dyn Fn(&PatchRow) -> bool, area: bool| {
+        let (x, y): (Vec<f64>, Vec<f64>) = p
+            .iter()
+            .filter(|r| sel(r))
+            .map(|r| (if area { r.1 } else { r.0 }, r.2))
+            .unzip();
+        (spearman(&x, &y).unwrap_or(f64::NAN), x.len())
+    };
+    let mut inv: Vec<f64> = p.iter().map(|r| r.2).collect();
+    inv.sort_by(f64::total_cmp);
+    let (t1, t2) = (inv[inv.len() / 3], inv[2 * inv.len() / 3]);
+    let f = |(r, n): (f64, usize)| format!("{r:.3} ({n})");
+    Ok(format!(
+        "  per patch: all {} | sqrt(area) {} | F_M binds {} / free {} | irregular corner {} / regular {} | 1/FS thirds {} {} {}",
+        f(rho(&|_| true, false)),
+        f(rho(&|_| true, true)),
+        f(rho(&|r| r.3, false)),
+        f(rho(&|r| !r.3, false)),
+        f(rho(&|r| r.4, false)),
+        f(rho(&|r| !r.4, false)),
+        f(rho(&|r| r.2 < t1, false)),
+        f(rho(&|r| r.2 >= t1 && r.2 < t2, false)),
+        f(rho(&|r| r.2 >= t2, false)),
+    ))
+}
+
 /// Where the sizing loses 1/F_S, per vertex of M (those with an F_S):
 /// ρ(h, 1/F_S) of the ungraded `min(α h_S, μ β h_M)`, graded at γ, then
 /// with the holes' caps, and the share of vertices each step lowered.
@@ -76,7 +169,7 @@ fn sizing_stages(
         .map(|(&a, &b)| (alpha * a).min(beta * b))
         .collect();
     let hm_mu: Vec<f64> = hm.iter().map(|x| mu * x).collect();
-    let graded = sizing::graded_with(surf, &hs, &hm_mu, alpha, opts, sizing::Grading::current());
+    let graded = sizing::graded_with(surf, &hs, &hm_mu, alpha, opts, opts.grading);
     let mut capped = graded.clone();
     sizing::cap_at_boundaries(surf, &mut capped, opts.gradation, opts.loop_cap_slope);
     let keep: Vec<usize> = (0..hs.len()).filter(|&i| hs[i].is_finite()).collect();
@@ -126,6 +219,9 @@ fn main() -> anyhow::Result<()> {
         &FitmapOptions::default().with_tolerance(0.01),
     )?;
     let mut opts = FieldOptions::default();
+    if std::env::var_os("ADAPT_NATURAL").is_some() {
+        opts = opts.with_natural_adaptivity();
+    }
     if let Some(g) = std::env::var("ADAPT_GAMMA")
         .ok()
         .and_then(|g| g.parse().ok())
@@ -170,6 +266,9 @@ fn main() -> anyhow::Result<()> {
         for &cleanup in cleanups {
             let mut o = opts.clone();
             o.cleanup = cleanup;
+            if !sized.is_empty() {
+                o.sized_relax = subdfit::quad::field::extract::SizedRelax::parse(sized);
+            }
             let laid = field_layout(&mesh, &fitmap, &o)?;
             let (a, b, c) = rhos(&mesh, &fitmap.s, &h, &laid.control);
             let g = subdfit::quad::field::extract::SizedRelax::parse(sized)
@@ -189,6 +288,17 @@ fn main() -> anyhow::Result<()> {
                 laid.control.num_faces(),
                 irregular_vertices(&laid.control),
                 laid.stats.lattice.local_rounds
+            );
+            println!(
+                "{}",
+                breakdown(
+                    &mesh,
+                    &fitmap,
+                    &o,
+                    laid.stats.alpha,
+                    laid.stats.m_fitmap_relaxed,
+                    &laid.control
+                )?
             );
         }
     }

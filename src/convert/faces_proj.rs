@@ -36,8 +36,9 @@ use crate::mesh::ControlMesh;
 use crate::quad::field::{field_layout_counted, FieldOptions};
 use crate::report::StageTimer;
 
-use super::field::{patch_errors, FieldRound, Measured, Sizes, UNPROJECTABLE_PERCENT};
+use super::field::{patch_errors, FieldRound, Measured, UNPROJECTABLE_PERCENT};
 use super::layout::FieldRelayout;
+use super::thin::RoundPlan;
 
 /// The switch's environment variable (`1` on).
 pub const FACES_PROJ_ENV: &str = "SUBDFIT_FACES_PROJ";
@@ -173,21 +174,17 @@ pub(super) fn rounds_at_count(
     }
     let first_faces = first.control.num_faces();
     let n = fo.target_faces.unwrap_or(first_faces) as f64;
-    let h0 = timer.run("field layout", || {
-        Sizes::new(mesh, &relayout.fitmap, fo).map(|s| (s.surf, s.h))
-    })?;
     let f = env_f64("SUBDFIT_FACES_PROJ_F", PROJ_REFINE);
     let max_rounds = env_f64("SUBDFIT_FACES_PROJ_ROUNDS", PROJ_ROUNDS as f64) as usize;
     let nv = mesh.positions.len();
-    let mut acc = vec![1.0; nv];
-    let (mut marked, _) = marks(&first.control, &m0, nv, f);
+    let (marked, _) = marks(&first.control, &m0, nv, f);
+    // The thin rounds' plan without the far patches' round: a chain of
+    // `max_rounds`, each lowering h under the marks accumulated so far.
+    let mut plan = RoundPlan::laid(timer, relayout, fo, None, marked, max_rounds)?;
     let mut best = (j0, first, None::<usize>);
-    for _ in 0..max_rounds {
-        for (a, x) in acc.iter_mut().zip(&marked) {
-            *a = (*a * x).max(super::thin::MIN_FACTOR);
-        }
+    while let Some(planned) = plan.next_round() {
         let laid = timer.run("field layout", || {
-            let h = super::thin::lowered_sizing(&h0.0, &h0.1, &acc, fo.gradation);
+            let h = plan.sizing(&planned.factor);
             field_layout_counted(&relayout.prepared, mesh, &relayout.fitmap, h, fo)
         })?;
         let (faces, irregular) = (laid.control.num_faces(), laid.stats.irregular_vertices);
@@ -196,7 +193,7 @@ pub(super) fn rounds_at_count(
         let m1 = timer.run("projectability round", || patch_errors(mesh, &next.control))?;
         let j1 = Judged::of(&m1, &next, permille);
         let (m, patches) = marks(&next.control, &m1, nv, f);
-        marked = m;
+        plan.mark(Some(m));
         rounds.push(FieldRound {
             target_faces: fo.target_faces,
             faces,

@@ -254,7 +254,7 @@ pub fn fit_field(
     let (mesh, caster) = relayout.fit_target(run.mesh(), run.caster.as_ref());
     let mut rounds: Vec<FieldRound> = Vec::new();
     let (mut control, mut target) = (control, opts.target_faces);
-    let fo = FieldOptions::default().with_target_faces(opts.target_faces);
+    let fo = FieldOptions::for_convert(opts.target_faces);
     // The sizes the first layout was laid out at (recomputed: the sizing
     // is cheap and deterministic), refined in place round by round.
     let mut sizes: Option<Sizes> = None;

@@ -273,8 +273,7 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
     let (timer, progress) = (&mut run.timer, &mut *run.progress);
     let stage = crate::fit::report_progress;
     let fitmap = layout_fitmap(layout, layout_caster, fo, timer, progress)?;
-    let field_opts =
-        crate::quad::field::FieldOptions::default().with_target_faces(opts.target_faces);
+    let field_opts = crate::quad::field::FieldOptions::for_convert(opts.target_faces);
     stage(progress, "field layout", 0.0)?;
     // Best of `SUBDFIT_FIELD_DRAWS` lattices (one unless set), ranked by
     // [`super::field::draw_score`], at a face target only: at the natural

@@ -609,11 +609,116 @@ pub fn lowered_sizing(surf: &Surface, h0: &[f64], factor: &[f64], gamma: f64) ->
     at(hi.exp())
 }
 
-/// M′'s vertices' factors of `marks` accumulated on `acc` (never below
-/// [`MIN_FACTOR`]).
-fn accumulate(acc: &mut [f64], marks: &[f64]) {
-    for (a, f) in acc.iter_mut().zip(marks) {
-        *a = (*a * f).max(MIN_FACTOR);
+/// The plan of the rounds that re-lay the field at N from a fit's errors,
+/// stated once for [`second_round`], [`second_round_drawn`] and the
+/// projectability rounds ([`super::faces_proj::rounds_at_count`]). Every
+/// round lays the first layout's sizing (the sizes of
+/// [`Sizes::new`], Fitmaps §3.1.3) lowered by a factor per vertex of M′
+/// ([`lowered_sizing`]: regraded and scaled back to the first layout's
+/// predicted count): first, when given, the far patches' factor (one
+/// round, session 10's rule), then up to `chain` rounds whose factor is
+/// the product of the marks so far, never below [`MIN_FACTOR`] — the
+/// first chain round's marks are the incoming result's, each later one's
+/// those its predecessor's result gave ([`RoundPlan::mark`]); the chain
+/// stops early when a round gives none.
+pub(super) struct RoundPlan {
+    surf: Surface,
+    /// The first layout's sizing, per vertex of M′.
+    h0: Vec<f64>,
+    /// The grading's slope bound ([`FieldOptions::gradation`]).
+    gamma: f64,
+    /// The far patches' factor, until its round is planned.
+    far: Option<Vec<f64>>,
+    /// Chain rounds left.
+    chain: usize,
+    /// The chain's factor accumulated so far.
+    acc: Vec<f64>,
+    /// The marks the next chain round multiplies in; `None` ends the chain.
+    marks: Option<Vec<f64>>,
+}
+
+/// One planned round: its factor on the first layout's sizing per vertex
+/// of M′, and whether it is a chain round (not the far patches' round).
+pub(super) struct PlannedRound {
+    pub(super) factor: Vec<f64>,
+    pub(super) chain: bool,
+}
+
+impl RoundPlan {
+    /// The plan on the first layout's sizing `h0` over `surf` (graded at
+    /// `gamma`), the far patches' round first when `far` is given, then up
+    /// to `chain` rounds starting from `marks`.
+    pub(super) fn new(
+        (surf, h0): (Surface, Vec<f64>),
+        gamma: f64,
+        far: Option<Vec<f64>>,
+        marks: Vec<f64>,
+        chain: usize,
+    ) -> Self {
+        let acc = vec![1.0; h0.len()];
+        Self {
+            surf,
+            h0,
+            gamma,
+            far,
+            chain,
+            acc,
+            marks: Some(marks),
+        }
+    }
+
+    /// [`RoundPlan::new`] on the first layout's sizing on `relayout`'s M′
+    /// at `fo` (timed as the field layout).
+    pub(super) fn laid(
+        timer: &mut StageTimer,
+        relayout: &FieldRelayout,
+        fo: &FieldOptions,
+        far: Option<Vec<f64>>,
+        marks: Vec<f64>,
+        chain: usize,
+    ) -> Result<Self> {
+        let sizes = timer.run("field layout", || {
+            Sizes::new(&relayout.mesh, &relayout.fitmap, fo).map(|s| (s.surf, s.h))
+        })?;
+        Ok(Self::new(sizes, fo.gradation, far, marks, chain))
+    }
+
+    /// The next round, `None` when the plan is done.
+    pub(super) fn next_round(&mut self) -> Option<PlannedRound> {
+        if let Some(factor) = self.far.take() {
+            return Some(PlannedRound {
+                factor,
+                chain: false,
+            });
+        }
+        if self.chain == 0 {
+            return None;
+        }
+        let marks = self.marks.take()?;
+        self.chain -= 1;
+        for (a, f) in self.acc.iter_mut().zip(&marks) {
+            *a = (*a * f).max(MIN_FACTOR);
+        }
+        Some(PlannedRound {
+            factor: self.acc.clone(),
+            chain: true,
+        })
+    }
+
+    /// After a chain round: the marks its result gives the next one
+    /// (`None` ends the chain).
+    pub(super) fn mark(&mut self, marks: Option<Vec<f64>>) {
+        self.marks = marks;
+    }
+
+    /// The sizing a round with `factor` lays ([`lowered_sizing`]).
+    pub(super) fn sizing(&self, factor: &[f64]) -> Vec<f64> {
+        lowered_sizing(&self.surf, &self.h0, factor, self.gamma)
+    }
+
+    /// The first layout's sizing.
+    pub(super) fn first_sizing(&self) -> &[f64] {
+        &self.h0
     }
 }
 
@@ -769,29 +874,13 @@ pub(super) fn second_round(
     let first_faces = first.control.num_faces();
     let n = fo.target_faces.map_or(first_faces, |n| n) as f64;
     let off = |f: usize| (f as f64 - n).abs();
-    let h0 = timer.run("field layout", || {
-        Sizes::new(mesh, &relayout.fitmap, fo).map(|s| (s.surf, s.h))
-    })?;
-    // The plan: the far patches' round, then the uncarried chain.
-    let mut plan: Vec<Vec<f64>> = Vec::new();
-    if !m0.far.is_empty() {
-        plan.push(m0.far_factor.clone());
-    }
-    let mut acc = vec![1.0; mesh.positions.len()];
-    let mut marks = m0.factor.clone();
+    let far = (!m0.far.is_empty()).then(|| m0.far_factor.clone());
+    let mut plan = RoundPlan::laid(timer, relayout, fo, far, m0.factor.clone(), chain)?;
     let split_from = (chain > 0 && split_enabled()).then(|| first.control.clone());
     let mut best = (Judged::of(&m0, &first, &x0), first, None::<usize>);
-    let mut i = 0;
-    while i < plan.len() + chain {
-        let h = if i < plan.len() {
-            plan[i].clone()
-        } else {
-            accumulate(&mut acc, &marks);
-            acc.clone()
-        };
-        i += 1;
+    while let Some(planned) = plan.next_round() {
         let laid = timer.run("field layout", || {
-            let h = lowered_sizing(&h0.0, &h0.1, &h, fo.gradation);
+            let h = plan.sizing(&planned.factor);
             field_layout_counted(&relayout.prepared, mesh, &relayout.fitmap, h, fo)
         })?;
         let (faces, irregular) = (laid.control.num_faces(), laid.stats.irregular_vertices);
@@ -807,26 +896,24 @@ pub(super) fn second_round(
         // The far patches' round by session 10's rule (a lower limit → M′
         // RMS: on homer at 272 it took RMS D 1.09 → 0.45‰ while the
         // uncarried estimate stayed level), the chain by [`Judged::beats`].
-        let better = match i <= plan.len() {
-            true => j1.off_m < best.0.off_m,
-            false => j1.beats(&best.0, &j0),
+        let better = match planned.chain {
+            false => j1.off_m < best.0.off_m,
+            true => j1.beats(&best.0, &j0),
         };
         if at_count && better {
             best = (j1, next, Some(rounds.len() - 1));
         }
-        if i > plan.len() {
-            // A chain round: the next one adds its marks.
-            if m1.far.is_empty() && m1.d_far.is_empty() {
-                break;
-            }
-            marks = m1.factor;
+        if planned.chain {
+            // The next chain round adds this one's marks (none: the chain ends).
+            let marked = !(m1.far.is_empty() && m1.d_far.is_empty());
+            plan.mark(marked.then_some(m1.factor));
         }
     }
     if let Some(c) = split_from {
         let cx = SplitCtx {
             relayout,
             fo,
-            h: &h0.1,
+            h: plan.first_sizing(),
             caster: &caster,
             on,
             judge,
@@ -1016,29 +1103,14 @@ fn second_round_drawn(
         r.unprojectable_percent = Some(f0.unprojectable_percent);
     }
     let first_round = rounds.len().saturating_sub(1);
-    let h0 = timer.run("field layout", || {
-        Sizes::new(mesh, &relayout.fitmap, fo).map(|s| (s.surf, s.h))
-    })?;
-    let mut plan: Vec<Vec<f64>> = Vec::new();
-    if !m0.far.is_empty() {
-        plan.push(m0.far_factor.clone());
-    }
-    let mut acc = vec![1.0; mesh.positions.len()];
-    let mut marks = m0.factor.clone();
+    let far = (!m0.far.is_empty()).then(|| m0.far_factor.clone());
+    let mut plan = RoundPlan::laid(timer, relayout, fo, far, m0.factor.clone(), cx.chain)?;
     // Candidate 0 is the first round; each later one a fitted draw, with
     // the index of its round on `rounds`.
     let mut cands: Vec<(Final, Fitted, usize)> = vec![(f0, first, first_round)];
-    let mut i = 0;
-    while i < plan.len() + cx.chain {
-        let h = if i < plan.len() {
-            plan[i].clone()
-        } else {
-            accumulate(&mut acc, &marks);
-            acc.clone()
-        };
-        i += 1;
+    while let Some(planned) = plan.next_round() {
         let laid = timer.run("field layout", || {
-            let h = lowered_sizing(&h0.0, &h0.1, &h, fo.gradation);
+            let h = plan.sizing(&planned.factor);
             Ok(draws::lay(cx.k, |s| {
                 let h: Vec<f64> = h.iter().map(|x| x * s).collect();
                 field_layout_counted(&relayout.prepared, mesh, &relayout.fitmap, h, fo)
@@ -1057,7 +1129,7 @@ fn second_round_drawn(
             let size_factor = laid.stats.size_factor;
             let next = fit(timer, laid.control)?;
             let f1 = timer.run("thin round", || final_figures(on, &next.control))?;
-            if d == 0 && i > plan.len() {
+            if d == 0 && planned.chain {
                 let m1 = timer.run("thin round", || off_m(mesh, &caster, &next.control))?;
                 if !(m1.far.is_empty() && m1.d_far.is_empty()) {
                     next_marks = Some(m1.factor);
@@ -1078,11 +1150,8 @@ fn second_round_drawn(
             });
             cands.push((f1, next, rounds.len() - 1));
         }
-        if i > plan.len() {
-            match next_marks {
-                Some(m) => marks = m,
-                None => break,
-            }
+        if planned.chain {
+            plan.mark(next_marks);
         }
     }
     let figures: Vec<Final> = cands.iter().map(|c| c.0).collect();
@@ -1343,6 +1412,78 @@ mod tests {
             let d = (mesh.positions[a as usize] - mesh.positions[b as usize]).length();
             assert!((h[a as usize] - h[b as usize]).abs() <= gamma * d + 1e-12);
         }
+    }
+
+    /// The round plan on a plane: the far patches' round first, on their
+    /// factor as given; then the chain, whose first round's factor is the
+    /// incoming marks and each later one's the product of every mark so
+    /// far, clamped at [`MIN_FACTOR`]; `chain` rounds at most, fewer when
+    /// a round gives no marks. Every round lays the first sizing lowered
+    /// by its factor (so the chain's sizing is lowest where both rounds
+    /// marked), and none compounds the previous round's sizing.
+    #[test]
+    fn the_round_plan_lays_the_far_round_then_the_accumulated_chain() {
+        let mesh = plane(6, 2);
+        let nv = mesh.positions.len();
+        let surf = Surface::new(&mesh).expect("surface");
+        let h0 = vec![2.0; nv];
+        let gamma = 0.5;
+        // Far: every third vertex; the first marks every even one, the
+        // second every fourth at 0.4 (so 0.16 below MIN_FACTOR) and 0.9
+        // elsewhere.
+        let far: Vec<f64> = (0..nv).map(|v| [0.5, 1.0, 1.0][v % 3]).collect();
+        let m0: Vec<f64> = (0..nv).map(|v| [0.4, 1.0][v % 2]).collect();
+        let m1: Vec<f64> = (0..nv).map(|v| [0.4, 0.9, 0.9, 0.9][v % 4]).collect();
+        let expected = |factors: &[&[f64]]| -> Vec<f64> {
+            (0..nv)
+                .map(|v| {
+                    factors
+                        .iter()
+                        .map(|f| f[v])
+                        .product::<f64>()
+                        .max(MIN_FACTOR)
+                })
+                .collect()
+        };
+        let lays = |plan: &RoundPlan, factor: &[f64]| {
+            let h = plan.sizing(factor);
+            assert_eq!(h, lowered_sizing(&surf, &h0, factor, gamma));
+            h
+        };
+        let sizes = (Surface::new(&mesh).expect("surface"), h0.clone());
+        let mut plan = RoundPlan::new(sizes, gamma, Some(far.clone()), m0.clone(), 3);
+        let r = plan.next_round().expect("far round");
+        assert!(!r.chain);
+        assert_eq!(r.factor, far);
+        lays(&plan, &r.factor);
+        let r = plan.next_round().expect("first chain round");
+        assert!(r.chain);
+        assert_eq!(r.factor, expected(&[&m0]));
+        lays(&plan, &r.factor);
+        plan.mark(Some(m1.clone()));
+        let r = plan.next_round().expect("second chain round");
+        assert!(r.chain);
+        let want = expected(&[&m0, &m1]);
+        assert_eq!(r.factor, want);
+        assert_eq!((want[0], want[2], want[1]), (MIN_FACTOR, 0.4 * 0.9, 0.9));
+        let h = lays(&plan, &r.factor);
+        // Vertex 0 (factor 1/4) lays a smaller size than its neighbour,
+        // vertex 1 (0.9), the grading keeping the larger above it.
+        assert!(h[0] < h[1], "{} {}", h[0], h[1]);
+        // A round that gives no marks ends the chain before its third.
+        plan.mark(None);
+        assert!(plan.next_round().is_none());
+        // Without a far round the chain opens, and `chain` bounds it.
+        let sizes = (Surface::new(&mesh).expect("surface"), h0.clone());
+        let mut plan = RoundPlan::new(sizes, gamma, None, m0.clone(), 2);
+        let mut seen = Vec::new();
+        while let Some(r) = plan.next_round() {
+            assert!(r.chain);
+            seen.push(r.factor);
+            plan.mark(Some(m1.clone()));
+        }
+        assert_eq!(seen, vec![expected(&[&m0]), expected(&[&m0, &m1])]);
+        assert_eq!(plan.first_sizing(), &h0[..]);
     }
 
     /// The rectangle [-1, w - 1] × [-1, n - 1] as a triangle mesh of

@@ -448,8 +448,14 @@ fn fit_both_starts(
         }
         None => {
             checked_diagonal(mesh)?;
-            let rim_moves = rim::fit_rims(mesh, &facts.rim, &control).moved;
-            (rim_moves, build()?, Vec::new().into_iter())
+            // The rim fit and the system read the same control mesh and
+            // neither reads the other (the moves are applied by each start,
+            // [`fit_from`]): side by side, each a pure function of its
+            // inputs, the same result at any thread count. The rim fit is
+            // serial (a chain solve per loop), as is most of the system's
+            // OpenSubdiv setup.
+            let (rim, sys) = rayon::join(|| rim::fit_rims(mesh, &facts.rim, &control), build);
+            (rim.moved, sys?, Vec::new().into_iter())
         }
     };
     // One start from its state (a finished one is its result), paused

@@ -906,6 +906,12 @@ pub struct SizedRelax {
     /// `q` in the fourth field): the fit pays for distorted patches more
     /// than it gains from their sizes.
     pub shape: bool,
+    /// Relax towards the S-fitmap's sizes alone (`f` in the fourth field;
+    /// [`super::sizing::s_fitmap_sizes`]): F_M then bounds only through
+    /// the growth guard's limits, so where it caps h_S (7 % of the
+    /// gargoyle's vertices at τ 1 %) it does not set the ranks the
+    /// relaxation aims at.
+    pub s_only: bool,
 }
 
 /// The shape guard's bound on a corner's sine (45°).
@@ -926,7 +932,7 @@ impl SizedRelax {
             None => f64::INFINITY,
         };
         let guards = it.next().unwrap_or("");
-        if it.next().is_some() || !guards.chars().all(|c| "gsq".contains(c)) {
+        if it.next().is_some() || !guards.chars().all(|c| "gsqf".contains(c)) {
             return None;
         }
         (steps > 0).then_some(SizedRelax {
@@ -936,6 +942,7 @@ impl SizedRelax {
             guard: guards.contains('g'),
             sheet: guards.contains('s'),
             shape: guards.contains('q'),
+            s_only: guards.contains('f'),
         })
     }
 }
@@ -950,8 +957,8 @@ pub struct SizedRelaxPlan {
 }
 
 impl SizedRelaxPlan {
-    /// `None` unless `FIELD_SIZED_RELAX` asks for it.
-    pub fn from_env(
+    /// `None` unless [`super::FieldOptions::sized_relax`] asks for it.
+    pub fn new(
         s: &Surface,
         mesh: &TriMesh,
         fitmap: &crate::analysis::Fitmap,
@@ -959,12 +966,16 @@ impl SizedRelaxPlan {
         alpha: f64,
         mu: f64,
     ) -> Result<Option<SizedRelaxPlan>> {
-        let Some(mode) = SizedRelax::from_env() else {
+        let Some(mode) = opts.sized_relax else {
             return Ok(None);
         };
         let sizes_at_gamma =
             |g: f64| super::sizing::relaxation_sizes(s, mesh, fitmap, opts, alpha, mu, g);
-        let sizes = sizes_at_gamma(mode.gamma)?;
+        let sizes = if mode.s_only {
+            super::sizing::s_fitmap_sizes(s, mesh, fitmap, opts, alpha, mu, mode.gamma)?
+        } else {
+            sizes_at_gamma(mode.gamma)?
+        };
         let limits = if mode.guard {
             Some(sizes_at_gamma(f64::INFINITY)?)
         } else {

@@ -120,7 +120,21 @@ pub struct FieldOptions {
     /// this; session 15 runs it on the kept draw only,
     /// `src/convert/thin.rs`).
     pub cleanup_guarded: Option<bool>,
+    /// How the raw sizes are graded ([`sizing::Grading`]; `FIELD_GRADING`
+    /// or [`FieldOptions::with_natural_adaptivity`], else the minimum).
+    #[serde(skip)]
+    pub grading: sizing::Grading,
+    /// The sized relaxation after the extraction
+    /// ([`extract::SizedRelax`]; `FIELD_SIZED_RELAX` or
+    /// [`FieldOptions::with_natural_adaptivity`], else none).
+    #[serde(skip)]
+    pub sized_relax: Option<extract::SizedRelax>,
 }
+
+/// `SUBDFIT_FIELD_ADAPT=1`: [`FieldOptions::with_natural_adaptivity`] on
+/// `convert`'s field layouts at the natural size (off by default; issue
+/// 40's adaptivity, docs/status.md "Field-aligned layout", session 16).
+pub const NATURAL_ADAPTIVITY_ENV: &str = "SUBDFIT_FIELD_ADAPT";
 
 impl Default for FieldOptions {
     fn default() -> Self {
@@ -155,6 +169,8 @@ impl Default for FieldOptions {
             lattice_at_size: true,
             cleanup: true,
             cleanup_guarded: None,
+            grading: sizing::Grading::current(),
+            sized_relax: extract::SizedRelax::from_env(),
         }
     }
 }
@@ -179,6 +195,40 @@ impl FieldOptions {
     pub fn with_cleanup(mut self, on: bool) -> Self {
         self.cleanup = on;
         self
+    }
+
+    /// Patch sizes that follow the S-fitmap (issue 40's Spearman ≥ 0.6):
+    /// the holes' caps spread at 2γ, the two-sided grading where there
+    /// are holes ([`sizing::Grading::ClampWithHoles`]), and the sized
+    /// relaxation after the extraction towards the S-fitmap's own sizes,
+    /// F_M bounding its growth ([`extract::SizedRelax`] `8:24:inf:gsf`).
+    pub fn with_natural_adaptivity(mut self) -> Self {
+        self.loop_cap_slope = 2.0;
+        self.grading = sizing::Grading::ClampWithHoles;
+        self.sized_relax = Some(extract::SizedRelax {
+            steps: 8,
+            power: 24.0,
+            gamma: f64::INFINITY,
+            guard: true,
+            sheet: true,
+            shape: false,
+            s_only: true,
+        });
+        self
+    }
+
+    /// The options of `convert`'s field layout: `target_faces` from
+    /// `--faces`, and at the natural size (no `--faces`) with
+    /// [`NATURAL_ADAPTIVITY_ENV`] set to 1,
+    /// [`FieldOptions::with_natural_adaptivity`].
+    pub fn for_convert(target_faces: Option<usize>) -> Self {
+        let fo = FieldOptions::default().with_target_faces(target_faces);
+        let on = std::env::var(NATURAL_ADAPTIVITY_ENV).is_ok_and(|v| v.trim() == "1");
+        if on && target_faces.is_none() {
+            fo.with_natural_adaptivity()
+        } else {
+            fo
+        }
     }
 }
 
@@ -486,7 +536,7 @@ fn lay_counted(
     let sized_relax = match caster {
         Some(_) if opts.uniform_size.is_none() => {
             let (a, mu) = (stats.alpha, stats.m_fitmap_relaxed);
-            extract::SizedRelaxPlan::from_env(&prep.surf, mesh, fitmap, opts, a, mu)?
+            extract::SizedRelaxPlan::new(&prep.surf, mesh, fitmap, opts, a, mu)?
         }
         _ => None,
     };

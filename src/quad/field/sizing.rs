@@ -145,9 +145,9 @@ pub fn sizing_at(s: &Surface, hs: &[f64], hm: &[f64], alpha: f64, opts: &FieldOp
 }
 
 /// `min(α h_S, β h_M)` graded at γ, before the boundary loops' caps
-/// (graded as [`Grading::current`] says).
+/// (graded as [`FieldOptions::grading`] says).
 fn fitmap_graded(s: &Surface, hs: &[f64], hm: &[f64], alpha: f64, opts: &FieldOptions) -> Vec<f64> {
-    graded_with(s, hs, hm, alpha, opts, Grading::current())
+    graded_with(s, hs, hm, alpha, opts, opts.grading)
 }
 
 /// `min(α h_S, β h_M)` graded at γ by `grading`.
@@ -160,8 +160,10 @@ pub fn graded_with(
     grading: Grading,
 ) -> Vec<f64> {
     let beta = opts.m_fitmap_scale;
+    let grading = grading.on(s);
     let mut h: Vec<f64> = match grading {
-        Grading::Minimum => hs
+        // (`on` has resolved `ClampWithHoles` to one of the others.)
+        Grading::Minimum | Grading::ClampWithHoles => hs
             .iter()
             .zip(hm)
             .map(|(&a, &b)| (alpha * a).min(beta * b))
@@ -211,6 +213,16 @@ pub enum Grading {
     /// Comparison: `steps` area-weighted neighbour means of ln(α h_S),
     /// then as `Clamp`'s F_M bound and [`grade`].
     Smooth { steps: usize, keep_count: bool },
+    /// `Clamp` (count kept) on a surface with boundary loops, `Minimum`
+    /// on a closed one ([`super::FieldOptions::with_natural_adaptivity`]).
+    /// Measured in-process at τ 1 % with the holes' caps at 2γ and the
+    /// sized relaxation (docs/status.md, session 16): on the bunny, whose
+    /// caps set α ≈ 0.55, the clamp's lattice follows h at ρ 0.75 against
+    /// the minimum's 0.68 (ρ(radius, 1/F_S) 0.65 against 0.55); on the
+    /// closed gargoyle (α = 1) the clamp's lattice falls 6 % short of its
+    /// count and follows h at ρ 0.49–0.51 against 0.58 (ρ 0.43–0.47
+    /// against 0.62).
+    ClampWithHoles,
 }
 
 impl Grading {
@@ -223,6 +235,7 @@ impl Grading {
         let keep = |x: Option<&&str>| x.map_or(Some(true), |x| (*x == "n").then_some(false));
         match kind {
             "" | "min" => Some(Grading::Minimum),
+            "clamp-holes" if rest.is_empty() => Some(Grading::ClampWithHoles),
             "clamp" => Some(Grading::Clamp {
                 keep_count: keep(rest.first())?,
             }),
@@ -243,9 +256,18 @@ impl Grading {
             .unwrap_or(Grading::Minimum)
     }
 
+    /// The grading used on `s` ([`Grading::ClampWithHoles`] resolved).
+    pub fn on(self, s: &Surface) -> Grading {
+        match self {
+            Grading::ClampWithHoles if s.boundary_edges.is_empty() => Grading::Minimum,
+            Grading::ClampWithHoles => Grading::Clamp { keep_count: true },
+            g => g,
+        }
+    }
+
     fn keeps_count(self) -> bool {
         match self {
-            Grading::Minimum => false,
+            Grading::Minimum | Grading::ClampWithHoles => false,
             Grading::Clamp { keep_count } | Grading::Smooth { keep_count, .. } => keep_count,
         }
     }
@@ -341,7 +363,7 @@ pub fn natural_alpha(s: &Surface, hs: &[f64], hm: &[f64], opts: &FieldOptions) -
     bisect_ln(|a| count(a) > target, 1e-3, 1.0, 1e-3)
 }
 
-/// The α at which [`sizing_at`] (graded by [`Grading::current`])
+/// The α at which [`sizing_at`] (graded by [`FieldOptions::grading`])
 /// predicts the count of the [`Grading::Minimum`] field at `alpha0`: a
 /// grading that lowers fewer vertices asks for fewer patches at α = 1,
 /// and keeping the count compares where the patches go, not how many.
@@ -439,7 +461,7 @@ pub fn sizing_for(
         }
         None => {
             let a = natural_alpha(s, &hs, &hm, opts);
-            if Grading::current().keeps_count() {
+            if opts.grading.on(s).keeps_count() {
                 count_kept_alpha(s, &hs, &hm, a, opts)
             } else {
                 a
@@ -475,6 +497,33 @@ pub fn relaxation_sizes(
         .iter()
         .zip(&hm)
         .map(|(&a, &b)| (alpha * a).min(beta * b))
+        .collect();
+    if gamma.is_finite() {
+        grade(s, &mut h, gamma);
+    }
+    for x in &mut h {
+        *x = x.max(s.mean_edge);
+    }
+    Ok(h)
+}
+
+/// [`relaxation_sizes`] without F_M: `α h_S` (μ β h_M where there is no
+/// F_S), graded at `gamma` (infinite: not graded).
+pub fn s_fitmap_sizes(
+    s: &Surface,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    opts: &FieldOptions,
+    alpha: f64,
+    mu: f64,
+    gamma: f64,
+) -> Result<Vec<f64>> {
+    let (hs, hm) = fitmap_limits(mesh, fitmap, opts.s_fitmap_scale)?;
+    let beta = opts.m_fitmap_scale * mu;
+    let mut h: Vec<f64> = hs
+        .iter()
+        .zip(&hm)
+        .map(|(&a, &b)| if a.is_finite() { alpha * a } else { beta * b })
         .collect();
     if gamma.is_finite() {
         grade(s, &mut h, gamma);
