@@ -91,19 +91,16 @@ fn main() -> anyhow::Result<()> {
             }
         }
     }
-    let mut unp = vec![0usize; np];
-    for f in 0..np {
-        let r = d.grid.patch_res(f);
-        for j in 0..r {
-            for i in 0..r {
-                if !d.projected[d.grid.sample(f, i, j) as usize] {
-                    unp[f] += 1;
-                }
-            }
-        }
-    }
+    let unp: Vec<usize> = (0..np)
+        .map(|f| {
+            let r = d.grid.patch_res(f);
+            (0..r * r)
+                .filter(|k| !d.projected[d.grid.sample(f, k % r, k / r) as usize])
+                .count()
+        })
+        .collect();
     let (tm, td) = (m2d.iter().sum::<f64>(), d2m.iter().sum::<f64>());
-    let (wm, wd) = (marea.iter().sum::<f64>(), darea.iter().sum::<f64>());
+    let wd: f64 = darea.iter().sum();
     let pm = 1000.0 / diag;
     let mut med: Vec<f64> = darea.clone();
     med.sort_by(f64::total_cmp);
@@ -203,6 +200,5 @@ fn main() -> anyhow::Result<()> {
         }
         std::fs::write(path, out)?;
     }
-    let _ = (wm, wd);
     Ok(())
 }
