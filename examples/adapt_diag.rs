@@ -281,6 +281,7 @@ fn main() -> anyhow::Result<()> {
                 laid.stats.alpha,
                 laid.stats.m_fitmap_relaxed,
                 g,
+                false,
             )?;
             let (_, d, e) = rhos(&mesh, &fitmap.s, &hr, &laid.control);
             println!(

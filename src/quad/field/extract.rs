@@ -907,7 +907,7 @@ pub struct SizedRelax {
     /// than it gains from their sizes.
     pub shape: bool,
     /// Relax towards the S-fitmap's sizes alone (`f` in the fourth field;
-    /// [`super::sizing::s_fitmap_sizes`]): F_M then bounds only through
+    /// [`super::sizing::relaxation_sizes`] with `s_only`): F_M then bounds only through
     /// the growth guard's limits, so where it caps h_S (7 % of the
     /// gargoyle's vertices at τ 1 %) it does not set the ranks the
     /// relaxation aims at.
@@ -969,15 +969,12 @@ impl SizedRelaxPlan {
         let Some(mode) = opts.sized_relax else {
             return Ok(None);
         };
-        let sizes_at_gamma =
-            |g: f64| super::sizing::relaxation_sizes(s, mesh, fitmap, opts, alpha, mu, g);
-        let sizes = if mode.s_only {
-            super::sizing::s_fitmap_sizes(s, mesh, fitmap, opts, alpha, mu, mode.gamma)?
-        } else {
-            sizes_at_gamma(mode.gamma)?
+        let sizes_at = |g: f64, s_only: bool| {
+            super::sizing::relaxation_sizes(s, mesh, fitmap, opts, alpha, mu, g, s_only)
         };
+        let sizes = sizes_at(mode.gamma, mode.s_only)?;
         let limits = if mode.guard {
-            Some(sizes_at_gamma(f64::INFINITY)?)
+            Some(sizes_at(f64::INFINITY, false)?)
         } else {
             None
         };

@@ -482,6 +482,9 @@ pub fn sizing_for(
 /// α and μ, graded at `gamma` (infinite: not graded) and without the
 /// boundary loops' caps, which are there to keep the lattice's topology,
 /// not the fit's sizes. Only their ratios matter to the relaxation.
+/// `s_only` drops F_M where there is an F_S: `α h_S` (μ β h_M where there
+/// is no F_S), so F_M does not set the ranks the relaxation aims at.
+#[allow(clippy::too_many_arguments)]
 pub fn relaxation_sizes(
     s: &Surface,
     mesh: &TriMesh,
@@ -490,40 +493,18 @@ pub fn relaxation_sizes(
     alpha: f64,
     mu: f64,
     gamma: f64,
+    s_only: bool,
 ) -> Result<Vec<f64>> {
     let (hs, hm) = fitmap_limits(mesh, fitmap, opts.s_fitmap_scale)?;
     let beta = opts.m_fitmap_scale * mu;
     let mut h: Vec<f64> = hs
         .iter()
         .zip(&hm)
-        .map(|(&a, &b)| (alpha * a).min(beta * b))
-        .collect();
-    if gamma.is_finite() {
-        grade(s, &mut h, gamma);
-    }
-    for x in &mut h {
-        *x = x.max(s.mean_edge);
-    }
-    Ok(h)
-}
-
-/// [`relaxation_sizes`] without F_M: `α h_S` (μ β h_M where there is no
-/// F_S), graded at `gamma` (infinite: not graded).
-pub fn s_fitmap_sizes(
-    s: &Surface,
-    mesh: &TriMesh,
-    fitmap: &Fitmap,
-    opts: &FieldOptions,
-    alpha: f64,
-    mu: f64,
-    gamma: f64,
-) -> Result<Vec<f64>> {
-    let (hs, hm) = fitmap_limits(mesh, fitmap, opts.s_fitmap_scale)?;
-    let beta = opts.m_fitmap_scale * mu;
-    let mut h: Vec<f64> = hs
-        .iter()
-        .zip(&hm)
-        .map(|(&a, &b)| if a.is_finite() { alpha * a } else { beta * b })
+        .map(|(&a, &b)| match (s_only, a.is_finite()) {
+            (true, true) => alpha * a,
+            (true, false) => beta * b,
+            (false, _) => (alpha * a).min(beta * b),
+        })
         .collect();
     if gamma.is_finite() {
         grade(s, &mut h, gamma);
