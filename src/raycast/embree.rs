@@ -286,25 +286,15 @@ impl RayCaster for EmbreeCaster {
         points: &[DVec3],
         max_dists: &[f64],
     ) -> Result<Vec<Option<ClosestPoint>>> {
-        super::check_max_dists(points, max_dists)?;
-        let queries: Vec<(DVec3, f64)> = points
-            .iter()
-            .copied()
-            .zip(max_dists.iter().copied())
-            .collect();
-        in_spatial_order(
-            &queries,
-            |q| q.0,
-            |queries| {
-                let chunks: Vec<Vec<Option<ClosestPoint>>> = queries
-                    .par_chunks(CHUNK)
-                    .map(|c| {
-                        let (p, d): (Vec<DVec3>, Vec<f64>) = c.iter().copied().unzip();
-                        self.closest_chunk_within(&p, &d)
-                    })
-                    .collect::<Result<_>>()?;
-                Ok(chunks.into_iter().flatten().collect())
-            },
-        )
+        super::within_in_spatial_order(points, max_dists, |queries| {
+            let chunks: Vec<Vec<Option<ClosestPoint>>> = queries
+                .par_chunks(CHUNK)
+                .map(|c| {
+                    let (p, d): (Vec<DVec3>, Vec<f64>) = c.iter().copied().unzip();
+                    self.closest_chunk_within(&p, &d)
+                })
+                .collect::<Result<_>>()?;
+            Ok(chunks.into_iter().flatten().collect())
+        })
     }
 }

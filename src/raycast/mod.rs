@@ -184,6 +184,23 @@ pub trait RayCaster: Send + Sync {
     }
 }
 
+/// [`RayCaster::closest_points_within`] for a caster that orders its
+/// batches ([`in_spatial_order`]): the limits checked (one per point),
+/// then `answer` takes sub-batches of (point, limit) pairs in Z-order.
+pub(crate) fn within_in_spatial_order<A: Copy + Default + Send>(
+    points: &[DVec3],
+    max_dists: &[f64],
+    answer: impl FnMut(&[(DVec3, f64)]) -> Result<Vec<A>>,
+) -> Result<Vec<A>> {
+    check_max_dists(points, max_dists)?;
+    let queries: Vec<(DVec3, f64)> = points
+        .iter()
+        .copied()
+        .zip(max_dists.iter().copied())
+        .collect();
+    in_spatial_order(&queries, |q| q.0, answer)
+}
+
 /// Answers `queries` (located at `at(query)`) in the Z-order (Morton
 /// order) of their locations, `answer` taking sub-batches of at most
 /// [`SUB_BATCH`] in that order, and returns the answers in input order.

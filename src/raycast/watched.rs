@@ -81,21 +81,11 @@ impl RayCaster for Watched<'_> {
         points: &[DVec3],
         max_dists: &[f64],
     ) -> Result<Vec<Option<ClosestPoint>>> {
-        super::check_max_dists(points, max_dists)?;
-        let queries: Vec<(DVec3, f64)> = points
-            .iter()
-            .copied()
-            .zip(max_dists.iter().copied())
-            .collect();
-        in_spatial_order(
-            &queries,
-            |q| q.0,
-            |queries| {
-                self.chunked(queries, |c| {
-                    let (p, d): (Vec<DVec3>, Vec<f64>) = c.iter().copied().unzip();
-                    self.inner.closest_points_within(&p, &d)
-                })
-            },
-        )
+        super::within_in_spatial_order(points, max_dists, |queries| {
+            self.chunked(queries, |c| {
+                let (p, d): (Vec<DVec3>, Vec<f64>) = c.iter().copied().unzip();
+                self.inner.closest_points_within(&p, &d)
+            })
+        })
     }
 }
