@@ -15,7 +15,7 @@
 //!
 //! | floor | modules | what |
 //! |---|---|---|
-//! | 0 | [`error`], [`watch`], `ffi` | the error type; progress and cancellation for long stages; cxx bridges *to* C++ |
+//! | 0 | [`error`], [`switches`], [`watch`], `ffi` | the error type; the experiment switches (`SUBDFIT_*`); progress and cancellation for long stages; cxx bridges *to* C++ |
 //! | 1 | [`mesh`], [`io`], [`solve`] | meshes and their validation; readers and writers; Eigen's sparse solvers |
 //! | 2 | [`subdiv`], [`raycast`], [`fixtures`] | services behind traits (limit evaluation, ray casting), each in pure Rust and in C++; procedural meshes |
 //! | 3 | [`project`], [`analysis`] | projecting a limit surface onto M; the Fitmaps |
@@ -30,6 +30,7 @@
 
 pub mod error;
 pub(crate) mod ffi;
+pub mod switches;
 pub mod watch;
 
 pub mod io;

@@ -212,7 +212,7 @@ pub fn watched<T>(
 /// stage's peak in `report.json` says which stage holds the most; this
 /// says which step within it.
 pub fn memtrace(label: &str) {
-    if std::env::var_os("SUBDFIT_MEMTRACE").is_none() {
+    if !crate::switches::set("SUBDFIT_MEMTRACE") {
         return;
     }
     let Ok(s) = std::fs::read_to_string("/proc/self/status") else {

@@ -35,6 +35,7 @@ use std::path::{Path, PathBuf};
 /// floor 0 and of glam.
 const ORDER: &[(&str, u32)] = &[
     ("error", 0),
+    ("switches", 0),
     ("watch", 0),
     ("ffi", 0),
     ("mesh", 1),

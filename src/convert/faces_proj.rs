@@ -67,14 +67,7 @@ pub const L_CAP: f64 = 1.1;
 
 /// Whether the rounds run (`SUBDFIT_FACES_PROJ=1`).
 pub fn enabled() -> bool {
-    std::env::var(FACES_PROJ_ENV).is_ok_and(|v| v.trim() == "1")
-}
-
-fn env_f64(name: &str, default: f64) -> f64 {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.trim().parse().ok())
-        .unwrap_or(default)
+    crate::switches::on(FACES_PROJ_ENV)
 }
 
 /// A fitted round's figures the rounds are judged by.
@@ -96,7 +89,7 @@ impl Judged {
     /// Lower unprojectable share first, then lower RMS; never above
     /// [`L_CAP`] × the incoming result's RMS.
     fn beats(&self, best: &Judged, first: &Judged) -> bool {
-        if self.rms > env_f64("SUBDFIT_FACES_PROJ_LCAP", L_CAP) * first.rms {
+        if self.rms > crate::switches::number("SUBDFIT_FACES_PROJ_LCAP", L_CAP) * first.rms {
             return false;
         }
         if self.unprojectable != best.unprojectable {
@@ -163,7 +156,7 @@ pub(super) fn rounds_at_count(
         return Ok(first);
     }
     let j0 = Judged::of(&m0, &first, permille);
-    let log = std::env::var_os("SUBDFIT_FACES_PROJ_LOG").is_some();
+    let log = crate::switches::set("SUBDFIT_FACES_PROJ_LOG");
     if log {
         eprintln!(
             "projectability rounds: incoming faces {} rms {:.4} unprojectable {:.4} %",
@@ -174,8 +167,9 @@ pub(super) fn rounds_at_count(
     }
     let first_faces = first.control.num_faces();
     let n = fo.target_faces.unwrap_or(first_faces) as f64;
-    let f = env_f64("SUBDFIT_FACES_PROJ_F", PROJ_REFINE);
-    let max_rounds = env_f64("SUBDFIT_FACES_PROJ_ROUNDS", PROJ_ROUNDS as f64) as usize;
+    let f = crate::switches::number("SUBDFIT_FACES_PROJ_F", PROJ_REFINE);
+    let max_rounds =
+        crate::switches::number("SUBDFIT_FACES_PROJ_ROUNDS", PROJ_ROUNDS as f64) as usize;
     let nv = mesh.positions.len();
     let (marked, _) = marks(&first.control, &m0, nv, f);
     // The thin rounds' plan without the far patches' round: a chain of

@@ -398,7 +398,7 @@ pub fn draw_score(
     fit: &crate::fit::FitOptions,
     laid: &crate::quad::field::FieldLayout,
 ) -> Result<f64> {
-    let how = std::env::var("SUBDFIT_FIELD_DRAW_SCORE").unwrap_or_default();
+    let how = crate::switches::text("SUBDFIT_FIELD_DRAW_SCORE").unwrap_or_default();
     if how == "irr" {
         return Ok(laid.stats.irregular_vertices as f64);
     }
@@ -415,7 +415,7 @@ pub fn draw_score(
         } else {
             0.0
         };
-    if std::env::var_os("SUBDFIT_FIELD_DRAW_LOG").is_some() {
+    if crate::switches::set("SUBDFIT_FIELD_DRAW_LOG") {
         eprintln!(
             "draw: faces {} irregular {} fit {fit_rms:.4} layout {layout_rms:.4} unprojectable {:.4} % score {score:.4}",
             laid.stats.faces, laid.stats.irregular_vertices, m.unprojectable_percent
@@ -494,11 +494,7 @@ impl Ends<'_> {
 /// Whether [`Bracket`] runs: on unless `SUBDFIT_FIELD_BRACKET=0`
 /// ([`BRACKET_DEFAULT`]).
 pub fn bracket_enabled() -> bool {
-    match std::env::var(BRACKET_ENV) {
-        Ok(v) if v.trim() == "0" => false,
-        Ok(v) if v.trim() == "1" => true,
-        _ => BRACKET_DEFAULT,
-    }
+    crate::switches::on_off(BRACKET_ENV).unwrap_or(BRACKET_DEFAULT)
 }
 
 /// Whether [`Bracket`] runs without [`BRACKET_ENV`].

@@ -351,7 +351,7 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
 /// fitting and mapping, is referred to the original mesh M"), so that only
 /// the quadrangulation and simplification run on M′. A measuring switch.
 fn fitmap_on_m_env() -> bool {
-    std::env::var_os("SUBDFIT_PROXY_FITMAP_ON_M").is_some_and(|v| v == "1")
+    crate::switches::on("SUBDFIT_PROXY_FITMAP_ON_M")
 }
 
 /// The Fitmap (§3.1) of the mesh the organic layouts run on (M or M′), as

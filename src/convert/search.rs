@@ -95,7 +95,7 @@ pub(super) fn fit_fewest_within(
 /// before the L-only check (an experiment switch for measuring the check's
 /// saving in one binary; the outputs are the same bytes either way).
 fn full_measure_each() -> bool {
-    std::env::var_os("SUBDFIT_SEARCH_FULL_MEASURE").is_some_and(|v| v == "1")
+    crate::switches::on("SUBDFIT_SEARCH_FULL_MEASURE")
 }
 
 /// `report.json`'s stage of each `--max-error` candidate's RMS L check

@@ -122,7 +122,7 @@ pub const CHAIN_TOP_PATCHES: usize = 1;
 pub const CHAIN_MIN_TOP_SHARE: f64 = 0.6;
 
 fn min_top_share() -> f64 {
-    env_f64("SUBDFIT_THIN_TOP_SHARE", CHAIN_MIN_TOP_SHARE)
+    crate::switches::number("SUBDFIT_THIN_TOP_SHARE", CHAIN_MIN_TOP_SHARE)
 }
 
 /// Whether the uncarried chain runs after a first round that measured
@@ -138,7 +138,7 @@ pub fn chain_runs(m0: &OffM, permille: f64) -> bool {
 /// Whether the split round runs (`SUBDFIT_THIN_SPLIT=1`; off by default,
 /// session 13: [`split_round`]).
 fn split_enabled() -> bool {
-    std::env::var("SUBDFIT_THIN_SPLIT").is_ok_and(|v| v.trim() == "1")
+    crate::switches::on("SUBDFIT_THIN_SPLIT")
 }
 
 /// The split round is kept only within this share of N (issue 40's
@@ -150,27 +150,20 @@ pub const SPLIT_COUNT_WINDOW: f64 = 0.05;
 /// than a few % for a lower D).
 pub const L_CAP: f64 = 1.07;
 
-fn env_f64(name: &str, default: f64) -> f64 {
-    std::env::var(name)
-        .ok()
-        .and_then(|v| v.trim().parse().ok())
-        .unwrap_or(default)
-}
-
 fn share() -> f64 {
-    env_f64("SUBDFIT_THIN_SHARE", SHARE)
+    crate::switches::number("SUBDFIT_THIN_SHARE", SHARE)
 }
 
 fn d_factor() -> f64 {
-    env_f64("SUBDFIT_THIN_DFACTOR", D_FACTOR)
+    crate::switches::number("SUBDFIT_THIN_DFACTOR", D_FACTOR)
 }
 
 fn d_rounds() -> usize {
-    env_f64("SUBDFIT_THIN_DROUNDS", D_ROUNDS as f64) as usize
+    crate::switches::number("SUBDFIT_THIN_DROUNDS", D_ROUNDS as f64) as usize
 }
 
 fn l_cap() -> f64 {
-    env_f64("SUBDFIT_THIN_LCAP", L_CAP)
+    crate::switches::number("SUBDFIT_THIN_LCAP", L_CAP)
 }
 
 /// With [`Judge::Displaced`], a later round is kept only when its
@@ -179,7 +172,7 @@ fn l_cap() -> f64 {
 pub const L_CAP_REAL: f64 = 1.15;
 
 fn l_cap_real() -> f64 {
-    env_f64("SUBDFIT_THIN_LCAP_REAL", L_CAP_REAL)
+    crate::switches::number("SUBDFIT_THIN_LCAP_REAL", L_CAP_REAL)
 }
 
 /// What the uncarried chain's rounds are judged by (the estimate of RMS
@@ -201,13 +194,10 @@ pub enum Judge {
 pub const JUDGE: Judge = Judge::Displaced;
 
 fn judge() -> Judge {
-    match std::env::var("SUBDFIT_THIN_JUDGE")
-        .as_deref()
-        .map(str::trim)
-    {
-        Ok("mprime") => Judge::OnLayoutMesh,
-        Ok("m") => Judge::OnM,
-        Ok("displaced") => Judge::Displaced,
+    match crate::switches::text("SUBDFIT_THIN_JUDGE").as_deref() {
+        Some("mprime") => Judge::OnLayoutMesh,
+        Some("m") => Judge::OnM,
+        Some("displaced") => Judge::Displaced,
         _ => JUDGE,
     }
 }
@@ -222,11 +212,7 @@ pub struct OnM<'a> {
 
 /// Whether the second round is on (module docs).
 pub fn enabled() -> bool {
-    match std::env::var(THIN_ROUND_ENV) {
-        Ok(v) if v.trim() == "0" => false,
-        Ok(v) if v.trim() == "1" => true,
-        _ => THIN_ROUND_DEFAULT,
-    }
+    crate::switches::on_off(THIN_ROUND_ENV).unwrap_or(THIN_ROUND_DEFAULT)
 }
 
 /// [`off_m`]'s measurement of a fitted control mesh.
@@ -1028,13 +1014,13 @@ pub(super) fn final_draws(
 /// `SUBDFIT_FIELD_THIN_GUARD_KEPT=1`: [`final_draws`] runs the guarded
 /// cancellation on the kept draw only (session 15's measurement; off).
 fn guard_kept() -> bool {
-    std::env::var("SUBDFIT_FIELD_THIN_GUARD_KEPT").is_ok_and(|v| v.trim() == "1")
+    crate::switches::on("SUBDFIT_FIELD_THIN_GUARD_KEPT")
 }
 
 /// With `SUBDFIT_FIELD_DRAW_LOG` set, each candidate's final figures and
 /// score on stderr.
 fn log_candidates(what: &str, figures: &[Final], scores: &[Option<f64>], best: usize) {
-    if std::env::var_os("SUBDFIT_FIELD_DRAW_LOG").is_none() {
+    if !crate::switches::set("SUBDFIT_FIELD_DRAW_LOG") {
         return;
     }
     for (j, (f, s)) in figures.iter().zip(scores).enumerate() {

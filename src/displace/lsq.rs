@@ -450,10 +450,7 @@ fn set_step(disp: &mut Displacement, current: &[f64], delta: &[f64], scale: f64)
 /// the defaults, bunny and gargoyle at τ 1 %, seven field cases) gave the
 /// same bytes, and bunny's displacement+metrics CPU fell 3.6 → 2.0 s.
 fn full_step_halvings() -> i32 {
-    std::env::var("SUBDFIT_LSQ_HALVINGS")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .map_or(0, |h: i32| h.clamp(0, HOST_HALVINGS))
+    crate::switches::parsed("SUBDFIT_LSQ_HALVINGS").map_or(0, |h: i32| h.clamp(0, HOST_HALVINGS))
 }
 
 /// With `SUBDFIT_LSQTRACE` set, one line per round of
@@ -469,7 +466,7 @@ fn trace(
     reject_at: f64,
     diag: f64,
 ) {
-    if std::env::var_os("SUBDFIT_LSQTRACE").is_some() {
+    if crate::switches::set("SUBDFIT_LSQTRACE") {
         let k = 1000.0 / diag;
         eprintln!(
             "lsqtrace round {round} {kind} halvings {halvings} obj {:.6} sub {:.6} \
@@ -1215,7 +1212,7 @@ struct Score {
 /// Per-direction sums of a round (`SUBDFIT_LSQTRACE`): M → D's
 /// (sum of w d², sum of w, points), then the totals after D → M.
 fn dir_trace(m: (f64, f64, usize), all: Option<(f64, f64, usize)>, bound: f64) {
-    if std::env::var_os("SUBDFIT_LSQTRACE").is_none() {
+    if !crate::switches::set("SUBDFIT_LSQTRACE") {
         return;
     }
     let (o, w, n) = m;

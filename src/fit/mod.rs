@@ -538,7 +538,7 @@ fn fit_both_starts(
     let score = |f: &Fitted| f.report.iterations[f.report.best_iteration].score_permille;
     let ((with, st_with, done_with), (without, st_without, done_without)) =
         (state(with), state(without));
-    if std::env::var_os("SUBDFIT_FITTRACE").is_some() {
+    if crate::switches::set("SUBDFIT_FITTRACE") {
         let it = |f: &Fitted| {
             let v: Vec<String> = f
                 .report
@@ -576,7 +576,7 @@ type ResumeStart<'a> =
 /// `1 + m` (default 0) goes on alone (ties keep the rim start, as the
 /// whole fit does).
 fn start_pick() -> Option<(usize, f64)> {
-    let v = std::env::var("SUBDFIT_FIT_START_PICK").ok()?;
+    let v = crate::switches::text("SUBDFIT_FIT_START_PICK")?;
     let mut it = v.splitn(2, ':');
     let k = it.next()?.trim().parse().ok()?;
     let m = it.next().map_or(Some(0.0), |m| m.trim().parse().ok())?;
@@ -601,7 +601,7 @@ fn pick_start(
     let at_k = |r: &StartRun| r.1.as_ref().is_some_and(|p| p.next_round == k + 1);
     let both = at_k(&with) && at_k(&without);
     let (sw, so) = (score(&with.0), score(&without.0));
-    if std::env::var_os("SUBDFIT_FITTRACE").is_some() {
+    if crate::switches::set("SUBDFIT_FITTRACE") {
         eprintln!("fit starts after round {k}: rim {sw:.5}, plain {so:.5} (both there: {both})");
     }
     let done = |(f, _): StartRun| (f, None);

@@ -75,7 +75,7 @@ const FROZEN: u8 = 2;
 
 /// Whether `SUBDFIT_SIMPLIFY_SPLIT=1` asks for the split loop.
 pub(super) fn env_on() -> bool {
-    std::env::var("SUBDFIT_SIMPLIFY_SPLIT").is_ok_and(|v| v == "1")
+    crate::switches::on("SUBDFIT_SIMPLIFY_SPLIT")
 }
 
 /// The cut of the start mesh, shared by both halves.

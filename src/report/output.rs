@@ -335,10 +335,7 @@ fn exchange(a: &Path, b: &Path) -> std::io::Result<()> {
 /// Hidden test hook: `SUBDFIT_TEST_PAUSE_BEFORE_SWAP_MS` holds a staged set
 /// that long before the swap, so that tests can kill a run mid-write.
 fn pause_for_tests() {
-    if let Some(ms) = std::env::var("SUBDFIT_TEST_PAUSE_BEFORE_SWAP_MS")
-        .ok()
-        .and_then(|v| v.parse::<u64>().ok())
-    {
+    if let Some(ms) = crate::switches::parsed::<u64>("SUBDFIT_TEST_PAUSE_BEFORE_SWAP_MS") {
         std::thread::sleep(std::time::Duration::from_millis(ms));
     }
 }

@@ -575,9 +575,7 @@ pub const SPARSE_POWER_ENV: &str = "SUBDFIT_FITMAP_SPARSE_POWER";
 
 /// The power of the sparse rule's mean ([`SPARSE_POWER_ENV`]).
 pub(super) fn sparse_power() -> f64 {
-    std::env::var(SPARSE_POWER_ENV)
-        .ok()
-        .and_then(|v| v.trim().parse::<f64>().ok())
+    crate::switches::parsed::<f64>(SPARSE_POWER_ENV)
         .filter(|p| p.is_finite())
         .unwrap_or(SPARSE_POWER)
 }

@@ -182,7 +182,7 @@ impl FitmapOptions {
     /// [`SPARSE_ENV`]`=1` (a switch for measuring it in `convert` without
     /// a new option).
     pub fn sparse_on(&self) -> bool {
-        !self.exact && (self.sparse || std::env::var_os(SPARSE_ENV).is_some_and(|v| v == "1"))
+        !self.exact && (self.sparse || crate::switches::on(SPARSE_ENV))
     }
 }
 
@@ -199,10 +199,7 @@ pub const SEED_ENV: &str = "SUBDFIT_FITMAP_SEED";
 /// The options with [`SEED_ENV`]'s seed, when it is set.
 fn with_env_seed(opts: &FitmapOptions) -> FitmapOptions {
     let mut o = opts.clone();
-    if let Some(seed) = std::env::var(SEED_ENV)
-        .ok()
-        .and_then(|v| v.trim().parse::<u64>().ok())
-    {
+    if let Some(seed) = crate::switches::parsed::<u64>(SEED_ENV) {
         o.seed = seed;
     }
     o

@@ -152,8 +152,8 @@ impl CleanupOptions {
     /// These options with `SUBDFIT_CLEANUP_GUARDED` applied (set and not
     /// `0`: [`CleanupOptions::guarded`] on).
     fn with_env(mut self) -> Self {
-        if let Ok(v) = std::env::var("SUBDFIT_CLEANUP_GUARDED") {
-            self.guarded = v != "0";
+        if let Some(guarded) = crate::switches::not_zero("SUBDFIT_CLEANUP_GUARDED") {
+            self.guarded = guarded;
         }
         self
     }
@@ -636,7 +636,7 @@ impl Handle {
 /// (a diagnostic: two runs' traces diff to the first trial they disagree on).
 fn tracing() -> bool {
     static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *ON.get_or_init(|| std::env::var_os("SUBDFIT_CLEANUP_TRACE").is_some())
+    *ON.get_or_init(|| crate::switches::set("SUBDFIT_CLEANUP_TRACE"))
 }
 
 /// An operation's [`GeoKey`] (read before it is applied), for [`trace`].

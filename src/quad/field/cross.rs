@@ -193,7 +193,7 @@ impl GuideSmoothing {
     /// the cross field's singularities by 0–20 % (docs/status.md,
     /// "Field-aligned layout", 2026-12-05 guide smoothing).
     pub fn from_env() -> Option<GuideSmoothing> {
-        let get = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f64>().ok());
+        let get = crate::switches::parsed::<f64>;
         let radius = get("SUBDFIT_CROSS_R").filter(|r| *r > 0.0 && r.is_finite())?;
         let power = get("SUBDFIT_CROSS_P")
             .filter(|p| *p > 0.0 && p.is_finite())
@@ -219,7 +219,7 @@ pub fn cross_field_with(
     let ell = (opts.alignment_length * s.diagonal).max(s.mean_edge);
     let t = 1.0 / (ell * ell);
     let weights = cotan_weights(s);
-    let debug = std::env::var("FIELD_DEBUG").is_ok();
+    let debug = crate::switches::set("FIELD_DEBUG");
     if let Some(sm) = smoothing {
         let r = sm.radius * s.mean_edge;
         // The boundary held at a fully anisotropic guide (magnitude 1).

@@ -41,10 +41,13 @@ pub const SCALES: [f64; MAX_DRAWS] = [1.0, 0.985, 1.015, 0.97, 1.03, 0.955];
 
 /// The number of draws `SUBDFIT_FIELD_DRAWS` asks for, in `1..=MAX_DRAWS`.
 pub fn draws_from_env() -> usize {
-    std::env::var(DRAWS_ENV)
-        .ok()
-        .and_then(|v| v.trim().parse::<usize>().ok())
-        .map_or(1, |k| k.clamp(1, MAX_DRAWS))
+    draws_of(DRAWS_ENV)
+}
+
+/// The number of draws the switch `name` asks for, in `1..=MAX_DRAWS`
+/// (one when unset).
+fn draws_of(name: &str) -> usize {
+    crate::switches::parsed::<usize>(name).map_or(1, |k| k.clamp(1, MAX_DRAWS))
 }
 
 /// One draw's figures (`report.json`, `field_layout.first.draws`).
@@ -176,10 +179,7 @@ pub const THIN_DRAWS_ENV: &str = "SUBDFIT_FIELD_THIN_DRAWS";
 /// The number of thin-round draws `SUBDFIT_FIELD_THIN_DRAWS` asks for, in
 /// `1..=MAX_DRAWS`.
 pub fn thin_draws_from_env() -> usize {
-    std::env::var(THIN_DRAWS_ENV)
-        .ok()
-        .and_then(|v| v.trim().parse::<usize>().ok())
-        .map_or(1, |k| k.clamp(1, MAX_DRAWS))
+    draws_of(THIN_DRAWS_ENV)
 }
 
 /// The irregular guard on the first layout's draws when they are judged
@@ -234,10 +234,7 @@ pub const THIN_RELAYOUT_DRAWS_ENV: &str = "SUBDFIT_FIELD_THIN_RELAYOUT_DRAWS";
 /// The number of re-layout draws `SUBDFIT_FIELD_THIN_RELAYOUT_DRAWS` asks
 /// for, in `1..=MAX_DRAWS`.
 pub fn thin_relayout_draws_from_env() -> usize {
-    std::env::var(THIN_RELAYOUT_DRAWS_ENV)
-        .ok()
-        .and_then(|v| v.trim().parse::<usize>().ok())
-        .map_or(1, |k| k.clamp(1, MAX_DRAWS))
+    draws_of(THIN_RELAYOUT_DRAWS_ENV)
 }
 
 /// A fitted candidate's final figures, as `report.json` gives them: what

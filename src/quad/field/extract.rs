@@ -57,7 +57,7 @@ pub fn extract(
             error: e @ Error::Topology { .. },
             ..
         }) => {
-            if std::env::var("FIELD_DEBUG").is_ok() {
+            if crate::switches::set("FIELD_DEBUG") {
                 eprintln!("repaired lattice rejected: {e}");
             }
             extract_once(s, mesh, dirs, o, scale, at_size, false).map_err(|f| f.error)
@@ -130,7 +130,7 @@ fn extract_once(
     let (mut g, flips) = lattice_graph(s, dirs, o, scale, repair);
     let faces = clean_faces(&mut g);
     let non_quads = faces.iter().filter(|f| f.len() != 4).count();
-    let debug = std::env::var("FIELD_DEBUG").is_ok();
+    let debug = crate::switches::set("FIELD_DEBUG");
     let raw = if debug { faces.clone() } else { Vec::new() };
     let faces = merge_non_quad_pairs(faces, g.pos.len(), at_size);
     let (positions, quads) = if at_size {
@@ -197,7 +197,7 @@ fn extract_once(
         }
     };
     let got = control_topology(&control);
-    if got != s.topology && std::env::var("FIELD_DEBUG").is_ok() {
+    if got != s.topology && crate::switches::set("FIELD_DEBUG") {
         eprintln!("pinched vertices split: {pinches_split}");
     }
     if got != s.topology {
@@ -243,7 +243,7 @@ fn lattice_graph(
         // The flow zeroes the sums but may fold the lattice (QuadriFlow
         // §5.3): folds removed by curl-free moves before extraction.
         flips = super::flip::remove_flips(s, dirs, &mut offsets, &real);
-        if std::env::var("FIELD_DEBUG").is_ok() {
+        if crate::switches::set("FIELD_DEBUG") {
             eprintln!("integer flow: {report:?}");
             eprintln!("flip removal: {flips:?}");
         }
@@ -579,7 +579,7 @@ fn walk_faces(g: &Graph) -> Vec<Vec<u32>> {
                     break false;
                 }
             };
-            if std::env::var("FIELD_DEBUG").is_ok() && (!closed || hole || face.len() < 3) {
+            if crate::switches::set("FIELD_DEBUG") && (!closed || hole || face.len() < 3) {
                 eprintln!(
                     "dropped face closed {closed} hole {hole} len {}",
                     face.len()
@@ -797,7 +797,7 @@ struct RelaxMode {
 
 impl RelaxMode {
     fn from_env() -> RelaxMode {
-        RelaxMode::parse(&std::env::var("FIELD_RELAX").unwrap_or_default())
+        RelaxMode::parse(&crate::switches::text("FIELD_RELAX").unwrap_or_default())
     }
 
     /// Anything unparsable is the default.
@@ -919,7 +919,7 @@ pub const SHAPE_GUARD_MIN_SINE: f64 = std::f64::consts::FRAC_1_SQRT_2;
 
 impl SizedRelax {
     pub fn from_env() -> Option<SizedRelax> {
-        SizedRelax::parse(&std::env::var("FIELD_SIZED_RELAX").ok()?)
+        SizedRelax::parse(&crate::switches::text("FIELD_SIZED_RELAX")?)
     }
 
     /// `None` for anything unparsable or zero steps.

@@ -460,12 +460,12 @@ fn min_cost_flow(sums: &[i64], arcs: &[Arc], offsets: &mut [[i64; 2]], real: &[[
         }
     }
     let cpu = thread_cpu_seconds();
-    let (moved, stats) = if std::env::var_os(RESTARTED_SEARCH).is_some() {
+    let (moved, stats) = if crate::switches::set(RESTARTED_SEARCH) {
         (g.run(source, sink), KeptStats::default())
     } else {
         g.run_kept_counted(source, sink)
     };
-    if std::env::var("FIELD_DEBUG").is_ok() {
+    if crate::switches::set("FIELD_DEBUG") {
         eprintln!(
             "flow: min-cost search moved {moved} units over {} nodes in {:.3} CPU s \
              ({} paths tied: restarted search, {} differed from the kept tree's)",

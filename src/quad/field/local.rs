@@ -62,7 +62,7 @@ pub fn extract_refining(
     gradation: f64,
     sweeps: usize,
 ) -> Result<(ControlMesh, usize, LatticeInfo)> {
-    let debug = std::env::var("FIELD_DEBUG").is_ok();
+    let debug = crate::switches::set("FIELD_DEBUG");
     let mut seeds = match extract::extract_at_size(s, mesh, dirs, o, scale, true) {
         Ok(out) => return Ok(out),
         Err(f) if matches!(f.error, Error::Topology { .. }) => {

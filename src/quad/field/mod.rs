@@ -156,9 +156,7 @@ impl Default for FieldOptions {
             gradation: 0.25,
             // `FIELD_LOOP_CAP_SLOPE` (measurement switch, issue 40's
             // adaptivity, docs/status.md session 15): off unless set.
-            loop_cap_slope: std::env::var("FIELD_LOOP_CAP_SLOPE")
-                .ok()
-                .and_then(|v| v.parse::<f64>().ok())
+            loop_cap_slope: crate::switches::parsed::<f64>("FIELD_LOOP_CAP_SLOPE")
                 .filter(|x| x.is_finite() && *x >= 1.0)
                 .unwrap_or(1.0),
             alignment_length: 1.0,
@@ -632,32 +630,23 @@ fn clean(
 ) -> Result<FieldLayout> {
     let mut co = cleanup::CleanupOptions::default().with_target_faces(target_faces);
     co.guarded = guarded.unwrap_or(co.guarded);
-    if let Some(n) = std::env::var("SUBDFIT_CLEANUP_MOVES")
-        .ok()
-        .and_then(|v| v.parse::<usize>().ok())
-    {
+    if let Some(n) = crate::switches::parsed::<usize>("SUBDFIT_CLEANUP_MOVES") {
         co = co.with_move_rounds(n);
     }
-    if let Some(r) = std::env::var("SUBDFIT_CLEANUP_RISE")
-        .ok()
-        .and_then(|v| v.parse::<f64>().ok())
-    {
+    if let Some(r) = crate::switches::parsed::<f64>("SUBDFIT_CLEANUP_RISE") {
         co.move_fit_rise = r;
     }
-    if std::env::var_os("SUBDFIT_CLEANUP_LATE").is_some() {
+    if crate::switches::set("SUBDFIT_CLEANUP_LATE") {
         co.moves_after_count = true;
     }
-    if let Some(e) = std::env::var("SUBDFIT_CLEANUP_SHARE")
-        .ok()
-        .and_then(|v| v.parse::<f64>().ok())
-    {
+    if let Some(e) = crate::switches::parsed::<f64>("SUBDFIT_CLEANUP_SHARE") {
         co.move_fit_share = e;
     }
-    if std::env::var_os("SUBDFIT_CLEANUP_EXACT").is_some() {
+    if crate::switches::set("SUBDFIT_CLEANUP_EXACT") {
         co.exact_undo = true;
     }
-    if let Ok(v) = std::env::var("SUBDFIT_CLEANUP_GEO") {
-        co.geometric_ties = v != "0";
+    if let Some(geo) = crate::switches::not_zero("SUBDFIT_CLEANUP_GEO") {
+        co.geometric_ties = geo;
     }
     let (control, cs) = cleanup::cleanup(mesh, fitmap, caster, out.control, &co)?;
     out.stats.vertices = control.num_vertices();

@@ -214,11 +214,11 @@ impl Order {
     /// The order `SUBDFIT_FIELD_ORDER` names, `None` when unset (or
     /// empty, or `input`).
     pub fn from_env() -> Option<Order> {
-        match std::env::var("SUBDFIT_FIELD_ORDER").as_deref() {
-            Ok("lex") => Some(Order::Lexicographic),
-            Ok("bfs") => Some(Order::Breadth),
-            Ok("") | Ok("input") | Err(_) => None,
-            Ok(_) => Some(Order::Morton),
+        match crate::switches::text("SUBDFIT_FIELD_ORDER").as_deref() {
+            Some("lex") => Some(Order::Lexicographic),
+            Some("bfs") => Some(Order::Breadth),
+            Some("") | Some("input") | None => None,
+            Some(_) => Some(Order::Morton),
         }
     }
 }

@@ -201,7 +201,7 @@ struct EdgeTerms {
 /// QuadriFlow's extrinsic position rule takes a scale per side) instead
 /// of both at the edge's mean spacing.
 fn own_scale() -> bool {
-    std::env::var_os("FIELD_POSITION_OWN_SCALE").is_some()
+    crate::switches::set("FIELD_POSITION_OWN_SCALE")
 }
 
 impl EdgeTerms {

@@ -250,8 +250,7 @@ impl Grading {
     /// The `FIELD_GRADING` switch ([`Grading::Minimum`] when unset or
     /// unparsable).
     pub fn current() -> Grading {
-        std::env::var("FIELD_GRADING")
-            .ok()
+        crate::switches::text("FIELD_GRADING")
             .and_then(|v| Grading::parse(&v))
             .unwrap_or(Grading::Minimum)
     }

@@ -1,0 +1,121 @@
+//! The experiment switches: the `SUBDFIT_*` environment variables (and
+//! the field layout's older `FIELD_*` ones), read here only.
+//!
+//! Each turns on a variant that was measured and left off by default (the
+//! session that measured it is in docs/status.md), sets a constant of one
+//! for a measurement, or asks for a trace on stderr. None is an option of
+//! the product: without them every command does what its flags say, and
+//! the outputs do not depend on them unless one is set. The crate reads
+//! them only through the functions below, so that one value reads the
+//! same way everywhere: white space around a value is ignored, and a
+//! value that does not parse is as if the switch were unset.
+//!
+//! | switch | read by | what |
+//! |---|---|---|
+//! | `SUBDFIT_THIN_ROUND` | `convert::thin` | `0` turns the thin second round off, `1` on (on by default) |
+//! | `SUBDFIT_THIN_SHARE`, `_DFACTOR`, `_DROUNDS`, `_LCAP`, `_LCAP_REAL`, `_TOP_SHARE` | `convert::thin` | its constants |
+//! | `SUBDFIT_THIN_JUDGE` | `convert::thin` | what the chain's rounds are judged by (`mprime`, `m`, `displaced`) |
+//! | `SUBDFIT_THIN_SPLIT` | `convert::thin` | `1`: the split round |
+//! | `SUBDFIT_FIELD_THIN_DRAWS`, `SUBDFIT_FIELD_THIN_RELAYOUT_DRAWS` | `quad::field::draws` | draws of the final result and of the thin round's re-layouts |
+//! | `SUBDFIT_FIELD_THIN_GUARD_KEPT` | `convert::thin` | `1`: the guarded cancellation on the kept draw |
+//! | `SUBDFIT_FIELD_DRAWS` | `quad::field::draws` | draws of the first layout |
+//! | `SUBDFIT_FIELD_DRAW_SCORE` | `convert::field` | what the first layout's draws are ranked by (`irr`, `fit`, `unproj`) |
+//! | `SUBDFIT_FIELD_DRAW_LOG` | `convert::field`, `convert::thin` | each draw's figures on stderr |
+//! | `SUBDFIT_FIELD_BRACKET` | `convert::field` | `0` turns the bracket off, `1` on (on by default) |
+//! | `SUBDFIT_FIELD_ORDER` | `quad::field::parts` | the parts' order (`lex`, `bfs`, another value Morton) |
+//! | `SUBDFIT_FACES_PROJ` | `convert::faces_proj` | `1`: the projectability rounds at `--faces` |
+//! | `SUBDFIT_FACES_PROJ_F`, `_ROUNDS`, `_LCAP` | `convert::faces_proj` | their constants |
+//! | `SUBDFIT_FACES_PROJ_LOG` | `convert::faces_proj` | each round on stderr |
+//! | `SUBDFIT_SEARCH_FULL_MEASURE` | `convert::search` | `1`: the full measure on every step (same bytes) |
+//! | `SUBDFIT_PROXY_FITMAP_ON_M` | `convert::layout` | `1`: the proxy's Fitmap computed on M |
+//! | `SUBDFIT_CLEANUP_GUARDED` | `quad::field::cleanup` | set and not `0`: the guarded cancellation |
+//! | `SUBDFIT_CLEANUP_MOVES`, `_RISE`, `_SHARE` | `quad::field` | the cleanup's moves' constants |
+//! | `SUBDFIT_CLEANUP_LATE`, `_EXACT` | `quad::field` | set: moves after the count, exact undo |
+//! | `SUBDFIT_CLEANUP_GEO` | `quad::field` | set and `0`: no geometric ties |
+//! | `SUBDFIT_CLEANUP_TRACE` | `quad::field::cleanup` | each trial on stderr |
+//! | `SUBDFIT_CROSS_R`, `SUBDFIT_CROSS_P` | `quad::field::cross` | the guide smoothing's radius and power |
+//! | `SUBDFIT_FLOW_RESTARTED` | `quad::field::flow` | set: the restarted search |
+//! | `SUBDFIT_SIMPLIFY_SPLIT` | `quad::simplify_split` | `1`: the simplification's split |
+//! | `SUBDFIT_FIT_START_PICK` | `fit` | `K[:M]`: the fit's start picked after K iterations |
+//! | `SUBDFIT_FITTRACE` | `fit` | each fit iteration on stderr |
+//! | `SUBDFIT_FITMAP_SPARSE`, `SUBDFIT_FITMAP_SPARSE_POWER`, `SUBDFIT_FITMAP_SEED` | `analysis::fitmap` | the sparse rule, its mean's power, the sampling seed |
+//! | `SUBDFIT_LSQ_HALVINGS` | `displace::lsq` | the full step's halvings |
+//! | `SUBDFIT_LSQTRACE` | `displace::lsq` | the solves on stderr |
+//! | `SUBDFIT_MEMTRACE` | `watch` | memory per stage on stderr |
+//! | `SUBDFIT_TEST_PAUSE_BEFORE_SWAP_MS` | `report::output` | a test hook: a pause before the output swap |
+//! | `FIELD_GRADING`, `FIELD_LOOP_CAP_SLOPE` | `quad::field` | the sizing's grading and its loops' cap |
+//! | `FIELD_RELAX`, `FIELD_SIZED_RELAX`, `FIELD_POSITION_OWN_SCALE` | `quad::field` | the extraction's relaxation, the positions' scale |
+//! | `FIELD_DEBUG` | `quad::field` | the layout's steps on stderr |
+
+use std::str::FromStr;
+
+/// Whether the switch `name` is set, whatever its value (the traces).
+pub fn set(name: &str) -> bool {
+    std::env::var_os(name).is_some()
+}
+
+/// Whether the switch `name` is `1` (the variants off by default).
+pub fn on(name: &str) -> bool {
+    text(name).is_some_and(|v| v == "1")
+}
+
+/// The switch `name`: `Some(false)` at `0`, `Some(true)` at `1`, `None`
+/// unset or at another value (the variants on by default).
+pub fn on_off(name: &str) -> Option<bool> {
+    match text(name)?.as_str() {
+        "0" => Some(false),
+        "1" => Some(true),
+        _ => None,
+    }
+}
+
+/// Whether the switch `name` is set to anything but `0` (`None` unset).
+pub fn not_zero(name: &str) -> Option<bool> {
+    text(name).map(|v| v != "0")
+}
+
+/// The switch `name`'s value parsed as a `T` (`None` unset, or when it
+/// does not parse).
+pub fn parsed<T: FromStr>(name: &str) -> Option<T> {
+    text(name)?.parse().ok()
+}
+
+/// The switch `name`'s number, `default` when unset or when it does not
+/// parse (the constants of a variant).
+pub fn number(name: &str, default: f64) -> f64 {
+    parsed(name).unwrap_or(default)
+}
+
+/// The switch `name`'s value, white space around it removed (`None`
+/// unset, or not UTF-8).
+pub fn text(name: &str) -> Option<String> {
+    std::env::var(name).ok().map(|v| v.trim().to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every reader on one variable set to each value: white space is
+    /// ignored, and a value that does not parse is as if unset. (A
+    /// variable name of this test's own, so that no other test sees it.)
+    #[test]
+    fn one_value_reads_the_same_way_everywhere() {
+        let name = "SUBDFIT_SWITCHES_UNIT_TEST";
+        std::env::remove_var(name);
+        assert!(!set(name) && !on(name));
+        assert_eq!((on_off(name), not_zero(name)), (None, None));
+        assert_eq!((parsed::<f64>(name), number(name, 0.5)), (None, 0.5));
+        std::env::set_var(name, " 1 ");
+        assert!(set(name) && on(name));
+        assert_eq!((on_off(name), not_zero(name)), (Some(true), Some(true)));
+        assert_eq!((parsed::<usize>(name), number(name, 0.5)), (Some(1), 1.0));
+        std::env::set_var(name, "0");
+        assert!(set(name) && !on(name));
+        assert_eq!((on_off(name), not_zero(name)), (Some(false), Some(false)));
+        std::env::set_var(name, "0.6x");
+        assert_eq!((parsed::<f64>(name), number(name, 0.5)), (None, 0.5));
+        assert_eq!((on_off(name), not_zero(name)), (None, Some(true)));
+        std::env::remove_var(name);
+    }
+}
