@@ -221,7 +221,7 @@ impl FieldOptions {
     /// [`FieldOptions::with_natural_adaptivity`].
     pub fn for_convert(target_faces: Option<usize>) -> Self {
         let fo = FieldOptions::default().with_target_faces(target_faces);
-        let on = std::env::var(NATURAL_ADAPTIVITY_ENV).is_ok_and(|v| v.trim() == "1");
+        let on = crate::switches::on(NATURAL_ADAPTIVITY_ENV);
         if on && target_faces.is_none() {
             fo.with_natural_adaptivity()
         } else {
