@@ -26,6 +26,10 @@
 //! 6. **Errors with kinds.** `Error::InvalidArgument` (a call against a
 //!    function's contract) only at the sites [`INVALID_ARGUMENT_SITES`]
 //!    lists; every other error says its kind (`src/error.rs`).
+//! 7. **Switches read in one place.** The environment (the experiment
+//!    switches, `SUBDFIT_*` and `FIELD_*`) is read only by
+//!    `src/switches.rs`, so a value reads the same way everywhere and its
+//!    table lists every switch.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -691,5 +695,39 @@ fn invalid_argument_only_where_listed() {
     assert_eq!(
         total, listed,
         "INVALID_ARGUMENT_SITES lists {listed} sites, src/ has {total}: lower the list"
+    );
+}
+
+/// What in `code` reads the environment.
+fn env_reads(code: &str) -> Vec<&'static str> {
+    ["env::var(", "env::var_os(", "env::vars("]
+        .into_iter()
+        .filter(|w| code.contains(w))
+        .collect()
+}
+
+#[test]
+fn the_environment_is_read_only_by_the_switches() {
+    assert_eq!(env_reads("let v = std::env::var(NAME);"), ["env::var("]);
+    assert_eq!(env_reads("std::env::var_os(\"X\")"), ["env::var_os("]);
+    assert!(env_reads("let v = crate::switches::on(NAME);").is_empty());
+    let src = src_dir();
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    let mut bad = Vec::new();
+    for f in &files {
+        let rel = f.strip_prefix(&src).unwrap();
+        if rel == Path::new("switches.rs") {
+            continue;
+        }
+        let code = without_test_items(&strip(&std::fs::read_to_string(f).unwrap()).0);
+        for what in env_reads(&code) {
+            bad.push(format!("{}: {what}", f.display()));
+        }
+    }
+    assert!(
+        bad.is_empty(),
+        "the environment read outside src/switches.rs (add the switch there):\n{}",
+        bad.join("\n")
     );
 }
