@@ -150,10 +150,14 @@ impl CleanupOptions {
     }
 
     /// These options with `SUBDFIT_CLEANUP_GUARDED` applied (set and not
-    /// `0`: [`CleanupOptions::guarded`] on).
+    /// `0`: [`CleanupOptions::guarded`] on; unset: on under
+    /// `SUBDFIT_FIELD_BEST=1`).
     fn with_env(mut self) -> Self {
-        if let Ok(v) = std::env::var("SUBDFIT_CLEANUP_GUARDED") {
-            self.guarded = v != "0";
+        match std::env::var("SUBDFIT_CLEANUP_GUARDED") {
+            Ok(v) => self.guarded = v != "0",
+            // `SUBDFIT_FIELD_BEST=1` turns it on ([`super::draws::BEST_ENV`]).
+            Err(_) if super::draws::best_enabled() => self.guarded = true,
+            Err(_) => {}
         }
         self
     }
