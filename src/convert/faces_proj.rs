@@ -152,7 +152,7 @@ pub(super) fn marks(control: &ControlMesh, m: &Measured, nv: usize, f: f64) -> (
 /// (`SUBDFIT_FIELD_BEST=1`, session 16) the incoming result and every
 /// round are measured by the pipeline's own displacement and metrics
 /// ([`super::thin::final_figures`]) and the one kept is the one
-/// [`draws::choose_final_with`] ranks first by [`draws::Score::Bars`]: the
+/// [`draws::choose_final_with`] ranks first by [`draws::Score::BarsUnguarded`]: the
 /// M′ test and the RMS cap see neither RMS D nor the irregular count
 /// (gargoyle τ 10 % at 421 went from 99 / 3.59‰ / 0.294‰ / 0.105 % to
 /// 99 / 3.97‰ / 0.326‰ / 0.069 %, at 402 the irregular count rose 89 → 102).
@@ -257,8 +257,12 @@ pub(super) fn rounds_at_count(
         }
     }
     if judge.is_some() {
-        let (i, scores) =
-            draws::choose_final_with(&finals, fo.target_faces, COUNT_WINDOW, draws::Score::Bars);
+        let (i, scores) = draws::choose_final_with(
+            &finals,
+            fo.target_faces,
+            COUNT_WINDOW,
+            draws::Score::BarsUnguarded,
+        );
         if log {
             for (j, (f, s)) in finals.iter().zip(&scores).enumerate() {
                 eprintln!(

@@ -316,6 +316,12 @@ pub enum Score {
     /// [`bars_score`]: each figure over the best candidate's, in units of
     /// issue 40's tolerance for it (session 16, [`BEST_ENV`]).
     Bars,
+    /// [`bars_score`] over every candidate at the count, without the
+    /// irregular guard: the projectability rounds add singularities where
+    /// they lower h (homer at 272: 37 → 50 irregular vertices at
+    /// 0.90 → 0.04 % unprojectable), and [`bars_score`] weighs the count
+    /// itself.
+    BarsUnguarded,
 }
 
 impl Score {
@@ -397,7 +403,12 @@ pub fn choose_final_with(
         .unwrap_or(0);
     let most = IRREGULAR_FACTOR * fewest as f64 + IRREGULAR_SLACK as f64;
     let ranked: Vec<bool> = (0..cands.len())
-        .map(|i| at_count(i) && (i == 0 || cands[i].irregular_vertices as f64 <= most))
+        .map(|i| {
+            at_count(i)
+                && (i == 0
+                    || rule == Score::BarsUnguarded
+                    || cands[i].irregular_vertices as f64 <= most)
+        })
         .collect();
     // The ranked candidates' lowest figures, each its own ([`bars_score`]).
     let low = |f: fn(&Final) -> f64| {
@@ -417,7 +428,7 @@ pub fn choose_final_with(
         .map(|i| {
             ranked[i].then(|| match rule {
                 Score::Base => final_score(&cands[i], base),
-                Score::Bars => bars_score(&cands[i], &best_figures),
+                Score::Bars | Score::BarsUnguarded => bars_score(&cands[i], &best_figures),
             })
         })
         .collect();
