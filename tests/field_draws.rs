@@ -256,3 +256,44 @@ fn the_final_choice_keeps_the_count_the_irregular_guard_and_the_lower_index_on_t
         draws::thin_draws_from_env()
     );
 }
+
+#[test]
+fn the_bars_score_weighs_each_figure_by_issue_40s_tolerance() {
+    // Spot at 85's four final results (session 16, logged): draw 0 is far
+    // behind (14.9‰ / 1.90‰ / 0.30 %), draw 1 has 26 irregular vertices
+    // (over 1.2 × 19 + 2: not ranked). Relative to draw 0 (session 15's
+    // rule) draw 3's three fewer irregular vertices outweigh draw 2's
+    // 3 % lower RMS L and 5 % lower RMS D; in units of the bars' tolerances
+    // (L 3 %, D 5 %, irregular 25 %) draw 2 ranks first.
+    let cands = [
+        fin(84, 24, 14.916, 1.9012, 0.2986),
+        fin(85, 26, 9.7302, 0.4160, 0.0211),
+        fin(85, 22, 8.8102, 0.4191, 0.0141),
+        fin(85, 19, 9.0798, 0.4410, 0.0100),
+    ];
+    let (base, _) = draws::choose_final(&cands, Some(85), 0.02);
+    assert_eq!(base, 3);
+    let (kept, scores) = draws::choose_final_with(&cands, Some(85), 0.02, draws::Score::Bars);
+    assert_eq!(kept, 2, "{scores:?}");
+    assert_eq!(scores[1], None);
+    // Draw 2 has the lowest RMS L among the ranked ones, so its score is
+    // its D over the lowest D (draw 2's own: 0.4191 vs draw 1's 0.4160 is
+    // not ranked) plus its irregular excess over 19.
+    let want = (22.0 / 19.0 - 1.0) / draws::BAR_TOLERANCE_IRREGULAR;
+    assert!((scores[2].unwrap() - want).abs() < 1e-12, "{scores:?}");
+    // Spot at 81: the draw with D 0.417‰ at L +1.1 % beats the first
+    // round's D 1.010‰, as under session 15's rule.
+    let spot81 = [
+        fin(80, 22, 9.1842, 1.0104, 0.0299),
+        fin(80, 22, 9.2821, 0.4171, 0.0256),
+        fin(80, 22, 9.4080, 0.4844, 0.0329),
+        fin(80, 20, 10.8343, 0.5044, 0.0023),
+    ];
+    let (kept, _) = draws::choose_final_with(&spot81, Some(81), 0.02, draws::Score::Bars);
+    assert_eq!(kept, 1);
+    // The unprojectable share over the bar counts as in `final_score`: a
+    // result 0.1 % over it weighs one tolerance unit.
+    let best = fin(80, 20, 9.0, 0.4, 0.0);
+    let s = draws::bars_score(&fin(80, 20, 9.0, 0.4, 0.2), &best);
+    assert!((s - 1.0).abs() < 1e-12, "{s}");
+}

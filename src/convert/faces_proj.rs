@@ -33,7 +33,7 @@
 use crate::error::Result;
 use crate::fit::Fitted;
 use crate::mesh::ControlMesh;
-use crate::quad::field::{field_layout_counted, FieldOptions};
+use crate::quad::field::{draws, field_layout_counted, FieldOptions};
 use crate::report::StageTimer;
 
 use super::field::{patch_errors, FieldRound, Measured, UNPROJECTABLE_PERCENT};
@@ -65,9 +65,13 @@ pub const COUNT_WINDOW: f64 = 0.02;
 /// first, but not at any cost in RMS L.
 pub const L_CAP: f64 = 1.1;
 
-/// Whether the rounds run (`SUBDFIT_FACES_PROJ=1`).
+/// Whether the rounds run (`SUBDFIT_FACES_PROJ=1`, or
+/// `SUBDFIT_FIELD_BEST=1` with `SUBDFIT_FACES_PROJ` unset).
 pub fn enabled() -> bool {
-    crate::switches::on(FACES_PROJ_ENV)
+    match crate::switches::text(FACES_PROJ_ENV) {
+        Some(v) => v == "1",
+        None => crate::quad::field::draws::best_enabled(),
+    }
 }
 
 /// A fitted round's figures the rounds are judged by.
@@ -138,7 +142,14 @@ pub(super) fn marks(control: &ControlMesh, m: &Measured, nv: usize, f: f64) -> (
 
 /// The rounds (module docs) after the kept fit `first`, each fitted by
 /// `fit` and pushed on `rounds`; the best by [`Judged::beats`] is returned
-/// (`first` when none beats it or nothing is unprojectable).
+/// (`first` when none beats it or nothing is unprojectable). With `judge`
+/// (`SUBDFIT_FIELD_BEST=1`, session 16) the incoming result and every
+/// round are measured by the pipeline's own displacement and metrics
+/// ([`super::thin::final_figures`]) and the one kept is the one
+/// [`draws::choose_final_with`] ranks first by [`draws::Score::BarsUnguarded`]: the
+/// M′ test and the RMS cap see neither RMS D nor the irregular count
+/// (gargoyle τ 10 % at 421 went from 99 / 3.59‰ / 0.294‰ / 0.105 % to
+/// 99 / 3.97‰ / 0.326‰ / 0.069 %, at 402 the irregular count rose 89 → 102).
 pub(super) fn rounds_at_count(
     timer: &mut StageTimer,
     relayout: &FieldRelayout,
@@ -146,6 +157,7 @@ pub(super) fn rounds_at_count(
     first: Fitted,
     rounds: &mut Vec<FieldRound>,
     mut fit: impl FnMut(&mut StageTimer, ControlMesh) -> Result<Fitted>,
+    judge: Option<&super::thin::OnM<'_>>,
 ) -> Result<Fitted> {
     let mesh = &relayout.mesh;
     let permille = 1000.0 / mesh.bbox_diagonal();
@@ -175,6 +187,14 @@ pub(super) fn rounds_at_count(
     // The thin rounds' plan without the far patches' round: a chain of
     // `max_rounds`, each lowering h under the marks accumulated so far.
     let mut plan = RoundPlan::laid(timer, relayout, fo, None, marked, max_rounds)?;
+    let mut finals = match judge {
+        Some(on) => vec![timer.run("projectability round", || {
+            super::thin::final_figures(on, &first.control)
+        })?],
+        None => Vec::new(),
+    };
+    // Under `judge`, every round's fit with its index on `rounds`.
+    let mut judged: Vec<(Fitted, usize)> = Vec::new();
     let mut best = (j0, first, None::<usize>);
     while let Some(planned) = plan.next_round() {
         let laid = timer.run("field layout", || {
@@ -209,12 +229,46 @@ pub(super) fn rounds_at_count(
         }
         let at_count =
             (faces as f64 - n).abs() <= f64::max(COUNT_WINDOW * n, (first_faces as f64 - n).abs());
-        if at_count && j1.beats(&best.0, &j0) {
+        let stop = m1.unprojectable_percent <= UNPROJECTABLE_PERCENT || patches == 0;
+        if let Some(on) = judge {
+            let f1 = timer.run("projectability round", || {
+                super::thin::final_figures(on, &next.control)
+            })?;
+            let r = rounds.len() - 1;
+            rounds[r].limit_permille = Some(f1.limit_permille);
+            rounds[r].displaced_permille = Some(f1.displaced_permille);
+            rounds[r].unprojectable_percent = Some(f1.unprojectable_percent);
+            finals.push(f1);
+            judged.push((next, r));
+        } else if at_count && j1.beats(&best.0, &j0) {
             best = (j1, next, Some(rounds.len() - 1));
         }
-        if m1.unprojectable_percent <= UNPROJECTABLE_PERCENT || patches == 0 {
+        if stop {
             break;
         }
+    }
+    if judge.is_some() {
+        let (i, scores) = draws::choose_final_with(
+            &finals,
+            fo.target_faces,
+            COUNT_WINDOW,
+            draws::Score::BarsUnguarded,
+        );
+        if log {
+            for (j, (f, s)) in finals.iter().zip(&scores).enumerate() {
+                eprintln!(
+                    "projectability judged {j}: faces {} irregular {} L {:.4} D {:.4} unprojectable {:.4} % score {s:?}{}",
+                    f.faces, f.irregular_vertices, f.limit_permille, f.displaced_permille,
+                    f.unprojectable_percent, if j == i { " kept" } else { "" }
+                );
+            }
+        }
+        if i == 0 {
+            return Ok(best.1);
+        }
+        let (fitted, r) = judged.swap_remove(i - 1);
+        rounds[r].kept = Some(true);
+        return Ok(fitted);
     }
     if let Some(i) = best.2 {
         rounds[i].kept = Some(true);

@@ -485,7 +485,17 @@ impl Ends<'_> {
                     crate::fit::fit_with_progress(mesh, c, caster, &po.fit, progress)
                 })
             };
-            fitted = super::faces_proj::rounds_at_count(timer, relayout, fo, fitted, rounds, fit)?;
+            // Under `SUBDFIT_FIELD_BEST` the rounds are judged on their
+            // final figures, as the draws are (`faces_proj` module docs).
+            let on_m = super::thin::OnM {
+                mesh,
+                caster,
+                metrics: &po.metrics,
+            };
+            let judge = crate::quad::field::draws::best_enabled().then_some(&on_m);
+            fitted = super::faces_proj::rounds_at_count(
+                timer, relayout, fo, fitted, rounds, fit, judge,
+            )?;
         }
         Ok(fitted)
     }

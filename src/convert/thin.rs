@@ -969,7 +969,8 @@ pub(super) fn final_draws(
         cands.push((f, done, start));
     }
     let mut figures: Vec<Final> = cands.iter().map(|c| c.0).collect();
-    let (mut best, mut scores) = draws::choose_final(&figures, fo.target_faces, 0.02);
+    let (mut best, mut scores) =
+        draws::choose_final_with(&figures, fo.target_faces, 0.02, draws::Score::from_env());
     if guard_kept() {
         // The guarded cancellation on the kept draw only: its sizing laid
         // again with the guard on (the thin round's layouts too), kept if
@@ -1001,7 +1002,8 @@ pub(super) fn final_draws(
         let f = timer.run("thin round", || final_figures(on, &done.control))?;
         figures.push(f);
         cands.push((f, done, start));
-        (best, scores) = draws::choose_final(&figures, fo.target_faces, 0.02);
+        (best, scores) =
+            draws::choose_final_with(&figures, fo.target_faces, 0.02, draws::Score::from_env());
     }
     log_candidates("first draw", &figures, &scores, best);
     let (_, fitted, start) = cands.swap_remove(best);
@@ -1048,7 +1050,7 @@ struct DrawnCtx<'a> {
 }
 
 /// [`evaluated`]'s figures as a candidate's final ones.
-fn final_figures(on: &OnM<'_>, control: &ControlMesh) -> Result<Final> {
+pub(super) fn final_figures(on: &OnM<'_>, control: &ControlMesh) -> Result<Final> {
     let metrics = evaluated(on, control)?;
     Ok(Final {
         faces: control.num_faces(),
@@ -1141,7 +1143,8 @@ fn second_round_drawn(
         }
     }
     let figures: Vec<Final> = cands.iter().map(|c| c.0).collect();
-    let (best, scores) = draws::choose_final(&figures, fo.target_faces, 0.02);
+    let (best, scores) =
+        draws::choose_final_with(&figures, fo.target_faces, 0.02, draws::Score::from_env());
     log_candidates("thin draw", &figures, &scores, best);
     let (_, fitted, r) = cands.swap_remove(best);
     if best > 0 {

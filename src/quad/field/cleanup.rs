@@ -150,10 +150,14 @@ impl CleanupOptions {
     }
 
     /// These options with `SUBDFIT_CLEANUP_GUARDED` applied (set and not
-    /// `0`: [`CleanupOptions::guarded`] on).
+    /// `0`: [`CleanupOptions::guarded`] on; unset: on under
+    /// `SUBDFIT_FIELD_BEST=1`).
     fn with_env(mut self) -> Self {
-        if let Some(guarded) = crate::switches::not_zero("SUBDFIT_CLEANUP_GUARDED") {
-            self.guarded = guarded;
+        match crate::switches::not_zero("SUBDFIT_CLEANUP_GUARDED") {
+            Some(guarded) => self.guarded = guarded,
+            // `SUBDFIT_FIELD_BEST=1` turns it on ([`super::draws::BEST_ENV`]).
+            None if super::draws::best_enabled() => self.guarded = true,
+            None => {}
         }
         self
     }

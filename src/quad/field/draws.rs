@@ -39,15 +39,17 @@ pub const MAX_DRAWS: usize = 6;
 /// back to N.
 pub const SCALES: [f64; MAX_DRAWS] = [1.0, 0.985, 1.015, 0.97, 1.03, 0.955];
 
-/// The number of draws `SUBDFIT_FIELD_DRAWS` asks for, in `1..=MAX_DRAWS`.
+/// The number of draws `SUBDFIT_FIELD_DRAWS` asks for, in `1..=MAX_DRAWS`
+/// ([`BEST_DRAWS`] when it is unset and [`BEST_ENV`] is on).
 pub fn draws_from_env() -> usize {
-    draws_of(DRAWS_ENV)
+    let unset = if best_enabled() { BEST_DRAWS } else { 1 };
+    draws_of(DRAWS_ENV, unset)
 }
 
 /// The number of draws the switch `name` asks for, in `1..=MAX_DRAWS`
-/// (one when unset).
-fn draws_of(name: &str) -> usize {
-    crate::switches::parsed::<usize>(name).map_or(1, |k| k.clamp(1, MAX_DRAWS))
+/// (`unset` when it is unset or does not parse).
+fn draws_of(name: &str, unset: usize) -> usize {
+    crate::switches::parsed::<usize>(name).map_or(unset, |k| k.clamp(1, MAX_DRAWS))
 }
 
 /// One draw's figures (`report.json`, `field_layout.first.draws`).
@@ -179,7 +181,7 @@ pub const THIN_DRAWS_ENV: &str = "SUBDFIT_FIELD_THIN_DRAWS";
 /// The number of thin-round draws `SUBDFIT_FIELD_THIN_DRAWS` asks for, in
 /// `1..=MAX_DRAWS`.
 pub fn thin_draws_from_env() -> usize {
-    draws_of(THIN_DRAWS_ENV)
+    draws_of(THIN_DRAWS_ENV, 1)
 }
 
 /// The irregular guard on the first layout's draws when they are judged
@@ -234,7 +236,7 @@ pub const THIN_RELAYOUT_DRAWS_ENV: &str = "SUBDFIT_FIELD_THIN_RELAYOUT_DRAWS";
 /// The number of re-layout draws `SUBDFIT_FIELD_THIN_RELAYOUT_DRAWS` asks
 /// for, in `1..=MAX_DRAWS`.
 pub fn thin_relayout_draws_from_env() -> usize {
-    draws_of(THIN_RELAYOUT_DRAWS_ENV)
+    draws_of(THIN_RELAYOUT_DRAWS_ENV, 1)
 }
 
 /// A fitted candidate's final figures, as `report.json` gives them: what
@@ -282,6 +284,95 @@ pub fn final_score(c: &Final, base: &Final) -> f64 {
     }
 }
 
+/// Environment variable for the one field setting at a face target
+/// (issue 40, session 16): `1` draws the first layout [`BEST_DRAWS`] times
+/// ([`DRAWS_ENV`], ranked by their first fit), runs the cleanup's guarded
+/// cancellation (`SUBDFIT_CLEANUP_GUARDED`) and the projectability rounds
+/// (`src/convert/faces_proj.rs`) judged on their final figures by
+/// [`bars_score`]; the final-result draws ([`THIN_DRAWS_ENV`]), when set,
+/// are ranked by [`bars_score`] too. Each of those variables, when set,
+/// overrides its part. Session 16's table over issue 40's eight cases:
+/// docs/status.md. Unset or anything else: off.
+pub const BEST_ENV: &str = "SUBDFIT_FIELD_BEST";
+
+/// The first layout's draws under [`BEST_ENV`]: session 15's four with the
+/// guarded cancellation (homer at 272, spot at 85, cheburashka at 460 and
+/// gargoyle τ 1 % at 1357 met more bars than with one).
+pub const BEST_DRAWS: usize = 4;
+
+/// Whether `SUBDFIT_FIELD_BEST=1`.
+pub fn best_enabled() -> bool {
+    crate::switches::on(BEST_ENV)
+}
+
+/// How [`choose_final_with`] scores a candidate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Score {
+    /// [`final_score`]: relative to candidate 0 (session 15).
+    Base,
+    /// [`bars_score`]: each figure over the best candidate's, in units of
+    /// issue 40's tolerance for it (session 16, [`BEST_ENV`]).
+    Bars,
+    /// [`bars_score`] over every candidate at the count, without the
+    /// irregular guard: the projectability rounds add singularities where
+    /// they lower h (homer at 272: 37 → 50 irregular vertices at
+    /// 0.90 → 0.04 % unprojectable), and [`bars_score`] weighs the count
+    /// itself.
+    BarsUnguarded,
+}
+
+impl Score {
+    /// [`Score::Bars`] under [`BEST_ENV`], else [`Score::Base`].
+    pub fn from_env() -> Self {
+        if best_enabled() {
+            Score::Bars
+        } else {
+            Score::Base
+        }
+    }
+}
+
+/// Issue 40's tolerances on a candidate's figures against the better peer's
+/// (RMS L ≤ 1.03×, RMS D ≤ 1.05×) and the lower peer's irregular count
+/// (≤ 1.25×): what [`bars_score`] measures each figure's excess in.
+pub const BAR_TOLERANCE_L: f64 = 0.03;
+/// See [`BAR_TOLERANCE_L`].
+pub const BAR_TOLERANCE_D: f64 = 0.05;
+/// See [`BAR_TOLERANCE_L`].
+pub const BAR_TOLERANCE_IRREGULAR: f64 = 0.25;
+
+/// A candidate's score against `best`, the lowest RMS L, RMS D and
+/// irregular count among the ranked candidates (each its own minimum),
+/// lower is better: each figure's relative excess over that minimum in
+/// units of issue 40's tolerance for it ([`BAR_TOLERANCE_L`] …), plus the
+/// unprojectable share over [`UNPROJECTABLE_BAR`] in units of the bar, as
+/// in [`final_score`]. Session 15's [`final_score`] divides by candidate
+/// 0's figures, so a poor candidate 0 compresses every difference and the
+/// irregular term, which the bars tolerate five to eight times more than
+/// L or D, decides: spot at 85 kept 85 / 19 / 9.080‰ / 0.441‰ over
+/// 85 / 22 / 8.810‰ / 0.419‰ (candidate 0 at 14.9‰ / 1.90‰). In units
+/// of the bars, a 3 % rise of RMS L weighs as much as a 25 % rise of the
+/// irregular count, as issue 40 counts them.
+pub fn bars_score(c: &Final, best: &Final) -> f64 {
+    let excess = |x: f64, x0: f64| x / f64::max(x0, f64::MIN_POSITIVE) - 1.0;
+    let over = f64::max(c.unprojectable_percent - UNPROJECTABLE_BAR, 0.0) / UNPROJECTABLE_BAR;
+    let irr0 = f64::max(best.irregular_vertices as f64, 1.0);
+    let s = excess(c.limit_permille, best.limit_permille) / BAR_TOLERANCE_L
+        + excess(c.displaced_permille, best.displaced_permille) / BAR_TOLERANCE_D
+        + (c.irregular_vertices as f64 / irr0 - 1.0).max(0.0) / BAR_TOLERANCE_IRREGULAR
+        + over;
+    if s.is_nan() {
+        f64::INFINITY
+    } else {
+        s
+    }
+}
+
+/// [`choose_final_with`] by [`Score::Base`] (session 15's rule).
+pub fn choose_final(cands: &[Final], n: Option<usize>, window: f64) -> (usize, Vec<Option<f64>>) {
+    choose_final_with(cands, n, window, Score::Base)
+}
+
 /// The candidate to keep among `cands` (index 0 the first round's fit,
 /// the thin round's draws after it): those within `window` patches of the
 /// target `n` (or no farther than candidate 0) whose irregular count is
@@ -289,7 +380,12 @@ pub fn final_score(c: &Final, base: &Final) -> f64 {
 /// [`final_score`] against candidate 0, the lowest kept, ties to the lower
 /// index (so the choice does not depend on the order the draws were
 /// computed in, only on their index). Candidate 0 is always eligible.
-pub fn choose_final(cands: &[Final], n: Option<usize>, window: f64) -> (usize, Vec<Option<f64>>) {
+pub fn choose_final_with(
+    cands: &[Final],
+    n: Option<usize>,
+    window: f64,
+    rule: Score,
+) -> (usize, Vec<Option<f64>>) {
     let Some(base) = cands.first() else {
         return (0, Vec::new());
     };
@@ -303,10 +399,34 @@ pub fn choose_final(cands: &[Final], n: Option<usize>, window: f64) -> (usize, V
         .min()
         .unwrap_or(0);
     let most = IRREGULAR_FACTOR * fewest as f64 + IRREGULAR_SLACK as f64;
+    let ranked: Vec<bool> = (0..cands.len())
+        .map(|i| {
+            at_count(i)
+                && (i == 0
+                    || rule == Score::BarsUnguarded
+                    || cands[i].irregular_vertices as f64 <= most)
+        })
+        .collect();
+    // The ranked candidates' lowest figures, each its own ([`bars_score`]).
+    let low = |f: fn(&Final) -> f64| {
+        (0..cands.len())
+            .filter(|&i| ranked[i])
+            .map(|i| f(&cands[i]))
+            .filter(|x| !x.is_nan())
+            .fold(f64::INFINITY, f64::min)
+    };
+    let best_figures = Final {
+        limit_permille: low(|c| c.limit_permille),
+        displaced_permille: low(|c| c.displaced_permille),
+        irregular_vertices: low(|c| c.irregular_vertices as f64) as usize,
+        ..*base
+    };
     let scores: Vec<Option<f64>> = (0..cands.len())
         .map(|i| {
-            let ok = at_count(i) && (i == 0 || cands[i].irregular_vertices as f64 <= most);
-            ok.then(|| final_score(&cands[i], base))
+            ranked[i].then(|| match rule {
+                Score::Base => final_score(&cands[i], base),
+                Score::Bars | Score::BarsUnguarded => bars_score(&cands[i], &best_figures),
+            })
         })
         .collect();
     let mut best = 0;
