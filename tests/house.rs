@@ -561,22 +561,32 @@ fn untyped_json(code: &str) -> Vec<&'static str> {
     out
 }
 
-#[test]
-fn no_untyped_json_outside_report() {
+/// `file: what` for each thing `find` finds in the code (outside test
+/// items) of the files of `src/` that `skip` does not exempt (by their
+/// path below `src/`).
+fn offences(skip: impl Fn(&Path) -> bool, find: impl Fn(&str) -> Vec<&'static str>) -> Vec<String> {
     let src = src_dir();
     let mut files = Vec::new();
     rust_files(&src, &mut files);
     let mut bad = Vec::new();
     for f in &files {
-        let rel = f.strip_prefix(&src).unwrap();
-        if rel.starts_with("report") || rel.starts_with("bin") {
+        if skip(f.strip_prefix(&src).unwrap()) {
             continue;
         }
         let code = without_test_items(&strip(&std::fs::read_to_string(f).unwrap()).0);
-        for what in untyped_json(&code) {
+        for what in find(&code) {
             bad.push(format!("{}: {what}", f.display()));
         }
     }
+    bad
+}
+
+#[test]
+fn no_untyped_json_outside_report() {
+    let bad = offences(
+        |rel| rel.starts_with("report") || rel.starts_with("bin"),
+        untyped_json,
+    );
     assert!(
         bad.is_empty(),
         "untyped JSON in the library (type the record instead, see src/convert/record.rs):\n{}",
@@ -711,20 +721,7 @@ fn the_environment_is_read_only_by_the_switches() {
     assert_eq!(env_reads("let v = std::env::var(NAME);"), ["env::var("]);
     assert_eq!(env_reads("std::env::var_os(\"X\")"), ["env::var_os("]);
     assert!(env_reads("let v = crate::switches::on(NAME);").is_empty());
-    let src = src_dir();
-    let mut files = Vec::new();
-    rust_files(&src, &mut files);
-    let mut bad = Vec::new();
-    for f in &files {
-        let rel = f.strip_prefix(&src).unwrap();
-        if rel == Path::new("switches.rs") {
-            continue;
-        }
-        let code = without_test_items(&strip(&std::fs::read_to_string(f).unwrap()).0);
-        for what in env_reads(&code) {
-            bad.push(format!("{}: {what}", f.display()));
-        }
-    }
+    let bad = offences(|rel| rel == Path::new("switches.rs"), env_reads);
     assert!(
         bad.is_empty(),
         "the environment read outside src/switches.rs (add the switch there):\n{}",
