@@ -34,6 +34,8 @@
 //! | `SUBDFIT_CLEANUP_GEO` | `quad::field` | set and `0`: no geometric ties |
 //! | `SUBDFIT_CLEANUP_TRACE` | `quad::field::cleanup` | each trial on stderr |
 //! | `SUBDFIT_CROSS_R`, `SUBDFIT_CROSS_P` | `quad::field::cross` | the guide smoothing's radius and power |
+//! | `SUBDFIT_CROSS_ALIGN`, `SUBDFIT_CROSS_ALEN` | `quad::field` | the curvature guide's weight and length (`FieldOptions::alignment_weight`, `_length`) |
+//! | `SUBDFIT_CROSS_HIER` | `quad::field` | `1`: the hierarchical orientation smoothing (`FieldOptions::orientation_hierarchy`) |
 //! | `SUBDFIT_FLOW_RESTARTED` | `quad::field::flow` | set: the restarted search |
 //! | `SUBDFIT_SIMPLIFY_SPLIT` | `quad::simplify_split` | `1`: the simplification's split |
 //! | `SUBDFIT_FIT_START_PICK` | `fit` | `K[:M]`: the fit's start picked after K iterations |

@@ -159,11 +159,18 @@ impl Default for FieldOptions {
             loop_cap_slope: crate::switches::parsed::<f64>("FIELD_LOOP_CAP_SLOPE")
                 .filter(|x| x.is_finite() && *x >= 1.0)
                 .unwrap_or(1.0),
-            alignment_length: 1.0,
-            alignment_weight: 1.0,
+            // `SUBDFIT_CROSS_ALEN`, `SUBDFIT_CROSS_ALIGN`, `SUBDFIT_CROSS_HIER`
+            // (measurement switches, issue 40's gargoyle at τ 1 %,
+            // docs/status.md session 17): 1, 1 and off unless set.
+            alignment_length: crate::switches::parsed::<f64>("SUBDFIT_CROSS_ALEN")
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .unwrap_or(1.0),
+            alignment_weight: crate::switches::parsed::<f64>("SUBDFIT_CROSS_ALIGN")
+                .filter(|x| x.is_finite() && *x > 0.0)
+                .unwrap_or(1.0),
             position_sweeps: 8,
             orientation_sweeps: 10,
-            orientation_hierarchy: false,
+            orientation_hierarchy: crate::switches::on("SUBDFIT_CROSS_HIER"),
             lattice_at_size: true,
             cleanup: true,
             cleanup_guarded: None,
