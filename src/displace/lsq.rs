@@ -308,6 +308,32 @@ pub fn refine_offsets_on(
     diag: f64,
     opts: &LsqOffsetOptions,
 ) -> Result<LsqOffsetStats> {
+    Ok(refine_offsets_keeping_d(mesh, mesh_caster, disp, host, diag, opts)?.0)
+}
+
+/// D as a round of [`refine_offsets_keeping_d`] built it: the same
+/// triangles and positions (bit for bit) as D rebuilt from the offsets it
+/// returns, with its Embree scene.
+pub struct BuiltD {
+    pub mesh: TriMesh,
+    pub caster: Box<dyn RayCaster>,
+}
+
+/// [`refine_offsets_on`], also handing back D at the offsets it returns
+/// when a round built it there: the last round kept. When the last update
+/// is undone (bunny's ladder: every rung), the offsets are restored bit for
+/// bit to those of the round before, whose D mesh and Embree scene are then
+/// exactly what measuring D would build again (one BVH over 2.9M triangles
+/// on the 4.4M-triangle rung). `None` when no round built D at the returned
+/// offsets.
+pub fn refine_offsets_keeping_d(
+    mesh: &TriMesh,
+    mesh_caster: &dyn RayCaster,
+    disp: &mut Displacement,
+    host: Option<&HostSurface>,
+    diag: f64,
+    opts: &LsqOffsetOptions,
+) -> Result<(LsqOffsetStats, Option<BuiltD>)> {
     let n = disp.offsets.len();
     let m_edges = Edges::of(mesh);
     let total_m: f64 = m_edges.weight.iter().sum();
@@ -338,6 +364,8 @@ pub fn refine_offsets_on(
         Some(h) => Some(host_pattern(disp, h)?),
         None => None,
     };
+    // D as built by the last round kept, at the offsets `current` holds.
+    let mut kept_d: Option<BuiltD> = None;
     while round <= opts.rounds {
         // The last round only decides whether the previous update is kept:
         // it measures the objective on a fixed subsample (every
@@ -360,7 +388,7 @@ pub fn refine_offsets_on(
         };
         // The value this round must stay below to be kept.
         let reject_at = if check_only { current_sub } else { current_obj };
-        let (score, ne, complete) = round_rows(&at, disp, check_only, reject_at)?;
+        let (score, ne, complete, built) = round_rows(&at, disp, check_only, reject_at)?;
         crate::watch::memtrace("lsq: round rows");
         let (obj, sub) = score.rms();
         let kind = if check_only { "check" } else { "full" };
@@ -386,6 +414,7 @@ pub fn refine_offsets_on(
         };
         if worse && host.is_some() && halvings < most {
             if let Some(delta) = &last_delta {
+                drop(built);
                 halvings += 1;
                 set_step(disp, &current, delta, 0.5f64.powi(halvings));
                 // The same round again, at the shorter step.
@@ -400,6 +429,7 @@ pub fn refine_offsets_on(
         }
         current_obj = obj;
         current.clone_from(&disp.offsets);
+        kept_d = built;
         stats.rms_after_permille = 1000.0 * sub / diag;
         stats.rounds = round;
         let Some(mut ne) = ne.filter(|ne| ne.rows > 0 && round < opts.rounds) else {
@@ -425,7 +455,15 @@ pub fn refine_offsets_on(
         }
         round += 1;
     }
-    Ok(stats)
+    // Every exit above leaves the offsets at `current`; checked bit for bit
+    // all the same, since a D at other offsets would measure another surface.
+    let same = disp.offsets.len() == current.len()
+        && disp
+            .offsets
+            .iter()
+            .zip(&current)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+    Ok((stats, kept_d.filter(|_| same)))
 }
 
 /// The offsets `current + scale · delta`, dependents following their
@@ -486,7 +524,7 @@ fn round_rows(
     disp: &Displacement,
     check_only: bool,
     reject_at: f64,
-) -> Result<(Score, Option<NormalEquations>, bool)> {
+) -> Result<(Score, Option<NormalEquations>, bool, Option<BuiltD>)> {
     let RoundAt {
         mesh,
         mesh_caster,
@@ -543,7 +581,7 @@ fn round_rows(
         d_order: &d_order,
     };
     if let Some(score) = over.rejects(&verdict, mesh_caster, scale_d)? {
-        return Ok((score, None, false));
+        return Ok((score, None, false, None));
     }
     let d_caster = make_raycaster(RayBackend::Embree, &dmesh)?;
     let deps = match host {
@@ -583,14 +621,13 @@ fn round_rows(
         stop,
     )?;
     drop(order);
-    drop(d_caster);
     let m_part = {
         let s = score.borrow();
         (s.obj, s.obj_w, s.n)
     };
     if !complete {
         dir_trace(m_part, None, verdict.bound);
-        return Ok((score.into_inner(), None, false));
+        return Ok((score.into_inner(), None, false, None));
     }
     // D → M rows, at D's edge midpoints.
     let complete = closest_in_order(
@@ -620,7 +657,13 @@ fn round_rows(
         let s = score.borrow();
         dir_trace(m_part, Some((s.obj, s.obj_w, s.n)), verdict.bound);
     }
-    Ok((score.into_inner(), ne.filter(|_| complete), complete))
+    // D and its scene, kept for measuring D if this round's offsets are
+    // the ones returned (`refine_offsets_keeping_d`).
+    let built = complete.then_some(BuiltD {
+        mesh: dmesh,
+        caster: d_caster,
+    });
+    Ok((score.into_inner(), ne.filter(|_| complete), complete, built))
 }
 
 /// D's edge midpoints with an end over an unprojectable sample (holes of
@@ -1318,6 +1361,90 @@ mod tests {
             st.rounds >= 1 && st.rms_after_permille < st.rms_before_permille,
             "{msg}"
         );
+    }
+
+    /// The sphere of [`least_squares_offsets_halve_the_chordal_error_on_a_sphere`]:
+    /// M, its caster, its diagonal and φ's displacement at 4 × 4 samples.
+    fn sphere_case() -> (TriMesh, Box<dyn RayCaster>, f64, Displacement) {
+        let control = cube();
+        let ev = make_evaluator(Backend::Osd, &control, &EvalOptions::default()).unwrap();
+        let fine = PatchGrid::new(&control, 41).unwrap();
+        let mesh = TriMesh {
+            positions: ev
+                .evaluate(control.positions(), fine.locations())
+                .unwrap()
+                .iter()
+                .map(|p| p.position.normalize())
+                .collect(),
+            triangles: fine.triangles(),
+        };
+        let diag = mesh.bbox_diagonal();
+        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+        let disp = compute_displacement(&control, ev.as_ref(), caster.as_ref(), 4, 2.0, diag, 0.05)
+            .unwrap();
+        (mesh, caster, diag, disp)
+    }
+
+    #[test]
+    fn the_kept_d_is_the_d_a_rebuild_gives_bit_for_bit() {
+        // One round (its update kept by the check round) and many (the
+        // rounds go on until one fails to lower the objective and is
+        // undone, restoring the offsets of the round before): either way
+        // the D handed back must be the mesh rebuilt from the returned
+        // offsets, and its scene must answer closest-point queries with the
+        // same bits as a fresh scene over the rebuilt mesh.
+        for rounds in [1, 40] {
+            let (mesh, caster, diag, mut disp) = sphere_case();
+            let opts = LsqOffsetOptions {
+                rounds,
+                ..LsqOffsetOptions::default()
+            };
+            let (st, built) =
+                refine_offsets_keeping_d(&mesh, caster.as_ref(), &mut disp, None, diag, &opts)
+                    .unwrap();
+            let built = built.expect("the last kept round built D");
+            if rounds > 1 {
+                // The undo path: a later round was rejected and undone.
+                assert!(st.rounds < rounds, "{st:?}");
+            } else {
+                assert_eq!(st.rounds, 1, "{st:?}");
+            }
+            let pos = disp.displaced_positions();
+            let fresh = TriMesh {
+                triangles: disp.grid.triangles_shorter_diagonal(&pos),
+                positions: pos,
+            };
+            assert_eq!(built.mesh.triangles, fresh.triangles);
+            assert!(built
+                .mesh
+                .positions
+                .iter()
+                .zip(&fresh.positions)
+                .all(|(a, b)| a.to_array().map(f64::to_bits) == b.to_array().map(f64::to_bits)));
+            let fresh_caster = make_raycaster(RayBackend::Embree, &fresh).unwrap();
+            // M's quadrature points (what the report measures M → D on) and
+            // points off both surfaces.
+            let (mut pts, _) = quadrature_points(&mesh);
+            pts.extend(mesh.positions.iter().map(|p| 1.3 * *p));
+            let a = built.caster.closest_points(&pts, f64::INFINITY).unwrap();
+            let b = fresh_caster.closest_points(&pts, f64::INFINITY).unwrap();
+            assert_eq!(a.len(), b.len());
+            for (i, (a, b)) in a.iter().zip(&b).enumerate() {
+                let (a, b) = (a.as_ref().unwrap(), b.as_ref().unwrap());
+                assert_eq!(a.triangle, b.triangle, "point {i}");
+                assert_eq!(a.distance.to_bits(), b.distance.to_bits(), "point {i}");
+                assert_eq!(
+                    a.point.to_array().map(f64::to_bits),
+                    b.point.to_array().map(f64::to_bits),
+                    "point {i}"
+                );
+            }
+            let (da, db) = (
+                distance_stats(&pts, &vec![1.0; pts.len()], built.caster.as_ref(), diag).unwrap(),
+                distance_stats(&pts, &vec![1.0; pts.len()], fresh_caster.as_ref(), diag).unwrap(),
+            );
+            assert_eq!(da.rms_permille.to_bits(), db.rms_permille.to_bits());
+        }
     }
 
     #[test]

@@ -57,7 +57,8 @@ pub use atlas::{
 pub use bspline::{refinement, weights as bspline_weights, BsplineTiles};
 pub use grid::{Dependent, PatchGrid};
 pub use lsq::{
-    refine_offsets, refine_offsets_on, HostSurface, LsqOffsetOptions, LsqOffsetStats, FIT_CELLS,
+    refine_offsets, refine_offsets_keeping_d, refine_offsets_on, BuiltD, HostSurface,
+    LsqOffsetOptions, LsqOffsetStats, FIT_CELLS,
 };
 
 use serde::Serialize;

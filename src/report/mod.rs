@@ -80,8 +80,8 @@ use serde::Serialize;
 use crate::analysis::normals::triangle_areas;
 use crate::displace::{
     allocate_resolutions, auto_resolution, compute_displacement, displacement_after,
-    refine_offsets_on, Displacement, DisplacementStats, HostSurface, LsqOffsetOptions, OffsetMode,
-    PatchGrid, Pilot, Reconstruction, SampleAllocation, FIT_CELLS,
+    refine_offsets_keeping_d, BuiltD, Displacement, DisplacementStats, HostSurface,
+    LsqOffsetOptions, OffsetMode, PatchGrid, Pilot, Reconstruction, SampleAllocation, FIT_CELLS,
 };
 use crate::error::{Error, Result};
 use crate::fit::Progress;
@@ -651,9 +651,12 @@ fn displaced_side(
             FIT_CELLS,
         )?),
     };
+    // D and its scene as the least squares' last kept round built them, at
+    // exactly the offsets returned (the same bits a rebuild would give).
+    let mut built = None;
     if opts.offsets == OffsetMode::LeastSquares {
         crate::watch::memtrace("host built");
-        let st = refine_offsets_on(
+        let (st, d) = refine_offsets_keeping_d(
             mesh,
             caster,
             &mut displacement,
@@ -674,23 +677,19 @@ fn displaced_side(
             .fold(0.0f64, |m, d| m.max(d.abs()));
         displacement.stats.max_abs_offset_permille = 1000.0 * max_abs / diag;
         displacement.stats.least_squares = Some(st);
+        built = d;
     }
     // D: the displacement grid, each cell split along its shorter
     // displaced diagonal (`PatchGrid::triangles_shorter_diagonal`).
-    let displaced = match &host {
+    let (displaced, displaced_caster) = match built {
+        Some(BuiltD { mesh, caster }) => (mesh, caster),
         None => {
-            let displaced_positions = displacement.displaced_positions();
-            TriMesh {
-                triangles: displacement
-                    .grid
-                    .triangles_shorter_diagonal(&displaced_positions),
-                positions: displaced_positions,
-            }
+            let displaced = displaced_mesh(&displacement, host.as_ref());
+            crate::watch::memtrace("D mesh built");
+            let caster = make_raycaster(RayBackend::Embree, &displaced)?;
+            (displaced, caster)
         }
-        Some(h) => h.mesh(&displacement),
     };
-    crate::watch::memtrace("D mesh built");
-    let displaced_caster = make_raycaster(RayBackend::Embree, &displaced)?;
     let displaced_caster = Watched::new(displaced_caster.as_ref(), w);
     // D's S → M by the 3-point rule, kept per point for the breakdown.
     // Both of D's directions only report (no decision reads them): drawn
@@ -723,6 +722,24 @@ fn displaced_side(
         diag,
     );
     Ok((displacement, acc, bd))
+}
+
+/// D: the displacement grid, each cell split along its shorter displaced
+/// diagonal, or the host surface's tessellation when there is one (the
+/// surface the least squares fitted, `refine_offsets_on`).
+fn displaced_mesh(displacement: &Displacement, host: Option<&HostSurface>) -> TriMesh {
+    match host {
+        None => {
+            let displaced_positions = displacement.displaced_positions();
+            TriMesh {
+                triangles: displacement
+                    .grid
+                    .triangles_shorter_diagonal(&displaced_positions),
+                positions: displaced_positions,
+            }
+        }
+        Some(h) => h.mesh(displacement),
+    }
 }
 
 /// Gauss–Newton rounds of the least squares on the host surface (per-patch
