@@ -15,7 +15,7 @@
 use std::cmp::Ordering;
 use std::collections::{BinaryHeap, HashMap};
 
-use crate::mesh::TriMesh;
+use crate::mesh::{prefetch, TriMesh};
 use crate::DVec3;
 
 /// Compressed adjacency `offsets[i]..offsets[i + 1]` into `items`.
@@ -275,24 +275,6 @@ pub fn layered_balls(
 /// row (its offsets; the row itself at half this distance): a few vertices,
 /// i.e. a few dozen edges of work, about one memory latency.
 const BFS_PREFETCH_AHEAD: usize = 4;
-
-/// A hint to load the cache line holding `p`: memory-level parallelism for
-/// the Fitmap's scattered reads (ball walks over M, the M-test's samples
-/// and draws), which otherwise wait for one miss after another. It changes
-/// no value (the pointer is never dereferenced, and a prefetch cannot
-/// fault), so results stay bit for bit the same.
-#[inline(always)]
-pub(crate) fn prefetch<T>(p: *const T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: `_mm_prefetch` only hints the cache; it reads nothing the
-    // program sees and cannot fault, whatever the address. SSE is part of
-    // the x86_64 baseline.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p as *const i8);
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = p;
-}
 
 /// A coarse proxy of M used by the fast mode for large radii: vertices are
 /// clustered by a grid of cell size `cell`, split into the connected pieces

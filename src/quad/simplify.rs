@@ -48,10 +48,10 @@ use super::ops::{
 use super::quadrangulate::quadrangulate_polled;
 use super::{vertex_limit_mask, vertex_limit_mask_into, InterpolationOptions};
 use super::{QuadrangulateOptions, Quadrangulation};
-use crate::analysis::neighbourhood::prefetch;
+
 use crate::analysis::Fitmap;
 use crate::error::{Error, Result};
-use crate::mesh::{ControlMesh, FaceId, TriMesh, VertexId};
+use crate::mesh::{prefetch, ControlMesh, FaceId, TriMesh, VertexId};
 use crate::project::{default_max_dist, Projected};
 use crate::raycast::bvh::BvhCaster;
 use crate::raycast::RayCaster;

@@ -27,7 +27,7 @@ use std::mem::MaybeUninit;
 use rayon::prelude::*;
 
 use crate::error::Result;
-use crate::mesh::TriMesh;
+use crate::mesh::{prefetch, TriMesh};
 use crate::raycast::{
     check_max_dist, closest_point_triangle, surface_triangles, ClosestPoint, Hit, Ray, RayCaster,
 };
@@ -330,21 +330,6 @@ const EMPTY_NODE: Node = Node {
     hi: [0.0; 3],
     offset: 0,
 };
-
-/// A cache hint for the line holding `p` (x86_64's `prefetcht0`; nothing
-/// elsewhere).
-#[inline(always)]
-fn prefetch<T>(p: *const T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: `_mm_prefetch` only hints the cache; it reads nothing the
-    // program sees and cannot fault, whatever the address. SSE is part of
-    // the x86_64 baseline.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p as *const i8);
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = p;
-}
 
 impl BvhCaster {
     /// Builds the BVH over the non-zero-area triangles of `mesh`. Errors: see

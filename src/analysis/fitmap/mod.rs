@@ -87,9 +87,10 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::cubic::{fit_cubic, Cubic, CubicFit, Frame};
-use super::neighbourhood::{bfs_ball, layered_balls, prefetch, Adjacency, Csr, ProxyLevel};
+use super::neighbourhood::{bfs_ball, layered_balls, Adjacency, Csr, ProxyLevel};
 use super::normals::{triangle_areas, vertex_normals};
 use crate::error::{Error, Result};
+use crate::mesh::prefetch;
 use crate::mesh::TriMesh;
 use crate::raycast::{Ray, RayCaster};
 use crate::{DVec2, DVec3};
