@@ -51,7 +51,8 @@ use crate::analysis::Fitmap;
 use crate::error::Result;
 use crate::mesh::{ControlMesh, TriMesh};
 use crate::quad::field::{
-    field_layout_refined_prepared, sizing, FieldOptions, FieldStats, Surface,
+    field_layout_refined_following, sizing, FieldOptions, FieldStats, Follow, Surface,
+    NATURAL_ADAPTIVITY_ENV,
 };
 use crate::raycast::RayCaster;
 use crate::report::TargetCheck;
@@ -269,6 +270,10 @@ pub fn fit_field(
     // The sizing each round was laid at (`None`: the Fitmap's own, or one
     // not kept), for [`Bracket`].
     let mut laid_h: Vec<Option<Vec<f64>>> = vec![None];
+    let follow = match max_error.filter(|e| e.is_finite()) {
+        Some(_) => following(relayout, &fo, opts.target_faces)?,
+        None => None,
+    };
     loop {
         let faces = control.num_faces();
         let irregular = crate::quad::field::irregular_vertices(&control);
@@ -350,7 +355,12 @@ pub fn fit_field(
             Some(e) if rms <= e => PROJECTION_REGROW_FACTOR,
             _ => REGROW_FACTOR,
         };
-        match lay_next(&mut timer, relayout, &fo, next, faces, &mut sizes, regrow)? {
+        let how = Lay {
+            relayout,
+            fo: &fo,
+            follow: follow.as_ref(),
+        };
+        match lay_next(&mut timer, &how, next, faces, &mut sizes, regrow)? {
             Some((c, f)) => {
                 (control, size_factor) = (c, f);
                 laid_h.push(sizes.as_ref().map(|s| s.h.clone()));
@@ -365,6 +375,7 @@ pub fn fit_field(
         po,
         fo: &fo,
         max_error,
+        follow: follow.as_ref(),
     };
     let fitted = ends.run(run, &mut timer, &mut rounds, &laid_h, best)?;
     let caster = run.caster.as_ref();
@@ -433,6 +444,7 @@ struct Ends<'a> {
     po: &'a PipelineOptions,
     fo: &'a FieldOptions,
     max_error: Option<f64>,
+    follow: Option<&'a Follow>,
 }
 
 impl Ends<'_> {
@@ -455,7 +467,12 @@ impl Ends<'_> {
                         crate::fit::fit_with_progress(mesh, c, caster, &po.fit, run.progress)
                     })
                 };
-                let b = Bracket { relayout, fo, e };
+                let b = Bracket {
+                    relayout,
+                    fo,
+                    e,
+                    follow: self.follow,
+                };
                 b.run(timer, rounds, laid_h, &mut best, &mut fit)?;
             }
         }
@@ -553,6 +570,9 @@ struct Bracket<'a> {
     fo: &'a FieldOptions,
     /// `--max-error`, ‰.
     e: f64,
+    /// With [`NATURAL_ADAPTIVITY_ENV`]: the first layout's sizing, which
+    /// the bracket layouts' sized relaxation follows ([`following`]).
+    follow: Option<&'a Follow>,
 }
 
 impl Bracket<'_> {
@@ -594,14 +614,27 @@ impl Bracket<'_> {
                 break;
             };
             let fo = self.fo.clone().with_target_faces(Some(n));
-            let laid = timer.run("field layout", || {
-                crate::quad::field::field_layout_counted(
-                    &self.relayout.prepared,
-                    &self.relayout.mesh,
-                    &self.relayout.fitmap,
+            let (prep, mesh, fitmap) = (
+                &self.relayout.prepared,
+                &self.relayout.mesh,
+                &self.relayout.fitmap,
+            );
+            let laid = timer.run("field layout", || match self.follow {
+                Some(f) => crate::quad::field::field_layout_counted_following(
+                    prep,
+                    mesh,
+                    fitmap,
                     h.clone(),
                     &fo,
-                )
+                    f,
+                ),
+                None => crate::quad::field::field_layout_counted(
+                    prep,
+                    mesh,
+                    fitmap,
+                    h.clone(),
+                    &fo,
+                ),
             })?;
             let control = laid.control;
             let faces = control.num_faces();
@@ -752,8 +785,7 @@ fn backed_off_round(
 /// below `faces`.
 fn lay_next(
     timer: &mut StageTimer,
-    relayout: &FieldRelayout,
-    fo: &FieldOptions,
+    how: &Lay<'_>,
     next: Next,
     faces: usize,
     sizes: &mut Option<Sizes>,
@@ -763,18 +795,49 @@ fn lay_next(
         Next::Stop => None,
         Next::Local(c) => Some((c, None)),
         Next::Relayout(mut s, allowed, _) => {
-            let grown = lay_out_grown(timer, relayout, &mut s, fo, (faces, allowed), regrow)?;
+            let grown = lay_out_grown(timer, how, &mut s, (faces, allowed), regrow)?;
             *sizes = Some(s);
             grown.map(|(c, f)| (c, Some(f)))
         }
         Next::BackOff(mut s, floor, allowed) => {
             let counts = (floor, allowed);
-            let grown = lay_out_grown(timer, relayout, &mut s, fo, counts, REGROW_FACTOR)?;
+            let grown = lay_out_grown(timer, how, &mut s, counts, REGROW_FACTOR)?;
             grown
                 .filter(|(c, _)| c.num_faces() < faces)
                 .map(|(c, f)| (c, Some(f)))
         }
     })
+}
+
+/// How [`lay_next`] lays a round: on the layout mesh with the field's
+/// options, and the sizing the sized relaxation follows ([`following`]).
+struct Lay<'a> {
+    relayout: &'a FieldRelayout,
+    fo: &'a FieldOptions,
+    follow: Option<&'a Follow>,
+}
+
+/// With [`NATURAL_ADAPTIVITY_ENV`] at the natural size (its sized
+/// relaxation on): the first layout's sizing and α, so that the
+/// `--max-error` rounds' and bracket's layouts relax towards the first
+/// layout's aim times their own local factors
+/// ([`crate::quad::field::extract::SizedRelaxPlan::following`]). Without
+/// it the rounds' lattices follow only their graded sizings: measured at
+/// the default `--max-error` (session 16) the bunny's kept round fell to
+/// ρ 0.44 and the gargoyle's bracket layouts to 0.43–0.53, from 0.64 and
+/// 0.62 on the first layouts. `None` otherwise (main's layouts).
+fn following(
+    relayout: &FieldRelayout,
+    fo: &FieldOptions,
+    target_faces: Option<usize>,
+) -> Result<Option<Follow>> {
+    let on = crate::switches::on(NATURAL_ADAPTIVITY_ENV);
+    if !on || target_faces.is_some() || fo.sized_relax.is_none() {
+        return Ok(None);
+    }
+    let surf = Surface::new(&relayout.mesh)?;
+    let (base, alpha, ..) = sizing::sizing_for(&surf, &relayout.mesh, &relayout.fitmap, fo)?;
+    Ok(Some(Follow { base, alpha }))
 }
 
 /// A round of [`fit_field`] that missed the bound, deciding what follows
@@ -1055,9 +1118,8 @@ fn refine_locally(
 /// `s.h` is left at the scale laid out.
 fn lay_out_grown(
     timer: &mut StageTimer,
-    relayout: &FieldRelayout,
+    how: &Lay<'_>,
     s: &mut Sizes,
-    fo: &FieldOptions,
     (faces, allowed): (usize, usize),
     regrow: f64,
 ) -> Result<Option<(ControlMesh, f64)>> {
@@ -1065,14 +1127,9 @@ fn lay_out_grown(
     let mut scale = 1.0;
     let mut lay = |scale: f64| {
         let h: Vec<f64> = s.h.iter().map(|x| x * scale).collect();
+        let r = how.relayout;
         timer.run("field layout", || {
-            field_layout_refined_prepared(
-                &relayout.prepared,
-                &relayout.mesh,
-                &relayout.fitmap,
-                &h,
-                fo,
-            )
+            field_layout_refined_following(&r.prepared, &r.mesh, &r.fitmap, &h, how.fo, how.follow)
         })
     };
     for _ in 0..=REGROW {
