@@ -270,10 +270,8 @@ pub fn fit_field(
     // The sizing each round was laid at (`None`: the Fitmap's own, or one
     // not kept), for [`Bracket`].
     let mut laid_h: Vec<Option<Vec<f64>>> = vec![None];
-    let follow = match max_error.filter(|e| e.is_finite()) {
-        Some(_) => following(relayout, &fo, opts.target_faces)?,
-        None => None,
-    };
+    let follow = following(relayout, &fo, opts.target_faces, max_error)?;
+    let how = Lay::new(relayout, &fo, follow.as_ref());
     loop {
         let faces = control.num_faces();
         let irregular = crate::quad::field::irregular_vertices(&control);
@@ -284,23 +282,22 @@ pub fn fit_field(
             crate::fit::fit_with_progress(mesh, control, caster, &po.fit, run.progress)
         })?;
         let e = max_error.map(|e| 1000.0 * e).filter(|e| e.is_finite());
-        // With a bound, the layout mesh's own distance to the fitted limit
-        // surface too (M′ → limit, as RMS L measures it; the fit's RMS is
-        // limit → M and misses parts of M no patch reaches).
-        let measured = match e {
-            Some(_) => Some(timer.run("field refinement", || {
-                patch_errors(&relayout.mesh, &fitted.control)
-            })?),
-            None => None,
+        let on = super::thin::OnM {
+            mesh,
+            caster,
+            metrics: &po.metrics,
         };
+        let near = follow.as_ref().map(|_| &on);
+        let Judged {
+            measured,
+            layout_rms,
+            unprojectable,
+            rms,
+            on_m,
+        } = Judged::of(&mut timer, &relayout.mesh, &fitted, e, near)?;
+        let judged = on_m.or(unprojectable);
+        let fails_projection = judged.is_some_and(|u| u > UNPROJECTABLE_PERCENT);
         let diag = relayout.mesh.bbox_diagonal();
-        let layout_rms = measured.as_ref().map(|m| 1000.0 * m.rms / diag);
-        let unprojectable = measured.as_ref().map(|m| m.unprojectable_percent);
-        let fails_projection = unprojectable.is_some_and(|u| u > UNPROJECTABLE_PERCENT);
-        let rms = fitted
-            .report
-            .final_rms_permille
-            .max(layout_rms.unwrap_or(0.0));
         rounds.push(FieldRound {
             target_faces: target,
             faces,
@@ -311,6 +308,7 @@ pub fn fit_field(
             layout_unprojectable_percent: unprojectable,
             layout_thin_percent: measured.as_ref().map(|m| m.thin_percent),
             size_factor,
+            unprojectable_percent: on_m,
             ..Default::default()
         });
         let next = match (e, measured) {
@@ -336,7 +334,7 @@ pub fn fit_field(
             }
             _ => Next::Stop,
         };
-        let key = Kept::of(e, rms, unprojectable, faces);
+        let key = Kept::of(e, rms, judged, faces);
         if best.as_ref().map_or(true, |b| key < b.0) {
             best = Some((key, fitted));
         }
@@ -354,11 +352,6 @@ pub fn fit_field(
         let regrow = match e {
             Some(e) if rms <= e => PROJECTION_REGROW_FACTOR,
             _ => REGROW_FACTOR,
-        };
-        let how = Lay {
-            relayout,
-            fo: &fo,
-            follow: follow.as_ref(),
         };
         match lay_next(&mut timer, &how, next, faces, &mut sizes, regrow)? {
             Some((c, f)) => {
@@ -628,13 +621,9 @@ impl Bracket<'_> {
                     &fo,
                     f,
                 ),
-                None => crate::quad::field::field_layout_counted(
-                    prep,
-                    mesh,
-                    fitmap,
-                    h.clone(),
-                    &fo,
-                ),
+                None => {
+                    crate::quad::field::field_layout_counted(prep, mesh, fitmap, h.clone(), &fo)
+                }
             })?;
             let control = laid.control;
             let faces = control.num_faces();
@@ -687,12 +676,9 @@ fn round_rms(r: &FieldRound) -> f64 {
 /// Whether round `r` meets both bounds (`e` ‰, [`Kept`]); a bracket
 /// round not kept for its D estimate counts as a miss.
 fn round_meets(e: f64, r: &FieldRound) -> bool {
-    let key = Kept::of(
-        Some(e),
-        round_rms(r),
-        r.layout_unprojectable_percent,
-        r.faces,
-    );
+    // A near miss on M′ judged on M ([`near_miss_on_m`]) by M's share.
+    let u = r.unprojectable_percent.or(r.layout_unprojectable_percent);
+    let key = Kept::of(Some(e), round_rms(r), u, r.faces);
     key.meets() && r.kept != Some(false)
 }
 
@@ -830,14 +816,108 @@ fn following(
     relayout: &FieldRelayout,
     fo: &FieldOptions,
     target_faces: Option<usize>,
+    max_error: Option<f64>,
 ) -> Result<Option<Follow>> {
     let on = crate::switches::on(NATURAL_ADAPTIVITY_ENV);
-    if !on || target_faces.is_some() || fo.sized_relax.is_none() {
+    let bound = max_error.is_some_and(|e| e.is_finite());
+    if !on || !bound || target_faces.is_some() || fo.sized_relax.is_none() {
         return Ok(None);
     }
     let surf = Surface::new(&relayout.mesh)?;
     let (base, alpha, ..) = sizing::sizing_for(&surf, &relayout.mesh, &relayout.fitmap, fo)?;
     Ok(Some(Follow { base, alpha }))
+}
+
+/// One fitted round's figures against the bounds ([`fit_field`]).
+struct Judged {
+    /// With a bound, the layout mesh's own distance to the fitted limit
+    /// surface too (M′ → limit, as RMS L measures it; the fit's RMS is
+    /// limit → M and misses parts of M no patch reaches).
+    measured: Option<Measured>,
+    /// Its RMS, ‰, and unprojectable share of M′, %.
+    layout_rms: Option<f64>,
+    unprojectable: Option<f64>,
+    /// The larger of the fit's RMS and M′'s, ‰.
+    rms: f64,
+    /// A near miss of projectability judged on M ([`near_miss_on_m`]).
+    on_m: Option<f64>,
+}
+
+impl Judged {
+    /// `fitted` measured on `layout_mesh` (M′) under the bound `e` ‰, and
+    /// with `near` (the switch's M), a near miss judged on M.
+    fn of(
+        timer: &mut StageTimer,
+        layout_mesh: &TriMesh,
+        fitted: &crate::fit::Fitted,
+        e: Option<f64>,
+        near: Option<&super::thin::OnM<'_>>,
+    ) -> Result<Judged> {
+        let measured = match e {
+            Some(_) => Some(timer.run("field refinement", || {
+                patch_errors(layout_mesh, &fitted.control)
+            })?),
+            None => None,
+        };
+        let diag = layout_mesh.bbox_diagonal();
+        let layout_rms = measured.as_ref().map(|m| 1000.0 * m.rms / diag);
+        let unprojectable = measured.as_ref().map(|m| m.unprojectable_percent);
+        let rms = fitted
+            .report
+            .final_rms_permille
+            .max(layout_rms.unwrap_or(0.0));
+        let on_m = match (near, e, unprojectable) {
+            (Some(on), Some(e), Some(u)) if rms <= e => {
+                near_miss_on_m(timer, on, u, &fitted.control)?
+            }
+            _ => None,
+        };
+        Ok(Judged {
+            measured,
+            layout_rms,
+            unprojectable,
+            rms,
+            on_m,
+        })
+    }
+}
+
+/// A round within the error bound whose limit leaves at most this times
+/// [`UNPROJECTABLE_PERCENT`] of M′ unprojectable is judged on M instead
+/// ([`near_miss_on_m`]).
+pub const NEAR_MISS: f64 = 1.5;
+
+/// With [`NATURAL_ADAPTIVITY_ENV`]: the unprojectable share of M's area
+/// (the pipeline's displacement and metrics, as `report.json` measures
+/// it, issue 40's acceptance) of a round whose share of M′ `u` misses
+/// [`UNPROJECTABLE_PERCENT`] by at most [`NEAR_MISS`]; `None` otherwise.
+/// M′'s test is a per-vertex proxy (module docs) and a round that misses
+/// it by a hair is refined and laid out again: the bunny at τ 1 %, first
+/// layout 445 patches at 0.1013 % of M′ (0.024 % of M), went through four
+/// more rounds to 702 patches, ρ 0.64 → 0.44 (session 16).
+fn near_miss_on_m(
+    timer: &mut StageTimer,
+    on: &super::thin::OnM<'_>,
+    u: f64,
+    control: &ControlMesh,
+) -> Result<Option<f64>> {
+    if u <= UNPROJECTABLE_PERCENT || u > NEAR_MISS * UNPROJECTABLE_PERCENT {
+        return Ok(None);
+    }
+    let f = timer.run("field refinement", || {
+        super::thin::final_figures(on, control)
+    })?;
+    Ok(Some(f.unprojectable_percent))
+}
+
+impl<'a> Lay<'a> {
+    fn new(relayout: &'a FieldRelayout, fo: &'a FieldOptions, follow: Option<&'a Follow>) -> Self {
+        Lay {
+            relayout,
+            fo,
+            follow,
+        }
+    }
 }
 
 /// A round of [`fit_field`] that missed the bound, deciding what follows
