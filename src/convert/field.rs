@@ -579,13 +579,13 @@ impl Bracket<'_> {
     ) -> Result<()> {
         // The sizing of the round a bracket layout scales: the kept one
         // from the refinement rounds (the bracket rounds reuse it).
-        let kept_h: Option<Vec<f64>> = rounds
+        let kept = rounds
             .iter()
             .zip(laid_h)
             .filter(|(r, _)| round_meets(self.e, r))
-            .min_by_key(|(r, _)| r.faces)
-            .and_then(|(_, h)| h.clone());
-        let h = match kept_h {
+            .min_by_key(|(r, _)| r.faces);
+        let kept_faces = kept.map_or(0, |(r, _)| r.faces);
+        let h = match kept.and_then(|(_, h)| h.clone()) {
             Some(h) => h,
             None => Sizes::new(&self.relayout.mesh, &self.relayout.fitmap, self.fo)?.h,
         };
@@ -612,13 +612,19 @@ impl Bracket<'_> {
                 &self.relayout.mesh,
                 &self.relayout.fitmap,
             );
+            // With the switch, the kept round's sizing × √(kept / n) (the
+            // count goes as h⁻², Fitmaps §3.1.2) laid once as the first
+            // layout is, without `--faces`' count passes and the
+            // cleanup's trimming to the count: measured on the gargoyle
+            // at τ 1 %, the counted bracket layouts fell to ρ 0.43–0.53
+            // from the first layout's 0.62 (docs/status.md, session 17).
             let laid = timer.run("field layout", || match self.follow {
                 Some(f) => crate::quad::field::field_layout_counted_following(
                     prep,
                     mesh,
                     fitmap,
-                    h.clone(),
-                    &fo,
+                    scaled(&h, (kept_faces as f64 / n as f64).sqrt()),
+                    self.fo,
                     f,
                 ),
                 None => {
@@ -680,6 +686,11 @@ fn round_meets(e: f64, r: &FieldRound) -> bool {
     let u = r.unprojectable_percent.or(r.layout_unprojectable_percent);
     let key = Kept::of(Some(e), round_rms(r), u, r.faces);
     key.meets() && r.kept != Some(false)
+}
+
+/// `h` times `s`.
+fn scaled(h: &[f64], s: f64) -> Vec<f64> {
+    h.iter().map(|x| x * s).collect()
 }
 
 /// The count of the next [`Bracket`] layout (its docs) for the bound `e`
