@@ -985,6 +985,32 @@ impl SizedRelaxPlan {
         }))
     }
 
+    /// This plan for a layout laid at the sizing `h` instead of `base`
+    /// (both per vertex of M′; `base` is the sizing the plan's α belongs
+    /// to): its sizes and limits times `h / base` per vertex. A
+    /// `--max-error` round's sizing is the first one times local factors
+    /// (and a count's global scale), so the relaxation keeps the F_S
+    /// ranks of the first layout's aim and the round's refinements
+    /// (issue 40's adaptivity after the rounds), and the growth guard
+    /// follows the size the lattice was laid at instead of freezing a
+    /// coarser lattice. `None` when the lengths differ.
+    pub fn following(&self, base: &[f64], h: &[f64]) -> Option<SizedRelaxPlan> {
+        if base.len() != h.len() || base.len() != self.sizes.len() {
+            return None;
+        }
+        let scale = |v: &[f64]| -> Vec<f64> {
+            v.iter()
+                .zip(base.iter().zip(h))
+                .map(|(x, (b, h))| if *b > 0.0 { x * (h / b) } else { *x })
+                .collect()
+        };
+        Some(SizedRelaxPlan {
+            mode: self.mode,
+            sizes: scale(&self.sizes),
+            limits: self.limits.as_deref().map(scale),
+        })
+    }
+
     /// [`relax_to_sizes`] with this plan.
     pub fn apply(
         &self,

@@ -393,7 +393,7 @@ pub fn field_layout_prepared(
     opts: &FieldOptions,
 ) -> Result<FieldLayout> {
     let (h, stats) = sizing_prepared(prep, mesh, fitmap, opts)?;
-    lay_counted(prep, mesh, fitmap, h, opts, stats)
+    lay_counted(prep, mesh, fitmap, h, opts, stats, None)
 }
 
 /// Step 2 of [`field_layout_prepared`]: the sizing and the figures it
@@ -478,7 +478,7 @@ pub fn field_layout_at_scale(
 ) -> Result<FieldLayout> {
     let (h, stats) = sizing_prepared(prep, mesh, fitmap, opts)?;
     let h: Vec<f64> = h.iter().map(|x| x * s).collect();
-    lay_counted(prep, mesh, fitmap, h, opts, stats)
+    lay_counted(prep, mesh, fitmap, h, opts, stats, None)
 }
 
 /// [`draws::lay`] on the sizing of `prep`.
@@ -492,7 +492,7 @@ fn lay_draws(
     let (h, stats) = sizing_prepared(prep, mesh, fitmap, opts)?;
     Ok(draws::lay(k, |s| {
         let h: Vec<f64> = h.iter().map(|x| x * s).collect();
-        lay_counted(prep, mesh, fitmap, h, opts, stats.clone())
+        lay_counted(prep, mesh, fitmap, h, opts, stats.clone(), None)
     }))
 }
 
@@ -516,7 +516,38 @@ pub fn field_layout_counted(
     stats.alpha = 1.0;
     stats.m_fitmap_relaxed = 1.0;
     stats.predicted_faces = sizing::predicted_faces(&prep.surf, &h);
-    lay_counted(prep, mesh, fitmap, h, opts, stats)
+    lay_counted(prep, mesh, fitmap, h, opts, stats, None)
+}
+
+/// The first layout's sizing and α, which the sized relaxation of a later
+/// layout on a sizing derived from it follows
+/// ([`extract::SizedRelaxPlan::following`]; `src/convert/field.rs`'s
+/// `--max-error` rounds and bracket under [`NATURAL_ADAPTIVITY_ENV`]).
+pub struct Follow {
+    pub base: Vec<f64>,
+    pub alpha: f64,
+}
+
+/// [`field_layout_counted`] whose sized relaxation (when
+/// `opts.sized_relax` asks for it) aims at the first layout's sizes times
+/// `h / follow.base` at each count pass, instead of at α = 1.
+pub fn field_layout_counted_following(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    h: Vec<f64>,
+    opts: &FieldOptions,
+    follow: &Follow,
+) -> Result<FieldLayout> {
+    check_fitmap(mesh, fitmap)?;
+    check_sizes(mesh, &h)?;
+    check_sizes(mesh, &follow.base)?;
+    prep.check(mesh)?;
+    let mut stats = prep.stats.clone();
+    stats.alpha = follow.alpha;
+    stats.m_fitmap_relaxed = 1.0;
+    stats.predicted_faces = sizing::predicted_faces(&prep.surf, &h);
+    lay_counted(prep, mesh, fitmap, h, opts, stats, Some(follow))
 }
 
 /// The count loop of [`field_layout_prepared`] (see there).
@@ -527,6 +558,7 @@ fn lay_counted(
     h: Vec<f64>,
     opts: &FieldOptions,
     stats: FieldStats,
+    follow: Option<&Follow>,
 ) -> Result<FieldLayout> {
     let built;
     let caster = match (&prep.caster, opts.cleanup) {
@@ -548,7 +580,10 @@ fn lay_counted(
     let lay = |h: &[f64]| -> Result<FieldLayout> {
         let mut out = layout_sized(prep, h, opts, stats.clone())?;
         if let (Some(plan), Some(c)) = (&sized_relax, caster) {
-            plan.apply(&mut out.control, mesh, c)?;
+            match follow.and_then(|f| plan.following(&f.base, h)) {
+                Some(p) => p.apply(&mut out.control, mesh, c)?,
+                None => plan.apply(&mut out.control, mesh, c)?,
+            }
         }
         match caster {
             Some(c) => clean(
@@ -737,19 +772,45 @@ pub fn field_layout_refined_prepared(
     h: &[f64],
     opts: &FieldOptions,
 ) -> Result<FieldLayout> {
+    field_layout_refined_following(prep, mesh, fitmap, h, opts, None)
+}
+
+/// [`field_layout_refined_prepared`] with, when `follow` is given and
+/// `opts.sized_relax` asks for it, the sized relaxation before the
+/// cleanup, aimed at the first layout's sizes times `h / follow.base`
+/// ([`extract::SizedRelaxPlan::following`]): without it a `--max-error`
+/// round's lattice follows its graded sizing only, and loses the first
+/// layout's adaptivity (issue 40, docs/status.md session 17).
+pub fn field_layout_refined_following(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    h: &[f64],
+    opts: &FieldOptions,
+    follow: Option<&Follow>,
+) -> Result<FieldLayout> {
     check_sizes(mesh, h)?;
-    let out = sized(prep, mesh, h, opts)?;
+    let mut out = sized(prep, mesh, h, opts)?;
     if !opts.cleanup {
         return Ok(out);
     }
-    match &prep.caster {
-        Some(caster) => clean(mesh, fitmap, caster, out, None, None),
+    let built;
+    let caster = match &prep.caster {
+        Some(caster) => caster,
         None => {
             // Prepared without the cleanup's caster.
-            let caster = crate::raycast::bvh::BvhCaster::new(mesh)?;
-            clean(mesh, fitmap, &caster, out, None, None)
+            built = crate::raycast::bvh::BvhCaster::new(mesh)?;
+            &built
+        }
+    };
+    if let Some(f) = follow {
+        check_sizes(mesh, &f.base)?;
+        let plan = extract::SizedRelaxPlan::new(&prep.surf, mesh, fitmap, opts, f.alpha, 1.0)?;
+        if let Some(p) = plan.and_then(|p| p.following(&f.base, h)) {
+            p.apply(&mut out.control, mesh, caster)?;
         }
     }
+    clean(mesh, fitmap, caster, out, None, None)
 }
 
 fn count_singularities(surf: &Surface, dirs: &[DVec3], stats: &mut FieldStats) {
