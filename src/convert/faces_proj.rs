@@ -33,12 +33,10 @@
 use crate::error::Result;
 use crate::fit::Fitted;
 use crate::mesh::ControlMesh;
-use crate::quad::field::{draws, field_layout_counted, FieldOptions};
-use crate::report::StageTimer;
+use crate::quad::field::{draws, field_layout_counted};
 
 use super::field::{patch_errors, FieldRound, Measured, UNPROJECTABLE_PERCENT};
-use super::layout::FieldRelayout;
-use super::thin::RoundPlan;
+use super::thin::{FitFn, RoundCtx, RoundPlan};
 
 /// The switch's environment variable (`1` on).
 pub const FACES_PROJ_ENV: &str = "SUBDFIT_FACES_PROJ";
@@ -150,15 +148,20 @@ pub(super) fn marks(control: &ControlMesh, m: &Measured, nv: usize, f: f64) -> (
 /// M′ test and the RMS cap see neither RMS D nor the irregular count
 /// (gargoyle τ 10 % at 421 went from 99 / 3.59‰ / 0.294‰ / 0.105 % to
 /// 99 / 3.97‰ / 0.326‰ / 0.069 %, at 402 the irregular count rose 89 → 102).
-pub(super) fn rounds_at_count(
-    timer: &mut StageTimer,
-    relayout: &FieldRelayout,
-    fo: &FieldOptions,
+pub(super) fn rounds_at_count<F: FitFn>(
+    cx: RoundCtx<'_, F>,
     first: Fitted,
-    rounds: &mut Vec<FieldRound>,
-    mut fit: impl FnMut(&mut StageTimer, ControlMesh) -> Result<Fitted>,
-    judge: Option<&super::thin::OnM<'_>>,
+    judged: bool,
 ) -> Result<Fitted> {
+    let RoundCtx {
+        timer,
+        relayout,
+        fo,
+        rounds,
+        mut fit,
+        on,
+    } = cx;
+    let judge = judged.then_some(on);
     let mesh = &relayout.mesh;
     let permille = 1000.0 / mesh.bbox_diagonal();
     let m0 = timer.run("projectability round", || {
