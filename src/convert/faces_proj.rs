@@ -199,9 +199,9 @@ pub(super) fn rounds_at_count<F: FitFn>(
     // Judged on the final figures, the rounds run only when the incoming
     // result misses issue 40's unprojectable bar there: they trade L, D
     // and the irregular count for projectability (session 17: gargoyle
-    // τ 10 % at 402 came in at 0.043 % on M, 0.15 % by M′'s test, and its
-    // five rounds, none kept, took 125 of the run's 127 CPU s... see
-    // docs/status.md).
+    // τ 10 % at 402 came in at 0.043 % on M's final figures, over the bar
+    // by M′'s test, and laid, fitted and measured five rounds, none kept;
+    // docs/status.md, field-aligned layout).
     if finals
         .first()
         .is_some_and(|f| f.unprojectable_percent <= draws::UNPROJECTABLE_BAR)
