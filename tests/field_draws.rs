@@ -297,3 +297,32 @@ fn the_bars_score_weighs_each_figure_by_issue_40s_tolerance() {
     let s = draws::bars_score(&fin(80, 20, 9.0, 0.4, 0.2), &best);
     assert!((s - 1.0).abs() < 1e-12, "{s}");
 }
+
+#[test]
+fn main_as_candidate_zero_is_kept_over_a_drawn_result_the_bars_rank_lower() {
+    // Gargoyle τ 1 % at 1391 (session 17): the drawn, guarded layout the
+    // draws' fit score ranked first ended at 1381 / 160 / 1.628‰ / 0.239‰;
+    // main's own result (candidate 0 under `SUBDFIT_FIELD_BEST_MAIN`) is
+    // 1391 / 164 / 1.631‰ / 0.222‰. Its 7.7 % higher D is 1.5 tolerance
+    // units against main's 2.5 % more irregular vertices (0.1 unit) and
+    // 0.2 % higher L: main's is kept.
+    let main = fin(1391, 164, 1.631, 0.222, 0.001);
+    let drawn = fin(1381, 160, 1.628, 0.239, 0.001);
+    let (kept, scores) =
+        draws::choose_final_with(&[main, drawn], Some(1391), 0.02, draws::Score::Bars);
+    assert_eq!(kept, 0, "{scores:?}");
+    let s = |i: usize| scores[i].unwrap();
+    let want0 = (1.631 / 1.628 - 1.0) / draws::BAR_TOLERANCE_L
+        + (164.0 / 160.0 - 1.0) / draws::BAR_TOLERANCE_IRREGULAR;
+    assert!((s(0) - want0).abs() < 1e-12, "{scores:?}");
+    assert!((s(1) - (0.239 / 0.222 - 1.0) / draws::BAR_TOLERANCE_D).abs() < 1e-12);
+    // Gargoyle τ 10 % at 402 (session 16): the drawn result with fewer
+    // irregular vertices and lower L and D replaces main's.
+    let main = fin(402, 89, 4.428, 0.379, 0.153);
+    let drawn = fin(402, 82, 3.677, 0.299, 0.043);
+    let (kept, _) = draws::choose_final_with(&[main, drawn], Some(402), 0.02, draws::Score::Bars);
+    assert_eq!(kept, 1);
+    // Equal figures: the tie goes to main's (index 0).
+    let (kept, _) = draws::choose_final_with(&[main, main], Some(402), 0.02, draws::Score::Bars);
+    assert_eq!(kept, 0);
+}

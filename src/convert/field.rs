@@ -484,7 +484,15 @@ impl Ends<'_> {
                 caster,
                 metrics: &po.metrics,
             };
-            fitted = super::thin::final_draws(timer, relayout, fo, fitted, rounds, fit, &on_m)?;
+            let cx = super::thin::RoundCtx {
+                timer: &mut *timer,
+                relayout,
+                fo,
+                rounds: &mut *rounds,
+                fit,
+                on: &on_m,
+            };
+            fitted = super::thin::final_draws(cx, fitted)?;
         }
         // At a fixed count, patches moved to where the limit leaves M′
         // unprojectable ([`super::faces_proj`], off by default).
@@ -502,10 +510,16 @@ impl Ends<'_> {
                 caster,
                 metrics: &po.metrics,
             };
-            let judge = crate::quad::field::draws::best_enabled().then_some(&on_m);
-            fitted = super::faces_proj::rounds_at_count(
-                timer, relayout, fo, fitted, rounds, fit, judge,
-            )?;
+            let cx = super::thin::RoundCtx {
+                timer: &mut *timer,
+                relayout,
+                fo,
+                rounds: &mut *rounds,
+                fit,
+                on: &on_m,
+            };
+            let judged = crate::quad::field::draws::best_enabled();
+            fitted = super::faces_proj::rounds_at_count(cx, fitted, judged)?;
         }
         Ok(fitted)
     }

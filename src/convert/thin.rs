@@ -797,6 +797,44 @@ impl Judged {
     }
 }
 
+/// A fit of a control mesh, timed on the run's timer: what the rounds
+/// after the first layout's fit call for each layout they lay.
+pub(super) trait FitFn: FnMut(&mut StageTimer, ControlMesh) -> Result<Fitted> {}
+impl<F: FnMut(&mut StageTimer, ControlMesh) -> Result<Fitted>> FitFn for F {}
+
+/// What the rounds after the first layout's fit work with
+/// ([`second_round`], [`final_draws`],
+/// [`super::faces_proj::rounds_at_count`]): the run's timer, the re-layout's
+/// inputs, the layout options (the face target), the rounds' records each
+/// layout is pushed on, the fit and M to measure the final figures on.
+pub(super) struct RoundCtx<'a, F> {
+    pub timer: &'a mut StageTimer,
+    pub relayout: &'a FieldRelayout,
+    pub fo: &'a FieldOptions,
+    pub rounds: &'a mut Vec<FieldRound>,
+    pub fit: F,
+    pub on: &'a OnM<'a>,
+}
+
+impl<F: FitFn> RoundCtx<'_, F> {
+    /// The same context for a nested call, borrowing this one.
+    pub(super) fn reborrow(&mut self) -> RoundCtx<'_, &mut F> {
+        RoundCtx {
+            timer: &mut *self.timer,
+            relayout: self.relayout,
+            fo: self.fo,
+            rounds: &mut *self.rounds,
+            fit: &mut self.fit,
+            on: self.on,
+        }
+    }
+
+    /// `control` fitted on the run's timer.
+    pub(super) fn fit(&mut self, control: ControlMesh) -> Result<Fitted> {
+        (self.fit)(self.timer, control)
+    }
+}
+
 /// The later rounds (module docs) after the first round's fit `first`,
 /// each fitted by `fit` on a layout at `fo`'s count and pushed on
 /// `rounds`: one whose sizing is lowered under the far patches only (when
@@ -805,15 +843,15 @@ impl Judged {
 /// accumulated, judged against M (`on`, [`Judge`]). The round kept is the
 /// best by [`Judged::beats`], so never one worse than `first` by it;
 /// `first` unchanged when no patch is marked.
-pub(super) fn second_round(
-    timer: &mut StageTimer,
-    relayout: &FieldRelayout,
-    fo: &FieldOptions,
-    first: Fitted,
-    rounds: &mut Vec<FieldRound>,
-    mut fit: impl FnMut(&mut StageTimer, ControlMesh) -> Result<Fitted>,
-    on: &OnM<'_>,
-) -> Result<Fitted> {
+pub(super) fn second_round<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted) -> Result<Fitted> {
+    let RoundCtx {
+        timer,
+        relayout,
+        fo,
+        rounds,
+        mut fit,
+        on,
+    } = cx;
     let mesh = &relayout.mesh;
     let permille = 1000.0 / mesh.bbox_diagonal();
     let caster = BvhCaster::new(mesh)?;
@@ -929,88 +967,99 @@ pub(super) fn second_round(
 /// first fit, which the final result follows only loosely (the thin
 /// round re-lays the field from that fit's errors: spot at 81's worst
 /// first layout ended best in RMS D). Without alternatives, [`second_round`].
-pub(super) fn final_draws(
-    timer: &mut StageTimer,
-    relayout: &FieldRelayout,
-    fo: &FieldOptions,
-    first: Fitted,
-    rounds: &mut Vec<FieldRound>,
-    mut fit: impl FnMut(&mut StageTimer, ControlMesh) -> Result<Fitted>,
-    on: &OnM<'_>,
-) -> Result<Fitted> {
+pub(super) fn final_draws<F: FitFn>(mut cx: RoundCtx<'_, F>, first: Fitted) -> Result<Fitted> {
+    let relayout = cx.relayout;
     if relayout.alternatives.is_empty() {
-        return second_round(timer, relayout, fo, first, rounds, fit, on);
+        return second_round(cx, first);
     }
-    let main = second_round(timer, relayout, fo, first, rounds, &mut fit, on)?;
-    let f = timer.run("thin round", || final_figures(on, &main.control))?;
+    let (fo, on) = (cx.fo, cx.on);
+    // The first layout's thin round with its own guard (main's candidate
+    // under `SUBDFIT_FIELD_BEST`: unguarded, as main lays it).
+    let fo_first = FieldOptions {
+        cleanup_guarded: relayout.first_guarded.or(fo.cleanup_guarded),
+        ..fo.clone()
+    };
+    let mut c0 = cx.reborrow();
+    c0.fo = &fo_first;
+    let main = second_round(c0, first)?;
+    let f = cx
+        .timer
+        .run("thin round", || final_figures(on, &main.control))?;
     // Each candidate with the index of its first round on `rounds`.
     let mut cands = vec![(f, main, 0usize)];
     for (scale, control) in &relayout.alternatives {
-        let start = rounds.len();
-        let (faces, irregular) = (
-            control.num_faces(),
-            crate::quad::field::irregular_vertices(control),
-        );
-        let fitted = fit(timer, control.clone())?;
-        rounds.push(FieldRound {
-            target_faces: fo.target_faces,
-            faces,
-            irregular_vertices: irregular,
-            fit_rms_permille: fitted.report.final_rms_permille,
-            thin_draw_scale: Some(*scale),
-            ..Default::default()
-        });
-        let done = second_round(timer, relayout, fo, fitted, rounds, &mut fit, on)?;
-        let f = timer.run("thin round", || final_figures(on, &done.control))?;
-        let r = &mut rounds[start];
-        r.displaced_permille = Some(f.displaced_permille);
-        r.limit_permille = Some(f.limit_permille);
-        r.unprojectable_percent = Some(f.unprojectable_percent);
-        cands.push((f, done, start));
+        cands.push(carry_draw(cx.reborrow(), *scale, control.clone())?);
     }
     let mut figures: Vec<Final> = cands.iter().map(|c| c.0).collect();
     let (mut best, mut scores) =
         draws::choose_final_with(&figures, fo.target_faces, 0.02, draws::Score::from_env());
     if guard_kept() {
         // The guarded cancellation on the kept draw only: its sizing laid
-        // again with the guard on (the thin round's layouts too), kept if
-        // the final figures rank it first.
+        // again with the guard on (the thin round's layouts too), carried
+        // on as the other draws are, kept if the final figures rank it
+        // first.
         let scale = match best {
             0 => relayout.first_scale,
             i => relayout.alternatives[i - 1].0,
         };
-        let start = rounds.len();
         let fo_g = FieldOptions {
             cleanup_guarded: Some(true),
             ..fo.clone()
         };
-        let laid = timer.run("field layout", || {
+        let laid = cx.timer.run("field layout", || {
             let r = relayout;
             crate::quad::field::field_layout_at_scale(&r.prepared, &r.mesh, &r.fitmap, &fo_g, scale)
         })?;
-        let (faces, irregular) = (laid.stats.faces, laid.stats.irregular_vertices);
-        let fitted = fit(timer, laid.control)?;
-        rounds.push(FieldRound {
-            target_faces: fo.target_faces,
-            faces,
-            irregular_vertices: irregular,
-            fit_rms_permille: fitted.report.final_rms_permille,
-            thin_draw_scale: Some(scale),
-            ..Default::default()
-        });
-        let done = second_round(timer, relayout, &fo_g, fitted, rounds, &mut fit, on)?;
-        let f = timer.run("thin round", || final_figures(on, &done.control))?;
-        figures.push(f);
-        cands.push((f, done, start));
+        let mut g = cx.reborrow();
+        g.fo = &fo_g;
+        let c = carry_draw(g, scale, laid.control)?;
+        figures.push(c.0);
+        cands.push(c);
         (best, scores) =
             draws::choose_final_with(&figures, fo.target_faces, 0.02, draws::Score::from_env());
     }
     log_candidates("first draw", &figures, &scores, best);
     let (_, fitted, start) = cands.swap_remove(best);
     if best > 0 {
-        rounds[start].kept = Some(true);
+        cx.rounds[start].kept = Some(true);
     }
     Ok(fitted)
+}
+
+/// One of the first layout's draws (`control`, laid at `scale` × h)
+/// carried on by [`final_draws`]: fitted, recorded as a round, given its
+/// own thin round ([`second_round`]) and measured by the pipeline's final
+/// figures, which its first round records. Returns those figures, the
+/// result and the index of its first round on `rounds`.
+fn carry_draw<F: FitFn>(
+    mut cx: RoundCtx<'_, F>,
+    scale: f64,
+    control: ControlMesh,
+) -> Result<(Final, Fitted, usize)> {
+    let start = cx.rounds.len();
+    let (faces, irregular) = (
+        control.num_faces(),
+        crate::quad::field::irregular_vertices(&control),
+    );
+    let fitted = cx.fit(control)?;
+    cx.rounds.push(FieldRound {
+        target_faces: cx.fo.target_faces,
+        faces,
+        irregular_vertices: irregular,
+        fit_rms_permille: fitted.report.final_rms_permille,
+        thin_draw_scale: Some(scale),
+        ..Default::default()
+    });
+    let on = cx.on;
+    let done = second_round(cx.reborrow(), fitted)?;
+    let f = cx
+        .timer
+        .run("thin round", || final_figures(on, &done.control))?;
+    let r = &mut cx.rounds[start];
+    r.displaced_permille = Some(f.displaced_permille);
+    r.limit_permille = Some(f.limit_permille);
+    r.unprojectable_percent = Some(f.unprojectable_percent);
+    Ok((f, done, start))
 }
 
 /// `SUBDFIT_FIELD_THIN_GUARD_KEPT=1`: [`final_draws`] runs the guarded

@@ -112,6 +112,11 @@ pub struct CleanupOptions {
     /// that keeps nothing there is the one before, bit for bit. Env
     /// `SUBDFIT_CLEANUP_GUARDED=1`.
     pub guarded: bool,
+    /// [`CleanupOptions::guarded`] set by the caller: the environment
+    /// (`SUBDFIT_CLEANUP_GUARDED`, `SUBDFIT_FIELD_BEST`) leaves it as it is
+    /// (session 17: main's unguarded layout as a candidate under
+    /// `SUBDFIT_FIELD_BEST=1`, which the switch turned guarded).
+    pub guarded_fixed: bool,
 }
 
 /// Move rounds of the guarded cancellation ([`CleanupOptions::guarded`]).
@@ -131,6 +136,7 @@ impl Default for CleanupOptions {
             move_fit_share: 0.0,
             geometric_ties: false,
             guarded: false,
+            guarded_fixed: false,
         }
     }
 }
@@ -153,6 +159,9 @@ impl CleanupOptions {
     /// `0`: [`CleanupOptions::guarded`] on; unset: on under
     /// `SUBDFIT_FIELD_BEST=1`).
     fn with_env(mut self) -> Self {
+        if self.guarded_fixed {
+            return self;
+        }
         match crate::switches::not_zero("SUBDFIT_CLEANUP_GUARDED") {
             Some(guarded) => self.guarded = guarded,
             // `SUBDFIT_FIELD_BEST=1` turns it on ([`super::draws::BEST_ENV`]).

@@ -671,7 +671,11 @@ fn clean(
     guarded: Option<bool>,
 ) -> Result<FieldLayout> {
     let mut co = cleanup::CleanupOptions::default().with_target_faces(target_faces);
-    co.guarded = guarded.unwrap_or(co.guarded);
+    if let Some(g) = guarded {
+        // The caller's choice over the environment's (`guarded_fixed`).
+        co.guarded = g;
+        co.guarded_fixed = true;
+    }
     if let Some(n) = crate::switches::parsed::<usize>("SUBDFIT_CLEANUP_MOVES") {
         co = co.with_move_rounds(n);
     }
