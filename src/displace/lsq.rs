@@ -1323,23 +1323,7 @@ mod tests {
         // M: a fine welded sampling of the cube's limit surface pushed
         // onto the unit sphere (watertight, 6·40² cells). D: 4 × 4 samples
         // per patch, so its chords cut well inside the sphere.
-        let control = cube();
-        let ev = make_evaluator(Backend::Osd, &control, &EvalOptions::default()).unwrap();
-        let fine = PatchGrid::new(&control, 41).unwrap();
-        let mesh = TriMesh {
-            positions: ev
-                .evaluate(control.positions(), fine.locations())
-                .unwrap()
-                .iter()
-                .map(|p| p.position.normalize())
-                .collect(),
-            triangles: fine.triangles(),
-        };
-        let diag = mesh.bbox_diagonal();
-        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
-        let mut disp =
-            compute_displacement(&control, ev.as_ref(), caster.as_ref(), 4, 2.0, diag, 0.05)
-                .unwrap();
+        let (mesh, caster, diag, mut disp) = sphere_case();
         assert_eq!(disp.stats.unprojectable, 0);
         let (s2m0, m2s0) = rms_both(&mesh, &disp, diag);
         let st = refine_offsets(
