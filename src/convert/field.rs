@@ -470,6 +470,13 @@ impl Ends<'_> {
             }
         }
         let (_, mut fitted) = best;
+        // What the fixed-count rounds below are judged against: M and the
+        // pipeline's metrics.
+        let on_m = super::thin::OnM {
+            mesh,
+            caster,
+            metrics: &po.metrics,
+        };
         // At a fixed count, one more layout with lattice size moved to the
         // patches whose limit stands off M′ ([`super::thin`]).
         if opts.target_faces.is_some() && rounds.len() == 1 && super::thin::enabled() {
@@ -478,11 +485,6 @@ impl Ends<'_> {
                 timer.run("fit", || {
                     crate::fit::fit_with_progress(mesh, c, caster, &po.fit, progress)
                 })
-            };
-            let on_m = super::thin::OnM {
-                mesh,
-                caster,
-                metrics: &po.metrics,
             };
             let cx = super::thin::RoundCtx {
                 timer: &mut *timer,
@@ -505,11 +507,6 @@ impl Ends<'_> {
             };
             // Under `SUBDFIT_FIELD_BEST` the rounds are judged on their
             // final figures, as the draws are (`faces_proj` module docs).
-            let on_m = super::thin::OnM {
-                mesh,
-                caster,
-                metrics: &po.metrics,
-            };
             let cx = super::thin::RoundCtx {
                 timer: &mut *timer,
                 relayout,

@@ -450,6 +450,42 @@ mod detail_tests {
         (control, ev, mesh)
     }
 
+    /// [`rippled_cube`] with what every test here measures it by: M's
+    /// diagonal and Embree scene, the allocation at a budget and a fresh
+    /// displacement on a grid (φ at the tests' 0.5 reach and 1 % spread).
+    struct Rippled {
+        control: crate::mesh::ControlMesh,
+        ev: Box<dyn crate::subdiv::LimitEvaluator>,
+        mesh: TriMesh,
+        diag: f64,
+        caster: Box<dyn RayCaster>,
+    }
+
+    impl Rippled {
+        fn new() -> Self {
+            let (control, ev, mesh) = rippled_cube();
+            let diag = mesh.bbox_diagonal();
+            let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+            Rippled {
+                control,
+                ev,
+                mesh,
+                diag,
+                caster,
+            }
+        }
+
+        fn allocate(&self, budget: usize) -> Allocation {
+            let (c, ev, caster) = (&self.control, self.ev.as_ref(), self.caster.as_ref());
+            allocate_resolutions(c, ev, caster, budget, 0.5, self.diag, 0.01).unwrap()
+        }
+
+        fn fresh(&self, grid: PatchGrid) -> Displacement {
+            let (c, ev, caster) = (&self.control, self.ev.as_ref(), self.caster.as_ref());
+            displacement_on(grid, c, ev, caster, 0.5, self.diag, 0.01).unwrap()
+        }
+    }
+
     #[test]
     fn the_final_grid_reusing_the_pilot_is_the_fresh_one_bit_for_bit() {
         // `displacement_after` takes the pilot's limit points, hits and
@@ -458,45 +494,20 @@ mod detail_tests {
         // (the outputs' byte identity rests on it), including the samples
         // that are not shared (patches finer than the pilot, edge samples
         // the finer side owns) and the dependents.
-        let (control, ev, mesh) = rippled_cube();
-        let diag = mesh.bbox_diagonal();
-        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+        let rc = Rippled::new();
+        let (control, ev, diag, caster) =
+            (&rc.control, rc.ev.as_ref(), rc.diag, rc.caster.as_ref());
         // A budget above the pilot's level on the cap (the pilot is at
         // 2–8× the budget, the finest level beyond it is extrapolated).
         for budget in [600, 2500] {
-            let alloc = allocate_resolutions(
-                &control,
-                ev.as_ref(),
-                caster.as_ref(),
-                budget,
-                0.5,
-                diag,
-                0.01,
-            )
-            .unwrap();
+            let alloc = rc.allocate(budget);
             let Pilot::Probed(pilot) = &alloc.pilot else {
                 panic!("budget {budget}: mixed resolutions, yet the pilot's grid");
             };
-            let grid = PatchGrid::with_resolutions(&control, &alloc.resolutions).unwrap();
-            let fresh = displacement_on(
-                grid.clone(),
-                &control,
-                ev.as_ref(),
-                caster.as_ref(),
-                0.5,
-                diag,
-                0.01,
-            )
-            .unwrap();
+            let grid = PatchGrid::with_resolutions(control, &alloc.resolutions).unwrap();
+            let fresh = rc.fresh(grid.clone());
             let reused = crate::displace::displacement_after(
-                grid,
-                pilot,
-                &control,
-                ev.as_ref(),
-                caster.as_ref(),
-                0.5,
-                diag,
-                0.01,
+                grid, pilot, control, ev, caster, 0.5, diag, 0.01,
             )
             .unwrap();
             assert_same_displacement(&fresh, &reused, budget);
@@ -541,37 +552,18 @@ mod detail_tests {
         // patch, as on the 4.4M-triangle ladder rung. The allocation then
         // hands over the pilot's displacement, which must be the one the
         // final grid computes afresh.
-        let (control, ev, mesh) = rippled_cube();
-        let diag = mesh.bbox_diagonal();
-        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
+        let rc = Rippled::new();
+        let control = &rc.control;
         let budget = 1_000_000;
-        let alloc = allocate_resolutions(
-            &control,
-            ev.as_ref(),
-            caster.as_ref(),
-            budget,
-            0.5,
-            diag,
-            0.01,
-        )
-        .unwrap();
+        let alloc = rc.allocate(budget);
         assert!(alloc.resolutions.iter().all(|&r| r == res_of(MAX_LEVEL)));
         let Pilot::Final(kept) = &alloc.pilot else {
             panic!("every patch at the pilot's level, yet no final displacement");
         };
-        let grid = PatchGrid::with_resolutions(&control, &alloc.resolutions).unwrap();
+        let grid = PatchGrid::with_resolutions(control, &alloc.resolutions).unwrap();
         assert_eq!(alloc.stats.samples, grid.num_independent());
         assert_eq!(alloc.stats.dependent_samples, 0);
-        let fresh = displacement_on(
-            grid,
-            &control,
-            ev.as_ref(),
-            caster.as_ref(),
-            0.5,
-            diag,
-            0.01,
-        )
-        .unwrap();
+        let fresh = rc.fresh(grid);
         assert_same_displacement(&fresh, kept, budget);
     }
 
@@ -581,48 +573,28 @@ mod detail_tests {
         // independent samples the per-patch allocation must put its
         // samples on the cap and so lower RMS M → D (D: the host's
         // bilinear surface, φ offsets).
-        let (control, ev, mesh) = rippled_cube();
-        let diag = mesh.bbox_diagonal();
-        let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
-        let (mp, mw) = quadrature_points(&mesh);
+        let rc = Rippled::new();
+        let (control, ev, mesh, diag) = (&rc.control, rc.ev.as_ref(), &rc.mesh, rc.diag);
+        let caster = rc.caster.as_ref();
+        let (mp, mw) = quadrature_points(mesh);
         let rms = |d: &Displacement| {
-            let host = HostSurface::new(&control, ev.as_ref(), d).unwrap();
+            let host = HostSurface::new(control, ev, d).unwrap();
             let dm = host.mesh(d);
             let dc = make_raycaster(RayBackend::Embree, &dm).unwrap();
             distance_stats(&mp, &mw, dc.as_ref(), diag)
                 .unwrap()
                 .rms_permille
         };
-        let uniform =
-            compute_displacement(&control, ev.as_ref(), caster.as_ref(), 9, 0.5, diag, 0.01)
-                .unwrap();
+        let uniform = compute_displacement(control, ev, caster, 9, 0.5, diag, 0.01).unwrap();
         let budget = uniform.grid.num_independent();
-        let alloc = allocate_resolutions(
-            &control,
-            ev.as_ref(),
-            caster.as_ref(),
-            budget,
-            0.5,
-            diag,
-            0.01,
-        )
-        .unwrap();
-        let grid = PatchGrid::with_resolutions(&control, &alloc.resolutions).unwrap();
+        let alloc = rc.allocate(budget);
+        let grid = PatchGrid::with_resolutions(control, &alloc.resolutions).unwrap();
         let n = grid.num_independent();
         assert!(
             n <= budget && n as f64 >= 0.95 * budget as f64,
             "{n} of {budget}"
         );
-        let adaptive = displacement_on(
-            grid,
-            &control,
-            ev.as_ref(),
-            caster.as_ref(),
-            0.5,
-            diag,
-            0.01,
-        )
-        .unwrap();
+        let adaptive = rc.fresh(grid);
         let (u, a) = (rms(&uniform), rms(&adaptive));
         // The top face's patches (centres at z ≈ 0.82) are at least as
         // fine as every patch away from the cap (centre below z = 0.5,
