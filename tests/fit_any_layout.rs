@@ -86,3 +86,57 @@ fn peer_layouts_fit_and_say_what_was_repaired() {
     let l = qf["accuracy"]["limit"]["rms_permille"].as_f64().unwrap();
     assert!(l < 5.0, "QuadriFlow layout: RMS L {l}‰");
 }
+
+/// `SUBDFIT_DISP_REFINE=1` (issue 40, session 18): an all-quad layout
+/// (QuadriFlow's) carries its atlas on its refinement by one level, as a
+/// quad-dominant one always does: the written mesh has four quads per
+/// patch and the same irregular vertices (a Catmull-Clark step adds only
+/// valence-4 vertices to a closed quad mesh), the displacement spends the
+/// same budget, and the limit surface is the same: RMS L on the
+/// refinement agrees with the unrefined run's within 1 % (the fit is the
+/// same; only the metric's sample sites differ, 8+ per patch side either
+/// way) and with `subdfit metrics` on the written mesh to 1e-6.
+#[test]
+fn disp_refine_puts_an_all_quad_layouts_atlas_on_its_refinement() {
+    let tmp = tempfile::tempdir().unwrap();
+    let layout = root().join("tests/data/layouts/spot_quadriflow.obj");
+    let (plain, _) = fit(&layout, &tmp.path().join("plain"));
+    let out = tmp.path().join("refined");
+    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .env("SUBDFIT_DISP_REFINE", "1")
+        .arg("fit")
+        .arg(root().join("data/spot.ply"))
+        .arg(&layout)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert!(plain.get("control_written").is_none());
+    let written = &r["control_written"];
+    let faces = r["control"]["faces"].as_u64().unwrap();
+    assert_eq!(r["control"], plain["control"]);
+    assert_eq!(written["faces"].as_u64(), Some(4 * faces));
+    assert_eq!(written["quads"], written["faces"]);
+    assert_eq!(
+        written["irregular_vertices"],
+        r["control"]["irregular_vertices"]
+    );
+    let adaptive = |r: &serde_json::Value| r["projectability"]["displacement"]["adaptive"].clone();
+    assert_eq!(adaptive(&r)["budget"], adaptive(&plain)["budget"]);
+    assert!(adaptive(&r)["samples"].as_u64() <= adaptive(&r)["budget"].as_u64());
+    assert_eq!(
+        r["projectability"]["displacement"]["patches"].as_u64(),
+        Some(4 * faces)
+    );
+    let l = r["accuracy"]["limit"]["rms_permille"].as_f64().unwrap();
+    let l0 = plain["accuracy"]["limit"]["rms_permille"].as_f64().unwrap();
+    assert!((l - l0).abs() <= 0.01 * l0, "refined {l} vs plain {l0}");
+    let m = metrics_rms_l(&out.join("control.obj"));
+    assert!(
+        (m - l).abs() <= 1e-6 * l.max(1.0),
+        "metrics {m} vs report {l}"
+    );
+}

@@ -547,9 +547,10 @@ pub fn on_m(on: &OnM<'_>, layout: &TriMesh, control: &ControlMesh) -> Result<f64
 }
 
 /// The pipeline's displacement and metrics on `control` (refined once
-/// when not all quads, as the tail does).
+/// when not all quads or under `SUBDFIT_DISP_REFINE`, as the tail does:
+/// [`super::tail::displaced_on_refinement`]).
 fn evaluated(on: &OnM<'_>, control: &ControlMesh) -> Result<crate::report::Metrics> {
-    let quads = match control.is_all_quads() {
+    let quads = match !super::tail::displaced_on_refinement(control) {
         true => None,
         false => Some(crate::subdiv::refine::refine_once_keeping_infinite(
             control,

@@ -354,11 +354,33 @@ pub const BAR_TOLERANCE_IRREGULAR: f64 = 0.25;
 /// of the bars, a 3 % rise of RMS L weighs as much as a 25 % rise of the
 /// irregular count, as issue 40 counts them.
 pub fn bars_score(c: &Final, best: &Final) -> f64 {
+    bars_score_weighted(c, best, 1.0)
+}
+
+/// Environment variable for [`bars_d_weight`] (issue 40, session 18).
+pub const BARS_D_ENV: &str = "SUBDFIT_FIELD_BARS_D";
+
+/// The weight on RMS D's term in [`bars_score_weighted`] under
+/// [`BARS_D_ENV`] (a finite number ≥ 1; 1, the plain [`bars_score`],
+/// when unset or out of range). Session 18: at issue 40's counts the
+/// field's RMS L sits 0–40 % under the peers' bar and RMS D 1–12 % over
+/// it (spot 81 0.493 against 0.441‰), so a candidate's D matters more to
+/// the bars than its L; the plain score trades a 3 % rise of L for a 5 %
+/// fall of D.
+pub fn bars_d_weight() -> f64 {
+    crate::switches::parsed::<f64>(BARS_D_ENV)
+        .filter(|w| w.is_finite() && *w >= 1.0)
+        .unwrap_or(1.0)
+}
+
+/// [`bars_score`] with RMS D's term multiplied by `d_weight`
+/// ([`bars_d_weight`]); at 1 the same score bit for bit.
+pub fn bars_score_weighted(c: &Final, best: &Final, d_weight: f64) -> f64 {
     let excess = |x: f64, x0: f64| x / f64::max(x0, f64::MIN_POSITIVE) - 1.0;
     let over = f64::max(c.unprojectable_percent - UNPROJECTABLE_BAR, 0.0) / UNPROJECTABLE_BAR;
     let irr0 = f64::max(best.irregular_vertices as f64, 1.0);
     let s = excess(c.limit_permille, best.limit_permille) / BAR_TOLERANCE_L
-        + excess(c.displaced_permille, best.displaced_permille) / BAR_TOLERANCE_D
+        + d_weight * excess(c.displaced_permille, best.displaced_permille) / BAR_TOLERANCE_D
         + (c.irregular_vertices as f64 / irr0 - 1.0).max(0.0) / BAR_TOLERANCE_IRREGULAR
         + over;
     if s.is_nan() {
@@ -421,11 +443,14 @@ pub fn choose_final_with(
         irregular_vertices: low(|c| c.irregular_vertices as f64) as usize,
         ..*base
     };
+    let d_weight = bars_d_weight();
     let scores: Vec<Option<f64>> = (0..cands.len())
         .map(|i| {
             ranked[i].then(|| match rule {
                 Score::Base => final_score(&cands[i], base),
-                Score::Bars | Score::BarsUnguarded => bars_score(&cands[i], &best_figures),
+                Score::Bars | Score::BarsUnguarded => {
+                    bars_score_weighted(&cands[i], &best_figures, d_weight)
+                }
             })
         })
         .collect();
