@@ -326,3 +326,29 @@ fn main_as_candidate_zero_is_kept_over_a_drawn_result_the_bars_rank_lower() {
     let (kept, _) = draws::choose_final_with(&[main, main], Some(402), 0.02, draws::Score::Bars);
     assert_eq!(kept, 0);
 }
+
+/// `SUBDFIT_FIELD_BARS_D` (session 18): at weight 1 the weighted score is
+/// the bars score bit for bit; the weight scales D's term only, so it
+/// decides the order of a pair that trades L against D (here L +2.9 %,
+/// 0.96 bar units, against D +4.15 %, 0.83 units) and nothing else.
+#[test]
+fn bars_d_weight_reorders_only_the_l_against_d_trade() {
+    let best = fin(81, 20, 9.0, 0.40, 0.0);
+    for c in [fin(81, 22, 9.3, 0.43, 0.05), fin(81, 19, 10.0, 0.5, 0.2)] {
+        assert_eq!(
+            draws::bars_score(&c, &best).to_bits(),
+            draws::bars_score_weighted(&c, &best, 1.0).to_bits()
+        );
+    }
+    let low_l = fin(81, 20, 9.0, 0.4166, 0.0);
+    let low_d = fin(81, 20, 9.26, 0.40, 0.0);
+    let best = fin(81, 20, 9.0, 0.40, 0.0);
+    let s = |c: &draws::Final, w: f64| draws::bars_score_weighted(c, &best, w);
+    // L +2.9 % (0.96 bar units) against D +4.15 % (0.83 units): low D
+    // ranks second at 1×, first at 2× (1.66 units).
+    assert!(s(&low_l, 1.0) < s(&low_d, 1.0));
+    assert!(s(&low_d, 2.0) < s(&low_l, 2.0));
+    // The weight scales only D's term: a candidate at the best D scores
+    // the same whatever the weight.
+    assert_eq!(s(&low_d, 1.0).to_bits(), s(&low_d, 3.0).to_bits());
+}

@@ -91,8 +91,11 @@ fn peer_layouts_fit_and_say_what_was_repaired() {
 /// (QuadriFlow's) carries its atlas on its refinement by one level, as a
 /// quad-dominant one always does: the written mesh has four quads per
 /// patch and the same irregular vertices (a Catmull-Clark step adds only
-/// valence-4 vertices to a closed quad mesh), the displacement spends the
-/// same budget, and the limit surface is the same: RMS L on the
+/// valence-4 vertices to a closed quad mesh), the displacement is given
+/// the same budget (not always kept: at 269 patches on spot's 2930
+/// samples the refinement's smallest tiles, 3 × 3 on each of 1076
+/// patches, take 4306; session 18), and the limit surface is the same:
+/// RMS L on the
 /// refinement agrees with the unrefined run's within 1 % (the fit is the
 /// same; only the metric's sample sites differ, 8+ per patch side either
 /// way) and with `subdfit metrics` on the written mesh to 1e-6.
@@ -126,7 +129,6 @@ fn disp_refine_puts_an_all_quad_layouts_atlas_on_its_refinement() {
     );
     let adaptive = |r: &serde_json::Value| r["projectability"]["displacement"]["adaptive"].clone();
     assert_eq!(adaptive(&r)["budget"], adaptive(&plain)["budget"]);
-    assert!(adaptive(&r)["samples"].as_u64() <= adaptive(&r)["budget"].as_u64());
     assert_eq!(
         r["projectability"]["displacement"]["patches"].as_u64(),
         Some(4 * faces)
