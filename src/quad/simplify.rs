@@ -1254,7 +1254,12 @@ impl<'a> Simplifier<'a> {
     ) -> Result<Vec<CentreCheck>> {
         let FaceScratch { live, lines, hits } = scratch;
         live.clear();
-        live.extend(faces.iter().copied().filter(|&f| !self.k.is_face_deleted(f)));
+        live.extend(
+            faces
+                .iter()
+                .copied()
+                .filter(|&f| !self.k.is_face_deleted(f)),
+        );
         let faces = &live[..];
         let (k, max_dist) = (&self.k, self.max_dist);
         let line = |f: FaceId, l: LimitPoint| {
@@ -2597,17 +2602,16 @@ impl<'a> Simplifier<'a> {
             // buffers (this runs ~100k times on bunny); the same lines and
             // the same φ as the batch below, so the same targets.
             let mut misses = 0;
-            let out = r
-                .w
-                .iter()
-                .enumerate()
-                .map(|(i, &v)| {
-                    let (l, n, reach) = line(i, v);
-                    let h = phi_line(&self.bvh, l, n, reach);
-                    misses += h.is_none() as usize;
-                    target(h, l)
-                })
-                .collect();
+            let out =
+                r.w.iter()
+                    .enumerate()
+                    .map(|(i, &v)| {
+                        let (l, n, reach) = line(i, v);
+                        let h = phi_line(&self.bvh, l, n, reach);
+                        misses += h.is_none() as usize;
+                        target(h, l)
+                    })
+                    .collect();
             count.add(r.w.len(), misses);
             return out;
         }
@@ -2747,9 +2751,15 @@ mod tests {
     fn reused_buffers_give_a_fresh_simplifiers_answers() {
         let (m, k) = holed_sphere_case();
         let fitmap = synthetic_fitmap(&m);
-        let caster = crate::raycast::make_raycaster(crate::raycast::RayBackend::Embree, &m).unwrap();
+        let caster =
+            crate::raycast::make_raycaster(crate::raycast::RayBackend::Embree, &m).unwrap();
         let opts = SimplifyOptions::default();
-        let fresh = || Simplifier::new(&m, &fitmap, caster.as_ref(), &opts, k.clone(), &mut || Ok(())).unwrap();
+        let fresh = || {
+            Simplifier::new(&m, &fitmap, caster.as_ref(), &opts, k.clone(), &mut || {
+                Ok(())
+            })
+            .unwrap()
+        };
         let mut reused = fresh();
         let all: Vec<FaceId> = reused.k.live_faces().collect();
         let n = all.len();
@@ -2789,7 +2799,9 @@ mod tests {
             let a = s.fit_targets_split(&r, &mut c1, usize::MAX);
             let b = s.fit_targets_split(&r, &mut c2, 0);
             let bits = |x: &[DVec3]| -> Vec<[u64; 3]> {
-                x.iter().map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()]).collect()
+                x.iter()
+                    .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+                    .collect()
             };
             assert_eq!(bits(&a), bits(&b));
             assert_eq!((c1.lines, c1.misses), (c2.lines, c2.misses));
