@@ -698,6 +698,8 @@ pub(crate) struct Simplifier<'a> {
     claimed: Vec<u32>,
     batch_now: u32,
     ring_scratch: Vec<VertexId>,
+    /// Buffers of [`Simplifier::update_faces_split`], kept between calls.
+    face_scratch: FaceScratch,
     /// Old positions and limit points written by the current step, for its
     /// undo.
     pub(crate) pos_log: Vec<(VertexId, DVec3)>,
@@ -720,6 +722,17 @@ pub(crate) struct Simplifier<'a> {
     /// One side of the split loop ([`SimplifyOptions::split`]): which
     /// faces may enter the heap and which edits a step may make.
     region: Option<split::Region>,
+}
+
+/// Buffers of [`Simplifier::update_faces_split`], kept between its calls
+/// (a few per collapse, ~100k on bunny): the live faces asked for, their
+/// centres' φ lines and φ's answers. Only their allocations carry over;
+/// every call clears them first.
+#[derive(Default)]
+struct FaceScratch {
+    live: Vec<FaceId>,
+    lines: Vec<(DVec3, DVec3, f64)>,
+    hits: Vec<Option<Projected>>,
 }
 
 /// The result of φ at one patch centre, for the guard.
@@ -1074,14 +1087,17 @@ fn phi_line(bvh: &BvhCaster, o: DVec3, n: DVec3, max_t: f64) -> Option<Projected
 }
 
 /// φ of a batch of `(origin, unit direction, search distance)` lines, in
-/// order. From `par_min` lines on (the sweeps over every face) they
+/// order, into `out` (its previous contents dropped, its allocation kept:
+/// the loop asks for a few dozen lines per step, ~100k times on bunny).
+/// From `par_min` lines on (the sweeps over every face) they
 /// are split over the rayon pool; the map keeps input order, so the result
 /// does not depend on the threads.
-fn phi_batch(
+fn phi_batch_into(
     bvh: &BvhCaster,
     lines: &[(DVec3, DVec3, f64)],
     par_min: usize,
-) -> Vec<Option<Projected>> {
+    out: &mut Vec<Option<Projected>>,
+) {
     let one = |&(o, n, t): &(DVec3, DVec3, f64)| phi_line(bvh, o, n, t);
     if lines.len() >= par_min {
         use rayon::prelude::*;
@@ -1089,13 +1105,14 @@ fn phi_batch(
             .par_iter()
             .with_min_len((par_min / 2).max(1))
             .map(one)
-            .collect()
+            .collect_into_vec(out);
     } else {
-        lines.iter().map(one).collect()
+        out.clear();
+        out.extend(lines.iter().map(one));
     }
 }
 
-/// Lines from which [`phi_batch`] forks. A collapse's refit and face
+/// Lines from which [`phi_batch_into`] forks. A collapse's refit and face
 /// updates ask for a few dozen lines at a time, and those stay on the
 /// loop's thread: forking them from 16 lines on was measured slower than
 /// sequential (docs/status.md, "Measurements behind the code"). Each fork/join wakes a
@@ -1168,6 +1185,7 @@ impl<'a> Simplifier<'a> {
             claimed: Vec::new(),
             batch_now: 0,
             ring_scratch: Vec::new(),
+            face_scratch: Default::default(),
             pos_log: Vec::new(),
             lim_log: Vec::new(),
             blocked: Default::default(),
@@ -1219,11 +1237,30 @@ impl<'a> Simplifier<'a> {
             self.fs.resize(nf, 0.0);
             self.fm.resize(nf, 0.0);
         }
-        let faces: Vec<FaceId> = faces
-            .iter()
-            .copied()
-            .filter(|&f| !self.k.is_face_deleted(f))
-            .collect();
+        // The buffers are taken out of `self` for the call (the loop below
+        // writes `self` while reading them) and put back at the end.
+        let mut scratch = std::mem::take(&mut self.face_scratch);
+        let out = self.update_faces_with(faces, par_min, &mut scratch);
+        self.face_scratch = scratch;
+        out
+    }
+
+    /// [`Simplifier::update_faces_split`]'s body, in `scratch`'s buffers.
+    fn update_faces_with(
+        &mut self,
+        faces: &[FaceId],
+        par_min: usize,
+        scratch: &mut FaceScratch,
+    ) -> Result<Vec<CentreCheck>> {
+        let FaceScratch { live, lines, hits } = scratch;
+        live.clear();
+        live.extend(
+            faces
+                .iter()
+                .copied()
+                .filter(|&f| !self.k.is_face_deleted(f)),
+        );
+        let faces = &live[..];
         let (k, max_dist) = (&self.k, self.max_dist);
         let line = |f: FaceId, l: LimitPoint| {
             let q = super::ops::quad_positions(k, f);
@@ -1231,36 +1268,31 @@ impl<'a> Simplifier<'a> {
             (l.position, l.normal(), local_reach(scale, max_dist))
         };
         // Map order is input order: the same result whatever the threads.
-        let lines: Vec<(DVec3, DVec3, f64)> = if faces.len() >= par_min {
+        if faces.len() >= par_min {
             use rayon::prelude::*;
             faces
                 .par_iter()
                 .with_min_len((par_min / 2).max(1))
                 .map(|&f| line(f, face_centre_limit(k, f)))
-                .collect()
+                .collect_into_vec(lines);
         } else {
             // A step's faces are neighbours: their face and vertex points
             // are shared, taken once each (the same values, so the same
             // bits as `face_centre_limit`).
             let memo = &mut self.memo;
             memo.begin(k);
-            faces
-                .iter()
-                .map(|&f| line(f, memo.centre_limit(k, f)))
-                .collect()
-        };
-        let proj: Vec<(DVec3, Option<Projected>, DVec3)> = phi_batch(&self.bvh, &lines, par_min)
-            .into_iter()
-            .zip(&lines)
-            .map(|(p, &(c, n, _))| (c, p, n))
-            .collect();
-        self.projections += proj.len();
+            lines.clear();
+            lines.extend(faces.iter().map(|&f| line(f, memo.centre_limit(k, f))));
+        }
+        phi_batch_into(&self.bvh, lines, par_min, hits);
+        self.projections += hits.len();
         // A centre with no hit along its normal still needs Fitmap values:
         // take them at the closest point of M (the miss is counted).
-        let miss: Vec<DVec3> = proj
+        let miss: Vec<DVec3> = hits
             .iter()
-            .filter(|(_, p, _)| p.is_none())
-            .map(|(c, _, _)| *c)
+            .zip(lines.iter())
+            .filter(|(p, _)| p.is_none())
+            .map(|(_, l)| l.0)
             .collect();
         self.unprojectable += miss.len();
         let mut closest = if miss.is_empty() {
@@ -1269,10 +1301,10 @@ impl<'a> Simplifier<'a> {
             self.caster.closest_points(&miss, f64::INFINITY)?
         }
         .into_iter();
-        self.prefetch_hits(&proj);
+        self.prefetch_hits(hits);
         let mut checks = Vec::with_capacity(faces.len());
         for (i, &f) in faces.iter().enumerate() {
-            let (ctr, hit, nrm) = proj[i];
+            let (hit, (ctr, nrm, _)) = (hits[i], lines[i]);
             let (tri, u, v) = match hit {
                 Some(p) => {
                     let t = self.m.triangles[p.triangle as usize];
@@ -1340,12 +1372,12 @@ impl<'a> Simplifier<'a> {
     /// another they were the loop's two hottest loads (session 17's
     /// profile of bunny); asked for all at once, their misses overlap. A
     /// hint only: the values read, and so the result, are unchanged.
-    fn prefetch_hits(&self, proj: &[(DVec3, Option<Projected>, DVec3)]) {
+    fn prefetch_hits(&self, hits: &[Option<Projected>]) {
         let tris = &self.m.triangles;
-        for p in proj.iter().filter_map(|x| x.1.as_ref()) {
+        for p in hits.iter().flatten() {
             prefetch(tris.as_ptr().wrapping_add(p.triangle as usize));
         }
-        for p in proj.iter().filter_map(|x| x.1.as_ref()) {
+        for p in hits.iter().flatten() {
             for c in tris[p.triangle as usize] {
                 let c = c as usize;
                 prefetch(self.m_normals.as_ptr().wrapping_add(c));
@@ -2541,26 +2573,56 @@ impl<'a> Simplifier<'a> {
     /// The φ targets of W's limit points along W's normals (the limit point
     /// itself where φ misses; read-only).
     fn fit_targets(&self, r: &RefitRegion, count: &mut PhiCount) -> Vec<DVec3> {
+        self.fit_targets_split(r, count, PHI_PAR_MIN)
+    }
+
+    /// [`Simplifier::fit_targets`], each line's φ taken as it is made below
+    /// `par_min` lines, as one batch from there on.
+    fn fit_targets_split(
+        &self,
+        r: &RefitRegion,
+        count: &mut PhiCount,
+        par_min: usize,
+    ) -> Vec<DVec3> {
         let k = &self.k;
+        let line = |i: usize, v: VertexId| {
+            let m = r.mask(i);
+            let p = k.position(v);
+            let scale = k
+                .outgoing(v)
+                .map(|h| (k.position(k.head(h)) - p).length())
+                .fold(0.0, f64::max);
+            let reach = local_reach(scale, self.max_dist);
+            (limit_of(k, m), vertex_normal(k, v), reach)
+        };
+        let target = |h: Option<Projected>, l: DVec3| h.map_or(l, |p| p.point);
+        if r.w.len() < par_min {
+            // A step's W (a few dozen vertices): each line's φ as it is
+            // made, in W's order, without the lines' and the answers' own
+            // buffers (this runs ~100k times on bunny); the same lines and
+            // the same φ as the batch below, so the same targets.
+            let mut misses = 0;
+            let out =
+                r.w.iter()
+                    .enumerate()
+                    .map(|(i, &v)| {
+                        let (l, n, reach) = line(i, v);
+                        let h = phi_line(&self.bvh, l, n, reach);
+                        misses += h.is_none() as usize;
+                        target(h, l)
+                    })
+                    .collect();
+            count.add(r.w.len(), misses);
+            return out;
+        }
         let lines: Vec<(DVec3, DVec3, f64)> =
-            r.w.iter()
-                .enumerate()
-                .map(|(i, &v)| {
-                    let m = r.mask(i);
-                    let p = k.position(v);
-                    let scale = k
-                        .outgoing(v)
-                        .map(|h| (k.position(k.head(h)) - p).length())
-                        .fold(0.0, f64::max);
-                    let reach = local_reach(scale, self.max_dist);
-                    (limit_of(k, m), vertex_normal(k, v), reach)
-                })
-                .collect();
-        let hits = phi_batch(&self.bvh, &lines, PHI_PAR_MIN);
+            r.w.iter().enumerate().map(|(i, &v)| line(i, v)).collect();
+        let mut hits = Vec::new();
+        phi_batch_into(&self.bvh, &lines, par_min, &mut hits);
         count.add(hits.len(), hits.iter().filter(|h| h.is_none()).count());
         hits.iter()
             .zip(&lines)
-            .map(|(h, &(l, _, _))| h.map_or(l, |p| p.point))
+            .map(|(&h, &(l, _, _))| target(h, l))
             .collect()
     }
 
@@ -2631,6 +2693,122 @@ mod tests {
             }
             assert!(collapsed >= 2, "{collapsed}");
         }
+    }
+
+    /// M: the unit sphere, triangulated from `polar_sphere` refined twice,
+    /// with a cap of triangles removed (a hole, so that some normal lines
+    /// of K miss and take the closest-point path); K: `polar_sphere`
+    /// blown up by 5 %, so φ travels a real distance to M.
+    fn holed_sphere_case() -> (TriMesh, ControlMesh) {
+        let fine = crate::subdiv::refine::refine_uniform(&fixtures::polar_sphere(6, 3), 2).unwrap();
+        let positions: Vec<DVec3> = fine.positions().iter().map(|p| p.normalize()).collect();
+        let mut triangles = Vec::new();
+        for f in fine.live_faces() {
+            let v: Vec<u32> = fine.face_vertices(f).map(|v| v.0).collect();
+            let c = (positions[v[0] as usize] + positions[v[2] as usize]) * 0.5;
+            if c.z > 0.8 {
+                continue; // the hole around the pole
+            }
+            triangles.push([v[0], v[1], v[2]]);
+            triangles.push([v[0], v[2], v[3]]);
+        }
+        let m = TriMesh {
+            positions,
+            triangles,
+        };
+        let mut k = fixtures::polar_sphere(10, 5);
+        for p in k.positions_mut() {
+            *p *= 1.05;
+        }
+        (m, k)
+    }
+
+    fn synthetic_fitmap(m: &TriMesh) -> Fitmap {
+        let n = m.positions.len();
+        Fitmap {
+            radii: vec![0.5],
+            s: m.positions.iter().map(|p| 1.0 + p.x * p.x).collect(),
+            m: m.positions.iter().map(|p| 0.4 + 0.1 * p.y).collect(),
+            m_step: vec![0; n],
+            tolerance: 0.05,
+            stats: Default::default(),
+        }
+    }
+
+    fn check_bits(c: &[CentreCheck]) -> Vec<(u32, u64, u64)> {
+        c.iter()
+            .map(|c| (c.face.0, c.residual.to_bits(), c.cos.to_bits()))
+            .collect()
+    }
+
+    /// `update_faces_split` keeps its buffers between calls: whatever the
+    /// previous calls left in them (longer or shorter face lists, split over
+    /// the pool or not, dead faces filtered out), a call gives the centre
+    /// checks, F_S, F_M and heap entries of a fresh simplifier's first
+    /// call, bit for bit; and `fit_targets` gives the same targets and
+    /// counts whether its lines are taken one by one or as a batch.
+    #[test]
+    fn reused_buffers_give_a_fresh_simplifiers_answers() {
+        let (m, k) = holed_sphere_case();
+        let fitmap = synthetic_fitmap(&m);
+        let caster =
+            crate::raycast::make_raycaster(crate::raycast::RayBackend::Embree, &m).unwrap();
+        let opts = SimplifyOptions::default();
+        let fresh = || {
+            Simplifier::new(&m, &fitmap, caster.as_ref(), &opts, k.clone(), &mut || {
+                Ok(())
+            })
+            .unwrap()
+        };
+        let mut reused = fresh();
+        let all: Vec<FaceId> = reused.k.live_faces().collect();
+        let n = all.len();
+        assert!(n >= 40, "{n} faces");
+        // Long, short, long again, reversed; split over the pool (par_min
+        // 1, 8) or not (usize::MAX).
+        let lists: Vec<(Vec<FaceId>, usize)> = vec![
+            (all.clone(), 1),
+            (all[..5].to_vec(), usize::MAX),
+            (all.iter().rev().copied().collect(), usize::MAX),
+            (all[n / 2..].to_vec(), 8),
+            (all[3..9].to_vec(), usize::MAX),
+        ];
+        let mut misses = 0;
+        for (i, (faces, par_min)) in lists.iter().enumerate() {
+            let got = reused.update_faces_split(faces, *par_min).unwrap();
+            let mut one = fresh();
+            let want = one.update_faces_split(faces, usize::MAX).unwrap();
+            assert_eq!(check_bits(&got), check_bits(&want), "list {i}");
+            assert_eq!(got.len(), faces.len(), "list {i}");
+            for f in faces {
+                let fi = f.idx();
+                assert_eq!(reused.fs[fi].to_bits(), one.fs[fi].to_bits(), "list {i}");
+                assert_eq!(reused.fm[fi].to_bits(), one.fm[fi].to_bits(), "list {i}");
+            }
+            misses += want.iter().filter(|c| c.cos == 1.0).count();
+        }
+        // The hole made some lines miss (closest-point path exercised).
+        assert!(misses > 0, "no centre line missed M");
+        // fit_targets: one by one (par_min above |W|) and batched (0).
+        let s = fresh();
+        let vs: Vec<VertexId> = s.k.live_vertices().collect();
+        let mut regions = 0;
+        for chunk in vs.chunks(4) {
+            let r = s.refit_region(chunk).unwrap();
+            let (mut c1, mut c2) = (PhiCount::default(), PhiCount::default());
+            let a = s.fit_targets_split(&r, &mut c1, usize::MAX);
+            let b = s.fit_targets_split(&r, &mut c2, 0);
+            let bits = |x: &[DVec3]| -> Vec<[u64; 3]> {
+                x.iter()
+                    .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+                    .collect()
+            };
+            assert_eq!(bits(&a), bits(&b));
+            assert_eq!((c1.lines, c1.misses), (c2.lines, c2.misses));
+            assert_eq!(a.len(), r.w.len());
+            regions += 1;
+        }
+        assert!(regions > 5);
     }
 
     #[test]

@@ -378,6 +378,7 @@ impl<'a> Simplifier<'a> {
             claimed: Vec::new(),
             batch_now: 0,
             ring_scratch: Vec::new(),
+            face_scratch: Default::default(),
             pos_log: Vec::new(),
             lim_log: Vec::new(),
             blocked: Default::default(),
