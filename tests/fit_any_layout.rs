@@ -102,7 +102,40 @@ fn peer_layouts_fit_and_say_what_was_repaired() {
 #[test]
 fn disp_refine_puts_an_all_quad_layouts_atlas_on_its_refinement() {
     let tmp = tempfile::tempdir().unwrap();
-    let layout = root().join("tests/data/layouts/spot_quadriflow.obj");
+    // A cage of ~80 patches: spot's budget (its 2930 vertices) is ~36
+    // samples a patch, above the switch's gate of 32
+    // (`DISP_REFINE_MIN_SAMPLES`).
+    let coarse = tmp.path().join("coarse");
+    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .args(["convert", "--faces", "80", "--max-error", "inf", "--quiet"])
+        .arg(root().join("data/spot.ply"))
+        .arg("-o")
+        .arg(&coarse)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let layout = coarse.join("control.obj");
+    // Below the gate (QuadriFlow's 269 patches: 11 samples a patch, where
+    // the refinement's smallest tiles alone overspend the budget) the
+    // switch leaves the cage's own patches.
+    let gated = tmp.path().join("gated");
+    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .env("SUBDFIT_DISP_REFINE", "1")
+        .arg("fit")
+        .arg(root().join("data/spot.ply"))
+        .arg(root().join("tests/data/layouts/spot_quadriflow.obj"))
+        .arg("-o")
+        .arg(&gated)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let g: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(gated.join("report.json")).unwrap()).unwrap();
+    assert!(g.get("control_written").is_none());
+    assert_eq!(
+        g["projectability"]["displacement"]["patches"],
+        g["control"]["faces"]
+    );
     let (plain, _) = fit(&layout, &tmp.path().join("plain"));
     let out = tmp.path().join("refined");
     let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))

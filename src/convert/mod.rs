@@ -170,7 +170,7 @@ pub fn measure(
     frame.points_to_unit(control.positions_mut());
     // Triangles and n-gons are measured on the refinement by one level:
     // the same limit surface, all quads (the displacement's patches).
-    if tail::displaced_on_refinement(&control) {
+    if tail::displaced_on_refinement(&control, &mesh, opts) {
         control = crate::subdiv::refine::refine_once_keeping_infinite(&control)?;
     }
     let caster = make_raycaster(RayBackend::Embree, &mesh)?;

@@ -56,14 +56,15 @@ pub(super) fn fit_fewest_within(
         // never runs the displacement, D's accuracy and the tessellations;
         // the kept one's measurement reuses it. (A candidate that is not all
         // quads, measured on its refinement, takes the whole measurement.)
-        let check =
-            if !super::tail::displaced_on_refinement(&fitted.control) && !full_measure_each() {
-                Some(timer.run(LIMIT_CHECK_STAGE, || {
-                    crate::report::limit_check(mesh, &fitted.control, caster, &po.metrics, progress)
-                })?)
-            } else {
-                None
-            };
+        let check = if !super::tail::displaced_on_refinement(&fitted.control, mesh, &po.metrics)
+            && !full_measure_each()
+        {
+            Some(timer.run(LIMIT_CHECK_STAGE, || {
+                crate::report::limit_check(mesh, &fitted.control, caster, &po.metrics, progress)
+            })?)
+        } else {
+            None
+        };
         if let Some(rms) = check.as_ref().map(|c| c.accuracy().rms_permille) {
             if rms > e && !last {
                 bound = next_bound(bound, e, rms, fit_rms);

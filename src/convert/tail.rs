@@ -64,13 +64,33 @@ pub const DISP_REFINE_ENV: &str = "SUBDFIT_DISP_REFINE";
 /// 3 / 5 / 9 / 17 on 8 / 42 / 29 / 2 patches) gives RMS D 0.493‰ on its
 /// own patches and 0.432‰ on its refinement (session 18), against the
 /// 0.441‰ bar. It helps only where the budget is large against the
-/// patches: every refined patch takes at least a 3 × 3 tile, so at 11
-/// samples per patch (QuadriFlow's 269 patches on spot) the refinement
-/// spent 4306 samples of 2930 and RMS D rose 0.292 → 0.353‰; gargoyle at
-/// τ 1 % (18 per patch) moved 0.2225 → 0.2215‰ (session 16).
-pub fn displaced_on_refinement(control: &ControlMesh) -> bool {
-    !control.is_all_quads() || crate::switches::on(DISP_REFINE_ENV)
+/// patches ([`DISP_REFINE_MIN_SAMPLES`]), so the switch refines only there.
+pub fn displaced_on_refinement(
+    control: &ControlMesh,
+    mesh: &crate::mesh::TriMesh,
+    metrics: &MetricsOptions,
+) -> bool {
+    if !control.is_all_quads() {
+        return true;
+    }
+    // The adaptive allocation's budget, as `report::metrics` sets it.
+    let budget = (metrics.displacement_res.is_none()
+        && metrics.displacement_allocation == crate::displace::SampleAllocation::Adaptive)
+        .then(|| metrics.displacement_samples.unwrap_or(mesh.positions.len()));
+    crate::switches::on(DISP_REFINE_ENV)
+        && budget.is_some_and(|b| b >= DISP_REFINE_MIN_SAMPLES * control.num_faces())
 }
+
+/// The displacement budget per patch from which [`DISP_REFINE_ENV`]
+/// refines: 8 per refined patch, twice the 4 a refined patch's smallest
+/// tile (3 × 3, its edges shared) holds, so that the allocation can still
+/// raise about half of them a level. Session 18: at 34–62 samples per
+/// patch the refinement lowered RMS D 9–12 % (spot at 81 and 85, gargoyle
+/// τ 10 % at 402); at 18 (gargoyle τ 1 % at 1391) nearly every refined
+/// patch got the smallest tile and D rose 0.222 → 0.226‰; at 11
+/// (QuadriFlow's 269 patches on spot) the smallest tiles alone took 4306
+/// samples of 2930 and D rose 0.292 → 0.353‰.
+pub const DISP_REFINE_MIN_SAMPLES: usize = 32;
 
 /// Everything a conversion produces, before anything is written: what
 /// [`write_converted`] puts on disk and what the C++ API hands to a host.
@@ -205,7 +225,7 @@ pub(super) fn measure_fitted_after(
     // A layout with triangles or n-gons (another tool's, or mechanical
     // mode's) carries its displacement atlas on its refinement by one
     // level: all quads, the same limit surface.
-    let quads = if !displaced_on_refinement(&fitted.control) {
+    let quads = if !displaced_on_refinement(&fitted.control, mesh, &opts.metrics) {
         None
     } else {
         Some(timer.run("refine", || {
@@ -328,7 +348,7 @@ pub(super) fn measure_as_fitted(
 ) -> Result<Converted> {
     let mut timer = run.take_timer();
     let (input, caster) = (run.input, run.caster.as_ref());
-    let refined = displaced_on_refinement(&control);
+    let refined = displaced_on_refinement(&control, &input.mesh, metrics);
     let quads = timer.run("refine", || {
         if !refined {
             return Ok(control.clone());

@@ -550,7 +550,7 @@ pub fn on_m(on: &OnM<'_>, layout: &TriMesh, control: &ControlMesh) -> Result<f64
 /// when not all quads or under `SUBDFIT_DISP_REFINE`, as the tail does:
 /// [`super::tail::displaced_on_refinement`]).
 fn evaluated(on: &OnM<'_>, control: &ControlMesh) -> Result<crate::report::Metrics> {
-    let quads = match !super::tail::displaced_on_refinement(control) {
+    let quads = match !super::tail::displaced_on_refinement(control, on.mesh, on.metrics) {
         true => None,
         false => Some(crate::subdiv::refine::refine_once_keeping_infinite(
             control,
