@@ -467,15 +467,7 @@ pub fn refine_offsets_keeping_d(
     // M does not move: its edges' Z-order is the same every round (a check
     // round's stride only leaves some out, as `Edges::visit_order` does).
     let m_order = m_edges.visit_order(&mesh.positions, 1);
-    // Above `opts.m_samples` fitting points, M's side is a stratified draw
-    // of them ([`Edges::drawn`]), already in Z-order.
-    let (m_edges, m_order) = match m_edges.drawn(&m_order, opts.m_samples) {
-        Some(d) => {
-            let order = (0..d.len() as u32).collect();
-            (d, order)
-        }
-        None => (m_edges, m_order),
-    };
+    let (m_edges, m_order) = m_points(m_edges, m_order, opts.m_samples);
     crate::watch::memtrace("lsq: M edges");
     let mut current = disp.offsets.clone();
     let mut current_obj = f64::INFINITY;
@@ -603,6 +595,18 @@ pub fn refine_offsets_keeping_d(
     Ok((stats, kept_d.filter(|_| same)))
 }
 
+/// M's fitting points and their visit order: above `m_samples` of them,
+/// a stratified draw ([`Edges::drawn`]), already in Z-order.
+fn m_points(edges: Edges, order: Vec<u32>, m_samples: Option<usize>) -> (Edges, Vec<u32>) {
+    match edges.drawn(&order, m_samples) {
+        Some(d) => {
+            let order = (0..d.len() as u32).collect();
+            (d, order)
+        }
+        None => (edges, order),
+    }
+}
+
 /// The offsets `current + scale · delta`, dependents following their
 /// coarse neighbours.
 fn set_step(disp: &mut Displacement, current: &[f64], delta: &[f64], scale: f64) {
@@ -700,22 +704,12 @@ fn round_rows(
                 .collect(),
         ),
     };
-    let projected = match host {
-        None => &disp.projected[..],
-        Some(h) => &h.projected[..],
-    };
-    // Every edge of D: the unknowns' coupling (`empty_equations`) is D's
-    // triangles', whichever edges are measured.
+    let projected = host.map_or(&disp.projected[..], |h| &h.projected[..]);
+    // Every edge of D (`d_all`): the unknowns' coupling is D's triangles'
+    // (`empty_equations`), whichever edges are measured.
     let d_all = d_edges;
-    let drawn = d_draw(at, &d_all, &dmesh, projected);
+    let (drawn, d_order) = d_points(at, &d_all, &dmesh, projected, stride);
     let d_edges: &Edges = drawn.as_ref().unwrap_or(&d_all);
-    let d_order: Vec<u32> = match &drawn {
-        // Already in Z-order.
-        Some(e) => (0..e.len() as u32)
-            .filter(|&k| k as usize % stride == 0)
-            .collect(),
-        None => d_all.visit_order(&dmesh.positions, stride),
-    };
     let verdict = Verdict::new(reject_at, || {
         let m = order.iter().map(|&k| m_edges.weight[k as usize]);
         let d = d_order
@@ -813,6 +807,27 @@ fn round_rows(
         caster: d_caster,
     });
     Ok((score.into_inner(), ne.filter(|_| complete), complete, built))
+}
+
+/// D's fitting points ([`d_draw`]; `None`: all of `d_all`) and their
+/// visit order, every `stride`-th.
+fn d_points(
+    at: &RoundAt<'_>,
+    d_all: &Edges,
+    dmesh: &TriMesh,
+    projected: &[bool],
+    stride: usize,
+) -> (Option<Edges>, Vec<u32>) {
+    match d_draw(at, d_all, dmesh, projected) {
+        // Already in Z-order.
+        Some(e) => {
+            let order = (0..e.len() as u32)
+                .filter(|&k| k as usize % stride == 0)
+                .collect();
+            (Some(e), order)
+        }
+        None => (None, d_all.visit_order(&dmesh.positions, stride)),
+    }
 }
 
 /// D's fitting points as drawn ([`Draw`], above `m_samples` of them):
@@ -1752,7 +1767,11 @@ mod tests {
         assert!(e.len() > 10 * n, "{} edges", e.len());
         let drawn = e.drawn(&order, Some(n)).unwrap();
         assert!(drawn.len() <= n && drawn.len() > n / 2);
-        let est: f64 = sq(&drawn).iter().zip(&drawn.weight).map(|(y, w)| y * w).sum();
+        let est: f64 = sq(&drawn)
+            .iter()
+            .zip(&drawn.weight)
+            .map(|(y, w)| y * w)
+            .sum();
         // The weights still sum to M's area.
         let dw: f64 = drawn.weight.iter().sum();
         assert!((dw - total_w).abs() < 1e-9 * total_w, "{dw} vs {total_w}");
@@ -1798,7 +1817,10 @@ mod tests {
         let before = rms_both(&mesh, &disp0, diag);
         let all = fit(None);
         let (a1, a2) = rms_both(&mesh, &all, diag);
-        assert!(a1 < 0.8 * before.0 && a2 < 0.8 * before.1, "{before:?} → {a1} {a2}");
+        assert!(
+            a1 < 0.8 * before.0 && a2 < 0.8 * before.1,
+            "{before:?} → {a1} {a2}"
+        );
         let drawn = fit(Some(3_000));
         let (d1, d2) = rms_both(&mesh, &drawn, diag);
         assert!((d1 - a1).abs() <= 0.02 * a1, "D → M {d1} vs {a1}");
