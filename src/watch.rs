@@ -226,10 +226,28 @@ pub fn memtrace(label: &str) {
             .map_or(f64::NAN, |kb| kb / 1024.0)
     };
     eprintln!(
-        "memtrace {label}: rss {:.0} MiB, peak {:.0} MiB",
+        "memtrace {label}: rss {:.0} MiB, peak {:.0} MiB, process cpu {:.2} s",
         field("VmRSS:"),
-        field("VmHWM:")
+        field("VmHWM:"),
+        process_cpu_seconds()
     );
+}
+
+/// CPU seconds spent by the whole process so far (every thread; 0 if the
+/// clock cannot be read): `SUBDFIT_MEMTRACE`'s per-step CPU, the figure
+/// that stays comparable on a loaded machine.
+pub fn process_cpu_seconds() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec for the call's duration.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
+    if rc == 0 {
+        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
+    } else {
+        0.0
+    }
 }
 
 /// CPU seconds spent by the calling thread so far (0 if the clock cannot be

@@ -78,6 +78,10 @@ pub struct LsqOffsetOptions {
     pub rounds: usize,
     /// Ridge weight λ relative to the mean data weight per sample.
     pub ridge: f64,
+    /// M's fitting points (its edge midpoints) at most: above it, M's side
+    /// of the objective is estimated on a stratified draw of that many
+    /// ([`Edges::drawn`]); `None`: every edge midpoint.
+    pub m_samples: Option<usize>,
 }
 
 impl Default for LsqOffsetOptions {
@@ -90,6 +94,7 @@ impl Default for LsqOffsetOptions {
         LsqOffsetOptions {
             rounds: 1,
             ridge: 1e-3,
+            m_samples: None,
         }
     }
 }
@@ -223,6 +228,13 @@ impl Edges {
         0.5 * (positions[a as usize] + positions[b as usize])
     }
 
+    /// A draw of about `m` of the edges ([`Draw::new`] over `order`, none
+    /// kept whole), as an `Edges` of its own in draw order; `None` when
+    /// every edge is used.
+    fn drawn(&self, order: &[u32], m: Option<usize>) -> Option<Edges> {
+        Draw::new(&self.weight, order, m, |_| false).map(|d| d.select(self))
+    }
+
     /// The edges' indices in the Z-order of their midpoints (every one when
     /// `stride` is 1, else those whose index is a multiple of it): the
     /// order the queries are answered and the rows summed in
@@ -270,6 +282,119 @@ fn closest_in_order(
         }
     }
     Ok(true)
+}
+
+/// A stratified draw of fitting points (probability proportional to
+/// weight, one draw per stratum; the design of the report's bounded
+/// metrics, Cochran, *Sampling Techniques*, 3rd ed., §5A.11, §9A.3), with a
+/// take-all stratum (§5.5's "certainty" units): the points `keep` selects
+/// are all used at their own weights, and the others' weights, laid end to
+/// end in `order` (the midpoints' Z-order), are cut into `m` equal strata
+/// of weight `W / m`, one point drawn in each at a hashed offset (fixed
+/// seed: the same points at any thread count). A drawn point of weight
+/// `w₀` is included with probability `π = m w₀ / W`; weighing it by
+/// `w / π` (Horvitz–Thompson; `w` its weight in the round, `w₀` at the
+/// draw) makes every sum `Σ w f` over the draw — the objective, the
+/// normal equations — an unbiased estimate of the sum over all points.
+/// Z-order makes each stratum a small piece of the surface, so the draw
+/// covers all of it evenly. A point heavier than a stratum is drawn in
+/// each stratum it covers, kept once with the count in its factor.
+struct Draw {
+    /// Indices of the points used, in `order`'s order.
+    index: Vec<u32>,
+    /// Per point used, `1 / π` (1 for the take-all stratum).
+    factor: Vec<f64>,
+    /// D's draws: the ends of the edges used, to tell whether a later
+    /// round's D has the same edges ([`d_draw`]).
+    ends: Vec<[u32; 2]>,
+}
+
+impl Draw {
+    /// The draw over `weight` in `order`; `None` when no more than `m`
+    /// points are to be drawn from (or `m` is `None` or 0): every point is
+    /// used.
+    fn new(
+        weight: &[f64],
+        order: &[u32],
+        m: Option<usize>,
+        keep: impl Fn(u32) -> bool,
+    ) -> Option<Draw> {
+        let m = m.filter(|&m| m > 0)?;
+        let total: f64 = order
+            .iter()
+            .filter(|&&k| !keep(k))
+            .map(|&k| weight[k as usize])
+            .sum();
+        let others = order.iter().filter(|&&k| !keep(k)).count();
+        if others <= m || !(total > 0.0) {
+            return None;
+        }
+        let share = total / m as f64;
+        let (mut index, mut factor) = (Vec::new(), Vec::new());
+        // The next stratum to draw, its point's position u on the line of
+        // the drawn points' weights, and the weight below the current one.
+        let mut h = 0usize;
+        let mut below = 0.0;
+        let next_u = |h: usize| (h as f64 + draw_unit(h as u64)) * share;
+        let mut u = next_u(0);
+        let last = order.iter().rposition(|&k| !keep(k)).unwrap_or(0);
+        for (pos, &k) in order.iter().enumerate() {
+            if keep(k) {
+                index.push(k);
+                factor.push(1.0);
+                continue;
+            }
+            let w = weight[k as usize];
+            // Draws whose u falls in [below, below + w); rounding in the
+            // running sum can only push the last draws past the end, onto
+            // the last point drawn from.
+            let mut count = 0usize;
+            while h < m && (u < below + w || pos == last) {
+                count += 1;
+                h += 1;
+                u = next_u(h);
+            }
+            below += w;
+            if count > 0 {
+                index.push(k);
+                factor.push(count as f64 * share / w);
+            }
+        }
+        Some(Draw {
+            index,
+            factor,
+            ends: Vec::new(),
+        })
+    }
+
+    /// The points used, as edges of their own in draw order, each weighed
+    /// by its factor times its weight in `edges` (the round's).
+    fn select(&self, edges: &Edges) -> Edges {
+        let pick = |k: u32| k as usize;
+        Edges {
+            ends: self.index.iter().map(|&k| edges.ends[pick(k)]).collect(),
+            weight: self
+                .index
+                .iter()
+                .zip(&self.factor)
+                .map(|(&k, f)| f * edges.weight[pick(k)])
+                .collect(),
+            faces: self.index.iter().map(|&k| edges.faces[pick(k)]).collect(),
+        }
+    }
+}
+
+/// A uniform draw in [0, 1) for stratum `h` of [`Draw::new`]:
+/// SplitMix64 (Steele, Lea & Flood 2014) of the stratum under a fixed
+/// seed, its top 53 bits (every value exactly representable, below 1).
+fn draw_unit(h: u64) -> f64 {
+    let mix = |mut z: u64| {
+        z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    };
+    (mix(mix(0x6c73_715f_6d73) ^ h) >> 11) as f64 / (1u64 << 53) as f64
 }
 
 fn unit_normal([a, b, c]: [DVec3; 3]) -> DVec3 {
@@ -342,6 +467,7 @@ pub fn refine_offsets_keeping_d(
     // M does not move: its edges' Z-order is the same every round (a check
     // round's stride only leaves some out, as `Edges::visit_order` does).
     let m_order = m_edges.visit_order(&mesh.positions, 1);
+    let (m_edges, m_order) = m_points(m_edges, m_order, opts.m_samples);
     crate::watch::memtrace("lsq: M edges");
     let mut current = disp.offsets.clone();
     let mut current_obj = f64::INFINITY;
@@ -366,6 +492,7 @@ pub fn refine_offsets_keeping_d(
     };
     // D as built by the last round kept, at the offsets `current` holds.
     let mut kept_d: Option<BuiltD> = None;
+    let d_draw = RefCell::new(None);
     while round <= opts.rounds {
         // The last round only decides whether the previous update is kept:
         // it measures the objective on a fixed subsample (every
@@ -385,6 +512,8 @@ pub fn refine_offsets_keeping_d(
             total_m,
             host,
             pattern: pattern.as_ref(),
+            m_samples: opts.m_samples,
+            d_draw: &d_draw,
         };
         // The value this round must stay below to be kept.
         let reject_at = if check_only { current_sub } else { current_obj };
@@ -466,6 +595,18 @@ pub fn refine_offsets_keeping_d(
     Ok((stats, kept_d.filter(|_| same)))
 }
 
+/// M's fitting points and their visit order: above `m_samples` of them,
+/// a stratified draw ([`Edges::drawn`]), already in Z-order.
+fn m_points(edges: Edges, order: Vec<u32>, m_samples: Option<usize>) -> (Edges, Vec<u32>) {
+    match edges.drawn(&order, m_samples) {
+        Some(d) => {
+            let order = (0..d.len() as u32).collect();
+            (d, order)
+        }
+        None => (edges, order),
+    }
+}
+
 /// The offsets `current + scale · delta`, dependents following their
 /// coarse neighbours.
 fn set_step(disp: &mut Displacement, current: &[f64], delta: &[f64], scale: f64) {
@@ -533,6 +674,7 @@ fn round_rows(
         total_m,
         host,
         pattern,
+        ..
     } = *at;
     let normals = &disp.directions;
     let stride = if check_only { CHECK_STRIDE } else { 1 };
@@ -562,7 +704,12 @@ fn round_rows(
                 .collect(),
         ),
     };
-    let d_order = d_edges.visit_order(&dmesh.positions, stride);
+    let projected = host.map_or(&disp.projected[..], |h| &h.projected[..]);
+    // Every edge of D (`d_all`): the unknowns' coupling is D's triangles'
+    // (`empty_equations`), whichever edges are measured.
+    let d_all = d_edges;
+    let (drawn, d_order) = d_points(at, &d_all, &dmesh, projected, stride);
+    let d_edges: &Edges = drawn.as_ref().unwrap_or(&d_all);
     let verdict = Verdict::new(reject_at, || {
         let m = order.iter().map(|&k| m_edges.weight[k as usize]);
         let d = d_order
@@ -570,10 +717,6 @@ fn round_rows(
             .map(|&k| d_edges.weight[k as usize] * scale_d);
         m.chain(d)
     });
-    let projected = match host {
-        None => &disp.projected[..],
-        Some(h) => &h.projected[..],
-    };
     let over = OverUnprojectable {
         projected,
         d_edges: &d_edges,
@@ -590,7 +733,7 @@ fn round_rows(
     };
     let mut ne = match check_only {
         true => None,
-        false => Some(empty_equations(pattern, &deps, disp, &d_edges)?),
+        false => Some(empty_equations(pattern, &deps, disp, &d_all)?),
     };
     let score = RefCell::new(Score::default());
     let mut row = Vec::with_capacity(3);
@@ -664,6 +807,63 @@ fn round_rows(
         caster: d_caster,
     });
     Ok((score.into_inner(), ne.filter(|_| complete), complete, built))
+}
+
+/// D's fitting points ([`d_draw`]; `None`: all of `d_all`) and their
+/// visit order, every `stride`-th.
+fn d_points(
+    at: &RoundAt<'_>,
+    d_all: &Edges,
+    dmesh: &TriMesh,
+    projected: &[bool],
+    stride: usize,
+) -> (Option<Edges>, Vec<u32>) {
+    match d_draw(at, d_all, dmesh, projected) {
+        // Already in Z-order.
+        Some(e) => {
+            let order = (0..e.len() as u32)
+                .filter(|&k| k as usize % stride == 0)
+                .collect();
+            (Some(e), order)
+        }
+        None => (None, d_all.visit_order(&dmesh.positions, stride)),
+    }
+}
+
+/// D's fitting points as drawn ([`Draw`], above `m_samples` of them):
+/// every edge with an end over an unprojectable sample (they carry almost
+/// all of D → M's objective, [`OverUnprojectable`]) and a stratified draw
+/// of the others. The draw is made once, on the first round's D, and the
+/// same edges are measured in every later round (weighed by their
+/// inclusion probabilities then, [`Draw`]), so that two rounds' objectives
+/// differ by the update, not by the draw; if D's edges are not the same
+/// (the sample grid's diagonals follow the positions) the round draws
+/// anew. `None`: every edge is used.
+fn d_draw(at: &RoundAt<'_>, d_edges: &Edges, dmesh: &TriMesh, projected: &[bool]) -> Option<Edges> {
+    at.m_samples?;
+    let mut cell = at.d_draw.borrow_mut();
+    let same = cell.as_ref().is_some_and(|(ends, draw)| {
+        *ends == d_edges.len()
+            && draw
+                .index
+                .iter()
+                .zip(&draw.ends)
+                .all(|(&k, e)| d_edges.ends[k as usize] == *e)
+    });
+    if !same {
+        let order = d_edges.visit_order(&dmesh.positions, 1);
+        let keep = |k: u32| {
+            d_edges.ends[k as usize]
+                .iter()
+                .any(|&v| !projected[v as usize])
+        };
+        let draw = Draw::new(&d_edges.weight, &order, at.m_samples, keep);
+        *cell = draw.map(|mut d| {
+            d.ends = d.index.iter().map(|&k| d_edges.ends[k as usize]).collect();
+            (d_edges.len(), d)
+        });
+    }
+    cell.as_ref().map(|(_, d)| d.select(d_edges))
 }
 
 /// D's edge midpoints with an end over an unprojectable sample (holes of
@@ -841,6 +1041,10 @@ struct RoundAt<'a> {
     host: Option<&'a HostSurface>,
     /// Empty normal equations with the host surface's pattern.
     pattern: Option<&'a NormalEquations>,
+    /// Fitting points per direction at most ([`LsqOffsetOptions::m_samples`]).
+    m_samples: Option<usize>,
+    /// D's draw, once made ([`d_draw`]): D's edge count then, and the draw.
+    d_draw: &'a RefCell<Option<(usize, Draw)>>,
 }
 
 /// Empty normal equations whose pattern holds every pair of samples that a
@@ -1528,6 +1732,103 @@ mod tests {
         let mut s = Score::default();
         s.add(1.0, 1e300, true);
         assert!(!v.rejects(&s));
+    }
+
+    #[test]
+    fn a_drawn_objective_estimates_the_full_one_within_its_sampling_error() {
+        // M → D's objective Σ w d² over all of M's edge midpoints (the
+        // chordal error of a coarse D against a fine sphere) against its
+        // estimate from a draw of N. The estimate's standard deviation is
+        // at most PPS-with-replacement's, σ = sqrt(Σ p (y/p − Y)² / N),
+        // p = w / W (stratification only removes between-strata
+        // variance, Cochran §5A.11): it must lie within 4σ (a normal
+        // deviate beyond 4 has probability 6·10⁻⁵; the draw is fixed, so
+        // the test is deterministic).
+        let (mesh, _, _, disp) = sphere_case();
+        let pos = disp.displaced_positions();
+        let d = TriMesh {
+            triangles: disp.grid.triangles_shorter_diagonal(&pos),
+            positions: pos,
+        };
+        let dc = make_raycaster(RayBackend::Embree, &d).unwrap();
+        let e = Edges::of(&mesh);
+        let order = e.visit_order(&mesh.positions, 1);
+        let sq = |edges: &Edges| -> Vec<f64> {
+            let pts: Vec<DVec3> = (0..edges.len())
+                .map(|k| edges.midpoint(&mesh.positions, k))
+                .collect();
+            let hits = dc.closest_points(&pts, f64::INFINITY).unwrap();
+            hits.iter().map(|c| c.unwrap().distance.powi(2)).collect()
+        };
+        let y = sq(&e);
+        let total_w: f64 = e.weight.iter().sum();
+        let full: f64 = y.iter().zip(&e.weight).map(|(y, w)| y * w).sum();
+        let n = 2_000;
+        assert!(e.len() > 10 * n, "{} edges", e.len());
+        let drawn = e.drawn(&order, Some(n)).unwrap();
+        assert!(drawn.len() <= n && drawn.len() > n / 2);
+        let est: f64 = sq(&drawn)
+            .iter()
+            .zip(&drawn.weight)
+            .map(|(y, w)| y * w)
+            .sum();
+        // The weights still sum to M's area.
+        let dw: f64 = drawn.weight.iter().sum();
+        assert!((dw - total_w).abs() < 1e-9 * total_w, "{dw} vs {total_w}");
+        let var: f64 = y
+            .iter()
+            .zip(&e.weight)
+            .map(|(y, w)| {
+                let p = w / total_w;
+                p * (y * w / p - full).powi(2)
+            })
+            .sum::<f64>()
+            / n as f64;
+        let sigma = var.sqrt();
+        assert!(sigma > 0.0 && sigma < 0.2 * full, "σ {sigma} of {full}");
+        assert!(
+            (est - full).abs() <= 4.0 * sigma,
+            "estimate {est} vs full {full}, σ {sigma}"
+        );
+        // No more than N points: every one, no draw.
+        assert!(e.drawn(&order, Some(e.len())).is_none());
+        assert!(e.drawn(&order, None).is_none());
+    }
+
+    #[test]
+    fn drawn_fitting_points_fit_offsets_as_well_as_all_of_them() {
+        // The least squares with both directions drawn at 3,000 points
+        // (a tenth of M's edges) against all of them: the fitted D's
+        // RMS both ways (measured in full, as the report does) within 2 %
+        // of the full fit's; the fit must still lower the interpolant's
+        // error by far more than that (a draw that broke the fit would
+        // not). A bound of at least the point count gives the same bits
+        // as no bound.
+        let (mesh, caster, diag, disp0) = sphere_case();
+        let fit = |m_samples| {
+            let mut d = disp0.clone();
+            let opts = LsqOffsetOptions {
+                m_samples,
+                ..LsqOffsetOptions::default()
+            };
+            refine_offsets(&mesh, caster.as_ref(), &mut d, diag, &opts).unwrap();
+            d
+        };
+        let before = rms_both(&mesh, &disp0, diag);
+        let all = fit(None);
+        let (a1, a2) = rms_both(&mesh, &all, diag);
+        assert!(
+            a1 < 0.8 * before.0 && a2 < 0.8 * before.1,
+            "{before:?} → {a1} {a2}"
+        );
+        let drawn = fit(Some(3_000));
+        let (d1, d2) = rms_both(&mesh, &drawn, diag);
+        assert!((d1 - a1).abs() <= 0.02 * a1, "D → M {d1} vs {a1}");
+        assert!((d2 - a2).abs() <= 0.02 * a2, "M → D {d2} vs {a2}");
+        assert_ne!(drawn.offsets, all.offsets);
+        let same = fit(Some(usize::MAX));
+        let bits = |d: &Displacement| d.offsets.iter().map(|o| o.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&same), bits(&all));
     }
 
     #[test]

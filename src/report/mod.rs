@@ -523,6 +523,7 @@ pub fn evaluate_surfaces_after(
                         )
                     },
                 );
+                crate::watch::memtrace("limit: L measured");
                 Ok((acc?, unreached?))
             },
             || {
@@ -549,6 +550,7 @@ pub fn evaluate_surfaces_after(
             opts.output_tessellation,
             limit_acc.rms_permille,
         )?;
+        crate::watch::memtrace("outputs tessellated");
         w.report("displacement", 1.0)?;
         w.report("metrics", 0.0)?;
         w.report("metrics", 1.0)?;
@@ -593,6 +595,13 @@ struct Sampling<'a> {
     diag: f64,
     edge: f64,
     mq: &'a Quadrature<'a>,
+}
+
+/// M's fitting points in the least squares at most
+/// ([`LsqOffsetOptions::m_samples`]): `SUBDFIT_TAIL_SAMPLES`, else every
+/// edge midpoint of M.
+fn lsq_m_samples() -> Option<usize> {
+    crate::switches::parsed("SUBDFIT_TAIL_SAMPLES")
 }
 
 /// D's side of [`evaluate_surfaces`]: the displacement (§3.5), its
@@ -668,6 +677,7 @@ fn displaced_side(
                 } else {
                     LsqOffsetOptions::default().rounds
                 },
+                m_samples: lsq_m_samples(),
                 ..LsqOffsetOptions::default()
             },
         )?;
