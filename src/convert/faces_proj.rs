@@ -153,6 +153,18 @@ pub(super) fn rounds_at_count<F: FitFn>(
     first: Fitted,
     judged: bool,
 ) -> Result<Fitted> {
+    let memo = cx.on.memo;
+    let kept = rounds_judged(cx, first, judged)?;
+    // The rounds not kept hold their evaluations' tessellations.
+    if let Some(memo) = memo {
+        memo.keep_only(&kept.control);
+    }
+    Ok(kept)
+}
+
+/// [`rounds_at_count`] before the evaluations of the rounds not kept are
+/// dropped.
+fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> Result<Fitted> {
     let RoundCtx {
         timer,
         relayout,

@@ -61,7 +61,7 @@ use crate::DVec3;
 use super::layout::FieldRelayout;
 use super::options::ConvertOptions;
 use super::run::Run;
-use super::tail::{measure_fitted, Converted, PipelineOptions};
+use super::tail::{measure_fitted_evaluated, Converted, PipelineOptions};
 use crate::report::StageTimer;
 
 /// Whether a pure-quad layout is refined locally ([`refine_locally`])
@@ -286,6 +286,7 @@ pub fn fit_field(
             mesh,
             caster,
             metrics: &po.metrics,
+            memo: None,
         };
         let near = follow.as_ref().map(|_| &on);
         let Judged {
@@ -362,6 +363,7 @@ pub fn fit_field(
         }
     }
     let best = best.ok_or_else(|| crate::Error::internal("field layout: no round was fitted"))?;
+    let memo = super::thin::Evaluations::default();
     let ends = Ends {
         opts,
         relayout,
@@ -369,19 +371,20 @@ pub fn fit_field(
         fo: &fo,
         max_error,
         follow: follow.as_ref(),
+        memo: &memo,
     };
     let fitted = ends.run(run, &mut timer, &mut rounds, &laid_h, best)?;
+    // The rounds judged on M itself (no renumbered M, [`FieldRelayout::fit_target`])
+    // evaluated the kept mesh as the tail would: its evaluation is the tail's.
+    let evaluated = match relayout.fit_caster {
+        None => memo.take(&fitted.control),
+        Some(_) => None,
+    };
+    drop(memo);
     let caster = run.caster.as_ref();
-    let mut c = measure_fitted(
-        run.input,
-        fitted,
-        caster,
-        po,
-        timer,
-        record(&rounds),
-        Some(fitmap),
-        run.progress,
-    )?;
+    let at = (timer, record(&rounds), Some(fitmap));
+    let mut c =
+        measure_fitted_evaluated(run.input, fitted, caster, po, at, evaluated, run.progress)?;
     add_targets(&mut c, opts.target_faces, max_error, &rounds);
     Ok(c)
 }
@@ -438,6 +441,8 @@ struct Ends<'a> {
     fo: &'a FieldOptions,
     max_error: Option<f64>,
     follow: Option<&'a Follow>,
+    /// The fixed-count rounds' evaluations ([`super::thin::Evaluations`]).
+    memo: &'a super::thin::Evaluations,
 }
 
 impl Ends<'_> {
@@ -476,6 +481,7 @@ impl Ends<'_> {
             mesh,
             caster,
             metrics: &po.metrics,
+            memo: Some(self.memo),
         };
         // At a fixed count, one more layout with lattice size moved to the
         // patches whose limit stands off M′ ([`super::thin`]).

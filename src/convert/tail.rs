@@ -217,8 +217,50 @@ pub(super) fn measure_fitted_after(
     fitted: crate::fit::Fitted,
     caster: &dyn RayCaster,
     opts: &PipelineOptions,
-    (mut timer, run, precomputed_fitmap): (StageTimer, FittedRun, Option<Fitmap>),
+    at: (StageTimer, FittedRun, Option<Fitmap>),
     check: Option<LimitCheck>,
+    progress: &mut Progress<'_>,
+) -> Result<Converted> {
+    let measured = Measured::Check(check);
+    measure_fitted_with(input, fitted, caster, opts, at, measured, progress)
+}
+
+/// [`measure_fitted`] with `evaluated`, when given, the displacement and
+/// metrics of `fitted.control` against `input`'s mesh with `caster` and
+/// `opts.metrics` ([`evaluate_surfaces`] on it, refined once when not all
+/// quads) computed already: the fixed-count field rounds' evaluation of the
+/// mesh they kept (`super::thin::Evaluations`), the same bits.
+pub(super) fn measure_fitted_evaluated(
+    input: &ValidatedMesh,
+    fitted: crate::fit::Fitted,
+    caster: &dyn RayCaster,
+    opts: &PipelineOptions,
+    at: (StageTimer, FittedRun, Option<Fitmap>),
+    evaluated: Option<Surfaces>,
+    progress: &mut Progress<'_>,
+) -> Result<Converted> {
+    let measured = match evaluated {
+        Some(s) => Measured::Surfaces(Box::new(s)),
+        None => Measured::Check(None),
+    };
+    measure_fitted_with(input, fitted, caster, opts, at, measured, progress)
+}
+
+/// What the tail has of the displacement and metrics before it runs.
+enum Measured {
+    /// L's accuracy, or nothing.
+    Check(Option<LimitCheck>),
+    /// All of it.
+    Surfaces(Box<Surfaces>),
+}
+
+fn measure_fitted_with(
+    input: &ValidatedMesh,
+    fitted: crate::fit::Fitted,
+    caster: &dyn RayCaster,
+    opts: &PipelineOptions,
+    (mut timer, run, precomputed_fitmap): (StageTimer, FittedRun, Option<Fitmap>),
+    measured: Measured,
     progress: &mut Progress<'_>,
 ) -> Result<Converted> {
     let mesh = &input.mesh;
@@ -234,10 +276,15 @@ pub(super) fn measure_fitted_after(
     };
     let surfaces = timer.run("displacement+metrics", || {
         let on = quads.as_ref().unwrap_or(&fitted.control);
-        // L's check was measured on the unrefined patches: not reused on
-        // the refinement's.
-        let check = check.filter(|_| quads.is_none());
-        evaluate_surfaces_after(mesh, on, caster, &opts.metrics, check, progress)
+        match measured {
+            Measured::Surfaces(s) => Ok(*s),
+            Measured::Check(check) => {
+                // L's check was measured on the unrefined patches: not
+                // reused on the refinement's.
+                let check = check.filter(|_| quads.is_none());
+                evaluate_surfaces_after(mesh, on, caster, &opts.metrics, check, progress)
+            }
+        }
     })?;
     let fitmap = match (&opts.fitmap, precomputed_fitmap) {
         (_, Some(f)) => Some(f),

@@ -208,6 +208,74 @@ pub struct OnM<'a> {
     pub mesh: &'a TriMesh,
     pub caster: &'a dyn RayCaster,
     pub metrics: &'a MetricsOptions,
+    /// Where the evaluations ([`evaluated`]) are kept, when given.
+    pub memo: Option<&'a Evaluations>,
+}
+
+/// The pipeline's displacement and metrics ([`crate::report::evaluate_surfaces`])
+/// of the control meshes judged so far, by control mesh (the same
+/// topology, creases and positions bit for bit), against one `OnM`'s M,
+/// caster and options. Session 18: under `SUBDFIT_FIELD_BEST=1` the same
+/// mesh was evaluated up to three times — by the thin round's chain, as a
+/// candidate's final figures, as the projectability rounds' incoming
+/// result — and once more by the tail ([`super::tail`]) when it is the
+/// one kept. An evaluation is a function of those inputs (deterministic
+/// whatever the thread count), so a kept one is the recomputation's bits.
+#[derive(Default)]
+pub struct Evaluations {
+    kept: std::sync::Mutex<Vec<(ControlMesh, crate::report::Surfaces)>>,
+}
+
+/// Whether `a` and `b` are the same control mesh bit for bit (`==` alone
+/// takes -0.0 for 0.0).
+fn same_control(a: &ControlMesh, b: &ControlMesh) -> bool {
+    let bits = |p: &DVec3| p.to_array().map(f64::to_bits);
+    a == b
+        && a.positions()
+            .iter()
+            .zip(b.positions())
+            .all(|(x, y)| bits(x) == bits(y))
+}
+
+impl Evaluations {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<(ControlMesh, crate::report::Surfaces)>> {
+        // A panic while holding the lock leaves the list as it was.
+        self.kept.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The metrics kept for `control`.
+    fn metrics(&self, control: &ControlMesh) -> Option<crate::report::Metrics> {
+        let kept = self.lock();
+        let hit = kept.iter().find(|(c, _)| same_control(c, control));
+        hit.map(|(_, s)| s.metrics.clone())
+    }
+
+    fn insert(&self, control: &ControlMesh, surfaces: crate::report::Surfaces) {
+        self.lock().push((control.clone(), surfaces));
+    }
+
+    /// The evaluation of `control`, taken out (the tail's).
+    pub fn take(&self, control: &ControlMesh) -> Option<crate::report::Surfaces> {
+        let mut kept = self.lock();
+        let i = kept.iter().position(|(c, _)| same_control(c, control))?;
+        Some(kept.swap_remove(i).1)
+    }
+
+    /// Drops every evaluation but `control`'s (after a judgement, the
+    /// candidates not kept: the evaluations hold the tessellations).
+    pub fn keep_only(&self, control: &ControlMesh) {
+        self.lock().retain(|(c, _)| same_control(c, control));
+    }
+
+    /// How many evaluations are kept.
+    pub fn len(&self) -> usize {
+        self.lock().len()
+    }
+
+    /// Whether none is kept.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
 }
 
 /// Whether the second round is on (module docs).
@@ -550,6 +618,9 @@ pub fn on_m(on: &OnM<'_>, layout: &TriMesh, control: &ControlMesh) -> Result<f64
 /// when not all quads or under `SUBDFIT_DISP_REFINE`, as the tail does:
 /// [`super::tail::displaced_on_refinement`]).
 fn evaluated(on: &OnM<'_>, control: &ControlMesh) -> Result<crate::report::Metrics> {
+    if let Some(m) = on.memo.and_then(|memo| memo.metrics(control)) {
+        return Ok(m);
+    }
     let quads = match !super::tail::displaced_on_refinement(control, on.mesh, on.metrics) {
         true => None,
         false => Some(crate::subdiv::refine::refine_once_keeping_infinite(
@@ -559,7 +630,11 @@ fn evaluated(on: &OnM<'_>, control: &ControlMesh) -> Result<crate::report::Metri
     let c = quads.as_ref().unwrap_or(control);
     let mut quiet = |_: &str, _: f64| true;
     let s = crate::report::evaluate_surfaces(on.mesh, c, on.caster, on.metrics, &mut quiet)?;
-    Ok(s.metrics)
+    let metrics = s.metrics.clone();
+    if let Some(memo) = on.memo {
+        memo.insert(control, s);
+    }
+    Ok(metrics)
 }
 
 /// [`evaluated`]'s RMS D and RMS L, ‰.
@@ -1023,6 +1098,9 @@ pub(super) fn final_draws<F: FitFn>(mut cx: RoundCtx<'_, F>, first: Fitted) -> R
     let (_, fitted, start) = cands.swap_remove(best);
     if best > 0 {
         cx.rounds[start].kept = Some(true);
+    }
+    if let Some(memo) = on.memo {
+        memo.keep_only(&fitted.control);
     }
     Ok(fitted)
 }
@@ -1618,6 +1696,7 @@ mod tests {
             mesh: &m,
             caster: &caster,
             metrics: &metrics,
+            memo: None,
         };
         let d = on_m(&on, &layout, &control).expect("on_m");
         assert!(d > 0.2, "{d}");
@@ -1709,6 +1788,76 @@ mod tests {
                 assert_eq!(m.concentration.order[0], 15);
             }
         }
+    }
+
+    /// [`Evaluations`]: a control mesh judged twice is evaluated once, and
+    /// what the memo hands back (the figures, and the surfaces the tail
+    /// writes) are a fresh [`crate::report::evaluate_surfaces`]'s bits; a
+    /// mesh that differs in one coordinate's last bit is not taken for it;
+    /// [`Evaluations::keep_only`] drops the others.
+    #[test]
+    fn the_memo_hands_back_a_fresh_evaluation_bit_for_bit() {
+        let mesh = plane(4, 3);
+        let caster = BvhCaster::new(&mesh).expect("caster");
+        let metrics = MetricsOptions::default();
+        let memo = Evaluations::default();
+        let on = OnM {
+            mesh: &mesh,
+            caster: &caster,
+            metrics: &metrics,
+            memo: Some(&memo),
+        };
+        let control = control_over(&mesh);
+        let f1 = final_figures(&on, &control).expect("figures");
+        assert_eq!(memo.len(), 1);
+        let f2 = final_figures(&on, &control).expect("figures again");
+        assert_eq!(memo.len(), 1, "the second judgement is the memo's");
+        let mut quiet = |_: &str, _: f64| true;
+        let fresh =
+            crate::report::evaluate_surfaces(&mesh, &control, &caster, &metrics, &mut quiet)
+                .expect("fresh");
+        let bits = |x: f64| x.to_bits();
+        for f in [f1, f2] {
+            assert_eq!(
+                bits(f.limit_permille),
+                bits(fresh.metrics.limit.rms_permille)
+            );
+            assert_eq!(
+                bits(f.displaced_permille),
+                bits(fresh.metrics.displaced.rms_permille)
+            );
+            assert_eq!(
+                bits(f.unprojectable_percent),
+                bits(fresh.metrics.unprojectable_area_percent)
+            );
+        }
+        // A last-bit change is another mesh: evaluated afresh.
+        let mut nudged = control.clone();
+        let mut p = nudged.positions().to_vec();
+        p[0].z = f64::from_bits(p[0].z.to_bits() + 1);
+        nudged.set_positions(p).expect("positions");
+        final_figures(&on, &nudged).expect("nudged");
+        assert_eq!(memo.len(), 2);
+        memo.keep_only(&control);
+        assert_eq!(memo.len(), 1);
+        let kept = memo.take(&control).expect("kept");
+        assert!(memo.is_empty());
+        assert_eq!(kept.metrics, fresh.metrics);
+        let pts = |m: &TriMesh| -> Vec<[u64; 3]> {
+            m.positions
+                .iter()
+                .map(|p| p.to_array().map(f64::to_bits))
+                .collect()
+        };
+        assert_eq!(pts(&kept.limit), pts(&fresh.limit));
+        assert_eq!(pts(&kept.displaced), pts(&fresh.displaced));
+        assert_eq!(kept.limit.triangles, fresh.limit.triangles);
+        let offsets = |o: &[f64]| -> Vec<u64> { o.iter().map(|x| x.to_bits()).collect() };
+        assert_eq!(
+            offsets(&kept.displaced_offsets),
+            offsets(&fresh.displaced_offsets)
+        );
+        assert_eq!(kept.displaced_projected, fresh.displaced_projected);
     }
 
     /// With a measured RMS L, a later round whose D is lower is still not

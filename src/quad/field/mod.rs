@@ -577,7 +577,11 @@ fn lay_counted(
         }
         _ => None,
     };
-    let lay = |h: &[f64]| -> Result<FieldLayout> {
+    // Each pass's cleanup stops before its late phase ([`cleanup::Counted`]):
+    // the passes are compared by the face count and the count phase's
+    // collapses, which the late phase does not change, so only the pass
+    // kept pays for it (the same layout, bit for bit).
+    let lay = |h: &[f64]| -> Result<Pending<'_>> {
         let mut out = layout_sized(prep, h, opts, stats.clone())?;
         if let (Some(plan), Some(c)) = (&sized_relax, caster) {
             match follow.and_then(|f| plan.following(&f.base, h)) {
@@ -586,7 +590,7 @@ fn lay_counted(
             }
         }
         match caster {
-            Some(c) => clean(
+            Some(c) => clean_counted(
                 mesh,
                 fitmap,
                 c,
@@ -594,7 +598,7 @@ fn lay_counted(
                 opts.target_faces,
                 opts.cleanup_guarded,
             ),
-            None => Ok(out),
+            None => Ok(Pending::done(out)),
         }
     };
     let mut out = lay(&h)?;
@@ -611,13 +615,14 @@ fn lay_counted(
         let n = n as f64;
         let mut h = h;
         for _ in 0..COUNT_PASSES {
-            let got = out.stats.faces as f64;
-            let (outside, trims) = count_score(&out, n);
+            let got = out.layout.stats.faces as f64;
+            let (outside, trims) = count_score(&out.layout, n);
             let inside = !outside;
             if inside && trims as f64 <= COUNT_TRIMS * n {
                 break;
             }
             let raw = out
+                .layout
                 .stats
                 .cleanup
                 .as_ref()
@@ -627,19 +632,19 @@ fn lay_counted(
             } else {
                 (got / n).sqrt()
             };
-            let f = out.stats.size_factor * f;
+            let f = out.layout.stats.size_factor * f;
             for x in &mut h {
                 *x *= f;
             }
             let Ok(next) = lay(&h) else {
                 break;
             };
-            if count_score(&next, n) < count_score(&out, n) {
+            if count_score(&next.layout, n) < count_score(&out.layout, n) {
                 out = next;
             }
         }
     }
-    Ok(out)
+    out.finish()
 }
 
 /// How a layout meets a face target `n`, lower is better: whether it is
@@ -666,10 +671,58 @@ fn clean(
     mesh: &TriMesh,
     fitmap: &Fitmap,
     caster: &crate::raycast::bvh::BvhCaster,
-    mut out: FieldLayout,
+    out: FieldLayout,
     target_faces: Option<usize>,
     guarded: Option<bool>,
 ) -> Result<FieldLayout> {
+    clean_counted(mesh, fitmap, caster, out, target_faces, guarded)?.finish()
+}
+
+/// A layout whose cleanup may still owe its late phase
+/// ([`cleanup::Counted`]): `layout`'s face count and cleanup figures are
+/// already the finished layout's as far as the count passes read them
+/// (faces, the cleanup's `faces_before` and `count_collapses`).
+struct Pending<'a> {
+    layout: FieldLayout,
+    cleanup: Option<cleanup::Counted<'a>>,
+}
+
+impl Pending<'_> {
+    /// A layout without a cleanup.
+    fn done(layout: FieldLayout) -> Self {
+        Self {
+            layout,
+            cleanup: None,
+        }
+    }
+
+    /// The layout with its cleanup finished, its figures updated.
+    fn finish(self) -> Result<FieldLayout> {
+        let Pending {
+            mut layout,
+            cleanup,
+        } = self;
+        if let Some(c) = cleanup {
+            let (control, cs) = c.finish()?;
+            layout.stats.vertices = control.num_vertices();
+            layout.stats.faces = control.num_faces();
+            layout.stats.irregular_vertices = irregular_vertices(&control);
+            layout.stats.cleanup = Some(cs);
+            layout.control = control;
+        }
+        Ok(layout)
+    }
+}
+
+/// [`clean`] up to the cleanup's late phase ([`Pending`]).
+fn clean_counted<'a>(
+    mesh: &'a TriMesh,
+    fitmap: &'a Fitmap,
+    caster: &'a crate::raycast::bvh::BvhCaster,
+    mut out: FieldLayout,
+    target_faces: Option<usize>,
+    guarded: Option<bool>,
+) -> Result<Pending<'a>> {
     let mut co = cleanup::CleanupOptions::default().with_target_faces(target_faces);
     if let Some(g) = guarded {
         // The caller's choice over the environment's (`guarded_fixed`).
@@ -694,13 +747,15 @@ fn clean(
     if let Some(geo) = crate::switches::not_zero("SUBDFIT_CLEANUP_GEO") {
         co.geometric_ties = geo;
     }
-    let (control, cs) = cleanup::cleanup(mesh, fitmap, caster, out.control, &co)?;
-    out.stats.vertices = control.num_vertices();
-    out.stats.faces = control.num_faces();
-    out.stats.irregular_vertices = irregular_vertices(&control);
-    out.stats.cleanup = Some(cs);
-    out.control = control;
-    Ok(out)
+    // The extracted mesh stays on `out` until [`Pending::finish`] replaces it.
+    let counted = cleanup::cleanup_counted(mesh, fitmap, caster, out.control.clone(), &co)?;
+    // What the count passes read; [`Pending::finish`] sets the rest.
+    out.stats.faces = counted.faces();
+    out.stats.cleanup = Some(counted.stats().clone());
+    Ok(Pending {
+        layout: out,
+        cleanup: Some(counted),
+    })
 }
 
 /// A face target's lattice aims this much above it when the cleanup's
