@@ -247,6 +247,9 @@ pub(super) fn measure_fitted_evaluated(
 }
 
 /// What the tail has of the displacement and metrics before it runs.
+// One value per conversion, moved once into the tail: the size of the
+// unboxed check costs nothing worth an allocation.
+#[allow(clippy::large_enum_variant)]
 enum Measured {
     /// L's accuracy, or nothing.
     Check(Option<LimitCheck>),

@@ -326,7 +326,7 @@ impl Draw {
             .map(|&k| weight[k as usize])
             .sum();
         let others = order.iter().filter(|&&k| !keep(k)).count();
-        if others <= m || !(total > 0.0) {
+        if others <= m || total.is_nan() || total <= 0.0 {
             return None;
         }
         let share = total / m as f64;
@@ -719,7 +719,7 @@ fn round_rows(
     });
     let over = OverUnprojectable {
         projected,
-        d_edges: &d_edges,
+        d_edges,
         dmesh: &dmesh,
         d_order: &d_order,
     };
@@ -774,7 +774,7 @@ fn round_rows(
     }
     // D → M rows, at D's edge midpoints.
     let complete = closest_in_order(
-        &d_edges,
+        d_edges,
         &dmesh.positions,
         &d_order,
         mesh_caster,
