@@ -237,17 +237,7 @@ pub fn memtrace(label: &str) {
 /// clock cannot be read): `SUBDFIT_MEMTRACE`'s per-step CPU, the figure
 /// that stays comparable on a loaded machine.
 pub fn process_cpu_seconds() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec for the call's duration.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
-    if rc == 0 {
-        ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
-    } else {
-        0.0
-    }
+    cpu_seconds(libc::CLOCK_PROCESS_CPUTIME_ID)
 }
 
 /// CPU seconds spent by the calling thread so far (0 if the clock cannot be
@@ -255,12 +245,17 @@ pub fn process_cpu_seconds() -> f64 {
 /// (the split simplification's halves, the field's flow search): on a shared
 /// machine wall time says little about the work done.
 pub fn thread_cpu_seconds() -> f64 {
+    cpu_seconds(libc::CLOCK_THREAD_CPUTIME_ID)
+}
+
+/// The CPU seconds `clock` reads (0 if it cannot be read).
+fn cpu_seconds(clock: libc::clockid_t) -> f64 {
     let mut ts = libc::timespec {
         tv_sec: 0,
         tv_nsec: 0,
     };
     // SAFETY: `ts` is a valid, writable timespec for the call's duration.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    let rc = unsafe { libc::clock_gettime(clock, &mut ts) };
     if rc == 0 {
         ts.tv_sec as f64 + 1e-9 * ts.tv_nsec as f64
     } else {
