@@ -523,7 +523,6 @@ pub fn evaluate_surfaces_after(
                         )
                     },
                 );
-                crate::watch::memtrace("limit: L measured");
                 Ok((acc?, unreached?))
             },
             || {
@@ -550,7 +549,6 @@ pub fn evaluate_surfaces_after(
             opts.output_tessellation,
             limit_acc.rms_permille,
         )?;
-        crate::watch::memtrace("outputs tessellated");
         w.report("displacement", 1.0)?;
         w.report("metrics", 0.0)?;
         w.report("metrics", 1.0)?;
