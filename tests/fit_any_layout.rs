@@ -14,7 +14,13 @@ fn root() -> PathBuf {
 }
 
 fn fit(layout: &Path, out: &Path) -> (serde_json::Value, String) {
+    fit_with(layout, out, &[])
+}
+
+/// [`fit`] with the environment variables `env` set (experiment switches).
+fn fit_with(layout: &Path, out: &Path, env: &[(&str, &str)]) -> (serde_json::Value, String) {
     let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
+        .envs(env.iter().copied())
         .arg("fit")
         .arg(root().join("data/spot.ply"))
         .arg(layout)
@@ -118,19 +124,9 @@ fn disp_refine_puts_an_all_quad_layouts_atlas_on_its_refinement() {
     // Below the gate (QuadriFlow's 269 patches: 11 samples a patch, where
     // the refinement's smallest tiles alone overspend the budget) the
     // switch leaves the cage's own patches.
-    let gated = tmp.path().join("gated");
-    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
-        .env("SUBDFIT_DISP_REFINE", "1")
-        .arg("fit")
-        .arg(root().join("data/spot.ply"))
-        .arg(root().join("tests/data/layouts/spot_quadriflow.obj"))
-        .arg("-o")
-        .arg(&gated)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let g: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(gated.join("report.json")).unwrap()).unwrap();
+    let refine = [("SUBDFIT_DISP_REFINE", "1")];
+    let quadriflow = root().join("tests/data/layouts/spot_quadriflow.obj");
+    let (g, _) = fit_with(&quadriflow, &tmp.path().join("gated"), &refine);
     assert!(g.get("control_written").is_none());
     assert_eq!(
         g["projectability"]["displacement"]["patches"],
@@ -138,18 +134,7 @@ fn disp_refine_puts_an_all_quad_layouts_atlas_on_its_refinement() {
     );
     let (plain, _) = fit(&layout, &tmp.path().join("plain"));
     let out = tmp.path().join("refined");
-    let o = Command::new(env!("CARGO_BIN_EXE_subdfit"))
-        .env("SUBDFIT_DISP_REFINE", "1")
-        .arg("fit")
-        .arg(root().join("data/spot.ply"))
-        .arg(&layout)
-        .arg("-o")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let r: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let (r, _) = fit_with(&layout, &out, &refine);
     assert!(plain.get("control_written").is_none());
     let written = &r["control_written"];
     let faces = r["control"]["faces"].as_u64().unwrap();

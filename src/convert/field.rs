@@ -61,7 +61,7 @@ use crate::DVec3;
 use super::layout::FieldRelayout;
 use super::options::ConvertOptions;
 use super::run::Run;
-use super::tail::{measure_fitted_evaluated, Converted, PipelineOptions};
+use super::tail::{measure_fitted_after, Converted, Known, PipelineOptions};
 use crate::report::StageTimer;
 
 /// Whether a pure-quad layout is refined locally ([`refine_locally`])
@@ -383,8 +383,8 @@ pub fn fit_field(
     drop(memo);
     let caster = run.caster.as_ref();
     let at = (timer, record(&rounds), Some(fitmap));
-    let mut c =
-        measure_fitted_evaluated(run.input, fitted, caster, po, at, evaluated, run.progress)?;
+    let known = Known::evaluated(evaluated);
+    let mut c = measure_fitted_after(run.input, fitted, caster, po, at, known, run.progress)?;
     add_targets(&mut c, opts.target_faces, max_error, &rounds);
     Ok(c)
 }

@@ -12,7 +12,7 @@ use crate::mesh::ControlMesh;
 use crate::report::TargetCheck;
 
 use super::run::Run;
-use super::tail::{measure_fitted_after, Converted, PipelineOptions};
+use super::tail::{measure_fitted_after, Converted, Known, PipelineOptions};
 
 /// How many intermediate meshes the simplification keeps for the organic
 /// `max_error` search: 40 at ratio 1.06 reach 10× the natural end's count.
@@ -76,7 +76,8 @@ pub(super) fn fit_fewest_within(
             extra(Some(&search.record)),
             Some(fitmap.clone()),
         );
-        let mut c = measure_fitted_after(input, fitted, caster, po, at, check, progress)?;
+        let mut c =
+            measure_fitted_after(input, fitted, caster, po, at, Known::Check(check), progress)?;
         let rms = c.report.accuracy.limit.rms_permille;
         if rms <= e || last {
             c.report.add_target(search.record.target(rms));

@@ -207,63 +207,44 @@ pub fn measure_fitted(
     progress: &mut Progress<'_>,
 ) -> Result<Converted> {
     let at = (timer, run, precomputed_fitmap);
-    measure_fitted_after(input, fitted, caster, opts, at, None, progress)
-}
-
-/// [`measure_fitted`] with L's accuracy measured already (`check`, of
-/// `fitted.control`: the `--max-error` search's; not measured again).
-pub(super) fn measure_fitted_after(
-    input: &ValidatedMesh,
-    fitted: crate::fit::Fitted,
-    caster: &dyn RayCaster,
-    opts: &PipelineOptions,
-    at: (StageTimer, FittedRun, Option<Fitmap>),
-    check: Option<LimitCheck>,
-    progress: &mut Progress<'_>,
-) -> Result<Converted> {
-    let measured = Measured::Check(check);
-    measure_fitted_with(input, fitted, caster, opts, at, measured, progress)
-}
-
-/// [`measure_fitted`] with `evaluated`, when given, the displacement and
-/// metrics of `fitted.control` against `input`'s mesh with `caster` and
-/// `opts.metrics` ([`evaluate_surfaces`] on it, refined once when not all
-/// quads) computed already: the fixed-count field rounds' evaluation of the
-/// mesh they kept (`super::thin::Evaluations`), the same bits.
-pub(super) fn measure_fitted_evaluated(
-    input: &ValidatedMesh,
-    fitted: crate::fit::Fitted,
-    caster: &dyn RayCaster,
-    opts: &PipelineOptions,
-    at: (StageTimer, FittedRun, Option<Fitmap>),
-    evaluated: Option<Surfaces>,
-    progress: &mut Progress<'_>,
-) -> Result<Converted> {
-    let measured = match evaluated {
-        Some(s) => Measured::Surfaces(Box::new(s)),
-        None => Measured::Check(None),
-    };
-    measure_fitted_with(input, fitted, caster, opts, at, measured, progress)
+    let measured = Known::Check(None);
+    measure_fitted_after(input, fitted, caster, opts, at, measured, progress)
 }
 
 /// What the tail has of the displacement and metrics before it runs.
 // One value per conversion, moved once into the tail: the size of the
 // unboxed check costs nothing worth an allocation.
 #[allow(clippy::large_enum_variant)]
-enum Measured {
-    /// L's accuracy, or nothing.
+pub(super) enum Known {
+    /// L's accuracy (of `fitted.control`: the `--max-error` search's; not
+    /// measured again), or nothing.
     Check(Option<LimitCheck>),
-    /// All of it.
+    /// All of it: the displacement and metrics of `fitted.control` against
+    /// the input's mesh with the tail's caster and `opts.metrics`
+    /// ([`evaluate_surfaces`] on it, refined once when not all quads),
+    /// computed already by the fixed-count field rounds
+    /// (`super::thin::Evaluations`), the same bits.
     Surfaces(Box<Surfaces>),
 }
 
-fn measure_fitted_with(
+impl Known {
+    /// `evaluated` when there is one, else nothing measured.
+    pub(super) fn evaluated(evaluated: Option<Surfaces>) -> Self {
+        match evaluated {
+            Some(s) => Known::Surfaces(Box::new(s)),
+            None => Known::Check(None),
+        }
+    }
+}
+
+/// [`measure_fitted`] with what is `measured` already handed in.
+pub(super) fn measure_fitted_after(
     input: &ValidatedMesh,
     fitted: crate::fit::Fitted,
     caster: &dyn RayCaster,
     opts: &PipelineOptions,
     (mut timer, run, precomputed_fitmap): (StageTimer, FittedRun, Option<Fitmap>),
-    measured: Measured,
+    measured: Known,
     progress: &mut Progress<'_>,
 ) -> Result<Converted> {
     let mesh = &input.mesh;
@@ -280,8 +261,8 @@ fn measure_fitted_with(
     let surfaces = timer.run("displacement+metrics", || {
         let on = quads.as_ref().unwrap_or(&fitted.control);
         match measured {
-            Measured::Surfaces(s) => Ok(*s),
-            Measured::Check(check) => {
+            Known::Surfaces(s) => Ok(*s),
+            Known::Check(check) => {
                 // L's check was measured on the unrefined patches: not
                 // reused on the refinement's.
                 let check = check.filter(|_| quads.is_none());
