@@ -50,7 +50,7 @@ fn torus(big: f64, small: f64, nu: usize, nv: usize) -> TriMesh {
 /// (so ties are rare and the choice exercises the ranking): the mean
 /// squared distance of the control vertices to the torus' core circle's
 /// tube, plus the irregular count.
-fn score(big: f64, small: f64) -> impl FnMut(&FieldLayout) -> subdfit::Result<f64> {
+fn score(big: f64, small: f64) -> impl Fn(&FieldLayout) -> subdfit::Result<f64> + Sync {
     move |l: &FieldLayout| {
         let p = l.control.positions();
         let off: f64 = p

@@ -500,7 +500,10 @@ impl Ends<'_> {
                 fit,
                 on: &on_m,
             };
-            fitted = super::thin::final_draws(cx, fitted)?;
+            let side = |timer: &mut StageTimer, c: ControlMesh| {
+                timer.run("fit", || crate::fit::fit(mesh, c, caster, &po.fit))
+            };
+            fitted = super::thin::final_draws(cx, fitted, &side)?;
         }
         // At a fixed count, patches moved to where the limit leaves M′
         // unprojectable ([`super::faces_proj`], off by default).

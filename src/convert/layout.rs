@@ -335,23 +335,34 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
         let score = |l: &crate::quad::field::FieldLayout| {
             super::field::draw_score(layout, layout_caster, &fit_opts, l)
         };
-        let laid = crate::quad::field::field_layout_drawn(
-            &prep,
-            layout,
-            &fitmap,
-            &field_opts,
-            draws,
-            score,
-        )?;
-        if draws > 1 && main_candidate() {
+        // Main's layout (draw 0 unguarded, [`main_candidate`]) is laid
+        // beside the draws and their scores: neither reads the other.
+        let fo_main = (draws > 1 && main_candidate()).then(|| crate::quad::field::FieldOptions {
+            cleanup_guarded: Some(false),
+            ..field_opts.clone()
+        });
+        let (laid, main) = rayon::join(
+            || {
+                crate::quad::field::field_layout_drawn(
+                    &prep,
+                    layout,
+                    &fitmap,
+                    &field_opts,
+                    draws,
+                    score,
+                )
+            },
+            || {
+                fo_main.as_ref().map(|fo| {
+                    crate::quad::field::field_layout_at_scale(&prep, layout, &fitmap, fo, 1.0)
+                })
+            },
+        );
+        let laid = laid?;
+        if let Some(main) = main {
             // Main's layout first, the drawn one as the alternative
             // ([`main_candidate`]).
-            let fo_main = crate::quad::field::FieldOptions {
-                cleanup_guarded: Some(false),
-                ..field_opts.clone()
-            };
-            let mut main =
-                crate::quad::field::field_layout_at_scale(&prep, layout, &fitmap, &fo_main, 1.0)?;
+            let mut main = main?;
             let scale = laid
                 .stats
                 .draws

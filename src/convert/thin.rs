@@ -59,6 +59,7 @@ use crate::raycast::bvh::BvhCaster;
 use crate::raycast::RayCaster;
 use crate::report::{MetricsOptions, StageTimer};
 use crate::DVec3;
+use rayon::prelude::*;
 
 use super::field::{FieldRound, Sizes};
 use super::layout::FieldRelayout;
@@ -1043,7 +1044,11 @@ pub(super) fn second_round<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted) -> Resu
 /// first fit, which the final result follows only loosely (the thin
 /// round re-lays the field from that fit's errors: spot at 81's worst
 /// first layout ended best in RMS D). Without alternatives, [`second_round`].
-pub(super) fn final_draws<F: FitFn>(mut cx: RoundCtx<'_, F>, first: Fitted) -> Result<Fitted> {
+pub(super) fn final_draws<F: FitFn, S: SideFit>(
+    mut cx: RoundCtx<'_, F>,
+    first: Fitted,
+    side: &S,
+) -> Result<Fitted> {
     let relayout = cx.relayout;
     if relayout.alternatives.is_empty() {
         return second_round(cx, first);
@@ -1055,16 +1060,40 @@ pub(super) fn final_draws<F: FitFn>(mut cx: RoundCtx<'_, F>, first: Fitted) -> R
         cleanup_guarded: relayout.first_guarded.or(fo.cleanup_guarded),
         ..fo.clone()
     };
-    let mut c0 = cx.reborrow();
-    c0.fo = &fo_first;
-    let main = second_round(c0, first)?;
-    let f = cx
-        .timer
-        .run("thin round", || final_figures(on, &main.control))?;
+    // The candidates read nothing of one another (each lays, fits and
+    // judges its own meshes; the shared memo is keyed by mesh), so the
+    // other draws are carried on beside the first layout's round (session
+    // 19) and their records appended in draw order after its rounds: the
+    // rounds and the choice are those of carrying them one after the other.
+    let mut alts: Result<Vec<CarriedDraw>> = Ok(Vec::new());
+    let main_run = |cx: &mut RoundCtx<'_, F>| -> Result<(Final, Fitted)> {
+        let mut c0 = cx.reborrow();
+        c0.fo = &fo_first;
+        let main = second_round(c0, first)?;
+        let f = cx
+            .timer
+            .run("thin round", || final_figures(on, &main.control))?;
+        Ok((f, main))
+    };
+    let main = if rayon::current_num_threads() > 1 {
+        let slot = &mut alts;
+        rayon::in_place_scope(|s| {
+            s.spawn(move |_| *slot = carry_alternatives(relayout, fo, on, side));
+            main_run(&mut cx)
+        })
+    } else {
+        let m = main_run(&mut cx);
+        alts = carry_alternatives(relayout, fo, on, side);
+        m
+    };
+    let (f, main) = main?;
     // Each candidate with the index of its first round on `rounds`.
     let mut cands = vec![(f, main, 0usize)];
-    for (scale, control) in &relayout.alternatives {
-        cands.push(carry_draw(cx.reborrow(), *scale, control.clone())?);
+    for (c, timer, rounds) in alts? {
+        let start = cx.rounds.len() + c.2;
+        cx.timer.stages.extend(timer.stages);
+        cx.rounds.extend(rounds);
+        cands.push((c.0, c.1, start));
     }
     let mut figures: Vec<Final> = cands.iter().map(|c| c.0).collect();
     let (mut best, mut scores) =
@@ -1103,6 +1132,43 @@ pub(super) fn final_draws<F: FitFn>(mut cx: RoundCtx<'_, F>, first: Fitted) -> R
         memo.keep_only(&fitted.control);
     }
     Ok(fitted)
+}
+
+/// A fit of a control mesh that can run beside the run's own
+/// ([`final_draws`]' other draws): the same fit without the run's
+/// progress callback, which is not `Send`.
+pub(super) trait SideFit: Fn(&mut StageTimer, ControlMesh) -> Result<Fitted> + Sync {}
+impl<F: Fn(&mut StageTimer, ControlMesh) -> Result<Fitted> + Sync> SideFit for F {}
+
+/// A carried draw ([`carry_draw`]) with its own timer and rounds.
+type CarriedDraw = ((Final, Fitted, usize), StageTimer, Vec<FieldRound>);
+
+/// `relayout.alternatives` each carried on ([`carry_draw`]) with `fit`,
+/// side by side, on a timer and rounds of its own, in draw order; the
+/// first error in draw order.
+fn carry_alternatives<S: SideFit>(
+    relayout: &FieldRelayout,
+    fo: &FieldOptions,
+    on: &OnM<'_>,
+    fit: &S,
+) -> Result<Vec<CarriedDraw>> {
+    relayout
+        .alternatives
+        .par_iter()
+        .map(|(scale, control)| {
+            let (mut timer, mut rounds) = (StageTimer::default(), Vec::new());
+            let cx = RoundCtx {
+                timer: &mut timer,
+                relayout,
+                fo,
+                rounds: &mut rounds,
+                fit: |t: &mut StageTimer, c: ControlMesh| fit(t, c),
+                on,
+            };
+            let c = carry_draw(cx, *scale, control.clone())?;
+            Ok((c, timer, rounds))
+        })
+        .collect()
 }
 
 /// One of the first layout's draws (`control`, laid at `scale` × h)

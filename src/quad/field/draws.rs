@@ -98,14 +98,18 @@ pub const IRREGULAR_SLACK: usize = 2;
 /// irregular count is within [`IRREGULAR_FACTOR`] of the fewest. Failed draws
 /// are skipped; when every draw failed, the first draw's error. One draw
 /// is returned as it is, without a score and without a record, so that
-/// one draw is the layout without draws.
+/// one draw is the layout without draws. The ranked draws are scored side
+/// by side (rayon; a score is a fit of the draw, session 18) and read in
+/// draw order, so the choice, and the error returned when a score fails
+/// (the first ranked draw's in draw order), are those of scoring one after
+/// the other.
 pub fn choose<S>(
     draws: Vec<Result<FieldLayout>>,
     topology: TopologySummary,
-    mut score: S,
+    score: S,
 ) -> Result<FieldLayout>
 where
-    S: FnMut(&FieldLayout) -> Result<f64>,
+    S: Fn(&FieldLayout) -> Result<f64> + Sync,
 {
     if draws.len() == 1 {
         return draws.into_iter().next().expect("one draw");
@@ -118,11 +122,24 @@ where
         .min()
         .unwrap_or(0);
     let most = IRREGULAR_FACTOR * fewest as f64 + IRREGULAR_SLACK as f64;
+    let ranked = |d: &Result<FieldLayout>| match d {
+        Ok(l) => {
+            control_topology(&l.control) == topology && l.stats.irregular_vertices as f64 <= most
+        }
+        Err(_) => false,
+    };
+    let scores: Vec<Option<Result<f64>>> = draws
+        .par_iter()
+        .map(|d| match d {
+            Ok(l) if ranked(d) => Some(score(l)),
+            _ => None,
+        })
+        .collect();
     let mut record = DrawsRecord::default();
     let mut best: Option<(f64, usize)> = None;
     let mut first_error = None;
     let mut kept = Vec::with_capacity(draws.len());
-    for (i, d) in draws.into_iter().enumerate() {
+    for (i, (d, scored)) in draws.into_iter().zip(scores).enumerate() {
         let mut r = DrawRecord {
             scale: SCALES[i],
             ..Default::default()
@@ -131,13 +148,13 @@ where
             Ok(l) if control_topology(&l.control) == topology => {
                 r.faces = l.stats.faces;
                 r.irregular_vertices = l.stats.irregular_vertices;
-                if l.stats.irregular_vertices as f64 > most {
+                let Some(s) = scored else {
                     // Not ranked (and not fitted): see IRREGULAR_FACTOR.
                     record.draws.push(r);
                     kept.push(None);
                     continue;
-                }
-                let s = score(&l)?;
+                };
+                let s = s?;
                 let s = if s.is_nan() { f64::INFINITY } else { s };
                 r.score = Some(s);
                 if best.map_or(true, |(b, _)| s < b) {

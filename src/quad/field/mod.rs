@@ -443,7 +443,7 @@ pub fn field_layout_drawn<S>(
     score: S,
 ) -> Result<FieldLayout>
 where
-    S: FnMut(&FieldLayout) -> Result<f64>,
+    S: Fn(&FieldLayout) -> Result<f64> + Sync,
 {
     let laid = lay_draws(prep, mesh, fitmap, opts, k)?;
     draws::choose(laid, prep.surf.topology, score)
