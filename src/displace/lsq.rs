@@ -945,7 +945,12 @@ impl OverUnprojectable<'_> {
                 .iter()
                 .any(|&v| !self.projected[v as usize])
         };
-        let mut first: Vec<u32> = self.d_order.iter().copied().filter(|&k| suspect(k)).collect();
+        let mut first: Vec<u32> = self
+            .d_order
+            .iter()
+            .copied()
+            .filter(|&k| suspect(k))
+            .collect();
         if let Some(h) = old {
             first.extend(h.heaviest(stride, suspect));
         }
@@ -1963,7 +1968,10 @@ mod tests {
         }
         // Most clear rejections: proved by the early points alone, or
         // stopped sooner with them.
-        assert!(earlier > 100, "the early terms stopped {earlier} of 200 rounds sooner");
+        assert!(
+            earlier > 100,
+            "the early terms stopped {earlier} of 200 rounds sooner"
+        );
     }
 
     #[test]
@@ -1974,7 +1982,13 @@ mod tests {
         // that reaches the share of the eligible sum.
         let n = 4000;
         let term: Vec<f64> = (0..n)
-            .map(|k| if k % 7 == 3 { 0.0 } else { 10f64.powf(-4.0 * ((k * 37 % n) as f64 / n as f64)) })
+            .map(|k| {
+                if k % 7 == 3 {
+                    0.0
+                } else {
+                    10f64.powf(-4.0 * ((k * 37 % n) as f64 / n as f64))
+                }
+            })
             .collect();
         let h = Heavy {
             ends: Vec::new(),
@@ -1987,7 +2001,9 @@ mod tests {
             assert!(picks.len() <= n / stride / HEAVY_PART, "{}", picks.len());
             assert!(picks.iter().all(|&k| k as usize % stride == 0 && !skip(k)));
             assert!(picks.iter().all(|&k| term[k as usize] > 0.0));
-            assert!(picks.windows(2).all(|w| term[w[0] as usize] >= term[w[1] as usize]));
+            assert!(picks
+                .windows(2)
+                .all(|w| term[w[0] as usize] >= term[w[1] as usize]));
             // Nothing left out is heavier than the lightest pick.
             let least = term[*picks.last().unwrap() as usize];
             let eligible: Vec<usize> = (0..n)
