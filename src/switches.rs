@@ -42,6 +42,7 @@
 //! | `SUBDFIT_FITTRACE` | `fit` | each fit iteration on stderr |
 //! | `SUBDFIT_FITMAP_SPARSE`, `SUBDFIT_FITMAP_SPARSE_POWER`, `SUBDFIT_FITMAP_SEED` | `analysis::fitmap` | the sparse rule, its mean's power, the sampling seed |
 //! | `SUBDFIT_LSQ_HALVINGS` | `displace::lsq` | the full step's halvings |
+//! | `SUBDFIT_LSQ_CG_TOL` | `displace::lsq` | the least squares' conjugate-gradient tolerance (default 1e-10) |
 //! | `SUBDFIT_TAIL_SAMPLES` | `report` | `N`: the least squares' M-side fitting points a stratified draw of `N` when M has more edges |
 //! | `SUBDFIT_LSQTRACE` | `displace::lsq` | the solves on stderr |
 //! | `SUBDFIT_MEMTRACE` | `watch` | memory per stage on stderr |

@@ -493,6 +493,7 @@ pub fn refine_offsets_keeping_d(
     // D as built by the last round kept, at the offsets `current` holds.
     let mut kept_d: Option<BuiltD> = None;
     let d_draw = RefCell::new(None);
+    let heavy = RefCell::new(None);
     while round <= opts.rounds {
         // The last round only decides whether the previous update is kept:
         // it measures the objective on a fixed subsample (every
@@ -514,6 +515,7 @@ pub fn refine_offsets_keeping_d(
             pattern: pattern.as_ref(),
             m_samples: opts.m_samples,
             d_draw: &d_draw,
+            heavy: &heavy,
         };
         // The value this round must stay below to be kept.
         let reject_at = if check_only { current_sub } else { current_obj };
@@ -571,7 +573,12 @@ pub fn refine_offsets_keeping_d(
             // their inpainted offsets (module docs).
             ne.add_diagonal(i, lambda * if f { FIXED_RIDGE } else { 1.0 })?;
         }
-        let delta = ne.solve_cg(CG_TOLERANCE)?;
+        let cpu = crate::watch::process_cpu_seconds();
+        let delta = ne.solve_cg(cg_tolerance())?;
+        if crate::switches::set("SUBDFIT_LSQTRACE") {
+            let s = crate::watch::process_cpu_seconds() - cpu;
+            eprintln!("lsqtrace   solve: {n} unknowns, {s:.3} CPU s");
+        }
         for (d, dd) in disp.offsets.iter_mut().zip(&delta) {
             *d += dd;
         }
@@ -630,6 +637,15 @@ fn set_step(disp: &mut Displacement, current: &[f64], delta: &[f64], scale: f64)
 /// same bytes, and bunny's displacement+metrics CPU fell 3.6 → 2.0 s.
 fn full_step_halvings() -> i32 {
     crate::switches::parsed("SUBDFIT_LSQ_HALVINGS").map_or(0, |h: i32| h.clamp(0, HOST_HALVINGS))
+}
+
+/// The conjugate gradients' relative residual: [`CG_TOLERANCE`], or
+/// `SUBDFIT_LSQ_CG_TOL` (a measurement: a looser solve of an update
+/// that the check then rejects).
+fn cg_tolerance() -> f64 {
+    crate::switches::parsed("SUBDFIT_LSQ_CG_TOL")
+        .filter(|t: &f64| *t > 0.0 && *t < 1.0)
+        .unwrap_or(CG_TOLERANCE)
 }
 
 /// With `SUBDFIT_LSQTRACE` set, one line per round of
@@ -723,9 +739,19 @@ fn round_rows(
         dmesh: &dmesh,
         d_order: &d_order,
     };
-    if let Some(score) = over.rejects(&verdict, mesh_caster, scale_d)? {
-        return Ok((score, None, false, None));
-    }
+    // D → M's heaviest terms of the last full round, when D has the same
+    // edges (always on the host surface; the sample grid's diagonals
+    // follow the positions) and every edge is measured.
+    let last = at.heavy.borrow();
+    let old = last
+        .as_ref()
+        .filter(|h| drawn.is_none() && h.ends == d_all.ends);
+    let (pre_term, pre_total) = match over.rejects(&verdict, mesh_caster, scale_d, old, stride)? {
+        Some(Early::Rejected(score)) => return Ok((score, None, false, None)),
+        Some(Early::Terms { term, total }) => (Some(term), total),
+        None => (None, 0.0),
+    };
+    drop(last);
     let d_caster = make_raycaster(RayBackend::Embree, &dmesh)?;
     let deps = match host {
         None => Basis::Samples(Dependents::of(disp)),
@@ -737,7 +763,14 @@ fn round_rows(
     };
     let score = RefCell::new(Score::default());
     let mut row = Vec::with_capacity(3);
-    let stop = || verdict.rejects(&score.borrow());
+    // The early points' terms not yet met again in this visit: their sum
+    // (`pre_total − seen`) adds to the running sum as a lower bound of
+    // what is left ([`Verdict::rejects_with`]).
+    let seen = std::cell::Cell::new(0.0);
+    let stop = || verdict.rejects_with(&score.borrow(), pre_total - seen.get());
+    // This round's D → M terms per D edge, for the next round's early
+    // points ([`Heavy`]).
+    let mut record = (!check_only && drawn.is_none()).then(|| vec![0.0; d_edges.len()]);
     // M → D rows: a point p of M moves D's closest point q in triangle t.
     let complete = closest_in_order(
         m_edges,
@@ -781,6 +814,12 @@ fn round_rows(
         |k, q, c| {
             let w = d_edges.weight[k] * scale_d;
             score.borrow_mut().add(w, c.distance, k % CHECK_STRIDE == 0);
+            if let Some(t) = &pre_term {
+                seen.set(seen.get() + t[k]);
+            }
+            if let Some(r) = record.as_mut() {
+                r[k] = w * c.distance * c.distance;
+            }
             let Some(ne) = ne.as_mut() else { return Ok(()) };
             let nt = unit_normal(mesh.triangle(c.triangle as usize));
             let e = nt.dot(c.point - q);
@@ -799,6 +838,12 @@ fn round_rows(
     {
         let s = score.borrow();
         dir_trace(m_part, Some((s.obj, s.obj_w, s.n)), verdict.bound);
+    }
+    if let Some(term) = record.filter(|_| complete) {
+        *at.heavy.borrow_mut() = Some(Heavy {
+            ends: d_all.ends.clone(),
+            term,
+        });
     }
     // D and its scene, kept for measuring D if this round's offsets are
     // the ones returned (`refine_offsets_keeping_d`).
@@ -881,34 +926,96 @@ struct OverUnprojectable<'a> {
 }
 
 impl OverUnprojectable<'_> {
-    /// The round's partial score when these points alone prove that it is
-    /// rejected; `None` when they do not (or there is nothing to beat).
+    /// What these points, then the heaviest of `old`'s other terms
+    /// ([`Heavy::heaviest`], every `stride`-th edge as the round's visit),
+    /// give measured first; `None` when there is nothing to beat.
     fn rejects(
         &self,
         verdict: &Verdict,
         caster: &dyn RayCaster,
         scale_d: f64,
-    ) -> Result<Option<Score>> {
+        old: Option<&Heavy>,
+        stride: usize,
+    ) -> Result<Option<Early>> {
         if !verdict.bound.is_finite() {
             return Ok(None);
         }
-        let suspect: Vec<u32> = self
+        let suspect = |k: u32| {
+            self.d_edges.ends[k as usize]
+                .iter()
+                .any(|&v| !self.projected[v as usize])
+        };
+        let mut first: Vec<u32> = self
             .d_order
             .iter()
             .copied()
-            .filter(|&k| {
-                self.d_edges.ends[k as usize]
-                    .iter()
-                    .any(|&v| !self.projected[v as usize])
-            })
+            .filter(|&k| suspect(k))
             .collect();
-        verdict.rejects_early(
-            self.d_edges,
-            &self.dmesh.positions,
-            &suspect,
-            caster,
-            scale_d,
-        )
+        if let Some(h) = old {
+            first.extend(h.heaviest(stride, suspect));
+        }
+        verdict
+            .rejects_early(self.d_edges, &self.dmesh.positions, &first, caster, scale_d)
+            .map(Some)
+    }
+}
+
+/// What the points a round measures first gave ([`Verdict::rejects_early`]).
+enum Early {
+    /// They prove the round rejected: its partial score.
+    Rejected(Score),
+    /// They do not: each one's term `w d²` by D edge (0 for the others)
+    /// and their sum.
+    Terms { term: Vec<f64>, total: f64 },
+}
+
+/// D → M's terms `w d²` per D edge on the last complete full round, and
+/// D's edges then. Where an update is rejected it is by a rise of D → M
+/// (bunny's ladder: D's error piles up near M's holes and rims, on a few
+/// points), so a round measures first, beside the edges over
+/// unprojectable samples, the edges that carried most of the last
+/// round's D → M: their new terms prove most rejections before D's scene
+/// is built, and what they sum to stays a lower bound of the unvisited
+/// rest during the round's own visit ([`Verdict::rejects_with`]).
+struct Heavy {
+    ends: Vec<[u32; 2]>,
+    term: Vec<f64>,
+}
+
+/// [`Heavy::heaviest`] takes the heaviest terms up to this share of their
+/// sum, and no more than `1 / HEAVY_PART` of the edges visited: what a
+/// kept round measures twice.
+const HEAVY_SHARE: f64 = 0.95;
+const HEAVY_PART: usize = 8;
+
+impl Heavy {
+    /// The heaviest terms' edges among every `stride`-th that `skip` does
+    /// not take, heaviest first.
+    fn heaviest(&self, stride: usize, skip: impl Fn(u32) -> bool) -> Vec<u32> {
+        let mut cand: Vec<(f64, u32)> = self
+            .term
+            .iter()
+            .enumerate()
+            .filter(|&(k, &t)| k % stride == 0 && t > 0.0 && !skip(k as u32))
+            .map(|(k, &t)| (t, k as u32))
+            .collect();
+        let total: f64 = cand.iter().map(|c| c.0).sum();
+        let by_weight = |a: &(f64, u32), b: &(f64, u32)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
+        let cap = (self.term.len() / stride.max(1) / HEAVY_PART).max(1);
+        if cand.len() > cap {
+            cand.select_nth_unstable_by(cap, by_weight);
+            cand.truncate(cap);
+        }
+        cand.sort_unstable_by(by_weight);
+        let mut sum = 0.0;
+        cand.into_iter()
+            .take_while(|c| {
+                let more = sum < HEAVY_SHARE * total;
+                sum += c.0;
+                more
+            })
+            .map(|c| c.1)
+            .collect()
     }
 }
 
@@ -983,8 +1090,9 @@ impl Verdict {
         subset: &[u32],
         caster: &dyn RayCaster,
         scale: f64,
-    ) -> Result<Option<Score>> {
+    ) -> Result<Early> {
         let mut part = Score::default();
+        let mut term = vec![0.0; edges.len()];
         let mut pts = Vec::with_capacity(crate::raycast::SUB_BATCH);
         for chunk in subset.chunks(crate::raycast::SUB_BATCH) {
             pts.clear();
@@ -994,23 +1102,35 @@ impl Verdict {
                 if let Some(c) = c {
                     let w = edges.weight[k as usize] * scale;
                     part.add(w, c.distance, k as usize % CHECK_STRIDE == 0);
+                    term[k as usize] = w * c.distance * c.distance;
                 }
             }
             if self.proves(&part) {
+                early_trace(&part, subset.len(), true);
                 // The trace's figure: the lower bound that decided.
                 part.obj_w = self.bound;
                 part.sub = part.obj;
                 part.sub_w = self.bound;
-                return Ok(Some(part));
+                return Ok(Early::Rejected(part));
             }
         }
-        Ok(None)
+        early_trace(&part, subset.len(), false);
+        Ok(Early::Terms {
+            term,
+            total: part.obj,
+        })
     }
 
     /// Whether `part`, the sums over some of the round's points taken in
     /// any order, proves the round rejected ([`Self::rejects_early`]).
     fn proves(&self, part: &Score) -> bool {
-        let low = part.obj * (1.0 - EARLY_MARGIN);
+        self.proves_sum(part.obj)
+    }
+
+    /// [`Self::proves`] of a lower bound `obj` of the round's sum of
+    /// squares, taken in any order.
+    fn proves_sum(&self, obj: f64) -> bool {
+        let low = obj * (1.0 - EARLY_MARGIN);
         self.bound.is_finite() && (low / self.bound.max(f64::MIN_POSITIVE)).sqrt() >= self.reject_at
     }
 
@@ -1020,6 +1140,27 @@ impl Verdict {
     fn rejects(&self, score: &Score) -> bool {
         self.bound.is_finite()
             && (score.obj / self.bound.max(f64::MIN_POSITIVE)).sqrt() >= self.reject_at
+    }
+
+    /// [`Self::rejects`], or proved with `rest` added to the running sum:
+    /// the sum of terms measured early ([`Self::rejects_early`]) of points
+    /// this visit has not reached yet. Disjoint from the points visited,
+    /// those terms are the round's own, so running sum plus rest is at
+    /// most the round's sum but for rounding, which the margin of
+    /// [`Self::proves_sum`] covers (the rest, a difference of two sums
+    /// each below the threshold's sum, is off by about 10⁻⁹ of it at most).
+    fn rejects_with(&self, score: &Score, rest: f64) -> bool {
+        self.rejects(score) || (rest > 0.0 && self.proves_sum(score.obj + rest))
+    }
+}
+
+/// With `SUBDFIT_LSQTRACE`, what the points measured first gave.
+fn early_trace(part: &Score, points: usize, proved: bool) {
+    if crate::switches::set("SUBDFIT_LSQTRACE") {
+        eprintln!(
+            "lsqtrace   early: {} of {points} points, obj {:.6e}, proved {proved}",
+            part.n, part.obj
+        );
     }
 }
 
@@ -1045,6 +1186,9 @@ struct RoundAt<'a> {
     m_samples: Option<usize>,
     /// D's draw, once made ([`d_draw`]): D's edge count then, and the draw.
     d_draw: &'a RefCell<Option<(usize, Draw)>>,
+    /// D → M's terms per D edge on the last complete full round
+    /// ([`Heavy`]).
+    heavy: &'a RefCell<Option<Heavy>>,
 }
 
 /// Empty normal equations whose pattern holds every pair of samples that a
@@ -1732,6 +1876,154 @@ mod tests {
         let mut s = Score::default();
         s.add(1.0, 1e300, true);
         assert!(!v.rejects(&s));
+    }
+
+    #[test]
+    fn early_terms_only_stop_rounds_the_full_sums_reject() {
+        // A round's points (weight, distance or a miss), some measured
+        // first (every fifth, then the heaviest of the others by a
+        // previous round's terms, as `Heavy::heaviest` picks them), their
+        // sum then the rest of a running visit of every point in index
+        // order (`Verdict::rejects_with`), against thresholds at the full
+        // figure and one ulp either side: never a stop of a round the full
+        // comparison keeps; a stop before the last point of a round
+        // rejected by a clear margin, earlier than without the early terms.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut earlier = 0;
+        for trial in 0..200 {
+            let n = 60 + trial * 5;
+            let pts: Vec<(f64, Option<f64>)> = (0..n)
+                .map(|_| {
+                    let w = 10f64.powf(-3.0 * next());
+                    // Heavy-tailed distances: a few points carry most.
+                    let d = (next() > 0.05).then(|| next().powi(6));
+                    (w, d)
+                })
+                .collect();
+            let term = |&(w, d): &(f64, Option<f64>)| d.map_or(0.0, |d| w * d * d);
+            // The previous round's terms: this round's, perturbed.
+            let old = Heavy {
+                ends: Vec::new(),
+                term: pts.iter().map(|p| term(p) * (0.5 + next())).collect(),
+            };
+            let mut first: Vec<u32> = (0..n as u32).filter(|k| k % 5 == 0).collect();
+            first.extend(old.heaviest(1, |k| k % 5 == 0));
+            let mut early = Score::default();
+            let mut early_term = vec![0.0; n];
+            for &k in &first {
+                let (w, d) = pts[k as usize];
+                if let Some(d) = d {
+                    early.add(w, d, true);
+                    early_term[k as usize] = w * d * d;
+                }
+            }
+            let mut full = Score::default();
+            for &(w, d) in &pts {
+                if let Some(d) = d {
+                    full.add(w, d, true);
+                }
+            }
+            let (rms, _) = full.rms();
+            let up = f64::from_bits(rms.to_bits() + 1);
+            let down = f64::from_bits(rms.to_bits() - 1);
+            for reject_at in [down, rms, up, 0.9 * rms] {
+                let verdict = Verdict::new(reject_at, || pts.iter().map(|p| p.0));
+                let rejected = rms >= reject_at;
+                if verdict.proves(&early) {
+                    assert!(rejected, "trial {trial}: early proof of a kept round");
+                    earlier += usize::from(reject_at == 0.9 * rms);
+                    continue;
+                }
+                let (mut part, mut seen) = (Score::default(), 0.0);
+                let (mut at, mut at_plain) = (None, None);
+                for (i, &(w, d)) in pts.iter().enumerate() {
+                    if let Some(d) = d {
+                        part.add(w, d, true);
+                    }
+                    seen += early_term[i];
+                    if at.is_none() && verdict.rejects_with(&part, early.obj - seen) {
+                        at = Some(i);
+                    }
+                    if at_plain.is_none() && verdict.rejects(&part) {
+                        at_plain = Some(i);
+                    }
+                }
+                assert!(
+                    at.is_none() || rejected,
+                    "trial {trial}: stopped at {at:?} a round kept at {rms:e} < {reject_at:e}"
+                );
+                assert!(at.unwrap_or(n) <= at_plain.unwrap_or(n), "trial {trial}");
+                if reject_at == 0.9 * rms {
+                    let i = at.expect("a clear rejection is seen");
+                    assert!(i + 1 < n, "trial {trial}: seen only at the end");
+                    earlier += usize::from(i < at_plain.unwrap_or(n));
+                }
+            }
+        }
+        // Most clear rejections: proved by the early points alone, or
+        // stopped sooner with them.
+        assert!(
+            earlier > 100,
+            "the early terms stopped {earlier} of 200 rounds sooner"
+        );
+    }
+
+    #[test]
+    fn heaviest_terms_come_first_within_the_share_and_the_cap() {
+        // Terms over four decades, every other edge skipped: the picks are
+        // every `stride`-th unskipped edge with a positive term, heaviest
+        // first, no more than the cap, and they stop at the first prefix
+        // that reaches the share of the eligible sum.
+        let n = 4000;
+        let term: Vec<f64> = (0..n)
+            .map(|k| {
+                if k % 7 == 3 {
+                    0.0
+                } else {
+                    10f64.powf(-4.0 * ((k * 37 % n) as f64 / n as f64))
+                }
+            })
+            .collect();
+        let h = Heavy {
+            ends: Vec::new(),
+            term: term.clone(),
+        };
+        for stride in [1, 4] {
+            let skip = |k: u32| k % 2 == 1;
+            let picks = h.heaviest(stride, skip);
+            assert!(!picks.is_empty());
+            assert!(picks.len() <= n / stride / HEAVY_PART, "{}", picks.len());
+            assert!(picks.iter().all(|&k| k as usize % stride == 0 && !skip(k)));
+            assert!(picks.iter().all(|&k| term[k as usize] > 0.0));
+            assert!(picks
+                .windows(2)
+                .all(|w| term[w[0] as usize] >= term[w[1] as usize]));
+            // Nothing left out is heavier than the lightest pick.
+            let least = term[*picks.last().unwrap() as usize];
+            let eligible: Vec<usize> = (0..n)
+                .filter(|&k| k % stride == 0 && !skip(k as u32) && term[k] > 0.0)
+                .collect();
+            assert!(eligible
+                .iter()
+                .all(|k| picks.contains(&(*k as u32)) || term[*k] <= least));
+            let total: f64 = eligible.iter().map(|&k| term[k]).sum();
+            let sum: f64 = picks.iter().map(|&k| term[k as usize]).sum();
+            let before_last = sum - least;
+            assert!(
+                before_last < HEAVY_SHARE * total,
+                "the picks go on past the share"
+            );
+            assert!(
+                sum >= HEAVY_SHARE * total || picks.len() == n / stride / HEAVY_PART,
+                "the picks stop short of the share below the cap"
+            );
+        }
     }
 
     #[test]
