@@ -1310,10 +1310,11 @@ fn lay_out_grown(
         let n = c.num_faces();
         if *f >= *sc && n as f64 > OVERSHOOT * allowed as f64 && how.follow.is_some() {
             // With the switch, the count searched for as the bracket's
-            // is ([`crate::quad::field::lay_near_count`]): one step at
-            // √(n / allowed) took homer at τ 1 % from 345 patches to 668
-            // (1.5× its budget's 449) and the retry fell to 339, below the
-            // round it grows (docs/status.md, session 17).
+            // is ([`crate::quad::field::lay_near_count`]): homer at τ 1 %
+            // went from 345 patches (predicted 566) to 668 (predicted 608,
+            // 1.5× its budget's 449), the one retry at √(668 / 449) = 1.22
+            // fell to 276, below the round it grows, and the 668 were
+            // kept (190 irregular vertices); the search lands 381 at 1.055.
             let (sc, passes) = (*sc, OVERSHOOT_PASSES);
             let landed = crate::quad::field::lay_near_count(&mut lay, (sc, n), allowed, passes)?;
             if let Some((laid, retry)) = landed {
