@@ -614,6 +614,7 @@ impl Bracket<'_> {
             .filter(|(r, _)| round_meets(self.e, r))
             .min_by_key(|(r, _)| r.faces);
         let kept_faces = kept.map_or(0, |(r, _)| r.faces);
+        let mut kept_rho = kept.and_then(|(r, _)| r.adaptivity_spearman);
         let h = match kept.and_then(|(_, h)| h.clone()) {
             Some(h) => h,
             None => Sizes::new(&self.relayout.mesh, &self.relayout.fitmap, self.fo)?.h,
@@ -708,7 +709,15 @@ impl Bracket<'_> {
             };
             let judged = on_m.unwrap_or(m.unprojectable_percent);
             let key = Kept::of(Some(self.e), rms, Some(judged), faces);
-            let kept = key < best.0 && d <= BRACKET_D_CAP * kept_d + BRACKET_D_SLACK;
+            // With the switch, a bracket layout that loses the kept
+            // round's adaptivity is not kept (issue 40: ρ ≥ 0.6; measured,
+            // the gargoyle at τ 1 % landed 782 patches at ρ 0.564 and RMS
+            // L 2.58‰ against the first layout's 906 at 0.617 and 2.10‰).
+            let rho_kept = match (self.follow, spearman, kept_rho) {
+                (Some(_), Some(r), Some(k)) => r >= k - BRACKET_RHO_SLACK,
+                _ => true,
+            };
+            let kept = key < best.0 && d <= BRACKET_D_CAP * kept_d + BRACKET_D_SLACK && rho_kept;
             rounds.push(FieldRound {
                 target_faces: Some(n),
                 faces,
@@ -727,6 +736,7 @@ impl Bracket<'_> {
             if kept {
                 *best = (key, fitted);
                 kept_d = d;
+                kept_rho = spearman;
             }
         }
         Ok(())
@@ -746,6 +756,10 @@ fn round_meets(e: f64, r: &FieldRound) -> bool {
     let key = Kept::of(Some(e), round_rms(r), u, r.faces);
     key.meets() && r.kept != Some(false)
 }
+
+/// Under [`NATURAL_ADAPTIVITY_ENV`], a bracket layout is kept only if its
+/// ρ (patch radius against 1/F_S) is at least the kept round's minus this.
+pub const BRACKET_RHO_SLACK: f64 = 0.03;
 
 /// Layouts [`crate::quad::field::lay_near_count`] lays at most for one
 /// bracket count.
