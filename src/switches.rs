@@ -22,6 +22,7 @@
 //! | `SUBDFIT_FIELD_DRAW_SCORE` | `convert::field` | what the first layout's draws are ranked by (`irr`, `fit`, `unproj`) |
 //! | `SUBDFIT_FIELD_DRAW_LOG` | `convert::field`, `convert::thin` | each draw's figures on stderr |
 //! | `SUBDFIT_FIELD_BRACKET` | `convert::field` | `0` turns the bracket off, `1` on (on by default) |
+//! | `SUBDFIT_FIELD_NEAR_D` | `convert::field` | with `SUBDFIT_FIELD_ADAPT=1`, the share of RMS L a near miss's RMS D may reach to be judged on M (`NEAR_D_SHARE`, off by default; `0.15` measured) |
 //! | `SUBDFIT_FIELD_ORDER` | `quad::field::parts` | the parts' order (`lex`, `bfs`, another value Morton) |
 //! | `SUBDFIT_FACES_PROJ` | `convert::faces_proj` | `1`: the projectability rounds at `--faces` |
 //! | `SUBDFIT_FACES_PROJ_F`, `_ROUNDS`, `_LCAP` | `convert::faces_proj` | their constants |

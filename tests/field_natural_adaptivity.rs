@@ -8,8 +8,8 @@ mod common;
 use subdfit::analysis::{spearman, Fitmap};
 use subdfit::mesh::{ControlMesh, TriMesh};
 use subdfit::quad::field::{
-    control_topology, field_layout, field_layout_refined_following, sizing, FieldOptions, Follow,
-    Prepared, Surface,
+    control_topology, field_layout, field_layout_counted_following, field_layout_refined_following,
+    lay_near_count, sizing, FieldOptions, Follow, Prepared, Surface, COUNT_WINDOW,
 };
 use subdfit::DVec3;
 
@@ -138,4 +138,46 @@ fn rounds_keep_the_grading_when_the_relaxation_follows_their_sizing() {
     // plain round by more than the run-to-run noise of a lattice.
     assert!(r[2] > r[1] + 0.03, "ρ {r:.3?}");
     assert!(r[2] > r[0] - 0.12, "ρ {r:.3?}");
+}
+
+/// The `--max-error` bracket's layout under the switch (a kept round's
+/// sizing scaled towards fewer patches, no `--faces` trim) lands within
+/// [`COUNT_WINDOW`] of the count it aims at: [`lay_near_count`] from the
+/// first layout's sizing on the sphere, aimed at 70 % and 85 % of its
+/// patches (the bracket's counts lie 6–40 % under the kept round's). The
+/// one-shot √(kept / n) scale it replaces landed 1.5× off its aim on the
+/// bunny (docs/status.md, session 17).
+#[test]
+fn the_bracket_lands_near_the_count_it_aims_at() {
+    let m = common::icosphere(5, DVec3::ZERO, 1.0);
+    let fitmap = rising_fitmap(&m);
+    let opts = FieldOptions::default().with_natural_adaptivity();
+    let surf = Surface::new(&m).unwrap();
+    let prep = Prepared::new(&m, &opts).unwrap();
+    let (base, alpha, ..) = sizing::sizing_for(&surf, &m, &fitmap, &opts).unwrap();
+    let follow = Follow {
+        base: base.clone(),
+        alpha,
+    };
+    let mut laid = 0;
+    let mut lay = |s: f64| {
+        laid += 1;
+        let h: Vec<f64> = base.iter().map(|x| x * s).collect();
+        field_layout_counted_following(&prep, &m, &fitmap, h, &opts, &follow)
+    };
+    let kept = lay(1.0).unwrap().control.num_faces();
+    for share in [0.70, 0.85] {
+        let n = (share * kept as f64).round() as usize;
+        let (l, s) = lay_near_count(&mut lay, (1.0, kept), n, 4)
+            .unwrap()
+            .expect("passes > 0");
+        let got = l.control.num_faces();
+        eprintln!("kept {kept}, aimed {n}, landed {got} at s {s:.3}");
+        assert_eq!(control_topology(&l.control), surf.topology);
+        // Fewer patches at a larger scale, within the window.
+        assert!(s > 1.0, "s {s}");
+        let off = (got as f64 - n as f64).abs() / n as f64;
+        assert!(off <= COUNT_WINDOW, "aimed {n}, landed {got}");
+    }
+    assert!(laid <= 9, "{laid} layouts");
 }

@@ -550,6 +550,69 @@ pub fn field_layout_counted_following(
     lay_counted(prep, mesh, fitmap, h, opts, stats, Some(follow))
 }
 
+/// A lattice within this share of its aimed count is taken
+/// ([`lay_near_count`]; the `--faces` loop's ±2 % window is met by the
+/// cleanup's trims, which a bracket layout under
+/// [`NATURAL_ADAPTIVITY_ENV`] does not take, `src/convert/field.rs`).
+pub const COUNT_WINDOW: f64 = 0.05;
+
+/// The layout of `lay(s)` (a sizing times s) nearest `n` patches, and its
+/// s, within at most `passes` layouts, from a scale `above.0` whose
+/// lattice had `above.1` > `n` patches: the first step is the h⁻² count
+/// model's √(above.1 / n) (Fitmaps §3.1.2), the next ones interpolate
+/// log count against log s between the nearest lattices above and below
+/// `n` (the h⁻² model's guess, from one side only). The lattice's count
+/// follows the scale only roughly and in steps (the position field
+/// settles on fewer cells than ∫ dA / h² predicts, and by different
+/// shares at different scales): the one-shot √(kept / n) step of the
+/// `--max-error` bracket (`src/convert/field.rs`) landed far from its aim (bunny at τ 1 %: aimed
+/// 326, got 497; homer 480 → 339; docs/status.md, session 17). Stops
+/// within [`COUNT_WINDOW`] of `n`; `None` only when `passes` is 0.
+pub fn lay_near_count<L>(
+    mut lay: L,
+    above: (f64, usize),
+    n: usize,
+    passes: usize,
+) -> Result<Option<(FieldLayout, f64)>>
+where
+    L: FnMut(f64) -> Result<FieldLayout>,
+{
+    let nf = n.max(1) as f64;
+    let off = |c: f64| (c - nf).abs();
+    // The nearest scales known above and below the count, (s, count).
+    let mut hi_count = (above.0, (above.1 as f64).max(nf + 1.0));
+    let mut lo_count: Option<(f64, f64)> = None;
+    let mut best: Option<(FieldLayout, f64)> = None;
+    let mut s = hi_count.0 * (hi_count.1 / nf).sqrt();
+    for _ in 0..passes {
+        let laid = lay(s)?;
+        let got = laid.control.num_faces() as f64;
+        let nearer = best
+            .as_ref()
+            .map_or(true, |(b, _)| off(got) < off(b.control.num_faces() as f64));
+        if nearer {
+            best = Some((laid, s));
+        }
+        if off(got) <= COUNT_WINDOW * nf {
+            break;
+        }
+        if got > nf {
+            hi_count = (s, got);
+        } else {
+            lo_count = Some((s, got.max(1.0)));
+        }
+        s = match lo_count {
+            Some((sl, gl)) => {
+                let (sh, gh) = hi_count;
+                let t = (gh / nf).ln() / (gh / gl).ln();
+                (sh.ln() + t * (sl.ln() - sh.ln())).exp()
+            }
+            None => hi_count.0 * (hi_count.1 / nf).sqrt(),
+        };
+    }
+    Ok(best)
+}
+
 /// The count loop of [`field_layout_prepared`] (see there).
 fn lay_counted(
     prep: &Prepared,
