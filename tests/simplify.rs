@@ -192,6 +192,61 @@ fn deterministic_across_thread_counts() {
     );
 }
 
+/// The sequential loop with its φ batches split in two over a pool of two
+/// threads (`SimplifyOptions::step_fork`, issue 39) against the loop that
+/// splits none, at one and at two threads: the same control mesh bit for
+/// bit (every vertex's position bits, the faces), the same counters of φ
+/// lines, misses and steps. At a 2-line threshold nearly every batch of a
+/// step splits, so the split path is what ran (`step_forks` > 0), and with
+/// a synthetic F_S varying over spot the loop runs its whole course
+/// (thousands of steps, guard undos, the final sweep).
+#[test]
+fn split_phi_batches_give_the_sequential_loops_mesh() {
+    let Some(m) = common::load_data_mesh("spot.ply") else {
+        return;
+    };
+    let caster = make_raycaster(RayBackend::Embree, &m).unwrap();
+    let fitmap = synthetic(&m, |p| 1.0 + 4.0 * p.y.abs(), 0.05 * m.bbox_diagonal());
+    let run = |fork: usize, threads: usize| {
+        let opts = SimplifyOptions::default().with_step_fork(Some(fork));
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| simplify(&m, &fitmap, caster.as_ref(), &opts).unwrap())
+    };
+    let seq1 = run(0, 1);
+    let seq2 = run(0, 2);
+    let split = run(2, 2);
+    assert_eq!(seq1.stats.step_forks, 0);
+    assert_eq!(seq2.stats.step_forks, 0);
+    assert!(
+        split.stats.step_forks > split.stats.collapses,
+        "only {} of the {} steps split a φ batch",
+        split.stats.step_forks,
+        split.stats.collapses
+    );
+    let bits = |r: &subdfit::quad::Simplified| {
+        let k = &r.mesh;
+        let pos: Vec<[u64; 3]> = k
+            .positions()
+            .iter()
+            .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+            .collect();
+        let faces: Vec<Vec<u32>> = k
+            .live_faces()
+            .map(|f| k.face_vertices(f).map(|v| v.0).collect())
+            .collect();
+        let s = &r.stats;
+        let counts = (s.faces, s.collapses, s.rotations, s.doublets, s.projections);
+        (pos, faces, counts, s.unprojectable, s.refused_m_fitmap)
+    };
+    let want = bits(&seq1);
+    assert!(want.2 .1 > 1000, "only {} collapses", want.2 .1);
+    assert!(bits(&seq2) == want, "two threads without splits differ");
+    assert!(bits(&split) == want, "the split φ batches changed the mesh");
+}
+
 /// The batched loop (the default) against the sequential one (a batch of
 /// one) on spot with a varying F_S: batches of several candidates do form,
 /// and the two orders reach the same kind of natural end: face counts and

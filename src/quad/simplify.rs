@@ -154,6 +154,13 @@ pub struct SimplifyOptions {
     /// batch's later candidates before the entries its earlier ones push,
     /// a different greedy order with a different outcome.
     pub batch: usize,
+    /// From how many lines the sequential loop splits a step's φ batch in
+    /// two over the pool when it has two threads or more
+    /// ([`DEFAULT_STEP_FORK`]); `Some(0)`: never; `None`: the
+    /// `SUBDFIT_SIMPLIFY_FORK` switch, else the default. The same result
+    /// whatever the value (not in the report).
+    #[serde(skip)]
+    pub step_fork: Option<usize>,
     /// The split loop (`SUBDFIT_SIMPLIFY_SPLIT=1` turns it on in
     /// [`Default`]; see [`split`]): the greedy runs first on two halves of
     /// the mesh side by side, with a frozen band between them, then on the
@@ -204,6 +211,7 @@ impl Default for SimplifyOptions {
             s_fitmap_scale: DEFAULT_S_FITMAP_SCALE,
             checkpoints: 0,
             batch: DEFAULT_BATCH,
+            step_fork: None,
             split: split::env_on(),
         }
     }
@@ -238,6 +246,11 @@ impl SimplifyOptions {
         self
     }
     /// The split loop ([`SimplifyOptions::split`]).
+    pub fn with_step_fork(mut self, lines: Option<usize>) -> Self {
+        self.step_fork = lines;
+        self
+    }
+
     pub fn with_split(mut self, on: bool) -> Self {
         self.split = on;
         self
@@ -327,6 +340,11 @@ pub struct SimplifyStats {
     /// batch.
     #[serde(default)]
     pub batches: usize,
+    /// φ batches the loop split in two over the pool
+    /// ([`SimplifyOptions::step_fork`]; not in the report: it depends on
+    /// the thread count, the result does not).
+    #[serde(skip)]
+    pub step_forks: usize,
     #[serde(default)]
     pub batched_candidates: usize,
     /// The factor the halting tests were relaxed by to reach
@@ -722,6 +740,13 @@ pub(crate) struct Simplifier<'a> {
     /// One side of the split loop ([`SimplifyOptions::split`]): which
     /// faces may enter the heap and which edits a step may make.
     region: Option<split::Region>,
+    /// From how many lines a step's φ batch is split in two halves over
+    /// the pool ([`phi_lines_into`]); `usize::MAX`: never (set by
+    /// [`Simplifier::run`] when the loop runs as a job of a pool of two
+    /// threads or more, see [`DEFAULT_STEP_FORK`]).
+    step_fork: usize,
+    /// φ batches split so far ([`SimplifyStats::step_forks`]).
+    step_forks: usize,
 }
 
 /// Buffers of [`Simplifier::update_faces_split`], kept between its calls
@@ -753,6 +778,8 @@ pub(crate) struct CentreCheck {
 struct PhiCount {
     lines: usize,
     misses: usize,
+    /// Batches split in two ([`phi_lines_into`]).
+    forks: usize,
 }
 
 impl PhiCount {
@@ -1120,6 +1147,46 @@ fn phi_batch_into(
 /// the worker that stole half a batch the loop waits for it.
 const PHI_PAR_MIN: usize = 512;
 
+/// Default of `SUBDFIT_SIMPLIFY_FORK` (lines; `0` turns it off): from this
+/// many lines on, a step's φ batch (its refit's targets, its faces'
+/// centres) is split in two halves, one of them a job for the pool's other
+/// worker (issue 39: the loop is the pipeline's longest stage on one
+/// core). Unlike the forks `PHI_PAR_MIN` measured, these are made from
+/// inside the pool ([`Simplifier::run`] runs the loop as a pool job): a
+/// fork is a push on the loop's own deque, and a half nobody stole by the
+/// time the loop is done with its own is taken back and run by the loop
+/// (`rayon::join`), so a preempted or sleeping worker costs no wait. Each
+/// line's φ is computed alone and written at its index, so the answers are
+/// those of the sequential loop bit for bit, at any thread count.
+pub const DEFAULT_STEP_FORK: usize = 16;
+
+/// φ of `lines` into `out` as [`phi_batch_into`], and below `par_min`
+/// lines, from `fork` lines on, in two halves side by side
+/// (`rayon::join`): the same answers in the same order. Whether it split.
+fn phi_lines_into(
+    bvh: &BvhCaster,
+    lines: &[(DVec3, DVec3, f64)],
+    (par_min, fork): (usize, usize),
+    out: &mut Vec<Option<Projected>>,
+) -> bool {
+    if lines.len() >= par_min || lines.len() < fork.max(2) {
+        phi_batch_into(bvh, lines, par_min, out);
+        return false;
+    }
+    let fill = |out: &mut [Option<Projected>], lines: &[(DVec3, DVec3, f64)]| {
+        for (o, &(p, n, t)) in out.iter_mut().zip(lines) {
+            *o = phi_line(bvh, p, n, t);
+        }
+    };
+    out.clear();
+    out.resize(lines.len(), None);
+    let mid = lines.len() / 2;
+    let (oa, ob) = out.split_at_mut(mid);
+    let (la, lb) = lines.split_at(mid);
+    rayon::join(|| fill(oa, la), || fill(ob, lb));
+    true
+}
+
 /// Search distance of φ around a feature of size `scale` (a ring's or a
 /// face's extent): a point of the limit surface further than twice that
 /// from M along its normal has no meaningful projection there, and a short
@@ -1199,6 +1266,8 @@ impl<'a> Simplifier<'a> {
             next_checkpoint: (nf as f64 / CHECKPOINT_RATIO) as usize,
             relax: 1.0,
             region: None,
+            step_fork: usize::MAX,
+            step_forks: 0,
         })
     }
 
@@ -1219,6 +1288,7 @@ impl<'a> Simplifier<'a> {
     fn add_count(&mut self, count: PhiCount) {
         self.projections += count.lines;
         self.unprojectable += count.misses;
+        self.step_forks += count.forks;
     }
 
     /// Recomputes centre, F_S, F_M and heap entries of `faces` (live ones);
@@ -1284,7 +1354,8 @@ impl<'a> Simplifier<'a> {
             lines.clear();
             lines.extend(faces.iter().map(|&f| line(f, memo.centre_limit(k, f))));
         }
-        phi_batch_into(&self.bvh, lines, par_min, hits);
+        let forked = phi_lines_into(&self.bvh, lines, (par_min, self.step_fork), hits);
+        self.step_forks += forked as usize;
         self.projections += hits.len();
         // A centre with no hit along its normal still needs Fitmap values:
         // take them at the closest point of M (the miss is counted).
@@ -1562,7 +1633,26 @@ impl<'a> Simplifier<'a> {
         if self.opts.split && self.region.is_none() {
             return self.run_split(stats, progress);
         }
-        if self.opts.batch <= 1 || rayon::current_thread_index().is_some() {
+        // The sequential loop's φ batches fork in two (`DEFAULT_STEP_FORK`)
+        // when there is a second thread, and only from inside the pool,
+        // where a fork is cheap. What stays sequential, and why: each
+        // step's heap pop, collapse, rotations, refit rounds and face
+        // updates read the previous step's mesh and heap (Fitmaps' greedy
+        // order, §3.3), so only the independent φ lines within a phase are
+        // split; the Fitmap test of a candidate stops at its first failing
+        // patch (a few lines) and stays on the loop's thread.
+        let asked = self.opts.step_fork;
+        let fork = match asked.or_else(|| crate::switches::parsed("SUBDFIT_SIMPLIFY_FORK")) {
+            Some(0) => usize::MAX,
+            Some(n) => n,
+            None => DEFAULT_STEP_FORK,
+        };
+        let forks = self.opts.batch <= 1
+            && self.region.is_none()
+            && rayon::current_num_threads() > 1
+            && fork < PHI_PAR_MIN;
+        self.step_fork = if forks { fork } else { usize::MAX };
+        if rayon::current_thread_index().is_some() || (self.opts.batch <= 1 && !forks) {
             return self.run_loop(stats, progress);
         }
         // A batch forks about fifteen times (its Fitmap tests, and each
@@ -1656,6 +1746,7 @@ impl<'a> Simplifier<'a> {
         stats.relaxation = self.relax;
         stats.s_fitmap_kappa = self.kappa;
         stats.projections = self.projections;
+        stats.step_forks = self.step_forks;
         stats.unprojectable = self.unprojectable;
         Ok(())
     }
@@ -2596,7 +2687,7 @@ impl<'a> Simplifier<'a> {
             (limit_of(k, m), vertex_normal(k, v), reach)
         };
         let target = |h: Option<Projected>, l: DVec3| h.map_or(l, |p| p.point);
-        if r.w.len() < par_min {
+        if r.w.len() < par_min && r.w.len() < self.step_fork {
             // A step's W (a few dozen vertices): each line's φ as it is
             // made, in W's order, without the lines' and the answers' own
             // buffers (this runs ~100k times on bunny); the same lines and
@@ -2618,7 +2709,8 @@ impl<'a> Simplifier<'a> {
         let lines: Vec<(DVec3, DVec3, f64)> =
             r.w.iter().enumerate().map(|(i, &v)| line(i, v)).collect();
         let mut hits = Vec::new();
-        phi_batch_into(&self.bvh, &lines, par_min, &mut hits);
+        count.forks +=
+            phi_lines_into(&self.bvh, &lines, (par_min, self.step_fork), &mut hits) as usize;
         count.add(hits.len(), hits.iter().filter(|h| h.is_none()).count());
         hits.iter()
             .zip(&lines)

@@ -395,6 +395,9 @@ impl<'a> Simplifier<'a> {
                 next_snap: 1,
                 refused: 0,
             }),
+            // The halves already keep both cores busy.
+            step_fork: usize::MAX,
+            step_forks: 0,
         }
     }
 
