@@ -39,7 +39,7 @@
 //! | `SUBDFIT_CROSS_HIER` | `quad::field` | `1`: the hierarchical orientation smoothing (`FieldOptions::orientation_hierarchy`) |
 //! | `SUBDFIT_FLOW_RESTARTED` | `quad::field::flow` | set: the restarted search |
 //! | `SUBDFIT_SIMPLIFY_SPLIT` | `quad::simplify_split` | `1`: the simplification's split |
-//! | `SUBDFIT_SIMPLIFY_FORK` | `quad::simplify` | `N`: a step's φ batches split in two over the pool from `N` lines on (`DEFAULT_STEP_FORK`; `0`: never; same bytes) |
+//! | `SUBDFIT_SIMPLIFY_FORK` | `quad::simplify` | `N`: a step's φ batches split in two over the pool from `N` lines on (default off, `DEFAULT_STEP_FORK`: no wall gain measured on quiet cores; `0`: never; same bytes) |
 //! | `SUBDFIT_FIT_START_PICK` | `fit` | `K[:M]`: the fit's start picked after K iterations |
 //! | `SUBDFIT_FITTRACE` | `fit` | each fit iteration on stderr |
 //! | `SUBDFIT_FITMAP_SPARSE`, `SUBDFIT_FITMAP_SPARSE_POWER`, `SUBDFIT_FITMAP_SEED` | `analysis::fitmap` | the sparse rule, its mean's power, the sampling seed |

@@ -1158,7 +1158,14 @@ const PHI_PAR_MIN: usize = 512;
 /// (`rayon::join`), so a preempted or sleeping worker costs no wait. Each
 /// line's φ is computed alone and written at its index, so the answers are
 /// those of the sequential loop bit for bit, at any thread count.
-pub const DEFAULT_STEP_FORK: usize = 16;
+///
+/// Off (0) by default: measured on quiet cores (session 19, bunny defaults,
+/// 2 threads, three alternating pairs) the simplify stage's wall was
+/// 4.66 / 4.75 / 5.16 s split at 16 lines against 4.72 / 4.93 / 4.12 s
+/// unsplit, and the run's system CPU rose 0.5 → 2.3 s (idle workers
+/// spinning): the halves are too small for the hand-over to pay.
+/// `SUBDFIT_SIMPLIFY_FORK=16` turns it on.
+pub const DEFAULT_STEP_FORK: usize = 0;
 
 /// φ of `lines` into `out` as [`phi_batch_into`], and below `par_min`
 /// lines, from `fork` lines on, in two halves side by side
@@ -1642,10 +1649,10 @@ impl<'a> Simplifier<'a> {
         // split; the Fitmap test of a candidate stops at its first failing
         // patch (a few lines) and stays on the loop's thread.
         let asked = self.opts.step_fork;
-        let fork = match asked.or_else(|| crate::switches::parsed("SUBDFIT_SIMPLIFY_FORK")) {
-            Some(0) => usize::MAX,
-            Some(n) => n,
-            None => DEFAULT_STEP_FORK,
+        let asked = asked.or_else(|| crate::switches::parsed("SUBDFIT_SIMPLIFY_FORK"));
+        let fork = match asked.unwrap_or(DEFAULT_STEP_FORK) {
+            0 => usize::MAX,
+            n => n,
         };
         let forks = self.opts.batch <= 1
             && self.region.is_none()
