@@ -1043,7 +1043,7 @@ fn near_miss_on_m(
     u: f64,
     control: &ControlMesh,
 ) -> Result<Option<crate::quad::field::draws::Final>> {
-    if u < UNPROJECTABLE_PERCENT / NEAR_PASS || u > NEAR_MISS * UNPROJECTABLE_PERCENT {
+    if !(UNPROJECTABLE_PERCENT / NEAR_PASS..=NEAR_MISS * UNPROJECTABLE_PERCENT).contains(&u) {
         return Ok(None);
     }
     let f = timer.run("field refinement", || {
