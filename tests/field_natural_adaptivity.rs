@@ -46,6 +46,35 @@ fn rising_fitmap(m: &TriMesh) -> Fitmap {
     }
 }
 
+/// The rounds' setting on the sphere: its rising S-fitmap, natural
+/// adaptivity, and the first layout's graded sizing to follow.
+struct Graded {
+    m: TriMesh,
+    fitmap: Fitmap,
+    opts: FieldOptions,
+    surf: Surface,
+    prep: Prepared,
+    follow: Follow,
+}
+
+fn graded_sphere() -> Graded {
+    let m = common::icosphere(5, DVec3::ZERO, 1.0);
+    let fitmap = rising_fitmap(&m);
+    let opts = FieldOptions::default().with_natural_adaptivity();
+    let surf = Surface::new(&m).unwrap();
+    let prep = Prepared::new(&m, &opts).unwrap();
+    let (base, alpha, ..) = sizing::sizing_for(&surf, &m, &fitmap, &opts).unwrap();
+    let follow = Follow { base, alpha };
+    Graded {
+        m,
+        fitmap,
+        opts,
+        surf,
+        prep,
+        follow,
+    }
+}
+
 /// Spearman's ρ between each patch's radius (centre to farthest corner)
 /// and the trend's size e^{−K x} at its centre.
 fn rho_trend(k: &ControlMesh) -> f64 {
@@ -97,16 +126,15 @@ fn natural_adaptivity_makes_patches_follow_the_s_fitmap() {
 /// follows the round's sizing ([`Follow`]).
 #[test]
 fn rounds_keep_the_grading_when_the_relaxation_follows_their_sizing() {
-    let m = common::icosphere(5, DVec3::ZERO, 1.0);
-    let fitmap = rising_fitmap(&m);
-    let opts = FieldOptions::default().with_natural_adaptivity();
-    let surf = Surface::new(&m).unwrap();
-    let prep = Prepared::new(&m, &opts).unwrap();
-    let (base, alpha, ..) = sizing::sizing_for(&surf, &m, &fitmap, &opts).unwrap();
-    let follow = Follow {
-        base: base.clone(),
-        alpha,
-    };
+    let Graded {
+        m,
+        fitmap,
+        opts,
+        surf,
+        prep,
+        follow,
+    } = graded_sphere();
+    let base = &follow.base;
     let rho = |c: &subdfit::mesh::ControlMesh| {
         assert_eq!(control_topology(c), surf.topology);
         sizing::adaptivity_spearman(&m, &fitmap, c)
@@ -149,16 +177,15 @@ fn rounds_keep_the_grading_when_the_relaxation_follows_their_sizing() {
 /// bunny (docs/status.md, session 17).
 #[test]
 fn the_bracket_lands_near_the_count_it_aims_at() {
-    let m = common::icosphere(5, DVec3::ZERO, 1.0);
-    let fitmap = rising_fitmap(&m);
-    let opts = FieldOptions::default().with_natural_adaptivity();
-    let surf = Surface::new(&m).unwrap();
-    let prep = Prepared::new(&m, &opts).unwrap();
-    let (base, alpha, ..) = sizing::sizing_for(&surf, &m, &fitmap, &opts).unwrap();
-    let follow = Follow {
-        base: base.clone(),
-        alpha,
-    };
+    let Graded {
+        m,
+        fitmap,
+        opts,
+        surf,
+        prep,
+        follow,
+    } = graded_sphere();
+    let base = &follow.base;
     let mut laid = 0;
     let mut lay = |s: f64| {
         laid += 1;

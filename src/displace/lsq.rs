@@ -673,6 +673,36 @@ fn trace(
     }
 }
 
+/// D of `disp`: on its host surface when there is one, else its sample
+/// grid cut along the shorter diagonals.
+fn displaced_mesh(host: Option<&HostSurface>, disp: &Displacement) -> TriMesh {
+    match host {
+        None => {
+            let positions = disp.displaced_positions();
+            let triangles = disp.grid.triangles_shorter_diagonal(&positions);
+            TriMesh {
+                positions,
+                triangles,
+            }
+        }
+        Some(h) => h.mesh(disp),
+    }
+}
+
+/// Every `stride`-th point of `order` (by its index), in `order`'s order.
+fn every(order: &[u32], stride: usize) -> Cow<'_, [u32]> {
+    match stride {
+        1 => Cow::Borrowed(order),
+        _ => Cow::Owned(
+            order
+                .iter()
+                .copied()
+                .filter(|&k| k as usize % stride == 0)
+                .collect(),
+        ),
+    }
+}
+
 /// One round of [`refine_offsets`] at the current offsets: the objective
 /// (both directions) and, unless `check_only` (which measures the
 /// subsample only), the linearised rows summed into normal equations.
@@ -694,32 +724,13 @@ fn round_rows(
     } = *at;
     let normals = &disp.directions;
     let stride = if check_only { CHECK_STRIDE } else { 1 };
-    let dmesh = match host {
-        None => {
-            let positions = disp.displaced_positions();
-            let tris = disp.grid.triangles_shorter_diagonal(&positions);
-            TriMesh {
-                positions,
-                triangles: tris,
-            }
-        }
-        Some(h) => h.mesh(disp),
-    };
+    let dmesh = displaced_mesh(host, disp);
     let d_edges = Edges::of(&dmesh);
     // D → M rows weigh D's edge midpoints so that both integrals weigh the
     // same whatever the areas' ratio.
     let total_d: f64 = d_edges.weight.iter().sum();
     let scale_d = total_m / total_d.max(f64::MIN_POSITIVE);
-    let order: Cow<'_, [u32]> = match stride {
-        1 => Cow::Borrowed(m_order),
-        _ => Cow::Owned(
-            m_order
-                .iter()
-                .copied()
-                .filter(|&k| k as usize % stride == 0)
-                .collect(),
-        ),
-    };
+    let order = every(m_order, stride);
     let projected = host.map_or(&disp.projected[..], |h| &h.projected[..]);
     // Every edge of D (`d_all`): the unknowns' coupling is D's triangles'
     // (`empty_equations`), whichever edges are measured.
@@ -840,10 +851,7 @@ fn round_rows(
         dir_trace(m_part, Some((s.obj, s.obj_w, s.n)), verdict.bound);
     }
     if let Some(term) = record.filter(|_| complete) {
-        *at.heavy.borrow_mut() = Some(Heavy {
-            ends: d_all.ends.clone(),
-            term,
-        });
+        *at.heavy.borrow_mut() = Some(Heavy::of(&d_all, term));
     }
     // D and its scene, kept for measuring D if this round's offsets are
     // the ones returned (`refine_offsets_keeping_d`).
@@ -989,6 +997,14 @@ const HEAVY_SHARE: f64 = 0.95;
 const HEAVY_PART: usize = 8;
 
 impl Heavy {
+    /// The terms `term` of a complete round over D's edges `d`.
+    fn of(d: &Edges, term: Vec<f64>) -> Self {
+        Heavy {
+            ends: d.ends.clone(),
+            term,
+        }
+    }
+
     /// The heaviest terms' edges among every `stride`-th that `skip` does
     /// not take, heaviest first.
     fn heaviest(&self, stride: usize, skip: impl Fn(u32) -> bool) -> Vec<u32> {
@@ -1645,6 +1661,17 @@ mod tests {
     use crate::report::{distance_stats, quadrature_points};
     use crate::subdiv::{make_evaluator, Backend, EvalOptions};
 
+    /// Uniform draws in [0, 1) from a xorshift64 stream seeded by `state`:
+    /// the verdict tests' points, the same on every machine.
+    fn uniform(mut state: u64) -> impl FnMut() -> f64 {
+        move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
     /// RMS of D → M and M → D (‰ of `diag`), measured as the report does.
     fn rms_both(mesh: &TriMesh, disp: &Displacement, diag: f64) -> (f64, f64) {
         let pos = disp.displaced_positions();
@@ -1786,13 +1813,7 @@ mod tests {
         // ulp either side: the verdict must never stop a round that the
         // full comparison keeps, and must stop one that it rejects by a
         // clear margin before its last point.
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform(0x2545_f491_4f6c_dd1du64);
         for trial in 0..200 {
             let n = 50 + trial * 7;
             // (weight, distance or a miss), weights over five decades.
@@ -1888,13 +1909,7 @@ mod tests {
         // figure and one ulp either side: never a stop of a round the full
         // comparison keeps; a stop before the last point of a round
         // rejected by a clear margin, earlier than without the early terms.
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut next = uniform(0x9e37_79b9_7f4a_7c15u64);
         let mut earlier = 0;
         for trial in 0..200 {
             let n = 60 + trial * 5;
