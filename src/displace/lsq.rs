@@ -808,10 +808,7 @@ fn round_rows(
         stop,
     )?;
     drop(order);
-    let m_part = {
-        let s = score.borrow();
-        (s.obj, s.obj_w, s.n)
-    };
+    let m_part = score.borrow().sums();
     if !complete {
         dir_trace(m_part, None, verdict.bound);
         return Ok((score.into_inner(), None, false, None));
@@ -846,10 +843,7 @@ fn round_rows(
         },
         stop,
     )?;
-    {
-        let s = score.borrow();
-        dir_trace(m_part, Some((s.obj, s.obj_w, s.n)), verdict.bound);
-    }
+    dir_trace(m_part, Some(score.borrow().sums()), verdict.bound);
     if let Some(term) = record.filter(|_| complete) {
         *at.heavy.borrow_mut() = Some(Heavy::of(&d_all, term));
     }
@@ -1633,6 +1627,11 @@ fn dir_trace(m: (f64, f64, usize), all: Option<(f64, f64, usize)>, bound: f64) {
 }
 
 impl Score {
+    /// (sum of w d², sum of w, points) so far, for [`dir_trace`].
+    fn sums(&self) -> (f64, f64, usize) {
+        (self.obj, self.obj_w, self.n)
+    }
+
     fn add(&mut self, w: f64, d: f64, in_subsample: bool) {
         self.obj += w * d * d;
         self.obj_w += w;
