@@ -1671,6 +1671,22 @@ mod tests {
         }
     }
 
+    /// The full comparison's RMS over `pts` (weight, distance or a miss;
+    /// misses left out) and the thresholds the verdict tests try: one ulp
+    /// under it, at it, one ulp over, and `clear` times it.
+    fn thresholds(pts: &[(f64, Option<f64>)], clear: f64) -> (f64, [f64; 4]) {
+        let mut full = Score::default();
+        for &(w, d) in pts {
+            if let Some(d) = d {
+                full.add(w, d, true);
+            }
+        }
+        let (rms, _) = full.rms();
+        let up = f64::from_bits(rms.to_bits() + 1);
+        let down = f64::from_bits(rms.to_bits() - 1);
+        (rms, [down, rms, up, clear * rms])
+    }
+
     /// RMS of D → M and M → D (‰ of `diag`), measured as the report does.
     fn rms_both(mesh: &TriMesh, disp: &Displacement, diag: f64) -> (f64, f64) {
         let pos = disp.displaced_positions();
@@ -1823,16 +1839,8 @@ mod tests {
                     (w, d)
                 })
                 .collect();
-            let mut full = Score::default();
-            for &(w, d) in &pts {
-                if let Some(d) = d {
-                    full.add(w, d, true);
-                }
-            }
-            let (rms, _) = full.rms();
-            let up = f64::from_bits(rms.to_bits() + 1);
-            let down = f64::from_bits(rms.to_bits() - 1);
-            for reject_at in [down, rms, up, 0.5 * rms] {
+            let (rms, thresholds) = thresholds(&pts, 0.5);
+            for reject_at in thresholds {
                 let verdict = Verdict::new(reject_at, || pts.iter().map(|p| p.0));
                 let mut part = Score::default();
                 let mut at = None;
@@ -1937,16 +1945,8 @@ mod tests {
                     early_term[k as usize] = w * d * d;
                 }
             }
-            let mut full = Score::default();
-            for &(w, d) in &pts {
-                if let Some(d) = d {
-                    full.add(w, d, true);
-                }
-            }
-            let (rms, _) = full.rms();
-            let up = f64::from_bits(rms.to_bits() + 1);
-            let down = f64::from_bits(rms.to_bits() - 1);
-            for reject_at in [down, rms, up, 0.9 * rms] {
+            let (rms, thresholds) = thresholds(&pts, 0.9);
+            for reject_at in thresholds {
                 let verdict = Verdict::new(reject_at, || pts.iter().map(|p| p.0));
                 let rejected = rms >= reject_at;
                 if verdict.proves(&early) {
