@@ -200,7 +200,7 @@ pub fn layered_balls(
     radii: &[f64],
     mark: &mut [u32],
     stamp: u32,
-    pending: &mut Vec<u32>,
+    pending: &mut Vec<(f64, u32)>,
     out: &mut Vec<(f64, u32)>,
 ) {
     out.clear();
@@ -213,18 +213,21 @@ pub fn layered_balls(
     mark[start as usize] = stamp;
     out.push((first, start));
     let mut head = 0;
-    let mut keep = Vec::new();
     for &r in radii {
         let r2 = r * r;
-        keep.clear();
-        for &v in pending.iter() {
-            if (positions[v as usize] - centre).length_squared() <= r2 {
+        // A pending vertex carries its squared distance, computed once when
+        // it was first seen: each later radius compares the same f64 again
+        // instead of reading the vertex's position back (a scattered load
+        // per pending vertex and radius) and recomputing it. Same values,
+        // same order (`retain` keeps it), hence the same ball.
+        pending.retain(|&(d2, v)| {
+            if d2 <= r2 {
                 out.push((r, v));
+                false
             } else {
-                keep.push(v);
+                true
             }
-        }
-        std::mem::swap(pending, &mut keep);
+        });
         while head < out.len() {
             let v = out[head].1 as usize;
             head += 1;
@@ -261,10 +264,11 @@ pub fn layered_balls(
                     continue;
                 }
                 mark[wi] = stamp;
-                if (positions[wi] - centre).length_squared() <= r2 {
+                let d2 = (positions[wi] - centre).length_squared();
+                if d2 <= r2 {
                     out.push((r, w));
                 } else {
-                    pending.push(w);
+                    pending.push((d2, w));
                 }
             }
         }
@@ -487,5 +491,100 @@ mod tests {
             }
         }
         assert!(strict_subset_seen);
+    }
+
+    /// The walk as it was before pending vertices carried their squared
+    /// distance: each radius reads a pending vertex's position back and
+    /// recomputes it. A plain restatement, kept to check the order.
+    fn layered_balls_recomputing(
+        adj: &Csr,
+        positions: &[DVec3],
+        start: u32,
+        centre: DVec3,
+        radii: &[f64],
+    ) -> (Vec<(f64, u32)>, Vec<u32>) {
+        let mut seen = vec![false; positions.len()];
+        let (mut out, mut pending) = (vec![(radii[0], start)], Vec::new());
+        seen[start as usize] = true;
+        let mut head = 0;
+        for &r in radii {
+            let mut keep = Vec::new();
+            for &v in &pending {
+                if (positions[v as usize] - centre).length_squared() <= r * r {
+                    out.push((r, v));
+                } else {
+                    keep.push(v);
+                }
+            }
+            pending = keep;
+            while head < out.len() {
+                let v = out[head].1;
+                head += 1;
+                for &w in adj.row(v as usize) {
+                    if std::mem::replace(&mut seen[w as usize], true) {
+                        continue;
+                    }
+                    if (positions[w as usize] - centre).length_squared() <= r * r {
+                        out.push((r, w));
+                    } else {
+                        pending.push(w);
+                    }
+                }
+            }
+        }
+        (out, pending)
+    }
+
+    /// The fits sum a ball's points in `layered_balls`' order, so the
+    /// order, not only the set, is part of the Fitmap's bytes: the walk
+    /// with cached squared distances gives the recomputing walk's list
+    /// (keys and vertices, in order) and leaves the same vertices pending,
+    /// in the same order, with their exact squared distances. Centres on a
+    /// vertex (level 0) and off it (a proxy level's cluster centre), and
+    /// one radius (the proxies' call).
+    #[test]
+    fn cached_distances_keep_the_walk_order() {
+        let m = folded_grid(24);
+        let adj = Adjacency::new(&m);
+        let n = m.positions.len();
+        let (mut mark, mut pending, mut out) = (vec![0u32; n], Vec::new(), Vec::new());
+        let mut stamp = 0;
+        let mut pending_checked = 0;
+        let many = [0.03, 0.07, 0.15, 0.22, 0.4, 0.9];
+        for p in (0..n as u32).step_by(23) {
+            for (radii, shift) in [(&many[..], 0.0), (&many[..], 0.011), (&[0.15][..], 0.007)] {
+                stamp += 1;
+                let c = m.positions[p as usize] + DVec3::new(shift, -shift, 0.5 * shift);
+                layered_balls(
+                    &adj.vv,
+                    &m.positions,
+                    p,
+                    c,
+                    radii,
+                    &mut mark,
+                    stamp,
+                    &mut pending,
+                    &mut out,
+                );
+                let (want, want_pending) =
+                    layered_balls_recomputing(&adj.vv, &m.positions, p, c, radii);
+                assert_eq!(out.len(), want.len(), "p = {p}");
+                for (a, b) in out.iter().zip(&want) {
+                    assert_eq!((a.0.to_bits(), a.1), (b.0.to_bits(), b.1), "p = {p}");
+                }
+                let got: Vec<u32> = pending.iter().map(|e| e.1).collect();
+                assert_eq!(got, want_pending, "p = {p}");
+                for &(d2, v) in &pending {
+                    let exact = (m.positions[v as usize] - c).length_squared();
+                    assert_eq!(d2.to_bits(), exact.to_bits());
+                    assert!(d2 > radii[radii.len() - 1].powi(2));
+                }
+                pending_checked += pending.len();
+            }
+        }
+        assert!(
+            pending_checked > 100,
+            "the walks must leave vertices pending ({pending_checked})"
+        );
     }
 }

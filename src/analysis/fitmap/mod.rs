@@ -448,7 +448,9 @@ struct Scratch {
     /// while its triangles are listed, `u8::MAX` elsewhere.
     layer_at: Vec<u8>,
     level_mark: Vec<Vec<u32>>,
-    pending: Vec<u32>,
+    /// [`layered_balls`]' vertices seen outside the current radius, with
+    /// their squared distances.
+    pending: Vec<(f64, u32)>,
     ball: Vec<u32>,
     sorted: Vec<(f64, u32)>,
     /// Fast mode: the level-0 layered ball of the current vertex (key,
