@@ -77,9 +77,22 @@ pub fn displaced_on_refinement(
     let budget = (metrics.displacement_res.is_none()
         && metrics.displacement_allocation == crate::displace::SampleAllocation::Adaptive)
         .then(|| metrics.displacement_samples.unwrap_or(mesh.positions.len()));
-    crate::switches::on(DISP_REFINE_ENV)
-        && budget.is_some_and(|b| b >= DISP_REFINE_MIN_SAMPLES * control.num_faces())
+    // From level 0 (`displace::LEVEL0_ENV`) a refined patch's floor
+    // is its corners, not the 4 samples of a 3 × 3 tile, so the gate's
+    // reason (the floor eating the budget) is gone at any budget above
+    // the corners' own ([`DISP_REFINE_MIN_SAMPLES_LEVEL0`]).
+    let least = match crate::displace::first_level() {
+        0 => DISP_REFINE_MIN_SAMPLES_LEVEL0,
+        _ => DISP_REFINE_MIN_SAMPLES,
+    };
+    crate::switches::on(DISP_REFINE_ENV) && budget.is_some_and(|b| b >= least * control.num_faces())
 }
+
+/// [`DISP_REFINE_MIN_SAMPLES`] when the allocation starts at level 0: 8
+/// per original patch, twice the ~4 the refined patches' corners take
+/// (the refinement's vertices are about four per original quad), so that
+/// half the budget or more is the greedy's to place.
+pub const DISP_REFINE_MIN_SAMPLES_LEVEL0: usize = 8;
 
 /// The displacement budget per patch from which [`DISP_REFINE_ENV`]
 /// refines: 8 per refined patch, twice the 4 a refined patch's smallest

@@ -193,8 +193,9 @@ pub fn allocate_resolutions(
     // differs from the pilot's (the test clears the other-sheet hits).
     let (hits, closest) = (probe.hits.clone(), probe.closest.clone());
     let pilot = super::finish(pilot_grid, probe, diag, slack);
-    let errors = level_errors(&pilot, kp);
-    let levels = greedy_levels(control, &errors, budget);
+    let first = first_level();
+    let errors = level_errors(&pilot, kp, first);
+    let levels = greedy_levels(control, &errors, budget, first);
     let resolutions: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
     let mut histogram = BTreeMap::new();
     for &r in &resolutions {
@@ -237,10 +238,28 @@ pub fn allocate_resolutions(
     })
 }
 
+/// The switch that lets the greedy leave a patch at level 0 (`R = 2`, its
+/// corners alone; [`first_level`]).
+pub const LEVEL0_ENV: &str = "SUBDFIT_DISP_LEVEL0";
+
+/// The level every patch starts at: 1 (`R = 3`), or 0 under
+/// [`LEVEL0_ENV`]. Why level 0: the smallest tile fixes a floor of about 4
+/// samples a patch (its centre, half of its four edge midpoints, its
+/// corners), so on a layout refined for the displacement
+/// (`SUBDFIT_DISP_REFINE`) at ~18 samples an original patch the floor took
+/// ~16 and left the greedy nothing to place (session 18: gargoyle τ 1 %
+/// at 1391, 0.222 → 0.226‰). From level 0 the floor is the corners (about
+/// one sample a patch) and the greedy places the rest on the quarters that
+/// carry the detail: the same rule (largest error decrease per sample) at
+/// a four times finer grain in area.
+pub fn first_level() -> u32 {
+    u32::from(!crate::switches::on(LEVEL0_ENV))
+}
+
 /// Per patch, the squared interpolation error of each level `0..=MAX_LEVEL`
-/// (index = level; level 0 unused) from the pilot grid at level `kp`
-/// (module docs): measured below `kp`, the model beyond.
-fn level_errors(pilot_d: &Displacement, kp: u32) -> Vec<[f64; MAX_LEVEL as usize + 1]> {
+/// (index = level; levels below `first` unused) from the pilot grid at
+/// level `kp` (module docs): measured below `kp`, the model beyond.
+fn level_errors(pilot_d: &Displacement, kp: u32, first: u32) -> Vec<[f64; MAX_LEVEL as usize + 1]> {
     use rayon::prelude::*;
     let (pilot, limit) = (&pilot_d.grid, &pilot_d.limit);
     let vectors = pilot_d.vectors();
@@ -252,7 +271,7 @@ fn level_errors(pilot_d: &Displacement, kp: u32) -> Vec<[f64; MAX_LEVEL as usize
         .map(|f| {
             let at = |i: usize, j: usize| pilot.sample(f, i, j) as usize;
             let mut err = [0.0; MAX_LEVEL as usize + 1];
-            for k in 1..kp {
+            for k in first..kp {
                 let s = 1usize << (kp - k);
                 let mut sum = 0.0;
                 for j in 0..=n {
@@ -293,11 +312,12 @@ fn level_errors(pilot_d: &Displacement, kp: u32) -> Vec<[f64; MAX_LEVEL as usize
         .collect()
 }
 
-/// The greedy of the module docs: per patch a level in `1..=MAX_LEVEL`.
+/// The greedy of the module docs: per patch a level in `first..=MAX_LEVEL`.
 fn greedy_levels(
     control: &ControlMesh,
     errors: &[[f64; MAX_LEVEL as usize + 1]],
     budget: usize,
+    first: u32,
 ) -> Vec<u32> {
     let nf = control.num_faces();
     let face_edges: Vec<Vec<usize>> = control
@@ -310,7 +330,7 @@ fn greedy_levels(
             edge_faces[e].push(f);
         }
     }
-    let mut level = vec![1u32; nf];
+    let mut level = vec![first; nf];
     // Independent samples of an edge: its coarser side's interior points.
     let edge_count = |level: &[u32], e: usize| -> usize {
         edge_faces[e]
@@ -325,7 +345,7 @@ fn greedy_levels(
         + (0..control.num_edges())
             .map(|e| edge_count(&level, e))
             .sum::<usize>()
-        + nf * interior(1);
+        + nf * interior(first);
     let cost = |level: &mut Vec<u32>, f: usize| -> usize {
         let k = level[f];
         let before: usize = face_edges[f].iter().map(|&e| edge_count(level, e)).sum();
@@ -341,7 +361,7 @@ fn greedy_levels(
     for f in 0..nf {
         let c = cost(&mut level, f);
         heap.push(Upgrade {
-            gain: gain(f, 1, c),
+            gain: gain(f, first, c),
             patch: f,
             cost: c,
         });
@@ -395,7 +415,7 @@ mod tests {
             }
         }
         for budget in [1500, 4000, 12000] {
-            let levels = greedy_levels(&m, &errors, budget);
+            let levels = greedy_levels(&m, &errors, budget, 1);
             let res: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
             let g = PatchGrid::with_resolutions(&m, &res).unwrap();
             let n = g.num_independent();
@@ -406,6 +426,58 @@ mod tests {
             );
             assert!(levels.iter().all(|&k| k <= levels[0]), "{levels:?}");
             assert!(levels[0] > levels[nf - 1], "{levels:?}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod level0_tests {
+    use super::*;
+    use crate::fixtures::flat_grid;
+
+    /// From level 0 (`SUBDFIT_DISP_LEVEL0`), at budgets below the level-1
+    /// floor (289 samples here: the greedy from level 1 could place
+    /// nothing): every patch with error gets a tile (they all fit from
+    /// 181 samples, and their upgrades out-gain any upgrade of a patch
+    /// without error, which only a leftover too small for theirs buys),
+    /// at least half the patches without error stay at their corners
+    /// (`R = 2`), the grid of mixed 2s and finer tiles builds and
+    /// triangulates, and its count is the greedy's own and within 5 % of
+    /// the budget (as from level 1).
+    #[test]
+    fn greedy_from_level_0_spends_the_budget_where_the_error_is() {
+        let m = flat_grid(8, 8);
+        let nf = m.num_faces();
+        let mut errors = vec![[0.0; MAX_LEVEL as usize + 1]; nf];
+        // The left half's patches carry error, the right half's none.
+        let rough = |f: usize| f % 8 < 4;
+        for (f, e) in errors.iter_mut().enumerate() {
+            for (k, ek) in e.iter_mut().enumerate() {
+                *ek = if rough(f) {
+                    16f64.powi(-(k as i32))
+                } else {
+                    0.0
+                };
+            }
+        }
+        let floor1 = PatchGrid::new(&m, 3).unwrap().num_independent();
+        assert_eq!(floor1, 289);
+        for budget in [200, 250, floor1 - 1] {
+            let levels = greedy_levels(&m, &errors, budget, 0);
+            let res: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
+            let g = PatchGrid::with_resolutions(&m, &res).unwrap();
+            let n = g.num_independent();
+            assert!(
+                n <= budget && n as f64 >= 0.95 * budget as f64,
+                "{budget}: {n}"
+            );
+            let smooth_at_0 = (0..nf).filter(|&f| !rough(f) && levels[f] == 0).count();
+            assert!(2 * smooth_at_0 >= nf / 2, "{budget}: {levels:?}");
+            assert!(
+                (0..nf).filter(|&f| rough(f)).all(|f| levels[f] >= 1),
+                "{levels:?}"
+            );
+            assert_eq!(g.triangles().len(), g.triangle_range(nf - 1).end);
         }
     }
 }

@@ -87,6 +87,61 @@ pub struct PatchGrid {
 /// The largest resolution per patch side.
 const MAX_RES: usize = 4096;
 
+/// Triangles of a one-cell patch's square whose sides carry `steps[s]`
+/// segments each (`poly`: its boundary counter-clockwise from corner
+/// `(0,0)`, side `s`'s in-between samples after corner `s`), none
+/// degenerate: a strictly convex vertex of the polygon (one not between
+/// two collinear neighbours) is cut off with its two neighbours, first
+/// such vertex in boundary order, until a triangle is left. In a convex
+/// polygon such an ear holds no other vertex, and cutting it keeps the
+/// rest convex, so `poly.len() − 2` triangles tile the square (as a fan
+/// would) with the orientation of the boundary.
+fn clip_cell(poly: &[u32], steps: [usize; 4]) -> Vec<[u32; 3]> {
+    // Each boundary sample's place in the cell, in units of the steps'
+    // least common multiple so that collinearity is exact in integers.
+    let lcm = steps.iter().fold(1i64, |l, &m| {
+        let (mut a, mut b) = (l, m as i64);
+        while b != 0 {
+            (a, b) = (b, a % b);
+        }
+        l / a * m as i64
+    });
+    let corner = [(0, 0), (lcm, 0), (lcm, lcm), (0, lcm)];
+    let mut at: Vec<(i64, i64)> = Vec::with_capacity(poly.len());
+    for s in 0..4 {
+        let ((x0, y0), (x1, y1)) = (corner[s], corner[(s + 1) % 4]);
+        let m = steps[s] as i64;
+        at.extend((0..m).map(|q| (x0 + (x1 - x0) * q / m, y0 + (y1 - y0) * q / m)));
+    }
+    debug_assert_eq!(at.len(), poly.len());
+    let mut live: Vec<usize> = (0..poly.len().min(at.len())).collect();
+    let mut tris = Vec::with_capacity(live.len().saturating_sub(2));
+    while live.len() > 3 {
+        let n = live.len();
+        let turn = |k: usize| {
+            let (p, v, q) = (
+                at[live[(k + n - 1) % n]],
+                at[live[k]],
+                at[live[(k + 1) % n]],
+            );
+            (v.0 - p.0) * (q.1 - v.1) - (v.1 - p.1) * (q.0 - v.0)
+        };
+        let Some(k) = (0..n).find(|&k| turn(k) > 0) else {
+            break;
+        };
+        tris.push([
+            poly[live[(k + n - 1) % n]],
+            poly[live[k]],
+            poly[live[(k + 1) % n]],
+        ]);
+        live.remove(k);
+    }
+    if live.len() == 3 {
+        tris.push([poly[live[0]], poly[live[1]], poly[live[2]]]);
+    }
+    tris
+}
+
 impl PatchGrid {
     /// The uniform grid of `mesh` at `res` samples per patch side
     /// (`res >= 2`). Fails on a control mesh with non-quad faces: a
@@ -101,7 +156,8 @@ impl PatchGrid {
     }
 
     /// The grid of `mesh` with patch `f` at `res[f]` samples per side.
-    /// Every resolution is at least 3 unless all are equal, and across
+    /// Every resolution is at least 2 (a single cell: a mixed grid's
+    /// level 0, `SUBDFIT_DISP_LEVEL0`), and across
     /// every edge `R − 1` of the finer side is a multiple of the coarser
     /// side's (module docs).
     pub fn with_resolutions(mesh: &ControlMesh, res: &[usize]) -> Result<PatchGrid> {
@@ -112,12 +168,10 @@ impl PatchGrid {
                 mesh.num_faces()
             )));
         }
-        let uniform = res.windows(2).all(|w| w[0] == w[1]);
-        let least = if uniform { 2 } else { 3 };
-        if let Some((f, &r)) = res.iter().enumerate().find(|(_, &r)| r < least) {
+        if let Some((f, &r)) = res.iter().enumerate().find(|(_, &r)| r < 2) {
             return Err(Error::InvalidArgument(format!(
-                "patch grid: patch {f} has resolution {r}; a grid of mixed resolutions \
-                 needs at least {least} per patch side"
+                "patch grid: patch {f} has resolution {r}; at least 2 per patch side \
+                 (the patch corners)"
             )));
         }
         PatchGrid::build(mesh, res)
@@ -506,10 +560,15 @@ impl PatchGrid {
                 // Fan from a corner whose two sides carry no extra sample
                 // (corner a sits between sides 3 and 0, b between 0 and 1,
                 // …): with R_f ≥ 3 a cell has at most two border sides and
-                // they meet, so the opposite corner qualifies.
-                let apex_corner = (0..4)
-                    .find(|&k| !extra(k) && !extra((k + 3) % 4))
-                    .expect("a cell of a patch with R >= 3 has a corner off its border");
+                // they meet, so the opposite corner qualifies. A patch of
+                // one cell (R_f = 2) may have finer neighbours on opposite
+                // sides or on three or four: no corner qualifies, and its
+                // square is cut by clipping corners ([`clip_cell`]).
+                let Some(apex_corner) = (0..4).find(|&k| !extra(k) && !extra((k + 3) % 4)) else {
+                    let steps_of = |s: usize| if extra(s) { steps[s] } else { 1 };
+                    tris.extend(clip_cell(&poly, std::array::from_fn(steps_of)));
+                    continue;
+                };
                 let apex_at = poly
                     .iter()
                     .position(|&s| s == [a, b, c, d][apex_corner])
@@ -652,12 +711,72 @@ mod tests {
     }
 
     /// Mixed levels on the cube: every pair of neighbours differs by 0 to
-    /// 3 levels, both ways round.
-    const MIXED: [[usize; 6]; 3] = [
+    /// 4 levels, both ways round; the last two rows have one-cell patches
+    /// (level 0, `SUBDFIT_DISP_LEVEL0`) with finer neighbours on opposite
+    /// sides, on three or on all four (cut by `clip_cell`).
+    const MIXED: [[usize; 6]; 5] = [
         [3, 5, 9, 3, 17, 5],
         [9, 3, 3, 17, 5, 33],
         [5, 5, 5, 5, 5, 9],
+        [2, 2, 5, 5, 5, 5],
+        [2, 9, 3, 2, 17, 5],
     ];
+
+    /// `clip_cell` on every combination of 1, 2 or 4 segments per side
+    /// (exact integer geometry, so no tolerance): `n − 2` triangles, each
+    /// counter-clockwise with positive area, areas summing to the
+    /// square's, every boundary segment used once in its own direction
+    /// and every inner edge twice in opposite directions — a tiling of
+    /// the cell with the fan's orientation and no sliver of zero area.
+    #[test]
+    fn clip_cell_tiles_a_one_cell_patch_without_degenerate_triangles() {
+        for code in 0..81usize {
+            let steps: [usize; 4] =
+                std::array::from_fn(|s| [1, 2, 4][code / 3usize.pow(s as u32) % 3]);
+            let n: usize = steps.iter().sum();
+            let poly: Vec<u32> = (0..n as u32).collect();
+            // The samples' places in units of 1/4 of the side.
+            let corner = [(0i64, 0i64), (4, 0), (4, 4), (0, 4)];
+            let mut at = Vec::new();
+            for s in 0..4 {
+                let ((x0, y0), (x1, y1)) = (corner[s], corner[(s + 1) % 4]);
+                let m = steps[s] as i64;
+                at.extend((0..m).map(|q| (x0 + (x1 - x0) * q / m, y0 + (y1 - y0) * q / m)));
+            }
+            let tris = clip_cell(&poly, steps);
+            assert_eq!(tris.len(), n - 2, "{steps:?}");
+            let mut area2 = 0;
+            let mut directed = std::collections::HashMap::new();
+            for t in &tris {
+                let [a, b, c] = t.map(|v| at[v as usize]);
+                let cross = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
+                assert!(cross > 0, "{steps:?}: {t:?} has area {cross}/2");
+                area2 += cross;
+                for k in 0..3 {
+                    *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
+                }
+            }
+            assert_eq!(area2, 2 * 16, "{steps:?}");
+            for (&(a, b), &c) in &directed {
+                assert_eq!(c, 1, "{steps:?}: ({a},{b}) used {c} times");
+                let boundary = (a as usize + 1) % n == b as usize;
+                assert!(
+                    boundary || directed.get(&(b, a)) == Some(&1),
+                    "{steps:?}: ({a},{b})"
+                );
+                assert!(
+                    !directed.contains_key(&(b, a)) || !boundary,
+                    "{steps:?}: ({a},{b})"
+                );
+            }
+            assert_eq!(
+                (0..n)
+                    .filter(|&k| directed.contains_key(&(k as u32, ((k + 1) % n) as u32)))
+                    .count(),
+                n
+            );
+        }
+    }
 
     #[test]
     fn adaptive_welded_grid_on_a_closed_mesh_is_a_closed_manifold() {
