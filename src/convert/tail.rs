@@ -77,22 +77,36 @@ pub fn displaced_on_refinement(
     let budget = (metrics.displacement_res.is_none()
         && metrics.displacement_allocation == crate::displace::SampleAllocation::Adaptive)
         .then(|| metrics.displacement_samples.unwrap_or(mesh.positions.len()));
-    // From level 0 (`displace::LEVEL0_ENV`) a refined patch's floor
-    // is its corners, not the 4 samples of a 3 × 3 tile, so the gate's
-    // reason (the floor eating the budget) is gone at any budget above
-    // the corners' own ([`DISP_REFINE_MIN_SAMPLES_LEVEL0`]).
-    let least = match crate::displace::first_level() {
-        0 => DISP_REFINE_MIN_SAMPLES_LEVEL0,
-        _ => DISP_REFINE_MIN_SAMPLES,
-    };
-    crate::switches::on(DISP_REFINE_ENV) && budget.is_some_and(|b| b >= least * control.num_faces())
+    crate::switches::on(DISP_REFINE_ENV)
+        && budget.is_some_and(|b| {
+            b >= DISP_REFINE_MIN_SAMPLES * control.num_faces()
+                || refines_for_level0(crate::switches::on(crate::displace::LEVEL0_ENV), control, b)
+        })
 }
 
-/// [`DISP_REFINE_MIN_SAMPLES`] when the allocation starts at level 0: 8
-/// per original patch, twice the ~4 the refined patches' corners take
-/// (the refinement's vertices are about four per original quad), so that
-/// half the budget or more is the greedy's to place.
-pub const DISP_REFINE_MIN_SAMPLES_LEVEL0: usize = 8;
+/// Whether [`DISP_REFINE_ENV`] refines all-quad `control` below
+/// [`DISP_REFINE_MIN_SAMPLES`] for an allocation from level 0
+/// (`displace::LEVEL0_ENV`, `level0`): when the refined cage's level-1
+/// floor would eat most of `budget` (`displace::first_level_for` on the
+/// refinement's vertices + edges + faces), so that its allocation starts
+/// at level 0, and its level-0 floor (the refinement's vertices, which
+/// are `control`'s level-1 samples) is at most half the budget, so that
+/// the rest is the greedy's to place at the quarters' finer grain. Between
+/// (the level-1 floor at most 4/5 of the budget once refined, e.g. homer
+/// at 272: 72 %) the cage stays as it is, as on main.
+pub fn refines_for_level0(level0: bool, control: &ControlMesh, budget: usize) -> bool {
+    // One Catmull-Clark step on an all-quad cage: a vertex per vertex,
+    // edge and face; two edges per edge and four per face; four faces per
+    // face.
+    let (v, e, f) = (
+        control.num_vertices(),
+        control.num_edges(),
+        control.num_faces(),
+    );
+    let floor0 = v + e + f;
+    let floor1 = floor0 + (2 * e + 4 * f) + 4 * f;
+    crate::displace::first_level_for(level0, floor1, budget) == 0 && 2 * floor0 <= budget
+}
 
 /// The displacement budget per patch from which [`DISP_REFINE_ENV`]
 /// refines: 8 per refined patch, twice the 4 a refined patch's smallest

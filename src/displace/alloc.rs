@@ -108,6 +108,9 @@ pub struct AdaptiveStats {
 #[derive(Clone, Debug)]
 pub struct Allocation {
     pub resolutions: Vec<usize>,
+    /// The level the greedy started from ([`first_level`]): the least a
+    /// grid of `resolutions` may hold ([`PatchGrid::with_resolutions_from`]).
+    pub first_level: u32,
     pub stats: AdaptiveStats,
     /// What the final grid takes from the pilot.
     pub pilot: Pilot,
@@ -193,7 +196,7 @@ pub fn allocate_resolutions(
     // differs from the pilot's (the test clears the other-sheet hits).
     let (hits, closest) = (probe.hits.clone(), probe.closest.clone());
     let pilot = super::finish(pilot_grid, probe, diag, slack);
-    let first = first_level();
+    let first = first_level(control, budget);
     let errors = level_errors(&pilot, kp, first);
     let levels = greedy_levels(control, &errors, budget, first);
     let resolutions: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
@@ -208,7 +211,7 @@ pub fn allocate_resolutions(
     let grid = match same {
         true => &pilot.grid,
         false => {
-            built = PatchGrid::with_resolutions(control, &resolutions)?;
+            built = PatchGrid::with_resolutions_from(control, &resolutions, first)?;
             &built
         }
     };
@@ -234,6 +237,7 @@ pub fn allocate_resolutions(
     Ok(Allocation {
         stats,
         resolutions,
+        first_level: first,
         pilot,
     })
 }
@@ -243,17 +247,45 @@ pub fn allocate_resolutions(
 pub const LEVEL0_ENV: &str = "SUBDFIT_DISP_LEVEL0";
 
 /// The level every patch starts at: 1 (`R = 3`), or 0 under
-/// [`LEVEL0_ENV`]. Why level 0: the smallest tile fixes a floor of about 4
-/// samples a patch (its centre, half of its four edge midpoints, its
-/// corners), so on a layout refined for the displacement
-/// (`SUBDFIT_DISP_REFINE`) at ~18 samples an original patch the floor took
-/// ~16 and left the greedy nothing to place (session 18: gargoyle τ 1 %
-/// at 1391, 0.222 → 0.226‰). From level 0 the floor is the corners (about
-/// one sample a patch) and the greedy places the rest on the quarters that
-/// carry the detail: the same rule (largest error decrease per sample) at
-/// a four times finer grain in area.
-pub fn first_level() -> u32 {
-    u32::from(!crate::switches::on(LEVEL0_ENV))
+/// [`LEVEL0_ENV`] where the level-1 floor would eat most of the budget
+/// ([`first_level_for`]). Why level 0: the smallest tile fixes a floor of
+/// about 4 samples a patch (its centre, half of its four edge midpoints,
+/// its corners), so on a layout refined for the displacement
+/// (`SUBDFIT_DISP_REFINE`) at ~18 samples an original patch the floor
+/// took ~16 and left the greedy nothing to place (session 18: gargoyle
+/// τ 1 % at 1391, 0.222 → 0.226‰). From level 0 the floor is the corners
+/// (about one sample a patch) and the greedy places the rest on the
+/// quarters that carry the detail: the same rule (largest error decrease
+/// per sample) at a four times finer grain in area.
+pub fn first_level(control: &ControlMesh, budget: usize) -> u32 {
+    first_level_for(
+        crate::switches::on(LEVEL0_ENV),
+        level1_floor(control),
+        budget,
+    )
+}
+
+/// The samples of `control`'s uniform level-1 grid (`R = 3`: its
+/// vertices, edge midpoints and patch centres), the floor an allocation
+/// from level 1 spends before its greedy places anything.
+pub fn level1_floor(control: &ControlMesh) -> usize {
+    control.num_vertices() + control.num_edges() + control.num_faces()
+}
+
+/// [`first_level`]'s rule: level 0 when `level0` (the switch) is on and
+/// the level-1 floor `floor1` takes more than 4/5 of `budget`, else 1.
+/// Why 4/5 (session 20, `SUBDFIT_DISP_REFINE` cages, floor ≈ 4 samples a
+/// refined patch): gargoyle τ 1 % at 1357 / 1391 (floor 87–89 % of the
+/// budget) gain 13 % of RMS D from level 0 (0.218 → 0.189‰), cheburashka
+/// at 460 (floor above the budget) 7 %; spot at 81 (floor 44 %) loses 4 %
+/// (0.432 → 0.449‰: with room for the greedy, the pilot's interpolation
+/// error prefers corner-only quarters that the least squares then gains
+/// less on), and homer at 272 (72 % once refined; refined at level 0 its
+/// unprojectable share crossed the 0.1 % bar) stays unrefined as on main
+/// (`convert::tail`'s gate asks this rule of the refined cage). 4/5 sits
+/// midway between homer's 72 % and gargoyle's 87 %.
+pub fn first_level_for(level0: bool, floor1: usize, budget: usize) -> u32 {
+    u32::from(!(level0 && 5 * floor1 > 4 * budget))
 }
 
 /// Per patch, the squared interpolation error of each level `0..=MAX_LEVEL`

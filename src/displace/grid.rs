@@ -92,7 +92,8 @@ const MAX_RES: usize = 4096;
 /// `(0,0)`, side `s`'s in-between samples after corner `s`), none
 /// degenerate: a strictly convex vertex of the polygon (one not between
 /// two collinear neighbours) is cut off with its two neighbours, first
-/// such vertex in boundary order, until a triangle is left. In a convex
+/// such vertex next to a collinear one in boundary order (else the first
+/// such vertex), until a triangle is left. In a convex
 /// polygon such an ear holds no other vertex, and cutting it keeps the
 /// rest convex, so `poly.len() − 2` triangles tile the square (as a fan
 /// would) with the orientation of the boundary.
@@ -126,7 +127,18 @@ fn clip_cell(poly: &[u32], steps: [usize; 4]) -> Vec<[u32; 3]> {
             );
             (v.0 - p.0) * (q.1 - v.1) - (v.1 - p.1) * (q.0 - v.0)
         };
-        let Some(k) = (0..n).find(|&k| turn(k) > 0) else {
+        // A strictly convex vertex next to a flat one (turn 0) first:
+        // cutting it makes that neighbour strictly convex, so the polygon
+        // keeps at least three strictly convex vertices and never ends as
+        // a run of collinear samples (a zero-area triangle, or none).
+        // Without flat vertices every vertex is strictly convex and any
+        // ear keeps three.
+        let convex = |k: usize| turn(k) > 0;
+        let flat = |k: usize| turn(k) == 0;
+        let Some(k) = (0..n)
+            .find(|&k| convex(k) && (flat((k + n - 1) % n) || flat((k + 1) % n)))
+            .or_else(|| (0..n).find(|&k| convex(k)))
+        else {
             break;
         };
         tris.push([
@@ -156,11 +168,22 @@ impl PatchGrid {
     }
 
     /// The grid of `mesh` with patch `f` at `res[f]` samples per side.
-    /// Every resolution is at least 2 (a single cell: a mixed grid's
-    /// level 0, `SUBDFIT_DISP_LEVEL0`), and across
+    /// Every resolution is at least 3 unless all are equal, and across
     /// every edge `R − 1` of the finer side is a multiple of the coarser
-    /// side's (module docs).
+    /// side's (module docs). [`Self::with_resolutions_from`] at level 1.
     pub fn with_resolutions(mesh: &ControlMesh, res: &[usize]) -> Result<PatchGrid> {
+        PatchGrid::with_resolutions_from(mesh, res, 1)
+    }
+
+    /// [`Self::with_resolutions`] where a mixed grid's coarsest level is
+    /// `first` (`R ≥ 2^first + 1`): 1 by default, 0 under
+    /// `SUBDFIT_DISP_LEVEL0` (a patch of one cell, its corners alone).
+    /// A uniform grid may be at any `R ≥ 2`, as in [`Self::new`].
+    pub fn with_resolutions_from(
+        mesh: &ControlMesh,
+        res: &[usize],
+        first: u32,
+    ) -> Result<PatchGrid> {
         if res.len() != mesh.num_faces() {
             return Err(Error::InvalidArgument(format!(
                 "patch grid: {} resolutions for {} patches",
@@ -168,10 +191,16 @@ impl PatchGrid {
                 mesh.num_faces()
             )));
         }
-        if let Some((f, &r)) = res.iter().enumerate().find(|(_, &r)| r < 2) {
+        let uniform = res.windows(2).all(|w| w[0] == w[1]);
+        let least = if uniform {
+            2
+        } else {
+            (1usize << first.min(1)) + 1
+        };
+        if let Some((f, &r)) = res.iter().enumerate().find(|(_, &r)| r < least) {
             return Err(Error::InvalidArgument(format!(
-                "patch grid: patch {f} has resolution {r}; at least 2 per patch side \
-                 (the patch corners)"
+                "patch grid: patch {f} has resolution {r}; a grid of mixed resolutions \
+                 needs at least {least} per patch side"
             )));
         }
         PatchGrid::build(mesh, res)
@@ -365,6 +394,13 @@ impl PatchGrid {
         };
         let i = (x.floor() as usize).min(r1 - 1);
         (i, x - i as f64)
+    }
+
+    /// The coarsest level a grid derived from this one may hold
+    /// ([`Self::with_resolutions_from`]): 0 when it has one-cell patches
+    /// among finer ones (`SUBDFIT_DISP_LEVEL0`), else 1.
+    pub fn first_level(&self) -> u32 {
+        u32::from(self.uniform || self.face_res.iter().all(|&r| r > 2))
     }
 
     /// Whether every patch has the same resolution.
