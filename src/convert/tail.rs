@@ -437,3 +437,33 @@ pub(super) fn measure_as_fitted(
         second_opinion: None,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `refines_for_level0`'s counts are the refinement's own (its
+    /// vertices, and its level-1 floor through `displace::level1_floor`),
+    /// and it refines exactly where the refined cage's allocation then
+    /// starts at level 0 with its corners taking at most half the budget:
+    /// never without the level-0 switch, never where the level-1 floor
+    /// leaves the greedy a fifth of the budget once refined.
+    #[test]
+    fn refines_below_main_only_where_the_refinement_starts_at_level_0() {
+        let cage = crate::fixtures::cube();
+        let r = crate::subdiv::refine::refine_once_keeping_infinite(&cage).unwrap();
+        let floor1 = crate::displace::level1_floor(&r);
+        let mut refined = 0;
+        for budget in 0..4 * floor1 {
+            assert!(!refines_for_level0(false, &cage, budget));
+            let at0 = crate::displace::first_level_for(true, floor1, budget) == 0;
+            let want = at0 && 2 * r.num_vertices() <= budget;
+            assert_eq!(refines_for_level0(true, &cage, budget), want, "{budget}");
+            if want {
+                assert!(5 * floor1 > 4 * budget && 2 * r.num_vertices() <= budget);
+                refined += 1;
+            }
+        }
+        assert!(refined > 0);
+    }
+}

@@ -497,7 +497,7 @@ mod level0_tests {
         for budget in [200, 250, floor1 - 1] {
             let levels = greedy_levels(&m, &errors, budget, 0);
             let res: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
-            let g = PatchGrid::with_resolutions(&m, &res).unwrap();
+            let g = PatchGrid::with_resolutions_from(&m, &res, 0).unwrap();
             let n = g.num_independent();
             assert!(
                 n <= budget && n as f64 >= 0.95 * budget as f64,
@@ -510,6 +510,58 @@ mod level0_tests {
                 "{levels:?}"
             );
             assert_eq!(g.triangles().len(), g.triangle_range(nf - 1).end);
+        }
+    }
+}
+
+#[cfg(test)]
+mod gate_tests {
+    use super::*;
+    use crate::fixtures::{cube, flat_grid};
+
+    /// `first_level_for`'s guarantee, on a closed and an open cage and
+    /// their refinements: `level1_floor` is the level-1 grid's own count
+    /// (so the rule reads the real floor); level 0 is chosen exactly where
+    /// that floor exceeds 4/5 of the budget, so from level 1 the greedy
+    /// always has at least a fifth of the budget to place; never without
+    /// the switch; and a grid started at the chosen level builds, within
+    /// the budget (within 5 % of it from level 0 on the 6 × 6 grid).
+    #[test]
+    fn level0_only_where_the_level1_floor_takes_over_four_fifths() {
+        let closed = crate::subdiv::refine::refine_once_keeping_infinite(&cube()).unwrap();
+        for m in [cube(), closed, flat_grid(6, 6)] {
+            let nf = m.num_faces();
+            let floor1 = PatchGrid::new(&m, 3).unwrap().num_independent();
+            assert_eq!(level1_floor(&m), floor1);
+            let floor0 = PatchGrid::new(&m, 2).unwrap().num_independent();
+            let mut errors = vec![[0.0; MAX_LEVEL as usize + 1]; nf];
+            for (f, e) in errors.iter_mut().enumerate() {
+                for (k, ek) in e.iter_mut().enumerate() {
+                    *ek = (1 + f % 3) as f64 * 16f64.powi(-(k as i32));
+                }
+            }
+            for budget in floor0..3 * floor1 {
+                assert_eq!(first_level_for(false, floor1, budget), 1);
+                let first = first_level_for(true, floor1, budget);
+                assert_eq!(first == 0, 5 * floor1 > 4 * budget, "{budget}");
+                if first == 1 {
+                    assert!(5 * (budget - floor1) >= budget, "{budget}");
+                }
+                if budget % 7 != 0 || (first == 1 && budget < floor1) {
+                    continue;
+                }
+                let levels = greedy_levels(&m, &errors, budget, first);
+                assert!(levels.iter().all(|&k| k >= first));
+                let res: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
+                let g = PatchGrid::with_resolutions_from(&m, &res, first).unwrap();
+                let n = g.num_independent();
+                assert!(n <= budget, "{budget}: {n}");
+                // On the 36 patches, below 4/5 of the level-1 floor the
+                // upgrades (a level or two) are small against the budget.
+                if nf >= 36 && first == 0 {
+                    assert!(20 * n >= 19 * budget, "{budget}: {n}");
+                }
+            }
         }
     }
 }

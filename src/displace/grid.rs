@@ -818,7 +818,7 @@ mod tests {
     fn adaptive_welded_grid_on_a_closed_mesh_is_a_closed_manifold() {
         let m = cube();
         for res in MIXED {
-            let g = PatchGrid::with_resolutions(&m, &res).unwrap();
+            let g = PatchGrid::with_resolutions_from(&m, &res, 0).unwrap();
             assert!(!g.is_uniform() && !g.dependents().is_empty());
             let tris = g.triangles();
             assert_closed_sphere(&g, &tris, &format!("{res:?}"));
@@ -849,6 +849,52 @@ mod tests {
         }
     }
 
+    /// Every mix of levels 0–3 (`R` = 2, 3, 5, 9) on the cube's six
+    /// patches, all the allocator can put side by side there (its levels
+    /// nest at any gap): a closed manifold sphere with no repeated index
+    /// in a triangle, built through level 0's path and refused by the
+    /// default one wherever a one-cell patch sits among finer ones. On
+    /// levels 0–2 (729 mixes) also no flat triangle on the limit surface,
+    /// either diagonal rule.
+    #[test]
+    fn every_level_mix_on_the_cube_is_a_closed_manifold() {
+        let m = cube();
+        let ev = crate::subdiv::make_evaluator(
+            crate::subdiv::Backend::Rust,
+            &m,
+            &crate::subdiv::EvalOptions::default(),
+        )
+        .unwrap();
+        for code in 0..4usize.pow(6) {
+            let res: [usize; 6] =
+                std::array::from_fn(|f| [2, 3, 5, 9][code / 4usize.pow(f as u32) % 4]);
+            let mixed = res.iter().any(|&r| r != res[0]);
+            let g = PatchGrid::with_resolutions_from(&m, &res, 0).unwrap();
+            assert_eq!(
+                PatchGrid::with_resolutions(&m, &res).is_ok(),
+                !mixed || !res.contains(&2),
+                "{res:?}"
+            );
+            assert_eq!(g.first_level(), u32::from(!mixed || !res.contains(&2)));
+            let tris = g.triangles();
+            assert_eq!(tris.len(), g.triangle_range(5).end, "{res:?}");
+            assert_closed_sphere(&g, &tris, &format!("{res:?}"));
+            if res.contains(&9) {
+                continue;
+            }
+            let pos: Vec<DVec3> = ev
+                .evaluate(m.positions(), g.locations())
+                .unwrap()
+                .iter()
+                .map(|p| p.position)
+                .collect();
+            for t in tris.iter().chain(&g.triangles_shorter_diagonal(&pos)) {
+                let [a, b, c] = t.map(|s| pos[s as usize]);
+                assert!((b - a).cross(c - a).length() > 1e-9, "{res:?}: flat {t:?}");
+            }
+        }
+    }
+
     #[test]
     fn edges_between_levels_reproduce_the_coarse_function() {
         // For every border cell side of every patch, the finer neighbour's
@@ -864,7 +910,7 @@ mod tests {
         )
         .unwrap();
         for res in MIXED {
-            let g = PatchGrid::with_resolutions(&m, &res).unwrap();
+            let g = PatchGrid::with_resolutions_from(&m, &res, 0).unwrap();
             let pos: Vec<DVec3> = ev
                 .evaluate(m.positions(), g.locations())
                 .unwrap()
