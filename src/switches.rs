@@ -52,6 +52,7 @@
 //! | `SUBDFIT_FIELD_BEST` | `quad::field::draws`, `quad::field::cleanup`, `convert::faces_proj` | `1`: 4 first-layout draws, the guarded cleanup and the projectability rounds judged on final figures (each part overridden by its own switch when that is set) |
 //! | `SUBDFIT_FIELD_BARS_D` | `quad::field::draws` | `w ≥ 1`: RMS D's term in the bars score (`Score::Bars`) weighted `w` times |
 //! | `SUBDFIT_DISP_REFINE` | `convert::tail`, `convert::thin`, `convert::search` | `1`: an all-quad layout's displacement atlas (and metrics) on its refinement by one level, as a non-quad layout's always is |
+//! | `SUBDFIT_DISP_LEVEL0` | `displace::alloc`, `convert::tail` | `1`: where the level-1 floor takes over 4/5 of the budget, the adaptive allocation may leave a patch at its corners (`R = 2`); `SUBDFIT_DISP_REFINE` also refines where that holds on the refinement and its vertices take at most half the budget |
 //! | `SUBDFIT_FIELD_BEST_MAIN` | `convert::layout` | under `SUBDFIT_FIELD_BEST=1`, `0`: no main's-result candidate in the final judgement (on otherwise) |
 //! | `SUBDFIT_FIELD_ADAPT` | `quad::field`, `convert::field` | `1`: the natural-size adaptivity (caps, grading, relaxation towards F_S's sizes) without `--faces`; with a finite `--max-error`, the rounds' relaxation follows the first sizing, a projectability near miss is judged on M, the bracket lays the kept sizing scaled once |
 //! | `FIELD_GRADING`, `FIELD_LOOP_CAP_SLOPE` | `quad::field` | the sizing's grading and its loops' cap |

@@ -78,7 +78,34 @@ pub fn displaced_on_refinement(
         && metrics.displacement_allocation == crate::displace::SampleAllocation::Adaptive)
         .then(|| metrics.displacement_samples.unwrap_or(mesh.positions.len()));
     crate::switches::on(DISP_REFINE_ENV)
-        && budget.is_some_and(|b| b >= DISP_REFINE_MIN_SAMPLES * control.num_faces())
+        && budget.is_some_and(|b| {
+            b >= DISP_REFINE_MIN_SAMPLES * control.num_faces()
+                || refines_for_level0(crate::switches::on(crate::displace::LEVEL0_ENV), control, b)
+        })
+}
+
+/// Whether [`DISP_REFINE_ENV`] refines all-quad `control` below
+/// [`DISP_REFINE_MIN_SAMPLES`] for an allocation from level 0
+/// (`displace::LEVEL0_ENV`, `level0`): when the refined cage's level-1
+/// floor would eat most of `budget` (`displace::first_level_for` on the
+/// refinement's vertices + edges + faces), so that its allocation starts
+/// at level 0, and its level-0 floor (the refinement's vertices, which
+/// are `control`'s level-1 samples) is at most half the budget, so that
+/// the rest is the greedy's to place at the quarters' finer grain. Between
+/// (the level-1 floor at most 4/5 of the budget once refined, e.g. homer
+/// at 272: 72 %) the cage stays as it is, as on main.
+pub fn refines_for_level0(level0: bool, control: &ControlMesh, budget: usize) -> bool {
+    // One Catmull-Clark step on an all-quad cage: a vertex per vertex,
+    // edge and face; two edges per edge and four per face; four faces per
+    // face.
+    let (v, e, f) = (
+        control.num_vertices(),
+        control.num_edges(),
+        control.num_faces(),
+    );
+    let floor0 = v + e + f;
+    let floor1 = floor0 + (2 * e + 4 * f) + 4 * f;
+    crate::displace::first_level_for(level0, floor1, budget) == 0 && 2 * floor0 <= budget
 }
 
 /// The displacement budget per patch from which [`DISP_REFINE_ENV`]
@@ -409,4 +436,34 @@ pub(super) fn measure_as_fitted(
         outputs: Default::default(),
         second_opinion: None,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `refines_for_level0`'s counts are the refinement's own (its
+    /// vertices, and its level-1 floor through `displace::level1_floor`),
+    /// and it refines exactly where the refined cage's allocation then
+    /// starts at level 0 with its corners taking at most half the budget:
+    /// never without the level-0 switch, never where the level-1 floor
+    /// leaves the greedy a fifth of the budget once refined.
+    #[test]
+    fn refines_below_main_only_where_the_refinement_starts_at_level_0() {
+        let cage = crate::fixtures::cube();
+        let r = crate::subdiv::refine::refine_once_keeping_infinite(&cage).unwrap();
+        let floor1 = crate::displace::level1_floor(&r);
+        let mut refined = 0;
+        for budget in 0..4 * floor1 {
+            assert!(!refines_for_level0(false, &cage, budget));
+            let at0 = crate::displace::first_level_for(true, floor1, budget) == 0;
+            let want = at0 && 2 * r.num_vertices() <= budget;
+            assert_eq!(refines_for_level0(true, &cage, budget), want, "{budget}");
+            if want {
+                assert!(5 * floor1 > 4 * budget && 2 * r.num_vertices() <= budget);
+                refined += 1;
+            }
+        }
+        assert!(refined > 0);
+    }
 }

@@ -108,6 +108,9 @@ pub struct AdaptiveStats {
 #[derive(Clone, Debug)]
 pub struct Allocation {
     pub resolutions: Vec<usize>,
+    /// The level the greedy started from ([`first_level`]): the least a
+    /// grid of `resolutions` may hold ([`PatchGrid::with_resolutions_from`]).
+    pub first_level: u32,
     pub stats: AdaptiveStats,
     /// What the final grid takes from the pilot.
     pub pilot: Pilot,
@@ -193,8 +196,9 @@ pub fn allocate_resolutions(
     // differs from the pilot's (the test clears the other-sheet hits).
     let (hits, closest) = (probe.hits.clone(), probe.closest.clone());
     let pilot = super::finish(pilot_grid, probe, diag, slack);
-    let errors = level_errors(&pilot, kp);
-    let levels = greedy_levels(control, &errors, budget);
+    let first = first_level(control, budget);
+    let errors = level_errors(&pilot, kp, first);
+    let levels = greedy_levels(control, &errors, budget, first);
     let resolutions: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
     let mut histogram = BTreeMap::new();
     for &r in &resolutions {
@@ -207,7 +211,7 @@ pub fn allocate_resolutions(
     let grid = match same {
         true => &pilot.grid,
         false => {
-            built = PatchGrid::with_resolutions(control, &resolutions)?;
+            built = PatchGrid::with_resolutions_from(control, &resolutions, first)?;
             &built
         }
     };
@@ -233,14 +237,61 @@ pub fn allocate_resolutions(
     Ok(Allocation {
         stats,
         resolutions,
+        first_level: first,
         pilot,
     })
 }
 
+/// The switch that lets the greedy leave a patch at level 0 (`R = 2`, its
+/// corners alone; [`first_level`]).
+pub const LEVEL0_ENV: &str = "SUBDFIT_DISP_LEVEL0";
+
+/// The level every patch starts at: 1 (`R = 3`), or 0 under
+/// [`LEVEL0_ENV`] where the level-1 floor would eat most of the budget
+/// ([`first_level_for`]). Why level 0: the smallest tile fixes a floor of
+/// about 4 samples a patch (its centre, half of its four edge midpoints,
+/// its corners), so on a layout refined for the displacement
+/// (`SUBDFIT_DISP_REFINE`) at ~18 samples an original patch the floor
+/// took ~16 and left the greedy nothing to place (session 18: gargoyle
+/// τ 1 % at 1391, 0.222 → 0.226‰). From level 0 the floor is the corners
+/// (about one sample a patch) and the greedy places the rest on the
+/// quarters that carry the detail: the same rule (largest error decrease
+/// per sample) at a four times finer grain in area.
+pub fn first_level(control: &ControlMesh, budget: usize) -> u32 {
+    first_level_for(
+        crate::switches::on(LEVEL0_ENV),
+        level1_floor(control),
+        budget,
+    )
+}
+
+/// The samples of `control`'s uniform level-1 grid (`R = 3`: its
+/// vertices, edge midpoints and patch centres), the floor an allocation
+/// from level 1 spends before its greedy places anything.
+pub fn level1_floor(control: &ControlMesh) -> usize {
+    control.num_vertices() + control.num_edges() + control.num_faces()
+}
+
+/// [`first_level`]'s rule: level 0 when `level0` (the switch) is on and
+/// the level-1 floor `floor1` takes more than 4/5 of `budget`, else 1.
+/// Why 4/5 (session 20, `SUBDFIT_DISP_REFINE` cages, floor ≈ 4 samples a
+/// refined patch): gargoyle τ 1 % at 1357 / 1391 (floor 87–89 % of the
+/// budget) gain 13 % of RMS D from level 0 (0.218 → 0.189‰), cheburashka
+/// at 460 (floor above the budget) 7 %; spot at 81 (floor 44 %) loses 4 %
+/// (0.432 → 0.449‰: with room for the greedy, the pilot's interpolation
+/// error prefers corner-only quarters that the least squares then gains
+/// less on), and homer at 272 (72 % once refined; refined at level 0 its
+/// unprojectable share crossed the 0.1 % bar) stays unrefined as on main
+/// (`convert::tail`'s gate asks this rule of the refined cage). 4/5 sits
+/// midway between homer's 72 % and gargoyle's 87 %.
+pub fn first_level_for(level0: bool, floor1: usize, budget: usize) -> u32 {
+    u32::from(!(level0 && 5 * floor1 > 4 * budget))
+}
+
 /// Per patch, the squared interpolation error of each level `0..=MAX_LEVEL`
-/// (index = level; level 0 unused) from the pilot grid at level `kp`
-/// (module docs): measured below `kp`, the model beyond.
-fn level_errors(pilot_d: &Displacement, kp: u32) -> Vec<[f64; MAX_LEVEL as usize + 1]> {
+/// (index = level; levels below `first` unused) from the pilot grid at
+/// level `kp` (module docs): measured below `kp`, the model beyond.
+fn level_errors(pilot_d: &Displacement, kp: u32, first: u32) -> Vec<[f64; MAX_LEVEL as usize + 1]> {
     use rayon::prelude::*;
     let (pilot, limit) = (&pilot_d.grid, &pilot_d.limit);
     let vectors = pilot_d.vectors();
@@ -252,7 +303,7 @@ fn level_errors(pilot_d: &Displacement, kp: u32) -> Vec<[f64; MAX_LEVEL as usize
         .map(|f| {
             let at = |i: usize, j: usize| pilot.sample(f, i, j) as usize;
             let mut err = [0.0; MAX_LEVEL as usize + 1];
-            for k in 1..kp {
+            for k in first..kp {
                 let s = 1usize << (kp - k);
                 let mut sum = 0.0;
                 for j in 0..=n {
@@ -293,11 +344,12 @@ fn level_errors(pilot_d: &Displacement, kp: u32) -> Vec<[f64; MAX_LEVEL as usize
         .collect()
 }
 
-/// The greedy of the module docs: per patch a level in `1..=MAX_LEVEL`.
+/// The greedy of the module docs: per patch a level in `first..=MAX_LEVEL`.
 fn greedy_levels(
     control: &ControlMesh,
     errors: &[[f64; MAX_LEVEL as usize + 1]],
     budget: usize,
+    first: u32,
 ) -> Vec<u32> {
     let nf = control.num_faces();
     let face_edges: Vec<Vec<usize>> = control
@@ -310,7 +362,7 @@ fn greedy_levels(
             edge_faces[e].push(f);
         }
     }
-    let mut level = vec![1u32; nf];
+    let mut level = vec![first; nf];
     // Independent samples of an edge: its coarser side's interior points.
     let edge_count = |level: &[u32], e: usize| -> usize {
         edge_faces[e]
@@ -325,7 +377,7 @@ fn greedy_levels(
         + (0..control.num_edges())
             .map(|e| edge_count(&level, e))
             .sum::<usize>()
-        + nf * interior(1);
+        + nf * interior(first);
     let cost = |level: &mut Vec<u32>, f: usize| -> usize {
         let k = level[f];
         let before: usize = face_edges[f].iter().map(|&e| edge_count(level, e)).sum();
@@ -341,7 +393,7 @@ fn greedy_levels(
     for f in 0..nf {
         let c = cost(&mut level, f);
         heap.push(Upgrade {
-            gain: gain(f, 1, c),
+            gain: gain(f, first, c),
             patch: f,
             cost: c,
         });
@@ -395,7 +447,7 @@ mod tests {
             }
         }
         for budget in [1500, 4000, 12000] {
-            let levels = greedy_levels(&m, &errors, budget);
+            let levels = greedy_levels(&m, &errors, budget, 1);
             let res: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
             let g = PatchGrid::with_resolutions(&m, &res).unwrap();
             let n = g.num_independent();
@@ -406,6 +458,110 @@ mod tests {
             );
             assert!(levels.iter().all(|&k| k <= levels[0]), "{levels:?}");
             assert!(levels[0] > levels[nf - 1], "{levels:?}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod level0_tests {
+    use super::*;
+    use crate::fixtures::flat_grid;
+
+    /// From level 0 (`SUBDFIT_DISP_LEVEL0`), at budgets below the level-1
+    /// floor (289 samples here: the greedy from level 1 could place
+    /// nothing): every patch with error gets a tile (they all fit from
+    /// 181 samples, and their upgrades out-gain any upgrade of a patch
+    /// without error, which only a leftover too small for theirs buys),
+    /// at least half the patches without error stay at their corners
+    /// (`R = 2`), the grid of mixed 2s and finer tiles builds and
+    /// triangulates, and its count is the greedy's own and within 5 % of
+    /// the budget (as from level 1).
+    #[test]
+    fn greedy_from_level_0_spends_the_budget_where_the_error_is() {
+        let m = flat_grid(8, 8);
+        let nf = m.num_faces();
+        let mut errors = vec![[0.0; MAX_LEVEL as usize + 1]; nf];
+        // The left half's patches carry error, the right half's none.
+        let rough = |f: usize| f % 8 < 4;
+        for (f, e) in errors.iter_mut().enumerate() {
+            for (k, ek) in e.iter_mut().enumerate() {
+                *ek = if rough(f) {
+                    16f64.powi(-(k as i32))
+                } else {
+                    0.0
+                };
+            }
+        }
+        let floor1 = PatchGrid::new(&m, 3).unwrap().num_independent();
+        assert_eq!(floor1, 289);
+        for budget in [200, 250, floor1 - 1] {
+            let levels = greedy_levels(&m, &errors, budget, 0);
+            let res: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
+            let g = PatchGrid::with_resolutions_from(&m, &res, 0).unwrap();
+            let n = g.num_independent();
+            assert!(
+                n <= budget && n as f64 >= 0.95 * budget as f64,
+                "{budget}: {n}"
+            );
+            let smooth_at_0 = (0..nf).filter(|&f| !rough(f) && levels[f] == 0).count();
+            assert!(2 * smooth_at_0 >= nf / 2, "{budget}: {levels:?}");
+            assert!(
+                (0..nf).filter(|&f| rough(f)).all(|f| levels[f] >= 1),
+                "{levels:?}"
+            );
+            assert_eq!(g.triangles().len(), g.triangle_range(nf - 1).end);
+        }
+    }
+}
+
+#[cfg(test)]
+mod gate_tests {
+    use super::*;
+    use crate::fixtures::{cube, flat_grid};
+
+    /// `first_level_for`'s guarantee, on a closed and an open cage and
+    /// their refinements: `level1_floor` is the level-1 grid's own count
+    /// (so the rule reads the real floor); level 0 is chosen exactly where
+    /// that floor exceeds 4/5 of the budget, so from level 1 the greedy
+    /// always has at least a fifth of the budget to place; never without
+    /// the switch; and a grid started at the chosen level builds, within
+    /// the budget (within 5 % of it from level 0 on the 6 × 6 grid).
+    #[test]
+    fn level0_only_where_the_level1_floor_takes_over_four_fifths() {
+        let closed = crate::subdiv::refine::refine_once_keeping_infinite(&cube()).unwrap();
+        for m in [cube(), closed, flat_grid(6, 6)] {
+            let nf = m.num_faces();
+            let floor1 = PatchGrid::new(&m, 3).unwrap().num_independent();
+            assert_eq!(level1_floor(&m), floor1);
+            let floor0 = PatchGrid::new(&m, 2).unwrap().num_independent();
+            let mut errors = vec![[0.0; MAX_LEVEL as usize + 1]; nf];
+            for (f, e) in errors.iter_mut().enumerate() {
+                for (k, ek) in e.iter_mut().enumerate() {
+                    *ek = (1 + f % 3) as f64 * 16f64.powi(-(k as i32));
+                }
+            }
+            for budget in floor0..3 * floor1 {
+                assert_eq!(first_level_for(false, floor1, budget), 1);
+                let first = first_level_for(true, floor1, budget);
+                assert_eq!(first == 0, 5 * floor1 > 4 * budget, "{budget}");
+                if first == 1 {
+                    assert!(5 * (budget - floor1) >= budget, "{budget}");
+                }
+                if budget % 7 != 0 || (first == 1 && budget < floor1) {
+                    continue;
+                }
+                let levels = greedy_levels(&m, &errors, budget, first);
+                assert!(levels.iter().all(|&k| k >= first));
+                let res: Vec<usize> = levels.iter().map(|&k| res_of(k)).collect();
+                let g = PatchGrid::with_resolutions_from(&m, &res, first).unwrap();
+                let n = g.num_independent();
+                assert!(n <= budget, "{budget}: {n}");
+                // On the 36 patches, below 4/5 of the level-1 floor the
+                // upgrades (a level or two) are small against the budget.
+                if nf >= 36 && first == 0 {
+                    assert!(20 * n >= 19 * budget, "{budget}: {n}");
+                }
+            }
         }
     }
 }

@@ -87,6 +87,73 @@ pub struct PatchGrid {
 /// The largest resolution per patch side.
 const MAX_RES: usize = 4096;
 
+/// Triangles of a one-cell patch's square whose sides carry `steps[s]`
+/// segments each (`poly`: its boundary counter-clockwise from corner
+/// `(0,0)`, side `s`'s in-between samples after corner `s`), none
+/// degenerate: a strictly convex vertex of the polygon (one not between
+/// two collinear neighbours) is cut off with its two neighbours, first
+/// such vertex next to a collinear one in boundary order (else the first
+/// such vertex), until a triangle is left. In a convex
+/// polygon such an ear holds no other vertex, and cutting it keeps the
+/// rest convex, so `poly.len() − 2` triangles tile the square (as a fan
+/// would) with the orientation of the boundary.
+fn clip_cell(poly: &[u32], steps: [usize; 4]) -> Vec<[u32; 3]> {
+    // Each boundary sample's place in the cell, in units of the steps'
+    // least common multiple so that collinearity is exact in integers.
+    let lcm = steps.iter().fold(1i64, |l, &m| {
+        let (mut a, mut b) = (l, m as i64);
+        while b != 0 {
+            (a, b) = (b, a % b);
+        }
+        l / a * m as i64
+    });
+    let corner = [(0, 0), (lcm, 0), (lcm, lcm), (0, lcm)];
+    let mut at: Vec<(i64, i64)> = Vec::with_capacity(poly.len());
+    for s in 0..4 {
+        let ((x0, y0), (x1, y1)) = (corner[s], corner[(s + 1) % 4]);
+        let m = steps[s] as i64;
+        at.extend((0..m).map(|q| (x0 + (x1 - x0) * q / m, y0 + (y1 - y0) * q / m)));
+    }
+    debug_assert_eq!(at.len(), poly.len());
+    let mut live: Vec<usize> = (0..poly.len().min(at.len())).collect();
+    let mut tris = Vec::with_capacity(live.len().saturating_sub(2));
+    while live.len() > 3 {
+        let n = live.len();
+        let turn = |k: usize| {
+            let (p, v, q) = (
+                at[live[(k + n - 1) % n]],
+                at[live[k]],
+                at[live[(k + 1) % n]],
+            );
+            (v.0 - p.0) * (q.1 - v.1) - (v.1 - p.1) * (q.0 - v.0)
+        };
+        // A strictly convex vertex next to a flat one (turn 0) first:
+        // cutting it makes that neighbour strictly convex, so the polygon
+        // keeps at least three strictly convex vertices and never ends as
+        // a run of collinear samples (a zero-area triangle, or none).
+        // Without flat vertices every vertex is strictly convex and any
+        // ear keeps three.
+        let convex = |k: usize| turn(k) > 0;
+        let flat = |k: usize| turn(k) == 0;
+        let Some(k) = (0..n)
+            .find(|&k| convex(k) && (flat((k + n - 1) % n) || flat((k + 1) % n)))
+            .or_else(|| (0..n).find(|&k| convex(k)))
+        else {
+            break;
+        };
+        tris.push([
+            poly[live[(k + n - 1) % n]],
+            poly[live[k]],
+            poly[live[(k + 1) % n]],
+        ]);
+        live.remove(k);
+    }
+    if live.len() == 3 {
+        tris.push([poly[live[0]], poly[live[1]], poly[live[2]]]);
+    }
+    tris
+}
+
 impl PatchGrid {
     /// The uniform grid of `mesh` at `res` samples per patch side
     /// (`res >= 2`). Fails on a control mesh with non-quad faces: a
@@ -103,8 +170,20 @@ impl PatchGrid {
     /// The grid of `mesh` with patch `f` at `res[f]` samples per side.
     /// Every resolution is at least 3 unless all are equal, and across
     /// every edge `R − 1` of the finer side is a multiple of the coarser
-    /// side's (module docs).
+    /// side's (module docs). [`Self::with_resolutions_from`] at level 1.
     pub fn with_resolutions(mesh: &ControlMesh, res: &[usize]) -> Result<PatchGrid> {
+        PatchGrid::with_resolutions_from(mesh, res, 1)
+    }
+
+    /// [`Self::with_resolutions`] where a mixed grid's coarsest level is
+    /// `first` (`R ≥ 2^first + 1`): 1 by default, 0 under
+    /// `SUBDFIT_DISP_LEVEL0` (a patch of one cell, its corners alone).
+    /// A uniform grid may be at any `R ≥ 2`, as in [`Self::new`].
+    pub fn with_resolutions_from(
+        mesh: &ControlMesh,
+        res: &[usize],
+        first: u32,
+    ) -> Result<PatchGrid> {
         if res.len() != mesh.num_faces() {
             return Err(Error::InvalidArgument(format!(
                 "patch grid: {} resolutions for {} patches",
@@ -113,7 +192,11 @@ impl PatchGrid {
             )));
         }
         let uniform = res.windows(2).all(|w| w[0] == w[1]);
-        let least = if uniform { 2 } else { 3 };
+        let least = if uniform {
+            2
+        } else {
+            (1usize << first.min(1)) + 1
+        };
         if let Some((f, &r)) = res.iter().enumerate().find(|(_, &r)| r < least) {
             return Err(Error::InvalidArgument(format!(
                 "patch grid: patch {f} has resolution {r}; a grid of mixed resolutions \
@@ -313,6 +396,13 @@ impl PatchGrid {
         (i, x - i as f64)
     }
 
+    /// The coarsest level a grid derived from this one may hold
+    /// ([`Self::with_resolutions_from`]): 0 when it has one-cell patches
+    /// among finer ones (`SUBDFIT_DISP_LEVEL0`), else 1.
+    pub fn first_level(&self) -> u32 {
+        u32::from(self.uniform || self.face_res.iter().all(|&r| r > 2))
+    }
+
     /// Whether every patch has the same resolution.
     pub fn is_uniform(&self) -> bool {
         self.uniform
@@ -506,10 +596,15 @@ impl PatchGrid {
                 // Fan from a corner whose two sides carry no extra sample
                 // (corner a sits between sides 3 and 0, b between 0 and 1,
                 // …): with R_f ≥ 3 a cell has at most two border sides and
-                // they meet, so the opposite corner qualifies.
-                let apex_corner = (0..4)
-                    .find(|&k| !extra(k) && !extra((k + 3) % 4))
-                    .expect("a cell of a patch with R >= 3 has a corner off its border");
+                // they meet, so the opposite corner qualifies. A patch of
+                // one cell (R_f = 2) may have finer neighbours on opposite
+                // sides or on three or four: no corner qualifies, and its
+                // square is cut by clipping corners ([`clip_cell`]).
+                let Some(apex_corner) = (0..4).find(|&k| !extra(k) && !extra((k + 3) % 4)) else {
+                    let steps_of = |s: usize| if extra(s) { steps[s] } else { 1 };
+                    tris.extend(clip_cell(&poly, std::array::from_fn(steps_of)));
+                    continue;
+                };
                 let apex_at = poly
                     .iter()
                     .position(|&s| s == [a, b, c, d][apex_corner])
@@ -652,18 +747,78 @@ mod tests {
     }
 
     /// Mixed levels on the cube: every pair of neighbours differs by 0 to
-    /// 3 levels, both ways round.
-    const MIXED: [[usize; 6]; 3] = [
+    /// 4 levels, both ways round; the last two rows have one-cell patches
+    /// (level 0, `SUBDFIT_DISP_LEVEL0`) with finer neighbours on opposite
+    /// sides, on three or on all four (cut by `clip_cell`).
+    const MIXED: [[usize; 6]; 5] = [
         [3, 5, 9, 3, 17, 5],
         [9, 3, 3, 17, 5, 33],
         [5, 5, 5, 5, 5, 9],
+        [2, 2, 5, 5, 5, 5],
+        [2, 9, 3, 2, 17, 5],
     ];
+
+    /// `clip_cell` on every combination of 1, 2 or 4 segments per side
+    /// (exact integer geometry, so no tolerance): `n − 2` triangles, each
+    /// counter-clockwise with positive area, areas summing to the
+    /// square's, every boundary segment used once in its own direction
+    /// and every inner edge twice in opposite directions — a tiling of
+    /// the cell with the fan's orientation and no sliver of zero area.
+    #[test]
+    fn clip_cell_tiles_a_one_cell_patch_without_degenerate_triangles() {
+        for code in 0..81usize {
+            let steps: [usize; 4] =
+                std::array::from_fn(|s| [1, 2, 4][code / 3usize.pow(s as u32) % 3]);
+            let n: usize = steps.iter().sum();
+            let poly: Vec<u32> = (0..n as u32).collect();
+            // The samples' places in units of 1/4 of the side.
+            let corner = [(0i64, 0i64), (4, 0), (4, 4), (0, 4)];
+            let mut at = Vec::new();
+            for s in 0..4 {
+                let ((x0, y0), (x1, y1)) = (corner[s], corner[(s + 1) % 4]);
+                let m = steps[s] as i64;
+                at.extend((0..m).map(|q| (x0 + (x1 - x0) * q / m, y0 + (y1 - y0) * q / m)));
+            }
+            let tris = clip_cell(&poly, steps);
+            assert_eq!(tris.len(), n - 2, "{steps:?}");
+            let mut area2 = 0;
+            let mut directed = std::collections::HashMap::new();
+            for t in &tris {
+                let [a, b, c] = t.map(|v| at[v as usize]);
+                let cross = (b.0 - a.0) * (c.1 - a.1) - (b.1 - a.1) * (c.0 - a.0);
+                assert!(cross > 0, "{steps:?}: {t:?} has area {cross}/2");
+                area2 += cross;
+                for k in 0..3 {
+                    *directed.entry((t[k], t[(k + 1) % 3])).or_insert(0) += 1;
+                }
+            }
+            assert_eq!(area2, 2 * 16, "{steps:?}");
+            for (&(a, b), &c) in &directed {
+                assert_eq!(c, 1, "{steps:?}: ({a},{b}) used {c} times");
+                let boundary = (a as usize + 1) % n == b as usize;
+                assert!(
+                    boundary || directed.get(&(b, a)) == Some(&1),
+                    "{steps:?}: ({a},{b})"
+                );
+                assert!(
+                    !directed.contains_key(&(b, a)) || !boundary,
+                    "{steps:?}: ({a},{b})"
+                );
+            }
+            assert_eq!(
+                (0..n)
+                    .filter(|&k| directed.contains_key(&(k as u32, ((k + 1) % n) as u32)))
+                    .count(),
+                n
+            );
+        }
+    }
 
     #[test]
     fn adaptive_welded_grid_on_a_closed_mesh_is_a_closed_manifold() {
         let m = cube();
         for res in MIXED {
-            let g = PatchGrid::with_resolutions(&m, &res).unwrap();
+            let g = PatchGrid::with_resolutions_from(&m, &res, 0).unwrap();
             assert!(!g.is_uniform() && !g.dependents().is_empty());
             let tris = g.triangles();
             assert_closed_sphere(&g, &tris, &format!("{res:?}"));
@@ -694,6 +849,52 @@ mod tests {
         }
     }
 
+    /// Every mix of levels 0–3 (`R` = 2, 3, 5, 9) on the cube's six
+    /// patches, all the allocator can put side by side there (its levels
+    /// nest at any gap): a closed manifold sphere with no repeated index
+    /// in a triangle, built through level 0's path and refused by the
+    /// default one wherever a one-cell patch sits among finer ones. On
+    /// levels 0–2 (729 mixes) also no flat triangle on the limit surface,
+    /// either diagonal rule.
+    #[test]
+    fn every_level_mix_on_the_cube_is_a_closed_manifold() {
+        let m = cube();
+        let ev = crate::subdiv::make_evaluator(
+            crate::subdiv::Backend::Rust,
+            &m,
+            &crate::subdiv::EvalOptions::default(),
+        )
+        .unwrap();
+        for code in 0..4usize.pow(6) {
+            let res: [usize; 6] =
+                std::array::from_fn(|f| [2, 3, 5, 9][code / 4usize.pow(f as u32) % 4]);
+            let mixed = res.iter().any(|&r| r != res[0]);
+            let g = PatchGrid::with_resolutions_from(&m, &res, 0).unwrap();
+            assert_eq!(
+                PatchGrid::with_resolutions(&m, &res).is_ok(),
+                !mixed || !res.contains(&2),
+                "{res:?}"
+            );
+            assert_eq!(g.first_level(), u32::from(!mixed || !res.contains(&2)));
+            let tris = g.triangles();
+            assert_eq!(tris.len(), g.triangle_range(5).end, "{res:?}");
+            assert_closed_sphere(&g, &tris, &format!("{res:?}"));
+            if res.contains(&9) {
+                continue;
+            }
+            let pos: Vec<DVec3> = ev
+                .evaluate(m.positions(), g.locations())
+                .unwrap()
+                .iter()
+                .map(|p| p.position)
+                .collect();
+            for t in tris.iter().chain(&g.triangles_shorter_diagonal(&pos)) {
+                let [a, b, c] = t.map(|s| pos[s as usize]);
+                assert!((b - a).cross(c - a).length() > 1e-9, "{res:?}: flat {t:?}");
+            }
+        }
+    }
+
     #[test]
     fn edges_between_levels_reproduce_the_coarse_function() {
         // For every border cell side of every patch, the finer neighbour's
@@ -709,7 +910,7 @@ mod tests {
         )
         .unwrap();
         for res in MIXED {
-            let g = PatchGrid::with_resolutions(&m, &res).unwrap();
+            let g = PatchGrid::with_resolutions_from(&m, &res, 0).unwrap();
             let pos: Vec<DVec3> = ev
                 .evaluate(m.positions(), g.locations())
                 .unwrap()

@@ -1389,7 +1389,7 @@ impl HostSurface {
                 }
             })
             .collect();
-        let grid = super::PatchGrid::with_resolutions(control, &res)?;
+        let grid = super::PatchGrid::with_resolutions_from(control, &res, g.first_level())?;
         let base: Vec<DVec3> = evaluator
             .evaluate(control.positions(), grid.locations())?
             .iter()

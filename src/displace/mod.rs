@@ -48,7 +48,10 @@ mod bspline;
 mod grid;
 mod lsq;
 
-pub use alloc::{allocate_resolutions, AdaptiveStats, Allocation, Pilot};
+pub use alloc::{
+    allocate_resolutions, first_level, first_level_for, level1_floor, AdaptiveStats, Allocation,
+    Pilot, LEVEL0_ENV,
+};
 
 pub use atlas::{
     read_exr, read_exr_channels, Atlas, AtlasLayout, AtlasMap, TexelType, DEFAULT_GUTTER,

@@ -779,7 +779,8 @@ fn adaptive_displacement(
         // The final grid is the pilot's: its displacement, as computed.
         Pilot::Final(d) => d,
         Pilot::Probed(pilot) => {
-            let grid = PatchGrid::with_resolutions(control, &alloc.resolutions)?;
+            let grid =
+                PatchGrid::with_resolutions_from(control, &alloc.resolutions, alloc.first_level)?;
             // The final grid's samples at or below the pilot's level are
             // the pilot's: their limit points, lines and closest points
             // are taken from it, not evaluated and cast again (the same

@@ -148,7 +148,7 @@ pub fn tessellate(
                 cells + 1
             })
             .collect();
-        let grid = PatchGrid::with_resolutions(control, &res)?;
+        let grid = PatchGrid::with_resolutions_from(control, &res, d.grid.first_level())?;
         let limit = evaluator.evaluate(control.positions(), grid.locations())?;
         (grid, limit)
     };
