@@ -113,7 +113,10 @@ fn the_shared_tree_is_the_same_from_every_thread() {
         let handles: Vec<_> = (0..4)
             .map(|_| s.spawn(|| answers(&*BvhCaster::shared(&mesh).expect("shared"))))
             .collect();
-        handles.into_iter().map(|h| h.join().expect("thread")).collect()
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("thread"))
+            .collect()
     });
     assert!(got.iter().all(|a| *a == fresh));
 }
