@@ -629,7 +629,7 @@ impl Bracket<'_> {
         // RMS D 0.22 → 0.64‰ without this test).
         let mesh = &self.relayout.mesh;
         let permille = 1000.0 / mesh.bbox_diagonal();
-        let caster = crate::raycast::bvh::BvhCaster::new(mesh)?;
+        let caster = crate::raycast::bvh::BvhCaster::shared(mesh)?;
         let mut kept_d = timer
             .run("field refinement", || {
                 super::thin::off_m(mesh, &caster, &best.1.control)
@@ -1305,7 +1305,7 @@ fn refine_locally(
     // ended at RMS L 13.2‰ with a 106‰ spike.)
     let first_new = control.num_vertices();
     let mut positions = best.positions().to_vec();
-    let caster = crate::raycast::bvh::BvhCaster::new(layout_mesh)?;
+    let caster = crate::raycast::bvh::BvhCaster::shared(layout_mesh)?;
     let snapped = caster.closest_points(&positions[first_new..], f64::INFINITY)?;
     for (p, c) in positions[first_new..].iter_mut().zip(snapped) {
         if let Some(c) = c {
@@ -1708,9 +1708,9 @@ fn unprojectable_vertices(
         which.push(v);
     }
     let exact = evaluator.evaluate(control.positions(), &at)?;
-    let m_caster = crate::raycast::bvh::BvhCaster::new(mesh)?;
+    let m_caster = crate::raycast::bvh::BvhCaster::shared(mesh)?;
     let max_dist = crate::project::default_max_dist(mesh);
-    let (hits, _) = crate::project::project_along_normals(&m_caster, &exact, max_dist)?;
+    let (hits, _) = crate::project::project_along_normals(&*m_caster, &exact, max_dist)?;
     // The report's tolerance (M's mean edge), here over the triangles'
     // sides (interior edges counted twice: the same mean on a closed mesh).
     let sides: f64 = (0..mesh.triangles.len())

@@ -931,7 +931,7 @@ pub(super) fn second_round<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted) -> Resu
     } = cx;
     let mesh = &relayout.mesh;
     let permille = 1000.0 / mesh.bbox_diagonal();
-    let caster = BvhCaster::new(mesh)?;
+    let caster = BvhCaster::shared(mesh)?;
     let m0 = timer.run("thin round", || off_m(mesh, &caster, &first.control))?;
     if let Some(r) = rounds.last_mut() {
         r.off_m_permille = Some(permille * m0.rms);
@@ -1277,7 +1277,7 @@ fn second_round_drawn(
 ) -> Result<Fitted> {
     let (relayout, fo, on) = (cx.relayout, cx.fo, cx.on);
     let mesh = &relayout.mesh;
-    let caster = BvhCaster::new(mesh)?;
+    let caster = BvhCaster::shared(mesh)?;
     let f0 = timer.run("thin round", || final_figures(on, &first.control))?;
     if let Some(r) = rounds.last_mut() {
         r.displaced_permille = Some(f0.displaced_permille);

@@ -1228,7 +1228,7 @@ impl<'a> Simplifier<'a> {
         let invariants = (k.num_components(), k.num_boundary_loops(), euler(&k));
         let nf = k.num_faces();
         poll()?;
-        let bvh = std::sync::Arc::new(BvhCaster::new(m)?);
+        let bvh = BvhCaster::shared(m)?;
         poll()?;
         let lim = all_limits(&k)?;
         poll()?;

@@ -331,9 +331,62 @@ const EMPTY_NODE: Node = Node {
     offset: 0,
 };
 
+/// The BVHs [`BvhCaster::shared`] hands out, with a copy of the mesh each
+/// was built on, most recently used last.
+static SHARED: std::sync::Mutex<Vec<(TriMesh, std::sync::Arc<BvhCaster>)>> =
+    std::sync::Mutex::new(Vec::new());
+
+/// How many meshes [`BvhCaster::shared`] keeps a BVH of: M and M′ of a
+/// run, with room for a test run beside it.
+pub const SHARED_MESHES: usize = 4;
+
+/// `a` and `b` bit for bit (`-0.0 ≠ 0.0`, a NaN equal to itself).
+fn same_mesh(a: &TriMesh, b: &TriMesh) -> bool {
+    let bits = |p: &DVec3| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
+    a.triangles == b.triangles
+        && a.positions.len() == b.positions.len()
+        && a.positions
+            .iter()
+            .zip(&b.positions)
+            .all(|(p, q)| bits(p) == bits(q))
+}
+
 impl BvhCaster {
     /// Builds the BVH over the non-zero-area triangles of `mesh`. Errors: see
     /// [`crate::raycast::surface_triangles`].
+    /// [`BvhCaster::new`] of `mesh`, shared with every other caller asking
+    /// for the same mesh bit for bit (issue 40, session 20): the field
+    /// layout's extractions, its cleanups and the convert layer's patch
+    /// errors each built the BVH of M (or M′) again, ~120 times a run on
+    /// homer at 272 patches under `SUBDFIT_FIELD_BEST` (5 % of its CPU).
+    /// The build is a function of the mesh alone, whatever the thread count
+    /// (`tree_is_independent_of_thread_count`), so the shared tree is the
+    /// one a fresh build would give, and so is every answer. At most
+    /// [`SHARED_MESHES`] meshes are kept (the least recently used goes).
+    /// The lock is not held while building: a build runs rayon tasks,
+    /// and a task stolen by the waiting thread could ask for the lock.
+    pub fn shared(mesh: &TriMesh) -> Result<std::sync::Arc<Self>> {
+        let lock = || SHARED.lock().unwrap_or_else(|e| e.into_inner());
+        {
+            let mut cache = lock();
+            if let Some(i) = cache.iter().position(|(m, _)| same_mesh(m, mesh)) {
+                let hit = cache.remove(i);
+                let bvh = hit.1.clone();
+                cache.push(hit);
+                return Ok(bvh);
+            }
+        }
+        let bvh = std::sync::Arc::new(BvhCaster::new(mesh)?);
+        let mut cache = lock();
+        if !cache.iter().any(|(m, _)| same_mesh(m, mesh)) {
+            if cache.len() >= SHARED_MESHES {
+                cache.remove(0);
+            }
+            cache.push((mesh.clone(), bvh.clone()));
+        }
+        Ok(bvh)
+    }
+
     pub fn new(mesh: &TriMesh) -> Result<Self> {
         let mut items = surface_triangles(mesh)?;
         let info: Vec<PrimInfo> = (0..mesh.triangles.len())

@@ -154,7 +154,7 @@ fn extract_once(
         pinches_split,
         ..LatticeInfo::default()
     };
-    let caster = BvhCaster::new(mesh)?;
+    let caster = BvhCaster::shared(mesh)?;
     let project = |positions: &[DVec3]| -> Result<Vec<DVec3>> {
         let hits = caster.closest_points(positions, f64::INFINITY)?;
         Ok(positions

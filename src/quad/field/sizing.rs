@@ -535,7 +535,7 @@ pub fn adaptivity_spearman(
         radius.push(q.iter().map(|p| (*p - c).length()).fold(0.0, f64::max));
         centres.push(c);
     }
-    let caster = crate::raycast::bvh::BvhCaster::new(mesh)?;
+    let caster = crate::raycast::bvh::BvhCaster::shared(mesh)?;
     let nearest = caster.closest_points(&centres, f64::INFINITY)?;
     let (mut r, mut inv) = (Vec::new(), Vec::new());
     for (c, &rad) in nearest.iter().zip(&radius) {
