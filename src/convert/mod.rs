@@ -85,9 +85,12 @@ pub fn convert_in_memory(
     host: HostRecord,
     progress: &mut crate::watch::Progress<'_>,
 ) -> Result<Converted> {
-    at_unit_scale(input, |m, frame| {
+    let converted = at_unit_scale(input, |m, frame| {
         convert_at_unit_scale(m, *frame, opts, host, progress)
-    })
+    });
+    // The BVHs shared within the run (M, M′) are this run's only.
+    crate::raycast::bvh::BvhCaster::clear_shared();
+    converted
 }
 
 /// `subdfit fit` and the C++ API's fit: fits a given `control` to `input`

@@ -352,8 +352,6 @@ fn same_mesh(a: &TriMesh, b: &TriMesh) -> bool {
 }
 
 impl BvhCaster {
-    /// Builds the BVH over the non-zero-area triangles of `mesh`. Errors: see
-    /// [`crate::raycast::surface_triangles`].
     /// [`BvhCaster::new`] of `mesh`, shared with every other caller asking
     /// for the same mesh bit for bit (issue 40, session 20): the field
     /// layout's extractions, its cleanups and the convert layer's patch
@@ -387,6 +385,15 @@ impl BvhCaster {
         Ok(bvh)
     }
 
+    /// Forgets every tree [`BvhCaster::shared`] keeps (holders keep theirs):
+    /// a conversion calls it when it ends, so a batch or a host process
+    /// does not keep the last run's meshes and trees alive.
+    pub fn clear_shared() {
+        SHARED.lock().unwrap_or_else(|e| e.into_inner()).clear();
+    }
+
+    /// Builds the BVH over the non-zero-area triangles of `mesh`. Errors: see
+    /// [`crate::raycast::surface_triangles`].
     pub fn new(mesh: &TriMesh) -> Result<Self> {
         let mut items = surface_triangles(mesh)?;
         let info: Vec<PrimInfo> = (0..mesh.triangles.len())
