@@ -153,10 +153,16 @@ pub fn natural_adaptivity() -> bool {
 /// ([`FieldOptions::for_convert`], `convert::field`), so a thread-local
 /// override reaches every read of it and no other conversion.
 pub fn without_natural_adaptivity<T>(f: impl FnOnce() -> T) -> T {
-    let before = ADAPTIVITY_WITHHELD.with(|w| w.replace(true));
-    let out = f();
-    ADAPTIVITY_WITHHELD.with(|w| w.set(before));
-    out
+    /// Puts the thread's previous state back however `f` ends (a host
+    /// may catch a panic and go on converting on the same thread).
+    struct Restore(bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            ADAPTIVITY_WITHHELD.with(|w| w.set(self.0));
+        }
+    }
+    let _restore = Restore(ADAPTIVITY_WITHHELD.with(|w| w.replace(true)));
+    f()
 }
 
 impl Default for FieldOptions {
