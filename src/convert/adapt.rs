@@ -9,13 +9,15 @@
 //! the gargoyle τ 10 %: 0.604‰ against 0.246‰ at 757 and 705), its kept
 //! round passes both bounds on M′ and on M, but its limit surface has
 //! 3–11 times the displacement samples whose normal line meets M only on
-//! another sheet or nowhere (homer 74 against 23, the gargoyle 181
-//! against 16: the sized relaxation grows patches up to the M-fitmap's
-//! bound, Fitmaps §3.1.3, where the limit then crosses thin parts).
-//! Those samples are inpainted ([`crate::displace`]), and the displaced
-//! surface there stands off M (its largest distance to M 10.7‰ against
-//! 3.3‰ on homer), which the least-squares offsets do not repair (their
-//! rounds were rejected). No per-round test on M′ sees it, and no
+//! another sheet or nowhere (homer 74 against 23 of 6000, the gargoyle
+//! 181 against 16 of 25 000). Those samples are inpainted
+//! ([`crate::displace`]), and the displaced surface there stands off M
+//! (its largest distance to M 10.7‰ against 3.3‰ on homer; D's
+//! surface-to-mesh half carries the rise, mesh-to-surface 0.19‰ against
+//! 0.17‰), which the least-squares offsets do not repair (homer: one
+//! round kept, 0.38 → 0.33‰, against two, 0.30 → 0.19‰; the gargoyle:
+//! none). M′'s and M's projectability tests (M's points onto the limit,
+//! Fitmaps §3.1.3) do not see a limit point that projects nowhere, and no
 //! reference D exists inside one run, so the adaptive result is doubted
 //! by its own ratio D / L ([`DOUBT_SHARE`]), and then measured against the
 //! switch-off result itself, by issue 40's bars ([`adaptive_kept`]).
