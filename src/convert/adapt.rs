@@ -176,9 +176,13 @@ mod tests {
         // Cheburashka τ 1 %: D lower, but 22 % more patches.
         let (a, o) = (side(546, 79, 1.852, 0.528), side(446, 78, 1.773, 1.076));
         assert!(doubted(&a) && !adaptive_kept(&a, &o));
-        // Within every bar, the adaptive one stays.
-        let o = side(500, 80, 1.8, 0.38);
+        // Within every bar (P 1.092×, irr 0.99×, D 1.015×), the adaptive
+        // one stays; just past each, it gives way.
+        let o = side(500, 80, 1.8, 0.52);
         assert!(adaptive_kept(&a, &o));
+        assert!(!adaptive_kept(&a, &side(496, 80, 1.8, 0.52)));
+        assert!(!adaptive_kept(&a, &side(500, 71, 1.8, 0.52)));
+        assert!(!adaptive_kept(&a, &side(500, 80, 1.8, 0.50)));
     }
 
     /// A switch-off result that misses its own targets, or issue 40's
