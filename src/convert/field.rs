@@ -52,7 +52,6 @@ use crate::error::Result;
 use crate::mesh::{ControlMesh, TriMesh};
 use crate::quad::field::{
     field_layout_refined_following, sizing, FieldOptions, FieldStats, Follow, Surface,
-    NATURAL_ADAPTIVITY_ENV,
 };
 use crate::raycast::RayCaster;
 use crate::report::TargetCheck;
@@ -95,7 +94,7 @@ pub const PROJECTION_REGROW_FACTOR: f64 = 0.95;
 pub const OVERSHOOT: f64 = 1.25;
 
 /// Layouts an overshooting round lays at most to land near its budget
-/// under [`NATURAL_ADAPTIVITY_ENV`] ([`lay_out_grown`]).
+/// under [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV) ([`lay_out_grown`]).
 pub const OVERSHOOT_PASSES: usize = 3;
 
 /// The factor on h of another try when a refined sizing's lattice tore
@@ -240,6 +239,11 @@ pub struct FieldRound {
 pub struct FieldRecord {
     pub first: FieldStats,
     pub rounds: Vec<FieldRound>,
+    /// With [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV) and a bound: the switch-off layout
+    /// laid beside the adaptive one and which was kept
+    /// ([`super::adapt`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub adapt_check: Option<super::adapt::AdaptCheck>,
 }
 
 /// Fits `control` (the field layout's first mesh) and, with `max_error`,
@@ -593,7 +597,7 @@ struct Bracket<'a> {
     fo: &'a FieldOptions,
     /// `--max-error`, ‰.
     e: f64,
-    /// With [`NATURAL_ADAPTIVITY_ENV`]: the first layout's sizing, which
+    /// With [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV): the first layout's sizing, which
     /// the bracket layouts' sized relaxation follows ([`following`]).
     follow: Option<&'a Follow>,
     /// With the switch, M: a near miss (or pass) of projectability on M′
@@ -776,7 +780,7 @@ fn near_judged_on_m(f: &crate::quad::field::draws::Final, share: f64) -> Option<
     carried.then_some(f.unprojectable_percent)
 }
 
-/// Under [`NATURAL_ADAPTIVITY_ENV`], a bracket layout is kept only if its
+/// Under [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV), a bracket layout is kept only if its
 /// ρ (patch radius against 1/F_S) is at least the kept round's minus this.
 pub const BRACKET_RHO_SLACK: f64 = 0.03;
 
@@ -910,7 +914,7 @@ struct Lay<'a> {
     follow: Option<&'a Follow>,
 }
 
-/// With [`NATURAL_ADAPTIVITY_ENV`] at the natural size (its sized
+/// With [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV) at the natural size (its sized
 /// relaxation on): the first layout's sizing and α, so that the
 /// `--max-error` rounds' and bracket's layouts relax towards the first
 /// layout's aim times their own local factors
@@ -925,7 +929,7 @@ fn following(
     target_faces: Option<usize>,
     max_error: Option<f64>,
 ) -> Result<Option<Follow>> {
-    let on = crate::switches::on(NATURAL_ADAPTIVITY_ENV);
+    let on = crate::quad::field::natural_adaptivity();
     let bound = max_error.is_some_and(|e| e.is_finite());
     if !on || !bound || target_faces.is_some() || fo.sized_relax.is_none() {
         return Ok(None);
@@ -1028,7 +1032,7 @@ pub const NEAR_D_SHARE: f64 = f64::INFINITY;
 /// The switch that sets [`NEAR_D_SHARE`] (e.g. `0.15`) for a measurement.
 pub const NEAR_D_ENV: &str = "SUBDFIT_FIELD_NEAR_D";
 
-/// With [`NATURAL_ADAPTIVITY_ENV`]: the pipeline's figures on M (its
+/// With [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV): the pipeline's figures on M (its
 /// displacement and metrics, as `report.json` measures them; the
 /// unprojectable share of M's area is issue 40's acceptance) of a round whose share of M′ `u` is within
 /// [`NEAR_PASS`] and [`NEAR_MISS`] of [`UNPROJECTABLE_PERCENT`]; `None`

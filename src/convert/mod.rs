@@ -28,6 +28,7 @@ use crate::report::{MetricsOptions, StageTimer, TargetCheck};
 /// run's typed record.
 pub type Report = crate::report::Report<RunOptions>;
 
+mod adapt;
 pub mod auto;
 mod faces_proj;
 pub mod field;
@@ -220,6 +221,11 @@ fn convert_at_unit_scale(
     let choice = mode_choice(&input.mesh, opts.mode);
     let mut run = Run::start(input, frame, StageTimer::default(), progress)?;
     if choice.mode == "organic" {
+        if adapt::checks(opts) {
+            return adapt::with_switch_off_beside(&mut run, |run| {
+                convert_as(run, opts, choice.clone(), host.clone())
+            });
+        }
         return convert_as(&mut run, opts, choice, host);
     }
     // `--mode auto` ends with the pipeline that fits: a CAD-looking mesh
@@ -393,6 +399,7 @@ fn convert_as(
                     field_layout: field::FieldRecord {
                         first: field.clone(),
                         rounds: rounds.to_vec(),
+                        adapt_check: None,
                     },
                 })
             };

@@ -136,6 +136,35 @@ pub struct FieldOptions {
 /// 40's adaptivity, docs/status.md "Field-aligned layout", session 16).
 pub const NATURAL_ADAPTIVITY_ENV: &str = "SUBDFIT_FIELD_ADAPT";
 
+thread_local! {
+    /// Set by [`without_natural_adaptivity`] on the thread that runs it.
+    static ADAPTIVITY_WITHHELD: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Whether [`NATURAL_ADAPTIVITY_ENV`] is on for the layouts this thread
+/// lays now (not within [`without_natural_adaptivity`]).
+pub fn natural_adaptivity() -> bool {
+    !ADAPTIVITY_WITHHELD.with(|w| w.get()) && crate::switches::on(NATURAL_ADAPTIVITY_ENV)
+}
+
+/// `f` run as if [`NATURAL_ADAPTIVITY_ENV`] were off: the switch-off
+/// layout laid beside the adaptive one (`convert::adapt`). The switch is
+/// read on the thread that starts a conversion's layout and rounds
+/// ([`FieldOptions::for_convert`], `convert::field`), so a thread-local
+/// override reaches every read of it and no other conversion.
+pub fn without_natural_adaptivity<T>(f: impl FnOnce() -> T) -> T {
+    /// Puts the thread's previous state back however `f` ends (a host
+    /// may catch a panic and go on converting on the same thread).
+    struct Restore(bool);
+    impl Drop for Restore {
+        fn drop(&mut self) {
+            ADAPTIVITY_WITHHELD.with(|w| w.set(self.0));
+        }
+    }
+    let _restore = Restore(ADAPTIVITY_WITHHELD.with(|w| w.replace(true)));
+    f()
+}
+
 impl Default for FieldOptions {
     fn default() -> Self {
         FieldOptions {
@@ -228,7 +257,7 @@ impl FieldOptions {
     /// [`FieldOptions::with_natural_adaptivity`].
     pub fn for_convert(target_faces: Option<usize>) -> Self {
         let fo = FieldOptions::default().with_target_faces(target_faces);
-        let on = crate::switches::on(NATURAL_ADAPTIVITY_ENV);
+        let on = natural_adaptivity();
         if on && target_faces.is_none() {
             fo.with_natural_adaptivity()
         } else {
