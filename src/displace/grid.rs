@@ -716,6 +716,29 @@ mod tests {
 
     /// Every sample used, every undirected edge used by exactly two
     /// triangles in opposite directions, Euler characteristic 2.
+    /// The pure-Rust limit evaluator of `m` (the grid tests' surfaces).
+    fn rust_evaluator(m: &ControlMesh) -> Box<dyn crate::subdiv::LimitEvaluator> {
+        crate::subdiv::make_evaluator(
+            crate::subdiv::Backend::Rust,
+            m,
+            &crate::subdiv::EvalOptions::default(),
+        )
+        .unwrap()
+    }
+
+    /// `g`'s sample locations on `m`'s limit surface.
+    fn limit_positions(
+        ev: &dyn crate::subdiv::LimitEvaluator,
+        m: &ControlMesh,
+        g: &PatchGrid,
+    ) -> Vec<DVec3> {
+        ev.evaluate(m.positions(), g.locations())
+            .unwrap()
+            .iter()
+            .map(|p| p.position)
+            .collect()
+    }
+
     fn assert_closed_sphere(g: &PatchGrid, tris: &[[u32; 3]], what: &str) {
         let mut used = vec![false; g.num_samples()];
         let mut directed = std::collections::HashMap::new();
@@ -829,18 +852,8 @@ mod tests {
             }
             // Triangles are non-degenerate on the limit surface too (a fan
             // apex collinear with its base would not be).
-            let ev = crate::subdiv::make_evaluator(
-                crate::subdiv::Backend::Rust,
-                &m,
-                &crate::subdiv::EvalOptions::default(),
-            )
-            .unwrap();
-            let pos: Vec<DVec3> = ev
-                .evaluate(m.positions(), g.locations())
-                .unwrap()
-                .iter()
-                .map(|p| p.position)
-                .collect();
+            let ev = rust_evaluator(&m);
+            let pos: Vec<DVec3> = limit_positions(&*ev, &m, &g);
             for t in g.triangles_shorter_diagonal(&pos) {
                 let [a, b, c] = t.map(|s| pos[s as usize]);
                 assert!((b - a).cross(c - a).length() > 1e-9, "{res:?}: flat {t:?}");
@@ -859,12 +872,7 @@ mod tests {
     #[test]
     fn every_level_mix_on_the_cube_is_a_closed_manifold() {
         let m = cube();
-        let ev = crate::subdiv::make_evaluator(
-            crate::subdiv::Backend::Rust,
-            &m,
-            &crate::subdiv::EvalOptions::default(),
-        )
-        .unwrap();
+        let ev = rust_evaluator(&m);
         for code in 0..4usize.pow(6) {
             let res: [usize; 6] =
                 std::array::from_fn(|f| [2, 3, 5, 9][code / 4usize.pow(f as u32) % 4]);
@@ -882,12 +890,7 @@ mod tests {
             if res.contains(&9) {
                 continue;
             }
-            let pos: Vec<DVec3> = ev
-                .evaluate(m.positions(), g.locations())
-                .unwrap()
-                .iter()
-                .map(|p| p.position)
-                .collect();
+            let pos: Vec<DVec3> = limit_positions(&*ev, &m, &g);
             for t in tris.iter().chain(&g.triangles_shorter_diagonal(&pos)) {
                 let [a, b, c] = t.map(|s| pos[s as usize]);
                 assert!((b - a).cross(c - a).length() > 1e-9, "{res:?}: flat {t:?}");
@@ -903,20 +906,10 @@ mod tests {
         // after `apply_dependents` hold the linear interpolation of the
         // ends, for an arbitrary field on the independent samples.
         let m = cube();
-        let ev = crate::subdiv::make_evaluator(
-            crate::subdiv::Backend::Rust,
-            &m,
-            &crate::subdiv::EvalOptions::default(),
-        )
-        .unwrap();
+        let ev = rust_evaluator(&m);
         for res in MIXED {
             let g = PatchGrid::with_resolutions_from(&m, &res, 0).unwrap();
-            let pos: Vec<DVec3> = ev
-                .evaluate(m.positions(), g.locations())
-                .unwrap()
-                .iter()
-                .map(|p| p.position)
-                .collect();
+            let pos: Vec<DVec3> = limit_positions(&*ev, &m, &g);
             let mut vals: Vec<f64> = (0..g.num_samples())
                 .map(|k| ((k * 7919) % 101) as f64 / 101.0 - 0.5)
                 .collect();
@@ -1004,18 +997,8 @@ mod tests {
         let m = cube();
         let g = PatchGrid::new(&m, 4).unwrap();
         // Positions with a random-ish perturbation so both diagonals occur.
-        let ev = crate::subdiv::make_evaluator(
-            crate::subdiv::Backend::Rust,
-            &m,
-            &crate::subdiv::EvalOptions::default(),
-        )
-        .unwrap();
-        let mut pos: Vec<DVec3> = ev
-            .evaluate(m.positions(), g.locations())
-            .unwrap()
-            .iter()
-            .map(|p| p.position)
-            .collect();
+        let ev = rust_evaluator(&m);
+        let mut pos: Vec<DVec3> = limit_positions(&*ev, &m, &g);
         for (k, p) in pos.iter_mut().enumerate() {
             *p *= 1.0 + 0.2 * ((k * 7919 % 13) as f64 / 13.0);
         }
