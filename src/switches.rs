@@ -27,6 +27,7 @@
 //! | `SUBDFIT_FACES_PROJ` | `convert::faces_proj` | `1`: the projectability rounds at `--faces` |
 //! | `SUBDFIT_FACES_PROJ_F`, `_ROUNDS`, `_LCAP` | `convert::faces_proj` | their constants |
 //! | `SUBDFIT_FACES_PROJ_LOG` | `convert::faces_proj` | each round on stderr |
+//! | `SUBDFIT_FACES_PROJ_STOP` | `convert::faces_proj` | `0`: the judged rounds do not stop once the choice meets the unprojectable bar |
 //! | `SUBDFIT_SEARCH_FULL_MEASURE` | `convert::search` | `1`: the full measure on every step (same bytes) |
 //! | `SUBDFIT_PROXY_FITMAP_ON_M` | `convert::layout` | `1`: the proxy's Fitmap computed on M |
 //! | `SUBDFIT_CLEANUP_GUARDED` | `quad::field::cleanup` | set and not `0`: the guarded cancellation |
@@ -54,7 +55,7 @@
 //! | `SUBDFIT_DISP_REFINE` | `convert::tail`, `convert::thin`, `convert::search` | `1`: an all-quad layout's displacement atlas (and metrics) on its refinement by one level, as a non-quad layout's always is |
 //! | `SUBDFIT_DISP_LEVEL0` | `displace::alloc`, `convert::tail` | `1`: where the level-1 floor takes over 4/5 of the budget, the adaptive allocation may leave a patch at its corners (`R = 2`); `SUBDFIT_DISP_REFINE` also refines where that holds on the refinement and its vertices take at most half the budget |
 //! | `SUBDFIT_FIELD_BEST_MAIN` | `convert::layout` | under `SUBDFIT_FIELD_BEST=1`, `0`: no main's-result candidate in the final judgement (on otherwise) |
-//! | `SUBDFIT_FIELD_ADAPT` | `quad::field`, `convert::field` | `1`: the natural-size adaptivity (caps, grading, relaxation towards F_S's sizes) without `--faces`; with a finite `--max-error`, the rounds' relaxation follows the first sizing, a projectability near miss is judged on M, the bracket lays the kept sizing scaled once |
+//! | `SUBDFIT_FIELD_ADAPT` | `convert::options` (`ConvertOptions::field_adapt`'s default) | `1`: the natural-size adaptivity (caps, grading, relaxation towards F_S's sizes) without `--faces`; with a finite `--max-error`, the rounds' relaxation follows the first sizing, a projectability near miss is judged on M, the bracket lays the kept sizing scaled once |
 //! | `SUBDFIT_FIELD_ADAPT_CHECK` | `convert::adapt` | with `SUBDFIT_FIELD_ADAPT=1` at a finite `--max-error`: `0` turns off the switch-off conversion beside a result whose RMS D > 0.15 RMS L (on otherwise) |
 //! | `FIELD_GRADING`, `FIELD_LOOP_CAP_SLOPE` | `quad::field` | the sizing's grading and its loops' cap |
 //! | `FIELD_RELAX`, `FIELD_SIZED_RELAX`, `FIELD_POSITION_OWN_SCALE` | `quad::field` | the extraction's relaxation, the positions' scale |

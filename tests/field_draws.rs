@@ -9,8 +9,8 @@ use std::f64::consts::PI;
 
 use subdfit::mesh::TriMesh;
 use subdfit::quad::field::{
-    control_topology, draws, field_layout, field_layout_drawn, FieldLayout, FieldOptions, Prepared,
-    TopologySummary,
+    control_topology, draws, field_layout, field_layout_at_scale, field_layout_drawn,
+    field_layout_drawn_with_main, FieldLayout, FieldOptions, Prepared, TopologySummary,
 };
 use subdfit::DVec3;
 
@@ -351,4 +351,148 @@ fn bars_d_weight_reorders_only_the_l_against_d_trade() {
     // The weight scales only D's term: a candidate at the best D scores
     // the same whatever the weight.
     assert_eq!(s(&low_d, 1.0).to_bits(), s(&low_d, 3.0).to_bits());
+}
+
+#[test]
+fn draws_and_main_on_one_sizing_are_the_layouts_laid_apart() {
+    // The shared path (`field_layout_drawn_with_main`, session 20) computes
+    // the sizing once for the draws and main's unguarded draw 0; laid apart
+    // (`field_layout_drawn`, then `field_layout_at_scale` at 1 with the
+    // guard off) each computes its own. At a face target with the cleanup
+    // on (the count passes and both cleanups run), the two paths must give
+    // the same lattices, bit for bit, and the same draw record.
+    let m = torus(2.0, 0.45, 120, 30);
+    let fm = common::flat_fitmap(m.positions.len());
+    let opts = FieldOptions::default()
+        .with_uniform_size(Some(0.3))
+        .with_target_faces(Some(400));
+    let mut main_opts = opts.clone();
+    main_opts.cleanup_guarded = Some(false);
+    let k = 3;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        let prep = Prepared::new(&m, &opts).unwrap();
+        let drawn_apart = field_layout_drawn(&prep, &m, &fm, &opts, k, score(2.0, 0.45)).unwrap();
+        let main_apart = field_layout_at_scale(&prep, &m, &fm, &main_opts, 1.0).unwrap();
+        let (drawn, main) = field_layout_drawn_with_main(
+            &prep,
+            &m,
+            &fm,
+            &opts,
+            Some(&main_opts),
+            k,
+            score(2.0, 0.45),
+        )
+        .unwrap();
+        let main = main.expect("main asked for").unwrap();
+        assert_eq!(drawn.control, drawn_apart.control, "the chosen draw");
+        assert_eq!(drawn.stats.draws, drawn_apart.stats.draws);
+        assert!(drawn.stats.draws.is_some(), "{k} draws were ranked");
+        assert_eq!(main.control, main_apart.control, "main's draw 0");
+        assert_eq!(main.stats.faces, main_apart.stats.faces);
+        // Both met the target's count loop on a torus (a lattice that
+        // kept M's topology), so the comparison is of real layouts.
+        for l in [&drawn, &main] {
+            let t = control_topology(&l.control);
+            assert_eq!((t.components, t.boundary_loops, t.euler), (1, 0, 0));
+            assert!(l.control.num_faces() > 20, "{}", l.control.num_faces());
+        }
+        // Without `main_opts` there is no main layout.
+        let (_, none) =
+            field_layout_drawn_with_main(&prep, &m, &fm, &opts, None, 1, score(2.0, 0.45)).unwrap();
+        assert!(none.is_none());
+    });
+}
+
+#[test]
+fn main_finished_from_the_guarded_draw_0s_count_passes_is_main_laid_apart() {
+    // Session 21: with main's draw 0 asked for beside guarded draws, the
+    // shared path lays draw 0's count passes once and finishes the kept
+    // pass twice, guarded (the draw) and unguarded (main)
+    // (`Counted::as_guarded`). Laid apart, each runs its own passes. Both
+    // must give the same lattices bit for bit, on meshes where the guard
+    // changes draw 0 (else a main finished under the draws' guard would
+    // pass unseen): at least one of the meshes below must be such a mesh.
+    let meshes = [
+        (
+            "icosphere",
+            common::icosphere(4, DVec3::ZERO, 1.0),
+            0.3,
+            150,
+        ),
+        (
+            "perturbed torus",
+            common::perturbed_torus(120, 40, 2.0, 0.7, 0.3),
+            0.35,
+            300,
+        ),
+        ("thin torus", torus(2.0, 0.45, 120, 30), 0.3, 400),
+    ];
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let bits = |l: &FieldLayout| -> Vec<[u64; 3]> {
+        l.control
+            .positions()
+            .iter()
+            .map(|p| p.to_array().map(f64::to_bits))
+            .collect()
+    };
+    let mut changed = Vec::new();
+    for (name, m, size, faces) in meshes {
+        let fm = common::flat_fitmap(m.positions.len());
+        let mut opts = FieldOptions::default()
+            .with_uniform_size(Some(size))
+            .with_target_faces(Some(faces));
+        opts.cleanup_guarded = Some(true);
+        let mut main_opts = opts.clone();
+        main_opts.cleanup_guarded = Some(false);
+        pool.install(|| {
+            let prep = Prepared::new(&m, &opts).unwrap();
+            let guarded_apart = field_layout_at_scale(&prep, &m, &fm, &opts, 1.0).unwrap();
+            let main_apart = field_layout_at_scale(&prep, &m, &fm, &main_opts, 1.0).unwrap();
+            if guarded_apart.control != main_apart.control {
+                changed.push(name);
+            }
+            // One draw: the draw is draw 0 itself.
+            let any = |_: &FieldLayout| Ok(0.0);
+            let (drawn, main) =
+                field_layout_drawn_with_main(&prep, &m, &fm, &opts, Some(&main_opts), 1, any)
+                    .unwrap();
+            let main = main.expect("main asked for").unwrap();
+            assert_eq!(drawn.control, guarded_apart.control, "{name}: draw 0");
+            assert_eq!(bits(&drawn), bits(&guarded_apart), "{name}: draw 0");
+            assert_eq!(main.control, main_apart.control, "{name}: main");
+            assert_eq!(bits(&main), bits(&main_apart), "{name}: main");
+            assert_eq!(main.stats.faces, main_apart.stats.faces, "{name}");
+            assert_eq!(
+                main.stats.irregular_vertices, main_apart.stats.irregular_vertices,
+                "{name}"
+            );
+            // Three draws: the chosen one is the draws' choice laid apart.
+            let k = 3;
+            let apart = field_layout_drawn(&prep, &m, &fm, &opts, k, any).unwrap();
+            let (drawn, main) =
+                field_layout_drawn_with_main(&prep, &m, &fm, &opts, Some(&main_opts), k, any)
+                    .unwrap();
+            let main = main.expect("main asked for").unwrap();
+            assert_eq!(drawn.stats.draws, apart.stats.draws, "{name}");
+            assert_eq!(bits(&drawn), bits(&apart), "{name}: the chosen draw");
+            assert_eq!(drawn.control, apart.control, "{name}: the chosen draw");
+            assert_eq!(bits(&main), bits(&main_apart), "{name}: main of 3");
+            assert_eq!(main.control, main_apart.control, "{name}: main of 3");
+            let t = control_topology(&main.control);
+            assert_eq!(t, control_topology(&drawn.control), "{name}");
+            assert!(main.control.num_faces() > 20, "{name}");
+        });
+    }
+    eprintln!("the guard changed draw 0 on: {changed:?}");
+    assert!(
+        !changed.is_empty(),
+        "the guard changed draw 0 on none of the meshes: the test sees nothing"
+    );
 }

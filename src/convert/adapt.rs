@@ -53,7 +53,7 @@ pub const CHECK_ENV: &str = "SUBDFIT_FIELD_ADAPT_CHECK";
 /// Whether a conversion with `opts` is checked: the switch on, the field
 /// layout at the natural size under a finite bound.
 pub fn checks(opts: &ConvertOptions) -> bool {
-    crate::quad::field::natural_adaptivity()
+    opts.field_adapt
         && crate::switches::on_off(CHECK_ENV) != Some(false)
         && opts.layout == LayoutKind::Field
         && opts.target_faces.is_none()
@@ -113,20 +113,21 @@ pub fn adaptive_kept(a: &Side, o: &Side) -> bool {
     !(o_fits && a_misses)
 }
 
-/// `convert` run with the switch on and, when its result is
-/// [`doubted`], with the switch off too; the one [`adaptive_kept`] picks,
-/// its report recording both.
+/// `convert` run with `opts` (the switch on) and, when its result is
+/// [`doubted`], with the same options and [`ConvertOptions::field_adapt()`]
+/// off too; the one [`adaptive_kept`] picks, its report recording both.
 pub fn with_switch_off_beside<'a, 'p>(
     run: &mut Run<'a, 'p>,
-    mut convert: impl FnMut(&mut Run<'a, 'p>) -> Result<Converted>,
+    opts: &ConvertOptions,
+    mut convert: impl FnMut(&mut Run<'a, 'p>, &ConvertOptions) -> Result<Converted>,
 ) -> Result<Converted> {
-    let adaptive = convert(run)?;
+    let adaptive = convert(run, opts)?;
     let a = Side::of(&adaptive);
     if !doubted(&a) {
         return Ok(adaptive);
     }
     run.take_timer();
-    let off = crate::quad::field::without_natural_adaptivity(|| convert(run))?;
+    let off = convert(run, &opts.clone().with_field_adapt(false))?;
     let o = Side::of(&off);
     let keep_a = adaptive_kept(&a, &o);
     let check = AdaptCheck {

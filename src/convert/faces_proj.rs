@@ -72,6 +72,35 @@ pub fn enabled() -> bool {
     }
 }
 
+/// The switch of the judged chain's stop at the bar ([`stop_at_bar`]):
+/// `0` lays all [`PROJ_ROUNDS`] (session 16's chain).
+pub const FACES_PROJ_STOP_ENV: &str = "SUBDFIT_FACES_PROJ_STOP";
+
+/// Whether the judged rounds (`SUBDFIT_FIELD_BEST`) stop once the round
+/// [`draws::choose_final_with`] would keep among those laid so far meets
+/// issue 40's unprojectable bar on its final figures: on unless
+/// [`FACES_PROJ_STOP_ENV`] is `0`.
+///
+/// The rounds trade RMS L, RMS D and the irregular count for
+/// projectability (module docs), and the incoming result skips them when
+/// it meets the bar already; this stops the chain on the same test, taken
+/// on the choice so far. Session 21 (issue 40's speed point): homer at
+/// 272 laid six rounds and kept the third, the first at the bar
+/// (0.096 %, with the lowest RMS L and RMS D of all seven candidates); the
+/// three after it (0.46 / 0.28 / 0.94 %) cost 10.5 of its 37.6 CPU s.
+pub fn stop_at_bar() -> bool {
+    crate::switches::on_off(FACES_PROJ_STOP_ENV).unwrap_or(true)
+}
+
+/// Whether the candidate [`draws::choose_final_with`] keeps among
+/// `finals` (the incoming result first) meets the unprojectable bar.
+pub(super) fn choice_meets_bar(finals: &[draws::Final], n: Option<usize>) -> bool {
+    let (i, _) = draws::choose_final_with(finals, n, COUNT_WINDOW, draws::Score::BarsUnguarded);
+    finals
+        .get(i)
+        .is_some_and(|f| f.unprojectable_percent <= draws::UNPROJECTABLE_BAR)
+}
+
 /// A fitted round's figures the rounds are judged by.
 #[derive(Clone, Copy, Debug)]
 struct Judged {
@@ -270,7 +299,13 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
         } else if at_count && j1.beats(&best.0, &j0) {
             best = (j1, next, Some(rounds.len() - 1));
         }
-        if stop {
+        // Judged, the chain stops once the choice so far meets the bar
+        // ([`stop_at_bar`]).
+        let at_bar = judge.is_some() && stop_at_bar() && choice_meets_bar(&finals, fo.target_faces);
+        if log && at_bar {
+            eprintln!("projectability rounds: the choice meets the bar, stop");
+        }
+        if stop || at_bar {
             break;
         }
     }
@@ -354,6 +389,48 @@ mod tests {
             };
             assert!((x - want).abs() < 1e-12, "face {f}: {x}, want {want}");
         }
+    }
+
+    /// A candidate's final figures: faces, irregular, L ‰, D ‰, unprojectable %.
+    fn fin(faces: usize, irregular: usize, l: f64, d: f64, u: f64) -> draws::Final {
+        draws::Final {
+            faces,
+            irregular_vertices: irregular,
+            limit_permille: l,
+            displaced_permille: d,
+            unprojectable_percent: u,
+        }
+    }
+
+    /// Homer at 272 under `SUBDFIT_FIELD_BEST` (session 21's log): the
+    /// incoming result (1.10 %) and round 1 (0.64 %) miss the bar, and the
+    /// choice among them is round 1, so the chain goes on; round 3 (0.096 %,
+    /// the lowest L and D) is the choice once laid, and it stops there.
+    #[test]
+    fn the_chain_stops_once_the_choice_meets_the_bar() {
+        let incoming = fin(271, 45, 3.5201, 0.7916, 1.1011);
+        let r1 = fin(271, 48, 3.6993, 0.5149, 0.6402);
+        let r2 = fin(271, 53, 4.3231, 0.8301, 0.4332);
+        let r3 = fin(271, 47, 2.5705, 0.2696, 0.0964);
+        assert!(!choice_meets_bar(&[incoming], Some(272)));
+        assert!(!choice_meets_bar(&[incoming, r1], Some(272)));
+        assert!(!choice_meets_bar(&[incoming, r1, r2], Some(272)));
+        assert!(choice_meets_bar(&[incoming, r1, r2, r3], Some(272)));
+    }
+
+    /// A round at the bar that the score would not keep (RMS L twice the
+    /// lowest: 33 units of L's tolerance against round 1's 7.4 in all), or
+    /// that is outside the count window, does not stop the chain: the stop
+    /// is the choice's, not any round's.
+    #[test]
+    fn a_round_at_the_bar_not_chosen_does_not_stop_the_chain() {
+        let incoming = fin(271, 45, 3.5201, 0.7916, 1.1011);
+        let r1 = fin(271, 48, 3.6993, 0.5149, 0.6402);
+        let far_l = fin(271, 48, 7.04, 0.5149, 0.09);
+        assert!(!choice_meets_bar(&[incoming, r1, far_l], Some(272)));
+        // 250 patches is 8 % off 272, outside the 2 % window.
+        let off_count = fin(250, 40, 2.0, 0.2, 0.0);
+        assert!(!choice_meets_bar(&[incoming, r1, off_count], Some(272)));
     }
 
     /// Nothing unprojectable marks nothing.

@@ -94,7 +94,7 @@ pub const PROJECTION_REGROW_FACTOR: f64 = 0.95;
 pub const OVERSHOOT: f64 = 1.25;
 
 /// Layouts an overshooting round lays at most to land near its budget
-/// under [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV) ([`lay_out_grown`]).
+/// under [`ConvertOptions::field_adapt()`] ([`lay_out_grown`]).
 pub const OVERSHOOT_PASSES: usize = 3;
 
 /// The factor on h of another try when a refined sizing's lattice tore
@@ -239,7 +239,7 @@ pub struct FieldRound {
 pub struct FieldRecord {
     pub first: FieldStats,
     pub rounds: Vec<FieldRound>,
-    /// With [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV) and a bound: the switch-off layout
+    /// With [`ConvertOptions::field_adapt()`] and a bound: the switch-off layout
     /// laid beside the adaptive one and which was kept
     /// ([`super::adapt`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -263,7 +263,7 @@ pub fn fit_field(
     let (mesh, caster) = relayout.fit_target(run.mesh(), run.caster.as_ref());
     let mut rounds: Vec<FieldRound> = Vec::new();
     let (mut control, mut target) = (control, opts.target_faces);
-    let fo = FieldOptions::for_convert(opts.target_faces);
+    let fo = FieldOptions::for_convert(opts.target_faces, opts.field_adapt);
     // The sizes the first layout was laid out at (recomputed: the sizing
     // is cheap and deterministic), refined in place round by round.
     let mut sizes: Option<Sizes> = None;
@@ -278,7 +278,7 @@ pub fn fit_field(
     // The sizing each round was laid at (`None`: the Fitmap's own, or one
     // not kept), for [`Bracket`].
     let mut laid_h: Vec<Option<Vec<f64>>> = vec![None];
-    let follow = following(relayout, &fo, opts.target_faces, max_error)?;
+    let follow = following(relayout, &fo, opts, max_error)?;
     let how = Lay::new(relayout, &fo, follow.as_ref());
     loop {
         let faces = control.num_faces();
@@ -414,14 +414,26 @@ pub fn draw_score(
     fit: &crate::fit::FitOptions,
     laid: &crate::quad::field::FieldLayout,
 ) -> Result<f64> {
+    draw_score_fitted(mesh, caster, fit, laid).map(|(s, _)| s)
+}
+
+/// [`draw_score`] and the fit it scored (`None` when it fitted none):
+/// `src/convert/layout.rs` keeps the chosen draw's for its carried
+/// candidate's first fit ([`super::layout::FieldRelayout::scored_fit`]).
+pub fn draw_score_fitted(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    fit: &crate::fit::FitOptions,
+    laid: &crate::quad::field::FieldLayout,
+) -> Result<(f64, Option<crate::fit::Fitted>)> {
     let how = crate::switches::text("SUBDFIT_FIELD_DRAW_SCORE").unwrap_or_default();
     if how == "irr" {
-        return Ok(laid.stats.irregular_vertices as f64);
+        return Ok((laid.stats.irregular_vertices as f64, None));
     }
     let fitted = crate::fit::fit(mesh, laid.control.clone(), caster, fit)?;
     let fit_rms = fitted.report.final_rms_permille;
     if how == "fit" {
-        return Ok(fit_rms);
+        return Ok((fit_rms, Some(fitted)));
     }
     let m = patch_errors(mesh, &fitted.control)?;
     let layout_rms = 1000.0 * m.rms / mesh.bbox_diagonal();
@@ -437,7 +449,7 @@ pub fn draw_score(
             laid.stats.faces, laid.stats.irregular_vertices, m.unprojectable_percent
         );
     }
-    Ok(score)
+    Ok((score, Some(fitted)))
 }
 
 /// What follows the rounds of [`fit_field`]: the `--max-error` bracket
@@ -515,6 +527,12 @@ impl Ends<'_> {
                 on: &on_m,
             };
             let side = |timer: &mut StageTimer, c: ControlMesh| {
+                // The chosen draw's scoring fit when it is this one
+                // ([`FieldRelayout::scored_fit`]: same mesh, caster, control
+                // and options).
+                if let Some(f) = relayout.scored_fit(&c, &po.fit) {
+                    return Ok(f);
+                }
                 timer.run("fit", || crate::fit::fit(mesh, c, caster, &po.fit))
             };
             fitted = super::thin::final_draws(cx, fitted, &side)?;
@@ -597,7 +615,7 @@ struct Bracket<'a> {
     fo: &'a FieldOptions,
     /// `--max-error`, ‰.
     e: f64,
-    /// With [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV): the first layout's sizing, which
+    /// With [`ConvertOptions::field_adapt()`]: the first layout's sizing, which
     /// the bracket layouts' sized relaxation follows ([`following`]).
     follow: Option<&'a Follow>,
     /// With the switch, M: a near miss (or pass) of projectability on M′
@@ -780,7 +798,7 @@ fn near_judged_on_m(f: &crate::quad::field::draws::Final, share: f64) -> Option<
     carried.then_some(f.unprojectable_percent)
 }
 
-/// Under [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV), a bracket layout is kept only if its
+/// Under [`ConvertOptions::field_adapt()`], a bracket layout is kept only if its
 /// ρ (patch radius against 1/F_S) is at least the kept round's minus this.
 pub const BRACKET_RHO_SLACK: f64 = 0.03;
 
@@ -914,7 +932,7 @@ struct Lay<'a> {
     follow: Option<&'a Follow>,
 }
 
-/// With [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV) at the natural size (its sized
+/// With [`ConvertOptions::field_adapt()`] at the natural size (its sized
 /// relaxation on): the first layout's sizing and α, so that the
 /// `--max-error` rounds' and bracket's layouts relax towards the first
 /// layout's aim times their own local factors
@@ -926,12 +944,11 @@ struct Lay<'a> {
 fn following(
     relayout: &FieldRelayout,
     fo: &FieldOptions,
-    target_faces: Option<usize>,
+    opts: &ConvertOptions,
     max_error: Option<f64>,
 ) -> Result<Option<Follow>> {
-    let on = crate::quad::field::natural_adaptivity();
     let bound = max_error.is_some_and(|e| e.is_finite());
-    if !on || !bound || target_faces.is_some() || fo.sized_relax.is_none() {
+    if !opts.field_adapt || !bound || opts.target_faces.is_some() || fo.sized_relax.is_none() {
         return Ok(None);
     }
     let surf = Surface::new(&relayout.mesh)?;
@@ -1032,7 +1049,7 @@ pub const NEAR_D_SHARE: f64 = f64::INFINITY;
 /// The switch that sets [`NEAR_D_SHARE`] (e.g. `0.15`) for a measurement.
 pub const NEAR_D_ENV: &str = "SUBDFIT_FIELD_NEAR_D";
 
-/// With [`NATURAL_ADAPTIVITY_ENV`](crate::quad::field::NATURAL_ADAPTIVITY_ENV): the pipeline's figures on M (its
+/// With [`ConvertOptions::field_adapt()`]: the pipeline's figures on M (its
 /// displacement and metrics, as `report.json` measures them; the
 /// unprojectable share of M's area is issue 40's acceptance) of a round whose share of M′ `u` is within
 /// [`NEAR_PASS`] and [`NEAR_MISS`] of [`UNPROJECTABLE_PERCENT`]; `None`

@@ -111,7 +111,15 @@ pub struct FieldRelayout {
     /// (`Some(false)`: main's unguarded layout, [`main_candidate`]; `None`:
     /// as the layout options say).
     pub first_guarded: Option<bool>,
+    /// The fit that scored the drawn layout of [`main_candidate`] (on M
+    /// with the run's caster, no proxy and no renumbering), with its
+    /// options and the control mesh it fitted: its carried candidate's
+    /// first fit ([`FieldRelayout::scored_fit`]).
+    pub scored: Option<ScoredFit>,
 }
+
+/// See [`FieldRelayout::scored`]: options, the control mesh fitted, the fit.
+pub type ScoredFit = (crate::fit::FitOptions, ControlMesh, crate::fit::Fitted);
 
 /// `SUBDFIT_FIELD_BEST_MAIN`: under `SUBDFIT_FIELD_BEST=1` (on unless `0`),
 /// the result of the layout without draws or guard (draw 0, unguarded,
@@ -133,6 +141,27 @@ pub fn main_candidate() -> bool {
 pub const MAIN_CANDIDATE_ENV: &str = "SUBDFIT_FIELD_BEST_MAIN";
 
 impl FieldRelayout {
+    /// The scoring fit of `control` under `fit` ([`FieldRelayout::scored`])
+    /// when one was kept: the global fit is a function of the mesh, the
+    /// caster, the control mesh and the options, so the carried draw's
+    /// first fit on M ([`super::thin::final_draws`]) is the scoring fit bit
+    /// for bit (issue 40's speed point, session 21: ~1 s of gargoyle 402).
+    /// The control mesh is compared by its bits too (`==` takes −0 for 0).
+    pub fn scored_fit(
+        &self,
+        control: &ControlMesh,
+        fit: &crate::fit::FitOptions,
+    ) -> Option<crate::fit::Fitted> {
+        let (o, c, f) = self.scored.as_ref()?;
+        let bits = |k: &ControlMesh| -> Vec<[u64; 3]> {
+            k.positions()
+                .iter()
+                .map(|p| p.to_array().map(f64::to_bits))
+                .collect()
+        };
+        (o == fit && c == control && bits(c) == bits(control)).then(|| f.clone())
+    }
+
     /// The mesh and caster the field layout's fits run on: `mesh` with
     /// [`FieldRelayout::fit_caster`] when it is M renumbered, else M
     /// (`m`, `caster`).
@@ -296,7 +325,8 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
     let (timer, progress) = (&mut run.timer, &mut *run.progress);
     let stage = crate::fit::report_progress;
     let fitmap = layout_fitmap(layout, layout_caster, fo, timer, progress)?;
-    let field_opts = crate::quad::field::FieldOptions::for_convert(opts.target_faces);
+    let field_opts =
+        crate::quad::field::FieldOptions::for_convert(opts.target_faces, opts.field_adapt);
     stage(progress, "field layout", 0.0)?;
     // Best of `SUBDFIT_FIELD_DRAWS` lattices (one unless set), ranked by
     // [`super::field::draw_score`], at a face target only: at the natural
@@ -316,6 +346,11 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
         None => 1,
     };
     let fit_opts = crate::fit::FitOptions::default().with_objective(opts.objective);
+    // On M itself (no proxy, no renumbering), the draws' scoring fits are
+    // the fits `super::thin::final_draws` gives the drawn candidate
+    // ([`FieldRelayout::scored_fit`]): kept until the choice.
+    let keep_fits = proxy.is_none() && canon_caster.is_none();
+    let fits: std::sync::Mutex<Vec<(ControlMesh, crate::fit::Fitted)>> = Default::default();
     let (laid, prepared, alternatives) = timer.run("field layout", || {
         let prep = crate::quad::field::Prepared::new(layout, &field_opts)?;
         if final_draws > 1 {
@@ -333,7 +368,12 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
             return Ok((laid, prep, (scale(i), alternatives)));
         }
         let score = |l: &crate::quad::field::FieldLayout| {
-            super::field::draw_score(layout, layout_caster, &fit_opts, l)
+            let (s, fitted) = super::field::draw_score_fitted(layout, layout_caster, &fit_opts, l)?;
+            if let Some(f) = fitted.filter(|_| keep_fits) {
+                let mut fits = fits.lock().unwrap_or_else(|e| e.into_inner());
+                fits.push((l.control.clone(), f));
+            }
+            Ok(s)
         };
         // Main's layout (draw 0 unguarded, [`main_candidate`]) is laid
         // beside the draws and their scores: neither reads the other.
@@ -341,24 +381,16 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
             cleanup_guarded: Some(false),
             ..field_opts.clone()
         });
-        let (laid, main) = rayon::join(
-            || {
-                crate::quad::field::field_layout_drawn(
-                    &prep,
-                    layout,
-                    &fitmap,
-                    &field_opts,
-                    draws,
-                    score,
-                )
-            },
-            || {
-                fo_main.as_ref().map(|fo| {
-                    crate::quad::field::field_layout_at_scale(&prep, layout, &fitmap, fo, 1.0)
-                })
-            },
-        );
-        let laid = laid?;
+        // One sizing for both ([`crate::quad::field::field_layout_drawn_with_main`]).
+        let (laid, main) = crate::quad::field::field_layout_drawn_with_main(
+            &prep,
+            layout,
+            &fitmap,
+            &field_opts,
+            fo_main.as_ref(),
+            draws,
+            score,
+        )?;
         if let Some(main) = main {
             // Main's layout first, the drawn one as the alternative
             // ([`main_candidate`]).
@@ -374,6 +406,16 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
         Ok((laid, prep, (1.0, Vec::new())))
     })?;
     let first_guarded = (!alternatives.1.is_empty() && final_draws == 1).then_some(false);
+    // The drawn candidate's scoring fit (main's branch above: one
+    // alternative, the chosen draw).
+    let fits = fits.into_inner().unwrap_or_else(|e| e.into_inner());
+    let scored = match (first_guarded, alternatives.1.as_slice()) {
+        (Some(_), [(_, drawn)]) => fits
+            .into_iter()
+            .find(|(c, _)| c == drawn)
+            .map(|(c, f)| (fit_opts.clone(), c, f)),
+        _ => None,
+    };
     stage(progress, "field layout", 1.0)?;
     let on_canon = fitmap_on_m(&proxy, fitmap.clone(), canon, timer)?;
     let on_m = match &canonical {
@@ -401,6 +443,7 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
                 first_scale: alternatives.0,
                 first_guarded,
                 alternatives: alternatives.1,
+                scored,
             }),
         },
     })

@@ -47,8 +47,8 @@ pub use layout::{
 };
 pub use options::{
     adaptive_proxy_triangles, ConvertOptions, LayoutKind, Mode, Proxy, DEFAULT_ORGANIC_MAX_ERROR,
-    PROXY_ADAPTIVE_FLOOR, PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES, PROXY_PATCHES_PER_FM_INTEGRAL,
-    PROXY_PROBE_TRIANGLES, PROXY_TRIANGLES_PER_PATCH,
+    FIELD_ADAPT_ENV, PROXY_ADAPTIVE_FLOOR, PROXY_AUTO_ABOVE, PROXY_AUTO_TRIANGLES,
+    PROXY_PATCHES_PER_FM_INTEGRAL, PROXY_PROBE_TRIANGLES, PROXY_TRIANGLES_PER_PATCH,
 };
 pub use record::{
     BranchLayout, BranchRecord, FitInputs, FittedRun, HostRecord, MechanicalRecord, ModeRecord,
@@ -222,7 +222,7 @@ fn convert_at_unit_scale(
     let mut run = Run::start(input, frame, StageTimer::default(), progress)?;
     if choice.mode == "organic" {
         if adapt::checks(opts) {
-            return adapt::with_switch_off_beside(&mut run, |run| {
+            return adapt::with_switch_off_beside(&mut run, opts, |run, opts| {
                 convert_as(run, opts, choice.clone(), host.clone())
             });
         }

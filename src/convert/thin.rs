@@ -222,9 +222,25 @@ pub struct OnM<'a> {
 /// result — and once more by the tail ([`super::tail`]) when it is the
 /// one kept. An evaluation is a function of those inputs (deterministic
 /// whatever the thread count), so a kept one is the recomputation's bits.
+///
+/// Only the latest evaluation keeps its surfaces (the displacement and the
+/// tessellations); the others keep their metrics, which is all a judgement
+/// reads. Session 20: keeping every candidate's surfaces until
+/// [`Evaluations::keep_only`] took gargoyle τ 1 % under
+/// `SUBDFIT_DISP_LEVEL0` to a 1.37 GB peak (the refined cage's
+/// tessellations). [`Evaluations::take`] of a mesh whose surfaces were
+/// dropped gives `None` and the tail evaluates it again: the same bits.
 #[derive(Default)]
 pub struct Evaluations {
-    kept: std::sync::Mutex<Vec<(ControlMesh, crate::report::Surfaces)>>,
+    kept: std::sync::Mutex<Vec<Evaluation>>,
+}
+
+/// One judged control mesh: its metrics, and its surfaces while it is the
+/// latest evaluated ([`Evaluations`]).
+struct Evaluation {
+    control: ControlMesh,
+    metrics: crate::report::Metrics,
+    surfaces: Option<crate::report::Surfaces>,
 }
 
 /// Whether `a` and `b` are the same control mesh bit for bit (`==` alone
@@ -239,7 +255,7 @@ fn same_control(a: &ControlMesh, b: &ControlMesh) -> bool {
 }
 
 impl Evaluations {
-    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<(ControlMesh, crate::report::Surfaces)>> {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<Evaluation>> {
         // A panic while holding the lock leaves the list as it was.
         self.kept.lock().unwrap_or_else(|e| e.into_inner())
     }
@@ -247,25 +263,37 @@ impl Evaluations {
     /// The metrics kept for `control`.
     fn metrics(&self, control: &ControlMesh) -> Option<crate::report::Metrics> {
         let kept = self.lock();
-        let hit = kept.iter().find(|(c, _)| same_control(c, control));
-        hit.map(|(_, s)| s.metrics.clone())
+        let hit = kept.iter().find(|e| same_control(&e.control, control));
+        hit.map(|e| e.metrics.clone())
     }
 
+    /// Keeps `surfaces` for `control`, dropping the surfaces kept before.
     fn insert(&self, control: &ControlMesh, surfaces: crate::report::Surfaces) {
-        self.lock().push((control.clone(), surfaces));
+        let mut kept = self.lock();
+        for e in kept.iter_mut() {
+            e.surfaces = None;
+        }
+        kept.push(Evaluation {
+            control: control.clone(),
+            metrics: surfaces.metrics.clone(),
+            surfaces: Some(surfaces),
+        });
     }
 
-    /// The evaluation of `control`, taken out (the tail's).
+    /// The evaluation of `control`, taken out (the tail's), when its
+    /// surfaces are still kept.
     pub fn take(&self, control: &ControlMesh) -> Option<crate::report::Surfaces> {
         let mut kept = self.lock();
-        let i = kept.iter().position(|(c, _)| same_control(c, control))?;
-        Some(kept.swap_remove(i).1)
+        let i = kept
+            .iter()
+            .position(|e| same_control(&e.control, control))?;
+        kept.swap_remove(i).surfaces
     }
 
     /// Drops every evaluation but `control`'s (after a judgement, the
-    /// candidates not kept: the evaluations hold the tessellations).
+    /// candidates not kept).
     pub fn keep_only(&self, control: &ControlMesh) {
-        self.lock().retain(|(c, _)| same_control(c, control));
+        self.lock().retain(|e| same_control(&e.control, control));
     }
 
     /// How many evaluations are kept.
@@ -1904,7 +1932,16 @@ mod tests {
         nudged.set_positions(p).expect("positions");
         final_figures(&on, &nudged).expect("nudged");
         assert_eq!(memo.len(), 2);
+        // Only the latest evaluation keeps its surfaces: `control`'s were
+        // dropped (its metrics stay), so the tail would evaluate it again.
         memo.keep_only(&control);
+        assert_eq!(memo.len(), 1);
+        assert!(memo.take(&control).is_none(), "surfaces dropped");
+        assert!(memo.is_empty());
+        // Evaluated again it is the latest: its surfaces are kept, with
+        // the fresh evaluation's bits.
+        final_figures(&on, &control).expect("figures once more");
+        final_figures(&on, &control).expect("the memo's");
         assert_eq!(memo.len(), 1);
         let kept = memo.take(&control).expect("kept");
         assert!(memo.is_empty());

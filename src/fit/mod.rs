@@ -142,7 +142,7 @@ impl Objective {
 }
 
 /// Options of [`fit`]; defaults documented on each field.
-#[derive(Clone, Debug, Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 #[non_exhaustive]
 pub struct FitOptions {
     pub objective: Objective,

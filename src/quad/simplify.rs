@@ -675,6 +675,7 @@ fn all_limits(k: &ControlMesh) -> Result<Vec<DVec3>> {
 
 /// The loop's state; [`super::field::cleanup`] drives the same operators,
 /// local fits and tests in its own order.
+#[derive(Clone)]
 pub(crate) struct Simplifier<'a> {
     pub(crate) m: &'a TriMesh,
     pub(crate) fitmap: &'a Fitmap,
@@ -753,7 +754,7 @@ pub(crate) struct Simplifier<'a> {
 /// (a few per collapse, ~100k on bunny): the live faces asked for, their
 /// centres' φ lines and φ's answers. Only their allocations carry over;
 /// every call clears them first.
-#[derive(Default)]
+#[derive(Clone, Default)]
 struct FaceScratch {
     live: Vec<FaceId>,
     lines: Vec<(DVec3, DVec3, f64)>,
@@ -846,7 +847,7 @@ impl Candidate {
 /// most of them: about 25 centroids per face, where a region has about one
 /// per face. Edge points are not kept: the two faces of an edge sum its
 /// terms in opposite orders, and a shared value would change the bits.
-#[derive(Default)]
+#[derive(Clone, Default)]
 struct PointMemo {
     now: u32,
     face: Vec<(u32, DVec3)>,
@@ -956,6 +957,7 @@ const BATCH_DEFER: usize = 2;
 /// one flat list. A run takes one per 6 % fewer faces, about ninety on
 /// bunny, and keeps the last forty; the first ones, the largest, one
 /// allocation per polygon each in `LivePolygons`, were ~3 % of the loop.
+#[derive(Clone)]
 struct Checkpoint {
     positions: Vec<DVec3>,
     vertex_sharpness: Vec<f64>,

@@ -185,6 +185,7 @@ impl Partition {
 }
 
 /// One half's state in its copy of the simplifier.
+#[derive(Clone)]
 pub(super) struct Region {
     part: Arc<Partition>,
     side: u8,
@@ -199,6 +200,7 @@ pub(super) struct Region {
 
 /// A half's own part at a checkpoint: its faces and its vertices'
 /// positions (the rest of the mesh is the start's).
+#[derive(Clone)]
 struct RegionSnap {
     faces: Vec<[VertexId; 4]>,
     positions: Vec<(VertexId, DVec3)>,

@@ -303,6 +303,7 @@ pub fn cleanup(
 /// pays the late phase, the guarded cleanup's dearest part (session 18:
 /// most of a guarded layout's CPU on homer at 272), for the kept pass only,
 /// with the same result bit for bit.
+#[derive(Clone)]
 pub struct Counted<'a> {
     s: Simplifier<'a>,
     stats: CleanupStats,
@@ -313,6 +314,11 @@ pub struct Counted<'a> {
     opts: CleanupOptions,
     late: bool,
     t: std::time::Instant,
+    /// The count phase's time, and whether [`Counted::finish`] restarts
+    /// the clock with it ([`Counted::as_guarded`]'s copy: its `seconds`
+    /// are the shared count phase and its own late phase, not the other
+    /// copy's).
+    counted: (std::time::Duration, bool),
 }
 
 /// [`cleanup`]'s steps up to the late phase (see [`Counted`]).
@@ -401,6 +407,7 @@ pub fn cleanup_counted<'a>(
         opts,
         late,
         t,
+        counted: (t.elapsed(), false),
     })
 }
 
@@ -416,6 +423,55 @@ impl Counted<'_> {
         &self.stats
     }
 
+    /// This count phase as a cleanup with [`CleanupOptions::guarded`] fixed
+    /// to `guarded` would have ended it (the caller's choice, as
+    /// `guarded_fixed` makes it), ready for its own [`Counted::finish`];
+    /// `None` when that cleanup's count phase could differ from this one.
+    ///
+    /// Why it can be shared (issue 40's speed point, session 21: main's
+    /// unguarded draw 0 beside the guarded one under
+    /// `SUBDFIT_FIELD_BEST=1`): before the late phase the guard is read
+    /// only through the count phase's move rounds (`late` sets them to 0)
+    /// and through the probe, which those rounds alone read. With the same
+    /// rounds on both sides (0 unless neither is late) the two count
+    /// phases make the same operations bit for bit; the probe the other
+    /// cleanup would have built is carried over when its options are these
+    /// ones, and is `None` when they ask for none ([`guard_probe`]); a
+    /// probe that would differ (an unguarded one of
+    /// `SUBDFIT_CLEANUP_MOVES` > 0 with `SUBDFIT_CLEANUP_LATE`) was built on
+    /// the mesh before the sweeps, which is gone: `None`.
+    pub fn as_guarded(&self, guarded: bool) -> Option<Self> {
+        let mut opts = self.opts.clone();
+        opts.guarded = guarded;
+        opts.guarded_fixed = true;
+        let late = opts.guarded || (opts.moves_after_count && opts.target_faces.is_some());
+        let rounds = |late: bool, o: &CleanupOptions| if late { 0 } else { o.move_rounds };
+        if rounds(late, &opts) != rounds(self.late, &self.opts) {
+            return None;
+        }
+        let wants_probe =
+            |o: &CleanupOptions| (o.move_rounds > 0 || o.guarded) && o.move_fit_rise > 0.0;
+        let probe = if opts.guarded == self.opts.guarded {
+            self.probe.clone()
+        } else if wants_probe(&opts) {
+            return None;
+        } else {
+            None
+        };
+        Some(Counted {
+            s: self.s.clone(),
+            stats: self.stats.clone(),
+            moved: self.moved.clone(),
+            epochs: self.epochs.clone(),
+            targets: self.targets.clone(),
+            probe,
+            opts,
+            late,
+            t: self.t,
+            counted: (self.counted.0, true),
+        })
+    }
+
     /// The late phase, when the options ask for one, and the output
     /// ([`cleanup`]).
     pub fn finish(self) -> Result<(ControlMesh, CleanupStats)> {
@@ -429,7 +485,12 @@ impl Counted<'_> {
             opts,
             late,
             t,
+            counted,
         } = self;
+        let t = match counted {
+            (d, true) => std::time::Instant::now().checked_sub(d).unwrap_or(t),
+            _ => t,
+        };
         if late {
             let faces = s.k.num_live_faces();
             late_phase(
@@ -1125,6 +1186,7 @@ fn region_shape(s: &Simplifier<'_>, vertices: &[VertexId]) -> f64 {
 /// until an operation kept since has touched the search's neighbourhood
 /// (the search reads [`super::moves::MAX_STEPS`] + 1 rings of it, and the
 /// same neighbourhood gives the same plan and the same verdict).
+#[derive(Clone)]
 struct Epochs {
     now: u64,
     at: Vec<u64>,
@@ -1773,6 +1835,79 @@ mod tests {
         };
         assert_eq!(bits(&whole), bits(&out));
         assert_eq!((st2.moves, st2.faces_after), (st.moves, st.faces_after));
+    }
+
+    /// One count phase finished under either guard
+    /// ([`Counted::as_guarded`], session 21): on the dislocated grid, where
+    /// the guard changes the result (guarded: the moves take the two 3–5
+    /// pairs away, 0 irregular vertices; unguarded: the 4 stay), the
+    /// guarded count phase finished unguarded is the unguarded cleanup bit
+    /// for bit (the way `field_layout_drawn_with_main` uses it; the other
+    /// way round no copy is offered, the guarded probe is missing); with a
+    /// count phase that the guard does change (move rounds before the
+    /// count), no copy either.
+    #[test]
+    fn one_count_phase_finishes_as_either_guard() {
+        let m = surface();
+        let fm = flat_fitmap(m.positions.len());
+        let caster = BvhCaster::new(&m).unwrap();
+        let opts = |guarded: bool| {
+            let mut o = CleanupOptions::default().with_target_faces(Some(100));
+            o.guarded = guarded;
+            o.guarded_fixed = true;
+            o
+        };
+        let bits = |k: &ControlMesh| -> Vec<[u64; 3]> {
+            k.positions()
+                .iter()
+                .map(|p| p.to_array().map(f64::to_bits))
+                .collect()
+        };
+        // The figures but the clocks.
+        let figures = |mut st: CleanupStats| {
+            st.seconds = 0.0;
+            st.move_seconds_plan = 0.0;
+            st.move_seconds_try = 0.0;
+            st.move_seconds_guard = 0.0;
+            st
+        };
+        let apart: Vec<(ControlMesh, CleanupStats)> = [false, true]
+            .iter()
+            .map(|&g| cleanup(&m, &fm, &caster, control(), &opts(g)).unwrap())
+            .collect();
+        // The guard changes the result, so a copy finished under the wrong
+        // guard would be seen.
+        assert_eq!(super::super::irregular_vertices(&apart[0].0), 4);
+        assert_eq!(super::super::irregular_vertices(&apart[1].0), 0);
+        assert_ne!(apart[0].0, apart[1].0);
+        for from in [false, true] {
+            let counted = cleanup_counted(&m, &fm, &caster, control(), &opts(from)).unwrap();
+            for to in [false, true] {
+                let Some(copy) = counted.as_guarded(to) else {
+                    // The guarded late phase reads a probe built on the
+                    // mesh before the sweeps, which an unguarded count
+                    // phase did not build: no copy that way only.
+                    assert!(!from && to, "{from} -> {to}: no copy");
+                    continue;
+                };
+                let (out, st) = copy.finish().unwrap();
+                let (want, want_st) = &apart[to as usize];
+                assert_eq!(&out, want, "{from} -> {to}");
+                assert_eq!(bits(&out), bits(want), "{from} -> {to}");
+                assert_eq!(figures(st), figures(want_st.clone()), "{from} -> {to}");
+            }
+        }
+        // Move rounds before the count (`SUBDFIT_CLEANUP_MOVES`): the
+        // unguarded cleanup moves before it counts, the guarded one after.
+        let mut guarded = opts(true).with_move_rounds(1);
+        let counted = cleanup_counted(&m, &fm, &caster, control(), &guarded).unwrap();
+        assert!(counted.as_guarded(false).is_none());
+        assert!(counted.as_guarded(true).is_some());
+        // Moves after the count unguarded too: the same count phase, but
+        // the unguarded probe would be built on the mesh before the sweeps.
+        guarded.moves_after_count = true;
+        let counted = cleanup_counted(&m, &fm, &caster, control(), &guarded).unwrap();
+        assert!(counted.as_guarded(false).is_none());
     }
 
     /// The same dislocated grid, but M is the limit surface of the

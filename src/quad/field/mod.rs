@@ -131,40 +131,6 @@ pub struct FieldOptions {
     pub sized_relax: Option<extract::SizedRelax>,
 }
 
-/// `SUBDFIT_FIELD_ADAPT=1`: [`FieldOptions::with_natural_adaptivity`] on
-/// `convert`'s field layouts at the natural size (off by default; issue
-/// 40's adaptivity, docs/status.md "Field-aligned layout", session 16).
-pub const NATURAL_ADAPTIVITY_ENV: &str = "SUBDFIT_FIELD_ADAPT";
-
-thread_local! {
-    /// Set by [`without_natural_adaptivity`] on the thread that runs it.
-    static ADAPTIVITY_WITHHELD: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-}
-
-/// Whether [`NATURAL_ADAPTIVITY_ENV`] is on for the layouts this thread
-/// lays now (not within [`without_natural_adaptivity`]).
-pub fn natural_adaptivity() -> bool {
-    !ADAPTIVITY_WITHHELD.with(|w| w.get()) && crate::switches::on(NATURAL_ADAPTIVITY_ENV)
-}
-
-/// `f` run as if [`NATURAL_ADAPTIVITY_ENV`] were off: the switch-off
-/// layout laid beside the adaptive one (`convert::adapt`). The switch is
-/// read on the thread that starts a conversion's layout and rounds
-/// ([`FieldOptions::for_convert`], `convert::field`), so a thread-local
-/// override reaches every read of it and no other conversion.
-pub fn without_natural_adaptivity<T>(f: impl FnOnce() -> T) -> T {
-    /// Puts the thread's previous state back however `f` ends (a host
-    /// may catch a panic and go on converting on the same thread).
-    struct Restore(bool);
-    impl Drop for Restore {
-        fn drop(&mut self) {
-            ADAPTIVITY_WITHHELD.with(|w| w.set(self.0));
-        }
-    }
-    let _restore = Restore(ADAPTIVITY_WITHHELD.with(|w| w.replace(true)));
-    f()
-}
-
 impl Default for FieldOptions {
     fn default() -> Self {
         FieldOptions {
@@ -252,13 +218,12 @@ impl FieldOptions {
     }
 
     /// The options of `convert`'s field layout: `target_faces` from
-    /// `--faces`, and at the natural size (no `--faces`) with
-    /// [`NATURAL_ADAPTIVITY_ENV`] set to 1,
+    /// `--faces`, and at the natural size (no `--faces`) with `adaptive`
+    /// (`ConvertOptions::field_adapt`, `SUBDFIT_FIELD_ADAPT=1`),
     /// [`FieldOptions::with_natural_adaptivity`].
-    pub fn for_convert(target_faces: Option<usize>) -> Self {
+    pub fn for_convert(target_faces: Option<usize>, adaptive: bool) -> Self {
         let fo = FieldOptions::default().with_target_faces(target_faces);
-        let on = natural_adaptivity();
-        if on && target_faces.is_none() {
+        if adaptive && target_faces.is_none() {
             fo.with_natural_adaptivity()
         } else {
             fo
@@ -478,6 +443,73 @@ where
     draws::choose(laid, prep.surf.topology, score)
 }
 
+/// [`field_layout_drawn`] and, beside it, draw 0 alone under `main_opts`
+/// ([`field_layout_at_scale`] at 1; `src/convert/layout.rs`'s main
+/// candidate, unguarded), both on one sizing: the sizing reads neither the
+/// cleanup's guard nor the draw, so computing it once gives both layouts
+/// bit for bit as laying them apart (issue 40's speed point, session 20:
+/// ~0.5 s of gargoyle's first stage).
+pub fn field_layout_drawn_with_main<S>(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    opts: &FieldOptions,
+    main_opts: Option<&FieldOptions>,
+    k: usize,
+    score: S,
+) -> Result<(FieldLayout, Option<Result<FieldLayout>>)>
+where
+    S: Fn(&FieldLayout) -> Result<f64> + Sync,
+{
+    let (h, stats) = sizing_prepared(prep, mesh, fitmap, opts)?;
+    // Main's draw 0 and the draws' draw 0 differ only in the cleanup's
+    // guard (`src/convert/layout.rs`): their count passes are then the
+    // same ([`cleanup::Counted::as_guarded`]), so draw 0's kept pass is
+    // finished twice instead of laid twice (issue 40's speed point,
+    // session 21: one of the first stage's five layouts). When the passes
+    // could differ, or draw 0's failed, main is laid apart as before.
+    let shared_guard = main_opts.and_then(|mo| {
+        let g = mo.cleanup_guarded?;
+        let same = FieldOptions {
+            cleanup_guarded: opts.cleanup_guarded,
+            ..mo.clone()
+        } == *opts;
+        same.then_some(g)
+    });
+    let main_slot = std::sync::Mutex::new(None);
+    let lay_draw = |s: f64| {
+        let hs: Vec<f64> = h.iter().map(|x| x * s).collect();
+        match shared_guard {
+            // Draw 0 is the sizing itself (h × 1 is h bit for bit: the
+            // sizes are numbers, not NaN).
+            Some(g) if s == draws::SCALES[0] => {
+                lay_counted_then(prep, mesh, fitmap, hs, opts, stats.clone(), None, |p| {
+                    let Some(m) = p.as_guarded(g) else {
+                        return p.finish();
+                    };
+                    let (laid, main) = rayon::join(|| p.finish(), || m.finish());
+                    *main_slot.lock().unwrap_or_else(|e| e.into_inner()) = Some(main);
+                    laid
+                })
+            }
+            _ => lay_counted(prep, mesh, fitmap, hs, opts, stats.clone(), None),
+        }
+    };
+    let lay_main =
+        |mo: &FieldOptions| lay_counted(prep, mesh, fitmap, h.clone(), mo, stats.clone(), None);
+    if shared_guard.is_some() {
+        let laid = draws::choose(draws::lay(k, lay_draw), prep.surf.topology, &score);
+        let shared = main_slot.into_inner().unwrap_or_else(|e| e.into_inner());
+        let main = main_opts.map(|mo| shared.unwrap_or_else(|| lay_main(mo)));
+        return Ok((laid?, main));
+    }
+    let (laid, main) = rayon::join(
+        || draws::choose(draws::lay(k, lay_draw), prep.surf.topology, &score),
+        || main_opts.map(lay_main),
+    );
+    Ok((laid?, main))
+}
+
 /// [`field_layout_drawn`]'s draws that keep M's topology and pass
 /// [`draws::FIRST_IRREGULAR_FACTOR`]'s guard ([`draws::eligible`]), with
 /// their indices, in draw order: `src/convert/thin.rs` judges them on
@@ -551,7 +583,7 @@ pub fn field_layout_counted(
 /// The first layout's sizing and α, which the sized relaxation of a later
 /// layout on a sizing derived from it follows
 /// ([`extract::SizedRelaxPlan::following`]; `src/convert/field.rs`'s
-/// `--max-error` rounds and bracket under [`NATURAL_ADAPTIVITY_ENV`]).
+/// `--max-error` rounds and bracket under `ConvertOptions::field_adapt` (`SUBDFIT_FIELD_ADAPT`)).
 pub struct Follow {
     pub base: Vec<f64>,
     pub alpha: f64,
@@ -582,7 +614,7 @@ pub fn field_layout_counted_following(
 /// A lattice within this share of its aimed count is taken
 /// ([`lay_near_count`]; the `--faces` loop's ±2 % window is met by the
 /// cleanup's trims, which a bracket layout under
-/// [`NATURAL_ADAPTIVITY_ENV`] does not take, `src/convert/field.rs`).
+/// `ConvertOptions::field_adapt` (`SUBDFIT_FIELD_ADAPT`) does not take, `src/convert/field.rs`).
 pub const COUNT_WINDOW: f64 = 0.05;
 
 /// The layout of `lay(s)` (a sizing times s) nearest `n` patches, and its
@@ -652,6 +684,22 @@ fn lay_counted(
     stats: FieldStats,
     follow: Option<&Follow>,
 ) -> Result<FieldLayout> {
+    lay_counted_then(prep, mesh, fitmap, h, opts, stats, follow, |p| p.finish())
+}
+
+/// [`lay_counted`] whose kept pass, before its cleanup's late phase, is
+/// handed to `then` (which finishes it, once or more, [`Pending::as_guarded`]).
+#[allow(clippy::too_many_arguments)]
+fn lay_counted_then<R>(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    h: Vec<f64>,
+    opts: &FieldOptions,
+    stats: FieldStats,
+    follow: Option<&Follow>,
+    then: impl FnOnce(Pending<'_>) -> Result<R>,
+) -> Result<R> {
     let built;
     let caster = match (&prep.caster, opts.cleanup) {
         (_, false) => None,
@@ -736,7 +784,7 @@ fn lay_counted(
             }
         }
     }
-    out.finish()
+    then(out)
 }
 
 /// How a layout meets a face target `n`, lower is better: whether it is
@@ -780,6 +828,21 @@ struct Pending<'a> {
 }
 
 impl Pending<'_> {
+    /// This layout as the count passes under options whose cleanup guard
+    /// is fixed to `guarded` would have left it
+    /// ([`cleanup::Counted::as_guarded`]); `None` when their passes could
+    /// differ. Without a cleanup the guard reads nothing: a copy.
+    fn as_guarded(&self, guarded: bool) -> Option<Self> {
+        let cleanup = match &self.cleanup {
+            Some(c) => Some(c.as_guarded(guarded)?),
+            None => None,
+        };
+        Some(Self {
+            layout: self.layout.clone(),
+            cleanup,
+        })
+    }
+
     /// A layout without a cleanup.
     fn done(layout: FieldLayout) -> Self {
         Self {

@@ -398,6 +398,7 @@ const GUARD_LEVELS: u32 = 2;
 
 /// M's vertices bucketed in a uniform grid: the
 /// samples a move's guard reads around its region.
+#[derive(Clone)]
 pub struct FitProbe<'a> {
     points: &'a [DVec3],
     cell: f64,
@@ -563,6 +564,7 @@ fn submesh(k: &ControlMesh, all: &[FaceId]) -> Option<(ControlMesh, Vec<VertexId
 /// fixed-point sweeps) ends elsewhere than the global fit does, and a
 /// guard that measured after it let moves through whose regions the
 /// global fit then fitted worse (homer RMS L +15 %, docs/status.md).
+#[derive(Clone)]
 pub struct RegionFit<'a> {
     caster: &'a dyn crate::raycast::RayCaster,
     mesh: &'a TriMesh,
