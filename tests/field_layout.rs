@@ -1481,3 +1481,69 @@ fn weak_alignment_gives_the_smooth_field_on_noisy_torus_and_sphere() {
     assert_regular_along_the_circles(&m, field);
     assert_eight_generic_singularities(field);
 }
+
+#[test]
+fn a_face_target_below_the_loops_floor_scales_the_natural_sizes_alike() {
+    // A flat annulus with a thin sector (small F_M, as a bunny's ear) and
+    // a target below what the loops' caps alone ask for: relaxing F_S and
+    // F_M without end left the caps' cones, largest far from the holes,
+    // whatever was thin there (bunny at `--faces 300`: ears lost). Every
+    // bound is now relaxed alike: h = t · h_natural.
+    let m = grid_mesh(96, 30, true, false, |u, v| {
+        let (a, r) = (2.0 * PI * u, 0.3 + 0.7 * v);
+        DVec3::new(r * a.cos(), r * a.sin(), 0.0)
+    });
+    let n = m.positions.len();
+    let thin = |p: DVec3| p.y.atan2(p.x).abs() < 0.5;
+    let fitmap = subdfit::analysis::Fitmap {
+        radii: vec![0.01, 1.0],
+        s: vec![1e-3; n],
+        m: m.positions
+            .iter()
+            .map(|&p| if thin(p) { 0.02 } else { 1.0 })
+            .collect(),
+        m_step: vec![1; n],
+        tolerance: 0.01,
+        stats: Default::default(),
+    };
+    let s = Surface::new(&m).unwrap();
+    let opts = FieldOptions::default();
+    let (h0, a0, mu0, n0) = sizing::sizing_for(&s, &m, &fitmap, &opts).unwrap();
+    assert_eq!(mu0, 1.0);
+    // The floor: F_S and F_M relaxed without end, only the caps left.
+    let (hs, hm) = sizing::fitmap_limits(&m, &fitmap, opts.s_fitmap_scale).unwrap();
+    let big: Vec<f64> = hm.iter().map(|x| 1e6 * x).collect();
+    let floor = sizing::predicted_faces(&s, &sizing::sizing_at(&s, &hs, &big, 1e6, &opts));
+    assert!(floor < n0, "floor {floor} natural {n0}");
+    let target = (0.5 * floor) as usize;
+    let at_target = opts.clone().with_target_faces(Some(target));
+    let (h, alpha, mu, got) = sizing::sizing_for(&s, &m, &fitmap, &at_target).unwrap();
+    assert!(
+        (got - target as f64).abs() <= 0.005 * target as f64,
+        "{got} against {target}"
+    );
+    let t = mu;
+    assert!(t > 1.0 && (alpha - t * a0).abs() <= 1e-9 * alpha);
+    for (i, (x, x0)) in h.iter().zip(&h0).enumerate() {
+        let want = (t * x0).max(s.mean_edge);
+        assert!(
+            (x - want).abs() <= 1e-12 * want,
+            "vertex {i}: {x} against {want}"
+        );
+    }
+    // So the thin sector keeps its share: its mean size against the rest's
+    // stays as in the natural field, where the floor's sizes (the caps'
+    // cones, what α = μ = 10⁴ left) made it as coarse as the rest.
+    let floor_h = sizing::sizing_at(&s, &hs, &big, 1e6, &opts);
+    let ratio = |h: &[f64]| {
+        let (mut a, mut b) = ((0.0, 0.0), (0.0, 0.0));
+        for (p, x) in m.positions.iter().zip(h) {
+            let c = if thin(*p) { &mut a } else { &mut b };
+            *c = (c.0 + x, c.1 + 1.0);
+        }
+        (a.0 / a.1) / (b.0 / b.1)
+    };
+    let (now, before) = (ratio(&h), ratio(&floor_h));
+    eprintln!("thin / rest mean size: {now:.3} (the floor's {before:.3})");
+    assert!(now < 0.6 * before, "{now} against {before}");
+}

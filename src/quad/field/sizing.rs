@@ -390,7 +390,7 @@ pub fn alpha_for_faces(
     }
     let target = n as f64;
     let count = |a: f64| predicted_faces(s, &sizing_at(s, hs, hm, a, opts));
-    Ok(bisect_ln(|a| count(a) > target, 1e-4, 1e4, 1e-6))
+    Ok(bisect_ln(|a| count(a) > target, 1e-4, RELAX_LIMIT, 1e-6))
 }
 
 /// The x in [lo, hi] (bisection on ln x) where `above(x)` turns false
@@ -436,11 +436,63 @@ pub fn m_relaxation_for_faces(
     if count(1.0) <= n as f64 {
         return 1.0;
     }
-    bisect_ln(|mu| count(mu) > n as f64, 1.0, 1e4, 1e-6)
+    bisect_ln(|mu| count(mu) > n as f64, 1.0, RELAX_LIMIT, 1e-6)
+}
+
+/// The upper end of [`alpha_for_faces`]' and [`m_relaxation_for_faces`]'
+/// searches: at it h_S and F_M no longer bound the sizes anywhere.
+const RELAX_LIMIT: f64 = 1e4;
+
+/// The sizing at `--faces n` when `n` is below what the boundary loops'
+/// caps alone ask for ([`cap_at_boundaries`]: with F_S and F_M relaxed
+/// without end, the sizes are the caps' cones, graded out of the holes).
+/// Relaxing α and μ to [`RELAX_LIMIT`] there made the sizes grow with
+/// the distance from the holes alone: on the bunny at `--faces 300`
+/// (five small holes at its base, a floor of 310 predicted patches) the
+/// ears, far from the holes and thin, got the largest patches, and the
+/// lattice and its count collapses lost them (RMS L 51‰, 9.7 % of M
+/// unprojectable, where the greedy layout's 296 patches give 4.4‰).
+/// Instead the natural field (F_S, F_M and the caps, as without a
+/// target) is scaled as a whole by the factor t that predicts `n`: every
+/// bound is relaxed alike, as the greedy simplifier relaxes both halting
+/// tests alike (Fitmaps §3.3; README, `--faces`), so the thin parts keep
+/// their share. The loops then get fewer than
+/// [`MIN_LATTICE_EDGES_PER_LOOP`] lattice edges; a lattice that tears
+/// there is retried smaller by the count passes. Reported as α = t α₀
+/// and μ = t.
+fn floor_scaled(
+    s: &Surface,
+    hs: &[f64],
+    hm: &[f64],
+    n: usize,
+    opts: &FieldOptions,
+) -> (Vec<f64>, f64, f64, f64) {
+    let a0 = natural_alpha(s, hs, hm, opts);
+    let a0 = if opts.grading.on(s).keeps_count() {
+        count_kept_alpha(s, hs, hm, a0, opts)
+    } else {
+        a0
+    };
+    let mut base = sizing_at(s, hs, hm, a0, opts);
+    for x in &mut base {
+        *x = x.max(s.mean_edge);
+    }
+    let scaled = |t: f64| -> Vec<f64> { base.iter().map(|x| (t * x).max(s.mean_edge)).collect() };
+    let t = bisect_ln(
+        |t| predicted_faces(s, &scaled(t)) > n as f64,
+        1.0,
+        RELAX_LIMIT,
+        1e-6,
+    );
+    let h = scaled(t);
+    let predicted = predicted_faces(s, &h);
+    (h, t * a0, t, predicted)
 }
 
 /// The sizing field of [`super::field_layout`]: `(h, α, μ, predicted
-/// faces)`, μ from [`m_relaxation_for_faces`].
+/// faces)`, μ from [`m_relaxation_for_faces`] (all bounds scaled alike
+/// by [`floor_scaled`] when the loops' caps alone ask for more than the
+/// target).
 pub fn sizing_for(
     s: &Surface,
     mesh: &TriMesh,
@@ -453,6 +505,9 @@ pub fn sizing_for(
         Some(n) => {
             let a = alpha_for_faces(s, &hs, &hm, n, opts)?;
             relaxed = m_relaxation_for_faces(s, &hs, &hm, a, n, opts);
+            if relaxed >= RELAX_LIMIT * (1.0 - 1e-9) {
+                return Ok(floor_scaled(s, &hs, &hm, n, opts));
+            }
             for x in &mut hm {
                 *x *= relaxed;
             }
