@@ -28,6 +28,8 @@
 //! | `SUBDFIT_FACES_PROJ_F`, `_ROUNDS`, `_LCAP` | `convert::faces_proj` | their constants |
 //! | `SUBDFIT_FACES_PROJ_LOG` | `convert::faces_proj` | each round on stderr |
 //! | `SUBDFIT_FACES_PROJ_STOP` | `convert::faces_proj` | `0`: the judged rounds do not stop once the choice meets the unprojectable bar |
+//! | `SUBDFIT_FACES_PROJ_LOCAL` | `convert::faces_local` | `1`: the projectability rounds move the last round's control vertices towards the unprojectable spots (lens, same topology) instead of re-laying the lattice |
+//! | `SUBDFIT_FACES_PROJ_LOCAL_S`, `_RINGS` | `convert::faces_local` | the lens's scale at its centre (`LENS`) and the rings it may move (`RINGS`) |
 //! | `SUBDFIT_SEARCH_FULL_MEASURE` | `convert::search` | `1`: the full measure on every step (same bytes) |
 //! | `SUBDFIT_PROXY_FITMAP_ON_M` | `convert::layout` | `1`: the proxy's Fitmap computed on M |
 //! | `SUBDFIT_CLEANUP_GUARDED` | `quad::field::cleanup` | set and not `0`: the guarded cancellation |

@@ -33,8 +33,9 @@
 use crate::error::Result;
 use crate::fit::Fitted;
 use crate::mesh::ControlMesh;
-use crate::quad::field::{draws, field_layout_counted};
+use crate::quad::field::draws;
 
+use super::faces_local::Source;
 use super::field::{patch_errors, FieldRound, Measured, UNPROJECTABLE_PERCENT};
 use super::thin::{FitFn, RoundCtx, RoundPlan};
 
@@ -227,10 +228,22 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
     let max_rounds =
         crate::switches::number("SUBDFIT_FACES_PROJ_ROUNDS", PROJ_ROUNDS as f64) as usize;
     let nv = mesh.positions.len();
-    let (marked, _) = marks(&first.control, &m0, nv, f);
     // The thin rounds' plan without the far patches' round: a chain of
-    // `max_rounds`, each lowering h under the marks accumulated so far.
-    let mut plan = RoundPlan::laid(timer, relayout, fo, None, marked, max_rounds)?;
+    // `max_rounds`, each lowering h under the marks accumulated so far; or
+    // under `SUBDFIT_FACES_PROJ_LOCAL` the incoming result moved locally
+    // round by round ([`super::faces_local`]).
+    let mut source = if super::faces_local::enabled() {
+        Source::Local {
+            last: first.control.clone(),
+            m: m0,
+            left: max_rounds,
+        }
+    } else {
+        let (marked, _) = marks(&first.control, &m0, nv, f);
+        Source::Plan(RoundPlan::laid(
+            timer, relayout, fo, None, marked, max_rounds,
+        )?)
+    };
     let mut finals = match judge {
         Some(on) => vec![timer.run("projectability round", || {
             super::thin::final_figures(on, &first.control)
@@ -252,26 +265,23 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
     // Under `judge`, every round's fit with its index on `rounds`.
     let mut judged: Vec<(Fitted, usize)> = Vec::new();
     let mut best = (j0, first, None::<usize>);
-    while let Some(planned) = plan.next_round() {
-        let laid = timer.run("field layout", || {
-            let h = plan.sizing(&planned.factor);
-            field_layout_counted(&relayout.prepared, mesh, &relayout.fitmap, h, fo)
-        })?;
-        let (faces, irregular) = (laid.control.num_faces(), laid.stats.irregular_vertices);
-        let size_factor = laid.stats.size_factor;
-        let next = fit(timer, laid.control)?;
+    while let Some((control, irregular, size_factor)) = source.next(timer, relayout, fo)? {
+        let faces = control.num_faces();
+        let next = fit(timer, control)?;
         let m1 = timer.run("projectability round", || patch_errors(mesh, &next.control))?;
         let j1 = Judged::of(&m1, &next, permille);
         let (m, patches) = marks(&next.control, &m1, nv, f);
-        plan.mark(Some(m));
+        let (m1_rms, m1_unprojectable, m1_thin) =
+            (m1.rms, m1.unprojectable_percent, m1.thin_percent);
+        source.mark(m, &next.control, m1);
         rounds.push(FieldRound {
             target_faces: fo.target_faces,
             faces,
             irregular_vertices: irregular,
             fit_rms_permille: next.report.final_rms_permille,
-            layout_rms_permille: Some(permille * m1.rms),
-            layout_unprojectable_percent: Some(m1.unprojectable_percent),
-            layout_thin_percent: Some(m1.thin_percent),
+            layout_rms_permille: Some(permille * m1_rms),
+            layout_unprojectable_percent: Some(m1_unprojectable),
+            layout_thin_percent: Some(m1_thin),
             patches_unprojectable: patches,
             size_factor: Some(size_factor),
             kept: Some(false),
@@ -285,7 +295,7 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
         }
         let at_count =
             (faces as f64 - n).abs() <= f64::max(COUNT_WINDOW * n, (first_faces as f64 - n).abs());
-        let stop = m1.unprojectable_percent <= UNPROJECTABLE_PERCENT || patches == 0;
+        let stop = m1_unprojectable <= UNPROJECTABLE_PERCENT || patches == 0;
         if let Some(on) = judge {
             let f1 = timer.run("projectability round", || {
                 super::thin::final_figures(on, &next.control)
@@ -370,6 +380,7 @@ mod tests {
                 area: 1.0,
                 unprojectable: if f == 0 { 0.5 } else { 0.0 },
                 vertices: vec![f],
+                ..Default::default()
             })
             .collect();
         let m = Measured {
