@@ -44,9 +44,31 @@ pub const RINGS: usize = 2;
 /// ([`super::faces_proj::PROJ_REFINE`]).
 pub const LENS: f64 = 0.6;
 
-/// Whether the projectability rounds are local (`SUBDFIT_FACES_PROJ_LOCAL=1`).
+/// Local rounds at most before the re-laid ones. The lens fixes a narrow
+/// miss and stalls on a wide one: gargoyle τ 10 % at 421 met the bar
+/// after one (0.21 → 0.12 % on M′, 0.118 → 0.061 % on M), homer at 272
+/// stalled near 0.5 % on M in six whatever the lens (s₀ 0.35–0.6, 2–4
+/// rings), where the re-laid rounds met it at the third (docs/status.md,
+/// session 22).
+pub const ROUNDS: usize = 2;
+
+/// The incoming result's unprojectable share of M′ (%) above which the
+/// local rounds are not tried (homer 272 came in at 1.14 %, gargoyle 421
+/// at 0.21 %: see [`ROUNDS`]).
+pub const GATE_PERCENT: f64 = 0.5;
+
+/// Whether the projectability rounds may be local (`SUBDFIT_FACES_PROJ_LOCAL=1`).
 pub fn enabled() -> bool {
     crate::switches::on(FACES_PROJ_LOCAL_ENV)
+}
+
+/// The local rounds to lay first (at most `max_rounds`), `None` when
+/// switched off or when the incoming result leaves more than
+/// [`GATE_PERCENT`] of M′ unprojectable (`unprojectable`, %).
+pub fn rounds(unprojectable: f64, max_rounds: usize) -> Option<usize> {
+    let gate = crate::switches::number("SUBDFIT_FACES_PROJ_LOCAL_GATE", GATE_PERCENT);
+    let n = crate::switches::number("SUBDFIT_FACES_PROJ_LOCAL_ROUNDS", ROUNDS as f64) as usize;
+    (enabled() && unprojectable <= gate).then_some(n.min(max_rounds))
 }
 
 /// One group of patches with unprojectable vertices sharing vertices, and
@@ -168,6 +190,7 @@ pub(super) fn relocate(
 pub(super) fn start(
     mesh: &TriMesh,
     control: &ControlMesh,
+    base: Option<&[DVec3]>,
     m: &Measured,
 ) -> Result<Option<ControlMesh>> {
     let spots = spots(control, m);
@@ -176,10 +199,15 @@ pub(super) fn start(
     }
     let rings = crate::switches::number("SUBDFIT_FACES_PROJ_LOCAL_RINGS", RINGS as f64) as usize;
     let lens = crate::switches::number("SUBDFIT_FACES_PROJ_LOCAL_S", LENS);
-    let mut positions = relocate(control, control.positions(), &spots, rings, lens);
+    let from = base.unwrap_or(control.positions());
+    let mut positions = relocate(control, from, &spots, rings, lens);
     let caster = crate::raycast::bvh::BvhCaster::shared(mesh)?;
     let snapped = caster.closest_points(&positions, f64::INFINITY)?;
-    for (p, c) in positions.iter_mut().zip(snapped) {
+    for ((p, c), b) in positions.iter_mut().zip(snapped).zip(from) {
+        // On M′ already (a previous start) and not moved: kept exactly.
+        if base.is_some() && *p == *b {
+            continue;
+        }
         if let Some(c) = c {
             *p = c.point;
         }
@@ -198,6 +226,13 @@ pub(super) enum Source {
         last: ControlMesh,
         m: Measured,
         left: usize,
+        /// The last round's start (on M′), which the next round's lenses
+        /// move under `SUBDFIT_FACES_PROJ_LOCAL_CHAIN=start` (else the
+        /// last round's fit is moved and put on M′ whole).
+        base: Option<Vec<DVec3>>,
+        /// The re-laid rounds after the local ones: the incoming result's
+        /// marks and the rounds left.
+        then: Option<(Vec<f64>, usize)>,
     },
 }
 
@@ -229,14 +264,33 @@ impl Source {
                     (laid.stats.irregular_vertices, laid.stats.size_factor);
                 Ok(Some((laid.control, irregular, size_factor)))
             }
-            Source::Local { last, m, left } => {
+            Source::Local {
+                last,
+                m,
+                left,
+                base,
+                then,
+            } => {
                 if *left == 0 {
-                    return Ok(None);
+                    let Some((marks, n)) = then.take() else {
+                        return Ok(None);
+                    };
+                    let plan = RoundPlan::laid(timer, relayout, fo, None, marks, n)?;
+                    *self = Source::Plan(plan);
+                    return self.next(timer, relayout, fo);
                 }
                 *left -= 1;
-                let Some(c) = timer.run("local round", || start(&relayout.mesh, last, m))? else {
+                let Some(c) = timer.run("local round", || {
+                    start(&relayout.mesh, last, base.as_deref(), m)
+                })?
+                else {
                     return Ok(None);
                 };
+                if crate::switches::text("SUBDFIT_FACES_PROJ_LOCAL_CHAIN").as_deref()
+                    == Some("start")
+                {
+                    *base = Some(c.positions().to_vec());
+                }
                 let irregular = crate::quad::field::irregular_vertices(&c);
                 Ok(Some((c, irregular, 1.0)))
             }

@@ -229,20 +229,22 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
         crate::switches::number("SUBDFIT_FACES_PROJ_ROUNDS", PROJ_ROUNDS as f64) as usize;
     let nv = mesh.positions.len();
     // The thin rounds' plan without the far patches' round: a chain of
-    // `max_rounds`, each lowering h under the marks accumulated so far; or
-    // under `SUBDFIT_FACES_PROJ_LOCAL` the incoming result moved locally
-    // round by round ([`super::faces_local`]).
-    let mut source = if super::faces_local::enabled() {
-        Source::Local {
+    // `max_rounds`, each lowering h under the marks accumulated so far.
+    // Under `SUBDFIT_FACES_PROJ_LOCAL`, when the incoming result misses the
+    // bar narrowly, first up to [`super::faces_local::ROUNDS`] rounds that
+    // move it locally ([`super::faces_local`]), then the plan's rounds left.
+    let (marked, _) = marks(&first.control, &m0, nv, f);
+    let mut source = match super::faces_local::rounds(m0.unprojectable_percent, max_rounds) {
+        Some(local) => Source::Local {
             last: first.control.clone(),
             m: m0,
-            left: max_rounds,
-        }
-    } else {
-        let (marked, _) = marks(&first.control, &m0, nv, f);
-        Source::Plan(RoundPlan::laid(
+            left: local,
+            base: None,
+            then: Some((marked, max_rounds - local)),
+        },
+        None => Source::Plan(RoundPlan::laid(
             timer, relayout, fo, None, marked, max_rounds,
-        )?)
+        )?),
     };
     let mut finals = match judge {
         Some(on) => vec![timer.run("projectability round", || {
