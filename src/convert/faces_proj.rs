@@ -192,6 +192,39 @@ pub(super) fn rounds_at_count<F: FitFn>(
     Ok(kept)
 }
 
+/// Where the rounds' control meshes come from: the thin rounds' plan
+/// without the far patches' round (a chain of `max_rounds`, each lowering
+/// h under the marks accumulated so far), or, under
+/// `SUBDFIT_FACES_PROJ_LOCAL` when the incoming result (`control`, measured
+/// `m0`) misses the bar narrowly, first up to
+/// [`super::faces_local::ROUNDS`] rounds that move it locally
+/// ([`super::faces_local`]), then the plan's rounds left.
+fn source(
+    timer: &mut crate::report::StageTimer,
+    relayout: &super::layout::FieldRelayout,
+    fo: &crate::quad::field::FieldOptions,
+    (control, m0): (&ControlMesh, Measured),
+    max_rounds: usize,
+    f: f64,
+) -> Result<Source> {
+    let nv = relayout.mesh.positions.len();
+    let (marked, _) = marks(control, &m0, nv, f);
+    Ok(
+        match super::faces_local::rounds(m0.unprojectable_percent, max_rounds) {
+            Some(local) => Source::Local {
+                last: control.clone(),
+                m: m0,
+                left: local,
+                base: None,
+                then: Some((marked, max_rounds - local)),
+            },
+            None => Source::Plan(RoundPlan::laid(
+                timer, relayout, fo, None, marked, max_rounds,
+            )?),
+        },
+    )
+}
+
 /// [`rounds_at_count`] before the evaluations of the rounds not kept are
 /// dropped.
 fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> Result<Fitted> {
@@ -228,24 +261,7 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
     let max_rounds =
         crate::switches::number("SUBDFIT_FACES_PROJ_ROUNDS", PROJ_ROUNDS as f64) as usize;
     let nv = mesh.positions.len();
-    // The thin rounds' plan without the far patches' round: a chain of
-    // `max_rounds`, each lowering h under the marks accumulated so far.
-    // Under `SUBDFIT_FACES_PROJ_LOCAL`, when the incoming result misses the
-    // bar narrowly, first up to [`super::faces_local::ROUNDS`] rounds that
-    // move it locally ([`super::faces_local`]), then the plan's rounds left.
-    let (marked, _) = marks(&first.control, &m0, nv, f);
-    let mut source = match super::faces_local::rounds(m0.unprojectable_percent, max_rounds) {
-        Some(local) => Source::Local {
-            last: first.control.clone(),
-            m: m0,
-            left: local,
-            base: None,
-            then: Some((marked, max_rounds - local)),
-        },
-        None => Source::Plan(RoundPlan::laid(
-            timer, relayout, fo, None, marked, max_rounds,
-        )?),
-    };
+    let mut source = source(timer, relayout, fo, (&first.control, m0), max_rounds, f)?;
     let mut finals = match judge {
         Some(on) => vec![timer.run("projectability round", || {
             super::thin::final_figures(on, &first.control)
