@@ -28,6 +28,9 @@
 //! | `SUBDFIT_FACES_PROJ_F`, `_ROUNDS`, `_LCAP` | `convert::faces_proj` | their constants |
 //! | `SUBDFIT_FACES_PROJ_LOG` | `convert::faces_proj` | each round on stderr |
 //! | `SUBDFIT_FACES_PROJ_STOP` | `convert::faces_proj` | `0`: the judged rounds do not stop once the choice meets the unprojectable bar |
+//! | `SUBDFIT_FACES_PROJ_LOCAL` | `convert::faces_local` | `1`: when the incoming result misses narrowly, the projectability rounds first move the last round's control vertices towards the unprojectable spots (a lens, same topology), then re-lay |
+//! | `SUBDFIT_FACES_PROJ_LOCAL_S`, `_RINGS`, `_ROUNDS`, `_GATE` | `convert::faces_local` | the lens's scale at its centre (`LENS`), the rings it may move (`RINGS`), the local rounds before the re-laid ones (`ROUNDS`) and the incoming M′ unprojectable % above which none is tried (`GATE_PERCENT`) |
+//! | `SUBDFIT_FACES_PROJ_LOCAL_CHAIN` | `convert::faces_local` | `start`: each local round moves the last round's start, not its fit put back on M′ |
 //! | `SUBDFIT_SEARCH_FULL_MEASURE` | `convert::search` | `1`: the full measure on every step (same bytes) |
 //! | `SUBDFIT_PROXY_FITMAP_ON_M` | `convert::layout` | `1`: the proxy's Fitmap computed on M |
 //! | `SUBDFIT_CLEANUP_GUARDED` | `quad::field::cleanup` | set and not `0`: the guarded cancellation |

@@ -33,8 +33,9 @@
 use crate::error::Result;
 use crate::fit::Fitted;
 use crate::mesh::ControlMesh;
-use crate::quad::field::{draws, field_layout_counted};
+use crate::quad::field::draws;
 
+use super::faces_local::Source;
 use super::field::{patch_errors, FieldRound, Measured, UNPROJECTABLE_PERCENT};
 use super::thin::{FitFn, RoundCtx, RoundPlan};
 
@@ -191,6 +192,39 @@ pub(super) fn rounds_at_count<F: FitFn>(
     Ok(kept)
 }
 
+/// Where the rounds' control meshes come from: the thin rounds' plan
+/// without the far patches' round (a chain of `max_rounds`, each lowering
+/// h under the marks accumulated so far), or, under
+/// `SUBDFIT_FACES_PROJ_LOCAL` when the incoming result (`control`, measured
+/// `m0`) misses the bar narrowly, first up to
+/// [`super::faces_local::ROUNDS`] rounds that move it locally
+/// ([`super::faces_local`]), then the plan's rounds left.
+fn source(
+    timer: &mut crate::report::StageTimer,
+    relayout: &super::layout::FieldRelayout,
+    fo: &crate::quad::field::FieldOptions,
+    (control, m0): (&ControlMesh, Measured),
+    max_rounds: usize,
+    f: f64,
+) -> Result<Source> {
+    let nv = relayout.mesh.positions.len();
+    let (marked, _) = marks(control, &m0, nv, f);
+    Ok(
+        match super::faces_local::rounds(m0.unprojectable_percent, max_rounds) {
+            Some(local) => Source::Local {
+                last: control.clone(),
+                m: m0,
+                left: local,
+                base: None,
+                then: Some((marked, max_rounds - local)),
+            },
+            None => Source::Plan(RoundPlan::laid(
+                timer, relayout, fo, None, marked, max_rounds,
+            )?),
+        },
+    )
+}
+
 /// [`rounds_at_count`] before the evaluations of the rounds not kept are
 /// dropped.
 fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> Result<Fitted> {
@@ -227,10 +261,7 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
     let max_rounds =
         crate::switches::number("SUBDFIT_FACES_PROJ_ROUNDS", PROJ_ROUNDS as f64) as usize;
     let nv = mesh.positions.len();
-    let (marked, _) = marks(&first.control, &m0, nv, f);
-    // The thin rounds' plan without the far patches' round: a chain of
-    // `max_rounds`, each lowering h under the marks accumulated so far.
-    let mut plan = RoundPlan::laid(timer, relayout, fo, None, marked, max_rounds)?;
+    let mut source = source(timer, relayout, fo, (&first.control, m0), max_rounds, f)?;
     let mut finals = match judge {
         Some(on) => vec![timer.run("projectability round", || {
             super::thin::final_figures(on, &first.control)
@@ -252,26 +283,23 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
     // Under `judge`, every round's fit with its index on `rounds`.
     let mut judged: Vec<(Fitted, usize)> = Vec::new();
     let mut best = (j0, first, None::<usize>);
-    while let Some(planned) = plan.next_round() {
-        let laid = timer.run("field layout", || {
-            let h = plan.sizing(&planned.factor);
-            field_layout_counted(&relayout.prepared, mesh, &relayout.fitmap, h, fo)
-        })?;
-        let (faces, irregular) = (laid.control.num_faces(), laid.stats.irregular_vertices);
-        let size_factor = laid.stats.size_factor;
-        let next = fit(timer, laid.control)?;
+    while let Some((control, irregular, size_factor)) = source.next(timer, relayout, fo)? {
+        let faces = control.num_faces();
+        let next = fit(timer, control)?;
         let m1 = timer.run("projectability round", || patch_errors(mesh, &next.control))?;
         let j1 = Judged::of(&m1, &next, permille);
         let (m, patches) = marks(&next.control, &m1, nv, f);
-        plan.mark(Some(m));
+        let (m1_rms, m1_unprojectable, m1_thin) =
+            (m1.rms, m1.unprojectable_percent, m1.thin_percent);
+        source.mark(m, &next.control, m1);
         rounds.push(FieldRound {
             target_faces: fo.target_faces,
             faces,
             irregular_vertices: irregular,
             fit_rms_permille: next.report.final_rms_permille,
-            layout_rms_permille: Some(permille * m1.rms),
-            layout_unprojectable_percent: Some(m1.unprojectable_percent),
-            layout_thin_percent: Some(m1.thin_percent),
+            layout_rms_permille: Some(permille * m1_rms),
+            layout_unprojectable_percent: Some(m1_unprojectable),
+            layout_thin_percent: Some(m1_thin),
             patches_unprojectable: patches,
             size_factor: Some(size_factor),
             kept: Some(false),
@@ -285,7 +313,7 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
         }
         let at_count =
             (faces as f64 - n).abs() <= f64::max(COUNT_WINDOW * n, (first_faces as f64 - n).abs());
-        let stop = m1.unprojectable_percent <= UNPROJECTABLE_PERCENT || patches == 0;
+        let stop = m1_unprojectable <= UNPROJECTABLE_PERCENT || patches == 0;
         if let Some(on) = judge {
             let f1 = timer.run("projectability round", || {
                 super::thin::final_figures(on, &next.control)
@@ -370,6 +398,7 @@ mod tests {
                 area: 1.0,
                 unprojectable: if f == 0 { 0.5 } else { 0.0 },
                 vertices: vec![f],
+                ..Default::default()
             })
             .collect();
         let m = Measured {

@@ -1617,6 +1617,7 @@ pub(super) fn patch_errors(mesh: &TriMesh, control: &ControlMesh) -> Result<Meas
         area += a;
         if missed[v] == Reach::Missed || (missed[v] == Reach::Thin && THIN_REFINES) {
             s.unprojectable += a;
+            s.unprojectable_at += a * mesh.positions[v];
             lost += a;
         }
         if missed[v] == Reach::Thin {
@@ -1792,6 +1793,10 @@ pub(super) struct PatchError {
     pub(super) rms: f64,
     pub(super) area: f64,
     pub(super) unprojectable: f64,
+    /// The area-weighted sum of the unprojectable vertices' positions
+    /// (over `unprojectable`, their centroid: where a local round,
+    /// [`super::faces_local`], draws the lattice in).
+    pub(super) unprojectable_at: DVec3,
     pub(super) vertices: Vec<u32>,
 }
 

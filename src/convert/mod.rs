@@ -30,6 +30,7 @@ pub type Report = crate::report::Report<RunOptions>;
 
 mod adapt;
 pub mod auto;
+mod faces_local;
 mod faces_proj;
 pub mod field;
 pub mod layout;
