@@ -501,13 +501,29 @@ pub fn evaluate_surfaces_after(
                 };
                 crate::watch::memtrace("limit: L built");
                 let limit_caster = Watched::new(limit_caster.as_ref(), w);
+                // The tessellations' density (their chord-error grids) needs
+                // only L and RMS L: here, beside the displacement, whose
+                // serial parts (the least squares' rows and solve, the BVH
+                // builds) otherwise left this side's worker idle (session
+                // 22's profile of bunny: one worker at ~half the other's
+                // samples through the stage).
                 let (acc, unreached) = rayon::join(
-                    || match acc {
-                        Some(a) => Ok(a),
-                        None => {
-                            let l = (&limit, &limit_caster as &dyn RayCaster);
-                            limit_accuracy(caster, l, &mq, diag, opts.exact)
-                        }
+                    || -> Result<_> {
+                        let acc = match acc {
+                            Some(a) => a,
+                            None => {
+                                let l = (&limit, &limit_caster as &dyn RayCaster);
+                                limit_accuracy(caster, l, &mq, diag, opts.exact)?
+                            }
+                        };
+                        let density = tessellate::density(
+                            control,
+                            evaluator.as_ref(),
+                            diag,
+                            opts.output_tessellation,
+                            acc.rms_permille,
+                        )?;
+                        Ok((acc, density))
                     },
                     || {
                         unprojectable_percent(
@@ -538,17 +554,10 @@ pub fn evaluate_surfaces_after(
                 displaced_side(&at, evaluator.as_ref(), caster, w, opts)
             },
         );
-        let (limit_acc, unprojectable_area_percent) = limit_side?;
+        let ((limit_acc, density), unprojectable_area_percent) = limit_side?;
         let (displacement, displaced_acc, displaced_breakdown) = displaced_side?;
         crate::watch::memtrace("both sides done");
-        let files = tessellate::tessellate(
-            control,
-            evaluator.as_ref(),
-            &displacement,
-            diag,
-            opts.output_tessellation,
-            limit_acc.rms_permille,
-        )?;
+        let files = tessellate::tessellate_at(control, evaluator.as_ref(), &displacement, density)?;
         w.report("displacement", 1.0)?;
         w.report("metrics", 0.0)?;
         w.report("metrics", 1.0)?;
