@@ -254,34 +254,104 @@ impl Edges {
 
 /// The closest point on `caster` of each edge midpoint of `edges` over
 /// `positions`, in `order`, handed to `each(edge, midpoint, hit)` in that
-/// order. Sub-batches of [`crate::raycast::SUB_BATCH`] queries: the caster
-/// answers them as they come (already in Z-order), and only one
-/// sub-batch of answers is held, not one per query. `stop()`, asked
+/// order. Sub-batches of `sub` ([`crate::raycast::SUB_BATCH`]) queries:
+/// the caster answers them as they come (already in Z-order), and only two
+/// sub-batches of answers are held, not one per query. `stop()`, asked
 /// after each sub-batch, ends the visit early (a round already known to
 /// be rejected, [`Verdict`]); returns whether every point was visited.
+///
+/// Pipelined: the next sub-batch's queries run on the pool while `each`
+/// takes the current one's answers on this thread. `each` sums rows into
+/// the normal equations, which is sequential (~7 % of a least-squares
+/// round's CPU, session 21's profile); without the overlap the pool's other
+/// worker idled through it (bunny's displaced side, session 22 profile:
+/// one worker busy, the other at a quarter to a third). Every answer,
+/// `each` call and `stop()` verdict is the sequential visit's, in its
+/// order: a query's
+/// answer does not depend on the batch it comes in (the casters' contract,
+/// [`crate::raycast::Watched`]). A visit that stops has queried one
+/// sub-batch it does not read (its answer, or error, is dropped, as the
+/// sequential visit never asked it).
 fn closest_in_order(
     edges: &Edges,
     positions: &[DVec3],
     order: &[u32],
     caster: &dyn RayCaster,
+    each: impl FnMut(usize, DVec3, &ClosestPoint) -> Result<()>,
+    stop: impl Fn() -> bool,
+) -> Result<bool> {
+    closest_in_order_by(
+        edges,
+        positions,
+        order,
+        caster,
+        crate::raycast::SUB_BATCH,
+        each,
+        stop,
+    )
+}
+
+/// [`closest_in_order`] in sub-batches of `sub` queries (tests use small
+/// ones to exercise the pipeline on small meshes).
+fn closest_in_order_by(
+    edges: &Edges,
+    positions: &[DVec3],
+    order: &[u32],
+    caster: &dyn RayCaster,
+    sub: usize,
     mut each: impl FnMut(usize, DVec3, &ClosestPoint) -> Result<()>,
     stop: impl Fn() -> bool,
 ) -> Result<bool> {
-    let mut pts = Vec::with_capacity(crate::raycast::SUB_BATCH);
-    for part in order.chunks(crate::raycast::SUB_BATCH) {
+    type Answered = (Vec<DVec3>, Vec<Option<ClosestPoint>>);
+    let query = |part: &[u32]| -> Result<Answered> {
+        let pts: Vec<DVec3> = part
+            .iter()
+            .map(|&k| edges.midpoint(positions, k as usize))
+            .collect();
+        let hits = caster.closest_points(&pts, f64::INFINITY)?;
+        Ok((pts, hits))
+    };
+    let mut parts = order.chunks(sub.max(1));
+    let Some(first) = parts.next() else {
+        return Ok(true);
+    };
+    if stop() {
+        return Ok(false);
+    }
+    let mut current = (first, query(first)?);
+    loop {
+        let (part, (pts, hits)) = current;
+        let following = parts.next();
+        let mut ahead: Option<Result<Answered>> = None;
+        let mut visit = || -> Result<()> {
+            for ((&k, &p), c) in part.iter().zip(&pts).zip(&hits) {
+                if let Some(c) = c {
+                    each(k as usize, p, c)?;
+                }
+            }
+            Ok(())
+        };
+        let visited = match following {
+            None => visit(),
+            // `in_place_scope`: `each` and `stop` stay on this thread (they
+            // need not be `Send`); only the queries go to the pool.
+            Some(next) => rayon::in_place_scope(|s| {
+                let slot = &mut ahead;
+                let query = &query;
+                s.spawn(move |_| *slot = Some(query(next)));
+                visit()
+            }),
+        };
+        visited?;
+        let Some(next) = following else {
+            return Ok(true);
+        };
         if stop() {
             return Ok(false);
         }
-        pts.clear();
-        pts.extend(part.iter().map(|&k| edges.midpoint(positions, k as usize)));
-        let hits = caster.closest_points(&pts, f64::INFINITY)?;
-        for ((&k, &p), c) in part.iter().zip(&pts).zip(&hits) {
-            if let Some(c) = c {
-                each(k as usize, p, c)?;
-            }
-        }
+        let answered = ahead.unwrap_or_else(|| query(next))?;
+        current = (next, answered);
     }
-    Ok(true)
 }
 
 /// A stratified draw of fitting points (probability proportional to
@@ -1552,7 +1622,11 @@ impl<'a> Dependents<'a> {
             }
         }
         pairs.extend(self.list.iter().map(|d| [d.a, d.b]));
-        pairs.sort_unstable();
+        // On the pool: a whole-D sort that held one worker alone at the
+        // start of a round (session 22's profile). Equal pairs are equal
+        // values, so any sort gives the same deduplicated list.
+        use rayon::prelude::*;
+        pairs.par_sort_unstable();
         pairs.dedup();
         pairs
     }
@@ -2135,6 +2209,77 @@ mod tests {
         let same = fit(Some(usize::MAX));
         let bits = |d: &Displacement| d.offsets.iter().map(|o| o.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&same), bits(&all));
+    }
+
+    #[test]
+    fn pipelined_visit_is_the_sequential_one_bit_for_bit() {
+        // D's edge midpoints off M (a sphere scaled and moved) onto M's
+        // caster: every `each` call, in order and bit for bit, is the one
+        // visit of all answers from a single batch gives, whatever the
+        // sub-batch size (one sub-batch, several with a ragged last one) and
+        // the thread count; a visit stopped after three sub-batches has
+        // handed over exactly the first three sub-batches' answers.
+        let (mesh, caster, _, _) = sphere_case();
+        let edges = Edges::of(&mesh);
+        let positions: Vec<DVec3> = mesh
+            .positions
+            .iter()
+            .map(|p| 1.05 * *p + DVec3::new(0.01, -0.02, 0.03))
+            .collect();
+        let order = edges.visit_order(&positions, 1);
+        let n = order.len();
+        assert!(n > 3 * 4093, "{n} edges: too few for three sub-batches");
+        type Key = (usize, [u64; 3], [u64; 3], u64, u32);
+        let key = |k: usize, p: DVec3, c: &ClosestPoint| -> Key {
+            let bits = |v: DVec3| v.to_array().map(f64::to_bits);
+            (k, bits(p), bits(c.point), c.distance.to_bits(), c.triangle)
+        };
+        let pts: Vec<DVec3> = order
+            .iter()
+            .map(|&k| edges.midpoint(&positions, k as usize))
+            .collect();
+        let hits = caster.closest_points(&pts, f64::INFINITY).unwrap();
+        let want: Vec<Key> = order
+            .iter()
+            .zip(&pts)
+            .zip(&hits)
+            .map(|((&k, &p), c)| key(k as usize, p, c.as_ref().expect("a hit on M")))
+            .collect();
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                for sub in [1000, 4093, n, n + 5] {
+                    let visit = |limit: usize| {
+                        let got = RefCell::new(Vec::new());
+                        let done = closest_in_order_by(
+                            &edges,
+                            &positions,
+                            &order,
+                            caster.as_ref(),
+                            sub,
+                            |k, p, c| {
+                                got.borrow_mut().push(key(k, p, c));
+                                Ok(())
+                            },
+                            || got.borrow().len() >= limit,
+                        )
+                        .unwrap();
+                        (done, got.into_inner())
+                    };
+                    let (done, got) = visit(usize::MAX);
+                    assert!(done, "{threads} threads, sub-batches of {sub}");
+                    assert!(got == want, "{threads} threads, sub-batches of {sub}");
+                    if 3 * sub < n {
+                        let (done, got) = visit(2 * sub + 1);
+                        assert!(!done, "{threads} threads, {sub}: stopped");
+                        assert!(got[..] == want[..3 * sub], "{threads} threads, {sub}");
+                    }
+                }
+            });
+        }
     }
 
     #[test]

@@ -430,6 +430,35 @@ pub fn limit_check(
     })
 }
 
+/// L's accuracy (`known`, else measured on `l`) and the tessellations'
+/// density ([`tessellate::density`]: their chord-error grids need only L
+/// and RMS L). Run on L's side, beside the displacement, whose serial
+/// parts (the least squares' rows and solve, the BVH builds) otherwise
+/// left this side's worker idle (session 22's profile of bunny: one worker
+/// at about half the other's samples through the stage).
+fn accuracy_and_density(
+    known: Option<Accuracy>,
+    caster: &dyn RayCaster,
+    l: (&TriMesh, &dyn RayCaster),
+    mq: &Quadrature<'_>,
+    (control, evaluator): (&ControlMesh, &dyn crate::subdiv::LimitEvaluator),
+    diag: f64,
+    opts: &MetricsOptions,
+) -> Result<(Accuracy, tessellate::Density)> {
+    let acc = match known {
+        Some(a) => a,
+        None => limit_accuracy(caster, l, mq, diag, opts.exact)?,
+    };
+    let density = tessellate::density(
+        control,
+        evaluator,
+        diag,
+        opts.output_tessellation,
+        acc.rms_permille,
+    )?;
+    Ok((acc, density))
+}
+
 /// [`evaluate_surfaces`], reusing `check` when it was made for this
 /// `control` (else it is dropped and L measured afresh).
 pub fn evaluate_surfaces_after(
@@ -502,12 +531,10 @@ pub fn evaluate_surfaces_after(
                 crate::watch::memtrace("limit: L built");
                 let limit_caster = Watched::new(limit_caster.as_ref(), w);
                 let (acc, unreached) = rayon::join(
-                    || match acc {
-                        Some(a) => Ok(a),
-                        None => {
-                            let l = (&limit, &limit_caster as &dyn RayCaster);
-                            limit_accuracy(caster, l, &mq, diag, opts.exact)
-                        }
+                    || {
+                        let l = (&limit, &limit_caster as &dyn RayCaster);
+                        let on = (control, evaluator.as_ref());
+                        accuracy_and_density(acc, caster, l, &mq, on, diag, opts)
                     },
                     || {
                         unprojectable_percent(
@@ -538,17 +565,10 @@ pub fn evaluate_surfaces_after(
                 displaced_side(&at, evaluator.as_ref(), caster, w, opts)
             },
         );
-        let (limit_acc, unprojectable_area_percent) = limit_side?;
+        let ((limit_acc, density), unprojectable_area_percent) = limit_side?;
         let (displacement, displaced_acc, displaced_breakdown) = displaced_side?;
         crate::watch::memtrace("both sides done");
-        let files = tessellate::tessellate(
-            control,
-            evaluator.as_ref(),
-            &displacement,
-            diag,
-            opts.output_tessellation,
-            limit_acc.rms_permille,
-        )?;
+        let files = tessellate::tessellate_at(control, evaluator.as_ref(), &displacement, density)?;
         w.report("displacement", 1.0)?;
         w.report("metrics", 0.0)?;
         w.report("metrics", 1.0)?;

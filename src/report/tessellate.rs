@@ -94,7 +94,8 @@ pub struct Tessellations {
 
 /// `limit.ply` and `displaced.ply` for `control` (all quads) and its
 /// displacement `d`, at `segments` cells per patch side or the default
-/// (module docs) for a fit of RMS L `rms_l_permille`.
+/// (module docs) for a fit of RMS L `rms_l_permille`: [`density`], then
+/// [`tessellate_at`].
 pub fn tessellate(
     control: &ControlMesh,
     evaluator: &dyn LimitEvaluator,
@@ -103,6 +104,42 @@ pub fn tessellate(
     segments: Option<usize>,
     rms_l_permille: f64,
 ) -> Result<Tessellations> {
+    let density = density(control, evaluator, diag, segments, rms_l_permille)?;
+    tessellate_at(control, evaluator, d, density)
+}
+
+/// The tessellations' cells per patch side and their chord error
+/// ([`density`]): what needs only the control mesh and RMS L, not the
+/// displacement, so that [`crate::report`] runs it beside the displacement
+/// (on L's side, whose worker otherwise idles through the displacement's
+/// serial parts; session 22).
+pub struct Density {
+    n: usize,
+    segments: Option<usize>,
+    max: f64,
+    rms: f64,
+    target: f64,
+    /// The uniform grid at `n` and its limit positions, when at most
+    /// [`KEPT_SAMPLES`]: a uniform displacement (or a given `segments`)
+    /// tessellates on them; else [`tessellate_at`] evaluates them again
+    /// (the same bits) if it needs them.
+    uniform: Option<(PatchGrid, Vec<DVec3>)>,
+}
+
+/// [`Density::uniform`] is kept up to this many samples (~48 MB with their
+/// locations): it waits beside the whole displacement, whose peak on big
+/// inputs it would otherwise add to (session 20's peaks).
+const KEPT_SAMPLES: usize = 1 << 20;
+
+/// The default `N` (module docs) for a fit of RMS L `rms_l_permille`, or
+/// the given `segments`, with the chord error of the uniform grid at `N`.
+pub fn density(
+    control: &ControlMesh,
+    evaluator: &dyn LimitEvaluator,
+    diag: f64,
+    segments: Option<usize>,
+    rms_l_permille: f64,
+) -> Result<Density> {
     if let Some(n) = segments {
         if n == 0 || n > MAX_GIVEN_SEGMENTS {
             return Err(Error::option(
@@ -123,22 +160,57 @@ pub fn tessellate(
         let next_samples = grid.num_patches() * (2 * n + 1) * (2 * n + 1);
         let met = rms <= target && max <= 10.0 * target;
         if segments.is_some() || met || 2 * n > MAX_SEGMENTS || next_samples > MAX_DEFAULT_SAMPLES {
-            break (grid, limit, (max, rms));
+            break (grid, pos, (max, rms));
         }
         n *= 2;
     };
+    let uniform = (limit.len() <= KEPT_SAMPLES).then_some((grid, limit));
+    Ok(Density {
+        n,
+        segments,
+        max,
+        rms,
+        target,
+        uniform,
+    })
+}
+
+/// The tessellations of `control` and its displacement `d` at `density`
+/// ([`tessellate`]).
+pub fn tessellate_at(
+    control: &ControlMesh,
+    evaluator: &dyn LimitEvaluator,
+    d: &Displacement,
+    density: Density,
+) -> Result<Tessellations> {
+    let Density {
+        n,
+        segments,
+        max,
+        rms,
+        target,
+        uniform,
+    } = density;
     // A displacement of per-patch resolutions: each patch tessellated at
     // least as finely as its tile (N·2^j cells, nested across edges, so
     // the grid stays welded and watertight), so that no sample of a fine
     // tile falls between the vertices. A `--tessellation N` the user gave
     // is kept as given, as with uniform tiles finer than N.
-    let (grid, limit) = if d.grid.is_uniform() || segments.is_some() {
-        (grid, limit)
+    let (grid, positions) = if d.grid.is_uniform() || segments.is_some() {
+        match uniform {
+            Some(kept) => kept,
+            None => {
+                let grid = PatchGrid::new(control, n + 1)?;
+                let limit = evaluator.evaluate(control.positions(), grid.locations())?;
+                let pos = limit.iter().map(|p| p.position).collect();
+                (grid, pos)
+            }
+        }
     } else {
         // The uniform grid's samples go before the finer grid's are
         // evaluated (session 20: both held at once were the peak of
         // gargoyle τ 1 % under `SUBDFIT_DISP_LEVEL0`).
-        drop((grid, limit));
+        drop(uniform);
         let res: Vec<usize> = (0..control.num_faces())
             .map(|f| {
                 let mut cells = n;
@@ -155,10 +227,9 @@ pub fn tessellate(
             .collect();
         let grid = PatchGrid::with_resolutions_from(control, &res, d.grid.first_level())?;
         let limit = evaluator.evaluate(control.positions(), grid.locations())?;
-        (grid, limit)
+        let pos = limit.iter().map(|p| p.position).collect();
+        (grid, pos)
     };
-    let positions: Vec<DVec3> = limit.iter().map(|p| p.position).collect();
-    drop(limit);
     crate::watch::memtrace("tessellate: grid evaluated");
     // The host's lookup: bilinear in the samples, or the cubic B-spline of
     // the coefficients (`crate::displace::BsplineTiles`).
@@ -356,5 +427,66 @@ mod tests {
         assert!(rms1 > 0.0 && max1 >= rms1, "max {max1}, rms {rms1}");
         assert_eq!(max1.to_bits(), max_all.to_bits());
         assert_eq!(rms1.to_bits(), rms_all.to_bits());
+    }
+    /// The tessellations from a [`Density`] made beforehand are
+    /// [`tessellate`]'s, bit for bit, whether the density kept its uniform
+    /// grid or [`tessellate_at`] evaluates it again: a displacement of
+    /// uniform tiles (the branch that reads the kept grid) on a cube whose
+    /// limit is displaced onto the unit sphere.
+    #[test]
+    fn density_made_beforehand_gives_the_same_tessellations() {
+        let control = crate::fixtures::cube();
+        let ev =
+            make_evaluator(Backend::Osd, &control, &EvalOptions::default()).expect("evaluator");
+        let fine = PatchGrid::new(&control, 21).expect("grid");
+        let sphere = TriMesh {
+            positions: ev
+                .evaluate(control.positions(), fine.locations())
+                .expect("limit")
+                .iter()
+                .map(|p| p.position.normalize())
+                .collect(),
+            triangles: fine.triangles(),
+        };
+        let diag = sphere.bbox_diagonal();
+        let caster = crate::raycast::make_raycaster(crate::raycast::RayBackend::Embree, &sphere)
+            .expect("caster");
+        let d = crate::displace::compute_displacement(
+            &control,
+            ev.as_ref(),
+            caster.as_ref(),
+            5,
+            2.0,
+            diag,
+            0.05,
+        )
+        .expect("displacement");
+        assert!(d.grid.is_uniform());
+        let bits = |t: &Tessellations| {
+            let p = |m: &TriMesh| -> Vec<[u64; 3]> {
+                m.positions
+                    .iter()
+                    .map(|x| x.to_array().map(f64::to_bits))
+                    .collect()
+            };
+            let o: Vec<u64> = t.offsets.iter().map(|x| x.to_bits()).collect();
+            let tris = (t.limit.triangles.clone(), t.displaced.triangles.clone());
+            (p(&t.limit), p(&t.displaced), o, t.projected.clone(), tris)
+        };
+        for segments in [None, Some(3)] {
+            let whole = tessellate(&control, ev.as_ref(), &d, diag, segments, 0.5).expect("whole");
+            // The displacement moved the cube's limit: the test is not 0 = 0.
+            assert!(whole.offsets.iter().any(|o| o.abs() > 1e-3));
+            let make = || density(&control, ev.as_ref(), diag, segments, 0.5).expect("density");
+            let kept = make();
+            assert!(kept.uniform.is_some());
+            let mut dropped = make();
+            dropped.uniform = None;
+            for dens in [kept, dropped] {
+                let t = tessellate_at(&control, ev.as_ref(), &d, dens).expect("at");
+                assert!(bits(&t) == bits(&whole), "{segments:?}");
+                assert_eq!(t.stats, whole.stats);
+            }
+        }
     }
 }
