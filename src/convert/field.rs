@@ -180,6 +180,22 @@ fn with_carry(u: Option<f64>, carry: Option<f64>, bound: Option<f64>) -> Option<
     }
 }
 
+/// The uncarried limit area of `control` against the layout mesh (M′)
+/// added to `m`'s patches ([`add_uncarried`]); its share of the limit, %.
+fn carried_into(
+    timer: &mut StageTimer,
+    layout_mesh: &TriMesh,
+    control: &ControlMesh,
+    m: &mut Measured,
+) -> Result<f64> {
+    let lost = timer.run("field refinement", || {
+        let c = crate::raycast::bvh::BvhCaster::shared(layout_mesh)?;
+        super::thin::uncarried_area(layout_mesh, &*c, control)
+    })?;
+    add_uncarried(m, &lost.per_face);
+    Ok(lost.percent)
+}
+
 /// Adds each patch's uncarried limit area (`per_face`,
 /// [`super::thin::uncarried_area`]) to its unprojectable area in `m`.
 fn add_uncarried(m: &mut Measured, per_face: &[f64]) {
@@ -355,19 +371,10 @@ pub fn fit_field(
             unprojectable,
             rms,
             on_m,
+            carry,
             near_figures,
         } = Judged::of(&mut timer, &relayout.mesh, &fitted, e, near)?;
-        let bound = carry_bound(follow.is_some()).filter(|_| e.is_some());
-        let (mut measured, mut carry) = (measured, None);
-        if let (Some(m), Some(_)) = (measured.as_mut(), bound) {
-            let lost = timer.run("field refinement", || {
-                let c = crate::raycast::bvh::BvhCaster::shared(&relayout.mesh)?;
-                super::thin::uncarried_area(&relayout.mesh, &*c, &fitted.control)
-            })?;
-            add_uncarried(m, &lost.per_face);
-            carry = Some(lost.percent);
-        }
-        let judged = with_carry(on_m.or(unprojectable), carry, bound);
+        let judged = with_carry(on_m.or(unprojectable), carry, carry_bound(follow.is_some()));
         let fails_projection = judged.is_some_and(|u| u > UNPROJECTABLE_PERCENT);
         let diag = relayout.mesh.bbox_diagonal();
         rounds.push(FieldRound {
@@ -1048,6 +1055,9 @@ struct Judged {
     on_m: Option<f64>,
     /// The near miss's RMS D and RMS L on M, for the round's record.
     near_figures: FieldRound,
+    /// With `near` and [`carry_bound`]: the limit's uncarried share, %,
+    /// its area added to the patches of `measured` ([`carried_into`]).
+    carry: Option<f64>,
 }
 
 impl Judged {
@@ -1060,11 +1070,15 @@ impl Judged {
         e: Option<f64>,
         near: Option<&super::thin::OnM<'_>>,
     ) -> Result<Judged> {
-        let measured = match e {
+        let mut measured = match e {
             Some(_) => Some(timer.run("field refinement", || {
                 patch_errors(layout_mesh, &fitted.control)
             })?),
             None => None,
+        };
+        let carry = match (measured.as_mut(), carry_bound(near.is_some())) {
+            (Some(m), Some(_)) => Some(carried_into(timer, layout_mesh, &fitted.control, m)?),
+            _ => None,
         };
         let diag = layout_mesh.bbox_diagonal();
         let layout_rms = measured.as_ref().map(|m| 1000.0 * m.rms / diag);
@@ -1096,6 +1110,7 @@ impl Judged {
             rms,
             on_m,
             near_figures,
+            carry,
         })
     }
 }
