@@ -694,6 +694,26 @@ struct Bracket<'a> {
 }
 
 impl Bracket<'_> {
+    /// With [`carry_bound`]: the bracket layout `control`'s judged share
+    /// `u` with its uncarried share on M′ ([`with_carry`]), and that share.
+    fn carried(
+        &self,
+        timer: &mut StageTimer,
+        control: &ControlMesh,
+        u: Option<f64>,
+    ) -> Result<(Option<f64>, Option<f64>)> {
+        let Some(bound) = carry_bound(self.follow.is_some()) else {
+            return Ok((u, None));
+        };
+        let mesh = &self.relayout.mesh;
+        let lost = timer.run("field refinement", || {
+            let c = crate::raycast::bvh::BvhCaster::shared(mesh)?;
+            super::thin::uncarried_area(mesh, &*c, control)
+        })?;
+        let carry = Some(lost.percent);
+        Ok((with_carry(u, carry, Some(bound)), carry))
+    }
+
     fn run(
         &self,
         timer: &mut StageTimer,
@@ -804,18 +824,8 @@ impl Bracket<'_> {
                 }
                 _ => None,
             };
-            let bound = carry_bound(self.follow.is_some());
-            let carry = match bound {
-                Some(_) => Some(
-                    timer
-                        .run("field refinement", || {
-                            super::thin::uncarried_area(mesh, &*caster, &fitted.control)
-                        })?
-                        .percent,
-                ),
-                None => None,
-            };
-            let judged = with_carry(Some(on_m.unwrap_or(m.unprojectable_percent)), carry, bound);
+            let u = Some(on_m.unwrap_or(m.unprojectable_percent));
+            let (judged, carry) = self.carried(timer, &fitted.control, u)?;
             let key = Kept::of(Some(self.e), rms, judged, faces);
             // With the switch, a bracket layout that loses the kept
             // round's adaptivity is not kept (issue 40: ρ ≥ 0.6; measured,
