@@ -141,6 +141,69 @@ pub const UNPROJECTABLE_GROWTH: f64 = 1.3;
 /// off the thin area is only measured (`layout_thin_percent`).
 pub const THIN_REFINES: bool = false;
 
+/// With [`ConvertOptions::field_adapt()`] and `--max-error` rounds: the
+/// share of the limit's area whose samples the displacement cannot carry
+/// onto M′ ([`super::thin::uncarried_area`]) above which a round fails
+/// projectability, %, its patches' uncarried area counted as unprojectable
+/// (so they are refined by [`UNPROJECTABLE_REFINE`]). Off (infinite) by
+/// default; `SUBDFIT_FIELD_ADAPT_CARRY` sets it. ADAPT's high-D results
+/// had 3–11× the switch-off layout's uncarried displacement samples
+/// (docs/status.md session 20, adapt2: homer τ 10 % 1.2 % against 0.38 %,
+/// gargoyle τ 10 % 0.72 % against 0.064 %); the bound is measured in
+/// session 22 (adaptcure).
+pub const ADAPT_CARRY_PERCENT: f64 = f64::INFINITY;
+
+/// The switch that sets [`ADAPT_CARRY_PERCENT`] (e.g. `0.5`).
+pub const ADAPT_CARRY_ENV: &str = "SUBDFIT_FIELD_ADAPT_CARRY";
+
+/// The uncarried-area bound of the rounds (%): with `adapt` (the rounds
+/// follow the first sizing, [`following`]) and the switch set; `None`
+/// otherwise, and then nothing is measured (the bytes are the switch's
+/// off).
+fn carry_bound(adapt: bool) -> Option<f64> {
+    let b = crate::switches::number(ADAPT_CARRY_ENV, ADAPT_CARRY_PERCENT);
+    (adapt && b.is_finite() && b >= 0.0).then_some(b)
+}
+
+/// The share a round's judged unprojectable share `u` (%) is ranked by
+/// when its uncarried area `carry` (%) is measured against `bound`: the
+/// larger of `u` and `carry` scaled so that it crosses
+/// [`UNPROJECTABLE_PERCENT`] exactly at the bound ([`Kept`]: a round over
+/// either fails projectability and ranks by how far).
+fn with_carry(u: Option<f64>, carry: Option<f64>, bound: Option<f64>) -> Option<f64> {
+    match (carry, bound) {
+        (Some(c), Some(b)) => {
+            let scaled = UNPROJECTABLE_PERCENT * c / b.max(f64::MIN_POSITIVE);
+            Some(u.unwrap_or(0.0).max(scaled))
+        }
+        _ => u,
+    }
+}
+
+/// The uncarried limit area of `control` against the layout mesh (M′)
+/// added to `m`'s patches ([`add_uncarried`]); its share of the limit, %.
+fn carried_into(
+    timer: &mut StageTimer,
+    layout_mesh: &TriMesh,
+    control: &ControlMesh,
+    m: &mut Measured,
+) -> Result<f64> {
+    let lost = timer.run("field refinement", || {
+        let c = crate::raycast::bvh::BvhCaster::shared(layout_mesh)?;
+        super::thin::uncarried_area(layout_mesh, &*c, control)
+    })?;
+    add_uncarried(m, &lost.per_face);
+    Ok(lost.percent)
+}
+
+/// Adds each patch's uncarried limit area (`per_face`,
+/// [`super::thin::uncarried_area`]) to its unprojectable area in `m`.
+fn add_uncarried(m: &mut Measured, per_face: &[f64]) {
+    for p in &mut m.per_patch {
+        p.unprojectable += per_face.get(p.face as usize).copied().unwrap_or(0.0);
+    }
+}
+
 /// The largest factor on h per pass, down and up.
 pub const MAX_REFINE: f64 = 0.5;
 pub const MAX_COARSEN: f64 = 1.25;
@@ -227,6 +290,11 @@ pub struct FieldRound {
     pub unprojectable_percent: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub thin_draw_scale: Option<f64>,
+    /// With [`ADAPT_CARRY_ENV`] under ADAPT: the share of the limit's area
+    /// whose samples the displacement cannot carry onto M′, %
+    /// ([`super::thin::uncarried_area`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub uncarried_area_percent: Option<f64>,
     /// With the thin round, on its own round, and on the bracket's rounds:
     /// whether it was kept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -303,9 +371,10 @@ pub fn fit_field(
             unprojectable,
             rms,
             on_m,
+            carry,
             near_figures,
         } = Judged::of(&mut timer, &relayout.mesh, &fitted, e, near)?;
-        let judged = on_m.or(unprojectable);
+        let judged = with_carry(on_m.or(unprojectable), carry, carry_bound(follow.is_some()));
         let fails_projection = judged.is_some_and(|u| u > UNPROJECTABLE_PERCENT);
         let diag = relayout.mesh.bbox_diagonal();
         rounds.push(FieldRound {
@@ -319,6 +388,7 @@ pub fn fit_field(
             layout_thin_percent: measured.as_ref().map(|m| m.thin_percent),
             size_factor,
             unprojectable_percent: on_m,
+            uncarried_area_percent: carry,
             ..near_figures
         });
         let next = match (e, measured) {
@@ -624,6 +694,26 @@ struct Bracket<'a> {
 }
 
 impl Bracket<'_> {
+    /// With [`carry_bound`]: the bracket layout `control`'s judged share
+    /// `u` with its uncarried share on M′ ([`with_carry`]), and that share.
+    fn carried(
+        &self,
+        timer: &mut StageTimer,
+        control: &ControlMesh,
+        u: Option<f64>,
+    ) -> Result<(Option<f64>, Option<f64>)> {
+        let Some(bound) = carry_bound(self.follow.is_some()) else {
+            return Ok((u, None));
+        };
+        let mesh = &self.relayout.mesh;
+        let lost = timer.run("field refinement", || {
+            let c = crate::raycast::bvh::BvhCaster::shared(mesh)?;
+            super::thin::uncarried_area(mesh, &*c, control)
+        })?;
+        let carry = Some(lost.percent);
+        Ok((with_carry(u, carry, Some(bound)), carry))
+    }
+
     fn run(
         &self,
         timer: &mut StageTimer,
@@ -734,8 +824,9 @@ impl Bracket<'_> {
                 }
                 _ => None,
             };
-            let judged = on_m.unwrap_or(m.unprojectable_percent);
-            let key = Kept::of(Some(self.e), rms, Some(judged), faces);
+            let u = Some(on_m.unwrap_or(m.unprojectable_percent));
+            let (judged, carry) = self.carried(timer, &fitted.control, u)?;
+            let key = Kept::of(Some(self.e), rms, judged, faces);
             // With the switch, a bracket layout that loses the kept
             // round's adaptivity is not kept (issue 40: ρ ≥ 0.6; measured,
             // the gargoyle at τ 1 % landed 782 patches at ρ 0.564 and RMS
@@ -754,6 +845,7 @@ impl Bracket<'_> {
                 size_factor: Some(laid.stats.size_factor),
                 uncarried_permille: Some(d),
                 unprojectable_percent: on_m,
+                uncarried_area_percent: carry,
                 kept: Some(kept),
                 ..Default::default()
             });
@@ -777,6 +869,7 @@ fn round_rms(r: &FieldRound) -> f64 {
 fn round_meets(e: f64, r: &FieldRound) -> bool {
     // A near miss on M′ judged on M ([`near_miss_on_m`]) by M's share.
     let u = r.unprojectable_percent.or(r.layout_unprojectable_percent);
+    let u = with_carry(u, r.uncarried_area_percent, carry_bound(true));
     let key = Kept::of(Some(e), round_rms(r), u, r.faces);
     key.meets() && r.kept != Some(false)
 }
@@ -972,6 +1065,9 @@ struct Judged {
     on_m: Option<f64>,
     /// The near miss's RMS D and RMS L on M, for the round's record.
     near_figures: FieldRound,
+    /// With `near` and [`carry_bound`]: the limit's uncarried share, %,
+    /// its area added to the patches of `measured` ([`carried_into`]).
+    carry: Option<f64>,
 }
 
 impl Judged {
@@ -984,11 +1080,15 @@ impl Judged {
         e: Option<f64>,
         near: Option<&super::thin::OnM<'_>>,
     ) -> Result<Judged> {
-        let measured = match e {
+        let mut measured = match e {
             Some(_) => Some(timer.run("field refinement", || {
                 patch_errors(layout_mesh, &fitted.control)
             })?),
             None => None,
+        };
+        let carry = match (measured.as_mut(), carry_bound(near.is_some())) {
+            (Some(m), Some(_)) => Some(carried_into(timer, layout_mesh, &fitted.control, m)?),
+            _ => None,
         };
         let diag = layout_mesh.bbox_diagonal();
         let layout_rms = measured.as_ref().map(|m| 1000.0 * m.rms / diag);
@@ -1020,6 +1120,7 @@ impl Judged {
             rms,
             on_m,
             near_figures,
+            carry,
         })
     }
 }
@@ -1992,5 +2093,152 @@ mod tests {
         assert!(faces_with(&mesh, 0, up));
         assert!(!faces_with(&mesh, 1, up));
         assert!(faces_with(&mesh, 1, -up));
+    }
+
+    /// The rectangle [0, w] × [0, n] at z = 0, `m` × `m` cells per unit.
+    fn sheet(w: usize, n: usize, m: usize) -> TriMesh {
+        let (sx, sy) = (w * m, n * m);
+        let positions = (0..=sy)
+            .flat_map(|j| (0..=sx).map(move |i| DVec3::new(i as f64, j as f64, 0.0) / m as f64))
+            .collect();
+        let at = |i: usize, j: usize| (j * (sx + 1) + i) as u32;
+        let triangles = (0..sy)
+            .flat_map(|j| (0..sx).map(move |i| (i, j)))
+            .flat_map(|(i, j)| {
+                [
+                    [at(i, j), at(i + 1, j), at(i + 1, j + 1)],
+                    [at(i, j), at(i + 1, j + 1), at(i, j + 1)],
+                ]
+            })
+            .collect();
+        TriMesh {
+            positions,
+            triangles,
+        }
+    }
+
+    /// The 4 × 4 quad grid on [0, 4]² at height `z` (face 4 j + i is the
+    /// patch over [i, i + 1] × [j, j + 1]).
+    fn lifted_grid(z: f64) -> ControlMesh {
+        let positions = (0..=4)
+            .flat_map(|j| (0..=4).map(move |i| DVec3::new(i as f64, j as f64, z)))
+            .collect();
+        let at = |i: u32, j: u32| j * 5 + i;
+        let quads: Vec<[u32; 4]> = (0..4)
+            .flat_map(|j| (0..4).map(move |i| (i, j)))
+            .map(|(i, j)| [at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)])
+            .collect();
+        ControlMesh::from_polygons(positions, &quads).expect("grid")
+    }
+
+    /// The faces of `c` whose control polygon's centroid has x below `x`.
+    fn faces_left_of(c: &ControlMesh, x: f64) -> usize {
+        c.faces()
+            .filter(|&f| {
+                let xs: Vec<f64> = c
+                    .face_vertices(f)
+                    .map(|v| c.positions()[v.idx()].x)
+                    .collect();
+                xs.iter().sum::<f64>() / (xs.len() as f64) < x
+            })
+            .count()
+    }
+
+    /// ADAPT's carry rule (session 22, adaptcure): the limit (the grid
+    /// [0, 4]²) 0.1 above M′. Clean: M′ ([-0.5, 4.5]²) lies under the
+    /// whole limit, every sample's normal line meets it at its own
+    /// distance, the rule adds no area and the local pass is the one
+    /// without it. Overhang: M′ ([-0.5, 3.25] × [-0.5, 4.5]) ends under
+    /// the last column of patches, whose samples beyond x = 3.25 have no
+    /// hit along their normal; the rule puts that uncarried area (about
+    /// 3/4 of each patch) on those four patches only, which fails a 0.5 %
+    /// bound by itself, and the local pass splits all four while the
+    /// patches left of x = 2 are split exactly as without the rule.
+    #[test]
+    fn the_carry_rule_refines_the_patches_whose_samples_project_nowhere() {
+        let control = lifted_grid(0.1);
+        let asks = Asks {
+            e: 1.0,
+            budget: 20.0,
+            projection: true,
+            error: false,
+        };
+        let bound = Some(0.5);
+        // `w` × 20 cells of 0.25 from (-0.5, -0.5).
+        let under = |w: usize| {
+            let mut m = sheet(w, 20, 1);
+            for p in &mut m.positions {
+                *p = DVec3::new(0.25 * p.x - 0.5, 0.25 * p.y - 0.5, 0.0);
+            }
+            m
+        };
+        let split = |mesh: &TriMesh, m: &Measured| -> ControlMesh {
+            match refine_locally(&control, mesh, &m.per_patch, asks).expect("local") {
+                Local::Split(c, _) => *c,
+                _ => control.clone(),
+            }
+        };
+        // Clean: M′ reaches past the limit on every side.
+        let clean = under(20);
+        let caster = crate::raycast::bvh::BvhCaster::new(&clean).expect("caster");
+        let lost = super::super::thin::uncarried_area(&clean, &caster, &control).expect("lost");
+        assert!(
+            lost.per_face.iter().all(|&a| a == 0.0),
+            "{:?}",
+            lost.per_face
+        );
+        assert_eq!(lost.percent, 0.0);
+        let plain = patch_errors(&clean, &control).expect("measured");
+        let mut ruled = patch_errors(&clean, &control).expect("measured");
+        add_uncarried(&mut ruled, &lost.per_face);
+        let judged = with_carry(Some(ruled.unprojectable_percent), Some(lost.percent), bound);
+        assert_eq!(judged, Some(plain.unprojectable_percent));
+        let (a, b) = (split(&clean, &plain), split(&clean, &ruled));
+        assert_eq!(a.num_faces(), b.num_faces());
+        // Overhang: the last column stands past M′'s border.
+        let short = under(15);
+        let caster = crate::raycast::bvh::BvhCaster::new(&short).expect("caster");
+        let lost = super::super::thin::uncarried_area(&short, &caster, &control).expect("lost");
+        for j in 0..4 {
+            for i in 0..4 {
+                let a = lost.per_face[4 * j + i];
+                match i {
+                    3 => assert!(a > 0.5, "face ({i}, {j}): {a}"),
+                    _ => assert_eq!(a, 0.0, "face ({i}, {j})"),
+                }
+            }
+        }
+        assert!((15.0..=30.0).contains(&lost.percent), "{}", lost.percent);
+        let carry_alone = with_carry(Some(0.0), Some(lost.percent), bound);
+        assert!(carry_alone.is_some_and(|u| u > UNPROJECTABLE_PERCENT));
+        let plain = patch_errors(&short, &control).expect("measured");
+        let on_column = |m: &Measured| -> f64 {
+            m.per_patch
+                .iter()
+                .filter(|p| p.face % 4 == 3)
+                .map(|p| p.unprojectable)
+                .sum()
+        };
+        let mut ruled = patch_errors(&short, &control).expect("measured");
+        add_uncarried(&mut ruled, &lost.per_face);
+        let added = on_column(&ruled) - on_column(&plain);
+        assert!(added > 2.0, "{added}");
+        let right = |c: &ControlMesh| c.num_faces() - faces_left_of(c, 3.0);
+        let (without, with) = (split(&short, &plain), split(&short, &ruled));
+        assert!(right(&with) >= 16, "{}", right(&with));
+        assert_eq!(faces_left_of(&with, 2.0), faces_left_of(&without, 2.0));
+    }
+
+    /// The carry share ranks a round as [`UNPROJECTABLE_PERCENT`] does at
+    /// its bound: below it the judged share is unchanged, above it the
+    /// round fails projectability; without a bound nothing changes.
+    #[test]
+    fn the_carry_share_crosses_the_bar_at_its_bound() {
+        let u = Some(0.05);
+        assert_eq!(with_carry(u, Some(0.2), Some(0.5)), u);
+        let over = with_carry(u, Some(0.6), Some(0.5)).expect("judged");
+        assert!(over > UNPROJECTABLE_PERCENT, "{over}");
+        assert_eq!(with_carry(u, Some(0.6), None), u);
+        assert_eq!(with_carry(u, None, Some(0.5)), u);
     }
 }

@@ -458,6 +458,78 @@ struct MeshSums {
     area: f64,
 }
 
+/// [`Carried`]'s limit side: the grid, its triangles' faces, locations,
+/// vertex areas, nearest points on the mesh and carry flags.
+type CarryGrid = (
+    TriMesh,
+    Vec<u32>,
+    Vec<crate::subdiv::SurfaceLocation>,
+    Vec<f64>,
+    Vec<Option<crate::raycast::ClosestPoint>>,
+    Vec<bool>,
+);
+
+/// The limit grid of `control` (as many cells per patch as on `layout`)
+/// and which of its vertices the displacement carries onto `mesh`
+/// ([`carried`], slack half the mesh's mean edge, as the pipeline's).
+fn carry_grid(
+    layout: &TriMesh,
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    control: &ControlMesh,
+) -> Result<CarryGrid> {
+    let k = super::field::grid_cells(layout, control);
+    let (surface, tri_face, locs, evaluator) = super::field::limit_grid(control, k)?;
+    let weights = crate::report::vertex_areas(&surface);
+    let near = caster.closest_points(&surface.positions, f64::INFINITY)?;
+    let dist: Vec<f64> = near
+        .iter()
+        .map(|c| c.as_ref().map_or(0.0, |c| c.distance))
+        .collect();
+    let points = evaluator.evaluate(control.positions(), &locs)?;
+    let slack = 0.5 * mesh.mean_edge_length();
+    let max_dist = crate::project::default_max_dist(mesh);
+    let carry = carried(caster, &points, &dist, max_dist, slack)?;
+    Ok((surface, tri_face, locs, weights, near, carry))
+}
+
+/// [`uncarried_area`]'s result: per control face the limit area whose
+/// samples the displacement cannot carry onto the mesh, and that area's
+/// share of the whole limit, %.
+#[derive(Clone, Debug)]
+pub struct UncarriedArea {
+    pub per_face: Vec<f64>,
+    pub percent: f64,
+}
+
+/// The limit area of `control` whose samples the displacement cannot
+/// carry onto `mesh` (`caster` over it; [`carried`]: the normal line
+/// meets the mesh only on another sheet or nowhere), per control face and
+/// as a share of the limit's area. Such samples are inpainted and the
+/// displaced surface stands off M there (docs/status.md session 20,
+/// adapt2: homer τ 10 % under ADAPT 74 of 6000 against 23 off).
+pub fn uncarried_area(
+    mesh: &TriMesh,
+    caster: &dyn RayCaster,
+    control: &ControlMesh,
+) -> Result<UncarriedArea> {
+    let (_, _, locs, weights, near, carry) = carry_grid(mesh, mesh, caster, control)?;
+    let mut per_face = vec![0.0; control.num_faces()];
+    let (mut lost, mut area) = (0.0, 0.0);
+    for (((c, &a), loc), &ok) in near.iter().zip(&weights).zip(&locs).zip(&carry) {
+        if c.is_none() {
+            continue;
+        }
+        area += a;
+        if !ok {
+            per_face[loc.face.0 as usize] += a;
+            lost += a;
+        }
+    }
+    let percent = if area > 0.0 { 100.0 * lost / area } else { 0.0 };
+    Ok(UncarriedArea { per_face, percent })
+}
+
 impl Carried {
     fn new(
         layout: &TriMesh,
@@ -465,18 +537,8 @@ impl Carried {
         caster: &dyn RayCaster,
         control: &ControlMesh,
     ) -> Result<Self> {
-        let k = super::field::grid_cells(layout, control);
-        let (surface, tri_face, locs, evaluator) = super::field::limit_grid(control, k)?;
-        let weights = crate::report::vertex_areas(&surface);
-        let near = caster.closest_points(&surface.positions, f64::INFINITY)?;
-        let dist: Vec<f64> = near
-            .iter()
-            .map(|c| c.as_ref().map_or(0.0, |c| c.distance))
-            .collect();
-        let points = evaluator.evaluate(control.positions(), &locs)?;
-        let slack = 0.5 * mesh.mean_edge_length();
-        let max_dist = crate::project::default_max_dist(mesh);
-        let carry = carried(caster, &points, &dist, max_dist, slack)?;
+        let (surface, tri_face, locs, weights, near, carry) =
+            carry_grid(layout, mesh, caster, control)?;
         let grid = BvhCaster::new(&surface)?;
         let nearest = grid.closest_points(&mesh.positions, f64::INFINITY)?;
         let m_areas = crate::report::vertex_areas(mesh);
