@@ -312,20 +312,8 @@ impl Source {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::convert::faces_proj::tests::grid;
     use crate::convert::field::PatchError;
-
-    /// A flat `n × n` grid of unit quads, vertex (i, j) at i + (n + 1) j.
-    fn grid(n: usize) -> ControlMesh {
-        let positions = (0..=n)
-            .flat_map(|j| (0..=n).map(move |i| DVec3::new(i as f64, j as f64, 0.0)))
-            .collect();
-        let at = |i: usize, j: usize| (j * (n + 1) + i) as u32;
-        let faces: Vec<[u32; 4]> = (0..n)
-            .flat_map(|j| (0..n).map(move |i| (i, j)))
-            .map(|(i, j)| [at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)])
-            .collect();
-        ControlMesh::from_polygons(positions, &faces).unwrap()
-    }
 
     /// On a 12 × 12 grid with one unprojectable spot in face (5, 5) (off
     /// its centre): a local round moves vertices only within the rings of

@@ -367,13 +367,13 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::convert::field::PatchError;
     use crate::DVec3;
 
-    /// A flat `n × n` grid of unit quads.
-    fn grid(n: usize) -> ControlMesh {
+    /// A flat `n × n` grid of unit quads, vertex (i, j) at i + (n + 1) j.
+    pub(in crate::convert) fn grid(n: usize) -> ControlMesh {
         let positions = (0..=n)
             .flat_map(|j| (0..=n).map(move |i| DVec3::new(i as f64, j as f64, 0.0)))
             .collect();

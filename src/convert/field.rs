@@ -2097,24 +2097,7 @@ mod tests {
 
     /// The rectangle [0, w] × [0, n] at z = 0, `m` × `m` cells per unit.
     fn sheet(w: usize, n: usize, m: usize) -> TriMesh {
-        let (sx, sy) = (w * m, n * m);
-        let positions = (0..=sy)
-            .flat_map(|j| (0..=sx).map(move |i| DVec3::new(i as f64, j as f64, 0.0) / m as f64))
-            .collect();
-        let at = |i: usize, j: usize| (j * (sx + 1) + i) as u32;
-        let triangles = (0..sy)
-            .flat_map(|j| (0..sx).map(move |i| (i, j)))
-            .flat_map(|(i, j)| {
-                [
-                    [at(i, j), at(i + 1, j), at(i + 1, j + 1)],
-                    [at(i, j), at(i + 1, j + 1), at(i, j + 1)],
-                ]
-            })
-            .collect();
-        TriMesh {
-            positions,
-            triangles,
-        }
+        crate::convert::thin::tests::rectangle(w, n, m, DVec3::ZERO)
     }
 
     /// The 4 × 4 quad grid on [0, 4]² at height `z` (face 4 j + i is the

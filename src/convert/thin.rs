@@ -1571,7 +1571,7 @@ fn split_round(
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     /// The square [0, n]² as a triangle mesh of `m` × `m` cells per
@@ -1582,7 +1582,7 @@ mod tests {
 
     /// The rectangle `origin` + [0, w] × [0, n] as a triangle mesh of
     /// `m` × `m` cells per unit.
-    fn rectangle(w: usize, n: usize, m: usize, origin: DVec3) -> TriMesh {
+    pub(in crate::convert) fn rectangle(w: usize, n: usize, m: usize, origin: DVec3) -> TriMesh {
         let (sx, sy) = (w * m, n * m);
         let positions = (0..=sy)
             .flat_map(|j| {
