@@ -53,7 +53,7 @@
 //! | `SUBDFIT_LSQTRACE` | `displace::lsq` | the solves on stderr |
 //! | `SUBDFIT_MEMTRACE` | `watch` | memory per stage on stderr |
 //! | `SUBDFIT_TEST_PAUSE_BEFORE_SWAP_MS` | `report::output` | a test hook: a pause before the output swap |
-//! | `SUBDFIT_FIELD_BEST` | `quad::field::draws`, `quad::field::cleanup`, `convert::faces_proj` | `1`: 4 first-layout draws, the guarded cleanup and the projectability rounds judged on final figures (each part overridden by its own switch when that is set) |
+//! | `SUBDFIT_FIELD_BEST` | `quad::field::draws`, `quad::field::cleanup`, `convert::faces_proj`, `convert::layout` | `1`: 4 first-layout draws, the guarded cleanup, the projectability rounds judged on final figures and main's result as a candidate (each part overridden by its own switch when that is set); `lean`: the same with the draws at scales 1 and 0.97 only (`draws::LEAN_DRAWS`, session 23) |
 //! | `SUBDFIT_FIELD_BARS_D` | `quad::field::draws` | `w ≥ 1`: RMS D's term in the bars score (`Score::Bars`) weighted `w` times |
 //! | `SUBDFIT_DISP_REFINE` | `convert::tail`, `convert::thin`, `convert::search` | `1`: an all-quad layout's displacement atlas (and metrics) on its refinement by one level, as a non-quad layout's always is |
 //! | `SUBDFIT_DISP_LEVEL0` | `displace::alloc`, `convert::tail` | `1`: where the level-1 floor takes over 4/5 of the budget, the adaptive allocation may leave a patch at its corners (`R = 2`); `SUBDFIT_DISP_REFINE` also refines where that holds on the refinement and its vertices take at most half the budget |

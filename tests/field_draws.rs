@@ -10,7 +10,8 @@ use std::f64::consts::PI;
 use subdfit::mesh::TriMesh;
 use subdfit::quad::field::{
     control_topology, draws, field_layout, field_layout_at_scale, field_layout_drawn,
-    field_layout_drawn_with_main, FieldLayout, FieldOptions, Prepared, TopologySummary,
+    field_layout_drawn_at_with_main, field_layout_drawn_with_main, FieldLayout, FieldOptions,
+    Prepared, TopologySummary,
 };
 use subdfit::DVec3;
 
@@ -495,4 +496,94 @@ fn main_finished_from_the_guarded_draw_0s_count_passes_is_main_laid_apart() {
         !changed.is_empty(),
         "the guard changed draw 0 on none of the meshes: the test sees nothing"
     );
+}
+
+#[test]
+fn lean_draws_are_the_full_draws_at_their_scales() {
+    // `SUBDFIT_FIELD_BEST=lean` (session 23) lays only BEST's draws 0 and
+    // 3 (scales 1 and 0.97). Each is the lattice BEST's four draws lay at
+    // that scale, bit for bit (a draw reads only the sizing and its
+    // scale), the record names each draw's own scale and the chosen
+    // draw's index into `SCALES`, and main's unguarded draw 0 beside them
+    // is main laid apart. With `0..k` the new path is the old one.
+    use draws::{Best, LEAN_DRAWS, SCALES};
+    assert_eq!(Best::Lean.first_draws(None), LEAN_DRAWS.to_vec());
+    assert_eq!(Best::Full.first_draws(None), vec![0, 1, 2, 3]);
+    assert_eq!(Best::Off.first_draws(None), vec![0]);
+    // `SUBDFIT_FIELD_DRAWS` overrides the draws whatever the setting.
+    assert_eq!(Best::Lean.first_draws(Some(2)), vec![0, 1]);
+    assert_eq!(Best::Lean.first_draws(Some(0)), vec![0]);
+    assert_eq!(Best::Off.first_draws(Some(9)).len(), draws::MAX_DRAWS);
+    assert_eq!(LEAN_DRAWS.map(|i| SCALES[i]), [1.0, 0.97]);
+    for (v, b) in [
+        (Some("1"), Best::Full),
+        (Some(" lean "), Best::Lean),
+        (Some("0"), Best::Off),
+        (Some("2"), Best::Off),
+        (Some("Lean"), Best::Off),
+        (None, Best::Off),
+    ] {
+        assert_eq!(Best::parse(v), b, "{v:?}");
+    }
+
+    let m = torus(2.0, 0.45, 120, 30);
+    let fm = common::flat_fitmap(m.positions.len());
+    let mut opts = FieldOptions::default()
+        .with_uniform_size(Some(0.3))
+        .with_target_faces(Some(400));
+    opts.cleanup_guarded = Some(true);
+    let mut main_opts = opts.clone();
+    main_opts.cleanup_guarded = Some(false);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    pool.install(|| {
+        let prep = Prepared::new(&m, &opts).unwrap();
+        let (lean, main) = field_layout_drawn_at_with_main(
+            &prep,
+            &m,
+            &fm,
+            &opts,
+            Some(&main_opts),
+            &LEAN_DRAWS,
+            score(2.0, 0.45),
+        )
+        .unwrap();
+        let rec = lean.stats.draws.clone().expect("two draws were ranked");
+        let scales: Vec<f64> = rec.draws.iter().map(|d| d.scale).collect();
+        assert_eq!(scales, vec![1.0, 0.97]);
+        assert!(LEAN_DRAWS.contains(&rec.chosen), "{rec:?}");
+        let apart = field_layout_at_scale(&prep, &m, &fm, &opts, SCALES[rec.chosen]).unwrap();
+        assert_eq!(lean.control, apart.control, "the chosen draw");
+        let main = main.expect("main asked for").unwrap();
+        let main_apart = field_layout_at_scale(&prep, &m, &fm, &main_opts, 1.0).unwrap();
+        assert_eq!(main.control, main_apart.control, "main's draw 0");
+        // BEST's four draws record the same figures at scales 1 and 0.97.
+        let full = field_layout_drawn(&prep, &m, &fm, &opts, 4, score(2.0, 0.45)).unwrap();
+        let full = full.stats.draws.expect("four draws were ranked");
+        for (d, &i) in rec.draws.iter().zip(&LEAN_DRAWS) {
+            let f = &full.draws[i];
+            assert_eq!(
+                (d.faces, d.irregular_vertices, d.scale),
+                (f.faces, f.irregular_vertices, f.scale)
+            );
+        }
+        // Real layouts of the torus, at the target's count.
+        let t = control_topology(&lean.control);
+        assert_eq!((t.components, t.boundary_loops, t.euler), (1, 0, 0));
+        assert!(
+            lean.control.num_faces() > 300,
+            "{}",
+            lean.control.num_faces()
+        );
+        // `0..k` through the new path is the old path, record included.
+        let (old, _) =
+            field_layout_drawn_with_main(&prep, &m, &fm, &opts, None, 2, score(2.0, 0.45)).unwrap();
+        let (new, _) =
+            field_layout_drawn_at_with_main(&prep, &m, &fm, &opts, None, &[0, 1], score(2.0, 0.45))
+                .unwrap();
+        assert_eq!(old.control, new.control);
+        assert_eq!(old.stats.draws, new.stats.draws);
+    });
 }

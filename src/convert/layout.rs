@@ -333,10 +333,11 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
     // size the draws' counts differ, the score prefers the finer one, and
     // the `--max-error` rounds lay the field out again anyway (session 14,
     // homer defaults 318 → 421 patches, cheburashka RMS D 0.35 → 0.79‰).
-    let draws = match opts.target_faces {
-        Some(_) => crate::quad::field::draws::draws_from_env(),
-        None => 1,
+    let draw_set = match opts.target_faces {
+        Some(_) => crate::quad::field::draws::first_draws_from_env(),
+        None => vec![0],
     };
+    let draws = draw_set.len();
     // With `SUBDFIT_FIELD_THIN_DRAWS=K` (session 15, face target only),
     // every draw the guard leaves is carried on: the first is laid out as
     // the layout, the others as `alternatives`, each judged on its final
@@ -382,13 +383,13 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
             ..field_opts.clone()
         });
         // One sizing for both ([`crate::quad::field::field_layout_drawn_with_main`]).
-        let (laid, main) = crate::quad::field::field_layout_drawn_with_main(
+        let (laid, main) = crate::quad::field::field_layout_drawn_at_with_main(
             &prep,
             layout,
             &fitmap,
             &field_opts,
             fo_main.as_ref(),
-            draws,
+            &draw_set,
             score,
         )?;
         if let Some(main) = main {

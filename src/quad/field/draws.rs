@@ -40,10 +40,17 @@ pub const MAX_DRAWS: usize = 6;
 pub const SCALES: [f64; MAX_DRAWS] = [1.0, 0.985, 1.015, 0.97, 1.03, 0.955];
 
 /// The number of draws `SUBDFIT_FIELD_DRAWS` asks for, in `1..=MAX_DRAWS`
-/// ([`BEST_DRAWS`] when it is unset and [`BEST_ENV`] is on).
+/// (when it is unset: [`BEST_DRAWS`] under `SUBDFIT_FIELD_BEST=1`, the
+/// [`LEAN_DRAWS`]' count under `lean`, else 1).
 pub fn draws_from_env() -> usize {
-    let unset = if best_enabled() { BEST_DRAWS } else { 1 };
-    draws_of(DRAWS_ENV, unset)
+    first_draws_from_env().len()
+}
+
+/// The first layout's draws, as indices into [`SCALES`] in draw order:
+/// [`Best::first_draws`] of the environment's [`BEST_ENV`] and
+/// [`DRAWS_ENV`].
+pub fn first_draws_from_env() -> Vec<usize> {
+    Best::from_env().first_draws(crate::switches::parsed::<usize>(DRAWS_ENV))
 }
 
 /// The number of draws the switch `name` asks for, in `1..=MAX_DRAWS`
@@ -82,6 +89,15 @@ where
     SCALES[..k].par_iter().map(|&s| lay_one(s)).collect()
 }
 
+/// `lay_one(scale)` for the [`SCALES`] at `set`'s indices, side by side,
+/// in `set`'s order (`0..k` is [`lay`]`(k)`).
+pub fn lay_at<F>(set: &[usize], lay_one: F) -> Vec<Result<FieldLayout>>
+where
+    F: Fn(f64) -> Result<FieldLayout> + Sync,
+{
+    set.par_iter().map(|&i| lay_one(SCALES[i])).collect()
+}
+
 /// A draw is ranked only if its irregular vertices are at most this
 /// factor of the fewest among the draws (plus [`IRREGULAR_SLACK`]): the
 /// irregular count is one of issue 40's bars, and the finest-fitting draw
@@ -105,6 +121,22 @@ pub const IRREGULAR_SLACK: usize = 2;
 /// the other.
 pub fn choose<S>(
     draws: Vec<Result<FieldLayout>>,
+    topology: TopologySummary,
+    score: S,
+) -> Result<FieldLayout>
+where
+    S: Fn(&FieldLayout) -> Result<f64> + Sync,
+{
+    let set: Vec<usize> = (0..draws.len()).collect();
+    choose_at(draws, &set, topology, score)
+}
+
+/// [`choose`] of draws laid at `set`'s indices into [`SCALES`]
+/// ([`lay_at`]): the record gives each draw's own scale, and
+/// [`DrawsRecord::chosen`] is the kept draw's index into [`SCALES`].
+pub fn choose_at<S>(
+    draws: Vec<Result<FieldLayout>>,
+    set: &[usize],
     topology: TopologySummary,
     score: S,
 ) -> Result<FieldLayout>
@@ -141,7 +173,7 @@ where
     let mut kept = Vec::with_capacity(draws.len());
     for (i, (d, scored)) in draws.into_iter().zip(scores).enumerate() {
         let mut r = DrawRecord {
-            scale: SCALES[i],
+            scale: SCALES[set[i]],
             ..Default::default()
         };
         match d {
@@ -184,7 +216,7 @@ where
     let Some((_, i)) = best else {
         return Err(first_error.expect("no draw kept, so one failed"));
     };
-    record.chosen = i;
+    record.chosen = set[i];
     let mut out = kept.swap_remove(i).expect("the best draw was kept");
     out.stats.draws = Some(record);
     Ok(out)
@@ -317,9 +349,64 @@ pub const BEST_ENV: &str = "SUBDFIT_FIELD_BEST";
 /// gargoyle τ 1 % at 1357 met more bars than with one).
 pub const BEST_DRAWS: usize = 4;
 
-/// Whether `SUBDFIT_FIELD_BEST=1`.
+/// Whether `SUBDFIT_FIELD_BEST` is `1` or `lean` ([`Best`]): the parts
+/// other than the draws read only this.
 pub fn best_enabled() -> bool {
-    crate::switches::on(BEST_ENV)
+    Best::from_env() != Best::Off
+}
+
+/// The value of [`BEST_ENV`] for [`Best::Lean`].
+pub const BEST_LEAN: &str = "lean";
+
+/// The first layout's draws under `SUBDFIT_FIELD_BEST=lean` (indices into
+/// [`SCALES`]: 1 and 0.97). Session 23 (docs/status.md, helper bestlean):
+/// of BEST's four draws, the final judgement kept main's candidate or the
+/// draw at 0.97 on seven of issue 40's eight cases (spot 85, gargoyle 402
+/// and 1357 kept the 0.97 draw; without it spot 85 misses the RMS L bar,
+/// 9.274 against 9.270‰); the draws at 0.985 and 1.015 won only gargoyle
+/// 1391. Draw 0 stays: main's layout shares its count passes.
+pub const LEAN_DRAWS: [usize; 2] = [0, 3];
+
+/// The settings of [`BEST_ENV`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Best {
+    /// Unset or any other value.
+    Off,
+    /// `1`: [`BEST_DRAWS`] draws, the guarded cleanup, the judged
+    /// projectability rounds, main's candidate (session 16).
+    Full,
+    /// `lean` ([`BEST_LEAN`]): as [`Best::Full`] with the draws at
+    /// [`LEAN_DRAWS`] only.
+    Lean,
+}
+
+impl Best {
+    /// The setting of the switch's value `v` (`None`: unset).
+    pub fn parse(v: Option<&str>) -> Self {
+        match v.map(str::trim) {
+            Some("1") => Best::Full,
+            Some(BEST_LEAN) => Best::Lean,
+            _ => Best::Off,
+        }
+    }
+
+    /// The environment's setting.
+    pub fn from_env() -> Self {
+        Self::parse(crate::switches::text(BEST_ENV).as_deref())
+    }
+
+    /// The first layout's draws (indices into [`SCALES`], in draw order)
+    /// under this setting, with `SUBDFIT_FIELD_DRAWS` at `asked` (when set,
+    /// its first `k` draws, clamped to `1..=MAX_DRAWS`, whatever the
+    /// setting).
+    pub fn first_draws(self, asked: Option<usize>) -> Vec<usize> {
+        match (asked, self) {
+            (Some(k), _) => (0..k.clamp(1, MAX_DRAWS)).collect(),
+            (None, Best::Full) => (0..BEST_DRAWS).collect(),
+            (None, Best::Lean) => LEAN_DRAWS.to_vec(),
+            (None, Best::Off) => vec![0],
+        }
+    }
 }
 
 /// How [`choose_final_with`] scores a candidate.

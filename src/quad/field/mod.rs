@@ -461,6 +461,25 @@ pub fn field_layout_drawn_with_main<S>(
 where
     S: Fn(&FieldLayout) -> Result<f64> + Sync,
 {
+    let set: Vec<usize> = (0..k.clamp(1, draws::MAX_DRAWS)).collect();
+    field_layout_drawn_at_with_main(prep, mesh, fitmap, opts, main_opts, &set, score)
+}
+
+/// [`field_layout_drawn_with_main`] with the draws at `set`'s indices into
+/// [`draws::SCALES`] ([`draws::lay_at`]; `SUBDFIT_FIELD_BEST=lean`'s
+/// [`draws::LEAN_DRAWS`]). `0..k` is [`field_layout_drawn_with_main`]`(k)`.
+pub fn field_layout_drawn_at_with_main<S>(
+    prep: &Prepared,
+    mesh: &TriMesh,
+    fitmap: &Fitmap,
+    opts: &FieldOptions,
+    main_opts: Option<&FieldOptions>,
+    set: &[usize],
+    score: S,
+) -> Result<(FieldLayout, Option<Result<FieldLayout>>)>
+where
+    S: Fn(&FieldLayout) -> Result<f64> + Sync,
+{
     let (h, stats) = sizing_prepared(prep, mesh, fitmap, opts)?;
     // Main's draw 0 and the draws' draw 0 differ only in the cleanup's
     // guard (`src/convert/layout.rs`): their count passes are then the
@@ -498,13 +517,25 @@ where
     let lay_main =
         |mo: &FieldOptions| lay_counted(prep, mesh, fitmap, h.clone(), mo, stats.clone(), None);
     if shared_guard.is_some() {
-        let laid = draws::choose(draws::lay(k, lay_draw), prep.surf.topology, &score);
+        let laid = draws::choose_at(
+            draws::lay_at(set, lay_draw),
+            set,
+            prep.surf.topology,
+            &score,
+        );
         let shared = main_slot.into_inner().unwrap_or_else(|e| e.into_inner());
         let main = main_opts.map(|mo| shared.unwrap_or_else(|| lay_main(mo)));
         return Ok((laid?, main));
     }
     let (laid, main) = rayon::join(
-        || draws::choose(draws::lay(k, lay_draw), prep.surf.topology, &score),
+        || {
+            draws::choose_at(
+                draws::lay_at(set, lay_draw),
+                set,
+                prep.surf.topology,
+                &score,
+            )
+        },
         || main_opts.map(lay_main),
     );
     Ok((laid?, main))
