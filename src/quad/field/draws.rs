@@ -74,7 +74,8 @@ pub struct DrawRecord {
 /// What [`choose`] did.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct DrawsRecord {
-    /// The index of the draw kept.
+    /// The index of the draw kept, into [`SCALES`] (its draw index when
+    /// the draws are `SCALES`' first `k`; [`choose_at`]).
     pub chosen: usize,
     pub draws: Vec<DrawRecord>,
 }
@@ -360,11 +361,12 @@ pub const BEST_LEAN: &str = "lean";
 
 /// The first layout's draws under `SUBDFIT_FIELD_BEST=lean` (indices into
 /// [`SCALES`]: 1 and 0.97). Session 23 (docs/status.md, helper bestlean):
-/// of BEST's four draws, the final judgement kept main's candidate or the
-/// draw at 0.97 on seven of issue 40's eight cases (spot 85, gargoyle 402
-/// and 1357 kept the 0.97 draw; without it spot 85 misses the RMS L bar,
-/// 9.274 against 9.270‰); the draws at 0.985 and 1.015 won only gargoyle
-/// 1391. Draw 0 stays: main's layout shares its count passes.
+/// under `1` the draws at 0.985 and 1.015 were kept only on gargoyle τ 1 %
+/// at 1391; without them each of issue 40's eight cases keeps main's
+/// candidate, the guarded draw 0 (cheburashka 460, gargoyle 421) or the
+/// guarded draw at 0.97 (spot 85, gargoyle 402 and 1357; without it spot
+/// 85 misses the RMS L bar, 9.274 against 9.270‰), and the 32 bars hold
+/// at ~79 % of BEST's CPU. Draw 0 also shares main's count passes.
 pub const LEAN_DRAWS: [usize; 2] = [0, 3];
 
 /// The settings of [`BEST_ENV`].
