@@ -48,7 +48,7 @@ pub fn point_build_quality() -> BuildQuality {
 
 /// The default of [`point_build_quality`]: low (Embree's Morton
 /// builder). `subdfit metrics` on bunny rung 1 (278k triangles), five
-/// alternating runs each: 7.12 CPU s at low, 7.70 at medium, 7.67 at high,
+/// alternating runs each: 7.12 CPU s at low, 7.65 at medium, 7.67 at high,
 /// the same JSON (docs/status.md, "Scale", session 23).
 pub const POINT_BUILD_QUALITY: BuildQuality = BuildQuality::Low;
 
