@@ -833,8 +833,7 @@ fn round_rows(
         None => (None, 0.0),
     };
     drop(last);
-    // D is asked for closest points only (M → D here, and the metrics'
-    // M → D when it is the kept D): the cheaper build, same answers.
+    // Closest points only (M → D, here and as the kept D): the cheap build.
     let d_caster = crate::raycast::make_point_caster(&dmesh)?;
     let deps = match host {
         None => Basis::Samples(Dependents::of(disp)),
