@@ -145,7 +145,7 @@ bool point_query_callback(RTCPointQueryFunctionArguments *args) {
 }
 
 EmbreeScene::EmbreeScene(rust::Slice<const float> vertices, rust::Slice<const uint32_t> triangles,
-                         rust::Slice<const double> positions_f64)
+                         rust::Slice<const double> positions_f64, uint8_t quality)
     : positions_(positions_f64.begin(), positions_f64.end()),
       triangles_(triangles.begin(), triangles.end()) {
   if (vertices.size() % 3 != 0 || triangles.size() % 3 != 0 ||
@@ -173,11 +173,18 @@ EmbreeScene::EmbreeScene(rust::Slice<const float> vertices, rust::Slice<const ui
     // ROBUST: watertight traversal/intersection so rays do not slip through
     // shared edges (STACK-NOTES: ~15% cost).
     rtcSetSceneFlags(scene_, RTC_SCENE_FLAG_ROBUST);
-    rtcSetSceneBuildQuality(scene_, RTC_BUILD_QUALITY_HIGH);
+    // High by default. Point queries keep the least (distance, triangle id)
+    // over every triangle within a conservative shrinking radius, so their
+    // answers do not depend on the tree: a scene queried only for closest
+    // points may take a cheaper build (`EmbreeCaster::for_points`).
+    const RTCBuildQuality q = quality == 0   ? RTC_BUILD_QUALITY_LOW
+                              : quality == 1 ? RTC_BUILD_QUALITY_MEDIUM
+                                             : RTC_BUILD_QUALITY_HIGH;
+    rtcSetSceneBuildQuality(scene_, q);
     if (nt > 0) {
       RTCGeometry geom = rtcNewGeometry(device_, RTC_GEOMETRY_TYPE_TRIANGLE);
       check(device_, "rtcNewGeometry");
-      rtcSetGeometryBuildQuality(geom, RTC_BUILD_QUALITY_HIGH);
+      rtcSetGeometryBuildQuality(geom, q);
       // rtcSetNewGeometryBuffer allocates with the padding Embree needs
       // after the last vertex for its SIMD loads.
       auto *vb = static_cast<float *>(rtcSetNewGeometryBuffer(
@@ -389,8 +396,8 @@ void EmbreeScene::closest_points_within(rust::Slice<const float> points_f32,
 
 std::unique_ptr<EmbreeScene> new_scene(rust::Slice<const float> vertices,
                                        rust::Slice<const uint32_t> triangles,
-                                       rust::Slice<const double> positions_f64) {
-  return std::make_unique<EmbreeScene>(vertices, triangles, positions_f64);
+                                       rust::Slice<const double> positions_f64, uint8_t quality) {
+  return std::make_unique<EmbreeScene>(vertices, triangles, positions_f64, quality);
 }
 
 } // namespace subdfit::embree

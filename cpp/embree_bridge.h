@@ -21,7 +21,7 @@ rust::String library_version();
 class EmbreeScene {
 public:
   EmbreeScene(rust::Slice<const float> vertices, rust::Slice<const uint32_t> triangles,
-              rust::Slice<const double> positions_f64);
+              rust::Slice<const double> positions_f64, uint8_t quality);
   ~EmbreeScene();
   EmbreeScene(const EmbreeScene &) = delete;
   EmbreeScene &operator=(const EmbreeScene &) = delete;
@@ -67,8 +67,9 @@ private:
   friend bool point_query_callback(RTCPointQueryFunctionArguments *args);
 };
 
+/// quality: 0 low, 1 medium, 2 high (RTCBuildQuality); anything else is high.
 std::unique_ptr<EmbreeScene> new_scene(rust::Slice<const float> vertices,
                                        rust::Slice<const uint32_t> triangles,
-                                       rust::Slice<const double> positions_f64);
+                                       rust::Slice<const double> positions_f64, uint8_t quality);
 
 } // namespace subdfit::embree

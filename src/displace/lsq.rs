@@ -55,7 +55,7 @@ use serde::Serialize;
 
 use crate::error::Result;
 use crate::mesh::TriMesh;
-use crate::raycast::{make_raycaster, ClosestPoint, RayBackend, RayCaster};
+use crate::raycast::{ClosestPoint, RayCaster};
 use crate::solve::NormalEquations;
 use crate::DVec3;
 
@@ -833,7 +833,8 @@ fn round_rows(
         None => (None, 0.0),
     };
     drop(last);
-    let d_caster = make_raycaster(RayBackend::Embree, &dmesh)?;
+    // Closest points only (M → D, here and as the kept D): the cheap build.
+    let d_caster = crate::raycast::make_point_caster(&dmesh)?;
     let deps = match host {
         None => Basis::Samples(Dependents::of(disp)),
         Some(h) => Basis::Host(h),
@@ -1730,7 +1731,7 @@ mod tests {
     use super::*;
     use crate::displace::{compute_displacement, PatchGrid};
     use crate::fixtures::{cube, flat_grid};
-    use crate::raycast::make_raycaster;
+    use crate::raycast::{make_raycaster, RayBackend};
     use crate::report::{distance_stats, quadrature_points};
     use crate::subdiv::{make_evaluator, Backend, EvalOptions};
 

@@ -13,14 +13,16 @@ pub(crate) mod bridge {
         /// A committed Embree scene (device + one triangle geometry).
         type EmbreeScene;
 
-        /// Builds a robust, high-quality scene. `vertices`: 3 f32 per vertex
+        /// Builds a robust scene. `vertices`: 3 f32 per vertex
         /// (translated frame); `triangles`: 3 indices per triangle;
         /// `positions_f64`: the untranslated f64 positions, for the exact
-        /// distances of point queries.
+        /// distances of point queries; `quality`: Embree's build quality,
+        /// 0 low, 1 medium, 2 (or more) high.
         fn new_scene(
             vertices: &[f32],
             triangles: &[u32],
             positions_f64: &[f64],
+            quality: u8,
         ) -> Result<UniquePtr<EmbreeScene>>;
 
         /// `rays`: 8 f32 per ray (ox oy oz tnear dx dy dz tfar); writes

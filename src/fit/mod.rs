@@ -1224,8 +1224,9 @@ fn mesh_to_samples_rms(
     }
     // Embree's build is several times faster than the Rust BVH's SAH build
     // (this runs every round); the distances come from the same
-    // point-to-triangle code either way.
-    let caster = crate::raycast::make_raycaster(crate::raycast::RayBackend::Embree, &tm)?;
+    // point-to-triangle code either way. Points only: the cheaper build
+    // (`make_point_caster`, same answers).
+    let caster = crate::raycast::make_point_caster(&tm)?;
     let stride = mesh.positions.len().div_ceil(20_000).max(1);
     let pts: Vec<DVec3> = mesh.positions.iter().step_by(stride).copied().collect();
     let hits = caster.closest_points(&pts, f64::INFINITY)?;

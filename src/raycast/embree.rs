@@ -25,6 +25,33 @@ use crate::DVec3;
 const CHUNK: usize = 1024;
 const MISS: u32 = u32::MAX;
 
+/// Embree's build quality (`RTCBuildQuality`): high builds a tree with
+/// spatial splits (slower to build, faster rays), medium and low without.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum BuildQuality {
+    Low = 0,
+    Medium = 1,
+    High = 2,
+}
+
+/// The build quality of scenes queried only for closest points
+/// ([`EmbreeCaster::for_points`]): `SUBDFIT_EMBREE_POINT_BUILD` (`low`,
+/// `medium`, `high`), else [`POINT_BUILD_QUALITY`].
+pub fn point_build_quality() -> BuildQuality {
+    match crate::switches::text("SUBDFIT_EMBREE_POINT_BUILD").as_deref() {
+        Some("low") => BuildQuality::Low,
+        Some("medium") => BuildQuality::Medium,
+        Some("high") => BuildQuality::High,
+        _ => POINT_BUILD_QUALITY,
+    }
+}
+
+/// The default of [`point_build_quality`]: low (Embree's Morton
+/// builder). `subdfit metrics` on bunny rung 1 (278k triangles), five
+/// alternating runs each: 7.12 CPU s at low, 7.65 at medium, 7.67 at high,
+/// the same JSON (docs/status.md, "Scale", session 23).
+pub const POINT_BUILD_QUALITY: BuildQuality = BuildQuality::Low;
+
 pub struct EmbreeCaster {
     scene: UniquePtr<bridge::EmbreeScene>,
     /// Subtracted from every position sent to Embree.
@@ -41,9 +68,27 @@ fn backend_err(e: cxx::Exception) -> Error {
 }
 
 impl EmbreeCaster {
-    /// Builds the Embree scene over `mesh`. Errors: invalid mesh (see
-    /// [`surface_triangles`]) or an Embree device error.
+    /// Builds the Embree scene over `mesh` (high build quality). Errors:
+    /// invalid mesh (see [`surface_triangles`]) or an Embree device error.
     pub fn new(mesh: &TriMesh) -> Result<Self> {
+        Self::with_quality(mesh, BuildQuality::High)
+    }
+
+    /// [`Self::new`] for a scene asked only for closest points
+    /// ([`RayCaster::closest_points`] and `_within`), built at
+    /// [`point_build_quality`]. A point query keeps the least (distance,
+    /// triangle id) over every triangle within a radius that only shrinks
+    /// to a conservative bound of the best distance so far (the bridge's
+    /// `point_query_callback`), so every tree gives the same answers, bit
+    /// for bit; only the build's and the traversal's costs differ. Rays
+    /// (a nearest hit among triangles at equal `t`) are not covered by
+    /// that argument: use [`Self::new`] for them.
+    pub fn for_points(mesh: &TriMesh) -> Result<Self> {
+        Self::with_quality(mesh, point_build_quality())
+    }
+
+    /// [`Self::new`] at Embree build quality `quality`.
+    pub fn with_quality(mesh: &TriMesh, quality: BuildQuality) -> Result<Self> {
         let prim_to_tri = surface_triangles(mesh)?;
         let (lo, hi) = mesh.bbox();
         let center = 0.5 * (lo + hi);
@@ -57,7 +102,8 @@ impl EmbreeCaster {
             .iter()
             .flat_map(|&t| mesh.triangles[t as usize])
             .collect();
-        let scene = bridge::new_scene(&vertices, &tris, &positions_f64).map_err(backend_err)?;
+        let scene = bridge::new_scene(&vertices, &tris, &positions_f64, quality as u8)
+            .map_err(backend_err)?;
         Ok(EmbreeCaster {
             scene,
             center,

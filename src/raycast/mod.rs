@@ -313,6 +313,14 @@ pub fn make_raycaster(backend: RayBackend, mesh: &TriMesh) -> Result<Box<dyn Ray
     })
 }
 
+/// An Embree caster over `mesh` for closest-point queries only
+/// ([`embree::EmbreeCaster::for_points`]: a cheaper build, the same
+/// answers bit for bit). Its rays are those of another tree than
+/// [`make_raycaster`]'s: ask it for none.
+pub fn make_point_caster(mesh: &TriMesh) -> Result<Box<dyn RayCaster>> {
+    Ok(Box::new(embree::EmbreeCaster::for_points(mesh)?))
+}
+
 /// Name used for in-memory meshes in [`Error::InvalidMesh`].
 const MESH_NAME: &str = "<ray caster mesh>";
 

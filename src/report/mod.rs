@@ -87,8 +87,8 @@ use crate::error::{Error, Result};
 use crate::fit::Progress;
 use crate::mesh::{ControlMesh, TriMesh};
 use crate::project::default_max_dist;
+use crate::raycast::RayCaster;
 use crate::raycast::Watched;
-use crate::raycast::{make_raycaster, RayBackend, RayCaster};
 use crate::subdiv::{make_evaluator, Backend, EvalOptions};
 use crate::DVec3;
 
@@ -391,7 +391,9 @@ fn limit_surface(
         positions: limit_pts.iter().map(|p| p.position).collect(),
         triangles: grid.triangles(),
     };
-    let limit_caster = make_raycaster(RayBackend::Embree, &limit)?;
+    // Asked for closest points only (M → L, `nearest_limit_locations`):
+    // the cheaper build, same answers (`make_point_caster`).
+    let limit_caster = crate::raycast::make_point_caster(&limit)?;
     Ok((grid, limit_caster, limit))
 }
 
@@ -714,7 +716,8 @@ fn displaced_side(
         None => {
             let displaced = displaced_mesh(&displacement, host.as_ref());
             crate::watch::memtrace("D mesh built");
-            let caster = make_raycaster(RayBackend::Embree, &displaced)?;
+            // Closest points only (M → D below): the cheaper build.
+            let caster = crate::raycast::make_point_caster(&displaced)?;
             (displaced, caster)
         }
     };
