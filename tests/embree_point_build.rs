@@ -88,7 +88,7 @@ fn every_build_quality_gives_the_same_closest_points_bit_for_bit() {
             .enumerate()
             .map(|(t, _)| {
                 let [a, b, cc] = mesh.triangle(t);
-                closest_distance(*p, a, b, cc)
+                common::point_triangle_distance(*p, a, b, cc)
             })
             .fold(f64::INFINITY, f64::min);
         assert!(
@@ -139,28 +139,4 @@ fn every_build_quality_gives_the_same_closest_points_bit_for_bit() {
     let points = EmbreeCaster::for_points(&mesh).unwrap();
     let got = points.closest_points(&pts, f64::INFINITY).unwrap();
     assert!(want.iter().zip(&got).all(|(a, b)| bits(a) == bits(b)));
-}
-
-/// Distance from `p` to triangle (a, b, c), by projecting onto the plane
-/// and else onto the three edges (independent of the casters' code).
-fn closest_distance(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> f64 {
-    let n = (b - a).cross(c - a);
-    let seg = |x: DVec3, y: DVec3| {
-        let d = y - x;
-        let s = ((p - x).dot(d) / d.length_squared()).clamp(0.0, 1.0);
-        (p - (x + s * d)).length()
-    };
-    let edges = seg(a, b).min(seg(b, c)).min(seg(c, a));
-    if n.length_squared() == 0.0 {
-        return edges;
-    }
-    let q = p - n * ((p - a).dot(n) / n.length_squared());
-    let inside = [(a, b), (b, c), (c, a)]
-        .iter()
-        .all(|&(x, y)| (y - x).cross(q - x).dot(n) >= 0.0);
-    if inside {
-        (p - q).length()
-    } else {
-        edges
-    }
 }

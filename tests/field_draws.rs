@@ -370,10 +370,7 @@ fn draws_and_main_on_one_sizing_are_the_layouts_laid_apart() {
     let mut main_opts = opts.clone();
     main_opts.cleanup_guarded = Some(false);
     let k = 3;
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .unwrap();
+    let pool = common::one_thread_pool();
     pool.install(|| {
         let prep = Prepared::new(&m, &opts).unwrap();
         let drawn_apart = field_layout_drawn(&prep, &m, &fm, &opts, k, score(2.0, 0.45)).unwrap();
@@ -432,10 +429,7 @@ fn main_finished_from_the_guarded_draw_0s_count_passes_is_main_laid_apart() {
         ),
         ("thin torus", torus(2.0, 0.45, 120, 30), 0.3, 400),
     ];
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .unwrap();
+    let pool = common::one_thread_pool();
     let bits = |l: &FieldLayout| -> Vec<[u64; 3]> {
         l.control
             .positions()
@@ -534,10 +528,7 @@ fn lean_draws_are_the_full_draws_at_their_scales() {
     opts.cleanup_guarded = Some(true);
     let mut main_opts = opts.clone();
     main_opts.cleanup_guarded = Some(false);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
-        .build()
-        .unwrap();
+    let pool = common::one_thread_pool();
     pool.install(|| {
         let prep = Prepared::new(&m, &opts).unwrap();
         let (lean, main) = field_layout_drawn_at_with_main(

@@ -429,7 +429,8 @@ fn run_differential(label: &str, mesh: &TriMesh, n_rays: usize) {
             let reference = (0..mesh.triangles.len())
                 .filter_map(|t| {
                     let [a, b, c] = mesh.triangle(t);
-                    ((b - a).cross(c - a) != DVec3::ZERO).then(|| seg_or_face_dist(p, a, b, c))
+                    ((b - a).cross(c - a) != DVec3::ZERO)
+                        .then(|| common::point_triangle_distance(p, a, b, c))
                 })
                 .fold(f64::INFINITY, f64::min);
             for c in [&ca[i], &cb[i]] {
@@ -445,23 +446,6 @@ fn run_differential(label: &str, mesh: &TriMesh, n_rays: usize) {
                 }
             }
         }
-    }
-}
-
-/// Point-triangle distance by projection onto the plane or the edges (a
-/// different method from Ericson's, for the brute-force reference).
-fn seg_or_face_dist(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> f64 {
-    let n = (b - a).cross(c - a).normalize();
-    let q = p - n * n.dot(p - a);
-    let inside = [(a, b), (b, c), (c, a)]
-        .iter()
-        .all(|&(x, y)| (y - x).cross(q - x).dot(n) >= 0.0);
-    if inside {
-        (p - q).length()
-    } else {
-        seg_dist(p, a, b)
-            .min(seg_dist(p, b, c))
-            .min(seg_dist(p, c, a))
     }
 }
 

@@ -259,3 +259,36 @@ pub fn flat_fitmap(n: usize) -> Fitmap {
         stats: Default::default(),
     }
 }
+
+/// Distance from `p` to triangle (a, b, c), by projecting onto the plane
+/// and else onto the three edges (a method independent of the casters'
+/// code, for brute-force references; a degenerate triangle is its edges).
+pub fn point_triangle_distance(p: DVec3, a: DVec3, b: DVec3, c: DVec3) -> f64 {
+    let n = (b - a).cross(c - a);
+    let seg = |x: DVec3, y: DVec3| {
+        let d = y - x;
+        let s = ((p - x).dot(d) / d.length_squared()).clamp(0.0, 1.0);
+        (p - (x + s * d)).length()
+    };
+    let edges = seg(a, b).min(seg(b, c)).min(seg(c, a));
+    if n.length_squared() == 0.0 {
+        return edges;
+    }
+    let q = p - n * ((p - a).dot(n) / n.length_squared());
+    let inside = [(a, b), (b, c), (c, a)]
+        .iter()
+        .all(|&(x, y)| (y - x).cross(q - x).dot(n) >= 0.0);
+    if inside {
+        (p - q).length()
+    } else {
+        edges
+    }
+}
+
+/// A rayon pool of one thread: what the thread-count tests compare against.
+pub fn one_thread_pool() -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+}

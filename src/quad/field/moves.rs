@@ -475,6 +475,19 @@ impl Tess {
         }
     }
 
+    /// The patch whose bounding sphere's centre is nearest to `p` (the
+    /// lower index on a tie; 0 when there is none): the first patch
+    /// [`Self::closest_foot`] visits.
+    fn nearest_centre(&self, p: DVec3) -> usize {
+        (0..self.patches.len())
+            .min_by(|&a, &b| {
+                let da = (p - self.patches[a].0).length_squared();
+                let db = (p - self.patches[b].0).length_squared();
+                da.total_cmp(&db).then(a.cmp(&b))
+            })
+            .unwrap_or(0)
+    }
+
     /// The closest point's squared distance and its patch: the patch with
     /// the nearest centre first, then every patch whose bounding sphere
     /// comes closer than the best so far, in patch order; within a patch,
@@ -490,13 +503,7 @@ impl Tess {
         if self.patches.is_empty() {
             return best;
         }
-        let first = (0..self.patches.len())
-            .min_by(|&a, &b| {
-                let da = (p - self.patches[a].0).length_squared();
-                let db = (p - self.patches[b].0).length_squared();
-                da.total_cmp(&db).then(a.cmp(&b))
-            })
-            .unwrap_or(0);
+        let first = self.nearest_centre(p);
         // The query's own coordinates round too.
         let slack = self.slack.max(SLACK_ULPS * p.abs().max_element());
         // A box farther than this (squared) holds no triangle whose
@@ -542,13 +549,7 @@ impl Tess {
             .iter()
             .map(|&(c, r, _)| ((p - c).length() - r).max(0.0))
             .collect();
-        let first = (0..self.patches.len())
-            .min_by(|&a, &b| {
-                let da = (p - self.patches[a].0).length_squared();
-                let db = (p - self.patches[b].0).length_squared();
-                da.total_cmp(&db).then(a.cmp(&b))
-            })
-            .unwrap_or(0);
+        let first = self.nearest_centre(p);
         let mut best = (f64::INFINITY, usize::MAX, p, DVec3::ZERO);
         let visit = |i: usize, best: &mut (f64, usize, DVec3, DVec3)| {
             for t in &self.tris[i * Self::PER_PATCH..(i + 1) * Self::PER_PATCH] {
