@@ -312,8 +312,7 @@ impl Source {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::convert::faces_proj::tests::grid;
-    use crate::convert::field::PatchError;
+    use crate::convert::faces_proj::tests::{grid, measured};
 
     /// On a 12 × 12 grid with one unprojectable spot in face (5, 5) (off
     /// its centre): a local round moves vertices only within the rings of
@@ -330,26 +329,13 @@ mod tests {
         let c = grid(n);
         let spot_face = 5 + 5 * n as u32;
         let center = DVec3::new(5.4, 5.6, 0.0);
-        let per_patch = (0..(n * n) as u32)
-            .map(|f| PatchError {
-                face: f,
-                area: 1.0,
-                unprojectable: if f == spot_face { 0.5 } else { 0.0 },
-                unprojectable_at: if f == spot_face {
-                    0.5 * center
-                } else {
-                    DVec3::ZERO
-                },
-                vertices: vec![f],
-                ..Default::default()
-            })
-            .collect();
-        let m = Measured {
-            per_patch,
-            rms: 0.0,
-            unprojectable_percent: 0.5 / (n * n) as f64 * 100.0,
-            thin_percent: 0.0,
-        };
+        let m = measured((n * n) as u32, 0.5 / (n * n) as f64 * 100.0, |f| {
+            if f == spot_face {
+                (0.5, 0.5 * center)
+            } else {
+                (0.0, DVec3::ZERO)
+            }
+        });
         let s = spots(&c, &m);
         assert_eq!(s.len(), 1);
         assert!((s[0].center - center).length() < 1e-12);
@@ -400,25 +386,10 @@ mod tests {
     fn spots_group_patches_sharing_a_vertex() {
         let c = grid(6);
         let bad = [0u32, 7, 35];
-        let per_patch = (0..36u32)
-            .map(|f| {
-                let u = if bad.contains(&f) { 1.0 } else { 0.0 };
-                PatchError {
-                    face: f,
-                    area: 1.0,
-                    unprojectable: u,
-                    unprojectable_at: u * DVec3::new(f as f64, 0.0, 0.0),
-                    vertices: vec![f],
-                    ..Default::default()
-                }
-            })
-            .collect();
-        let m = Measured {
-            per_patch,
-            rms: 0.0,
-            unprojectable_percent: 1.0,
-            thin_percent: 0.0,
-        };
+        let m = measured(36, 1.0, |f| {
+            let u = if bad.contains(&f) { 1.0 } else { 0.0 };
+            (u, u * DVec3::new(f as f64, 0.0, 0.0))
+        });
         let mut s = spots(&c, &m);
         s.sort_by_key(|s| s.faces.len());
         assert_eq!(s.len(), 2);

@@ -385,28 +385,44 @@ pub(super) mod tests {
         ControlMesh::from_polygons(positions, &faces).unwrap()
     }
 
+    /// What the rounds measured on a grid of `faces` unit patches, face f
+    /// with one vertex of M′ (its own index) and the unprojectable area and
+    /// centroid `bad(f)`; `percent` of M′ unprojectable in all.
+    pub(in crate::convert) fn measured(
+        faces: u32,
+        percent: f64,
+        bad: impl Fn(u32) -> (f64, DVec3),
+    ) -> Measured {
+        let per_patch = (0..faces)
+            .map(|f| {
+                let (unprojectable, unprojectable_at) = bad(f);
+                PatchError {
+                    face: f,
+                    area: 1.0,
+                    unprojectable,
+                    unprojectable_at,
+                    vertices: vec![f],
+                    ..Default::default()
+                }
+            })
+            .collect();
+        Measured {
+            per_patch,
+            rms: 0.0,
+            unprojectable_percent: percent,
+            thin_percent: 0.0,
+        }
+    }
+
     /// On a 4 × 4 grid with face 0 (a corner) unprojectable and one
     /// vertex of M′ per face: that face's vertex gets f, the three faces
     /// sharing a vertex with it √f, the twelve others 1.
     #[test]
     fn marks_lower_the_unprojectable_patch_and_its_ring() {
         let c = grid(4);
-        let per_patch = (0..16u32)
-            .map(|f| PatchError {
-                face: f,
-                rms: 0.0,
-                area: 1.0,
-                unprojectable: if f == 0 { 0.5 } else { 0.0 },
-                vertices: vec![f],
-                ..Default::default()
-            })
-            .collect();
-        let m = Measured {
-            per_patch,
-            rms: 0.0,
-            unprojectable_percent: 0.5 / 16.0 * 100.0,
-            thin_percent: 0.0,
-        };
+        let m = measured(16, 0.5 / 16.0 * 100.0, |f| {
+            (if f == 0 { 0.5 } else { 0.0 }, DVec3::ZERO)
+        });
         let (factor, bad) = marks(&c, &m, 16, 0.64);
         assert_eq!(bad, 1);
         // Face (i, j) is i + 4 j: the ring of face 0 is faces 1, 4 and 5.

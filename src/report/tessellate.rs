@@ -428,6 +428,7 @@ mod tests {
         assert_eq!(max1.to_bits(), max_all.to_bits());
         assert_eq!(rms1.to_bits(), rms_all.to_bits());
     }
+
     /// The tessellations from a [`Density`] made beforehand are
     /// [`tessellate`]'s, bit for bit, whether the density kept its uniform
     /// grid or [`tessellate_at`] evaluates it again: a displacement of
