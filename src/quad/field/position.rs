@@ -128,16 +128,22 @@ fn compat_at(
 ) -> (DVec3, DVec3, [i64; 2], [i64; 2]) {
     let floor = |o: DVec3, q: DVec3, t: DVec3, s: f64| {
         let d = m - o;
-        [(q.dot(d) / s).floor() as i64, (t.dot(d) / s).floor() as i64]
+        [floor_i64(q.dot(d) / s), floor_i64(t.dot(d) / s)]
     };
     let (b0, b1) = (floor(o0, q0, t0, s0), floor(o1, q1, t1, s1));
+    // Each side's four cell corners once (the same expressions as
+    // evaluated per pair before: the same bits), then the 16 pairs in
+    // the same order, so the same first-found least distance.
+    let corners = |b: [i64; 2], o: DVec3, q: DVec3, t: DVec3, s: f64| {
+        std::array::from_fn::<_, 4, _>(|k| {
+            let c = [b[0] + (k as i64 & 1), b[1] + (k as i64 >> 1)];
+            (c, o + s * (c[0] as f64 * q + c[1] as f64 * t))
+        })
+    };
+    let (x0s, x1s) = (corners(b0, o0, q0, t0, s0), corners(b1, o1, q1, t1, s1));
     let mut best = (f64::INFINITY, DVec3::ZERO, DVec3::ZERO, b0, b1);
-    for k0 in 0..4 {
-        let c0 = [b0[0] + (k0 & 1), b0[1] + (k0 >> 1)];
-        let x0 = o0 + s0 * (c0[0] as f64 * q0 + c0[1] as f64 * t0);
-        for k1 in 0..4 {
-            let c1 = [b1[0] + (k1 & 1), b1[1] + (k1 >> 1)];
-            let x1 = o1 + s1 * (c1[0] as f64 * q1 + c1[1] as f64 * t1);
+    for &(c0, x0) in &x0s {
+        for &(c1, x1) in &x1s {
             let d = (x0 - x1).length_squared();
             if d < best.0 {
                 best = (d, x0, x1, c0, c1);
@@ -145,6 +151,24 @@ fn compat_at(
         }
     }
     (best.1, best.2, best.3, best.4)
+}
+
+/// `x.floor() as i64` without the call: the default x86-64 target has
+/// no rounding instruction (SSE4.1), so `f64::floor` is a libm call, and
+/// the position field's cell search floors four times per edge and sweep
+/// (issue 40's speed point, session 24: ~1.7 % of gargoyle 402's CPU
+/// under `SUBDFIT_FIELD_BEST=lean`, docs/status.md). The truncation
+/// `x as i64` is exact for |x| < 2⁶³ and rounds toward zero, so one less
+/// where it lies above `x`; NaN gives 0 and values beyond the range
+/// saturate, as the cast of `floor` does (`tests::floor_i64_is_floor`).
+#[inline]
+pub(super) fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x {
+        t.saturating_sub(1)
+    } else {
+        t
+    }
 }
 
 /// The lattice point of (o, q, n, s) nearest `p` (§5.2's rounding).
@@ -341,4 +365,125 @@ fn coarsen(l: &Level) -> (Vec<u32>, Level) {
     }
     c.nbr = pairs.iter().map(|&(_, b)| b).collect();
     (parent, c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic values in `[-s, s]` (a 64-bit LCG).
+    fn values(n: usize, s: f64, mut x: u64) -> Vec<f64> {
+        (0..n)
+            .map(|_| {
+                x = x
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) * s
+            })
+            .collect()
+    }
+
+    /// [`floor_i64`] is `floor` then the saturating cast, for every kind
+    /// of value: integers and their neighbours one ulp away, halves,
+    /// signed zeros, the ends of the i64 range and beyond, infinities,
+    /// NaN, and scattered values at several magnitudes.
+    #[test]
+    fn floor_i64_is_floor() {
+        let mut xs = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            i64::MAX as f64,
+            i64::MIN as f64,
+            1e300,
+            -1e300,
+            (1u64 << 52) as f64 + 0.5,
+            -((1u64 << 52) as f64) - 0.5,
+            f64::MIN_POSITIVE,
+            -f64::MIN_POSITIVE,
+        ];
+        for k in -40i64..=40 {
+            let x = k as f64;
+            xs.extend([x, x.next_up(), x.next_down(), x + 0.5]);
+        }
+        for s in [1.0, 1e3, 1e9, 1e17, 1e20] {
+            xs.extend(values(2000, s, 7));
+        }
+        for x in xs {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x:e}");
+        }
+    }
+
+    /// The cell search as it was before issue 40's session 24 cut (each
+    /// pair's corners evaluated inside the loop, `f64::floor`).
+    fn compat_at_reference(
+        m: DVec3,
+        [q0, t0, o0]: [DVec3; 3],
+        [q1, t1, o1]: [DVec3; 3],
+        [s0, s1]: [f64; 2],
+    ) -> (DVec3, DVec3, [i64; 2], [i64; 2]) {
+        let floor = |o: DVec3, q: DVec3, t: DVec3, s: f64| {
+            let d = m - o;
+            [(q.dot(d) / s).floor() as i64, (t.dot(d) / s).floor() as i64]
+        };
+        let (b0, b1) = (floor(o0, q0, t0, s0), floor(o1, q1, t1, s1));
+        let mut best = (f64::INFINITY, DVec3::ZERO, DVec3::ZERO, b0, b1);
+        for k0 in 0..4 {
+            let c0 = [b0[0] + (k0 & 1), b0[1] + (k0 >> 1)];
+            let x0 = o0 + s0 * (c0[0] as f64 * q0 + c0[1] as f64 * t0);
+            for k1 in 0..4 {
+                let c1 = [b1[0] + (k1 & 1), b1[1] + (k1 >> 1)];
+                let x1 = o1 + s1 * (c1[0] as f64 * q1 + c1[1] as f64 * t1);
+                let d = (x0 - x1).length_squared();
+                if d < best.0 {
+                    best = (d, x0, x1, c0, c1);
+                }
+            }
+        }
+        (best.1, best.2, best.3, best.4)
+    }
+
+    /// The cell search gives the reference's pair bit for bit: for
+    /// scattered edges with unit or arbitrary arms (ties between equally
+    /// near pairs go to the first, both ways), at spacings from far below
+    /// to far above the edge length, and with the lattice origins on cell
+    /// corners (where the floors sit on integers).
+    #[test]
+    fn compat_at_matches_the_per_pair_search() {
+        let v = values(9 * 4000, 2.0, 11);
+        let bits = |x: DVec3| x.to_array().map(f64::to_bits);
+        let mut distinct = std::collections::HashSet::new();
+        for (i, w) in v.chunks(9).enumerate() {
+            let p = |k: usize| DVec3::new(w[k], w[k + 1], w[k + 2]);
+            let (n0, n1) = (p(0).normalize_or(DVec3::Z), p(3).normalize_or(DVec3::X));
+            let q0 = n0.any_orthonormal_vector();
+            let q1 = if i % 3 == 0 {
+                q0
+            } else {
+                n1.any_orthonormal_vector()
+            };
+            let (t0, t1) = (n0.cross(q0), n1.cross(q1));
+            let m = p(6);
+            let s = [0.01, 0.3, 1.0, 7.0][i % 4];
+            let (o0, o1) = if i % 5 == 0 {
+                (m + s * q0, m - 2.0 * s * t1)
+            } else {
+                (p(3) * 0.5, p(0) * 0.25)
+            };
+            let ss = if i % 7 == 0 { [s, 1.5 * s] } else { [s, s] };
+            let a = compat_at(m, [q0, t0, o0], [q1, t1, o1], ss);
+            let b = compat_at_reference(m, [q0, t0, o0], [q1, t1, o1], ss);
+            assert_eq!(
+                (bits(a.0), bits(a.1), a.2, a.3),
+                (bits(b.0), bits(b.1), b.2, b.3)
+            );
+            distinct.insert((a.2, a.3));
+        }
+        // Not one cell for every query: the search does move.
+        assert!(distinct.len() > 100, "{}", distinct.len());
+    }
 }
