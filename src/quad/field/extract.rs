@@ -239,10 +239,13 @@ fn lattice_graph(
     let (mut offsets, real) = super::flow::edge_offsets(s, dirs, o, scale);
     let mut flips = super::flip::FlipReport::default();
     if repair {
-        let report = super::flow::repair_offsets(s, dirs, &mut offsets, &real);
+        // The triangles' frames once for both (they depend on the cross
+        // field only).
+        let (sides, singular) = super::flow::triangle_sides(s, dirs);
+        let report = super::flow::repair_offsets_on(s, &sides, &singular, &mut offsets, &real);
         // The flow zeroes the sums but may fold the lattice (QuadriFlow
         // §5.3): folds removed by curl-free moves before extraction.
-        flips = super::flip::remove_flips(s, dirs, &mut offsets, &real);
+        flips = super::flip::remove_flips_on(s, dirs, &sides, &singular, &mut offsets, &real);
         if crate::switches::set("FIELD_DEBUG") {
             eprintln!("integer flow: {report:?}");
             eprintln!("flip removal: {flips:?}");

@@ -69,7 +69,20 @@ pub fn remove_flips(
     real: &[[f64; 2]],
 ) -> FlipReport {
     let (sides, singular) = triangle_sides(s, dirs);
-    let net = Net::new(s, dirs, &sides, &singular);
+    remove_flips_on(s, dirs, &sides, &singular, offsets, real)
+}
+
+/// [`remove_flips`] on [`triangle_sides`]' result for `s` and `dirs`
+/// (the offset repair's, [`super::flow::repair_offsets_on`]).
+pub(super) fn remove_flips_on(
+    s: &Surface,
+    dirs: &[DVec3],
+    sides: &[[Side; 3]],
+    singular: &[bool],
+    offsets: &mut [[i64; 2]],
+    real: &[[f64; 2]],
+) -> FlipReport {
+    let net = Net::new(s, dirs, sides, singular);
     let mut report = FlipReport::default();
     let count = |offsets: &[[i64; 2]]| {
         let (mut folded, mut collinear) = (0, 0);

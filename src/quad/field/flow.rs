@@ -141,27 +141,41 @@ pub fn repair_offsets(
     real: &[[f64; 2]],
 ) -> FlowReport {
     let (sides, singular) = triangle_sides(s, dirs);
+    repair_offsets_on(s, &sides, &singular, offsets, real)
+}
+
+/// [`repair_offsets`] on the triangles' sides and singular flags from
+/// [`triangle_sides`] (of the same `s` and cross field), which the flip
+/// removal after it reads too: computed once per lattice (issue 40's
+/// speed point, session 24).
+pub(super) fn repair_offsets_on(
+    s: &Surface,
+    sides: &[[Side; 3]],
+    singular: &[bool],
+    offsets: &mut [[i64; 2]],
+    real: &[[f64; 2]],
+) -> FlowReport {
     let mut report = FlowReport::default();
     let before = offsets.to_vec();
     // A singular triangle's corners on one lattice point (QuadriFlow's
     // treatment of singularities): its offsets are 0 and stay 0; the
     // flow then repairs the triangles around it.
-    for (side, &sg) in sides.iter().zip(&singular) {
+    for (side, &sg) in sides.iter().zip(singular) {
         if sg {
             for sd in side {
                 offsets[sd.edge as usize] = [0, 0];
             }
         }
     }
-    let sums = equation_sums(&sides, &singular, offsets);
+    let sums = equation_sums(sides, singular, offsets);
     report.violated_before = sums.iter().filter(|&&x| x != 0).count();
     report.supply = sums.iter().filter(|&&x| x > 0).sum();
-    let arcs = arcs(s, &sides, &singular);
+    let arcs = arcs(s, sides, singular);
     if report.supply > 0 {
         report.moved += min_cost_flow(&sums, &arcs, offsets, real);
     }
     for bound in BOUND.0..=BOUND.1 {
-        let sums = equation_sums(&sides, &singular, offsets);
+        let sums = equation_sums(sides, singular, offsets);
         let supply: i64 = sums.iter().filter(|&&x| x > 0).sum();
         if supply == 0 {
             break;
@@ -172,7 +186,7 @@ pub fn repair_offsets(
             break;
         }
     }
-    let sums = equation_sums(&sides, &singular, offsets);
+    let sums = equation_sums(sides, singular, offsets);
     report.violated_after = sums.iter().filter(|&&x| x != 0).count();
     report.changed = before
         .iter()
@@ -440,7 +454,8 @@ pub const RESTARTED_SEARCH: &str = "SUBDFIT_FLOW_RESTARTED";
 fn min_cost_flow(sums: &[i64], arcs: &[Arc], offsets: &mut [[i64; 2]], real: &[[f64; 2]]) -> i64 {
     let n = sums.len();
     let (source, sink) = (n, n + 1);
-    let mut g = MinCostFlow::new(n + 2);
+    let ends = sums.iter().filter(|&&x| x != 0).count();
+    let mut g = MinCostFlow::with_arcs(n + 2, 2 * arcs.len() + ends);
     let ids: Vec<(usize, usize)> = arcs
         .iter()
         .map(|a| {
@@ -505,6 +520,20 @@ impl MinCostFlow {
             cap: Vec::new(),
             cost: Vec::new(),
             initial: Vec::new(),
+        }
+    }
+
+    /// [`Self::new`] with room for `arcs` calls of [`Self::add`] (the
+    /// arrays are not grown and copied while the network is built).
+    pub fn with_arcs(nodes: usize, arcs: usize) -> Self {
+        let m = 2 * arcs;
+        MinCostFlow {
+            head: vec![NONE; nodes],
+            next: Vec::with_capacity(m),
+            to: Vec::with_capacity(m),
+            cap: Vec::with_capacity(m),
+            cost: Vec::with_capacity(m),
+            initial: Vec::with_capacity(m),
         }
     }
 
@@ -886,22 +915,36 @@ impl MinCostFlow {
     /// The arcs grouped by tail node in list order: `(start, arcs, id)`
     /// with node u's arcs at `arcs[start[u]..start[u + 1]]` and `id[k]`
     /// the arc id of `arcs[k]`.
+    ///
+    /// A node's list holds its arcs newest first (each [`Self::add`]
+    /// puts its arc at the head), so its list order is its arcs' ids
+    /// descending: the layout is a counting sort of the arcs by tail, the
+    /// ids taken from the last, instead of a walk of every list (a chase
+    /// of `next` through memory; issue 40's speed point, session 24: the
+    /// walk and its first touch of the arrays were ~1 % of gargoyle 402's
+    /// CPU under `SUBDFIT_FIELD_BEST=lean`). The same slots
+    /// (`tests::counting_sort_layout_is_the_list_walk`).
     fn compact(&self) -> (Vec<u32>, Vec<CsrArc>, Vec<u32>) {
         let n = self.head.len();
         let m = self.to.len();
+        // Arc a runs from its reverse's head: a ^ 1 is its reverse.
+        let tail = |a: usize| self.to[a ^ 1] as usize;
         let mut start = vec![0u32; n + 1];
-        let mut order: Vec<u32> = Vec::with_capacity(m);
-        for u in 0..n {
-            let mut a = self.head[u];
-            while a != NONE {
-                order.push(a);
-                a = self.next[a as usize];
-            }
-            start[u + 1] = order.len() as u32;
+        for a in 0..m {
+            start[tail(a) + 1] += 1;
         }
+        for u in 0..n {
+            start[u + 1] += start[u];
+        }
+        let mut fill = start[..n].to_vec();
+        let mut order = vec![0u32; m];
         let mut slot = vec![0u32; m];
-        for (k, &a) in order.iter().enumerate() {
-            slot[a as usize] = k as u32;
+        for a in (0..m).rev() {
+            let u = tail(a);
+            let k = fill[u];
+            fill[u] += 1;
+            order[k as usize] = a as u32;
+            slot[a] = k;
         }
         let arcs = order
             .iter()
@@ -937,19 +980,37 @@ struct KeptStats {
 /// relaxation rule (the first arc in list order that lowers a key), so the
 /// same settle order and the same path.
 struct Restarted {
-    dist: Vec<i64>,
-    via: Vec<u32>,
-    done: Vec<bool>,
+    /// Per node its key, the arc it was reached by and whether it is
+    /// settled, side by side (a relaxation reads all three of the arc's
+    /// head; issue 40's speed point, session 24, docs/status.md).
+    state: Vec<RestartedNode>,
     touched: Vec<usize>,
+    /// The heap, kept between calls for its allocation (empty between).
+    heap: std::collections::BinaryHeap<std::cmp::Reverse<(i64, usize)>>,
+}
+
+/// A node of [`Restarted`]'s search.
+#[derive(Clone, Copy)]
+struct RestartedNode {
+    dist: i64,
+    via: u32,
+    done: bool,
+}
+
+impl RestartedNode {
+    const UNSEEN: RestartedNode = RestartedNode {
+        dist: i64::MAX,
+        via: NONE,
+        done: false,
+    };
 }
 
 impl Restarted {
     fn new(n: usize) -> Self {
         Restarted {
-            dist: vec![i64::MAX; n],
-            via: vec![NONE; n],
-            done: vec![false; n],
+            state: vec![RestartedNode::UNSEEN; n],
             touched: Vec::new(),
+            heap: std::collections::BinaryHeap::new(),
         }
     }
 
@@ -968,25 +1029,25 @@ impl Restarted {
         path: &mut Vec<u32>,
     ) {
         use std::cmp::Reverse;
-        use std::collections::BinaryHeap;
         let pot = |v: usize| {
             let nv = &node[v];
             nv.base + if nv.done { nv.dist.min(last) } else { last }
         };
+        let state = &mut self.state;
         for &v in &self.touched {
-            self.dist[v] = i64::MAX;
-            self.via[v] = NONE;
-            self.done[v] = false;
+            state[v] = RestartedNode::UNSEEN;
         }
         self.touched.clear();
-        self.dist[s] = 0;
+        state[s].dist = 0;
         self.touched.push(s);
-        let mut heap = BinaryHeap::from([Reverse((0i64, s))]);
+        let heap = &mut self.heap;
+        heap.clear();
+        heap.push(Reverse((0i64, s)));
         while let Some(Reverse((d, u))) = heap.pop() {
-            if self.done[u] || d > self.dist[u] {
+            if state[u].done || d > state[u].dist {
                 continue;
             }
-            self.done[u] = true;
+            state[u].done = true;
             if u == t {
                 break;
             }
@@ -994,24 +1055,26 @@ impl Restarted {
             for k in start[u]..start[u + 1] {
                 let arc = &arcs[k as usize];
                 let v = arc.to as usize;
-                if arc.cap > 0 && !self.done[v] {
+                let sv = &mut state[v];
+                if arc.cap > 0 && !sv.done {
                     let nd = pu + arc.cost - pot(v);
-                    if nd < self.dist[v] {
-                        if self.dist[v] == i64::MAX {
+                    if nd < sv.dist {
+                        if sv.dist == i64::MAX {
                             self.touched.push(v);
                         }
-                        self.dist[v] = nd;
-                        self.via[v] = k;
+                        sv.dist = nd;
+                        sv.via = k;
                         heap.push(Reverse((nd, v)));
                     }
                 }
             }
         }
-        assert!(self.done[t], "the kept search reached the sink");
+        heap.clear();
+        assert!(state[t].done, "the kept search reached the sink");
         path.clear();
         let mut v = t;
         while v != s {
-            let k = self.via[v];
+            let k = state[v].via;
             path.push(k);
             v = arcs[arcs[k as usize].rev as usize].to as usize;
         }
@@ -1245,6 +1308,65 @@ mod tests {
         }
     }
 
+    /// The arcs grouped by tail as [`MinCostFlow::compact`] laid them out
+    /// before issue 40's session 24 cut: a walk of each node's list.
+    fn compact_by_list_walk(g: &MinCostFlow) -> (Vec<u32>, Vec<u32>) {
+        let n = g.head.len();
+        let mut start = vec![0u32; n + 1];
+        let mut order = Vec::new();
+        for u in 0..n {
+            let mut a = g.head[u];
+            while a != NONE {
+                order.push(a);
+                a = g.next[a as usize];
+            }
+            start[u + 1] = order.len() as u32;
+        }
+        (start, order)
+    }
+
+    /// The counting sort lays the arcs out as the list walk did: the same
+    /// node ranges, the same arc in every slot, each slot's reverse slot
+    /// the reverse arc's, on the grid networks (arcs added node by node)
+    /// and on networks whose arcs come in scattered order with repeated
+    /// pairs, whichever constructor built them.
+    #[test]
+    fn counting_sort_layout_is_the_list_walk() {
+        let mut next = xorshift(0x9e37_79b9_7f4a_7c15);
+        let mut nets = Vec::new();
+        for case in 0..6 {
+            let (a, _, _, _, _) = grid_networks(5 + case, 4 + case % 3, &mut next);
+            nets.push(a);
+        }
+        for case in 0..6 {
+            let n = 20 + 7 * case;
+            let m = 5 * n;
+            let mut g = if case % 2 == 0 {
+                MinCostFlow::new(n)
+            } else {
+                MinCostFlow::with_arcs(n, m)
+            };
+            for _ in 0..m {
+                let (u, v) = ((next() % n as u64) as usize, (next() % n as u64) as usize);
+                g.add(u, v, (next() % 3) as i64, (next() % 5) as i64);
+            }
+            nets.push(g);
+        }
+        for g in &nets {
+            let (start, arcs, order) = g.compact();
+            let (want_start, want_order) = compact_by_list_walk(g);
+            assert_eq!(start, want_start);
+            assert_eq!(order, want_order);
+            assert!(!order.is_empty());
+            for (k, (arc, &a)) in arcs.iter().zip(&order).enumerate() {
+                let a = a as usize;
+                assert_eq!((arc.to, arc.cost, arc.cap), (g.to[a], g.cost[a], g.cap[a]));
+                assert_eq!(order[arc.rev as usize] as usize, a ^ 1);
+                assert_eq!(arcs[arc.rev as usize].rev as usize, k);
+            }
+        }
+    }
+
     /// The compact search finds the same flow on every arc as the list
     /// search, on grids shaped like the flow's networks (unit arcs both
     /// ways between neighbouring equations, costs from a few values so
@@ -1460,5 +1582,72 @@ mod tests {
             assert_eq!(rot(rot(c, k), (4 - k) % 4), c);
         }
         assert_eq!(rot([1, 0], 1), [0, 1]);
+    }
+
+    /// A torus of `nu × nv` quads split into triangles, its tube's radius
+    /// varying around it (so the cross field and the lattice are not
+    /// uniform).
+    fn bumpy_torus(nu: usize, nv: usize) -> crate::mesh::TriMesh {
+        use std::f64::consts::TAU;
+        let mut positions = Vec::new();
+        for j in 0..nv {
+            for i in 0..nu {
+                let (u, v) = (TAU * i as f64 / nu as f64, TAU * j as f64 / nv as f64);
+                let r = 0.8 + 0.25 * (3.0 * u).sin();
+                positions.push(DVec3::new(
+                    (2.0 + r * v.cos()) * u.cos(),
+                    (2.0 + r * v.cos()) * u.sin(),
+                    r * v.sin(),
+                ));
+            }
+        }
+        let id = |i: usize, j: usize| ((j % nv) * nu + i % nu) as u32;
+        let mut triangles = Vec::new();
+        for j in 0..nv {
+            for i in 0..nu {
+                let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+                triangles.extend([[a, b, c], [a, c, d]]);
+            }
+        }
+        crate::mesh::TriMesh {
+            positions,
+            triangles,
+        }
+    }
+
+    /// The lattice's offset repair and flip removal on one computation of
+    /// the triangles' frames (issue 40's session 24 cut) give the offsets
+    /// and reports of the two separate calls, each computing its own, on
+    /// a bumpy torus's lattices at three spacings with sizes that vary
+    /// over it (the flow moves units and changes offsets there).
+    #[test]
+    fn shared_frames_repair_as_the_separate_calls() {
+        use super::super::{cross, flip, position, FieldOptions};
+        let m = bumpy_torus(48, 24);
+        let s = Surface::new(&m).unwrap();
+        let opts = FieldOptions::default();
+        let dirs = cross::cross_field(&s, &opts).unwrap();
+        let mut moved = 0;
+        for h in [0.18, 0.25, 0.4] {
+            let scale: Vec<f64> = s
+                .positions
+                .iter()
+                .map(|p| h * (1.0 + 0.6 * (0.5 + 0.5 * p.z.sin())))
+                .collect();
+            let o = position::position_field(&s, &dirs, &scale, opts.position_sweeps).unwrap();
+            let (start, real) = edge_offsets(&s, &dirs, &o, &scale);
+            let mut a = start.clone();
+            let ra = repair_offsets(&s, &dirs, &mut a, &real);
+            let fa = flip::remove_flips(&s, &dirs, &mut a, &real);
+            let mut b = start.clone();
+            let (sides, singular) = triangle_sides(&s, &dirs);
+            let rb = repair_offsets_on(&s, &sides, &singular, &mut b, &real);
+            let fb = flip::remove_flips_on(&s, &dirs, &sides, &singular, &mut b, &real);
+            assert_eq!(a, b, "h {h}");
+            assert_eq!(ra, rb, "h {h}");
+            assert_eq!(fa, fb, "h {h}");
+            moved += ra.moved;
+        }
+        assert!(moved > 0, "no lattice needed the flow");
     }
 }
