@@ -404,8 +404,11 @@ mod tests {
         assert_eq!(compress_groups(vec![rows.clone()], 1), rows);
     }
 
+    /// A row's bit patterns: entries (column, value bits), right-hand sides.
+    type RowBits = (Vec<(u32, u64)>, Vec<u64>);
+
     /// Bit patterns of rows, for exact comparisons.
-    fn bits(rows: &[Row]) -> Vec<(Vec<(u32, u64)>, Vec<u64>)> {
+    fn bits(rows: &[Row]) -> Vec<RowBits> {
         rows.iter()
             .map(|(e, b)| {
                 (

@@ -706,7 +706,12 @@ fn fit_from(
     // are the system's, so a patch whose samples all keep a target reuses
     // the last round's factor (the same rows, bit for bit). Off with
     // `SUBDFIT_FIT_FACTOR_REUSE=0` (a measurement switch).
-    let reuse = crate::switches::text("SUBDFIT_FIT_FACTOR_REUSE").is_none_or(|v| v.trim() != "0");
+    let reuse = !matches!(
+        crate::switches::text("SUBDFIT_FIT_FACTOR_REUSE")
+            .as_deref()
+            .map(str::trim),
+        Some("0")
+    );
     let cache = compress::FactorCache::default();
     let factors = reuse.then_some(&cache);
     for round in first_round..=opts.max_iterations {
@@ -1540,7 +1545,10 @@ fn grouped_samples(hits: &[Option<Projected>], face: &[u32]) -> Vec<Vec<u32>> {
             names.push(Vec::new());
             last = Some(face[i]);
         }
-        names.last_mut().expect("a name was just pushed").push(i as u32);
+        names
+            .last_mut()
+            .expect("a name was just pushed")
+            .push(i as u32);
     }
     names
 }
@@ -1591,7 +1599,14 @@ fn solve_point(
         Some(cache) => compress::compress_groups_cached(
             grouped_samples(hits, face),
             |i| entries(i as usize),
-            |i| rhs(i as usize, hits[i as usize].as_ref().expect("a grouped sample has a hit")),
+            |i| {
+                rhs(
+                    i as usize,
+                    hits[i as usize]
+                        .as_ref()
+                        .expect("a grouped sample has a hit"),
+                )
+            },
             3,
             cache,
         ),
