@@ -51,6 +51,7 @@
 //! | `SUBDFIT_LSQ_CG_TOL` | `displace::lsq` | the least squares' conjugate-gradient tolerance (default 1e-10) |
 //! | `SUBDFIT_TAIL_SAMPLES` | `report` | `N`: the least squares' M-side fitting points a stratified draw of `N` when M has more edges |
 //! | `SUBDFIT_EMBREE_POINT_BUILD` | `raycast::embree` | `low`, `medium` or `high`: Embree's build quality of the scenes asked only for closest points (D, L's tessellation, the fit's sample grids; `EmbreeCaster::for_points`, default `POINT_BUILD_QUALITY`); the same answers bit for bit at any |
+//! | `SUBDFIT_FIT_FACTOR_REUSE` | `fit` | `0`: each point-objective round factors every patch afresh instead of reusing the start's last factor of a patch with the same samples (`compress::FactorCache`; the same bytes either way, a measurement switch) |
 //! | `SUBDFIT_LSQTRACE` | `displace::lsq` | the solves on stderr |
 //! | `SUBDFIT_MEMTRACE` | `watch` | memory per stage on stderr |
 //! | `SUBDFIT_TEST_PAUSE_BEFORE_SWAP_MS` | `report::output` | a test hook: a pause before the output swap |

@@ -702,6 +702,18 @@ fn fit_from(
         (iterations, first_round) = (p.iterations, p.next_round);
     }
     let mut paused = None;
+    // The patch factors of this start's point solves: the samples' stencils
+    // are the system's, so a patch whose samples all keep a target reuses
+    // the last round's factor (the same rows, bit for bit). Off with
+    // `SUBDFIT_FIT_FACTOR_REUSE=0` (a measurement switch).
+    let reuse = !matches!(
+        crate::switches::text("SUBDFIT_FIT_FACTOR_REUSE")
+            .as_deref()
+            .map(str::trim),
+        Some("0")
+    );
+    let cache = compress::FactorCache::default();
+    let factors = reuse.then_some(&cache);
     for round in first_round..=opts.max_iterations {
         let limit = sys.stencils.apply(&positions);
         let (mut hits, stats) = project_along_normals(caster, &limit, max_dist)?;
@@ -732,7 +744,7 @@ fn fit_from(
                 }
                 let use_sdm = opts.objective == Objective::Sdm
                     || round + opts.final_sdm_rounds >= opts.max_iterations;
-                sys.solve(mesh, &limit, &targets, use_sdm, nv, opts)
+                sys.solve(mesh, &limit, &targets, use_sdm, nv, opts, factors)
                     .map(Some)
             },
         );
@@ -1111,7 +1123,9 @@ impl FitSystem {
     }
 
     /// The update δ of one round: the SDM system when `use_sdm` (and the
-    /// curvatures were built), the point-distance one otherwise.
+    /// curvatures were built), the point-distance one otherwise (its patch
+    /// factors from and into `factors`, the start's).
+    #[allow(clippy::too_many_arguments)]
     fn solve(
         &self,
         mesh: &TriMesh,
@@ -1120,12 +1134,13 @@ impl FitSystem {
         use_sdm: bool,
         nv: usize,
         opts: &FitOptions,
+        factors: Option<&compress::FactorCache>,
     ) -> Result<Vec<DVec3>> {
         let (stencils, hits, face, laplacian) =
             (&self.stencils, &targets.hits, &self.face, &self.laplacian);
         let curvatures = self.facts.curvatures.get().filter(|_| self.sdm && use_sdm);
         match curvatures {
-            None => solve_point(stencils, limit, hits, face, laplacian, nv, opts),
+            None => solve_point(stencils, limit, hits, face, laplacian, nv, opts, factors),
             Some(curv) => solve_sdm(
                 mesh,
                 &self.facts.normals,
@@ -1517,6 +1532,27 @@ fn grouped_rows(
     groups
 }
 
+/// The samples of [`grouped_rows`]' groups (in order): each group's name
+/// for [`compress::compress_groups_cached`].
+fn grouped_samples(hits: &[Option<Projected>], face: &[u32]) -> Vec<Vec<u32>> {
+    let mut names: Vec<Vec<u32>> = Vec::new();
+    let mut last = None;
+    for (i, h) in hits.iter().enumerate() {
+        if h.is_none() {
+            continue;
+        }
+        if last != Some(face[i]) {
+            names.push(Vec::new());
+            last = Some(face[i]);
+        }
+        names
+            .last_mut()
+            .expect("a name was just pushed")
+            .push(i as u32);
+    }
+    names
+}
+
 /// Stacks compressed rows into `A` and the right-hand sides.
 fn stack_rows(rows: Vec<compress::Row>, cols: usize, nrhs: usize) -> (Triplets, Vec<Vec<f64>>) {
     let mut a = Triplets::new(rows.len(), cols);
@@ -1532,6 +1568,9 @@ fn stack_rows(rows: Vec<compress::Row>, cols: usize, nrhs: usize) -> (Triplets, 
     (a, b)
 }
 
+/// The point objective's update; `factors`: the start's patch factors
+/// ([`compress::FactorCache`]), reused where a patch keeps its samples.
+#[allow(clippy::too_many_arguments)]
 fn solve_point(
     stencils: &LimitStencils,
     limit: &[crate::subdiv::LimitPoint],
@@ -1540,19 +1579,43 @@ fn solve_point(
     laplacian: &[Vec<(u32, f64)>],
     nv: usize,
     opts: &FitOptions,
+    factors: Option<&compress::FactorCache>,
 ) -> Result<Vec<DVec3>> {
     let samples = hits.iter().filter(|h| h.is_some()).count();
-    let groups = grouped_rows(hits, face, |i, h, g| {
+    // A sample's row: its limit stencil (fixed for the system, so a
+    // group's factor depends only on which samples it holds) and its
+    // residual to its target.
+    let entries = |i: usize| -> Vec<(u32, f64)> {
+        stencils
+            .row(i)
+            .map(|k| (stencils.indices[k], stencils.weights[k]))
+            .collect()
+    };
+    let rhs = |i: usize, h: &Projected| {
         let d = h.point - limit[i].position;
-        g.push((
-            stencils
-                .row(i)
-                .map(|k| (stencils.indices[k], stencils.weights[k]))
-                .collect(),
-            vec![d.x, d.y, d.z],
-        ));
-    });
-    let (a, b) = stack_rows(compress::compress_groups(groups, 3), nv, 3);
+        vec![d.x, d.y, d.z]
+    };
+    let rows = match factors {
+        Some(cache) => compress::compress_groups_cached(
+            grouped_samples(hits, face),
+            |i| entries(i as usize),
+            |i| {
+                rhs(
+                    i as usize,
+                    hits[i as usize]
+                        .as_ref()
+                        .expect("a grouped sample has a hit"),
+                )
+            },
+            3,
+            cache,
+        ),
+        None => compress::compress_groups(
+            grouped_rows(hits, face, |i, h, g| g.push((entries(i), rhs(i, h)))),
+            3,
+        ),
+    };
+    let (a, b) = stack_rows(rows, nv, 3);
     let reg = regulariser(laplacian, nv, 1);
     // λ counts the samples, not the compressed rows: the normal equations
     // are those of the uncompressed system.
