@@ -172,6 +172,14 @@ pub fn fit_iterations(fit: crate::fit::FitOptions, field: bool) -> crate::fit::F
     }
 }
 
+/// The field layout's fit options for `objective` ([`fit_iterations`]).
+pub fn field_fit_options(objective: crate::fit::Objective) -> crate::fit::FitOptions {
+    fit_iterations(
+        crate::fit::FitOptions::default().with_objective(objective),
+        true,
+    )
+}
+
 /// The uncarried-area bound of the rounds (%): with `adapt` (the rounds
 /// follow the first sizing, [`following`]) and the switch set; `None`
 /// otherwise, and then nothing is measured (the bytes are the switch's
