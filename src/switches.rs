@@ -63,6 +63,7 @@
 //! | `SUBDFIT_FIELD_ADAPT` | `convert::options` (`ConvertOptions::field_adapt`'s default) | `1`: the natural-size adaptivity (caps, grading, relaxation towards F_S's sizes) without `--faces`; with a finite `--max-error`, the rounds' relaxation follows the first sizing, a projectability near miss is judged on M, the bracket lays the kept sizing scaled once |
 //! | `SUBDFIT_FIELD_ADAPT_CHECK` | `convert::adapt` | with `SUBDFIT_FIELD_ADAPT=1` at a finite `--max-error`: `0` turns off the switch-off conversion beside a result whose RMS D > 0.15 RMS L (on otherwise) |
 //! | `SUBDFIT_FIELD_ADAPT_CARRY` | `convert::field` | with `SUBDFIT_FIELD_ADAPT=1` at a finite `--max-error`: the share of the limit's area (%) whose samples the displacement cannot carry onto M′ above which a round fails projectability, those patches refined as unprojectable (`ADAPT_CARRY_PERCENT`, off by default) |
+//! | `SUBDFIT_FIELD_FIT_ITERS` | `convert::field` (`fit_iterations`), `convert`, `convert::layout` | `N`: the field layout's fits run at most `N` iterations (8 unset; session 24: `12` meets spot 85's RMS L bar on the single draw) |
 //! | `FIELD_GRADING`, `FIELD_LOOP_CAP_SLOPE` | `quad::field` | the sizing's grading and its loops' cap |
 //! | `FIELD_RELAX`, `FIELD_SIZED_RELAX`, `FIELD_POSITION_OWN_SCALE` | `quad::field` | the extraction's relaxation, the positions' scale |
 //! | `FIELD_DEBUG` | `quad::field` | the layout's steps on stderr |

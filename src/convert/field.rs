@@ -156,6 +156,30 @@ pub const ADAPT_CARRY_PERCENT: f64 = f64::INFINITY;
 /// The switch that sets [`ADAPT_CARRY_PERCENT`] (e.g. `0.5`).
 pub const ADAPT_CARRY_ENV: &str = "SUBDFIT_FIELD_ADAPT_CARRY";
 
+/// The switch that sets the field layout's fits' iterations
+/// ([`fit_iterations`]).
+pub const FIT_ITERS_ENV: &str = "SUBDFIT_FIELD_FIT_ITERS";
+
+/// `fit` with [`FIT_ITERS_ENV`]'s iterations (at least 1) when `field`
+/// (the field layout's pipeline) and the switch is set; `fit` unchanged
+/// otherwise. Session 24 (issue 40's single draw): spot at 85's fit was
+/// still gaining 2.4 % RMS per iteration at its eighth (7.06 → 6.89‰) and
+/// its RMS L missed the bar by 0.05 %.
+pub fn fit_iterations(fit: crate::fit::FitOptions, field: bool) -> crate::fit::FitOptions {
+    match crate::switches::parsed::<usize>(FIT_ITERS_ENV) {
+        Some(n) if field => fit.with_max_iterations(n.max(1)),
+        _ => fit,
+    }
+}
+
+/// The field layout's fit options for `objective` ([`fit_iterations`]).
+pub fn field_fit_options(objective: crate::fit::Objective) -> crate::fit::FitOptions {
+    fit_iterations(
+        crate::fit::FitOptions::default().with_objective(objective),
+        true,
+    )
+}
+
 /// The uncarried-area bound of the rounds (%): with `adapt` (the rounds
 /// follow the first sizing, [`following`]) and the switch set; `None`
 /// otherwise, and then nothing is measured (the bytes are the switch's

@@ -346,7 +346,7 @@ fn organic_field(run: &mut Run<'_, '_>, opts: &ConvertOptions, fo: &FitmapOption
         Some(_) => crate::quad::field::draws::thin_draws_from_env(),
         None => 1,
     };
-    let fit_opts = crate::fit::FitOptions::default().with_objective(opts.objective);
+    let fit_opts = super::field::field_fit_options(opts.objective);
     // On M itself (no proxy, no renumbering), the draws' scoring fits are
     // the fits `super::thin::final_draws` gives the drawn candidate
     // ([`FieldRelayout::scored_fit`]): kept until the choice.

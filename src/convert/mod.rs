@@ -338,7 +338,10 @@ fn convert_as(
         fitmap,
         record,
     } = laid;
-    let fit = FitOptions::default().with_objective(opts.objective);
+    let fit = field::fit_iterations(
+        FitOptions::default().with_objective(opts.objective),
+        opts.layout == options::LayoutKind::Field,
+    );
     let metrics = MetricsOptions::default()
         .with_displacement_res(opts.displacement_res)
         .with_displacement_samples(opts.displacement_samples)
