@@ -239,8 +239,11 @@ fn lattice_graph(
     let (mut offsets, real) = super::flow::edge_offsets(s, dirs, o, scale);
     let mut flips = super::flip::FlipReport::default();
     if repair {
-        // The triangles' frames once for both (they depend on the cross
-        // field only).
+        // Sequential (issue 39): the flow augments one path after another
+        // on one network (each path's reduced costs are the last one's
+        // result), and the flip removal reads the flow's offsets. The
+        // triangles' frames once for both (they depend on the cross field
+        // only).
         let (sides, singular) = super::flow::triangle_sides(s, dirs);
         let report = super::flow::repair_offsets_on(s, &sides, &singular, &mut offsets, &real);
         // The flow zeroes the sums but may fold the lattice (QuadriFlow

@@ -77,6 +77,10 @@ pub fn extract_refining(
         }
         Err(f) => return Err(f.error),
     };
+    // The rounds stay one after the other (issue 39): each refines where
+    // the last one's lattice failed ([`failure_seeds`]), and the unrepaired
+    // fallback below runs only when every round failed; the lattice kept at
+    // the first try, the defaults' common case, pays for none of them.
     let mut local = scale.to_vec();
     for round in 1..=LOCAL_ROUNDS {
         if seeds.is_empty() {

@@ -50,6 +50,7 @@ pub mod sizing;
 
 use std::time::Instant;
 
+use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::analysis::Fitmap;
@@ -317,8 +318,21 @@ impl Prepared {
         // M as a whole first: its errors name M's own vertices.
         let surf = Surface::new(mesh)?;
         let mut stats = FieldStats::default();
-        let t = Instant::now();
-        let parts = parts::parts(mesh, opts)?;
+        // The cleanup's caster reads only the mesh, the cross fields only
+        // the mesh and the options: built side by side (issue 39);
+        // `seconds_cross` stays the cross fields' own time.
+        let (parts, caster) = rayon::join(
+            || {
+                let t = Instant::now();
+                parts::parts(mesh, opts).map(|p| (p, t))
+            },
+            || {
+                opts.cleanup
+                    .then(|| crate::raycast::bvh::BvhCaster::new(mesh))
+                    .transpose()
+            },
+        );
+        let ((parts, t), caster) = (parts?, caster?);
         let mut dirs = vec![DVec3::X; surf.len()];
         for p in &parts {
             for (&v, d) in p.vertices.iter().zip(&p.dirs) {
@@ -328,11 +342,6 @@ impl Prepared {
         stats.parts = parts.len();
         count_singularities(&surf, &dirs, &mut stats);
         stats.seconds_cross = t.elapsed().as_secs_f64();
-        let caster = if opts.cleanup {
-            Some(crate::raycast::bvh::BvhCaster::new(mesh)?)
-        } else {
-            None
-        };
         Ok(Prepared {
             surf,
             parts,
@@ -782,6 +791,16 @@ fn lay_counted_then<R>(
     // lattice below the window aims [`COUNT_MARGIN`] above N and lets the
     // cleanup trim it; one above the window (the cleanup could not trim)
     // scales by the final count.
+    //
+    // The passes stay one after the other (issue 39): each pass's sizes
+    // are the last kept pass's times a factor read from its counts (after
+    // its cleanup's count phase), and whether there is a next pass at all
+    // is read there too. Laying a guessed next pass beside the cleanup
+    // would overlap only the count phase (~5 % of bunny's CPU against the
+    // lattice's ~40 %, session 24's profile) and pay a whole lattice
+    // whenever the guess or the pass is not needed. The draws
+    // ([`draws::lay_at`]) and main's candidate run their passes side by
+    // side instead.
     if let Some(n) = opts.target_faces {
         let n = n as f64;
         let mut h = h;
@@ -934,6 +953,9 @@ fn clean_counted<'a>(
         co.geometric_ties = geo;
     }
     // The extracted mesh stays on `out` until [`Pending::finish`] replaces it.
+    // The cleanup is greedy (each operation is chosen on the mesh the last
+    // one left) and stays sequential; its local fits and tests run on the
+    // pool inside the simplifier (`crate::quad::simplify`).
     let counted = cleanup::cleanup_counted(mesh, fitmap, caster, out.control.clone(), &co)?;
     // What the count passes read; [`Pending::finish`] sets the rest.
     out.stats.faces = counted.faces();
@@ -1089,34 +1111,44 @@ fn layout_sized(
             RETRIES,
         );
     }
+    // Each part is laid from its own fields and sizes, reading no other
+    // part: side by side (issue 39), collected in part order, so the
+    // joined mesh, the counts and the first error are those of laying them
+    // one after the other.
+    let each: Vec<Result<(FieldLayout, bool, bool)>> = prep
+        .parts
+        .par_iter()
+        .map(|part| {
+            let mut hp = part.gather(h);
+            let floored = parts::floor_count(&part.surf, &mut hp) < 1.0;
+            let s = stats.clone();
+            match layout_part(
+                &part.surf,
+                &part.mesh,
+                &part.dirs,
+                &hp,
+                opts,
+                s.clone(),
+                RETRIES + PART_RETRIES,
+            ) {
+                Ok(out) => Ok((out, floored, false)),
+                Err(Error::Topology { .. }) => {
+                    let control = parts::split_triangles(&part.mesh)?;
+                    let mut s = s;
+                    s.lattice_at_size = false;
+                    s.size_factor = 1.0;
+                    Ok((FieldLayout { control, stats: s }, floored, true))
+                }
+                Err(e) => Err(e),
+            }
+        })
+        .collect();
     let mut laid = Vec::with_capacity(prep.parts.len());
     let (mut floored, mut split) = (0, 0);
-    for part in &prep.parts {
-        let mut hp = part.gather(h);
-        if parts::floor_count(&part.surf, &mut hp) < 1.0 {
-            floored += 1;
-        }
-        let s = stats.clone();
-        let out = match layout_part(
-            &part.surf,
-            &part.mesh,
-            &part.dirs,
-            &hp,
-            opts,
-            s.clone(),
-            RETRIES + PART_RETRIES,
-        ) {
-            Ok(out) => out,
-            Err(Error::Topology { .. }) => {
-                split += 1;
-                let control = parts::split_triangles(&part.mesh)?;
-                let mut s = s;
-                s.lattice_at_size = false;
-                s.size_factor = 1.0;
-                FieldLayout { control, stats: s }
-            }
-            Err(e) => return Err(e),
-        };
+    for r in each {
+        let (out, f, t) = r?;
+        floored += usize::from(f);
+        split += usize::from(t);
         laid.push(out);
     }
     join_parts(prep, laid, stats, (floored, split))
@@ -1194,6 +1226,10 @@ fn layout_part(
     } else {
         &[false]
     };
+    // The fallbacks (twice the length, then the refined sizes) stay after
+    // the lattice they replace (issue 39): each runs only when the one
+    // before missed M's topology, which is rare at the defaults, so laying
+    // them beside it would double the lattice's CPU for nothing.
     for attempt in 0..=retries {
         for &at_size in modes {
             let t = Instant::now();

@@ -26,6 +26,8 @@
 //! inputs computed on the whole mesh before the field (the Fitmap) can
 //! still differ, by float noise.
 
+use rayon::prelude::*;
+
 use crate::error::Result;
 use crate::mesh::{ControlMesh, TriMesh};
 use crate::DVec3;
@@ -63,8 +65,11 @@ pub(super) fn parts(mesh: &TriMesh, opts: &FieldOptions) -> Result<Vec<Part>> {
     if pieces.len() == 1 && Order::from_env().is_none() {
         pieces = vec![((0..mesh.positions.len() as u32).collect(), mesh.clone())];
     }
-    pieces
-        .into_iter()
+    // Each part's cross field reads only the part: solved side by side
+    // (issue 39), collected in part order, the first failed part's error
+    // returned as one after the other would.
+    let parts: Vec<Result<Part>> = pieces
+        .into_par_iter()
         .map(|(vertices, sub)| {
             let surf = Surface::new(&sub)?;
             let dirs = super::cross::cross_field(&surf, opts)?;
@@ -77,7 +82,8 @@ pub(super) fn parts(mesh: &TriMesh, opts: &FieldOptions) -> Result<Vec<Part>> {
                 area,
             })
         })
-        .collect()
+        .collect();
+    parts.into_iter().collect()
 }
 
 /// The connected components of `mesh` (vertices joined by its triangles;

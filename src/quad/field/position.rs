@@ -257,6 +257,13 @@ impl EdgeTerms {
 }
 
 /// One Gauss–Seidel sweep of the position rule over a level.
+///
+/// Sequential (issue 39): each update reads its neighbours' updated
+/// lattices. A bit-exact parallel schedule (steps of updates no two of
+/// which are neighbours) was measured in session 24 (branch
+/// `s24-fieldpar`): the steps hold ~350 updates each on bunny, too few for
+/// the hand-over between two threads to pay (no wall saved on a quiet
+/// host, +15–27 % CPU).
 fn sweep(l: &Level, e: &EdgeTerms, o: &mut [DVec3]) {
     for i in 0..l.p.len() {
         let (pi, ni, qi) = (l.p[i], l.n[i], l.q[i]);
