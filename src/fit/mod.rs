@@ -706,12 +706,7 @@ fn fit_from(
     // are the system's, so a patch whose samples all keep a target reuses
     // the last round's factor (the same rows, bit for bit). Off with
     // `SUBDFIT_FIT_FACTOR_REUSE=0` (a measurement switch).
-    let reuse = !matches!(
-        crate::switches::text("SUBDFIT_FIT_FACTOR_REUSE")
-            .as_deref()
-            .map(str::trim),
-        Some("0")
-    );
+    let reuse = crate::switches::not_zero("SUBDFIT_FIT_FACTOR_REUSE") != Some(false);
     let cache = compress::FactorCache::default();
     let factors = reuse.then_some(&cache);
     for round in first_round..=opts.max_iterations {
