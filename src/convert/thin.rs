@@ -230,6 +230,13 @@ pub struct OnM<'a> {
 /// `SUBDFIT_DISP_LEVEL0` to a 1.37 GB peak (the refined cage's
 /// tessellations). [`Evaluations::take`] of a mesh whose surfaces were
 /// dropped gives `None` and the tail evaluates it again: the same bits.
+///
+/// Session 25 (tailcost): a chain whose later round loses had dropped the
+/// kept first round's surfaces when it evaluated the later one, and the
+/// tail evaluated the first again (spot at 81 under the single draw: 0.4–0.5
+/// of 2.9 CPU s). [`Evaluations::pin`] keeps the best round's surfaces
+/// instead of the latest's: one set is still all that is held while a
+/// round is evaluated.
 #[derive(Default)]
 pub struct Evaluations {
     kept: std::sync::Mutex<Vec<Evaluation>>,
@@ -241,6 +248,8 @@ struct Evaluation {
     control: ControlMesh,
     metrics: crate::report::Metrics,
     surfaces: Option<crate::report::Surfaces>,
+    /// Kept through [`Evaluations::insert`] ([`Evaluations::pin`]).
+    pinned: bool,
 }
 
 /// Whether `a` and `b` are the same control mesh bit for bit (`==` alone
@@ -267,17 +276,37 @@ impl Evaluations {
         hit.map(|e| e.metrics.clone())
     }
 
-    /// Keeps `surfaces` for `control`, dropping the surfaces kept before.
+    /// Keeps `surfaces` for `control`, dropping the surfaces kept before
+    /// but the pinned one's ([`Evaluations::pin`]).
     fn insert(&self, control: &ControlMesh, surfaces: crate::report::Surfaces) {
         let mut kept = self.lock();
-        for e in kept.iter_mut() {
+        for e in kept.iter_mut().filter(|e| !e.pinned) {
             e.surfaces = None;
         }
         kept.push(Evaluation {
             control: control.clone(),
             metrics: surfaces.metrics.clone(),
             surfaces: Some(surfaces),
+            pinned: false,
         });
+    }
+
+    /// When `control` is evaluated: its surfaces are kept through later
+    /// [`Evaluations::insert`]s (until another is pinned), and every other
+    /// evaluation's dropped now (a round judged and not kept), so that
+    /// only the pinned set is held while the next round is evaluated.
+    /// Nothing changes when `control` is not evaluated.
+    pub fn pin(&self, control: &ControlMesh) {
+        let mut kept = self.lock();
+        if !kept.iter().any(|e| same_control(&e.control, control)) {
+            return;
+        }
+        for e in kept.iter_mut() {
+            e.pinned = same_control(&e.control, control);
+            if !e.pinned {
+                e.surfaces = None;
+            }
+        }
     }
 
     /// The evaluation of `control`, taken out (the tail's), when its
@@ -1060,6 +1089,14 @@ pub(super) fn second_round<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted) -> Resu
         x0.record(r, permille);
     }
     let j0 = Judged::of(&m0, &first, &x0);
+    // The best round's surfaces are the tail's ([`Evaluations::pin`]);
+    // not beside other draws, which share the memo and would each hold one.
+    let pin = |c: &ControlMesh| {
+        if let (Some(memo), true) = (on.memo, relayout.alternatives.is_empty()) {
+            memo.pin(c);
+        }
+    };
+    pin(&first.control);
     // Kept only at the count asked for (`--faces`' ±2 % window, or no
     // farther from N than the first round).
     let first_faces = first.control.num_faces();
@@ -1094,6 +1131,7 @@ pub(super) fn second_round<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted) -> Resu
         if at_count && better {
             best = (j1, next, Some(rounds.len() - 1));
         }
+        pin(&best.1.control);
         if planned.chain {
             // The next chain round adds this one's marks (none: the chain ends).
             let marked = !(m1.far.is_empty() && m1.d_far.is_empty());
@@ -1116,6 +1154,7 @@ pub(super) fn second_round<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted) -> Resu
             if at_count && j1.beats(&best.0, &j0) {
                 best = (j1, next, Some(rounds.len() - 1));
             }
+            pin(&best.1.control);
         }
     }
     if let Some(i) = best.2 {
@@ -2023,6 +2062,68 @@ pub(super) mod tests {
             offsets(&fresh.displaced_offsets)
         );
         assert_eq!(kept.displaced_projected, fresh.displaced_projected);
+    }
+
+    /// [`Evaluations::pin`] (session 25): the pinned first round keeps its
+    /// surfaces through a later round's evaluation, and what the tail takes
+    /// for it is a fresh evaluation's bits; pinning it again after the
+    /// later round loses drops the loser's surfaces (one set held while the
+    /// next round is evaluated); pinning a mesh never evaluated changes
+    /// nothing. Without the pin the later evaluation drops the first's.
+    #[test]
+    fn a_pinned_round_keeps_its_surfaces_through_a_later_evaluation() {
+        let mesh = plane(4, 3);
+        let caster = BvhCaster::new(&mesh).expect("caster");
+        let metrics = MetricsOptions::default();
+        let first = control_over(&mesh);
+        let mut later = first.clone();
+        let mut p = later.positions().to_vec();
+        p[0].z += 0.05;
+        later.set_positions(p).expect("same count");
+        let mut quiet = |_: &str, _: f64| true;
+        let fresh = crate::report::evaluate_surfaces(&mesh, &first, &caster, &metrics, &mut quiet)
+            .expect("fresh");
+        for pinned in [false, true] {
+            let memo = Evaluations::default();
+            let on = OnM {
+                mesh: &mesh,
+                caster: &caster,
+                metrics: &metrics,
+                memo: Some(&memo),
+            };
+            final_figures(&on, &first).expect("first");
+            if pinned {
+                memo.pin(&later);
+                memo.pin(&first);
+            }
+            final_figures(&on, &later).expect("later");
+            assert_eq!(memo.len(), 2);
+            if pinned {
+                memo.pin(&first);
+                assert!(memo.take(&later).is_none(), "the loser's surfaces dropped");
+            }
+            let kept = memo.take(&first);
+            assert_eq!(kept.is_some(), pinned);
+            let Some(kept) = kept else { continue };
+            assert_eq!(kept.metrics, fresh.metrics);
+            let pts = |m: &TriMesh| -> Vec<[u64; 3]> {
+                m.positions
+                    .iter()
+                    .map(|p| p.to_array().map(f64::to_bits))
+                    .collect()
+            };
+            assert_eq!(pts(&kept.limit), pts(&fresh.limit));
+            assert_eq!(pts(&kept.displaced), pts(&fresh.displaced));
+            let bits = |o: &[f64]| -> Vec<u64> { o.iter().map(|x| x.to_bits()).collect() };
+            assert_eq!(
+                bits(&kept.displaced_offsets),
+                bits(&fresh.displaced_offsets)
+            );
+            assert_eq!(
+                bits(&kept.displacement.offsets),
+                bits(&fresh.displacement.offsets)
+            );
+        }
     }
 
     /// With a measured RMS L, a later round whose D is lower is still not
