@@ -325,6 +325,46 @@ impl Evaluations {
         self.lock().retain(|e| same_control(&e.control, control));
     }
 
+    /// Keeps `control`'s surfaces through later [`Evaluations::insert`]s
+    /// beside those held already, while the held tessellations total at
+    /// most [`HELD_VERTICES`] vertices (else, or when `control` has no
+    /// surfaces kept, nothing changes). [`final_draws`]' candidates are
+    /// judged side by side on one memo, so the chosen draw's evaluation
+    /// had been dropped by a later candidate's and the tail evaluated it
+    /// again (session 25: cheburashka at 460 under `SUBDFIT_FIELD_BEST=1`,
+    /// 1.9 of 24 CPU s); its `keep_only` drops the others.
+    pub fn hold(&self, control: &ControlMesh) {
+        self.hold_within(control, HELD_VERTICES);
+    }
+
+    /// `old` let go (its surfaces dropped unless it is `control`), then
+    /// `control` held ([`Evaluations::hold`]): a chain's best beside other
+    /// draws.
+    pub fn hold_instead(&self, old: Option<&ControlMesh>, control: &ControlMesh) {
+        if let Some(old) = old.filter(|o| !same_control(o, control)) {
+            let mut kept = self.lock();
+            for e in kept.iter_mut().filter(|e| same_control(&e.control, old)) {
+                e.pinned = false;
+                e.surfaces = None;
+            }
+        }
+        self.hold(control);
+    }
+
+    /// [`Evaluations::hold`] with at most `most` vertices held.
+    fn hold_within(&self, control: &ControlMesh, most: usize) {
+        let mut kept = self.lock();
+        let size = |e: &Evaluation| e.surfaces.as_ref().map_or(0, |s| s.limit.positions.len());
+        let held: usize = kept.iter().filter(|e| e.pinned).map(size).sum();
+        let Some(e) = kept.iter_mut().find(|e| same_control(&e.control, control)) else {
+            return;
+        };
+        let n = size(e);
+        if n > 0 && held + n <= most {
+            e.pinned = true;
+        }
+    }
+
     /// How many evaluations are kept.
     pub fn len(&self) -> usize {
         self.lock().len()
@@ -333,6 +373,19 @@ impl Evaluations {
     /// Whether none is kept.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
+    }
+}
+
+/// The most tessellation vertices [`Evaluations::hold`] keeps (each
+/// ~100 bytes with both tessellations, plus the atlas): ~200 MB at most
+/// beside the one set the memo held before (session 20's gargoyle τ 1 %
+/// peak came from keeping every candidate's, unbounded).
+pub const HELD_VERTICES: usize = 2_000_000;
+
+/// [`Evaluations::hold`] on `on`'s memo, when it has one.
+fn hold(on: &OnM<'_>, control: &ControlMesh) {
+    if let Some(memo) = on.memo {
+        memo.hold(control);
     }
 }
 
@@ -1091,12 +1144,14 @@ pub(super) fn second_round<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted) -> Resu
     let j0 = Judged::of(&m0, &first, &x0);
     // The best round's surfaces are the tail's ([`Evaluations::pin`]);
     // not beside other draws, which share the memo and would each hold one.
-    let pin = |c: &ControlMesh| {
-        if let (Some(memo), true) = (on.memo, relayout.alternatives.is_empty()) {
-            memo.pin(c);
-        }
+    // Beside other draws, which share the memo, the best is held instead
+    // (within the cap) and the one it replaces let go.
+    let pin = |old: Option<&ControlMesh>, c: &ControlMesh| match on.memo {
+        Some(memo) if relayout.alternatives.is_empty() => memo.pin(c),
+        Some(memo) => memo.hold_instead(old, c),
+        None => {}
     };
-    pin(&first.control);
+    pin(None, &first.control);
     // Kept only at the count asked for (`--faces`' ±2 % window, or no
     // farther from N than the first round).
     let first_faces = first.control.num_faces();
@@ -1129,9 +1184,11 @@ pub(super) fn second_round<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted) -> Resu
             true => j1.beats(&best.0, &j0),
         };
         if at_count && better {
-            best = (j1, next, Some(rounds.len() - 1));
+            let old = std::mem::replace(&mut best, (j1, next, Some(rounds.len() - 1)));
+            pin(Some(&old.1.control), &best.1.control);
+        } else {
+            pin(None, &best.1.control);
         }
-        pin(&best.1.control);
         if planned.chain {
             // The next chain round adds this one's marks (none: the chain ends).
             let marked = !(m1.far.is_empty() && m1.d_far.is_empty());
@@ -1152,9 +1209,11 @@ pub(super) fn second_round<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted) -> Resu
             rounds.push(round);
             let at_count = off(next.control.num_faces()) <= SPLIT_COUNT_WINDOW * n;
             if at_count && j1.beats(&best.0, &j0) {
-                best = (j1, next, Some(rounds.len() - 1));
+                let old = std::mem::replace(&mut best, (j1, next, Some(rounds.len() - 1)));
+                pin(Some(&old.1.control), &best.1.control);
+            } else {
+                pin(None, &best.1.control);
             }
-            pin(&best.1.control);
         }
     }
     if let Some(i) = best.2 {
@@ -1202,6 +1261,7 @@ pub(super) fn final_draws<F: FitFn, S: SideFit>(
         let f = cx
             .timer
             .run("thin round", || final_figures(on, &main.control))?;
+        hold(on, &main.control);
         Ok((f, main))
     };
     let main = if rayon::current_num_threads() > 1 {
@@ -1329,6 +1389,7 @@ fn carry_draw<F: FitFn>(
     let f = cx
         .timer
         .run("thin round", || final_figures(on, &done.control))?;
+    hold(on, &done.control);
     let r = &mut cx.rounds[start];
     r.displaced_permille = Some(f.displaced_permille);
     r.limit_permille = Some(f.limit_permille);
@@ -2121,6 +2182,83 @@ pub(super) mod tests {
             );
             assert_eq!(
                 bits(&kept.displacement.offsets),
+                bits(&fresh.displacement.offsets)
+            );
+        }
+    }
+
+    /// [`Evaluations::hold`] (session 25): draws' final evaluations held
+    /// side by side survive a later candidate's evaluation, the one kept
+    /// by `keep_only` is a fresh evaluation's bits; a hold past the cap,
+    /// or of a mesh never evaluated, keeps nothing. Without a hold only
+    /// the latest keeps its surfaces.
+    #[test]
+    fn held_draws_keep_their_surfaces_within_the_cap() {
+        let mesh = plane(4, 3);
+        let caster = BvhCaster::new(&mesh).expect("caster");
+        let metrics = MetricsOptions::default();
+        let a = control_over(&mesh);
+        let moved = |dz: f64| {
+            let mut c = a.clone();
+            let mut p = c.positions().to_vec();
+            p[0].z += dz;
+            c.set_positions(p).expect("same count");
+            c
+        };
+        let (b, c) = (moved(0.05), moved(-0.05));
+        let mut quiet = |_: &str, _: f64| true;
+        let fresh = crate::report::evaluate_surfaces(&mesh, &a, &caster, &metrics, &mut quiet)
+            .expect("fresh");
+        let per_set = fresh.limit.positions.len();
+        // (cap, whether a and b are still kept after c's evaluation)
+        for (cap, kept) in [
+            (2 * per_set, (true, true)),
+            (per_set, (true, false)),
+            (0, (false, false)),
+        ] {
+            let memo = Evaluations::default();
+            let on = OnM {
+                mesh: &mesh,
+                caster: &caster,
+                metrics: &metrics,
+                memo: Some(&memo),
+            };
+            memo.hold_within(&b, cap);
+            final_figures(&on, &a).expect("a");
+            memo.hold_within(&a, cap);
+            final_figures(&on, &b).expect("b");
+            memo.hold_within(&b, cap);
+            final_figures(&on, &c).expect("c");
+            assert_eq!(memo.len(), 3);
+            let has = |x: &ControlMesh| {
+                let kept = memo.lock();
+                let e = kept.iter().find(|e| same_control(&e.control, x));
+                e.is_some_and(|e| e.surfaces.is_some())
+            };
+            assert_eq!((has(&a), has(&b)), kept, "cap {cap}");
+            assert!(has(&c), "the latest keeps its surfaces");
+            if cap == 2 * per_set {
+                // A chain's best replaced: b let go, a still held.
+                memo.hold_instead(Some(&b), &c);
+                assert!(!has(&b) && has(&a));
+            }
+            memo.keep_only(&a);
+            assert_eq!(memo.len(), 1);
+            let Some(s) = memo.take(&a) else {
+                assert!(!kept.0);
+                continue;
+            };
+            assert_eq!(s.metrics, fresh.metrics);
+            let pts = |m: &TriMesh| -> Vec<[u64; 3]> {
+                m.positions
+                    .iter()
+                    .map(|p| p.to_array().map(f64::to_bits))
+                    .collect()
+            };
+            assert_eq!(pts(&s.displaced), pts(&fresh.displaced));
+            let bits = |o: &[f64]| -> Vec<u64> { o.iter().map(|x| x.to_bits()).collect() };
+            assert_eq!(
+                bits(&s.displacement.offsets),
                 bits(&fresh.displacement.offsets)
             );
         }
