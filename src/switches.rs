@@ -67,6 +67,8 @@
 //! | `FIELD_GRADING`, `FIELD_LOOP_CAP_SLOPE` | `quad::field` | the sizing's grading and its loops' cap |
 //! | `FIELD_RELAX`, `FIELD_SIZED_RELAX`, `FIELD_POSITION_OWN_SCALE` | `quad::field` | the extraction's relaxation, the positions' scale |
 //! | `FIELD_DEBUG` | `quad::field` | the layout's steps on stderr |
+//! | `SUBDFIT_FIELD_TUBE_CAP` | `quad::field` (`FieldOptions::tube_cap`, `tube`) | `k > 0`: sizes capped at `k` × the thickness where M is a tube thinner than the lattice step (homer's fingers; off by default, session 25); `SUBDFIT_FIELD_TUBE_SKIP`: only where the tube is thinner than this share of h (`tube::TUBE_SKIP`) |
+//! | `FIELD_DUMP` | `quad::field::extract`, `quad::field::tube` | `DIR`: each lattice's clusters and extracted quads, and the tube caps, written to `DIR` (a trace) |
 
 use std::str::FromStr;
 

@@ -196,6 +196,9 @@ fn extract_once(
             })
         }
     };
+    if let Some(dir) = dump_dir() {
+        dump_quads(&dir, &positions, &quads);
+    }
     let got = control_topology(&control);
     if got != s.topology && crate::switches::set("FIELD_DEBUG") {
         eprintln!("pinched vertices split: {pinches_split}");
@@ -237,6 +240,7 @@ fn lattice_graph(
     // QuadriFlow's flow (super::flow) so that the lattice has no
     // dislocation the cross field does not ask for.
     let (mut offsets, real) = super::flow::edge_offsets(s, dirs, o, scale);
+    let raw_offsets = dump_dir().map(|_| offsets.clone());
     let mut flips = super::flip::FlipReport::default();
     if repair {
         // Sequential (issue 39): the flow augments one path after another
@@ -276,6 +280,9 @@ fn lattice_graph(
             count += 1;
         }
         *cl = id[r];
+    }
+    if let (Some(dir), Some(raw)) = (dump_dir(), raw_offsets) {
+        dump_clusters(&dir, s, o, &raw, &cluster);
     }
     let c = count as usize;
     let (mut pos, mut nrm, mut w) = (vec![DVec3::ZERO; c], vec![DVec3::ZERO; c], vec![0.0; c]);
@@ -1231,6 +1238,64 @@ fn split_to_quads(g: &Graph, faces: &[Vec<u32>]) -> (Vec<DVec3>, Vec<[u32; 4]>) 
         }
     }
     (positions, quads)
+}
+
+/// `FIELD_DUMP=DIR` (a trace, session 25's per-stage measurement of
+/// homer's fingers): each lattice's stages written to `DIR` as numbered
+/// files, in the order laid (one draw: sequential).
+fn dump_dir() -> Option<String> {
+    crate::switches::text("FIELD_DUMP").filter(|d| !d.is_empty())
+}
+
+static DUMPED: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+/// Per vertex of M: its position, its lattice point o, and its cluster
+/// (the lattice vertex it merges into) from the position field's own
+/// offsets and after the flow and flip removal (`lattice-N.txt`).
+fn dump_clusters(dir: &str, s: &Surface, o: &[DVec3], raw: &[[i64; 2]], after: &[u32]) {
+    let n = s.len();
+    let mut uf = UnionFind::new(n);
+    for (&[a, b], d) in s.edges.iter().zip(raw) {
+        if d[0] == 0 && d[1] == 0 {
+            uf.union(a as usize, b as usize);
+        }
+    }
+    let mut text = String::new();
+    for v in 0..n {
+        let (p, q) = (s.positions[v], o[v]);
+        text.push_str(&format!(
+            "{} {} {} {} {} {} {} {}\n",
+            p.x,
+            p.y,
+            p.z,
+            q.x,
+            q.y,
+            q.z,
+            uf.find(v),
+            after[v]
+        ));
+    }
+    let k = DUMPED.load(std::sync::atomic::Ordering::Relaxed);
+    let _ = std::fs::write(format!("{dir}/lattice-{k}.txt"), text);
+}
+
+/// The extracted quads before the cleanup (`extract-N.obj`).
+fn dump_quads(dir: &str, positions: &[DVec3], quads: &[[u32; 4]]) {
+    let mut text = String::new();
+    for p in positions {
+        text.push_str(&format!("v {} {} {}\n", p.x, p.y, p.z));
+    }
+    for q in quads {
+        text.push_str(&format!(
+            "f {} {} {} {}\n",
+            q[0] + 1,
+            q[1] + 1,
+            q[2] + 1,
+            q[3] + 1
+        ));
+    }
+    let k = DUMPED.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let _ = std::fs::write(format!("{dir}/extract-{k}.obj"), text);
 }
 
 #[cfg(test)]

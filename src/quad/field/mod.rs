@@ -47,6 +47,7 @@ pub mod position;
 pub mod purequad;
 pub mod refine;
 pub mod sizing;
+pub mod tube;
 
 use std::time::Instant;
 
@@ -130,6 +131,11 @@ pub struct FieldOptions {
     /// [`FieldOptions::with_natural_adaptivity`], else none).
     #[serde(skip)]
     pub sized_relax: Option<extract::SizedRelax>,
+    /// The tube cap's factor k ([`tube`]: sizes ≤ k · thickness where M
+    /// is a tube thinner than the lattice step; `SUBDFIT_FIELD_TUBE_CAP`,
+    /// `None`: off, the default).
+    #[serde(skip)]
+    pub tube_cap: Option<f64>,
 }
 
 impl Default for FieldOptions {
@@ -172,6 +178,10 @@ impl Default for FieldOptions {
             cleanup_guarded: None,
             grading: sizing::Grading::current(),
             sized_relax: extract::SizedRelax::from_env(),
+            // `SUBDFIT_FIELD_TUBE_CAP` (session 25, homer's fingers): off
+            // unless set to a positive factor.
+            tube_cap: crate::switches::parsed::<f64>("SUBDFIT_FIELD_TUBE_CAP")
+                .filter(|x| x.is_finite() && *x > 0.0),
         }
     }
 }
@@ -195,6 +205,10 @@ impl FieldOptions {
     }
     pub fn with_cleanup(mut self, on: bool) -> Self {
         self.cleanup = on;
+        self
+    }
+    pub fn with_tube_cap(mut self, k: Option<f64>) -> Self {
+        self.tube_cap = k;
         self
     }
 
@@ -307,6 +321,9 @@ pub struct Prepared {
     /// M's connected components, each with its own cross field.
     parts: Vec<parts::Part>,
     caster: Option<crate::raycast::bvh::BvhCaster>,
+    /// The tube cap's sizes and factor ([`tube::tube_caps`]; `None` unless
+    /// `opts.tube_cap`), applied to every sizing laid ([`layout_sized`]).
+    tube_caps: Option<(Vec<f64>, f64)>,
     /// The singularity counts and `seconds_cross`.
     stats: FieldStats,
 }
@@ -342,10 +359,21 @@ impl Prepared {
         stats.parts = parts.len();
         count_singularities(&surf, &dirs, &mut stats);
         stats.seconds_cross = t.elapsed().as_secs_f64();
+        let tube_caps = match opts.tube_cap {
+            Some(k) => Some(match &caster {
+                Some(c) => (tube::tube_caps(&surf, &dirs, c, k)?, k),
+                None => {
+                    let c = crate::raycast::bvh::BvhCaster::new(mesh)?;
+                    (tube::tube_caps(&surf, &dirs, &c, k)?, k)
+                }
+            }),
+            None => None,
+        };
         Ok(Prepared {
             surf,
             parts,
             caster,
+            tube_caps,
             stats,
         })
     }
@@ -1100,6 +1128,17 @@ fn layout_sized(
     opts: &FieldOptions,
     stats: FieldStats,
 ) -> Result<FieldLayout> {
+    // The tube cap holds whatever scale the count passes or the draws put
+    // on h: the rest of the mesh pays for the tubes' patches.
+    let capped;
+    let h = match &prep.tube_caps {
+        Some((caps, k)) => {
+            let skip = crate::switches::number("SUBDFIT_FIELD_TUBE_SKIP", tube::TUBE_SKIP);
+            capped = tube::capped(&prep.surf, h, caps, *k, skip, opts.gradation);
+            &capped[..]
+        }
+        None => h,
+    };
     if let [part] = prep.parts.as_slice() {
         return layout_part(
             &part.surf,
