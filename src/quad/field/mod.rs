@@ -829,12 +829,31 @@ fn lay_counted_then<R>(
             let Ok(next) = lay(&h) else {
                 break;
             };
+            if crate::switches::set("FIELD_DEBUG") {
+                debug_pass(&out, "kept so far");
+                debug_pass(&next, "next");
+            }
             if count_score(&next.layout, n) < count_score(&out.layout, n) {
                 out = next;
             }
         }
     }
     then(out)
+}
+
+/// `FIELD_DEBUG`: a count pass's faces, trims and irregular vertices
+/// (after its count phase).
+fn debug_pass(p: &Pending<'_>, tag: &str) {
+    let c = p.layout.stats.cleanup.as_ref();
+    let irr = p.cleanup.as_ref().map(|c| c.irregular_now());
+    eprintln!(
+        "count pass ({tag}): faces {} before {:?} trims {:?} irregular before {:?} after count {:?}",
+        p.layout.stats.faces,
+        c.map(|c| c.faces_before),
+        c.map(|c| c.count_collapses),
+        c.map(|c| c.irregular_before),
+        irr
+    );
 }
 
 /// How a layout meets a face target `n`, lower is better: whether it is
@@ -934,6 +953,9 @@ fn clean_counted<'a>(
         co.guarded = g;
         co.guarded_fixed = true;
     }
+    // Issue 40's cheap cancellation, off by default; the switches below
+    // still win.
+    co = co.with_fitmap_moves_env();
     if let Some(n) = crate::switches::parsed::<usize>("SUBDFIT_CLEANUP_MOVES") {
         co = co.with_move_rounds(n);
     }
