@@ -191,7 +191,11 @@ impl CleanupOptions {
     /// with a region fit and a projectability cast per trial (91 for
     /// +6 CPU s and RMS D 0.303‰); one unguarded round before the count
     /// phase gives 402 / 83 / 3.285 / 0.239 / 0.04 % for ~1 CPU s in the
-    /// layout (docs/status.md, 2026-12-08, session 25, helper cleanup).
+    /// layout, but spot at 81 and 85 faces loses its RMS L and D bars (its
+    /// fit swings with any change of a coarse layout) and gargoyle 1357's
+    /// bracket round keeps a layout with 183 irregular vertices: 25 of 32
+    /// bars against main's 28, hence off (docs/status.md, 2026-12-08,
+    /// session 25, helper cleanup).
     /// The same as `SUBDFIT_CLEANUP_MOVES=1 SUBDFIT_CLEANUP_RISE=0`, which
     /// the field layout reads after this and which win when set.
     ///
