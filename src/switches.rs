@@ -36,6 +36,8 @@
 //! | `SUBDFIT_CLEANUP_GUARDED` | `quad::field::cleanup` | set and not `0`: the guarded cancellation |
 //! | `SUBDFIT_CLEANUP_MOVES`, `_RISE`, `_SHARE` | `quad::field` | the cleanup's moves' constants |
 //! | `SUBDFIT_CLEANUP_LATE`, `_EXACT` | `quad::field` | set: moves after the count, exact undo |
+//! | `SUBDFIT_CLEANUP_FITMAP_MOVES` | `quad::field::cleanup` | set and not `0`: one round of multi-rotation moves before the count phase under the fitmap tests, no region-fit guard (`CleanupOptions::with_fitmap_moves_env`; session 25) |
+//! | `SUBDFIT_FIELD_COUNT_TRIM_CAP` | `quad::field` | `c > 0`: the count passes compare a pass the cleanup trimmed by more than `c · N` faces as outside the window (session 25) |
 //! | `SUBDFIT_CLEANUP_GEO` | `quad::field` | set and `0`: no geometric ties |
 //! | `SUBDFIT_CLEANUP_TRACE` | `quad::field::cleanup` | each trial on stderr |
 //! | `SUBDFIT_CROSS_R`, `SUBDFIT_CROSS_P` | `quad::field::cross` | the guide smoothing's radius and power |

@@ -172,6 +172,46 @@ impl CleanupOptions {
     }
 }
 
+/// The switch of [`CleanupOptions::with_fitmap_moves_env`].
+pub const FITMAP_MOVES_ENV: &str = "SUBDFIT_CLEANUP_FITMAP_MOVES";
+
+impl CleanupOptions {
+    /// These options with `SUBDFIT_CLEANUP_FITMAP_MOVES` applied (set and
+    /// not `0`; off by default): one round of multi-rotation moves
+    /// ([`super::moves`]) after the valence sweeps and before the count
+    /// phase, each move kept under the sweeps' own rule (E lower, no more
+    /// patches failing the S-/M-fitmap tests, the worst patch no worse)
+    /// without the region-fit guard ([`CleanupOptions::move_fit_rise`] 0),
+    /// then the sweeps again. Why: gargoyle 402's irregular vertices under
+    /// the single draw are the extraction's (lattice singular points 63,
+    /// non-quad corners 53, points the pairing added 14: 130 before the
+    /// cleanup, of 244 cross-field singularities) and the single
+    /// operations leave 110; a move glides a 3–5 pair until it meets its
+    /// partner. The guarded cancellation does that after the count phase
+    /// with a region fit and a projectability cast per trial (91 for
+    /// +6 CPU s and RMS D 0.303‰); one unguarded round before the count
+    /// phase gives 402 / 83 / 3.285 / 0.239 / 0.04 % for ~1 CPU s in the
+    /// layout, but spot at 81 and 85 faces loses its RMS L and D bars (its
+    /// fit swings with any change of a coarse layout) and gargoyle 1357's
+    /// bracket round keeps a layout with 183 irregular vertices: 25 of 32
+    /// bars against main's 28, hence off (docs/status.md, 2026-12-08,
+    /// session 25, helper cleanup).
+    /// The same as `SUBDFIT_CLEANUP_MOVES=1 SUBDFIT_CLEANUP_RISE=0`, which
+    /// the field layout reads after this and which win when set.
+    ///
+    /// At `shape` the moves answer to the earlier proxies too
+    /// ([`CleanupOptions::move_shape_tests`]: the region's fitmap load and
+    /// its corners' shear, neither higher), still without a region fit.
+    pub fn with_fitmap_moves_env(mut self) -> Self {
+        if let Some(v) = crate::switches::text(FITMAP_MOVES_ENV).filter(|v| v != "0") {
+            self.move_rounds = 1;
+            self.move_fit_rise = 0.0;
+            self.move_shape_tests = v == "shape";
+        }
+        self
+    }
+}
+
 /// Figures of one [`cleanup`].
 #[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct CleanupStats {
@@ -416,6 +456,14 @@ impl Counted<'_> {
     /// only).
     pub fn faces(&self) -> usize {
         self.s.k.num_live_faces()
+    }
+
+    /// The irregular vertices of the mesh as it is now.
+    pub fn irregular_now(&self) -> usize {
+        let k = &self.s.k;
+        k.live_vertices()
+            .filter(|&v| self.s.valence_targets.is_irregular(k, v))
+            .count()
     }
 
     /// The figures so far (the count phase's collapses are final).

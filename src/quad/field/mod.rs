@@ -832,6 +832,7 @@ fn lay_counted_then<R>(
     if let Some(n) = opts.target_faces {
         let n = n as f64;
         let mut h = h;
+        let trim_cap = count_trim_cap();
         for _ in 0..COUNT_PASSES {
             let got = out.layout.stats.faces as f64;
             let (outside, trims) = count_score(&out.layout, n);
@@ -857,12 +858,32 @@ fn lay_counted_then<R>(
             let Ok(next) = lay(&h) else {
                 break;
             };
-            if count_score(&next.layout, n) < count_score(&out.layout, n) {
+            if crate::switches::set("FIELD_DEBUG") {
+                debug_pass(&out, "kept so far");
+                debug_pass(&next, "next");
+            }
+            if compared_score(&next.layout, n, trim_cap) < compared_score(&out.layout, n, trim_cap)
+            {
                 out = next;
             }
         }
     }
     then(out)
+}
+
+/// `FIELD_DEBUG`: a count pass's faces, trims and irregular vertices
+/// (after its count phase).
+fn debug_pass(p: &Pending<'_>, tag: &str) {
+    let c = p.layout.stats.cleanup.as_ref();
+    let irr = p.cleanup.as_ref().map(|c| c.irregular_now());
+    eprintln!(
+        "count pass ({tag}): faces {} before {:?} trims {:?} irregular before {:?} after count {:?}",
+        p.layout.stats.faces,
+        c.map(|c| c.faces_before),
+        c.map(|c| c.count_collapses),
+        c.map(|c| c.irregular_before),
+        irr
+    );
 }
 
 /// How a layout meets a face target `n`, lower is better: whether it is
@@ -876,6 +897,29 @@ fn count_score(out: &FieldLayout, n: f64) -> (bool, usize) {
     } else {
         let trims = out.stats.cleanup.as_ref().map_or(0, |c| c.count_collapses);
         (false, trims)
+    }
+}
+
+/// `SUBDFIT_FIELD_COUNT_TRIM_CAP=c` (off by default): when the count
+/// passes compare two passes, one whose cleanup trimmed more than `c · N`
+/// faces counts as outside the window by its raw lattice's distance from
+/// N. Why: a pass can extract a degenerate lattice far above N (gargoyle
+/// 1357's bracket round under `SUBDFIT_CLEANUP_FITMAP_MOVES=1`: 1746 raw
+/// faces, 569 irregular vertices, 249 trims to 1356 and 183 irregular
+/// left), and inside the window it beat every later pass however many
+/// trims it took (docs/status.md, 2026-12-08, session 25, helper cleanup).
+fn count_trim_cap() -> Option<f64> {
+    crate::switches::parsed::<f64>("SUBDFIT_FIELD_COUNT_TRIM_CAP").filter(|c| *c > 0.0)
+}
+
+/// [`count_score`] as the passes are compared, with [`count_trim_cap`].
+fn compared_score(out: &FieldLayout, n: f64, cap: Option<f64>) -> (bool, usize) {
+    let score = count_score(out, n);
+    match (cap, out.stats.cleanup.as_ref()) {
+        (Some(c), Some(cs)) if !score.0 && cs.count_collapses as f64 > c * n => {
+            (true, (cs.faces_before as f64 - n).abs() as usize)
+        }
+        _ => score,
     }
 }
 
@@ -962,6 +1006,9 @@ fn clean_counted<'a>(
         co.guarded = g;
         co.guarded_fixed = true;
     }
+    // Issue 40's cheap cancellation, off by default; the switches below
+    // still win.
+    co = co.with_fitmap_moves_env();
     if let Some(n) = crate::switches::parsed::<usize>("SUBDFIT_CLEANUP_MOVES") {
         co = co.with_move_rounds(n);
     }
@@ -1578,5 +1625,56 @@ impl UnionFind {
             let (lo, hi) = (ra.min(rb), ra.max(rb));
             self.0[hi] = lo;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A layout as the count passes see it: `faces` after the cleanup,
+    /// which found `raw` and trimmed `trims`.
+    fn pass(faces: usize, raw: usize, trims: usize) -> FieldLayout {
+        let control = ControlMesh::from_polygons(
+            vec![DVec3::ZERO, DVec3::X, DVec3::new(1.0, 1.0, 0.0), DVec3::Y],
+            &[[0, 1, 2, 3]],
+        )
+        .unwrap();
+        let stats = FieldStats {
+            faces,
+            cleanup: Some(cleanup::CleanupStats {
+                faces_before: raw,
+                faces_after: faces,
+                count_collapses: trims,
+                ..Default::default()
+            }),
+            ..Default::default()
+        };
+        FieldLayout { control, stats }
+    }
+
+    /// Without a cap a pass inside the ±2 % window beats one outside it
+    /// however many trims it took; with `c` = 0.1 a pass trimmed by more
+    /// than 0.1 N ranks by its raw lattice's distance (1746 raw faces for
+    /// N = 1357, gargoyle's case: 389) and loses to a pass 190 below N,
+    /// while a pass trimmed by at most 0.1 N ranks as before.
+    #[test]
+    fn a_trim_cap_ranks_an_overtrimmed_pass_by_its_raw_lattice() {
+        let n = 1357.0;
+        let (over, below, fair) = (
+            pass(1356, 1746, 390),
+            pass(1167, 1167, 0),
+            pass(1356, 1433, 77),
+        );
+        assert_eq!(compared_score(&over, n, None), (false, 390));
+        assert!(compared_score(&over, n, None) < compared_score(&below, n, None));
+        assert_eq!(compared_score(&over, n, Some(0.1)), (true, 389));
+        assert_eq!(compared_score(&below, n, Some(0.1)), (true, 190));
+        assert!(compared_score(&below, n, Some(0.1)) < compared_score(&over, n, Some(0.1)));
+        assert_eq!(
+            compared_score(&fair, n, Some(0.1)),
+            compared_score(&fair, n, None)
+        );
+        assert!(compared_score(&fair, n, Some(0.1)) < compared_score(&below, n, Some(0.1)));
     }
 }

@@ -1,0 +1,147 @@
+//! `SUBDFIT_CLEANUP_FITMAP_MOVES` (issue 40, session 25): one round of
+//! multi-rotation moves before the cleanup's count phase, judged by the
+//! fitmap tests without the region-fit guard. Its own test binary, since
+//! it sets the process's environment.
+
+mod common;
+
+use subdfit::mesh::{ControlMesh, TriMesh, VertexId};
+use subdfit::quad::field::cleanup::{cleanup, CleanupOptions, FITMAP_MOVES_ENV};
+use subdfit::quad::field::{control_topology, irregular_vertices};
+use subdfit::quad::ops::{
+    can_rotate_edge, rotate_edge, rotation_energy_gain, Rotation, ValenceTargets,
+};
+use subdfit::raycast::bvh::BvhCaster;
+use subdfit::DVec3;
+
+/// `n × n` vertices over the unit square with a gentle bump (height 0.05,
+/// so the fitmap and the local fits read a curved surface), quads split
+/// along alternating diagonals.
+fn bumpy_square(n: usize) -> TriMesh {
+    let h =
+        |u: f64, v: f64| 0.05 * (std::f64::consts::PI * u).sin() * (std::f64::consts::PI * v).sin();
+    let mut positions = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let (u, v) = (i as f64 / (n - 1) as f64, j as f64 / (n - 1) as f64);
+            positions.push(DVec3::new(u, v, h(u, v)));
+        }
+    }
+    let id = |i: usize, j: usize| (j * n + i) as u32;
+    let mut triangles = Vec::new();
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+            if (i + j) % 2 == 0 {
+                triangles.extend([[a, b, c], [a, c, d]]);
+            } else {
+                triangles.extend([[a, b, d], [b, c, d]]);
+            }
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+/// A regular `n × n` quad grid on [`bumpy_square`]'s surface.
+fn quad_grid(n: usize, m: &TriMesh) -> ControlMesh {
+    let side = (m.positions.len() as f64).sqrt().round() as usize;
+    let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
+    let mut positions = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            // The grid's vertices are M's (n divides side − 1).
+            let s = (side - 1) / n;
+            positions.push(m.positions[j * s * side + i * s]);
+        }
+    }
+    let mut faces = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            faces.push([id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]);
+        }
+    }
+    ControlMesh::from_polygons(positions, &faces).unwrap()
+}
+
+/// A spurious pair of singularity pairs on a regular 10 × 10 grid: one
+/// rotation plants two 3–5 pairs (E 4), an energy-neutral rotation beside
+/// them pulls one pair apart, so no single operation lowers E (the
+/// extraction's leftovers on gargoyle 402 are of this kind: 3–5 pairs a
+/// cell or two apart).
+fn dislocated(m: &TriMesh) -> ControlMesh {
+    let mut k = quad_grid(10, m);
+    let (a, b) = (VertexId(5 * 11 + 5), VertexId(5 * 11 + 6));
+    let h = k.outgoing(a).find(|&h| k.head(h) == b).unwrap();
+    rotate_edge(&mut k, h, Rotation::Ccw).unwrap();
+    let vt = ValenceTargets::new(&k);
+    let (h, dir) = k
+        .edges()
+        .map(|e| e.halfedge())
+        .flat_map(|h| [(h, Rotation::Ccw), (h, Rotation::Cw)])
+        .find(|&(h, d)| {
+            can_rotate_edge(&k, h, d).is_ok_and(|x| rotation_energy_gain(&k, &vt, &x, d) == 0)
+        })
+        .expect("an energy-neutral rotation beside a pair");
+    rotate_edge(&mut k, h, dir).unwrap();
+    k
+}
+
+/// Unset (or `0`) the switch leaves the options as they are; set, it asks
+/// for one move round without the region-fit guard. On the dislocated
+/// grid with a face target of 100 (the count phase runs and keeps the
+/// count), the single-operation cleanup (the default) keeps the 4 planted
+/// irregular vertices; with the switch the pairs cancel: 0 irregular
+/// vertices, valence energy 0, the same 100 pure quads, one component, one
+/// boundary loop and Euler characteristic 1 (the disc's), every step
+/// validated, at least one move kept and the region-fit guard never run
+/// (no time in it, no move refused by it).
+#[test]
+fn fitmap_moves_cancel_a_separated_pair_without_the_region_fit() {
+    std::env::remove_var(FITMAP_MOVES_ENV);
+    let base = CleanupOptions::default()
+        .with_check_every_step(true)
+        .with_target_faces(Some(100));
+    assert_eq!(base.clone().with_fitmap_moves_env(), base);
+    std::env::set_var(FITMAP_MOVES_ENV, "0");
+    assert_eq!(base.clone().with_fitmap_moves_env(), base);
+    std::env::set_var(FITMAP_MOVES_ENV, "1");
+    let on = base.clone().with_fitmap_moves_env();
+    std::env::remove_var(FITMAP_MOVES_ENV);
+    assert_eq!((on.move_rounds, on.move_fit_rise), (1, 0.0));
+    assert!(!on.guarded && !on.moves_after_count);
+
+    let m = bumpy_square(41);
+    let fm = common::flat_fitmap(m.positions.len());
+    let caster = BvhCaster::new(&m).unwrap();
+    let k = dislocated(&m);
+    assert_eq!(irregular_vertices(&k), 4);
+    // The grid's own (the rotations' mesh may hold unused slots).
+    let before = control_topology(&quad_grid(10, &m));
+
+    let (single, _) = cleanup(&m, &fm, &caster, k.clone(), &base).unwrap();
+    assert_eq!(irregular_vertices(&single), 4, "single operations only");
+
+    let (out, stats) = cleanup(&m, &fm, &caster, k, &on).unwrap();
+    assert!(out.is_all_quads());
+    assert_eq!(out.num_faces(), 100);
+    let t = control_topology(&out);
+    assert_eq!(
+        (t.components, t.boundary_loops, t.euler),
+        (before.components, before.boundary_loops, before.euler)
+    );
+    assert_eq!((t.components, t.boundary_loops, t.euler), (1, 1, 1));
+    assert_eq!(irregular_vertices(&out), 0, "{stats:?}");
+    assert_eq!(stats.energy_after, 0);
+    assert!(stats.moves >= 1, "{stats:?}");
+    assert_eq!(stats.moves_undone_fit, 0);
+    assert_eq!(stats.move_seconds_guard, 0.0);
+    // Every control point is still on the bump (the output goes back to
+    // points on M): within M's chord error of the height field.
+    for &p in out.positions() {
+        let z = 0.05 * (std::f64::consts::PI * p.x).sin() * (std::f64::consts::PI * p.y).sin();
+        assert!((p.z - z).abs() < 1e-3, "{p:?} vs {z}");
+    }
+}
