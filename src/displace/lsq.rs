@@ -1656,12 +1656,15 @@ fn border_samples(
     }
     let pts: Vec<DVec3> = lost.iter().map(|&i| disp.limit[i].position).collect();
     let closest = mesh_caster.closest_points(&pts, f64::INFINITY)?;
+    // `SUBDFIT_DISP_SHEET=fixed`: every unprojectable sample is held.
+    let all = super::sheet::fixed();
     for (&i, c) in lost.iter().zip(&closest) {
-        fixed[i] = c.is_some_and(|c| {
-            mesh.triangles[c.triangle as usize]
-                .iter()
-                .any(|&v| border_vertex[v as usize])
-        });
+        fixed[i] = all
+            || c.is_some_and(|c| {
+                mesh.triangles[c.triangle as usize]
+                    .iter()
+                    .any(|&v| border_vertex[v as usize])
+            });
     }
     Ok(fixed)
 }

@@ -47,6 +47,7 @@ mod atlas;
 mod bspline;
 mod grid;
 mod lsq;
+pub mod sheet;
 
 pub use alloc::{
     allocate_resolutions, first_level, first_level_for, level1_floor, AdaptiveStats, Allocation,
@@ -188,6 +189,11 @@ pub struct DisplacementStats {
     /// report is unchanged.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub adaptive: Option<AdaptiveStats>,
+    /// With `SUBDFIT_DISP_SHEET`: the rejected samples given an
+    /// orientation-consistent hit instead ([`sheet::resolve`]); absent
+    /// otherwise, the report as before the switch.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sheet_resolved: Option<usize>,
 }
 
 /// Displacement samples on a welded grid: limit point, offset along the
@@ -570,6 +576,7 @@ pub(crate) fn finish(grid: PatchGrid, probe: Probe, diag: f64, slack: f64) -> Di
         least_squares: None,
         reconstruction: Reconstruction::Bilinear,
         adaptive: None,
+        sheet_resolved: None,
     };
     Displacement {
         grid,

@@ -653,6 +653,19 @@ fn displaced_side(
         None => compute_displacement(control, evaluator, caster, r, max_dist, diag, 0.5 * edge)?,
         Some(budget) => adaptive_displacement(at, evaluator, caster, budget)?,
     };
+    // `SUBDFIT_DISP_SHEET`: the samples the same-sheet test rejected get
+    // an orientation-consistent hit where their line has one nearby
+    // (`displace::sheet`; off by default).
+    if crate::displace::sheet::enabled() {
+        crate::displace::sheet::resolve(
+            &mut displacement,
+            mesh,
+            caster,
+            max_dist,
+            diag,
+            0.5 * edge,
+        )?;
+    }
     // Per-patch resolutions: D is the surface a host reconstructs (the
     // limit surface plus the bilinear lookup of the vectors), on which the
     // offsets are also fitted; a coarse tile's own sample grid would be a
