@@ -1674,6 +1674,20 @@ fn split_round(
 pub(super) mod tests {
     use super::*;
 
+    /// A mesh's positions as bits (the memo's surfaces must be a fresh
+    /// evaluation's bit for bit).
+    fn position_bits(m: &TriMesh) -> Vec<[u64; 3]> {
+        m.positions
+            .iter()
+            .map(|p| p.to_array().map(f64::to_bits))
+            .collect()
+    }
+
+    /// Values as bits.
+    fn value_bits(o: &[f64]) -> Vec<u64> {
+        o.iter().map(|x| x.to_bits()).collect()
+    }
+
     /// The square [0, n]² as a triangle mesh of `m` × `m` cells per
     /// unit.
     fn plane(n: usize, m: usize) -> TriMesh {
@@ -2108,19 +2122,15 @@ pub(super) mod tests {
         let kept = memo.take(&control).expect("kept");
         assert!(memo.is_empty());
         assert_eq!(kept.metrics, fresh.metrics);
-        let pts = |m: &TriMesh| -> Vec<[u64; 3]> {
-            m.positions
-                .iter()
-                .map(|p| p.to_array().map(f64::to_bits))
-                .collect()
-        };
-        assert_eq!(pts(&kept.limit), pts(&fresh.limit));
-        assert_eq!(pts(&kept.displaced), pts(&fresh.displaced));
-        assert_eq!(kept.limit.triangles, fresh.limit.triangles);
-        let offsets = |o: &[f64]| -> Vec<u64> { o.iter().map(|x| x.to_bits()).collect() };
+        assert_eq!(position_bits(&kept.limit), position_bits(&fresh.limit));
         assert_eq!(
-            offsets(&kept.displaced_offsets),
-            offsets(&fresh.displaced_offsets)
+            position_bits(&kept.displaced),
+            position_bits(&fresh.displaced)
+        );
+        assert_eq!(kept.limit.triangles, fresh.limit.triangles);
+        assert_eq!(
+            value_bits(&kept.displaced_offsets),
+            value_bits(&fresh.displaced_offsets)
         );
         assert_eq!(kept.displaced_projected, fresh.displaced_projected);
     }
@@ -2167,22 +2177,18 @@ pub(super) mod tests {
             assert_eq!(kept.is_some(), pinned);
             let Some(kept) = kept else { continue };
             assert_eq!(kept.metrics, fresh.metrics);
-            let pts = |m: &TriMesh| -> Vec<[u64; 3]> {
-                m.positions
-                    .iter()
-                    .map(|p| p.to_array().map(f64::to_bits))
-                    .collect()
-            };
-            assert_eq!(pts(&kept.limit), pts(&fresh.limit));
-            assert_eq!(pts(&kept.displaced), pts(&fresh.displaced));
-            let bits = |o: &[f64]| -> Vec<u64> { o.iter().map(|x| x.to_bits()).collect() };
+            assert_eq!(position_bits(&kept.limit), position_bits(&fresh.limit));
             assert_eq!(
-                bits(&kept.displaced_offsets),
-                bits(&fresh.displaced_offsets)
+                position_bits(&kept.displaced),
+                position_bits(&fresh.displaced)
             );
             assert_eq!(
-                bits(&kept.displacement.offsets),
-                bits(&fresh.displacement.offsets)
+                value_bits(&kept.displaced_offsets),
+                value_bits(&fresh.displaced_offsets)
+            );
+            assert_eq!(
+                value_bits(&kept.displacement.offsets),
+                value_bits(&fresh.displacement.offsets)
             );
         }
     }
@@ -2249,17 +2255,10 @@ pub(super) mod tests {
                 continue;
             };
             assert_eq!(s.metrics, fresh.metrics);
-            let pts = |m: &TriMesh| -> Vec<[u64; 3]> {
-                m.positions
-                    .iter()
-                    .map(|p| p.to_array().map(f64::to_bits))
-                    .collect()
-            };
-            assert_eq!(pts(&s.displaced), pts(&fresh.displaced));
-            let bits = |o: &[f64]| -> Vec<u64> { o.iter().map(|x| x.to_bits()).collect() };
+            assert_eq!(position_bits(&s.displaced), position_bits(&fresh.displaced));
             assert_eq!(
-                bits(&s.displacement.offsets),
-                bits(&fresh.displacement.offsets)
+                value_bits(&s.displacement.offsets),
+                value_bits(&fresh.displacement.offsets)
             );
         }
     }

@@ -272,21 +272,26 @@ mod tests {
         }
         let ev = make_evaluator(Backend::Osd, &control, &EvalOptions::default()).unwrap();
         let (slack, max_dist) = (0.01, 2.0);
-        // (floor facing away, wall leaning away): only the first resolves.
-        for (flip, against) in [(false, false), (true, false), (false, true)] {
-            let probe = floor_and_wall(true, 0.0);
-            let diag = probe.bbox_diagonal();
-            let caster = make_raycaster(RayBackend::Embree, &probe).unwrap();
-            let d0 = super::super::compute_displacement(
+        let displace = |caster: &dyn RayCaster, diag: f64| {
+            super::super::compute_displacement(
                 &control,
                 ev.as_ref(),
-                caster.as_ref(),
+                caster,
                 5,
                 max_dist,
                 diag,
                 slack,
             )
-            .unwrap();
+            .unwrap()
+        };
+        // (floor facing away, wall leaning away): only the first resolves.
+        for (flip, against) in [(false, false), (true, false), (false, true)] {
+            let probe = floor_and_wall(true, 0.0);
+            let diag = probe.bbox_diagonal();
+            let d0 = displace(
+                make_raycaster(RayBackend::Embree, &probe).unwrap().as_ref(),
+                diag,
+            );
             // The floor faces the way the limit normal does, or with
             // `flip` the other way; the wall (the samples' nearest sheet)
             // leans so that it faces the limit normal's way a little (the
@@ -295,16 +300,7 @@ mod tests {
             let lean = if up == against { -0.05 } else { 0.05 };
             let mesh = floor_and_wall(up != flip, lean);
             let caster = make_raycaster(RayBackend::Embree, &mesh).unwrap();
-            let before = super::super::compute_displacement(
-                &control,
-                ev.as_ref(),
-                caster.as_ref(),
-                5,
-                max_dist,
-                diag,
-                slack,
-            )
-            .unwrap();
+            let before = displace(caster.as_ref(), diag);
             let pos = before.limit_positions();
             let edge: Vec<usize> = (0..pos.len())
                 .filter(|&i| (pos[i].x - 4.0).abs() < 1e-9)
