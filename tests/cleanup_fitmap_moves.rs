@@ -5,44 +5,18 @@
 
 mod common;
 
-use subdfit::mesh::{ControlMesh, TriMesh, VertexId};
+use subdfit::mesh::{ControlMesh, TriMesh};
 use subdfit::quad::field::cleanup::{cleanup, CleanupOptions, FITMAP_MOVES_ENV};
 use subdfit::quad::field::{control_topology, irregular_vertices};
-use subdfit::quad::ops::{
-    can_rotate_edge, rotate_edge, rotation_energy_gain, Rotation, ValenceTargets,
-};
 use subdfit::raycast::bvh::BvhCaster;
-use subdfit::DVec3;
 
 /// `n × n` vertices over the unit square with a gentle bump (height 0.05,
 /// so the fitmap and the local fits read a curved surface), quads split
 /// along alternating diagonals.
 fn bumpy_square(n: usize) -> TriMesh {
-    let h =
-        |u: f64, v: f64| 0.05 * (std::f64::consts::PI * u).sin() * (std::f64::consts::PI * v).sin();
-    let mut positions = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let (u, v) = (i as f64 / (n - 1) as f64, j as f64 / (n - 1) as f64);
-            positions.push(DVec3::new(u, v, h(u, v)));
-        }
-    }
-    let id = |i: usize, j: usize| (j * n + i) as u32;
-    let mut triangles = Vec::new();
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
-            if (i + j) % 2 == 0 {
-                triangles.extend([[a, b, c], [a, c, d]]);
-            } else {
-                triangles.extend([[a, b, d], [b, c, d]]);
-            }
-        }
-    }
-    TriMesh {
-        positions,
-        triangles,
-    }
+    common::alternating_grid(n, |u, v| {
+        0.05 * (std::f64::consts::PI * u).sin() * (std::f64::consts::PI * v).sin()
+    })
 }
 
 /// A regular `n × n` quad grid on [`bumpy_square`]'s surface.
@@ -73,19 +47,7 @@ fn quad_grid(n: usize, m: &TriMesh) -> ControlMesh {
 /// cell or two apart).
 fn dislocated(m: &TriMesh) -> ControlMesh {
     let mut k = quad_grid(10, m);
-    let (a, b) = (VertexId(5 * 11 + 5), VertexId(5 * 11 + 6));
-    let h = k.outgoing(a).find(|&h| k.head(h) == b).unwrap();
-    rotate_edge(&mut k, h, Rotation::Ccw).unwrap();
-    let vt = ValenceTargets::new(&k);
-    let (h, dir) = k
-        .edges()
-        .map(|e| e.halfedge())
-        .flat_map(|h| [(h, Rotation::Ccw), (h, Rotation::Cw)])
-        .find(|&(h, d)| {
-            can_rotate_edge(&k, h, d).is_ok_and(|x| rotation_energy_gain(&k, &vt, &x, d) == 0)
-        })
-        .expect("an energy-neutral rotation beside a pair");
-    rotate_edge(&mut k, h, dir).unwrap();
+    common::dislocate(&mut k);
     k
 }
 

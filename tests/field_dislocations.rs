@@ -3,36 +3,15 @@
 //! lattice lines there, each end a valence 3–5 pair, and should not add
 //! more. Runs the field layout on sizes given per vertex, no cleanup.
 
+mod common;
+
 use subdfit::mesh::TriMesh;
 use subdfit::quad::field::{field_layout_sized, irregular_vertices, FieldOptions};
-use subdfit::DVec3;
 
 /// An `n × n` grid on the unit square, quads split along alternating
 /// diagonals.
 fn plane(n: usize) -> TriMesh {
-    let mut positions = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            let (u, v) = (i as f64 / (n - 1) as f64, j as f64 / (n - 1) as f64);
-            positions.push(DVec3::new(u, v, 0.0));
-        }
-    }
-    let id = |i: usize, j: usize| (j * n + i) as u32;
-    let mut triangles = Vec::new();
-    for j in 0..n - 1 {
-        for i in 0..n - 1 {
-            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
-            if (i + j) % 2 == 0 {
-                triangles.extend([[a, b, c], [a, c, d]]);
-            } else {
-                triangles.extend([[a, b, d], [b, c, d]]);
-            }
-        }
-    }
-    TriMesh {
-        positions,
-        triangles,
-    }
+    common::alternating_grid(n, |_, _| 0.0)
 }
 
 /// h0 for x < 0.35, 2 h0 for x > 0.65, a smoothstep between.

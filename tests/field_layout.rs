@@ -704,22 +704,7 @@ fn late_moves_keep_the_face_target_and_annihilate_dislocations() {
     let fm = common::flat_fitmap(m.positions.len());
     let caster = BvhCaster::new(&m).unwrap();
     let mut k = quad_grid(10);
-    let (a, b) = (
-        subdfit::mesh::VertexId(5 * 11 + 5),
-        subdfit::mesh::VertexId(5 * 11 + 6),
-    );
-    let h = k.outgoing(a).find(|&h| k.head(h) == b).unwrap();
-    rotate_edge(&mut k, h, Rotation::Ccw).unwrap();
-    let vt = ValenceTargets::new(&k);
-    let (h, dir) = k
-        .edges()
-        .map(|e| e.halfedge())
-        .flat_map(|h| [(h, Rotation::Ccw), (h, Rotation::Cw)])
-        .find(|&(h, d)| {
-            can_rotate_edge(&k, h, d).is_ok_and(|x| rotation_energy_gain(&k, &vt, &x, d) == 0)
-        })
-        .expect("an energy-neutral rotation beside a pair");
-    rotate_edge(&mut k, h, dir).unwrap();
+    common::dislocate(&mut k);
     assert_eq!(irregular_vertices(&k), 4);
     let single = CleanupOptions::default()
         .with_check_every_step(true)

@@ -292,3 +292,56 @@ pub fn one_thread_pool() -> rayon::ThreadPool {
         .build()
         .unwrap()
 }
+
+/// An `n × n` grid over the unit square at height `h(u, v)`, quads split
+/// along alternating diagonals (no preferred direction for a field).
+pub fn alternating_grid(n: usize, h: impl Fn(f64, f64) -> f64) -> TriMesh {
+    let mut positions = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let (u, v) = (i as f64 / (n - 1) as f64, j as f64 / (n - 1) as f64);
+            positions.push(DVec3::new(u, v, h(u, v)));
+        }
+    }
+    let id = |i: usize, j: usize| (j * n + i) as u32;
+    let mut triangles = Vec::new();
+    for j in 0..n - 1 {
+        for i in 0..n - 1 {
+            let (a, b, c, d) = (id(i, j), id(i + 1, j), id(i + 1, j + 1), id(i, j + 1));
+            if (i + j) % 2 == 0 {
+                triangles.extend([[a, b, c], [a, c, d]]);
+            } else {
+                triangles.extend([[a, b, d], [b, c, d]]);
+            }
+        }
+    }
+    TriMesh {
+        positions,
+        triangles,
+    }
+}
+
+/// Plants a spurious pair of singularity pairs in a regular 10 × 10 quad
+/// grid (vertex ids row by row, 11 a row): one rotation of an interior
+/// edge makes two valence 3–5 pairs (energy 4), then an energy-neutral
+/// rotation beside them pulls one pair apart, so no single operation
+/// removes them (a move of two or more rotations does).
+pub fn dislocate(k: &mut subdfit::mesh::ControlMesh) {
+    use subdfit::mesh::VertexId;
+    use subdfit::quad::ops::{
+        can_rotate_edge, rotate_edge, rotation_energy_gain, Rotation, ValenceTargets,
+    };
+    let (a, b) = (VertexId(5 * 11 + 5), VertexId(5 * 11 + 6));
+    let h = k.outgoing(a).find(|&h| k.head(h) == b).unwrap();
+    rotate_edge(k, h, Rotation::Ccw).unwrap();
+    let vt = ValenceTargets::new(k);
+    let (h, dir) = k
+        .edges()
+        .map(|e| e.halfedge())
+        .flat_map(|h| [(h, Rotation::Ccw), (h, Rotation::Cw)])
+        .find(|&(h, d)| {
+            can_rotate_edge(k, h, d).is_ok_and(|x| rotation_energy_gain(k, &vt, &x, d) == 0)
+        })
+        .expect("an energy-neutral rotation beside a pair");
+    rotate_edge(k, h, dir).unwrap();
+}
