@@ -36,7 +36,8 @@
 //! | `SUBDFIT_CLEANUP_GUARDED` | `quad::field::cleanup` | set and not `0`: the guarded cancellation |
 //! | `SUBDFIT_CLEANUP_MOVES`, `_RISE`, `_SHARE` | `quad::field` | the cleanup's moves' constants |
 //! | `SUBDFIT_CLEANUP_LATE`, `_EXACT` | `quad::field` | set: moves after the count, exact undo |
-//! | `SUBDFIT_CLEANUP_FITMAP_MOVES` | `quad::field::cleanup` | set and not `0`: one round of multi-rotation moves before the count phase under the fitmap tests, no region-fit guard (`CleanupOptions::with_fitmap_moves_env`; session 25) |
+//! | `SUBDFIT_CLEANUP_FITMAP_MOVES` | `quad::field::cleanup` | set and not `0`: one round of multi-rotation moves before the count phase under the fitmap tests, no region-fit guard (`CleanupOptions::with_fitmap_moves_env`; session 25); `shape`: the fitmap-load and shear proxies too; `local`: `shape` with the locality gate (a move whose support is more than `LOCAL_SHARE` of the control surface's area is refused; session 26); `local-fit`: such moves judged by the region fit instead |
+//! | `SUBDFIT_CLEANUP_LOCAL_SHARE` | `quad::field::cleanup` | the locality gate's share under `SUBDFIT_CLEANUP_FITMAP_MOVES=local` / `local-fit` (default 0.2, `CleanupOptions::move_local_share`) |
 //! | `SUBDFIT_FIELD_COUNT_TRIM_CAP` | `quad::field` | `c > 0`: the count passes compare a pass the cleanup trimmed by more than `c · N` faces as outside the window (session 25) |
 //! | `SUBDFIT_CLEANUP_GEO` | `quad::field` | set and `0`: no geometric ties |
 //! | `SUBDFIT_CLEANUP_TRACE` | `quad::field::cleanup` | each trial on stderr |

@@ -6,7 +6,9 @@
 mod common;
 
 use subdfit::mesh::{ControlMesh, TriMesh};
-use subdfit::quad::field::cleanup::{cleanup, CleanupOptions, FITMAP_MOVES_ENV};
+use subdfit::quad::field::cleanup::{
+    cleanup, CleanupOptions, FITMAP_MOVES_ENV, LOCAL_SHARE, LOCAL_SHARE_ENV,
+};
 use subdfit::quad::field::{control_topology, irregular_vertices};
 use subdfit::raycast::bvh::BvhCaster;
 
@@ -69,9 +71,21 @@ fn fitmap_moves_cancel_a_separated_pair_without_the_region_fit() {
     assert_eq!(base.clone().with_fitmap_moves_env(), base);
     std::env::set_var(FITMAP_MOVES_ENV, "0");
     assert_eq!(base.clone().with_fitmap_moves_env(), base);
+    // `local` and `local-fit`: `shape`'s tests under the locality gate.
+    std::env::set_var(FITMAP_MOVES_ENV, "local");
+    let local = base.clone().with_fitmap_moves_env();
+    assert!(local.move_shape_tests && !local.move_local_fit);
+    assert_eq!(local.move_local_share, LOCAL_SHARE);
+    std::env::set_var(LOCAL_SHARE_ENV, "0.3");
+    std::env::set_var(FITMAP_MOVES_ENV, "local-fit");
+    let fit = base.clone().with_fitmap_moves_env();
+    std::env::remove_var(LOCAL_SHARE_ENV);
+    assert!(fit.move_shape_tests && fit.move_local_fit);
+    assert_eq!((fit.move_local_share, fit.move_fit_rise), (0.3, 0.0));
     std::env::set_var(FITMAP_MOVES_ENV, "1");
     let on = base.clone().with_fitmap_moves_env();
     std::env::remove_var(FITMAP_MOVES_ENV);
+    assert_eq!((on.move_local_share, on.move_local_fit), (0.0, false));
     assert_eq!((on.move_rounds, on.move_fit_rise), (1, 0.0));
     assert!(!on.guarded && !on.moves_after_count);
 
@@ -106,4 +120,86 @@ fn fitmap_moves_cancel_a_separated_pair_without_the_region_fit() {
         let z = 0.05 * (std::f64::consts::PI * p.x).sin() * (std::f64::consts::PI * p.y).sin();
         assert!((p.z - z).abs() < 1e-3, "{p:?} vs {z}");
     }
+}
+
+/// The control mesh as data: its positions and its faces' vertex ids.
+fn bits(k: &ControlMesh) -> (Vec<[u64; 3]>, Vec<Vec<u32>>) {
+    let p = k
+        .positions()
+        .iter()
+        .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+        .collect();
+    let f = k
+        .live_faces()
+        .map(|f| k.face_vertices(f).map(|v| v.0).collect())
+        .collect();
+    (p, f)
+}
+
+/// The options of `SUBDFIT_CLEANUP_FITMAP_MOVES=shape` (`local_share` 0),
+/// `local` (`local_share` > 0) or `local-fit`, set directly (the
+/// environment is the other test's).
+fn moves(n: usize, local_share: f64, fit: bool) -> CleanupOptions {
+    let mut o = CleanupOptions::default()
+        .with_check_every_step(true)
+        .with_target_faces(Some(n));
+    o.move_rounds = 1;
+    o.move_fit_rise = 0.0;
+    o.move_shape_tests = true;
+    o.move_local_share = local_share;
+    o.move_local_fit = fit;
+    o
+}
+
+/// The locality gate (session 26): the same planted dislocation, the same
+/// move, on a coarse grid (10 × 10 quads: the move's faces with their
+/// one-ring are about a third of the surface) and on a fine one (20 × 20
+/// over the same surface: a twelfth). Fine, `local` takes the move as
+/// `shape` does: 0 irregular vertices, bit for bit `shape`'s mesh. Coarse,
+/// `shape` takes it but `local` refuses it before applying it: the 4
+/// planted irregular vertices stay, no move is counted, and the mesh is
+/// bit for bit the single-operation cleanup's (what lets spot at 81–85
+/// faces keep main's bytes); `local-fit` judges it by the region fit
+/// instead (time spent in the guard). Each keeps the face count, the pure
+/// quads and the disc's topology.
+#[test]
+fn the_locality_gate_refuses_a_move_that_reshapes_a_large_share() {
+    let m = bumpy_square(41);
+    let fm = common::flat_fitmap(m.positions.len());
+    let caster = BvhCaster::new(&m).unwrap();
+    let disc = |k: &ControlMesh, n: usize| {
+        assert!(k.is_all_quads());
+        assert_eq!(k.num_faces(), n);
+        let t = control_topology(k);
+        assert_eq!((t.components, t.boundary_loops, t.euler), (1, 1, 1));
+    };
+
+    // Fine: the move is local.
+    let mut k = quad_grid(20, &m);
+    common::dislocate_grid(&mut k, 20);
+    assert_eq!(irregular_vertices(&k), 4);
+    let (shape, _) = cleanup(&m, &fm, &caster, k.clone(), &moves(400, 0.0, false)).unwrap();
+    let (local, st) = cleanup(&m, &fm, &caster, k, &moves(400, LOCAL_SHARE, false)).unwrap();
+    disc(&local, 400);
+    assert_eq!(irregular_vertices(&local), 0, "{st:?}");
+    assert!(st.moves >= 1, "{st:?}");
+    assert_eq!(bits(&local), bits(&shape));
+
+    // Coarse: the same move reshapes a large share of the surface.
+    let k = dislocated(&m);
+    let base = CleanupOptions::default()
+        .with_check_every_step(true)
+        .with_target_faces(Some(100));
+    let (single, _) = cleanup(&m, &fm, &caster, k.clone(), &base).unwrap();
+    let (shape, st) = cleanup(&m, &fm, &caster, k.clone(), &moves(100, 0.0, false)).unwrap();
+    assert_eq!(irregular_vertices(&shape), 0, "shape takes it: {st:?}");
+    let (local, st) =
+        cleanup(&m, &fm, &caster, k.clone(), &moves(100, LOCAL_SHARE, false)).unwrap();
+    disc(&local, 100);
+    assert_eq!(irregular_vertices(&local), 4, "{st:?}");
+    assert_eq!((st.moves, st.moves_tried), (0, 0), "{st:?}");
+    assert_eq!(bits(&local), bits(&single));
+    let (fit, st) = cleanup(&m, &fm, &caster, k, &moves(100, LOCAL_SHARE, true)).unwrap();
+    disc(&fit, 100);
+    assert!(st.moves_tried >= 1 && st.move_seconds_guard > 0.0, "{st:?}");
 }

@@ -327,11 +327,18 @@ pub fn alternating_grid(n: usize, h: impl Fn(f64, f64) -> f64) -> TriMesh {
 /// rotation beside them pulls one pair apart, so no single operation
 /// removes them (a move of two or more rotations does).
 pub fn dislocate(k: &mut subdfit::mesh::ControlMesh) {
+    dislocate_grid(k, 10);
+}
+
+/// [`dislocate`] on a regular `n × n` quad grid (n + 1 vertices a row),
+/// at its centre.
+pub fn dislocate_grid(k: &mut subdfit::mesh::ControlMesh, n: u32) {
     use subdfit::mesh::VertexId;
     use subdfit::quad::ops::{
         can_rotate_edge, rotate_edge, rotation_energy_gain, Rotation, ValenceTargets,
     };
-    let (a, b) = (VertexId(5 * 11 + 5), VertexId(5 * 11 + 6));
+    let c = n / 2;
+    let (a, b) = (VertexId(c * (n + 1) + c), VertexId(c * (n + 1) + c + 1));
     let h = k.outgoing(a).find(|&h| k.head(h) == b).unwrap();
     rotate_edge(k, h, Rotation::Ccw).unwrap();
     let vt = ValenceTargets::new(k);
