@@ -276,6 +276,125 @@ fn source(
     )
 }
 
+/// The tube caps and the caps so far of the tube rounds.
+type TubeCaps = (Vec<f64>, Vec<f64>);
+
+/// The rounds' source, the tube rounds' caps and the incoming result's
+/// final figures ([`sources`]).
+type Sources = (Source, Option<TubeCaps>, Vec<draws::Final>);
+
+/// The rounds' source after the incoming result (`control`, measured `m0`
+/// on M′), with the tube caps under `SUBDFIT_FACES_PROJ_TUBE` and, with
+/// `judge`, the incoming result's final figures; `None` when those meet
+/// the unprojectable bar (no round).
+fn sources(
+    timer: &mut crate::report::StageTimer,
+    (relayout, fo, judge): (
+        &super::layout::FieldRelayout,
+        &crate::quad::field::FieldOptions,
+        Option<&super::thin::OnM<'_>>,
+    ),
+    (control, m0): (&ControlMesh, Measured),
+    max_rounds: usize,
+    f: f64,
+) -> Result<Option<Sources>> {
+    let final_of = |timer: &mut crate::report::StageTimer, on: &super::thin::OnM<'_>| {
+        timer.run("projectability round", || {
+            super::thin::final_figures(on, control)
+        })
+    };
+    let meets = |finals: &[draws::Final]| {
+        finals
+            .first()
+            .is_some_and(|f| f.unprojectable_percent <= draws::UNPROJECTABLE_BAR)
+    };
+    // The gated tube round (`SUBDFIT_FACES_PROJ_TUBE`): re-laid rounds
+    // (one unless `_TUBE_ROUNDS`), their sizes capped at the tubes under
+    // the spots; its gate before its caps are cast.
+    if let Some(k) = tube_k() {
+        let finals = match judge {
+            Some(on) => vec![final_of(timer, on)?],
+            None => Vec::new(),
+        };
+        if meets(&finals) {
+            return Ok(None);
+        }
+        let (src, t) = tube_source(timer, relayout, fo, (control, &m0), k, f)?;
+        return Ok(Some((src, Some(t), finals)));
+    }
+    let src = source(timer, relayout, fo, (control, m0), max_rounds, f)?;
+    let finals = match judge {
+        Some(on) => vec![final_of(timer, on)?],
+        None => Vec::new(),
+    };
+    // Judged on the final figures, the rounds run only when the incoming
+    // result misses issue 40's unprojectable bar there: they trade L, D
+    // and the irregular count for projectability (session 17: gargoyle
+    // τ 10 % at 402 came in at 0.043 % on M's final figures, over the bar
+    // by M′'s test, and laid, fitted and measured five rounds, none kept;
+    // docs/status.md, field-aligned layout).
+    if meets(&finals) {
+        return Ok(None);
+    }
+    Ok(Some((src, None, finals)))
+}
+
+/// The tube rounds' source (`SUBDFIT_FACES_PROJ_TUBE` at `k`): the
+/// tube caps of M′, and a plan of [`TUBE_ROUNDS`] rounds (or
+/// `_TUBE_ROUNDS`) on the incoming result's (`control`, measured `m0`)
+/// factor ([`tube_round_marks`]); returns the plan with the tube caps and
+/// the caps the first round lays.
+fn tube_source(
+    timer: &mut crate::report::StageTimer,
+    relayout: &super::layout::FieldRelayout,
+    fo: &crate::quad::field::FieldOptions,
+    (control, m0): (&ControlMesh, &Measured),
+    k: f64,
+    f: f64,
+) -> Result<(Source, TubeCaps)> {
+    let tubes = timer.run("projectability round", || {
+        relayout.prepared.tube_caps(&relayout.mesh, k)
+    })?;
+    let (factor, caps) = tube_round_marks(control, m0, &tubes, f);
+    if crate::switches::set("SUBDFIT_FACES_PROJ_LOG") {
+        let capped = caps.iter().filter(|c| c.is_finite()).count();
+        let lowered = factor.iter().filter(|x| **x < 1.0).count();
+        eprintln!(
+            "projectability tube round: {capped} vertices capped, {lowered} lowered by the factor"
+        );
+    }
+    let rounds = crate::switches::number(FACES_PROJ_TUBE_ROUNDS_ENV, TUBE_ROUNDS as f64) as usize;
+    let plan = RoundPlan::laid(timer, relayout, fo, None, factor, rounds)?;
+    Ok((Source::Plan(plan), (tubes, caps)))
+}
+
+/// `fo` with the tube rounds' `caps` ([`crate::quad::field::FieldOptions::local_caps`]).
+fn capped_options(
+    fo: &crate::quad::field::FieldOptions,
+    caps: &[f64],
+) -> crate::quad::field::FieldOptions {
+    fo.clone()
+        .with_local_caps(Some(std::sync::Arc::new(caps.to_vec())))
+}
+
+/// After a tube round (`control`, measured `m1`): the next round's factor
+/// and the patches with unprojectable vertices; the tubes its spots are
+/// on are capped too, the caps so far kept (`caps`, in place).
+fn tube_marks_after(
+    control: &ControlMesh,
+    m1: &Measured,
+    tubes: &[f64],
+    caps: &mut [f64],
+    f: f64,
+) -> (Vec<f64>, usize) {
+    let (factor, more) = tube_round_marks(control, m1, tubes, f);
+    for (c, x) in caps.iter_mut().zip(more) {
+        *c = c.min(x);
+    }
+    let patches = marks(control, m1, tubes.len(), f).1;
+    (factor, patches)
+}
+
 /// [`rounds_at_count`] before the evaluations of the rounds not kept are
 /// dropped.
 fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> Result<Fitted> {
@@ -316,75 +435,22 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
     let max_rounds =
         crate::switches::number("SUBDFIT_FACES_PROJ_ROUNDS", PROJ_ROUNDS as f64) as usize;
     let nv = mesh.positions.len();
-    // The gated tube round (`SUBDFIT_FACES_PROJ_TUBE`): re-laid rounds
-    // (one unless `_ROUNDS`), their sizes capped at the tubes under the
-    // spots; `tube` holds the tube caps and the caps so far.
-    let mut tube = None;
-    let final_of = |timer: &mut crate::report::StageTimer, on: &super::thin::OnM<'_>| {
-        timer.run("projectability round", || {
-            super::thin::final_figures(on, &first.control)
-        })
-    };
-    // The tube round's gate (below) before its caps are cast.
-    let mut finals = match (tube_k(), judge) {
-        (Some(_), Some(on)) => vec![final_of(timer, on)?],
-        _ => Vec::new(),
-    };
-    let meets = |finals: &[draws::Final]| {
-        finals
-            .first()
-            .is_some_and(|f| f.unprojectable_percent <= draws::UNPROJECTABLE_BAR)
-    };
-    if meets(&finals) {
+    let Some((mut source, mut tube, mut finals)) = sources(
+        timer,
+        (relayout, fo, judge),
+        (&first.control, m0),
+        max_rounds,
+        f,
+    )?
+    else {
         return Ok(first);
-    }
-    let mut source = match tube_k() {
-        Some(k) => {
-            let tubes = timer.run("projectability round", || {
-                relayout.prepared.tube_caps(mesh, k)
-            })?;
-            let (factor, caps) = tube_round_marks(&first.control, &m0, &tubes, f);
-            if log {
-                let capped = caps.iter().filter(|c| c.is_finite()).count();
-                let lowered = factor.iter().filter(|x| **x < 1.0).count();
-                eprintln!("projectability tube round: {capped} vertices capped, {lowered} lowered by the factor");
-            }
-            let rounds = crate::switches::number(FACES_PROJ_TUBE_ROUNDS_ENV, TUBE_ROUNDS as f64);
-            tube = Some((tubes, caps));
-            Source::Plan(RoundPlan::laid(
-                timer,
-                relayout,
-                fo,
-                None,
-                factor,
-                rounds as usize,
-            )?)
-        }
-        None => source(timer, relayout, fo, (&first.control, m0), max_rounds, f)?,
     };
-    if let (true, Some(on)) = (finals.is_empty(), judge) {
-        finals.push(final_of(timer, on)?);
-    }
-    // Judged on the final figures, the rounds run only when the incoming
-    // result misses issue 40's unprojectable bar there: they trade L, D
-    // and the irregular count for projectability (session 17: gargoyle
-    // τ 10 % at 402 came in at 0.043 % on M's final figures, over the bar
-    // by M′'s test, and laid, fitted and measured five rounds, none kept;
-    // docs/status.md, field-aligned layout).
-    if meets(&finals) {
-        return Ok(first);
-    }
     // Under `judge`, every round's fit with its index on `rounds`.
     let mut judged: Vec<(Fitted, usize)> = Vec::new();
     let mut best = (j0, first, None::<usize>);
     loop {
         let laid = match &tube {
-            Some((_, caps)) => {
-                let fo_capped = fo
-                    .clone()
-                    .with_local_caps(Some(std::sync::Arc::new(caps.clone())));
-                source.next(timer, relayout, &fo_capped)?
-            }
+            Some((_, caps)) => source.next(timer, relayout, &capped_options(fo, caps))?,
             None => source.next(timer, relayout, fo)?,
         };
         let Some((control, irregular, size_factor)) = laid else {
@@ -395,16 +461,7 @@ fn rounds_judged<F: FitFn>(cx: RoundCtx<'_, F>, first: Fitted, judged: bool) -> 
         let m1 = timer.run("projectability round", || patch_errors(mesh, &next.control))?;
         let j1 = Judged::of(&m1, &next, permille);
         let (m, patches) = match &mut tube {
-            // The next tube round caps the tubes this one's spots are on
-            // too (the caps so far kept), the rest by the factor.
-            Some((tubes, caps)) => {
-                let (factor, more) = tube_round_marks(&next.control, &m1, tubes, f);
-                for (c, x) in caps.iter_mut().zip(more) {
-                    *c = c.min(x);
-                }
-                let patches = marks(&next.control, &m1, nv, f).1;
-                (factor, patches)
-            }
+            Some((tubes, caps)) => tube_marks_after(&next.control, &m1, tubes, caps, f),
             None => marks(&next.control, &m1, nv, f),
         };
         let (m1_rms, m1_unprojectable, m1_thin) =
