@@ -31,6 +31,8 @@
 //! | `SUBDFIT_FACES_PROJ_LOCAL` | `convert::faces_local` | `1`: when the incoming result misses narrowly, the projectability rounds first move the last round's control vertices towards the unprojectable spots (a lens, same topology), then re-lay |
 //! | `SUBDFIT_FACES_PROJ_LOCAL_S`, `_RINGS`, `_ROUNDS`, `_GATE` | `convert::faces_local` | the lens's scale at its centre (`LENS`), the rings it may move (`RINGS`), the local rounds before the re-laid ones (`ROUNDS`) and the incoming M′ unprojectable % above which none is tried (`GATE_PERCENT`) |
 //! | `SUBDFIT_FACES_PROJ_LOCAL_CHAIN` | `convert::faces_local` | `start`: each local round moves the last round's start, not its fit put back on M′ |
+//! | `SUBDFIT_FACES_PROJ_TUBE` | `convert::faces_proj` (`tube_round_marks`), `quad::field` (`FieldOptions::local_caps`) | `k > 0`: when a first fit at `--faces` leaves > 0.1 % of M′ unprojectable, one re-laid round whose sizes are capped at `k` × the tube thickness on the M′ vertices under and around those patches (held at any count scale, graded at γ), the factor `_F` where no tube is found; kept by the rounds' rule (off by default, session 26) |
+//! | `SUBDFIT_FACES_PROJ_TUBE_ROUNDS` | `convert::faces_proj` | the tube rounds laid at most (`TUBE_ROUNDS`, 1) |
 //! | `SUBDFIT_SEARCH_FULL_MEASURE` | `convert::search` | `1`: the full measure on every step (same bytes) |
 //! | `SUBDFIT_PROXY_FITMAP_ON_M` | `convert::layout` | `1`: the proxy's Fitmap computed on M |
 //! | `SUBDFIT_CLEANUP_GUARDED` | `quad::field::cleanup` | set and not `0`: the guarded cancellation |

@@ -205,3 +205,112 @@ fn capped_lattice_reaches_the_fingertip() {
     assert!(top1 > TIP - 2.0 * A, "capped limit top {top1}, tip {TIP}");
     assert!(n1 > n0, "the cap adds the finger's patches: {n0} → {n1}");
 }
+
+/// The unit ball without the finger (the same profile's sphere part).
+fn plain_ball() -> TriMesh {
+    let corners: Vec<(f64, f64)> = (0..=60)
+        .map(|k| {
+            let p = PI * k as f64 / 60.0;
+            (p.sin(), -p.cos())
+        })
+        .collect();
+    revolution(&resampled(&corners, |_| 0.06), 40)
+}
+
+/// `m` as OBJ text.
+fn obj(m: &TriMesh) -> String {
+    let mut s = String::new();
+    for p in &m.positions {
+        s += &format!("v {:.9} {:.9} {:.9}\n", p.x, p.y, p.z);
+    }
+    for [a, b, c] in &m.triangles {
+        s += &format!("f {} {} {}\n", a + 1, b + 1, c + 1);
+    }
+    s
+}
+
+/// `convert` at `--faces n` with the field layout, `SUBDFIT_FACES_PROJ_TUBE`
+/// at `k` (unset: `None`; the other projectability rounds off): the patch
+/// count, the report's RMS L (‰) and unprojectable share of M's area (%).
+fn convert_tube(
+    mesh: &std::path::Path,
+    out: &std::path::Path,
+    n: usize,
+    k: Option<&str>,
+) -> (usize, f64, f64) {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"));
+    cmd.arg("convert")
+        .arg(mesh)
+        .arg("-o")
+        .arg(out)
+        .args([
+            "--mode",
+            "organic",
+            "--layout",
+            "field",
+            "--tolerance",
+            "0.01",
+        ])
+        .args(["--faces", &n.to_string(), "--max-error", "inf", "--quiet"])
+        .env("SUBDFIT_FACES_PROJ", "0")
+        .env_remove("SUBDFIT_FIELD_TUBE_CAP");
+    match k {
+        Some(k) => cmd.env("SUBDFIT_FACES_PROJ_TUBE", k),
+        None => cmd.env_remove("SUBDFIT_FACES_PROJ_TUBE"),
+    };
+    let status = cmd.status().unwrap();
+    assert!(status.success(), "tube {k:?}: {status}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    let control = subdfit::io::read_control_mesh(&out.join("control.obj")).unwrap();
+    let unprojectable = report["projectability"]["unprojectable_area_percent"]
+        .as_f64()
+        .unwrap();
+    let l = report["accuracy"]["limit"]["rms_permille"]
+        .as_f64()
+        .unwrap();
+    (control.num_faces(), l, unprojectable)
+}
+
+/// The gated tube round (`SUBDFIT_FACES_PROJ_TUBE`, session 26): at
+/// `--faces 40` (edges ≈ 0.56, 3.5 finger widths) the first fit leaves the
+/// finger under a patch whose limit misses its tip (measured 0.56 %
+/// unprojectable, RMS L 15.5‰: the tip's 0.6 of the ball's radius); one
+/// round capped at k · 2A on the tubes under the unprojectable patches
+/// reaches it (0.00 %, RMS L 1.7‰) at the same count. Session 15's
+/// rounds (`SUBDFIT_FACES_PROJ=1`, a factor on h) stay at 0.38 % and
+/// 15.4‰ after six. A ball without the finger leaves nothing
+/// unprojectable, so no round runs: the same bytes as without the switch.
+#[test]
+fn the_gated_tube_round_reaches_the_fingertip_and_leaves_a_plain_ball_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let finger = dir.path().join("finger.obj");
+    std::fs::write(&finger, obj(&ball_with_finger())).unwrap();
+    let n = 40;
+    let (f0, l0, u0) = convert_tube(&finger, &dir.path().join("off"), n, None);
+    let (f1, l1, u1) = convert_tube(&finger, &dir.path().join("on"), n, Some("1.0"));
+    eprintln!("finger: off {f0} / {l0:.3}‰ / {u0:.3} %, on {f1} / {l1:.3}‰ / {u1:.3} %");
+    // The fixture must miss issue 40's 0.1 % without the round.
+    assert!(u0 > 0.1, "without the round: {u0} %");
+    assert!(u1 <= 0.1, "with the round: {u1} % (without: {u0} %)");
+    // The tip (0.68 above the ball, 17 % of the diagonal's span) was the
+    // RMS: reached, RMS L falls by far more than a redraw's noise.
+    assert!(l1 < 0.5 * l0, "RMS L {l0}‰ → {l1}‰");
+    assert!(
+        (f1 as f64 - n as f64).abs() <= 0.02 * n as f64,
+        "{f1} patches for --faces {n}"
+    );
+    let ball = dir.path().join("ball.obj");
+    std::fs::write(&ball, obj(&plain_ball())).unwrap();
+    let (off, on) = (dir.path().join("ball-off"), dir.path().join("ball-on"));
+    let (_, _, u) = convert_tube(&ball, &off, n, None);
+    convert_tube(&ball, &on, n, Some("1.0"));
+    assert!(u <= 0.1, "the plain ball: {u} %");
+    for file in ["control.obj", "displacement.exr", "limit.ply"] {
+        let (a, b) = (
+            std::fs::read(off.join(file)).unwrap(),
+            std::fs::read(on.join(file)).unwrap(),
+        );
+        assert!(a == b, "{file} differs with the switch on a plain ball");
+    }
+}

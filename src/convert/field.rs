@@ -633,7 +633,7 @@ impl Ends<'_> {
         }
         // At a fixed count, patches moved to where the limit leaves M′
         // unprojectable ([`super::faces_proj`], off by default).
-        if opts.target_faces.is_some() && super::faces_proj::enabled() {
+        if opts.target_faces.is_some() && super::faces_proj::any_enabled() {
             let progress = &mut *run.progress;
             let fit = |timer: &mut StageTimer, c: ControlMesh| {
                 timer.run("fit", || {

@@ -136,6 +136,14 @@ pub struct FieldOptions {
     /// `None`: off, the default).
     #[serde(skip)]
     pub tube_cap: Option<f64>,
+    /// Per vertex of M (or M′), a cap on h that every sizing laid keeps
+    /// whatever scale the count passes put on it, graded at
+    /// [`FieldOptions::gradation`] (`None`: none, the default). Set only
+    /// by the gated tube round (`convert::faces_proj`,
+    /// `SUBDFIT_FACES_PROJ_TUBE`): [`tube`]'s cap where a first fit left M
+    /// unprojectable, not on every tube.
+    #[serde(skip)]
+    pub local_caps: Option<std::sync::Arc<Vec<f64>>>,
 }
 
 impl Default for FieldOptions {
@@ -182,6 +190,7 @@ impl Default for FieldOptions {
             // unless set to a positive factor.
             tube_cap: crate::switches::parsed::<f64>("SUBDFIT_FIELD_TUBE_CAP")
                 .filter(|x| x.is_finite() && *x > 0.0),
+            local_caps: None,
         }
     }
 }
@@ -209,6 +218,10 @@ impl FieldOptions {
     }
     pub fn with_tube_cap(mut self, k: Option<f64>) -> Self {
         self.tube_cap = k;
+        self
+    }
+    pub fn with_local_caps(mut self, caps: Option<std::sync::Arc<Vec<f64>>>) -> Self {
+        self.local_caps = caps;
         self
     }
 
@@ -350,12 +363,7 @@ impl Prepared {
             },
         );
         let ((parts, t), caster) = (parts?, caster?);
-        let mut dirs = vec![DVec3::X; surf.len()];
-        for p in &parts {
-            for (&v, d) in p.vertices.iter().zip(&p.dirs) {
-                dirs[v as usize] = *d;
-            }
-        }
+        let dirs = whole_dirs(&parts, surf.len());
         stats.parts = parts.len();
         count_singularities(&surf, &dirs, &mut stats);
         stats.seconds_cross = t.elapsed().as_secs_f64();
@@ -376,6 +384,21 @@ impl Prepared {
             tube_caps,
             stats,
         })
+    }
+
+    /// Per vertex of the prepared mesh `mesh`, [`tube::tube_caps`] at
+    /// factor `k` (`k · t` where M is a tube of thickness t, infinite
+    /// elsewhere), from the cross fields and caster already built.
+    pub fn tube_caps(&self, mesh: &TriMesh, k: f64) -> Result<Vec<f64>> {
+        self.check(mesh)?;
+        let dirs = whole_dirs(&self.parts, self.surf.len());
+        match &self.caster {
+            Some(c) => tube::tube_caps(&self.surf, &dirs, c, k),
+            None => {
+                let c = crate::raycast::bvh::BvhCaster::new(mesh)?;
+                tube::tube_caps(&self.surf, &dirs, &c, k)
+            }
+        }
     }
 
     /// An error unless `mesh` is the mesh this was prepared on (by vertex
@@ -1155,6 +1178,17 @@ pub fn field_layout_refined_following(
     clean(mesh, fitmap, caster, out, None, None)
 }
 
+/// The parts' cross-field directions on the whole mesh's `n` vertices.
+fn whole_dirs(parts: &[parts::Part], n: usize) -> Vec<DVec3> {
+    let mut dirs = vec![DVec3::X; n];
+    for p in parts {
+        for (&v, d) in p.vertices.iter().zip(&p.dirs) {
+            dirs[v as usize] = *d;
+        }
+    }
+    dirs
+}
+
 fn count_singularities(surf: &Surface, dirs: &[DVec3], stats: &mut FieldStats) {
     let sing = cross::singularities(surf, dirs);
     stats.singularities_plus = sing.iter().filter(|s| s.1 == 1).count();
@@ -1183,6 +1217,24 @@ fn layout_sized(
             let skip = crate::switches::number("SUBDFIT_FIELD_TUBE_SKIP", tube::TUBE_SKIP);
             capped = tube::capped(&prep.surf, h, caps, *k, skip, opts.gradation);
             &capped[..]
+        }
+        None => h,
+    };
+    // The gated tube round's caps, held at any scale as the tube cap is.
+    let local;
+    let h = match &opts.local_caps {
+        Some(caps) if caps.len() == h.len() => {
+            let mut out: Vec<f64> = h.iter().zip(caps.iter()).map(|(a, c)| a.min(*c)).collect();
+            sizing::grade(&prep.surf, &mut out, opts.gradation);
+            local = out;
+            &local[..]
+        }
+        Some(caps) => {
+            return Err(Error::internal(format!(
+                "field layout: {} local caps for {} sizes",
+                caps.len(),
+                h.len()
+            )))
         }
         None => h,
     };
