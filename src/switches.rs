@@ -38,7 +38,7 @@
 //! | `SUBDFIT_CLEANUP_LATE`, `_EXACT` | `quad::field` | set: moves after the count, exact undo |
 //! | `SUBDFIT_CLEANUP_FITMAP_MOVES` | `quad::field::cleanup` | set and not `0`: one round of multi-rotation moves before the count phase under the fitmap tests, no region-fit guard (`CleanupOptions::with_fitmap_moves_env`; session 25) |
 //! | `SUBDFIT_FIELD_COUNT_TRIM_CAP` | `quad::field` | `c > 0`: the count passes compare a pass the cleanup trimmed by more than `c · N` faces as outside the window (session 25) |
-//! | `SUBDFIT_FIELD_COUNT_STEER` | `quad::field::count` | `1`: the count passes steered: each pass's sizes from the pooled h⁻² predictions of every sound pass (not the kept pass's factor on the last pass's sizes), a degenerate lattice (the field's own offsets with > 10 % raw non-quads) ranked behind every other pass and its scale not laid again (session 26) |
+//! | `SUBDFIT_FIELD_COUNT_STEER` | `quad::field::count` | `1`: the count passes steered: each pass's sizes from the pooled h⁻² predictions of every sound pass (not the kept pass's factor on the last pass's sizes), a degenerate lattice (the field's own offsets with > 10 % raw non-quads) ranked behind every other pass and its scale not laid again; `kept`: the same with the kept pass's own prediction alone (session 26) |
 //! | `SUBDFIT_FIELD_COUNT_SWEEP` | `quad::field::count` | `lo,hi,k`: a diagnostic; before the count passes, the lattice alone laid at k + 1 factors lo..hi on the sizes, faces and defects per factor on stderr (session 26) |
 //! | `SUBDFIT_CLEANUP_GEO` | `quad::field` | set and `0`: no geometric ties |
 //! | `SUBDFIT_CLEANUP_TRACE` | `quad::field::cleanup` | each trial on stderr |

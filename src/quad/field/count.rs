@@ -34,9 +34,29 @@ pub const DEGENERATE_SHARE: f64 = 0.1;
 /// Two scales closer than this (relative) are the same draw.
 const SAME_SCALE: f64 = 0.003;
 
-/// Whether `SUBDFIT_FIELD_COUNT_STEER=1`.
+/// Whether `SUBDFIT_FIELD_COUNT_STEER` is `1` (every sound pass pooled)
+/// or `kept` (the kept pass's prediction alone: the default's estimate
+/// from the kept pass's own sizes, with the degenerate check).
 pub fn steer() -> bool {
-    crate::switches::on("SUBDFIT_FIELD_COUNT_STEER")
+    matches!(
+        crate::switches::text("SUBDFIT_FIELD_COUNT_STEER").as_deref(),
+        Some("1" | "kept")
+    )
+}
+
+fn kept_only() -> bool {
+    crate::switches::text("SUBDFIT_FIELD_COUNT_STEER").as_deref() == Some("kept")
+}
+
+/// `t` moved off every scale already laid (the same sizes, the same draw).
+fn unrepeated(tried: &[Tried], mut t: f64) -> f64 {
+    for _ in 0..8 {
+        if !tried.iter().any(|x| (x.laid / t - 1.0).abs() < SAME_SCALE) {
+            break;
+        }
+        t *= 0.99;
+    }
+    t
 }
 
 /// Whether a laid pass is a degenerate draw: the position field's own
@@ -95,19 +115,13 @@ pub fn next_scale(tried: &[Tried], aim: f64) -> f64 {
         .filter(|x| !x.degenerate && x.raw > 0.0 && x.scale > 0.0)
         .map(|k| (k.scale * (k.raw / aim).sqrt()).ln())
         .collect();
-    let mut t = if logs.is_empty() {
+    let t = if logs.is_empty() {
         // Only degenerate draws so far: a slightly finer new draw.
         tried.last().map_or(1.0, |x| x.laid) * 0.98
     } else {
         (logs.iter().sum::<f64>() / logs.len() as f64).exp()
     };
-    for _ in 0..8 {
-        if !tried.iter().any(|x| (x.laid / t - 1.0).abs() < SAME_SCALE) {
-            break;
-        }
-        t *= 0.99;
-    }
-    t
+    unrepeated(tried, t)
 }
 
 /// How passes rank, lower is better: a degenerate pass behind all
@@ -131,13 +145,19 @@ pub(super) fn passes<'a>(
     let cap = super::count_trim_cap();
     let debug = crate::switches::set("FIELD_DEBUG");
     let mut tried = vec![Tried::of(&first.layout.stats, 1.0)];
+    let mut kept = tried[0];
+    let kept_only = kept_only();
     let mut out = first;
     for _ in 0..super::COUNT_PASSES {
         let (outside, trimmed) = count_score(&out.layout, n);
         if !outside && trimmed as f64 <= super::COUNT_TRIMS * n && !degenerate(&out.layout.stats) {
             break;
         }
-        let t = next_scale(&tried, aim);
+        let t = if kept_only {
+            unrepeated(&tried, next_scale(&[kept], aim))
+        } else {
+            next_scale(&tried, aim)
+        };
         let hs: Vec<f64> = h.iter().map(|x| x * t).collect();
         let Ok(next) = lay(&hs) else {
             break;
@@ -147,6 +167,7 @@ pub(super) fn passes<'a>(
             super::debug_pass(&next, &format!("steered, scale {t:.4}"));
         }
         if rank(&next.layout, n, cap) < rank(&out.layout, n, cap) {
+            kept = tried[tried.len() - 1];
             out = next;
         }
     }
