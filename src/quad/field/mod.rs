@@ -35,6 +35,7 @@
 //! vertex order.
 
 pub mod cleanup;
+pub mod count;
 pub mod cross;
 pub mod draws;
 pub mod extract;
@@ -832,7 +833,14 @@ fn lay_counted_then<R>(
             None => Ok(Pending::done(out)),
         }
     };
+    if opts.target_faces.is_some() {
+        count::sweep(prep, &h, opts, &stats);
+    }
     let mut out = lay(&h)?;
+    // Issue 40's steered passes (off by default, [`count`]).
+    if let (Some(n), true) = (opts.target_faces, count::steer()) {
+        return then(count::passes(out, n, &h, caster.is_some(), lay)?);
+    }
     // ∫ dA / h² predicts the lattice's cells only roughly (measured: the
     // position field settles on 0.55–0.95 of them on coarse lattices, and
     // a relaxed F_M can cost refinements, [`RETRY_FACTOR`]), so a face
