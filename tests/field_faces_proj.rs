@@ -37,31 +37,17 @@ fn finned_sphere(sub: u32, a: f64, sx: f64, sy: f64) -> String {
 /// `convert` at `--faces n` with the field layout, the rounds on or off:
 /// the patch count and the report's unprojectable share of M's area, %.
 fn convert(mesh: &Path, out: &Path, n: usize, rounds: bool) -> (usize, f64) {
-    let status = std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"))
-        .args(["convert"])
-        .arg(mesh)
-        .arg("-o")
-        .arg(out)
-        .args([
-            "--mode",
-            "organic",
-            "--layout",
-            "field",
-            "--tolerance",
-            "0.01",
-        ])
-        .args(["--faces", &n.to_string(), "--max-error", "inf", "--quiet"])
+    let status = common::field_convert_at(mesh, out, n)
+        .args(["--max-error", "inf"])
         .env("SUBDFIT_FACES_PROJ", if rounds { "1" } else { "0" })
         .status()
         .unwrap();
     assert!(status.success(), "rounds {rounds}: {status}");
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
-    let control = subdfit::io::read_control_mesh(&out.join("control.obj")).unwrap();
+    let (faces, report) = common::faces_and_report(out);
     let unprojectable = report["projectability"]["unprojectable_area_percent"]
         .as_f64()
         .unwrap();
-    (control.num_faces(), unprojectable)
+    (faces, unprojectable)
 }
 
 /// Measured (session 15): 59 patches, 0.183 % unprojectable without the

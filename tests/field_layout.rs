@@ -768,18 +768,7 @@ fn field_faces_target_lands_within_two_percent() {
     for n in [80usize, 300] {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("spot");
-        let status = std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"))
-            .args(["convert", spot, "-o"])
-            .arg(&out)
-            .args([
-                "--mode",
-                "organic",
-                "--layout",
-                "field",
-                "--tolerance",
-                "0.01",
-            ])
-            .args(["--faces", &n.to_string(), "--quiet"])
+        let status = common::field_convert_at(std::path::Path::new(spot), &out, n)
             .status()
             .unwrap();
         assert!(status.success(), "--faces {n}: {status}");

@@ -4,6 +4,8 @@
 //! `--faces 272`, docs/status.md "Field-aligned layout"), and a thin disc,
 //! a sheet the cap must leave alone.
 
+mod common;
+
 use std::f64::consts::PI;
 
 use subdfit::mesh::TriMesh;
@@ -238,20 +240,8 @@ fn convert_tube(
     n: usize,
     k: Option<&str>,
 ) -> (usize, f64, f64) {
-    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"));
-    cmd.arg("convert")
-        .arg(mesh)
-        .arg("-o")
-        .arg(out)
-        .args([
-            "--mode",
-            "organic",
-            "--layout",
-            "field",
-            "--tolerance",
-            "0.01",
-        ])
-        .args(["--faces", &n.to_string(), "--max-error", "inf", "--quiet"])
+    let mut cmd = common::field_convert_at(mesh, out, n);
+    cmd.args(["--max-error", "inf"])
         .env("SUBDFIT_FACES_PROJ", "0")
         .env_remove("SUBDFIT_FIELD_TUBE_CAP");
     match k {
@@ -260,16 +250,14 @@ fn convert_tube(
     };
     let status = cmd.status().unwrap();
     assert!(status.success(), "tube {k:?}: {status}");
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
-    let control = subdfit::io::read_control_mesh(&out.join("control.obj")).unwrap();
+    let (faces, report) = common::faces_and_report(out);
     let unprojectable = report["projectability"]["unprojectable_area_percent"]
         .as_f64()
         .unwrap();
     let l = report["accuracy"]["limit"]["rms_permille"]
         .as_f64()
         .unwrap();
-    (control.num_faces(), l, unprojectable)
+    (faces, l, unprojectable)
 }
 
 /// The gated tube round (`SUBDFIT_FACES_PROJ_TUBE`, session 26): at

@@ -352,3 +352,33 @@ pub fn dislocate_grid(k: &mut subdfit::mesh::ControlMesh, n: u32) {
         .expect("an energy-neutral rotation beside a pair");
     rotate_edge(k, h, dir).unwrap();
 }
+
+/// `subdfit convert MESH -o OUT --mode organic --layout field --tolerance
+/// 0.01 --faces n --quiet`, ready for the caller's own arguments and
+/// switches: the field layout at a face target, as issue 40's bars ask it.
+pub fn field_convert_at(mesh: &Path, out: &Path, n: usize) -> std::process::Command {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_subdfit"));
+    cmd.arg("convert")
+        .arg(mesh)
+        .arg("-o")
+        .arg(out)
+        .args([
+            "--mode",
+            "organic",
+            "--layout",
+            "field",
+            "--tolerance",
+            "0.01",
+        ])
+        .args(["--faces", &n.to_string(), "--quiet"]);
+    cmd
+}
+
+/// A finished `convert` folder's control-mesh face count and report.json.
+pub fn faces_and_report(out: &Path) -> (usize, serde_json::Value) {
+    let report = std::fs::read_to_string(out.join("report.json")).expect("report.json reads");
+    let report: serde_json::Value = serde_json::from_str(&report).expect("report.json parses");
+    let control =
+        subdfit::io::read_control_mesh(&out.join("control.obj")).expect("control.obj reads");
+    (control.num_faces(), report)
+}
