@@ -369,13 +369,7 @@ impl Prepared {
         count_singularities(&surf, &dirs, &mut stats);
         stats.seconds_cross = t.elapsed().as_secs_f64();
         let tube_caps = match opts.tube_cap {
-            Some(k) => Some(match &caster {
-                Some(c) => (tube::tube_caps(&surf, &dirs, c, k)?, k),
-                None => {
-                    let c = crate::raycast::bvh::BvhCaster::new(mesh)?;
-                    (tube::tube_caps(&surf, &dirs, &c, k)?, k)
-                }
-            }),
+            Some(k) => Some((tube_caps_with(&surf, &dirs, caster.as_ref(), mesh, k)?, k)),
             None => None,
         };
         Ok(Prepared {
@@ -393,13 +387,7 @@ impl Prepared {
     pub fn tube_caps(&self, mesh: &TriMesh, k: f64) -> Result<Vec<f64>> {
         self.check(mesh)?;
         let dirs = whole_dirs(&self.parts, self.surf.len());
-        match &self.caster {
-            Some(c) => tube::tube_caps(&self.surf, &dirs, c, k),
-            None => {
-                let c = crate::raycast::bvh::BvhCaster::new(mesh)?;
-                tube::tube_caps(&self.surf, &dirs, &c, k)
-            }
-        }
+        tube_caps_with(&self.surf, &dirs, self.caster.as_ref(), mesh, k)
     }
 
     /// An error unless `mesh` is the mesh this was prepared on (by vertex
@@ -1187,6 +1175,21 @@ pub fn field_layout_refined_following(
 }
 
 /// The parts' cross-field directions on the whole mesh's `n` vertices.
+/// [`tube::tube_caps`] with the prepared caster, or one built on `mesh`
+/// when the layout prepared none (no cleanup).
+fn tube_caps_with(
+    surf: &Surface,
+    dirs: &[DVec3],
+    caster: Option<&crate::raycast::bvh::BvhCaster>,
+    mesh: &TriMesh,
+    k: f64,
+) -> Result<Vec<f64>> {
+    match caster {
+        Some(c) => tube::tube_caps(surf, dirs, c, k),
+        None => tube::tube_caps(surf, dirs, &crate::raycast::bvh::BvhCaster::new(mesh)?, k),
+    }
+}
+
 fn whole_dirs(parts: &[parts::Part], n: usize) -> Vec<DVec3> {
     let mut dirs = vec![DVec3::X; n];
     for p in parts {
